@@ -1,0 +1,93 @@
+"""Reading images, calibrations and ground truth from disk (the core itself does no I/O)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.interpolate import BSpline
+
+from core.calibration import CalibrationError, StereoCalibration, parse_calibration
+from core.segmentation import StereoPair, split_side_by_side
+
+GT_SAMPLES = 2000  # dense samples of a ground-truth spline for the curve metrics
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """RGB uint8 image; a clear error when the file is missing or not an image."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: image file not found")
+    data = np.fromfile(str(path), dtype=np.uint8)
+    img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+    if img is None:
+        raise ValueError(f"{path}: not a readable image")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def read_mask(path: str | Path) -> np.ndarray:
+    """(H, W) bool mask: pixels brighter than 127 in a greyscale image."""
+    img = read_image(path)
+    return img[:, :, 0] > 127
+
+
+def load_pair(
+    left: str | Path | None = None,
+    right: str | Path | None = None,
+    stereo: str | Path | None = None,
+    mask: str | Path | None = None,
+    mask_left: str | Path | None = None,
+    mask_right: str | Path | None = None,
+) -> StereoPair:
+    """A rectified pair from two images or one side-by-side composite, with optional masks."""
+    if stereo is not None:
+        if left is not None or right is not None:
+            raise ValueError("give either --stereo or --left/--right, not both")
+        L, R = split_side_by_side(read_image(stereo))
+    elif left is not None and right is not None:
+        L, R = read_image(left), read_image(right)
+    else:
+        raise ValueError("need --left and --right, or --stereo")
+    mL = mR = None
+    if mask is not None:
+        mL, mR = split_side_by_side(read_mask(mask).astype(np.uint8))
+        mL, mR = mL.astype(bool), mR.astype(bool)
+    elif mask_left is not None or mask_right is not None:
+        if mask_left is None or mask_right is None:
+            raise ValueError("give both masks or neither")
+        mL, mR = read_mask(mask_left), read_mask(mask_right)
+    return StereoPair(L, R, mL, mR)
+
+
+def load_calibration(path: str | Path, unit: str | None = None) -> StereoCalibration:
+    """Read an OpenCV FileStorage calibration; errors name the file and the key."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise CalibrationError(f"{path}: cannot read calibration file ({exc.strerror or exc})") from None
+    try:
+        return parse_calibration(text, source=str(path), unit=unit)
+    except cv2.error as exc:
+        raise CalibrationError(f"{path}: malformed calibration file ({exc.err})") from None
+
+
+def ground_truth_curve(ctrl: np.ndarray, n: int = GT_SAMPLES) -> np.ndarray:
+    """Dense points of the dataset's ground truth: clamped cubic B-spline, knots
+    [0, 0, 0, linspace(0, 1, n - 2), 1, 1, 1] (the paper's dataset convention)."""
+    ctrl = np.asarray(ctrl, dtype=np.float64)
+    if ctrl.ndim != 2 or ctrl.shape[1] != 3 or len(ctrl) < 4:
+        raise ValueError(f"ground truth must be (n >= 4, 3) control points, got {ctrl.shape}")
+    m = len(ctrl)
+    t = np.concatenate([[0.0, 0.0, 0.0], np.linspace(0.0, 1.0, m - 2), [1.0, 1.0, 1.0]])
+    return BSpline(t, ctrl, 3)(np.linspace(0.0, 1.0, n))
+
+
+def load_ground_truth(path: str | Path) -> np.ndarray:
+    path = Path(path)
+    try:
+        ctrl = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: unreadable ground truth ({exc})") from None
+    return ground_truth_curve(ctrl)

@@ -1,0 +1,162 @@
+"""Parameter presets: TOML files with one table per stage (``[stereo]``, ``[spline]`` ...).
+
+Unknown keys, wrong types and out-of-range values are rejected with the key's name. Writing
+never replaces an existing preset unless asked to, and goes through a temporary file so that a
+crash cannot leave half a preset behind.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+import tomllib
+import typing
+from dataclasses import fields, replace
+from pathlib import Path
+from typing import Any
+
+from core.pipeline import STAGES, ReconParams
+
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+
+# Valid ranges (inclusive) of the numeric parameters; the stages check them again on use.
+RANGES: dict[str, tuple[float, float]] = {
+    "segment.seg_delta": (0, 255), "segment.background": (0, 255), "segment.min_component_px": (0, 10_000),
+    "segment.lift_dilate_px": (0, 10),
+    "stereo.alpha": (4, 512), "stereo.window": (1, 51),
+    "reliability.eps1": (0, 1000), "reliability.eps2": (1e-9, 1000), "reliability.eps3": (-1000, 1000),
+    "reliability.threshold": (0, 0.999999),
+    "clustering.radius": (1, 10), "clustering.min_size": (1, 10_000), "clustering.max_size": (1, 10_000),
+    "ordering.solidify_radius": (0, 10), "ordering.extension_min_px": (0, 100_000), "ordering.tip_px": (0, 1000),
+    "ordering.bridge_px": (0, 10_000),
+    "bounds.extra_px": (1, 10_000), "bounds.r_k_frac": (0, 1), "bounds.r_k_min": (1, 1000),
+    "bounds.bound_scale": (1e-6, 100), "bounds.widen_px": (0, 100),
+    "spline.n_ctrl": (3, 200), "spline.degree": (2, 5), "spline.max_iter": (1, 100_000),
+    "spline.quad_per_span": (1, 20), "spline.bound_tol": (0, 10), "spline.data_weight": (0, 1e9),
+    "camera.n_points": (200, 100_000),
+}  # fmt: skip
+
+
+def validate(data: dict[str, Any]) -> ReconParams:
+    """``{stage: {name: value}}`` -> :class:`ReconParams`; errors name the offending key."""
+    if not isinstance(data, dict):
+        raise ValueError("a preset must be a table of stage tables")
+    params = ReconParams()
+    hints_cache: dict[type, dict[str, Any]] = {}
+    for stage, values in data.items():
+        if stage not in STAGES:
+            raise ValueError(f"unknown parameter group {stage!r} (known: {', '.join(STAGES)})")
+        if not isinstance(values, dict):
+            raise ValueError(f"{stage}: must be a table of parameters")
+        current = getattr(params, stage)
+        cls = type(current)
+        hints = hints_cache.setdefault(cls, typing.get_type_hints(cls))
+        known = {f.name for f in fields(current)}
+        clean: dict[str, Any] = {}
+        for name, value in values.items():
+            key = f"{stage}.{name}"
+            if name not in known:
+                raise ValueError(f"unknown parameter {key}")
+            clean[name] = _coerce(key, hints[name], value)
+        params = replace(params, **{stage: replace(current, **clean)})
+    c = params.clustering
+    if c.min_size > c.max_size:
+        raise ValueError("clustering.min_size must not exceed clustering.max_size")
+    if params.spline.n_ctrl < params.spline.degree + 1:
+        raise ValueError("spline.n_ctrl must be at least spline.degree + 1")
+    if params.stereo.window % 2 == 0:
+        raise ValueError("stereo.window must be odd")
+    return params
+
+
+def _coerce(key: str, hint: Any, value: Any) -> Any:
+    args = typing.get_args(hint)
+    if typing.get_origin(hint) is typing.Literal:
+        if value not in args:
+            raise ValueError(f"{key} must be one of {', '.join(map(repr, args))}, got {value!r}")
+        return value
+    optional = type(None) in args
+    base = next((a for a in args if a is not type(None)), hint) if args else hint
+    if value is None or (optional and value == "auto"):
+        if optional:
+            return None
+        raise ValueError(f"{key} must not be empty")
+    if base is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"{key} must be true or false, got {value!r}")
+        return value
+    if base in (int, float):
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ValueError(f"{key} must be a number, got {value!r}")
+        if base is int and float(value) != int(value):
+            raise ValueError(f"{key} must be a whole number, got {value!r}")
+        value = base(value)
+        lo, hi = RANGES.get(key, (float("-inf"), float("inf")))
+        if not lo <= value <= hi:
+            raise ValueError(f"{key} must be in [{lo:g}, {hi:g}], got {value!r}")
+        return value
+    return value
+
+
+def load_preset(path: str | Path) -> ReconParams:
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read preset ({exc.strerror or exc})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML ({exc})") from None
+    try:
+        return validate(data)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
+def resolve_preset(name_or_path: str | None, configs_dir: Path | None = None) -> ReconParams:
+    """A preset by file path, or by name in ``configs/``; None gives the defaults."""
+    if name_or_path is None:
+        return ReconParams()
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        return load_preset(p)
+    folder = configs_dir or default_configs_dir()
+    candidate = folder / f"{name_or_path}.toml"
+    if not candidate.exists():
+        raise ValueError(f"preset {name_or_path!r} not found in {folder}")
+    return load_preset(candidate)
+
+
+def default_configs_dir() -> Path:
+    return Path(__file__).resolve().parent.parent / "configs"
+
+
+def to_toml(params: ReconParams, header: str = "") -> str:
+    lines = [f"# {line}" for line in header.splitlines()] if header else []
+    for stage, values in params.to_dict().items():
+        lines.append(f"\n[{stage}]")
+        for name, value in values.items():
+            if value is None:
+                lines.append(f'{name} = "auto"')
+            elif isinstance(value, bool):
+                lines.append(f"{name} = {'true' if value else 'false'}")
+            elif isinstance(value, str):
+                lines.append(f'{name} = "{value}"')
+            else:
+                lines.append(f"{name} = {value!r}")
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def save_preset(params: ReconParams, name: str, folder: Path, overwrite: bool = False, header: str = "") -> Path:
+    """Write ``folder/name.toml`` atomically; refuses an existing name unless ``overwrite``."""
+    if not NAME_RE.match(name):
+        raise ValueError(f"invalid preset name {name!r}: letters, digits, '.', '_' or '-', at most 64")
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}.toml"
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"preset {name!r} exists: confirm to overwrite it")
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name}.", suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        fh.write(to_toml(params, header))
+    os.replace(tmp, path)
+    return path

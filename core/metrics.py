@@ -1,0 +1,124 @@
+"""Evaluation metrics: the paper's Table I (curve and length errors against 3D ground truth)
+and Table II (2D reprojection errors), plus coverage.
+
+- e_S: mean closest-point distance between the reconstructed and the true curve, taken in both
+  directions and averaged; e_S^max: the largest closest-point distance in either direction
+  (the Hausdorff distance). Both curves are resampled at equal arc length first.
+- e_l: |length(reconstruction) - length(ground truth)|.
+- e_2D: each projected centerline point's distance to the nearest segmented pixel (mean, max).
+- coverage: share of the thread's skeleton pixels within ``COVERAGE_PX`` of the projected curve,
+  so that a curve covering only half the thread does not score well.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+COVERAGE_PX = 3.0  # skeleton pixels within 3 px of the projected curve count as covered
+RESAMPLE_N = 2000  # points per curve for closest-point distances
+
+
+@dataclass(frozen=True)
+class CurveErrors:
+    """Table I, in the unit of the inputs."""
+
+    e_S: float
+    e_S_max: float
+    e_length: float
+    length: float
+    length_gt: float
+
+
+@dataclass(frozen=True)
+class ReprojectionErrors:
+    """Table II for one image, px; ``coverage`` in [0, 1]."""
+
+    mean: float
+    max: float
+    coverage: float
+
+
+def resample(points: np.ndarray, n: int = RESAMPLE_N) -> np.ndarray:
+    """(n, 3) points at equal arc length along a polyline."""
+    points = _check_points(points)
+    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    if s[-1] <= 0:
+        return np.repeat(points[:1], n, axis=0)
+    q = np.linspace(0.0, s[-1], n)
+    return np.column_stack([np.interp(q, s, points[:, a]) for a in range(points.shape[1])])
+
+
+def polyline_length(points: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(_check_points(points), axis=0), axis=1).sum())
+
+
+def curve_errors(points: np.ndarray, points_gt: np.ndarray) -> CurveErrors:
+    """e_S, e_S^max and e_l between two dense polylines (N, 3), (M, 3)."""
+    a, b = resample(points), resample(points_gt)
+    d_ab = cKDTree(b).query(a)[0]
+    d_ba = cKDTree(a).query(b)[0]
+    la, lb = polyline_length(points), polyline_length(points_gt)
+    return CurveErrors(
+        e_S=float(0.5 * (d_ab.mean() + d_ba.mean())),
+        e_S_max=float(max(d_ab.max(), d_ba.max())),
+        e_length=float(abs(la - lb)),
+        length=la,
+        length_gt=lb,
+    )
+
+
+def project(points: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """(N, 3) camera-frame points -> (N, 2) pixels (x, y) with a (3, 4) projection matrix."""
+    points = _check_points(points)
+    h = np.column_stack([points, np.ones(len(points))]) @ P.T
+    return h[:, :2] / h[:, 2:3]
+
+
+def reprojection_errors(pixels: np.ndarray, mask: np.ndarray) -> ReprojectionErrors:
+    """e_2D (mean, max) of projected curve points (N, 2) against a thread mask, and coverage."""
+    if mask.ndim != 2 or not mask.any():
+        raise ValueError("reprojection needs a non-empty (H, W) thread mask")
+    ys, xs = np.nonzero(mask)
+    d = cKDTree(np.column_stack([xs, ys]).astype(float)).query(pixels)[0]
+    skel = skeleton(mask)
+    sy, sx = np.nonzero(skel)
+    dense = resample(np.asarray(pixels, dtype=float), max(RESAMPLE_N, 4 * len(pixels)))
+    dc = cKDTree(dense).query(np.column_stack([sx, sy]).astype(float))[0]
+    return ReprojectionErrors(mean=float(d.mean()), max=float(d.max()), coverage=float(np.mean(dc <= COVERAGE_PX)))
+
+
+def skeleton(mask: np.ndarray) -> np.ndarray:
+    """Zhang-Suen thinning of a binary mask, vectorised per sub-iteration."""
+    img = np.pad(mask.astype(np.uint8), 1)
+    while True:
+        changed = False
+        for step in (0, 1):
+            p = [np.roll(np.roll(img, -dy, 0), -dx, 1) for dy, dx in
+                 ((-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1))]
+            B = sum(p)
+            ring = p + [p[0]]
+            A = sum(((ring[i] == 0) & (ring[i + 1] == 1)).astype(np.uint8) for i in range(8))
+            if step == 0:
+                c = (p[0] * p[2] * p[4] == 0) & (p[2] * p[4] * p[6] == 0)
+            else:
+                c = (p[0] * p[2] * p[6] == 0) & (p[0] * p[4] * p[6] == 0)
+            rm = (img == 1) & (B >= 2) & (B <= 6) & (A == 1) & c
+            if rm.any():
+                img[rm] = 0
+                changed = True
+        if not changed:
+            return img[1:-1, 1:-1].astype(bool)
+
+
+def _check_points(points: np.ndarray) -> np.ndarray:
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] not in (2, 3) or len(points) < 2:
+        raise ValueError(f"expected (N, 2|3) points with N >= 2, got {points.shape}")
+    return points
+
+
+

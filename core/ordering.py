@@ -1,0 +1,314 @@
+"""Topological ordering of keypoints (paper Sec. III-B, "Topological Ordering of Keypoints").
+
+1. Solidification: every segmented pixel within ``solidify_radius`` px of a cluster joins it.
+2. Adjacency graph A: a BFS on P_L (8-neighbours) from a cluster that may not enter other
+   clusters reaches exactly the clusters that touch it directly or through a connected region of
+   unclustered pixels ("gap"). So A is built without a BFS per cluster: label the gaps once,
+   then every cluster touching a gap is adjacent to every other cluster touching it.
+3. Greedy DFS from a keypoint of degree 1, always moving to the closest unexplored adjacent
+   keypoint. Deviation: every degree-1 keypoint is tried as the start and the walk that keeps
+   the most keypoints wins; where the walk ends with unvisited components of A left (a thread
+   whose segmentation is broken), it jumps to the nearest keypoint of another component within
+   ``bridge_px`` (0 disables this, as in the paper).
+4. Endpoint extension: at each end keypoint, the unclustered pixels reachable only from its
+   cluster (dead-end gaps) count; with at least ``extension_min_px`` of them the farthest one
+   (geodesically, so that a curled tail ends at its tip) becomes a new keypoint with the end
+   keypoint's depth. Deviation: otherwise, when the end cluster's own farthest pixel from the
+   inward neighbour lies ``tip_px`` or more beyond the end keypoint, that pixel becomes the end.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse import csgraph
+
+from core.clustering import Clusters
+from core.segmentation import LiftedPair
+from core.stereo import StereoResult
+
+_HALF_8 = ((0, 1), (1, -1), (1, 0), (1, 1))  # half of the 8-neighbourhood: each pair seen once
+
+
+@dataclass(frozen=True)
+class OrderingParams:
+    solidify_radius: int = 1
+    """Segmented pixels within this distance of a cluster join it, px (paper: 1-2)."""
+    extension_min_px: int = 6
+    """Dead-end gap size at an end keypoint that triggers endpoint extension, px."""
+    tip_px: float = 2.0
+    """Extend an end to its cluster's tip when the tip lies this far beyond the end keypoint,
+    px (0: off, the paper). The keypoint is a centroid, half a cluster short of the tip."""
+    bridge_px: float = 40.0
+    """Largest jump between components of A the walk may make, px (0: paper, no jump)."""
+    metric: Literal["image", "3d"] = "image"
+    """Distance for "closest adjacent keypoint": image-plane px (default) or 3D."""
+
+
+@dataclass(frozen=True)
+class Ordering:
+    """``node_image``: (H, W) int, cluster id (0..K-1) of solidified cluster pixels, K + gap id
+    for unclustered segmented pixels, -1 off P_L.
+    ``edges``: (E, 2) int, the adjacency graph A over keypoint ids.
+    ``order``: (M,) int, ordered keypoint ids (phi); -1 marks an extension keypoint.
+    ``path_px``: (M, 3) ordered keypoints in (x px, y px, z depth).
+    ``links``: per consecutive pair of ``order`` (M-1 entries), the gap ids between them.
+    ``dropped``: keypoint ids the walk did not keep (side branches).
+    ``pixel_node``: (N,) node id of every pixel of P_L, aligned with ``StereoResult.pixels``.
+    ``pixel_t``: (N,) position in [0, 1] of each gap pixel along the link it lies in, from the
+    geodesic distances d_a, d_b to the link's two clusters (t = d_a / (d_a + d_b)); NaN elsewhere.
+    ``pixel_link``: (N,) index of that link, -1 elsewhere.
+    """
+
+    node_image: np.ndarray
+    n_clusters: int
+    edges: np.ndarray
+    order: np.ndarray
+    path_px: np.ndarray
+    links: tuple[tuple[int, ...], ...]
+    dropped: np.ndarray
+    pixel_node: np.ndarray
+    pixel_t: np.ndarray
+    pixel_link: np.ndarray
+
+
+def order_keypoints(
+    lifted: LiftedPair, stereo: StereoResult, clusters: Clusters, p: OrderingParams = OrderingParams()
+) -> Ordering:
+    """Solidify, build A, walk it, extend the ends."""
+    if p.solidify_radius < 0:
+        raise ValueError(f"solidify_radius must be >= 0, got {p.solidify_radius}")
+    K = clusters.count
+    P_L = lifted.P_L
+    cluster_img = np.full(P_L.shape, -1, dtype=np.int64)
+    sel = clusters.labels >= 0
+    px = stereo.pixels[sel]
+    cluster_img[px[:, 1], px[:, 0]] = clusters.labels[sel]
+    cluster_img = _solidify(cluster_img, P_L, p.solidify_radius)
+
+    gaps = P_L & (cluster_img < 0)
+    n_gaps, gap_img = cv2.connectedComponents(gaps.astype(np.uint8), connectivity=8)
+    node_image = np.where(cluster_img >= 0, cluster_img, np.where(gaps, K + gap_img - 1, -1))
+
+    pairs = _touching_pairs(node_image)
+    cc = pairs[(pairs[:, 0] < K) & (pairs[:, 1] < K)]
+    cg = pairs[(pairs[:, 0] < K) != (pairs[:, 1] < K)]
+    cg = np.sort(cg, axis=1)  # (cluster, gap)
+    gap_members: dict[int, list[int]] = {}
+    for c, g in np.unique(cg, axis=0):
+        gap_members.setdefault(int(g), []).append(int(c))
+    edge_set = {(int(a), int(b)) for a, b in cc}
+    for members in gap_members.values():
+        for i, a in enumerate(members):
+            for b in members[i + 1 :]:
+                edge_set.add((min(a, b), max(a, b)))
+    edges = np.array(sorted(edge_set), dtype=np.int64).reshape(-1, 2)
+
+    pos = clusters.keypoints_px[:, :2] if p.metric == "image" else clusters.keypoints
+    walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
+
+    cluster_gaps: dict[int, set[int]] = {}
+    for c, g in np.unique(cg, axis=0):
+        cluster_gaps.setdefault(int(c), set()).add(int(g))
+    links = [
+        tuple(sorted(cluster_gaps.get(a, set()) & cluster_gaps.get(b, set()))) for a, b in zip(walk[:-1], walk[1:])
+    ]
+    path = [clusters.keypoints_px[k] for k in walk]
+    order = list(walk)
+
+    # Endpoint extension at both ends, then the geodesic position of every gap pixel.
+    pixel_node = node_image[stereo.pixels[:, 1], stereo.pixels[:, 0]]
+    geo = _GapGeodesics(stereo, pixel_node, K)
+    gap_size = np.bincount(gap_img[gaps], minlength=n_gaps)
+    for end in (0, -1):
+        k = order[end]
+        dead = [g for g in sorted(cluster_gaps.get(k, ())) if gap_members.get(g) == [k]]
+        n_dead = int(sum(gap_size[g - K + 1] for g in dead))
+        if n_dead >= p.extension_min_px:
+            sel = np.flatnonzero(np.isin(pixel_node, dead))
+            d = geo.distance_from(k, sel)
+            far = sel[int(np.argmax(np.where(np.isfinite(d), d, -1.0)))]  # geodesically farthest
+        elif p.tip_px > 0 and len(walk) > 1:
+            inner = clusters.keypoints_px[walk[1] if end == 0 else walk[-2], :2]
+            sel = np.flatnonzero(pixel_node == k)
+            far = sel[int(np.argmax(np.sum((stereo.pixels[sel] - inner) ** 2, axis=1)))]
+            if np.linalg.norm(stereo.pixels[far] - clusters.keypoints_px[k, :2]) < p.tip_px:
+                continue
+            dead = []
+        else:
+            continue
+        new = np.array([*stereo.pixels[far], clusters.keypoints_px[k][2]], dtype=np.float64)
+        if end == 0:
+            path.insert(0, new)
+            order.insert(0, -1)
+            links.insert(0, tuple(dead))
+        else:
+            path.append(new)
+            order.append(-1)
+            links.append(tuple(dead))
+    pixel_t = np.full(len(pixel_node), np.nan)
+    pixel_link = np.full(len(pixel_node), -1, dtype=np.int64)
+    for i, gap_ids in enumerate(links):
+        sel = np.flatnonzero(np.isin(pixel_node, gap_ids))
+        if sel.size == 0:
+            continue
+        a, b = order[i], order[i + 1]
+        if a < 0:  # extension at the start: measure from the cluster after it, reversed
+            pixel_t[sel] = 1.0 - _normalised(geo.distance_from(b, sel))
+        elif b < 0:
+            pixel_t[sel] = _normalised(geo.distance_from(a, sel))
+        else:
+            da, db = geo.distance_from(a, sel), geo.distance_from(b, sel)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                pixel_t[sel] = da / (da + db)
+        pixel_link[sel] = i
+
+    kept = set(walk)
+    dropped = np.array([k for k in range(K) if k not in kept], dtype=np.int64)
+    return Ordering(
+        node_image=node_image,
+        n_clusters=K,
+        edges=edges,
+        order=np.array(order, dtype=np.int64),
+        path_px=np.array(path, dtype=np.float64).reshape(-1, 3),
+        links=tuple(links),
+        dropped=dropped,
+        pixel_node=pixel_node,
+        pixel_t=pixel_t,
+        pixel_link=pixel_link,
+    )
+
+
+class _GapGeodesics:
+    """Geodesic (8-connected, unit/sqrt2 steps) distances inside gaps from a cluster's border."""
+
+    def __init__(self, stereo: StereoResult, pixel_node: np.ndarray, K: int) -> None:
+        H, W = stereo.shape
+        n = len(pixel_node)
+        idx = np.full((H + 2, W + 2), -1, dtype=np.int64)
+        x, y = stereo.pixels[:, 0] + 1, stereo.pixels[:, 1] + 1
+        idx[y, x] = np.arange(n)
+        offs = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
+        nb = np.stack([idx[y + dy, x + dx] for dy, dx in offs], axis=1)  # (N, 8)
+        step = np.array([np.hypot(dy, dx) for dy, dx in offs])
+        self.nb_node = np.where(nb >= 0, pixel_node[np.maximum(nb, 0)], -1)
+        is_gap = pixel_node >= K
+        i = np.repeat(np.arange(n), 8)
+        j = nb.ravel()
+        ok = (j >= 0) & is_gap[i] & is_gap[np.maximum(j, 0)]
+        ok &= pixel_node[i] == pixel_node[np.maximum(j, 0)]
+        self.graph = sp.csr_matrix((np.tile(step, n)[ok], (i[ok], j[ok])), shape=(n, n))
+
+    def distance_from(self, cluster: int, sel: np.ndarray) -> np.ndarray:
+        """Distances of pixels ``sel`` (one gap set) from the border of ``cluster``, px."""
+        src = sel[np.any(self.nb_node[sel] == cluster, axis=1)]
+        if src.size == 0:
+            return np.full(sel.size, np.nan)
+        sub = self.graph[sel][:, sel]
+        pos = np.searchsorted(sel, src)
+        d = csgraph.dijkstra(sub, directed=False, indices=pos, min_only=True)
+        return np.where(np.isinf(d), np.nan, d + 1.0)
+
+
+def _normalised(d: np.ndarray) -> np.ndarray:
+    top = np.nanmax(d) if np.any(np.isfinite(d)) else np.nan
+    return d / top if top and np.isfinite(top) else np.full_like(d, np.nan)
+
+
+def _solidify(cluster_img: np.ndarray, P_L: np.ndarray, radius: int) -> np.ndarray:
+    """Segmented pixels within ``radius`` px (8-neighbourhood steps) of a cluster join it.
+
+    Where two clusters are in reach the higher id wins (grey dilation of the label image)."""
+    if radius == 0 or not (cluster_img >= 0).any():
+        return cluster_img
+    kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
+    grown = cv2.dilate((cluster_img + 1).astype(np.float32), kernel).astype(np.int64) - 1
+    join = P_L & (cluster_img < 0) & (grown >= 0)
+    out = cluster_img.copy()
+    out[join] = grown[join]
+    return out
+
+
+def _touching_pairs(node_image: np.ndarray) -> np.ndarray:
+    """(P, 2) unique unordered pairs of different nodes that are 8-neighbours somewhere."""
+    H, W = node_image.shape
+    found = []
+    for dy, dx in _HALF_8:  # dy >= 0
+        a = node_image[: H - dy, max(0, -dx) : W - max(0, dx)]
+        b = node_image[dy:, max(0, dx) : W + min(0, dx)]
+        ok = (a >= 0) & (b >= 0) & (a != b)
+        found.append(np.stack([a[ok], b[ok]], axis=1))
+    pairs = np.concatenate(found) if found else np.zeros((0, 2), np.int64)
+    pairs = np.sort(pairs, axis=1)
+    return np.unique(pairs, axis=0) if len(pairs) else pairs.reshape(0, 2)
+
+
+def _best_walk(K: int, edges: np.ndarray, pos: np.ndarray, pos_px: np.ndarray, bridge_px: float) -> list[int]:
+    adj: list[list[int]] = [[] for _ in range(K)]
+    for a, b in edges:
+        adj[a].append(int(b))
+        adj[b].append(int(a))
+    comp = _components(K, adj)
+    degree = np.array([len(a) for a in adj])
+    starts = [int(k) for k in np.flatnonzero(degree == 1)]
+    if not starts:  # a closed loop or a single keypoint: start from the lowest degree
+        starts = [int(np.argmin(degree))]
+    best: list[int] = []
+    best_key = (-1, 0.0)
+    for s in starts:
+        walk = _greedy_walk(s, adj, pos, pos_px, comp, bridge_px)
+        length = float(np.linalg.norm(np.diff(pos_px[walk], axis=0), axis=1).sum()) if len(walk) > 1 else 0.0
+        key = (len(walk), -length)
+        if key > best_key:
+            best, best_key = walk, key
+    return best
+
+
+def _greedy_walk(
+    start: int, adj: list[list[int]], pos: np.ndarray, pos_px: np.ndarray, comp: np.ndarray, bridge_px: float
+) -> list[int]:
+    visited = np.zeros(len(adj), dtype=bool)
+    done_comp = {int(comp[start])}
+    walk = [start]
+    visited[start] = True
+    cur = start
+    while True:
+        cand = [v for v in adj[cur] if not visited[v]]
+        if cand:
+            d = np.linalg.norm(pos[cand] - pos[cur], axis=1)
+            cur = cand[int(np.argmin(d))]
+        else:
+            other = np.flatnonzero(~visited & ~np.isin(comp, list(done_comp)))
+            if bridge_px <= 0 or other.size == 0:
+                break
+            d = np.linalg.norm(pos_px[other] - pos_px[cur], axis=1)
+            j = int(np.argmin(d))
+            if d[j] > bridge_px:
+                break
+            cur = int(other[j])
+            done_comp.add(int(comp[cur]))
+        visited[cur] = True
+        walk.append(cur)
+    return walk
+
+
+def _components(K: int, adj: list[list[int]]) -> np.ndarray:
+    comp = np.full(K, -1)
+    c = 0
+    for s in range(K):
+        if comp[s] >= 0:
+            continue
+        stack = [s]
+        comp[s] = c
+        while stack:
+            u = stack.pop()
+            for v in adj[u]:
+                if comp[v] < 0:
+                    comp[v] = c
+                    stack.append(v)
+        c += 1
+    return comp

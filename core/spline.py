@@ -1,0 +1,250 @@
+"""Spline initialisation and the Minimum Variation Spline problem, Eq. (8).
+
+The spline S(u) = (S_x, S_y, S_z) lives in the space (x px, y px, z depth) of the left image.
+Initialisation: H^i is H with every depth moved to the centre of its bounds; ``splprep`` fits
+it with a clamped uniform knot vector and ``n_ctrl`` control points (paper: degree 4, m = 15).
+
+MVS: with b_x, b_y fixed, minimise over b_z the integral over u in [0, l] of
+(d kappa / du)^2 / sqrt(1 + (dS_z/du)^2), kappa the curvature of the graph of S_z, subject to
+lower <= S_z <= upper and the endpoint value and slope of L_{k_1}, L_{k_n} (j = 0, 1).
+
+Choices the paper leaves open (documented in docs/method.md):
+- the parameter u runs over [0, l] with l the lateral arc length of the thread in calibration
+  units (2D arc length in px times mean depth / f), so that S_z'(u) is a dimensionless slope and
+  the objective does not depend on the length unit (cm or mm);
+- Gauss-Legendre quadrature (``quad_per_span`` nodes per knot span) with analytic gradients;
+- the bound constraints hold at every point of H and at the midpoints between them;
+- SLSQP (the paper's solver), objective normalised by its value at the initial guess.
+A solver failure, or a solution that leaves the bounds by more than ``bound_tol`` of the local
+half-width, is reported (``status``) and the initial spline is returned as a visible fallback.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from scipy import optimize
+from scipy.interpolate import BSpline, splprep
+
+from core.bounds import Bounds
+from core.calibration import StereoCalibration
+
+Status = Literal["ok", "solver_failed", "out_of_bounds", "skipped"]
+
+
+@dataclass(frozen=True)
+class SplineParams:
+    n_ctrl: int = 15
+    """Number of control points m."""
+    degree: int = 4
+    """Spline degree (paper: 4)."""
+    max_iter: int = 100
+    """Iteration limit of the MVS solver."""
+    quad_per_span: int = 4
+    """Gauss-Legendre nodes per knot span for the integral of Eq. (8)."""
+    bound_tol: float = 0.02
+    """Allowed excursion outside the bounds, as a fraction of the local half-width."""
+    optimise: bool = True
+    """Solve the MVS problem; False keeps the initial spline (for comparison)."""
+    data_weight: float = 10.0
+    """Weight of a data term added to Eq. (8) (0: the paper's pure MVS), see docs/method.md.
+
+    The term is the mean over H of ((S_z(u_j) - c_j) / w_j)^2, c_j the bound centre and w_j the
+    bound half-width, and Eq. (8) is normalised by its value at the initial spline."""
+
+
+@dataclass(frozen=True)
+class SplineResult:
+    """``knots``, ``ctrl`` (m, 3), ``degree``: the final spline in (x px, y px, z depth) over u in
+    [0, ``length``]; ``ctrl_init`` the initial one; ``u_H``: parameter of each point of H.
+    ``status``: "ok", "solver_failed" or "out_of_bounds" (then ``ctrl`` = ``ctrl_init``, the
+    fallback) or "skipped" (``optimise=False``). ``message``: the solver's message.
+    ``objective``: Eq. (8) at the initial and final control points. ``iterations``: solver steps.
+    """
+
+    knots: np.ndarray
+    ctrl: np.ndarray
+    ctrl_init: np.ndarray
+    degree: int
+    length: float
+    u_H: np.ndarray
+    status: Status
+    message: str
+    objective: tuple[float, float]
+    iterations: int
+    max_violation: float
+    """Largest excursion outside the bounds of the returned spline, fraction of half-width."""
+
+    @property
+    def ok(self) -> bool:
+        return self.status in ("ok", "skipped")
+
+    def curve(self, n: int = 400, initial: bool = False) -> np.ndarray:
+        """(n, 3) samples of S at uniform u, (x px, y px, z depth)."""
+        c = self.ctrl_init if initial else self.ctrl
+        return BSpline(self.knots, c, self.degree)(np.linspace(0.0, self.length, n))
+
+
+def fit_spline(bounds: Bounds, calib: StereoCalibration, p: SplineParams = SplineParams()) -> SplineResult:
+    """Initialise S from H^i and solve Eq. (8)."""
+    if p.degree < 2 or p.degree > 5:
+        raise ValueError(f"degree must be in 2..5, got {p.degree}")
+    if p.n_ctrl < p.degree + 1:
+        raise ValueError(f"n_ctrl must be >= degree + 1 = {p.degree + 1}, got {p.n_ctrl}")
+    if p.max_iter < 1 or p.quad_per_span < 1:
+        raise ValueError("max_iter and quad_per_span must be >= 1")
+    k = p.degree
+    P = len(bounds.H)
+    s = bounds.s
+    if P < 2 or s[-1] <= 0:
+        raise ValueError("H spans no length: cannot fit a spline")
+    z_mean = float(np.nanmean(bounds.centre))
+    length = float(s[-1] * z_mean / calib.focal)  # l: lateral arc length, calib units
+    u = np.clip(s * (length / s[-1]), 0.0, length)
+    u[-1] = length
+    m = min(p.n_ctrl, max(k + 1, P))  # no more control points than data points
+    t = np.concatenate([np.zeros(k + 1), np.linspace(0.0, length, m - k + 1)[1:-1], np.full(k + 1, length)])
+
+    Hi = np.column_stack([bounds.H[:, 0], bounds.H[:, 1], bounds.centre])  # H^i
+    ctrl_init = _init_fit(Hi, u, t, k)
+
+    du_ds = length / s[-1]
+    lo_c, hi_c, u_c = _constraint_points(u, bounds.lower, bounds.upper)
+    half_c = 0.5 * (hi_c - lo_c)
+    mvs = _Mvs(t, k, length, p.quad_per_span)
+    b0 = ctrl_init[:, 2].copy()
+    f0 = mvs.value(b0)
+    if not p.optimise:
+        viol = _violation(BSpline.design_matrix(u_c, t, k).toarray() @ b0, lo_c, hi_c, half_c)
+        return SplineResult(t, ctrl_init, ctrl_init, k, length, u, "skipped", "", (f0, f0), 0, viol)
+
+    A = BSpline.design_matrix(u_c, t, k).toarray()
+    E = _end_rows(t, k, length)
+    e_rhs = np.array(
+        [
+            bounds.end_values[0],
+            bounds.end_slopes[0] / du_ds,
+            bounds.end_values[1],
+            bounds.end_slopes[1] / du_ds,
+        ]
+    )
+    scale = 1.0 / f0 if f0 > 0 else 1.0
+    Bd = BSpline.design_matrix(u, t, k).toarray()
+    w_d = p.data_weight / (len(u) * np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12) ** 2)
+
+    def objective(b: np.ndarray) -> tuple[float, np.ndarray]:
+        f, g = mvs.value_grad(b, scale)
+        r = Bd @ b - bounds.centre
+        return f + float(np.sum(w_d * r * r)), g + 2.0 * Bd.T @ (w_d * r)
+    zs = max(float(np.median(half_c)), 1e-12)  # constraint scaling: depths in half-widths
+    cons = [
+        {"type": "ineq", "fun": lambda b: np.concatenate([A @ b - lo_c, hi_c - A @ b]) / zs,
+         "jac": lambda b: np.vstack([A, -A]) / zs},
+        {"type": "eq", "fun": lambda b: (E @ b - e_rhs) / zs, "jac": lambda b: E / zs},
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        res = optimize.minimize(
+            objective,
+            b0,
+            jac=True,
+            method="SLSQP",
+            constraints=cons,
+            options={"maxiter": p.max_iter, "ftol": 1e-9},
+        )
+    b = res.x
+    viol = _violation(A @ b, lo_c, hi_c, half_c)
+    status: Status = "ok"
+    if not res.success or not np.all(np.isfinite(b)):
+        status = "solver_failed"
+    elif viol > p.bound_tol:
+        status = "out_of_bounds"
+    if status != "ok":
+        viol_init = _violation(A @ b0, lo_c, hi_c, half_c)
+        msg = f"{res.message} (bound excursion {viol:.3f} of the half-width)"
+        return SplineResult(t, ctrl_init, ctrl_init, k, length, u, status, msg, (f0, f0), int(res.nit), viol_init)
+    ctrl = ctrl_init.copy()
+    ctrl[:, 2] = b
+    return SplineResult(t, ctrl, ctrl_init, k, length, u, "ok", str(res.message), (f0, mvs.value(b)), int(res.nit), viol)
+
+
+def _init_fit(Hi: np.ndarray, u: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
+    """Least-squares spline through H^i with knots t: ``splprep(task=-1)``, ridge fallback."""
+    m = len(t) - k - 1
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            tck, _ = splprep(Hi.T, u=u, k=k, task=-1, t=t)
+        ctrl = np.asarray(tck[1]).T[:m]
+        if np.all(np.isfinite(ctrl)):
+            return ctrl
+    except (ValueError, RuntimeWarning, UserWarning, TypeError):
+        pass
+    # Schoenberg-Whitney fails when H is sparse in some knot span: a tiny second-difference
+    # ridge keeps the least-squares problem well posed and leaves well-covered spans unchanged.
+    B = BSpline.design_matrix(u, t, k).toarray()
+    D = np.diff(np.eye(m), 2, axis=0)
+    lam = 1e-6 * np.trace(B.T @ B) / m
+    return np.linalg.solve(B.T @ B + lam * D.T @ D, B.T @ Hi)
+
+
+def _constraint_points(u: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    mid = 0.5 * (u[1:] + u[:-1])
+    uc = np.concatenate([u, mid])
+    return np.interp(uc, u, lo), np.interp(uc, u, hi), uc
+
+
+def _violation(z: np.ndarray, lo: np.ndarray, hi: np.ndarray, half: np.ndarray) -> float:
+    out = np.maximum(lo - z, z - hi)
+    return float(max(0.0, np.max(out / np.maximum(half, 1e-12))))
+
+
+def _end_rows(t: np.ndarray, k: int, length: float) -> np.ndarray:
+    """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z."""
+    m = len(t) - k - 1
+    rows = np.zeros((4, m))
+    eye = np.eye(m)
+    for j in range(m):
+        bj = BSpline(t, eye[j], k)
+        d1 = bj.derivative(1)
+        rows[:, j] = [bj(0.0), d1(0.0), bj(length), d1(length)]
+    return rows
+
+
+class _Mvs:
+    """Eq. (8) by Gauss-Legendre quadrature, with its analytic gradient in b_z."""
+
+    def __init__(self, t: np.ndarray, k: int, length: float, n_per_span: int) -> None:
+        xg, wg = np.polynomial.legendre.leggauss(n_per_span)
+        edges = np.unique(t)
+        a, b = edges[:-1], edges[1:]
+        self.uq = (0.5 * (b - a)[:, None] * (xg[None, :] + 1.0) + a[:, None]).ravel()
+        self.wq = (0.5 * (b - a)[:, None] * wg[None, :]).ravel()
+        m = len(t) - k - 1
+        eye = np.eye(m)
+        self.B = [np.array([BSpline(t, eye[j], k).derivative(d)(self.uq) for j in range(m)]).T for d in (1, 2, 3)]
+
+    def _terms(self, b: np.ndarray) -> tuple[np.ndarray, ...]:
+        z1, z2, z3 = (B @ b for B in self.B)
+        g = 1.0 + z1 * z1
+        kp = z3 * g**-1.5 - 3.0 * z1 * z2 * z2 * g**-2.5  # d kappa / du
+        return z1, z2, z3, g, kp
+
+    def value(self, b: np.ndarray) -> float:
+        _, _, _, g, kp = self._terms(b)
+        return float(np.sum(self.wq * kp * kp / np.sqrt(g)))
+
+    def value_grad(self, b: np.ndarray, scale: float) -> tuple[float, np.ndarray]:
+        z1, z2, z3, g, kp = self._terms(b)
+        r = g**-0.5
+        f = float(np.sum(self.wq * kp * kp * r))
+        dk1 = -3.0 * z1 * z3 * g**-2.5 - 3.0 * z2 * z2 * g**-2.5 + 15.0 * z1 * z1 * z2 * z2 * g**-3.5
+        dk2 = -6.0 * z1 * z2 * g**-2.5
+        dk3 = g**-1.5
+        c = 2.0 * kp * r * self.wq
+        g1 = c * dk1 - self.wq * kp * kp * z1 * g**-1.5
+        grad = self.B[0].T @ g1 + self.B[1].T @ (c * dk2) + self.B[2].T @ (c * dk3)
+        return f * scale, grad * scale
