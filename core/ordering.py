@@ -43,7 +43,7 @@ class OrderingParams:
     tip_px: float = 2.0
     """Extend an end to its cluster's tip when the tip lies this far beyond the end keypoint,
     px (0: off, the paper). The keypoint is a centroid, half a cluster short of the tip."""
-    bridge_px: float = 40.0
+    bridge_px: float = 80.0
     """Largest jump between components of A the walk may make, px (0: paper, no jump)."""
     metric: Literal["image", "3d"] = "image"
     """Distance for "closest adjacent keypoint": image-plane px (default) or 3D."""

@@ -32,6 +32,7 @@ from scipy.interpolate import BSpline, splprep
 from core.bounds import Bounds
 from core.calibration import StereoCalibration
 
+EQ_TOL = 1e-3  # endpoint equalities hold to 0.1 % of the median bound half-width
 Status = Literal["ok", "solver_failed", "out_of_bounds", "skipped"]
 
 
@@ -158,7 +159,12 @@ def fit_spline(bounds: Bounds, calib: StereoCalibration, p: SplineParams = Splin
     b = res.x
     viol = _violation(A @ b, lo_c, hi_c, half_c)
     status: Status = "ok"
-    if not res.success or not np.all(np.isfinite(b)):
+    eq_err = float(np.max(np.abs(E @ b - e_rhs))) / zs
+    # SLSQP mode 8 ("positive directional derivative in line search") stops where the line
+    # search makes no progress, typically at the optimum to machine precision: accepted only
+    # when the iterate satisfies every bound and endpoint constraint.
+    stalled_ok = res.status == 8 and viol <= p.bound_tol and eq_err < EQ_TOL
+    if not (res.success or stalled_ok) or not np.all(np.isfinite(b)):
         status = "solver_failed"
     elif viol > p.bound_tol:
         status = "out_of_bounds"
