@@ -50,6 +50,8 @@ class SplineParams:
     """Allowed excursion outside the bounds, as a fraction of the local half-width."""
     optimise: bool = True
     """Solve the MVS problem; False keeps the initial spline (for comparison)."""
+    relax_slopes: bool = True
+    """When Eq. (8) is infeasible, retry once with only the endpoint values fixed (False: paper)."""
     data_weight: float = 10.0
     """Weight of a data term added to Eq. (8) (0: the paper's pure MVS), see docs/method.md.
 
@@ -141,21 +143,27 @@ def fit_spline(bounds: Bounds, calib: StereoCalibration, p: SplineParams = Splin
         r = Bd @ b - bounds.centre
         return f + float(np.sum(w_d * r * r)), g + 2.0 * Bd.T @ (w_d * r)
     zs = max(float(np.median(half_c)), 1e-12)  # constraint scaling: depths in half-widths
-    cons = [
-        {"type": "ineq", "fun": lambda b: np.concatenate([A @ b - lo_c, hi_c - A @ b]) / zs,
-         "jac": lambda b: np.vstack([A, -A]) / zs},
-        {"type": "eq", "fun": lambda b: (E @ b - e_rhs) / zs, "jac": lambda b: E / zs},
-    ]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        res = optimize.minimize(
-            objective,
-            b0,
-            jac=True,
-            method="SLSQP",
-            constraints=cons,
-            options={"maxiter": p.max_iter, "ftol": 1e-9},
-        )
+    def solve(rows: slice) -> optimize.OptimizeResult:
+        Er, er = E[rows], e_rhs[rows]
+        cons = [
+            {"type": "ineq", "fun": lambda b: np.concatenate([A @ b - lo_c, hi_c - A @ b]) / zs,
+             "jac": lambda b: np.vstack([A, -A]) / zs},
+            {"type": "eq", "fun": lambda b: (Er @ b - er) / zs, "jac": lambda b: Er / zs},
+        ]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return optimize.minimize(objective, b0, jac=True, method="SLSQP", constraints=cons,
+                                     options={"maxiter": p.max_iter, "ftol": 1e-9})
+
+    res = solve(slice(None))
+    relaxed = False
+    if not res.success and p.relax_slopes:
+        # The endpoint slopes of L_{k_1}, L_{k_n} can contradict tight bounds next to the ends
+        # (an infeasible problem): retry with only the endpoint values fixed.
+        retry = solve(slice(0, 4, 2))
+        if retry.success:
+            res, relaxed = retry, True
+            E, e_rhs = E[0:4:2], e_rhs[0:4:2]
     b = res.x
     viol = _violation(A @ b, lo_c, hi_c, half_c)
     status: Status = "ok"
@@ -174,7 +182,8 @@ def fit_spline(bounds: Bounds, calib: StereoCalibration, p: SplineParams = Splin
         return SplineResult(t, ctrl_init, ctrl_init, k, length, u, status, msg, (f0, f0), int(res.nit), viol_init)
     ctrl = ctrl_init.copy()
     ctrl[:, 2] = b
-    return SplineResult(t, ctrl, ctrl_init, k, length, u, "ok", str(res.message), (f0, mvs.value(b)), int(res.nit), viol)
+    msg = str(res.message) + (" (endpoint slope constraints relaxed)" if relaxed else "")
+    return SplineResult(t, ctrl, ctrl_init, k, length, u, "ok", msg, (f0, mvs.value(b)), int(res.nit), viol)
 
 
 def _init_fit(Hi: np.ndarray, u: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
