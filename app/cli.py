@@ -51,8 +51,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--right", help="right rectified image")
     r.add_argument("--stereo", help="side-by-side composite (left half | right half)")
     r.add_argument("--mask", help="optional side-by-side thread mask")
-    r.add_argument("--calib", required=True, help="OpenCV FileStorage YAML (K1 D1 K2 D2 R T ImageSize)")
-    r.add_argument("--units", choices=("mm", "cm", "m"), help="calibration unit when the file has no Units key")
+    r.add_argument(
+        "--calib", required=True, help="OpenCV FileStorage YAML (K1 D1 K2 D2 R T ImageSize)"
+    )
+    r.add_argument(
+        "--units", choices=("mm", "cm", "m"), help="calibration unit when the file has no Units key"
+    )
     r.add_argument("--config", help="preset name (configs/NAME.toml) or path")
     r.add_argument("--out", required=True, help="output JSON")
     r.set_defaults(func=cmd_reconstruct)
@@ -61,11 +65,18 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("dataset", help="folder with simulated/ and/or real/")
     e.add_argument("--config", help="preset name or path")
     e.add_argument("--out", help="CSV with one row per frame")
-    e.add_argument("--save-predictions", metavar="DIR", help="write each frame's reconstruction JSON here")
+    e.add_argument(
+        "--save-predictions", metavar="DIR", help="write each frame's reconstruction JSON here"
+    )
     e.set_defaults(func=cmd_evaluate)
 
     b = sub.add_parser("bench", help="per-stage timings (median, p90) over a dataset")
-    b.add_argument("dataset", nargs="?", default=str(_sample_data()), help="dataset folder (default: sample_data)")
+    b.add_argument(
+        "dataset",
+        nargs="?",
+        default=str(_sample_data()),
+        help="dataset folder (default: sample_data)",
+    )
     b.add_argument("--config", help="preset name or path")
     b.add_argument("--repeat", type=int, default=3, help="runs per frame (the fastest counts)")
     b.set_defaults(func=cmd_bench)
@@ -87,7 +98,11 @@ def _sample_data() -> Path:
 
 
 def reconstruction_json(rec: Reconstruction) -> dict[str, Any]:
-    out: dict[str, Any] = {"status": rec.status, "error": rec.message, "failed_stage": rec.failed_stage}
+    out: dict[str, Any] = {
+        "status": rec.status,
+        "error": rec.message,
+        "failed_stage": rec.failed_stage,
+    }
     out["timings_ms"] = {k: round(v, 3) for k, v in rec.timings_ms.items()}
     if "camera" in rec.runs:
         cam = rec["camera"]
@@ -139,15 +154,19 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     if rec.status != "ok":
         print(f"threadrecon: reconstruction failed: {rec.message}", file=sys.stderr)
         return 1
-    print(f"ok: {len(data['points'])} points, length {data['length']:.2f} {data['unit']}, "
-          f"{sum(rec.timings_ms.values()):.0f} ms -> {out}")
+    print(
+        f"ok: {len(data['points'])} points, length {data['length']:.2f} {data['unit']}, "
+        f"{sum(rec.timings_ms.values()):.0f} ms -> {out}"
+    )
     return 0
 
 
 # --- evaluate ----------------------------------------------------------------------------
 
 
-def evaluate_frame(frame: Frame, params: ReconParams) -> tuple[dict[str, Any], Reconstruction | None]:
+def evaluate_frame(
+    frame: Frame, params: ReconParams
+) -> tuple[dict[str, Any], Reconstruction | None]:
     """One CSV row for a frame (never raises for a bad frame: the row says what failed)."""
     row: dict[str, Any] = {"frame": frame.id, "kind": frame.kind}
     try:
@@ -275,8 +294,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         v = np.array(per_stage[s])
         print(f"{s:<14}{np.median(v):10.2f}{np.percentile(v, 90):10.2f}")
     print(f"{'total':<14}{np.median(totals):10.2f}{np.percentile(totals, 90):10.2f}")
-    print(f"{'spline rerun':<14}{np.median(reruns):10.2f}{np.percentile(reruns, 90):10.2f}"
-          "   (n_ctrl changed: spline + camera stages only)")
+    print(
+        f"{'spline rerun':<14}{np.median(reruns):10.2f}{np.percentile(reruns, 90):10.2f}"
+        "   (n_ctrl changed: spline + camera stages only)"
+    )
     return 0
 
 

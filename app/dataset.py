@@ -33,7 +33,7 @@ PAPER_OLD_GROUPS = 4  # the paper's blend1..4 use blend_calibration.yaml (1 mm b
 @dataclass(frozen=True)
 class Frame:
     id: str
-    """Path of the frame relative to the dataset root, without suffix (e.g. simulated/blend1/blend1_1)."""
+    """Path relative to the dataset root, no suffix (e.g. simulated/blend1/blend1_1)."""
     kind: str
     """"simulated" (has 3D ground truth) or "real"."""
     calibration: Path
@@ -92,7 +92,9 @@ def discover(root: str | Path) -> list[Frame]:
                 fid = re.sub(r"__+", "_", fid)
                 frames.append(Frame(id=fid, kind="real", calibration=calib, left=left, right=right))
     if not frames:
-        raise FileNotFoundError(f"{root}: no frames found (expected simulated/<group>/*.png or real/<sub>/*left*.png)")
+        raise FileNotFoundError(
+            f"{root}: no frames found (expected simulated/<group>/*.png or real/<sub>/*left*.png)"
+        )
     return frames
 
 
@@ -139,10 +141,19 @@ def evaluate_reconstruction(
     if gt is not None:
         s = calib.mm_per_unit
         e = curve_errors(pts * s, gt * s)
-        out.update(e_S_mm=e.e_S, e_S_max_mm=e.e_S_max, e_length_mm=e.e_length, length_mm=e.length,
-                   length_gt_mm=e.length_gt)
+        out.update(
+            e_S_mm=e.e_S,
+            e_S_max_mm=e.e_S_max,
+            e_length_mm=e.e_length,
+            length_mm=e.length,
+            length_gt_mm=e.length_gt,
+        )
     lifted = rec["segment"]
     for side, P, mask in (("left", calib.P1, lifted.P_L), ("right", calib.P2, lifted.P_R)):
         r = reprojection_errors(project(pts, P), mask)
-        out[f"{side}_mean_px"], out[f"{side}_max_px"], out[f"coverage_{side}"] = r.mean, r.max, r.coverage
+        out[f"{side}_mean_px"], out[f"{side}_max_px"], out[f"coverage_{side}"] = (
+            r.mean,
+            r.max,
+            r.coverage,
+        )
     return out

@@ -66,7 +66,9 @@ def load_calibration(path: str | Path, unit: str | None = None) -> StereoCalibra
     try:
         text = path.read_text()
     except OSError as exc:
-        raise CalibrationError(f"{path}: cannot read calibration file ({exc.strerror or exc})") from None
+        raise CalibrationError(
+            f"{path}: cannot read calibration file ({exc.strerror or exc})"
+        ) from None
     try:
         return parse_calibration(text, source=str(path), unit=unit)
     except cv2.error as exc:

@@ -147,10 +147,14 @@ def to_toml(params: ReconParams, header: str = "") -> str:
     return "\n".join(lines).lstrip("\n") + "\n"
 
 
-def save_preset(params: ReconParams, name: str, folder: Path, overwrite: bool = False, header: str = "") -> Path:
+def save_preset(
+    params: ReconParams, name: str, folder: Path, overwrite: bool = False, header: str = ""
+) -> Path:
     """Write ``folder/name.toml`` atomically; refuses an existing name unless ``overwrite``."""
     if not NAME_RE.match(name):
-        raise ValueError(f"invalid preset name {name!r}: letters, digits, '.', '_' or '-', at most 64")
+        raise ValueError(
+            f"invalid preset name {name!r}: letters, digits, '.', '_' or '-', at most 64"
+        )
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{name}.toml"
     if path.exists() and not overwrite:

@@ -65,7 +65,10 @@ class Bounds:
 
 
 def depth_bounds(
-    stereo: StereoResult, ordering: Ordering, calib: StereoCalibration, p: BoundsParams = BoundsParams()
+    stereo: StereoResult,
+    ordering: Ordering,
+    calib: StereoCalibration,
+    p: BoundsParams = BoundsParams(),
 ) -> Bounds:
     """Build H and the lower/upper depth bounds."""
     if p.extra_px < 1:
@@ -121,7 +124,9 @@ def _line_fit(s: np.ndarray, z: np.ndarray, fallback: float) -> tuple[float, flo
     return float(a), float(b)
 
 
-def _extra_points(stereo: StereoResult, ordering: Ordering, extra_px: int) -> tuple[np.ndarray, np.ndarray]:
+def _extra_points(
+    stereo: StereoResult, ordering: Ordering, extra_px: int
+) -> tuple[np.ndarray, np.ndarray]:
     path = ordering.path_px
     rows: list[np.ndarray] = [path[:1]]
     keys: list[bool] = [True]

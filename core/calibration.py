@@ -131,7 +131,9 @@ def make_calibration(
     )
 
 
-def parse_calibration(text: str, source: str = "calibration", unit: str | None = None) -> StereoCalibration:
+def parse_calibration(
+    text: str, source: str = "calibration", unit: str | None = None
+) -> StereoCalibration:
     """Parse OpenCV FileStorage YAML text (keys K1, D1, K2, D2, R, T, ImageSize [rows, cols]).
 
     The optional string key ``Units`` gives the length unit; without it ``unit`` (default "mm").
@@ -153,9 +155,13 @@ def parse_calibration(text: str, source: str = "calibration", unit: str | None =
             values[key] = np.asarray(mat, dtype=np.float64)
         size = values["ImageSize"].ravel()
         if size.size != 2:
-            raise CalibrationError(f"{source}: key ImageSize must hold [rows, cols], got {size.size} values")
+            raise CalibrationError(
+                f"{source}: key ImageSize must hold [rows, cols], got {size.size} values"
+            )
         units_node = fs.getNode("Units")
-        file_unit = units_node.string() if not units_node.empty() and units_node.isString() else None
+        file_unit = (
+            units_node.string() if not units_node.empty() and units_node.isString() else None
+        )
     finally:
         fs.release()
     return make_calibration(

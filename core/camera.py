@@ -52,7 +52,9 @@ def image_to_camera(xyz: np.ndarray, G: np.ndarray) -> np.ndarray:
     return rays * xyz[:, 2:3]
 
 
-def to_camera(spline: SplineResult, calib: StereoCalibration, p: CameraParams = CameraParams()) -> CameraCurve:
+def to_camera(
+    spline: SplineResult, calib: StereoCalibration, p: CameraParams = CameraParams()
+) -> CameraCurve:
     """Eq. (9): the final spline as control points and a dense curve in the camera frame."""
     if p.n_points < 2:
         raise ValueError(f"n_points must be >= 2, got {p.n_points}")
@@ -67,8 +69,12 @@ def to_camera(spline: SplineResult, calib: StereoCalibration, p: CameraParams = 
         dense = image_to_camera(BSpline(knots, spline.ctrl, k)(u), calib.G)
         B = BSpline.design_matrix(u, knots, k).toarray()
         ctrl = np.linalg.lstsq(B, dense, rcond=None)[0]
-        points = image_to_camera(BSpline(knots, spline.ctrl, k)(np.linspace(0.0, 1.0, p.n_points)), calib.G)
+        points = image_to_camera(
+            BSpline(knots, spline.ctrl, k)(np.linspace(0.0, 1.0, p.n_points)), calib.G
+        )
     else:
         raise ValueError(f"mode must be 'refit' or 'paper', got {p.mode!r}")
     length = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
-    return CameraCurve(ctrl=ctrl, knots=knots, degree=k, points=points, length=length, unit=calib.unit)
+    return CameraCurve(
+        ctrl=ctrl, knots=knots, degree=k, points=points, length=length, unit=calib.unit
+    )

@@ -55,7 +55,9 @@ class Clusters:
         return int(self.sizes.size)
 
 
-def cluster_keypoints(stereo: StereoResult, rel: ReliabilityResult, p: ClusterParams = ClusterParams()) -> Clusters:
+def cluster_keypoints(
+    stereo: StereoResult, rel: ReliabilityResult, p: ClusterParams = ClusterParams()
+) -> Clusters:
     """BFS clustering of P_L^R and cluster centroids (the keypoint set K)."""
     if p.radius < 1:
         raise ValueError(f"radius must be >= 1, got {p.radius}")
@@ -80,7 +82,10 @@ def cluster_keypoints(stereo: StereoResult, rel: ReliabilityResult, p: ClusterPa
     lab = labels[sel]
     sizes = np.bincount(lab, minlength=k)
     xyz = stereo.points[sel]
-    keypoints = np.stack([np.bincount(lab, weights=xyz[:, a], minlength=k) for a in range(3)], 1) / sizes[:, None]
+    keypoints = (
+        np.stack([np.bincount(lab, weights=xyz[:, a], minlength=k) for a in range(3)], 1)
+        / sizes[:, None]
+    )
     px = stereo.pixels[sel].astype(np.float64)
     kx = np.bincount(lab, weights=px[:, 0], minlength=k) / sizes
     ky = np.bincount(lab, weights=px[:, 1], minlength=k) / sizes
@@ -116,7 +121,9 @@ def _wavefront_clusters(graph: sp.csr_matrix, min_size: int, max_size: int) -> n
     next_label = 0
     for c in np.flatnonzero(sizes >= min_size):
         # Two BFS: the last pixel reached from any pixel is an extremity of the component.
-        far = csgraph.breadth_first_order(graph, first[c], directed=False, return_predecessors=False)[-1]
+        far = csgraph.breadth_first_order(
+            graph, first[c], directed=False, return_predecessors=False
+        )[-1]
         order = csgraph.breadth_first_order(graph, far, directed=False, return_predecessors=False)
         for start in range(0, order.size, max_size):
             chunk = order[start : start + max_size]

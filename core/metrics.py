@@ -88,7 +88,9 @@ def reprojection_errors(pixels: np.ndarray, mask: np.ndarray) -> ReprojectionErr
     sy, sx = np.nonzero(skel)
     dense = resample(np.asarray(pixels, dtype=float), max(RESAMPLE_N, 4 * len(pixels)))
     dc = cKDTree(dense).query(np.column_stack([sx, sy]).astype(float))[0]
-    return ReprojectionErrors(mean=float(d.mean()), max=float(d.max()), coverage=float(np.mean(dc <= COVERAGE_PX)))
+    return ReprojectionErrors(
+        mean=float(d.mean()), max=float(d.max()), coverage=float(np.mean(dc <= COVERAGE_PX))
+    )
 
 
 def skeleton(mask: np.ndarray) -> np.ndarray:
@@ -97,8 +99,10 @@ def skeleton(mask: np.ndarray) -> np.ndarray:
     while True:
         changed = False
         for step in (0, 1):
-            p = [np.roll(np.roll(img, -dy, 0), -dx, 1) for dy, dx in
-                 ((-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1))]
+            p = [
+                np.roll(np.roll(img, -dy, 0), -dx, 1)
+                for dy, dx in ((-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1))
+            ]
             B = sum(p)
             ring = p + [p[0]]
             A = sum(((ring[i] == 0) & (ring[i + 1] == 1)).astype(np.uint8) for i in range(8))
@@ -119,6 +123,3 @@ def _check_points(points: np.ndarray) -> np.ndarray:
     if points.ndim != 2 or points.shape[1] not in (2, 3) or len(points) < 2:
         raise ValueError(f"expected (N, 2|3) points with N >= 2, got {points.shape}")
     return points
-
-
-

@@ -77,7 +77,10 @@ class Ordering:
 
 
 def order_keypoints(
-    lifted: LiftedPair, stereo: StereoResult, clusters: Clusters, p: OrderingParams = OrderingParams()
+    lifted: LiftedPair,
+    stereo: StereoResult,
+    clusters: Clusters,
+    p: OrderingParams = OrderingParams(),
 ) -> Ordering:
     """Solidify, build A, walk it, extend the ends."""
     if p.solidify_radius < 0:
@@ -115,7 +118,8 @@ def order_keypoints(
     for c, g in np.unique(cg, axis=0):
         cluster_gaps.setdefault(int(c), set()).add(int(g))
     links = [
-        tuple(sorted(cluster_gaps.get(a, set()) & cluster_gaps.get(b, set()))) for a, b in zip(walk[:-1], walk[1:])
+        tuple(sorted(cluster_gaps.get(a, set()) & cluster_gaps.get(b, set())))
+        for a, b in zip(walk[:-1], walk[1:], strict=True)
     ]
     path = [clusters.keypoints_px[k] for k in walk]
     order = list(walk)
@@ -247,7 +251,9 @@ def _touching_pairs(node_image: np.ndarray) -> np.ndarray:
     return np.unique(pairs, axis=0) if len(pairs) else pairs.reshape(0, 2)
 
 
-def _best_walk(K: int, edges: np.ndarray, pos: np.ndarray, pos_px: np.ndarray, bridge_px: float) -> list[int]:
+def _best_walk(
+    K: int, edges: np.ndarray, pos: np.ndarray, pos_px: np.ndarray, bridge_px: float
+) -> list[int]:
     adj: list[list[int]] = [[] for _ in range(K)]
     for a, b in edges:
         adj[a].append(int(b))
@@ -261,7 +267,11 @@ def _best_walk(K: int, edges: np.ndarray, pos: np.ndarray, pos_px: np.ndarray, b
     best_key = (-1, 0.0)
     for s in starts:
         walk = _greedy_walk(s, adj, pos, pos_px, comp, bridge_px)
-        length = float(np.linalg.norm(np.diff(pos_px[walk], axis=0), axis=1).sum()) if len(walk) > 1 else 0.0
+        length = (
+            float(np.linalg.norm(np.diff(pos_px[walk], axis=0), axis=1).sum())
+            if len(walk) > 1
+            else 0.0
+        )
         key = (len(walk), -length)
         if key > best_key:
             best, best_key = walk, key
@@ -269,7 +279,12 @@ def _best_walk(K: int, edges: np.ndarray, pos: np.ndarray, pos_px: np.ndarray, b
 
 
 def _greedy_walk(
-    start: int, adj: list[list[int]], pos: np.ndarray, pos_px: np.ndarray, comp: np.ndarray, bridge_px: float
+    start: int,
+    adj: list[list[int]],
+    pos: np.ndarray,
+    pos_px: np.ndarray,
+    comp: np.ndarray,
+    bridge_px: float,
 ) -> list[int]:
     visited = np.zeros(len(adj), dtype=bool)
     done_comp = {int(comp[start])}

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from core.bounds import BoundsParams, depth_bounds
@@ -20,7 +20,16 @@ from core.segmentation import SegmentationParams, StereoPair, segment
 from core.spline import SplineParams, fit_spline
 from core.stereo import StereoParams, match_stereo
 
-STAGES = ("segment", "stereo", "reliability", "clustering", "ordering", "bounds", "spline", "camera")
+STAGES = (
+    "segment",
+    "stereo",
+    "reliability",
+    "clustering",
+    "ordering",
+    "bounds",
+    "spline",
+    "camera",
+)
 
 
 @dataclass(frozen=True)
@@ -37,8 +46,13 @@ class ReconParams:
     camera: CameraParams = field(default_factory=CameraParams)
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
-        return {f.name: {g.name: getattr(getattr(self, f.name), g.name) for g in fields(getattr(self, f.name))}
-                for f in fields(self)}
+        return {
+            f.name: {
+                g.name: getattr(getattr(self, f.name), g.name)
+                for g in fields(getattr(self, f.name))
+            }
+            for f in fields(self)
+        }
 
 
 class StageError(ValueError):
@@ -64,7 +78,9 @@ class Pipeline:
 
     def __init__(self, pair: StereoPair, calib: StereoCalibration) -> None:
         if pair.shape != calib.image_size:
-            raise ValueError(f"images are {pair.shape} px but the calibration is for {calib.image_size}")
+            raise ValueError(
+                f"images are {pair.shape} px but the calibration is for {calib.image_size}"
+            )
         self.pair = pair
         self.calib = calib
         self._cache: dict[str, tuple[tuple, Any]] = {}
@@ -77,14 +93,18 @@ class Pipeline:
             "stereo": lambda: match_stereo(r["segment"], c, p.stereo),
             "reliability": lambda: prune(r["stereo"], p.reliability),
             "clustering": lambda: cluster_keypoints(r["stereo"], r["reliability"], p.clustering),
-            "ordering": lambda: order_keypoints(r["segment"], r["stereo"], r["clustering"], p.ordering),
+            "ordering": lambda: order_keypoints(
+                r["segment"], r["stereo"], r["clustering"], p.ordering
+            ),
             "bounds": lambda: depth_bounds(r["stereo"], r["ordering"], c, p.bounds),
             "spline": lambda: fit_spline(r["bounds"], c, p.spline),
             "camera": lambda: to_camera(r["spline"], c, p.camera),
         }
         return fns[stage]()
 
-    def stages(self, params: ReconParams = ReconParams(), until: str = "camera") -> Iterator[StageRun]:
+    def stages(
+        self, params: ReconParams = ReconParams(), until: str = "camera"
+    ) -> Iterator[StageRun]:
         """Yield each stage's run in order up to ``until``; raises :class:`StageError`."""
         if until not in STAGES:
             raise ValueError(f"unknown stage {until!r}")
@@ -164,6 +184,8 @@ class Reconstruction:
         return {name: run.ms for name, run in self.runs.items()}
 
 
-def reconstruct(pair: StereoPair, calib: StereoCalibration, params: ReconParams = ReconParams()) -> Reconstruction:
+def reconstruct(
+    pair: StereoPair, calib: StereoCalibration, params: ReconParams = ReconParams()
+) -> Reconstruction:
     """One-shot run of the whole pipeline."""
     return Pipeline(pair, calib).run(params)

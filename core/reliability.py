@@ -29,7 +29,7 @@ class ReliabilityParams:
 
 @dataclass(frozen=True)
 class ReliabilityResult:
-    """``R``: (N,) float in [0, 1] per pixel of P_L; ``reliable``: (N,) bool, membership of P_L^R."""
+    """``R``: (N,) float in [0, 1] per pixel of P_L; ``reliable``: (N,) bool, p in P_L^R."""
 
     R: np.ndarray
     reliable: np.ndarray
@@ -39,7 +39,9 @@ class ReliabilityResult:
         return int(self.reliable.sum())
 
 
-def reliability(E_min: np.ndarray, E_next: np.ndarray, p: ReliabilityParams = ReliabilityParams()) -> np.ndarray:
+def reliability(
+    E_min: np.ndarray, E_next: np.ndarray, p: ReliabilityParams = ReliabilityParams()
+) -> np.ndarray:
     """Eq. (6), elementwise; E_next = inf (no second candidate) gives R = 1."""
     if p.eps2 <= 0:
         raise ValueError(f"eps2 must be > 0, got {p.eps2}")
@@ -55,5 +57,5 @@ def prune(stereo: StereoResult, p: ReliabilityParams = ReliabilityParams()) -> R
     if not 0.0 <= p.threshold < 1.0:
         raise ValueError(f"threshold must be in [0, 1), got {p.threshold}")
     R = reliability(stereo.E_min, stereo.E_next, p)
-    reliable = (R > p.threshold) & np.isfinite(stereo.depth)
+    reliable = (p.threshold < R) & np.isfinite(stereo.depth)
     return ReliabilityResult(R=R, reliable=reliable)

@@ -34,7 +34,11 @@ class StereoPair:
     def __post_init__(self) -> None:
         for name in ("left", "right"):
             a = getattr(self, name)
-            if not isinstance(a, np.ndarray) or a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] not in (1, 3, 4)):
+            if (
+                not isinstance(a, np.ndarray)
+                or a.ndim not in (2, 3)
+                or (a.ndim == 3 and a.shape[2] not in (1, 3, 4))
+            ):
                 shape = getattr(a, "shape", type(a).__name__)
                 raise ValueError(f"{name} image must be (H, W) or (H, W, 3), got {shape}")
             if a.shape[0] < 8 or a.shape[1] < 8:
@@ -99,7 +103,9 @@ def to_grey(image: np.ndarray) -> np.ndarray:
         return image.astype(np.float32)
     if image.shape[2] == 1:
         return image[:, :, 0].astype(np.float32)
-    return cv2.cvtColor(np.ascontiguousarray(image[:, :, :3]), cv2.COLOR_RGB2GRAY).astype(np.float32)
+    return cv2.cvtColor(np.ascontiguousarray(image[:, :, :3]), cv2.COLOR_RGB2GRAY).astype(
+        np.float32
+    )
 
 
 def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> LiftedPair:
@@ -121,7 +127,9 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
         raise ValueError(f"lift_dilate_px must be >= 0, got {p.lift_dilate_px}")
     I_L = _lift(grey_L, P_L, p.lift_dilate_px)
     I_R = _lift(grey_R, P_R, p.lift_dilate_px)
-    return LiftedPair(I_L=I_L, I_R=I_R, P_L=P_L, P_R=P_R, grey_L=grey_L, grey_R=grey_R, background=bg)
+    return LiftedPair(
+        I_L=I_L, I_R=I_R, P_L=P_L, P_R=P_R, grey_L=grey_L, grey_R=grey_R, background=bg
+    )
 
 
 def _lift(grey: np.ndarray, P: np.ndarray, dilate_px: int) -> np.ndarray:

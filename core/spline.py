@@ -91,7 +91,9 @@ class SplineResult:
         return BSpline(self.knots, c, self.degree)(np.linspace(0.0, self.length, n))
 
 
-def fit_spline(bounds: Bounds, calib: StereoCalibration, p: SplineParams = SplineParams()) -> SplineResult:
+def fit_spline(
+    bounds: Bounds, calib: StereoCalibration, p: SplineParams = SplineParams()
+) -> SplineResult:
     """Initialise S from H^i and solve Eq. (8)."""
     if p.degree < 2 or p.degree > 5:
         raise ValueError(f"degree must be in 2..5, got {p.degree}")
@@ -109,7 +111,9 @@ def fit_spline(bounds: Bounds, calib: StereoCalibration, p: SplineParams = Splin
     u = np.clip(s * (length / s[-1]), 0.0, length)
     u[-1] = length
     m = min(p.n_ctrl, max(k + 1, P))  # no more control points than data points
-    t = np.concatenate([np.zeros(k + 1), np.linspace(0.0, length, m - k + 1)[1:-1], np.full(k + 1, length)])
+    t = np.concatenate(
+        [np.zeros(k + 1), np.linspace(0.0, length, m - k + 1)[1:-1], np.full(k + 1, length)]
+    )
 
     Hi = np.column_stack([bounds.H[:, 0], bounds.H[:, 1], bounds.centre])  # H^i
     ctrl_init = _init_fit(Hi, u, t, k)
@@ -142,18 +146,29 @@ def fit_spline(bounds: Bounds, calib: StereoCalibration, p: SplineParams = Splin
         f, g = mvs.value_grad(b, scale)
         r = Bd @ b - bounds.centre
         return f + float(np.sum(w_d * r * r)), g + 2.0 * Bd.T @ (w_d * r)
+
     zs = max(float(np.median(half_c)), 1e-12)  # constraint scaling: depths in half-widths
+
     def solve(rows: slice) -> optimize.OptimizeResult:
         Er, er = E[rows], e_rhs[rows]
         cons = [
-            {"type": "ineq", "fun": lambda b: np.concatenate([A @ b - lo_c, hi_c - A @ b]) / zs,
-             "jac": lambda b: np.vstack([A, -A]) / zs},
+            {
+                "type": "ineq",
+                "fun": lambda b: np.concatenate([A @ b - lo_c, hi_c - A @ b]) / zs,
+                "jac": lambda b: np.vstack([A, -A]) / zs,
+            },
             {"type": "eq", "fun": lambda b: (Er @ b - er) / zs, "jac": lambda b: Er / zs},
         ]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            return optimize.minimize(objective, b0, jac=True, method="SLSQP", constraints=cons,
-                                     options={"maxiter": p.max_iter, "ftol": 1e-9})
+            return optimize.minimize(
+                objective,
+                b0,
+                jac=True,
+                method="SLSQP",
+                constraints=cons,
+                options={"maxiter": p.max_iter, "ftol": 1e-9},
+            )
 
     res = solve(slice(None))
     relaxed = False
@@ -179,11 +194,15 @@ def fit_spline(bounds: Bounds, calib: StereoCalibration, p: SplineParams = Splin
     if status != "ok":
         viol_init = _violation(A @ b0, lo_c, hi_c, half_c)
         msg = f"{res.message} (bound excursion {viol:.3f} of the half-width)"
-        return SplineResult(t, ctrl_init, ctrl_init, k, length, u, status, msg, (f0, f0), int(res.nit), viol_init)
+        return SplineResult(
+            t, ctrl_init, ctrl_init, k, length, u, status, msg, (f0, f0), int(res.nit), viol_init
+        )
     ctrl = ctrl_init.copy()
     ctrl[:, 2] = b
     msg = str(res.message) + (" (endpoint slope constraints relaxed)" if relaxed else "")
-    return SplineResult(t, ctrl, ctrl_init, k, length, u, "ok", msg, (f0, mvs.value(b)), int(res.nit), viol)
+    return SplineResult(
+        t, ctrl, ctrl_init, k, length, u, "ok", msg, (f0, mvs.value(b)), int(res.nit), viol
+    )
 
 
 def _init_fit(Hi: np.ndarray, u: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
@@ -206,7 +225,9 @@ def _init_fit(Hi: np.ndarray, u: np.ndarray, t: np.ndarray, k: int) -> np.ndarra
     return np.linalg.solve(B.T @ B + lam * D.T @ D, B.T @ Hi)
 
 
-def _constraint_points(u: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _constraint_points(
+    u: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     mid = 0.5 * (u[1:] + u[:-1])
     uc = np.concatenate([u, mid])
     return np.interp(uc, u, lo), np.interp(uc, u, hi), uc
@@ -240,7 +261,10 @@ class _Mvs:
         self.wq = (0.5 * (b - a)[:, None] * wg[None, :]).ravel()
         m = len(t) - k - 1
         eye = np.eye(m)
-        self.B = [np.array([BSpline(t, eye[j], k).derivative(d)(self.uq) for j in range(m)]).T for d in (1, 2, 3)]
+        self.B = [
+            np.array([BSpline(t, eye[j], k).derivative(d)(self.uq) for j in range(m)]).T
+            for d in (1, 2, 3)
+        ]
 
     def _terms(self, b: np.ndarray) -> tuple[np.ndarray, ...]:
         z1, z2, z3 = (B @ b for B in self.B)
@@ -256,7 +280,9 @@ class _Mvs:
         z1, z2, z3, g, kp = self._terms(b)
         r = g**-0.5
         f = float(np.sum(self.wq * kp * kp * r))
-        dk1 = -3.0 * z1 * z3 * g**-2.5 - 3.0 * z2 * z2 * g**-2.5 + 15.0 * z1 * z1 * z2 * z2 * g**-3.5
+        dk1 = (
+            -3.0 * z1 * z3 * g**-2.5 - 3.0 * z2 * z2 * g**-2.5 + 15.0 * z1 * z1 * z2 * z2 * g**-3.5
+        )
         dk2 = -6.0 * z1 * z2 * g**-2.5
         dk3 = g**-1.5
         c = 2.0 * kp * r * self.wq

@@ -68,7 +68,9 @@ class StereoResult:
         return idx
 
 
-def match_stereo(lifted: LiftedPair, calib: StereoCalibration, p: StereoParams = StereoParams()) -> StereoResult:
+def match_stereo(
+    lifted: LiftedPair, calib: StereoCalibration, p: StereoParams = StereoParams()
+) -> StereoResult:
     """Eqs. (2)-(5) for every pixel of P_L."""
     if p.alpha < NEXT_GAP + 2:
         raise ValueError(f"alpha must be >= {NEXT_GAP + 2}, got {p.alpha}")
@@ -134,7 +136,9 @@ def _reproject(x: np.ndarray, y: np.ndarray, disparity: np.ndarray, Q: np.ndarra
     return pts
 
 
-def _window_matrix(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int], window: int) -> sp.csr_matrix:
+def _window_matrix(
+    rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int], window: int
+) -> sp.csr_matrix:
     """(N, N) 0/1 matrix: A[i, j] = 1 when segmented pixel j lies in the window g_i of pixel i."""
     H, W = shape
     r = window // 2
@@ -159,7 +163,7 @@ def _subpixel_offset(
     d_min: np.ndarray,
     alpha: int,
 ) -> np.ndarray:
-    """Exact minimiser of Eq. (2) over d in [d_min - 1, d_min + 1] with I_R linearly interpolated."""
+    """Exact minimiser of Eq. (2) on [d_min - 1, d_min + 1], I_R linearly interpolated."""
     coo = A.tocoo()
     i, j = coo.row, coo.col
     n = d_min.size
