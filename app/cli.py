@@ -213,6 +213,8 @@ def summarise(rows: list[dict[str, Any]]) -> list[str]:
 
 
 def _progress(i: int, n: int, label: str) -> None:
+    if not sys.stderr.isatty():  # logs get no carriage-return bar
+        return
     width = 30
     done = int(width * i / max(n, 1))
     sys.stderr.write(f"\r[{'#' * done}{'.' * (width - done)}] {i}/{n} {label[:40]:<40}")
