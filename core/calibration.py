@@ -138,7 +138,10 @@ def parse_calibration(
 
     The optional string key ``Units`` gives the length unit; without it ``unit`` (default "mm").
     """
-    fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+    try:
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+    except (cv2.error, SystemError):  # OpenCV's parser raises on text that is not YAML/XML
+        raise CalibrationError(f"{source}: not an OpenCV FileStorage YAML file") from None
     try:
         if not fs.isOpened():
             raise CalibrationError(f"{source}: not an OpenCV FileStorage YAML file")

@@ -1,0 +1,118 @@
+"""Tests of core/metrics.py: the paper's curve, length and reprojection errors."""
+
+import numpy as np
+import pytest
+from support import assert_close
+
+from core.metrics import (
+    curve_errors,
+    polyline_length,
+    project,
+    reprojection_errors,
+    resample,
+    skeleton,
+)
+
+TRIALS = 10
+
+
+def _planar_curve(rng: np.random.Generator) -> np.ndarray:
+    """A random smooth curve in the plane z = 100 mm, (200, 3)."""
+    t = np.linspace(0.0, 1.0, 200)
+    a = rng.normal(size=(2, 3))
+    x = 40 * t + sum(a[0, k] * np.sin((k + 1) * np.pi * t) for k in range(3))
+    y = 10 * sum(a[1, k] * np.cos((k + 1) * np.pi * t) for k in range(3))
+    return np.column_stack([x, y, np.full_like(t, 100.0)])
+
+
+@pytest.mark.parametrize("seed", range(TRIALS))
+def test_curve_error_of_a_curve_with_itself_is_zero(seed: int) -> None:
+    c = _planar_curve(np.random.default_rng(seed))
+    err = curve_errors(c, c)
+    assert err.e_S == pytest.approx(0.0, abs=1e-9)
+    assert err.e_S_max == pytest.approx(0.0, abs=1e-9)
+    assert err.e_length == 0.0
+    assert err.length == err.length_gt == pytest.approx(polyline_length(c))
+
+
+@pytest.mark.parametrize("seed", range(TRIALS))
+def test_curve_error_of_a_translated_copy_is_the_translation(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    c = _planar_curve(rng)
+    dz = float(rng.uniform(0.1, 5.0))
+    moved = c + np.array([0.0, 0.0, dz])  # normal to the curve's plane: every distance is dz
+    for a, b in ((moved, c), (c, moved)):
+        err = curve_errors(a, b)
+        assert err.e_S == pytest.approx(dz, rel=1e-9)
+        assert err.e_S_max == pytest.approx(dz, rel=1e-9)
+        assert err.e_length == pytest.approx(0.0, abs=1e-9)
+
+
+def test_length_error_is_exact_on_a_known_polyline() -> None:
+    bent = np.array([[0.0, 0.0, 0.0], [3.0, 4.0, 0.0], [3.0, 4.0, 12.0]])  # 5 + 12
+    straight = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]])
+    assert polyline_length(bent) == 17.0
+    err = curve_errors(bent, straight)
+    assert err.length == 17.0 and err.length_gt == 10.0
+    assert err.e_length == 7.0
+    assert curve_errors(straight, bent).e_length == 7.0
+
+
+def test_resample_is_uniform_in_arc_length() -> None:
+    bent = np.array([[0.0, 0.0, 0.0], [3.0, 4.0, 0.0], [3.0, 4.0, 12.0]])
+    r = resample(bent, 35)
+    assert_close(r[[0, -1]], bent[[0, -1]])
+    assert_close(np.linalg.norm(np.diff(r, axis=0), axis=1), np.full(34, 0.5), rtol=1e-9)
+
+
+def test_project_with_identity_camera() -> None:
+    P = np.array([[800.0, 0, 320, 0], [0, 800.0, 240, 0], [0, 0, 1, 0]])
+    pts = np.array([[0.0, 0.0, 100.0], [10.0, -5.0, 50.0]])
+    assert_close(project(pts, P), np.array([[320.0, 240.0], [480.0, 160.0]]))
+
+
+def _line_mask() -> np.ndarray:
+    mask = np.zeros((100, 100), bool)
+    mask[49:52, 10:91] = True  # 3 px wide, 81 px long
+    return mask
+
+
+def test_points_on_mask_have_zero_reprojection_error_and_full_coverage() -> None:
+    mask = _line_mask()
+    pixels = np.column_stack([np.arange(10, 91), np.full(81, 50)]).astype(float)  # pixel centres
+    err = reprojection_errors(pixels, mask)
+    assert err.mean == 0.0 and err.max == 0.0
+    assert err.coverage == 1.0
+
+
+def test_half_length_curve_covers_about_half_the_thread() -> None:
+    mask = _line_mask()
+    pixels = np.column_stack([np.arange(10, 51), np.full(41, 50)]).astype(float)
+    err = reprojection_errors(pixels, mask)
+    assert err.max == 0.0
+    assert err.coverage == pytest.approx(0.5, abs=0.1)
+
+
+def test_reprojection_error_is_distance_to_the_mask() -> None:
+    mask = _line_mask()
+    pixels = np.array([[50.0, 55.0], [50.0, 51.0]])  # 4 px below the mask's last row, and on it
+    err = reprojection_errors(pixels, mask)
+    assert err.max == 4.0 and err.mean == 2.0
+    with pytest.raises(ValueError, match="non-empty"):
+        reprojection_errors(pixels, np.zeros((10, 10), bool))
+
+
+def test_skeleton_of_a_three_pixel_line_is_one_pixel_wide() -> None:
+    mask = _line_mask()
+    skel = skeleton(mask)
+    assert skel.dtype == bool and skel.shape == mask.shape
+    assert np.all(skel <= mask)
+    per_column = skel.sum(axis=0)
+    assert per_column.max() == 1
+    assert np.all(per_column[12:89] == 1)  # only the very ends may be trimmed
+    assert np.all(np.nonzero(skel)[0] == 50)
+
+
+def test_curve_errors_reject_bad_shapes() -> None:
+    with pytest.raises(ValueError, match=r"\(3,\)"):
+        curve_errors(np.zeros(3), np.zeros((4, 3)))

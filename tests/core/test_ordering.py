@@ -1,0 +1,91 @@
+"""Tests of core/ordering.py over seeded random synthetic threads: the walk keeps each keypoint
+at most once, covers a clean thread completely, and follows the true curve."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from support import synthetic_case, synthetic_frame
+
+from core.metrics import resample
+from core.ordering import Ordering, OrderingParams, order_keypoints
+from core.pipeline import Pipeline, ReconParams
+from core.reliability import ReliabilityParams
+
+TRIALS = tuple(range(10))
+
+
+def _ordering(seed: int, params: ReconParams | None = None) -> Ordering:
+    pair, calib, _ = synthetic_case(seed)
+    rec = Pipeline(pair, calib).run(params or ReconParams(), until="ordering")
+    assert rec.status == "ok", rec.message
+    return rec["ordering"]
+
+
+def _inversions(seq: np.ndarray) -> int:
+    """Steps against the majority direction of ``seq``."""
+    step = np.sign(np.diff(seq))
+    step = step[step != 0]
+    return int(min((step > 0).sum(), (step < 0).sum()))
+
+
+@pytest.mark.parametrize("seed", TRIALS)
+def test_kept_keypoints_are_unique_ids(seed: int) -> None:
+    o = _ordering(seed)
+    kept = o.order[o.order >= 0]
+    assert kept.size == np.unique(kept).size
+    assert np.all(kept < o.n_clusters)
+    assert set(kept.tolist()) | set(o.dropped.tolist()) == set(range(o.n_clusters))
+    assert not set(kept.tolist()) & set(o.dropped.tolist())
+    # Extension keypoints (-1) only at the ends.
+    assert np.all(o.order[1:-1] >= 0)
+    assert len(o.path_px) == len(o.order) and len(o.links) == len(o.order) - 1
+
+
+def test_clean_thread_ordering_is_a_permutation() -> None:
+    full = 0
+    for seed in TRIALS:
+        o = _ordering(seed)
+        kept = np.sort(o.order[o.order >= 0])
+        full += o.dropped.size == 0 and np.array_equal(kept, np.arange(o.n_clusters))
+    assert full == len(TRIALS)
+
+
+@pytest.mark.parametrize("seed", TRIALS)
+def test_ordered_path_is_monotone_along_true_curve(seed: int) -> None:
+    o = _ordering(seed)
+    frame = synthetic_frame(seed)
+    uv, _ = frame.camera.project(resample(frame.truth.centerline, 20000))
+    _, arc_index = cKDTree(uv).query(o.path_px[:, :2])
+    assert _inversions(arc_index) <= 1
+
+
+@pytest.mark.parametrize("seed", TRIALS[:3])
+def test_3d_metric_gives_a_valid_ordering(seed: int) -> None:
+    o = _ordering(seed, ReconParams(ordering=OrderingParams(metric="3d")))
+    kept = o.order[o.order >= 0]
+    assert kept.size == np.unique(kept).size
+
+
+def test_gap_pixel_positions_along_links_are_in_unit_interval() -> None:
+    # A strict threshold and no solidification leave gaps between the clusters.
+    params = ReconParams(
+        reliability=ReliabilityParams(threshold=0.999), ordering=OrderingParams(solidify_radius=0)
+    )
+    n_gap_px = 0
+    for seed in TRIALS[:3]:
+        o = _ordering(seed, params)
+        finite = np.isfinite(o.pixel_t)
+        n_gap_px += int(finite.sum())
+        assert np.all((o.pixel_t[finite] >= 0) & (o.pixel_t[finite] <= 1))
+        assert np.all(o.pixel_link[finite] >= 0) and np.all(o.pixel_link[finite] < len(o.links))
+        assert np.all(o.pixel_node[finite] >= o.n_clusters)  # only gap pixels lie on links
+    assert n_gap_px > 0
+
+
+def test_negative_solidify_radius_raises() -> None:
+    pair, calib, _ = synthetic_case(0)
+    rec = Pipeline(pair, calib).run(until="clustering")
+    with pytest.raises(ValueError, match="solidify_radius"):
+        order_keypoints(
+            rec["segment"], rec["stereo"], rec["clustering"], OrderingParams(solidify_radius=-1)
+        )

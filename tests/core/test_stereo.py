@@ -1,0 +1,95 @@
+"""Tests of core/stereo.py on synthetic pairs with exact ground truth, Eqs. (2)-(5)."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from support import assert_close, synthetic_case, synthetic_frame
+
+from core.metrics import resample
+from core.segmentation import segment
+from core.stereo import NEXT_GAP, StereoParams, match_stereo, reproject
+
+SEEDS = (0, 1, 2)
+
+
+def _truth_disparity(seed: int, pixels: np.ndarray) -> np.ndarray:
+    """fx B / Z of the true centerline point whose left projection is nearest each pixel."""
+    frame = synthetic_frame(seed)
+    cam = frame.camera
+    dense = resample(frame.truth.centerline, 20000)
+    uv, _ = cam.project(dense)
+    _, j = cKDTree(uv).query(pixels.astype(float))
+    return cam.disparity(dense[j, 2])
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_subpixel_disparity_matches_ground_truth(seed: int) -> None:
+    pair, calib, _ = synthetic_case(seed)
+    st = match_stereo(segment(pair), calib, StereoParams(subpixel=True))
+    err = np.abs(st.disparity - _truth_disparity(seed, st.pixels))
+    assert np.median(err) < 0.3
+    assert np.all(np.abs(st.disparity - st.d_min) <= 1.0)
+
+
+def test_integer_disparities_without_subpixel() -> None:
+    pair, calib, _ = synthetic_case(0)
+    st = match_stereo(segment(pair), calib, StereoParams(subpixel=False))
+    assert_close(st.disparity, st.d_min.astype(np.float64))
+    assert np.all(st.disparity == np.round(st.disparity))
+    assert np.median(np.abs(st.disparity - _truth_disparity(0, st.pixels))) < 1.0
+
+
+@pytest.mark.parametrize("alpha", [40, 80])
+def test_energy_shape_and_second_best_gap(alpha: int) -> None:
+    pair, calib, _ = synthetic_case(1)
+    lifted = segment(pair)
+    st = match_stereo(lifted, calib, StereoParams(alpha=alpha))
+    n = int(lifted.P_L.sum())
+    assert st.energy.shape == (n, alpha + 1)
+    assert st.energy.dtype == np.float32
+    assert st.pixels.shape == (n, 2)
+    assert np.all(np.abs(st.d_next - st.d_min) > NEXT_GAP)
+    assert np.all((st.d_min >= 0) & (st.d_min <= alpha))
+    rows = np.arange(n)
+    assert_close(st.E_min, st.energy[rows, st.d_min].astype(np.float64))
+    assert_close(st.E_next, st.energy[rows, st.d_next].astype(np.float64))
+    assert np.all(st.E_min <= st.energy.min(axis=1))
+    assert np.all(st.E_next >= st.E_min)
+    # The index image inverts the pixel list.
+    idx = st.index_image
+    assert_close(idx[st.pixels[:, 1], st.pixels[:, 0]], rows)
+    assert int((idx >= 0).sum()) == n
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_reprojection_via_q_lies_on_true_curve(seed: int) -> None:
+    pair, calib, truth = synthetic_case(seed)
+    st = match_stereo(segment(pair), calib)
+    ok = np.isfinite(st.points).all(axis=1)
+    assert ok.mean() > 0.95
+    d, _ = cKDTree(resample(truth, 20000)).query(st.points[ok])
+    assert np.median(d) < 1.0
+    assert_close(st.depth, st.points[:, 2])
+    assert_close(st.depth[ok], calib.disparity_to_depth(st.disparity[ok]), rtol=1e-9)
+
+
+def test_reproject_is_nan_for_non_positive_disparity() -> None:
+    _, calib, _ = synthetic_case(0)
+    pts = reproject(
+        np.array([10.0, 20.0, 30.0]), np.array([5.0, 5.0, 5.0]), np.array([0.0, -1.0, 2.0]), calib.Q
+    )
+    assert np.all(np.isnan(pts[:2]))
+    assert np.all(np.isfinite(pts[2]))
+
+
+def test_parameter_and_size_checks() -> None:
+    pair, calib, _ = synthetic_case(0)
+    lifted = segment(pair)
+    with pytest.raises(ValueError, match="alpha"):
+        match_stereo(lifted, calib, StereoParams(alpha=2))
+    with pytest.raises(ValueError, match="window"):
+        match_stereo(lifted, calib, StereoParams(window=4))
+    with pytest.raises(ValueError, match=r"\(480, 640\).*\(240, 320\)"):
+        match_stereo(lifted, replace(calib, image_size=(240, 320)))
