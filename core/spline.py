@@ -124,11 +124,11 @@ def fit_spline(
     mvs = _Mvs(t, k, length, p.quad_per_span)
     b0 = ctrl_init[:, 2].copy()
     f0 = mvs.value(b0)
+    A = BSpline.design_matrix(u_c, t, k).toarray()  # rows: u of H, then the midpoints
     if not p.optimise:
-        viol = _violation(BSpline.design_matrix(u_c, t, k).toarray() @ b0, lo_c, hi_c, half_c)
+        viol = _violation(A @ b0, lo_c, hi_c, half_c)
         return SplineResult(t, ctrl_init, ctrl_init, k, length, u, "skipped", "", (f0, f0), 0, viol)
 
-    A = BSpline.design_matrix(u_c, t, k).toarray()
     E = _end_rows(t, k, length)
     e_rhs = np.array(
         [
@@ -139,7 +139,7 @@ def fit_spline(
         ]
     )
     scale = 1.0 / f0 if f0 > 0 else 1.0
-    Bd = BSpline.design_matrix(u, t, k).toarray()
+    Bd = A[: len(u)]  # basis at the points of H (the first constraint points)
     w_d = p.data_weight / (len(u) * np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12) ** 2)
 
     def objective(b: np.ndarray) -> tuple[float, np.ndarray]:
