@@ -81,6 +81,20 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--repeat", type=int, default=3, help="runs per frame (the fastest counts)")
     b.set_defaults(func=cmd_bench)
 
+    v = sub.add_parser("serve", help="start the browser debugger on a data folder")
+    v.add_argument(
+        "dataset", nargs="?", default=str(_sample_data()), help="data folder (default: sample_data)"
+    )
+    v.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    v.add_argument("--port", type=int, default=8000, help="port of the page and API (default 8000)")
+    v.add_argument(
+        "--viser-port",
+        type=int,
+        default=None,
+        help="port of the 3D view (default: --port + 1; the next free one if taken)",
+    )
+    v.set_defaults(func=cmd_serve)
+
     try:
         from app import generate
     except ImportError:  # the generator ships with the synthetic-data module
@@ -253,6 +267,22 @@ def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
         for r in rows:
             w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
     tmp.replace(path)
+
+
+# --- serve -------------------------------------------------------------------------------
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    from app.server import ServerConfig, serve
+
+    root = Path(args.dataset)
+    discover(root)  # a wrong folder is a one-line error, before anything starts
+    for name, port in (("--port", args.port), ("--viser-port", args.viser_port)):
+        if port is not None and not 0 < port < 65536:
+            raise UserError(f"{name} must be in 1..65535, got {port}")
+    viser_port = args.viser_port if args.viser_port is not None else args.port + 1
+    serve(ServerConfig(data_dir=root, host=args.host, port=args.port, viser_port=viser_port))
+    return 0
 
 
 # --- bench -------------------------------------------------------------------------------

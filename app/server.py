@@ -1,0 +1,426 @@
+"""``threadrecon serve``: the FastAPI app of the debugger, with a viser server in its lifespan.
+
+The page (``static/``) creates a session, embeds the viser client with the session id in its
+websocket path (``ws://host:port/session/<id>``) so that the 3D view, the sliders and the page
+all belong to the same session, and polls the session's state. The REST API (``/docs``) is what
+the page and the tests use.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from collections.abc import AsyncIterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any
+
+import cv2
+import numpy as np
+import viser
+from fastapi import Body, FastAPI, HTTPException, Query, Request
+from fastapi.responses import FileResponse, JSONResponse, RedirectResponse, Response
+from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel
+
+from app.presets import resolve_preset
+from app.scene import SceneView
+from app.session import FrameLibrary, Session, SessionManager, merge_params
+from app.views import jsonable, overlay, pixel_info, stage_json
+from core.pipeline import STAGES, ReconParams
+
+log = logging.getLogger("threadrecon.server")
+STATIC = Path(__file__).resolve().parent.parent / "static"
+RUN_TIMEOUT_S = 120.0  # a REST run waits this long for its result before answering 504
+API_SESSION = "api"  # the session used by REST calls that name none
+
+
+@dataclass
+class ServerConfig:
+    data_dir: Path
+    host: str = "127.0.0.1"
+    port: int = 8000
+    viser_port: int = 8080
+    open_first: bool = True
+    """Run the first frame at start-up, so the page shows a reconstruction without a click."""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class AppState:
+    def __init__(self, config: ServerConfig) -> None:
+        self.config = config
+        self.library = FrameLibrary(config.data_dir)
+        self.sessions = SessionManager(self.library)
+        self.viser: viser.ViserServer | None = None
+        self._views: dict[int, tuple[Session, SceneView]] = {}
+        self._lock = threading.Lock()
+
+    # --- viser ------------------------------------------------------------------------------
+
+    def start_viser(self) -> None:
+        server = viser.ViserServer(
+            host=self.config.host, port=self.config.viser_port, verbose=False
+        )
+        server.scene.set_up_direction("-y")
+        server.scene.configure_environment_map(hdri=None)
+        server.on_client_connect(self._on_connect)
+        server.on_client_disconnect(self._on_disconnect)
+        self.viser = server
+
+    @property
+    def viser_port(self) -> int:
+        assert self.viser is not None
+        return self.viser.get_port()
+
+    def _session_of(self, client: viser.ClientHandle) -> Session:
+        """The session named in the client's websocket path (``/session/<id>``), or a new one
+        for a viser client opened on its own."""
+        sid = None
+        with contextlib.suppress(AttributeError, KeyError):  # viser internals: best effort
+            conn = self.viser._websock_server._live_connections[client.client_id]  # type: ignore[union-attr]
+            path = conn.request.path.partition("?")[0]
+            parts = [p for p in path.split("/") if p]
+            if len(parts) == 2 and parts[0] == "session":
+                sid = parts[1]
+        session = self.sessions.find(sid) if sid else None
+        if session is None:
+            session = self.sessions.create(sid)
+            session.submit()
+        return session
+
+    def _on_connect(self, client: viser.ClientHandle) -> None:
+        session = self._session_of(client)
+        view = SceneView(client, session)
+        with self._lock:
+            self._views[client.client_id] = (session, view)
+        session.attach(client.client_id, view)
+
+    def _on_disconnect(self, client: viser.ClientHandle) -> None:
+        with self._lock:
+            entry = self._views.pop(client.client_id, None)
+        if entry is not None:
+            entry[0].detach(client.client_id)
+
+    def stop(self) -> None:
+        self.sessions.close()
+        if self.viser is not None:
+            self.viser.stop()
+            self.viser = None
+
+    # --- helpers ----------------------------------------------------------------------------
+
+    def session(self, sid: str | None) -> Session:
+        if sid is None or sid == API_SESSION:
+            return self.sessions.find(API_SESSION) or self.sessions.create(API_SESSION)
+        try:
+            return self.sessions.get(sid)
+        except KeyError as exc:
+            raise HTTPException(404, str(exc.args[0])) from None
+
+    def frame_or_404(self, frame_id: str) -> None:
+        try:
+            self.library.get(frame_id)
+        except KeyError as exc:
+            raise HTTPException(404, str(exc.args[0])) from None
+
+
+class RunBody(BaseModel):
+    params: dict[str, Any] | None = None
+    """Partial parameters ``{stage: {name: value}}`` applied over the session's current ones."""
+    preset: str | None = None
+    """Start from this preset instead of the session's current parameters."""
+    until: str | None = None
+    """Compute and show the stages up to this one (default: all)."""
+    session: str | None = None
+    pause_ms: float = 0.0
+    wait: bool = True
+
+
+class StepBody(BaseModel):
+    action: str
+    """"run" (all stages, streamed one by one), "next" (reveal one more stage), "all"."""
+    pause_ms: float = 350.0
+
+
+def create_app(config: ServerConfig) -> FastAPI:
+    state = AppState(config)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        state.start_viser()
+        if config.open_first and state.library.frames:
+            state.session(None).submit(frame_id=next(iter(state.library.frames)))
+        log.info("viser on port %d", state.viser_port)
+        try:
+            yield
+        finally:
+            state.stop()
+
+    app = FastAPI(
+        title="threadrecon debugger",
+        description="Suture-thread reconstruction, stage by stage.",
+        lifespan=lifespan,
+    )
+    app.state.core = state
+
+    # --- page -------------------------------------------------------------------------------
+
+    @app.get("/", include_in_schema=False)
+    def index() -> RedirectResponse:
+        return RedirectResponse("/static/index.html")
+
+    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+
+    @app.get("/api/info")
+    def info() -> dict[str, Any]:
+        """Server facts the page needs: the viser port, the stages, the controls."""
+        from app.controls import controls
+
+        return {
+            "viser_port": state.viser_port,
+            "data_dir": str(config.data_dir),
+            "stages": list(STAGES),
+            "controls": [c.to_dict() for c in controls()],
+            "defaults": ReconParams().to_dict(),
+        }
+
+    # --- frames -----------------------------------------------------------------------------
+
+    @app.get("/api/frames")
+    def frames() -> list[dict[str, Any]]:
+        """Every frame of the data folder, with the status of its last run."""
+        status = state.sessions.frame_status
+        return [
+            {
+                "id": f.id,
+                "name": f.name,
+                "kind": f.kind,
+                "has_ground_truth": f.has_ground_truth,
+                "status": status.get(f.id),
+            }
+            for f in state.library.frames.values()
+        ]
+
+    @app.get("/api/frames/{frame_id:path}/images/{side}")
+    def frame_image(frame_id: str, side: str) -> Response:
+        """The rectified left or right image as PNG."""
+        state.frame_or_404(frame_id)
+        if side not in ("left", "right"):
+            raise HTTPException(404, f"no image {side!r}: use left or right")
+        try:
+            loaded = state.library.load(frame_id)
+        except (ValueError, OSError) as exc:
+            raise HTTPException(422, f"cannot load frame {frame_id}: {exc}") from None
+        img = loaded.pair.left if side == "left" else loaded.pair.right
+        ok, png = cv2.imencode(".png", cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2BGR))
+        if not ok:
+            raise HTTPException(500, "PNG encoding failed")
+        return Response(
+            png.tobytes(), media_type="image/png", headers={"Cache-Control": "max-age=3600"}
+        )
+
+    @app.post("/api/frames/{frame_id:path}/run")
+    def run_frame(frame_id: str, body: Annotated[RunBody | None, Body()] = None) -> JSONResponse:
+        """Select the frame in a session (default: the API session) and run it with the given
+        parameters; answers with the session state when done."""
+        state.frame_or_404(frame_id)
+        body = body or RunBody()
+        session = state.session(body.session)
+        base = session.params
+        preset = None
+        if body.preset is not None:
+            try:
+                base = resolve_preset(body.preset)
+            except ValueError as exc:
+                raise HTTPException(422, str(exc)) from None
+            preset = body.preset
+        try:
+            params = merge_params(base, body.params or {})
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from None
+        if body.until is not None and body.until not in STAGES:
+            raise HTTPException(422, f"until: unknown stage {body.until!r}")
+        reveal = STAGES.index(body.until) + 1 if body.until else len(STAGES)
+        seq = session.submit(
+            frame_id=frame_id, params=params, reveal=reveal, pause_s=body.pause_ms / 1000.0,
+            preset=preset,
+        )  # fmt: skip
+        if preset is not None:
+            session.sync_params()
+        if body.wait and not session.wait(seq, RUN_TIMEOUT_S):
+            raise HTTPException(504, "the run did not finish in time")
+        return JSONResponse(jsonable(session.state()))
+
+    @app.get("/api/frames/{frame_id:path}/stages/{stage}")
+    def frame_stage(frame_id: str, stage: str, session: str | None = None) -> JSONResponse:
+        """One stage's result of the frame as the session last computed it (the frame is run
+        with the session's parameters first if the session shows another frame)."""
+        state.frame_or_404(frame_id)
+        if stage not in STAGES:
+            raise HTTPException(404, f"unknown stage {stage!r} (stages: {', '.join(STAGES)})")
+        s = state.session(session)
+        if (
+            s.frame_id != frame_id
+            or s.rec is None
+            or s.loaded is None
+            or s.loaded.frame.id != frame_id
+        ):
+            s.wait(s.submit(frame_id=frame_id), RUN_TIMEOUT_S)
+        else:
+            s.wait_idle(RUN_TIMEOUT_S)
+        rec = s.rec
+        if rec is None:
+            raise HTTPException(409, s.load_error or "no reconstruction")
+        try:
+            return JSONResponse(stage_json(rec, stage))
+        except LookupError as exc:
+            raise HTTPException(409, str(exc.args[0])) from None
+
+    # --- sessions ---------------------------------------------------------------------------
+
+    @app.post("/api/sessions")
+    def new_session(frame_id: str | None = None) -> dict[str, Any]:
+        """A session for one browser tab; its viser client connects to ``viser_path``."""
+        if frame_id is not None:
+            state.frame_or_404(frame_id)
+        s = state.sessions.create()
+        s.submit(frame_id=frame_id)
+        return {"session": s.id, "viser_port": state.viser_port, "viser_path": f"/session/{s.id}"}
+
+    @app.get("/api/sessions/{sid}")
+    def session_state(
+        sid: str, since: int | None = None, timeout: float = Query(0.0, le=25.0)
+    ) -> JSONResponse:
+        """The session's stepper, metrics and errors; with ``since``, waits up to ``timeout`` s
+        for a version newer than ``since`` (long poll)."""
+        s = state.session(sid)
+        if since is not None and timeout > 0:
+            _wait_version(s, since, timeout)
+        return JSONResponse(jsonable(s.state()))
+
+    @app.patch("/api/sessions/{sid}/params")
+    def patch_params(
+        sid: str, patch: Annotated[dict[str, Any], Body()], wait: bool = False
+    ) -> JSONResponse:
+        """Change parameters (``{stage: {name: value}}``); 422 names a refused parameter."""
+        s = state.session(sid)
+        try:
+            params = merge_params(s.params, patch)
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from None
+        seq = s.submit(params=params)
+        s.sync_params()
+        if wait:
+            s.wait(seq, RUN_TIMEOUT_S)
+        return JSONResponse(jsonable(s.state()))
+
+    @app.post("/api/sessions/{sid}/params/reset")
+    def reset_params(sid: str, wait: bool = False) -> JSONResponse:
+        s = state.session(sid)
+        seq = s.submit(params=ReconParams(), preset="default")
+        s.sync_params()
+        if wait:
+            s.wait(seq, RUN_TIMEOUT_S)
+        return JSONResponse(jsonable(s.state()))
+
+    @app.post("/api/sessions/{sid}/step")
+    def step(sid: str, body: StepBody, wait: bool = False) -> JSONResponse:
+        """The stage stepper: run (streamed), next (reveal one more stage) or all."""
+        s = state.session(sid)
+        n = len(STAGES)
+        if body.action == "run":
+            seq = s.submit(reveal=n, pause_s=body.pause_ms / 1000.0)
+        elif body.action == "next":
+            seq = s.submit(reveal=1 if s.reveal >= n else s.reveal + 1)
+        elif body.action == "all":
+            seq = s.submit(reveal=n)
+        else:
+            raise HTTPException(422, f"action must be run, next or all, got {body.action!r}")
+        if wait:
+            s.wait(seq, RUN_TIMEOUT_S)
+        return JSONResponse(jsonable(s.state()))
+
+    @app.get("/api/sessions/{sid}/overlay")
+    def session_overlay(sid: str) -> JSONResponse:
+        """The 2D overlays of the session's current reconstruction."""
+        s = state.session(sid)
+        with s.draw_lock:
+            rec, loaded = s.rec, s.loaded
+        if rec is None or loaded is None:
+            return JSONResponse({"frame_id": s.frame_id, "version": s.version})
+        data = overlay(rec, loaded.calib)
+        data.update(frame_id=loaded.frame.id, version=s.version)
+        return JSONResponse(data)
+
+    @app.get("/api/sessions/{sid}/pixel")
+    def session_pixel(sid: str, x: int, y: int) -> JSONResponse:
+        """Pixel inspector: the energy curve E(d) of a left-image pixel, d_min, d_next, R, depth.
+        The pixel becomes the session's inspected pixel (marked in 3D)."""
+        s = state.session(sid)
+        rec = s.rec
+        if rec is None:
+            raise HTTPException(409, "no reconstruction yet")
+        try:
+            info = pixel_info(rec, x, y)
+        except LookupError as exc:
+            raise HTTPException(409, str(exc.args[0])) from None
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from None
+        s.set_inspect(info)
+        return JSONResponse(info)
+
+    @app.get("/api/sessions/{sid}/stages/{stage}")
+    def session_stage(sid: str, stage: str) -> JSONResponse:
+        s = state.session(sid)
+        if s.rec is None:
+            raise HTTPException(409, s.load_error or "no reconstruction yet")
+        try:
+            return JSONResponse(stage_json(s.rec, stage))
+        except KeyError as exc:
+            raise HTTPException(404, str(exc.args[0])) from None
+        except LookupError as exc:
+            raise HTTPException(409, str(exc.args[0])) from None
+
+    @app.get("/favicon.ico", include_in_schema=False)
+    def favicon() -> FileResponse:
+        return FileResponse(STATIC / "favicon.svg", media_type="image/svg+xml")
+
+    @app.exception_handler(Exception)
+    async def unexpected(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error on %s", request.url.path)
+        return JSONResponse({"detail": f"internal error: {type(exc).__name__}: {exc}"}, 500)
+
+    return app
+
+
+def _wait_version(s: Session, since: int, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while s.version <= since and time.monotonic() < deadline:
+        time.sleep(0.02)
+
+
+def serve(config: ServerConfig) -> None:
+    import uvicorn
+
+    app = create_app(config)
+    state: AppState = app.state.core
+    uv = uvicorn.Server(
+        uvicorn.Config(app, host=config.host, port=config.port, log_level="warning")
+    )
+
+    original = uv.startup
+
+    async def startup(sockets: Any = None) -> None:
+        await original(sockets)
+        if uv.started:
+            print(
+                f"threadrecon debugger: open http://{config.host}:{config.port}/  "
+                f"({len(state.library.frames)} frames of {config.data_dir}; "
+                f"3D view on port {state.viser_port})",
+                flush=True,
+            )
+
+    uv.startup = startup  # type: ignore[method-assign]
+    uv.run()

@@ -1,0 +1,305 @@
+// threadrecon debugger page: frame list, embedded viser view, stereo images with overlays,
+// stage stepper, metrics and pixel inspector. Everything goes through the REST API (/docs).
+"use strict";
+
+const S = {
+  session: null, info: null, frames: [], frameId: null, version: -1, state: null,
+  overlay: null, overlayVersion: -1, images: {}, imageFrame: null, pixel: null,
+  hooks: [],  // functions(state) called after each new state (ratings, presets, ...)
+};
+window.threadrecon = S;  // for the browser tests and the console
+
+const $ = (sel) => document.querySelector(sel);
+const enc = (id) => id.split("/").map(encodeURIComponent).join("/");
+const fmt = (v, d = 3) => (v === null || v === undefined || Number.isNaN(v)) ? "–" : Number(v).toFixed(d);
+
+async function api(method, url, body) {
+  const opt = { method, headers: {} };
+  if (body !== undefined) { opt.headers["Content-Type"] = "application/json"; opt.body = JSON.stringify(body); }
+  const r = await fetch(url, opt);
+  const text = await r.text();
+  let data = null;
+  try { data = text ? JSON.parse(text) : null; } catch { data = { detail: text }; }
+  if (!r.ok) {
+    const detail = data && data.detail;
+    const msg = typeof detail === "string" ? detail : JSON.stringify(detail);
+    const err = new Error(msg || `${r.status}`);
+    err.status = r.status;
+    throw err;
+  }
+  return data;
+}
+
+function showError(msg) {
+  const box = $("#error");
+  box.hidden = !msg;
+  box.textContent = msg || "";
+}
+
+// --- frames ----------------------------------------------------------------------------------
+
+async function loadFrames() {
+  S.frames = await api("GET", "/api/frames");
+  renderFrames();
+}
+
+function renderFrames() {
+  const tbody = $("#frames tbody");
+  tbody.innerHTML = "";
+  for (const f of S.frames) {
+    const tr = document.createElement("tr");
+    tr.dataset.id = f.id;
+    if (f.id === S.frameId) tr.classList.add("selected");
+    const st = f.status || "–";
+    const rating = f.rating ? "★".repeat(f.rating) : "";
+    tr.innerHTML = `<td title="${f.id}">${f.name}</td><td>${f.kind === "simulated" ? "sim" : "real"}</td>` +
+      `<td class="st-${f.status ? f.status : "none"}">${st}</td><td class="rating">${rating}</td>`;
+    tr.addEventListener("click", () => selectFrame(f.id));
+    tbody.appendChild(tr);
+  }
+}
+
+async function selectFrame(id) {
+  if (!id) return;
+  S.frameId = id;
+  renderFrames();
+  loadImages(id);
+  try {
+    await api("POST", `/api/frames/${enc(id)}/run`, { session: S.session, wait: false });
+  } catch (e) { showError(e.message); }
+}
+
+function stepFrame(delta) {
+  const i = S.frames.findIndex((f) => f.id === S.frameId);
+  const j = Math.min(S.frames.length - 1, Math.max(0, i + delta));
+  if (j !== i) selectFrame(S.frames[j].id);
+}
+
+function loadImages(id) {
+  if (S.imageFrame === id) return;
+  S.imageFrame = id;
+  for (const side of ["left", "right"]) {
+    const img = new Image();
+    img.onload = () => { if (S.imageFrame === id) { S.images[side] = img; drawImages(); } };
+    img.src = `/api/frames/${enc(id)}/images/${side}`;
+  }
+  S.images = {};
+}
+
+// --- state polling ---------------------------------------------------------------------------
+
+async function poll() {
+  for (;;) {
+    try {
+      const st = await api("GET", `/api/sessions/${S.session}?since=${S.version}&timeout=10`);
+      $("#conn").textContent = "connected"; $("#conn").className = "badge ok";
+      if (st.version !== S.version || !S.state) {
+        S.version = st.version;
+        applyState(st);
+      }
+    } catch (e) {
+      $("#conn").textContent = "server unreachable"; $("#conn").className = "badge bad";
+      await new Promise((r) => setTimeout(r, 1000));
+    }
+  }
+}
+
+function applyState(st) {
+  const frameChanged = S.frameId !== st.frame_id;
+  S.state = st;
+  S.frameId = st.frame_id;
+  if (frameChanged) { renderFrames(); S.pixel = null; drawEnergy(); }
+  if (st.frame_id) loadImages(st.frame_id);
+  $("#preset-badge").textContent = st.preset;
+  renderStepper(st);
+  renderMetrics(st);
+  showError(st.error ? `${st.status === "failed" ? "Failed" : "Note"}: ${st.error}` : "");
+  const f = S.frames.find((x) => x.id === st.frame_id);
+  if (f && !st.busy && st.status !== "pending") {
+    const status = st.stages.every((s) => !s.revealed || s.status !== "pending") ? st.status : f.status;
+    if (f.status !== status) { f.status = status; renderFrames(); }
+  }
+  if (st.inspect && st.inspect.segmented && (!S.pixel || S.pixel.x !== st.inspect.x || S.pixel.y !== st.inspect.y || S.pixel.version !== st.version)) {
+    S.pixel = Object.assign({}, st.inspect, { version: st.version });
+    drawEnergy();
+  }
+  refreshOverlay();
+  for (const h of S.hooks) h(st);
+}
+
+function renderStepper(st) {
+  const ol = $("#stepper");
+  ol.innerHTML = "";
+  st.stages.forEach((s, i) => {
+    const li = document.createElement("li");
+    li.dataset.stage = s.stage;
+    li.dataset.status = s.status;
+    li.className = `${s.status} ${s.revealed ? "" : "hidden"}`;
+    const ms = s.ms === undefined ? "" : (s.status === "cached" ? "cached" : `${s.ms.toFixed(1)} ms`);
+    li.innerHTML = `<span>${i + 1}</span><span>${s.stage}</span><span class="ms">${s.revealed ? ms : "hidden"}</span>`;
+    ol.appendChild(li);
+  });
+}
+
+const METRIC_LABELS = [
+  ["e_S_mm", "e_S (mm)"], ["e_S_max_mm", "e_S max (mm)"], ["e_length_mm", "length error (mm)"],
+  ["length_mm", "length (mm)"], ["left_mean_px", "reproj. left mean (px)"], ["left_max_px", "reproj. left max (px)"],
+  ["right_mean_px", "reproj. right mean (px)"], ["right_max_px", "reproj. right max (px)"],
+  ["coverage_left", "coverage left"], ["coverage_right", "coverage right"],
+];
+
+function renderMetrics(st) {
+  const tbody = $("#metrics tbody");
+  tbody.innerHTML = "";
+  const m = st.metrics || {};
+  const total = st.stages.reduce((a, s) => a + (s.ms || 0), 0);
+  const rows = [["status", st.status], ["computed (ms)", fmt(total, 1)]];
+  for (const [k, label] of METRIC_LABELS) if (m[k] !== undefined && m[k] !== null) rows.push([label, fmt(m[k])]);
+  for (const [k, v] of rows) {
+    const tr = document.createElement("tr");
+    tr.innerHTML = `<td>${k}</td><td>${v}</td>`;
+    tbody.appendChild(tr);
+  }
+}
+
+// --- 2D overlays -----------------------------------------------------------------------------
+
+let overlayBusy = false;
+async function refreshOverlay() {
+  if (overlayBusy || S.overlayVersion === S.version) return;
+  overlayBusy = true;
+  try {
+    const v = S.version;
+    const ov = await api("GET", `/api/sessions/${S.session}/overlay`);
+    S.overlay = ov;
+    S.overlayVersion = v;
+    drawImages();
+  } catch (e) { /* the next state refreshes it */ }
+  overlayBusy = false;
+  if (S.overlayVersion !== S.version) refreshOverlay();
+}
+
+function overlayOn(name) {
+  const box = document.querySelector(`[data-ov="${name}"]`);
+  return box ? box.checked : true;
+}
+
+function drawImages() {
+  const ov = S.overlay && S.overlay.frame_id === S.frameId ? S.overlay : {};
+  $("#reliable-count").textContent = ov.reliable ? `(${ov.reliable.length / 2})` : "";
+  $("#keypoint-count").textContent = ov.keypoints ? `(${ov.keypoints.length})` : "";
+  for (const side of ["left", "right"]) {
+    const canvas = $(`#img-${side}`);
+    const img = S.images[side];
+    const ctx = canvas.getContext("2d");
+    if (!img) { ctx.clearRect(0, 0, canvas.width, canvas.height); continue; }
+    if (canvas.width !== img.width) { canvas.width = img.width; canvas.height = img.height; }
+    ctx.drawImage(img, 0, 0);
+    const px = (flat, color) => {
+      ctx.fillStyle = color;
+      for (let i = 0; i < flat.length; i += 2) ctx.fillRect(flat[i], flat[i + 1], 1, 1);
+    };
+    const line = (pts, color, width, dash) => {
+      if (!pts || pts.length < 2) return;
+      ctx.strokeStyle = color; ctx.lineWidth = width; ctx.setLineDash(dash || []);
+      ctx.beginPath(); ctx.moveTo(pts[0][0], pts[0][1]);
+      for (const p of pts) ctx.lineTo(p[0], p[1]);
+      ctx.stroke(); ctx.setLineDash([]);
+    };
+    if (side === "left") {
+      if (ov.segmented && overlayOn("segmented")) px(ov.segmented, "rgba(90,160,255,0.55)");
+      if (ov.reliable && overlayOn("reliable")) px(ov.reliable, "#00e5ff");
+      if (ov.path && overlayOn("path")) line(ov.path, "#ff8c00", 1.5);
+      if (ov.keypoints && overlayOn("keypoints")) {
+        ctx.strokeStyle = "#ffe14d"; ctx.lineWidth = 1.5;
+        for (const k of ov.keypoints) { ctx.beginPath(); ctx.arc(k[0], k[1], 3, 0, 2 * Math.PI); ctx.stroke(); }
+      }
+      if (S.pixel && S.pixel.segmented) {
+        ctx.strokeStyle = "#fff"; ctx.lineWidth = 1;
+        ctx.strokeRect(S.pixel.x - 4, S.pixel.y - 4, 9, 9);
+      }
+    }
+    if (ov.spline_initial && overlayOn("spline_initial")) line(ov.spline_initial[side].points, "#6e82ff", 1.5, [4, 3]);
+    const sp = ov.spline && ov.spline[side];
+    if (sp && overlayOn("spline")) line(sp.points, "#ff3ecf", 1.5);
+    $(`#err-${side}`).textContent = sp ? `reprojection mean ${fmt(sp.mean_px, 2)} px, max ${fmt(sp.max_px, 2)} px, coverage ${fmt(sp.coverage, 2)}` : "";
+  }
+}
+
+// --- pixel inspector -------------------------------------------------------------------------
+
+async function inspect(x, y) {
+  try {
+    const info = await api("GET", `/api/sessions/${S.session}/pixel?x=${x}&y=${y}`);
+    S.pixel = Object.assign(info, { version: S.version });
+  } catch (e) { S.pixel = null; $("#pixel-info").textContent = e.message; }
+  drawEnergy();
+  drawImages();
+}
+
+function drawEnergy() {
+  const canvas = $("#energy");
+  const ctx = canvas.getContext("2d");
+  const W = canvas.width, H = canvas.height;
+  ctx.clearRect(0, 0, W, H);
+  const p = S.pixel;
+  canvas.dataset.pixel = p && p.segmented ? `${p.x},${p.y}` : "";
+  if (!p) { $("#pixel-info").textContent = "Click a pixel of the left image, or a point of the 3D cloud."; return; }
+  if (!p.segmented) { $("#pixel-info").textContent = `(${p.x}, ${p.y}) is not a segmented thread pixel.`; return; }
+  const E = p.energy.map((v) => (v === null ? NaN : v));
+  const finite = E.filter(Number.isFinite);
+  const lo = Math.min(...finite), hi = Math.max(...finite);
+  const pad = 22, sx = (d) => pad + (d / (E.length - 1)) * (W - pad - 6);
+  const sy = (e) => H - 16 - ((e - lo) / (hi - lo || 1)) * (H - 26);
+  ctx.strokeStyle = "#2d313b"; ctx.strokeRect(pad, 4, W - pad - 6, H - 20);
+  ctx.fillStyle = "#8d94a3"; ctx.font = "10px sans-serif";
+  ctx.fillText("0", pad - 3, H - 4); ctx.fillText(`α=${E.length - 1}`, W - 34, H - 4); ctx.fillText("E(d)", 2, 12);
+  ctx.strokeStyle = "#e3e6ec"; ctx.lineWidth = 1.2; ctx.beginPath();
+  let started = false;
+  E.forEach((e, d) => { if (!Number.isFinite(e)) return; if (!started) { ctx.moveTo(sx(d), sy(e)); started = true; } else ctx.lineTo(sx(d), sy(e)); });
+  ctx.stroke();
+  const mark = (d, color, label) => {
+    ctx.strokeStyle = color; ctx.setLineDash([3, 2]); ctx.beginPath(); ctx.moveTo(sx(d), 4); ctx.lineTo(sx(d), H - 16); ctx.stroke(); ctx.setLineDash([]);
+    ctx.fillStyle = color; ctx.fillText(label, Math.min(sx(d) + 2, W - 40), 14);
+  };
+  mark(p.d_min, "#3ccf73", `d_min ${p.d_min}`);
+  mark(p.d_next, "#ff5c5c", `d_next ${p.d_next}`);
+  const rel = p.R === undefined ? "" : `, R ${fmt(p.R)} (${p.reliable ? "reliable" : "not reliable"}, threshold ${p.threshold})`;
+  const depth = p.depth === null ? "no depth" : `depth ${fmt(p.depth, 3)} ${S.state && S.state.unit ? S.state.unit : ""}`;
+  $("#pixel-info").textContent = `pixel (${p.x}, ${p.y}): E_min ${fmt(p.E_min, 1)}, E_next ${fmt(p.E_next, 1)}${rel}, ${depth}`;
+}
+
+// --- start -----------------------------------------------------------------------------------
+
+function bindControls() {
+  $("#btn-run").addEventListener("click", () => api("POST", `/api/sessions/${S.session}/step`, { action: "run" }).catch((e) => showError(e.message)));
+  $("#btn-next").addEventListener("click", () => api("POST", `/api/sessions/${S.session}/step`, { action: "next" }).catch((e) => showError(e.message)));
+  $("#btn-all").addEventListener("click", () => api("POST", `/api/sessions/${S.session}/step`, { action: "all" }).catch((e) => showError(e.message)));
+  for (const box of document.querySelectorAll("[data-ov]")) box.addEventListener("change", drawImages);
+  $("#img-left").addEventListener("click", (ev) => {
+    const c = ev.currentTarget, r = c.getBoundingClientRect();
+    const x = Math.floor((ev.clientX - r.left) * c.width / r.width);
+    const y = Math.floor((ev.clientY - r.top) * c.height / r.height);
+    inspect(x, y);
+  });
+  document.addEventListener("keydown", (ev) => {
+    if (ev.target.closest("input, textarea, select")) return;
+    if (ev.key === "n") stepFrame(1);
+    else if (ev.key === "p") stepFrame(-1);
+  });
+}
+
+async function start() {
+  bindControls();
+  S.info = await api("GET", "/api/info");
+  $("#data-dir").textContent = S.info.data_dir;
+  const sess = await api("POST", "/api/sessions");
+  S.session = sess.session;
+  await loadFrames();
+  const host = location.hostname;
+  const ws = `ws://${host}:${sess.viser_port}${sess.viser_path}`;
+  $("#viewer").src = `http://${host}:${sess.viser_port}/?websocket=${encodeURIComponent(ws)}&hideViserLogo`;
+  poll();
+}
+
+start().catch((e) => showError(`Cannot start: ${e.message}`));
