@@ -104,8 +104,13 @@ def _coerce(key: str, hint: Any, value: Any) -> Any:
 
 def params_hash(params: ReconParams) -> str:
     """Short stable fingerprint of ``params``: the first 12 hex digits of the SHA-256 of the
-    canonical JSON of :meth:`ReconParams.to_dict` (sorted keys, no whitespace)."""
-    canonical = json.dumps(params.to_dict(), sort_keys=True, separators=(",", ":"))
+    canonical JSON of :meth:`ReconParams.to_dict` (sorted keys, no whitespace, numbers as
+    floats so that params equal under ``==``, e.g. ``seg_delta=6`` and ``6.0``, hash equally)."""
+    numbers = {
+        stage: {k: float(v) if type(v) is int else v for k, v in values.items()}
+        for stage, values in params.to_dict().items()
+    }
+    canonical = json.dumps(numbers, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(canonical.encode()).hexdigest()[:HASH_HEX]
 
 

@@ -30,6 +30,9 @@ def test_params_hash_is_short_hex_and_equal_for_equal_params(tmp_path: Path) -> 
     assert a == b and a is not b
     assert params_hash(a) == params_hash(b)
     assert re.fullmatch(r"[0-9a-f]{12}", params_hash(a))
+    c = replace(a, segment=replace(a.segment, seg_delta=int(a.segment.seg_delta)))
+    assert c == a and type(c.segment.seg_delta) is int
+    assert params_hash(c) == params_hash(a)
 
 
 def test_params_hash_changes_with_every_single_parameter() -> None:
