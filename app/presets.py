@@ -7,6 +7,8 @@ crash cannot leave half a preset behind.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import re
 import tempfile
@@ -19,6 +21,7 @@ from typing import Any
 from core.pipeline import STAGES, ReconParams
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+HASH_HEX = 12  # 48 bits: no collision among the few hundred parameter sets of a study
 
 # Valid ranges (inclusive) of the numeric parameters; the stages check them again on use.
 RANGES: dict[str, tuple[float, float]] = {
@@ -97,6 +100,18 @@ def _coerce(key: str, hint: Any, value: Any) -> Any:
             raise ValueError(f"{key} must be in [{lo:g}, {hi:g}], got {value!r}")
         return value
     return value
+
+
+def params_hash(params: ReconParams) -> str:
+    """Short stable fingerprint of ``params``: the first 12 hex digits of the SHA-256 of the
+    canonical JSON of :meth:`ReconParams.to_dict` (sorted keys, no whitespace, numbers as
+    floats so that params equal under ``==``, e.g. ``seg_delta=6`` and ``6.0``, hash equally)."""
+    numbers = {
+        stage: {k: float(v) if type(v) is int else v for k, v in values.items()}
+        for stage, values in params.to_dict().items()
+    }
+    canonical = json.dumps(numbers, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(canonical.encode()).hexdigest()[:HASH_HEX]
 
 
 def load_preset(path: str | Path) -> ReconParams:
