@@ -36,7 +36,7 @@ from core.calibration import StereoCalibration
 
 EQ_TOL = 1e-3  # endpoint equalities hold to 0.1 % of the median bound half-width
 XY_ROUNDS = 3  # adaptive knots: a uniform span is split into at most 2^3 = 8 parts
-XY_MIN_POINTS = 3  # a span with fewer points of H is not split: its halves would be empty
+XY_MIN_POINTS = 3  # a span with fewer points of H is not split: a half would hold <= 1
 XY_PENALTY = 1e-3  # P-spline weight, relative to the mean diagonal of B^T B (1e-4..1e-2 alike)
 Status = Literal["ok", "solver_failed", "out_of_bounds", "skipped"]
 
@@ -73,8 +73,9 @@ class SplineParams:
 
 @dataclass(frozen=True)
 class SplineResult:
-    """``knots``, ``ctrl`` (m, 3), ``degree``: the final spline in (x px, y px, z depth) over u in
-    [0, ``length``]; ``ctrl_init`` the initial one; ``u_H``: parameter of each point of H.
+    """``knots``, ``ctrl`` (m', 3), ``degree``: the final spline in (x px, y px, z depth) over u
+    in [0, ``length``], m' = m unless adaptive knots refined S_x, S_y; ``ctrl_init`` the
+    initial one; ``u_H``: parameter of each point of H.
     ``status``: "ok", "solver_failed" or "out_of_bounds" (then ``ctrl`` = ``ctrl_init``, the
     fallback) or "skipped" (``optimise=False``). ``message``: the solver's message.
     ``objective``: Eq. (8) at the initial and final control points. ``iterations``: solver steps.
@@ -269,6 +270,15 @@ def _adaptive_xy(
     a point of H farther than ``xy_tol_px`` from the fit is halved (at most ``XY_ROUNDS``
     times), so knots gather at tight bends and t stays a subset. Returns the knots and the
     (m', 2) control points, or (t, None) when no span needs splitting (the uniform fit)."""
+    try:
+        return _refine_xy(xy, u, t, k, p.xy_tol_px)
+    except np.linalg.LinAlgError:  # a singular penalised system: keep the uniform fit
+        return t, None
+
+
+def _refine_xy(
+    xy: np.ndarray, u: np.ndarray, t: np.ndarray, k: int, tol: float
+) -> tuple[np.ndarray, np.ndarray | None]:
     t_xy = t
     for _ in range(XY_ROUNDS):
         c = _penalised_fit(xy, u, t_xy, k)
@@ -278,13 +288,14 @@ def _adaptive_xy(
         worst = np.zeros(len(edges) - 1)
         np.maximum.at(worst, span, miss)
         count = np.bincount(span, minlength=len(edges) - 1)
-        split = (worst > p.xy_tol_px) & (count >= XY_MIN_POINTS)
+        split = (worst > tol) & (count >= XY_MIN_POINTS)
         if not split.any():
             break
         t_xy = np.sort(np.concatenate([t_xy, 0.5 * (edges[:-1] + edges[1:])[split]]))
     if len(t_xy) == len(t):
         return t, None
-    return t_xy, _penalised_fit(xy, u, t_xy, k)
+    c = _penalised_fit(xy, u, t_xy, k)
+    return (t_xy, c) if np.all(np.isfinite(c)) else (t, None)
 
 
 def _penalised_fit(xy: np.ndarray, u: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
