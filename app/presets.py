@@ -37,6 +37,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "bounds.bound_scale": (1e-6, 100), "bounds.widen_px": (0, 100),
     "spline.n_ctrl": (3, 200), "spline.degree": (2, 5), "spline.max_iter": (1, 100_000),
     "spline.quad_per_span": (1, 20), "spline.bound_tol": (0, 10), "spline.data_weight": (0, 1e9),
+    "spline.xy_tol_px": (0.01, 1000),
     "camera.n_points": (200, 100_000),
 }  # fmt: skip
 

@@ -15,6 +15,8 @@ Choices the paper leaves open (documented in docs/method.md):
 - Gauss-Legendre quadrature (``quad_per_span`` nodes per knot span) with analytic gradients;
 - the bound constraints hold at every point of H and at the midpoints between them;
 - SLSQP (the paper's solver), objective normalised by its value at the initial guess.
+Deviation (``xy_knots="adaptive"``, default): S_x, S_y get extra knots where the uniform fit
+cuts a bend of H by more than ``xy_tol_px``; S_z and the MVS problem keep the m uniform knots.
 A solver failure, or a solution that leaves the bounds by more than ``bound_tol`` of the local
 half-width, is reported (``status``) and the initial spline is returned as a visible fallback.
 """
@@ -33,6 +35,9 @@ from core.bounds import Bounds
 from core.calibration import StereoCalibration
 
 EQ_TOL = 1e-3  # endpoint equalities hold to 0.1 % of the median bound half-width
+XY_ROUNDS = 3  # adaptive knots: a uniform span is split into at most 2^3 = 8 parts
+XY_MIN_POINTS = 3  # a span with fewer points of H is not split: a half would hold <= 1
+XY_PENALTY = 1e-3  # P-spline weight, relative to the mean diagonal of B^T B (1e-4..1e-2 alike)
 Status = Literal["ok", "solver_failed", "out_of_bounds", "skipped"]
 
 
@@ -57,12 +62,20 @@ class SplineParams:
 
     The term is the mean over H of ((S_z(u_j) - c_j) / w_j)^2, c_j the bound centre and w_j the
     bound half-width, and Eq. (8) is normalised by its value at the initial spline."""
+    xy_knots: Literal["uniform", "adaptive"] = "adaptive"
+    """Knots of S_x, S_y. "uniform" (paper): the m uniform knots, shared with S_z. "adaptive":
+    a knot span in which the 2D fit misses a point of H by more than ``xy_tol_px`` is halved,
+    for S_x, S_y only (see ``_adaptive_xy``); S_z keeps its m control points (Eq. (8) is
+    unchanged) and is re-expressed exactly on the refined knots: S stays one B-spline."""
+    xy_tol_px: float = 1.0
+    """Largest 2D distance, px, from a point of H to S_x, S_y before its span is halved."""
 
 
 @dataclass(frozen=True)
 class SplineResult:
-    """``knots``, ``ctrl`` (m, 3), ``degree``: the final spline in (x px, y px, z depth) over u in
-    [0, ``length``]; ``ctrl_init`` the initial one; ``u_H``: parameter of each point of H.
+    """``knots``, ``ctrl`` (m', 3), ``degree``: the final spline in (x px, y px, z depth) over u
+    in [0, ``length``], m' = m unless adaptive knots refined S_x, S_y; ``ctrl_init`` the
+    initial one; ``u_H``: parameter of each point of H.
     ``status``: "ok", "solver_failed" or "out_of_bounds" (then ``ctrl`` = ``ctrl_init``, the
     fallback) or "skipped" (``optimise=False``). ``message``: the solver's message.
     ``objective``: Eq. (8) at the initial and final control points. ``iterations``: solver steps.
@@ -101,6 +114,10 @@ def fit_spline(
         raise ValueError(f"n_ctrl must be >= degree + 1 = {p.degree + 1}, got {p.n_ctrl}")
     if p.max_iter < 1 or p.quad_per_span < 1:
         raise ValueError("max_iter and quad_per_span must be >= 1")
+    if p.xy_knots not in ("uniform", "adaptive"):
+        raise ValueError(f"xy_knots must be 'uniform' or 'adaptive', got {p.xy_knots!r}")
+    if not p.xy_tol_px > 0:
+        raise ValueError(f"xy_tol_px must be > 0, got {p.xy_tol_px}")
     k = p.degree
     P = len(bounds.H)
     s = bounds.s
@@ -117,6 +134,15 @@ def fit_spline(
 
     Hi = np.column_stack([bounds.H[:, 0], bounds.H[:, 1], bounds.centre])  # H^i
     ctrl_init = _init_fit(Hi, u, t, k)
+    t_xy, xy = t, None
+    if p.xy_knots == "adaptive":
+        t_xy, xy = _adaptive_xy(bounds.H[:, :2], u, t, k, p)
+
+    def final(c: np.ndarray) -> np.ndarray:
+        """Control points on the knots of the result: S_x, S_y refined, S_z re-expressed."""
+        if xy is None:
+            return c
+        return np.column_stack([xy, _reexpress(t, c[:, 2], k, t_xy)])
 
     du_ds = length / s[-1]
     lo_c, hi_c, u_c = _constraint_points(u, bounds.lower, bounds.upper)
@@ -127,7 +153,8 @@ def fit_spline(
     A = BSpline.design_matrix(u_c, t, k).toarray()  # rows: u of H, then the midpoints
     if not p.optimise:
         viol = _violation(A @ b0, lo_c, hi_c, half_c)
-        return SplineResult(t, ctrl_init, ctrl_init, k, length, u, "skipped", "", (f0, f0), 0, viol)
+        c0 = final(ctrl_init)
+        return SplineResult(t_xy, c0, c0, k, length, u, "skipped", "", (f0, f0), 0, viol)
 
     E = _end_rows(t, k, length)
     e_rhs = np.array(
@@ -194,14 +221,25 @@ def fit_spline(
     if status != "ok":
         viol_init = _violation(A @ b0, lo_c, hi_c, half_c)
         msg = f"{res.message} (bound excursion {viol:.3f} of the half-width)"
+        c0 = final(ctrl_init)
         return SplineResult(
-            t, ctrl_init, ctrl_init, k, length, u, status, msg, (f0, f0), int(res.nit), viol_init
+            t_xy, c0, c0, k, length, u, status, msg, (f0, f0), int(res.nit), viol_init
         )
     ctrl = ctrl_init.copy()
     ctrl[:, 2] = b
     msg = str(res.message) + (" (endpoint slope constraints relaxed)" if relaxed else "")
     return SplineResult(
-        t, ctrl, ctrl_init, k, length, u, "ok", msg, (f0, mvs.value(b)), int(res.nit), viol
+        t_xy,
+        final(ctrl),
+        final(ctrl_init),
+        k,
+        length,
+        u,
+        "ok",
+        msg,
+        (f0, mvs.value(b)),
+        int(res.nit),
+        viol,
     )
 
 
@@ -223,6 +261,61 @@ def _init_fit(Hi: np.ndarray, u: np.ndarray, t: np.ndarray, k: int) -> np.ndarra
     D = np.diff(np.eye(m), 2, axis=0)
     lam = 1e-6 * np.trace(B.T @ B) / m
     return np.linalg.solve(B.T @ B + lam * D.T @ D, B.T @ Hi)
+
+
+def _adaptive_xy(
+    xy: np.ndarray, u: np.ndarray, t: np.ndarray, k: int, p: SplineParams
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Residual-driven knots for S_x, S_y: starting from the uniform knots t, every span holding
+    a point of H farther than ``xy_tol_px`` from the fit is halved (at most ``XY_ROUNDS``
+    times), so knots gather at tight bends and t stays a subset. Returns the knots and the
+    (m', 2) control points, or (t, None) when no span needs splitting (the uniform fit)."""
+    try:
+        return _refine_xy(xy, u, t, k, p.xy_tol_px)
+    except np.linalg.LinAlgError:  # a singular penalised system: keep the uniform fit
+        return t, None
+
+
+def _refine_xy(
+    xy: np.ndarray, u: np.ndarray, t: np.ndarray, k: int, tol: float
+) -> tuple[np.ndarray, np.ndarray | None]:
+    t_xy = t
+    for _ in range(XY_ROUNDS):
+        c = _penalised_fit(xy, u, t_xy, k)
+        miss = np.linalg.norm(BSpline(t_xy, c, k)(u) - xy, axis=1)
+        edges = np.unique(t_xy)
+        span = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, len(edges) - 2)
+        worst = np.zeros(len(edges) - 1)
+        np.maximum.at(worst, span, miss)
+        count = np.bincount(span, minlength=len(edges) - 1)
+        split = (worst > tol) & (count >= XY_MIN_POINTS)
+        if not split.any():
+            break
+        t_xy = np.sort(np.concatenate([t_xy, 0.5 * (edges[:-1] + edges[1:])[split]]))
+    if len(t_xy) == len(t):
+        return t, None
+    c = _penalised_fit(xy, u, t_xy, k)
+    return (t_xy, c) if np.all(np.isfinite(c)) else (t, None)
+
+
+def _penalised_fit(xy: np.ndarray, u: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
+    """Least squares with a small third-difference penalty on the control points (P-spline):
+    halved spans may hold only a few points of H, where plain least squares oscillates."""
+    m = len(t) - k - 1
+    B = BSpline.design_matrix(u, t, k).toarray()
+    BtB = B.T @ B
+    D = np.diff(np.eye(m), 3, axis=0)
+    return np.linalg.solve(BtB + XY_PENALTY * np.trace(BtB) / m * (D.T @ D), B.T @ xy)
+
+
+def _reexpress(t: np.ndarray, c: np.ndarray, k: int, t_new: np.ndarray) -> np.ndarray:
+    """Coefficients on t_new (a refinement of t) of the spline (t, c, k): exact, as the spline
+    lies in the refined space; least squares at a few points per span of t_new."""
+    edges = np.unique(t_new)
+    xs = np.linspace(0.0, 1.0, k + 2)
+    uq = (edges[:-1, None] + np.diff(edges)[:, None] * xs[None, :]).ravel()
+    B = BSpline.design_matrix(uq, t_new, k).toarray()
+    return np.linalg.lstsq(B, BSpline(t, c, k)(uq), rcond=None)[0]
 
 
 def _constraint_points(

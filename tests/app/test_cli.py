@@ -199,3 +199,12 @@ def test_bundled_presets_are_valid() -> None:
     for path in sorted((ROOT / "configs").glob("*.toml")):
         load_preset(path)
     assert load_preset(ROOT / "configs" / "default.toml") == ReconParams()
+
+
+def test_xy_knots_preset_keys_are_checked_and_paper_strict_keeps_uniform_knots() -> None:
+    assert load_preset(ROOT / "configs" / "paper-strict.toml").spline.xy_knots == "uniform"
+    assert validate({"spline": {"xy_knots": "uniform"}}).spline.xy_knots == "uniform"
+    with pytest.raises(ValueError, match="spline.xy_knots"):
+        validate({"spline": {"xy_knots": "curvature"}})
+    with pytest.raises(ValueError, match="spline.xy_tol_px"):
+        validate({"spline": {"xy_tol_px": 0.0}})
