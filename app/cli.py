@@ -93,6 +93,10 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="port of the 3D view (default: --port + 1; the next free one if taken)",
     )
+    v.add_argument(
+        "--db", help="ratings and evaluations database (default: DATASET/threadrecon.sqlite3)"
+    )
+    v.add_argument("--configs", help="preset folder (default: the project's configs/)")
     v.set_defaults(func=cmd_serve)
 
     try:
@@ -273,6 +277,7 @@ def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
+    from app.ratings import StoreError
     from app.server import ServerConfig, serve
 
     root = Path(args.dataset)
@@ -281,7 +286,18 @@ def cmd_serve(args: argparse.Namespace) -> int:
         if port is not None and not 0 < port < 65536:
             raise UserError(f"{name} must be in 1..65535, got {port}")
     viser_port = args.viser_port if args.viser_port is not None else args.port + 1
-    serve(ServerConfig(data_dir=root, host=args.host, port=args.port, viser_port=viser_port))
+    config = ServerConfig(
+        data_dir=root,
+        host=args.host,
+        port=args.port,
+        viser_port=viser_port,
+        db_path=Path(args.db) if args.db else None,
+        configs_dir=Path(args.configs) if args.configs else None,
+    )
+    try:
+        serve(config)
+    except StoreError as exc:  # an unusable database stops the start, and nothing is written
+        raise UserError(str(exc)) from None
     return 0
 
 

@@ -46,6 +46,7 @@ SLIDERS: dict[str, tuple[float, float, float, str]] = {
     "spline.quad_per_span": (1, 10, 1, "quadrature nodes / span"),
     "spline.bound_tol": (0.0, 0.5, 0.01, "bound tolerance"),
     "spline.data_weight": (0.0, 100.0, 0.5, "data weight"),
+    "spline.xy_tol_px": (0.1, 5.0, 0.1, "x,y knot split tolerance px"),
     "camera.n_points": (200, 2000, 50, "dense points"),
 }
 

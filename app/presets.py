@@ -180,3 +180,22 @@ def save_preset(
         fh.write(to_toml(params, header))
     os.replace(tmp, path)
     return path
+
+
+def diff(params: ReconParams, base: ReconParams | None = None) -> list[dict[str, Any]]:
+    """The parameters whose value differs from ``base`` (default: the paper's defaults), as
+    ``[{"key": "stage.name", "value": ..., "base": ...}]`` in stage order."""
+    a, b = params.to_dict(), (base or ReconParams()).to_dict()
+    return [
+        {"key": f"{stage}.{name}", "value": value, "base": b[stage][name]}
+        for stage, values in a.items()
+        for name, value in values.items()
+        if value != b[stage][name]
+    ]
+
+
+def list_presets(folder: Path | None = None) -> list[str]:
+    """Names of the presets in ``folder`` (default ``configs/``), sorted, "default" first."""
+    folder = folder or default_configs_dir()
+    names = sorted(p.stem for p in folder.glob("*.toml") if NAME_RE.match(p.stem))
+    return sorted(names, key=lambda n: n != "default")

@@ -9,11 +9,13 @@ the page and the tests use.
 from __future__ import annotations
 
 import contextlib
+import io
+import json
 import logging
 import threading
 import time
 from collections.abc import AsyncIterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -25,16 +27,34 @@ from fastapi.responses import FileResponse, JSONResponse, RedirectResponse, Resp
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel
 
-from app.presets import resolve_preset
+from app.dataset import METRIC_COLUMNS
+from app.export import LAYERS as EXPORT_LAYERS
+from app.export import cloud_ply, json_safe, spline_csv, spline_json
+from app.jobs import EvaluationJob, compare
+from app.presets import (
+    default_configs_dir,
+    diff,
+    list_presets,
+    load_preset,
+    params_hash,
+    save_preset,
+)
+from app.ratings import RatingStore, StoreError
 from app.scene import SceneView
 from app.session import FrameLibrary, Session, SessionManager, merge_params
-from app.views import jsonable, overlay, pixel_info, stage_json
+from app.views import overlay, pixel_info, stage_json
 from core.pipeline import STAGES, ReconParams
 
 log = logging.getLogger("threadrecon.server")
 STATIC = Path(__file__).resolve().parent.parent / "static"
 RUN_TIMEOUT_S = 120.0  # a REST run waits this long for its result before answering 504
 API_SESSION = "api"  # the session used by REST calls that name none
+DB_NAME = "threadrecon.sqlite3"
+EXPORTS = {  # export name -> media type
+    "spline.json": "application/json",
+    "spline.csv": "text/csv",
+    **{f"{layer}.ply": "application/octet-stream" for layer in EXPORT_LAYERS},
+}
 
 
 @dataclass
@@ -45,13 +65,28 @@ class ServerConfig:
     viser_port: int = 8080
     open_first: bool = True
     """Run the first frame at start-up, so the page shows a reconstruction without a click."""
-    extra: dict[str, Any] = field(default_factory=dict)
+    db_path: Path | None = None
+    """Ratings and evaluations (SQLite); default ``<data_dir>/threadrecon.sqlite3``."""
+    configs_dir: Path | None = None
+    """Preset folder; default the project's ``configs/``."""
+
+    @property
+    def db(self) -> Path:
+        return self.db_path or self.data_dir / DB_NAME
+
+    @property
+    def configs(self) -> Path:
+        return self.configs_dir or default_configs_dir()
 
 
 class AppState:
     def __init__(self, config: ServerConfig) -> None:
         self.config = config
         self.library = FrameLibrary(config.data_dir)
+        self.store = RatingStore(config.db)  # StoreError now, not at the first rating
+        self.job: EvaluationJob | None = None
+        self.job_saved: int | None = None
+        self._job_lock = threading.Lock()
         self.sessions = SessionManager(self.library)
         self.viser: viser.ViserServer | None = None
         self._views: dict[int, tuple[Session, SceneView]] = {}
@@ -60,9 +95,10 @@ class AppState:
     # --- viser ------------------------------------------------------------------------------
 
     def start_viser(self) -> None:
-        server = viser.ViserServer(
-            host=self.config.host, port=self.config.viser_port, verbose=False
-        )
+        with contextlib.redirect_stdout(io.StringIO()):  # viser's banner: we print one URL
+            server = viser.ViserServer(
+                host=self.config.host, port=self.config.viser_port, verbose=False
+            )
         server.scene.set_up_direction("-y")
         server.scene.configure_environment_map(hdri=None)
         server.on_client_connect(self._on_connect)
@@ -104,9 +140,13 @@ class AppState:
             entry[0].detach(client.client_id)
 
     def stop(self) -> None:
+        if self.job is not None:
+            self.job.cancel()
         self.sessions.close()
+        self.store.close()
         if self.viser is not None:
-            self.viser.stop()
+            with contextlib.redirect_stdout(io.StringIO()):
+                self.viser.stop()
             self.viser = None
 
     # --- helpers ----------------------------------------------------------------------------
@@ -118,6 +158,21 @@ class AppState:
             return self.sessions.get(sid)
         except KeyError as exc:
             raise HTTPException(404, str(exc.args[0])) from None
+
+    def start_job(self, params: ReconParams, preset: str) -> EvaluationJob:
+        with self._job_lock:
+            if self.job is not None and self.job.state in ("pending", "running"):
+                raise HTTPException(409, "an evaluation is already running: cancel it first")
+            frames = list(self.library.frames.values())
+            self.job = EvaluationJob(frames, params, preset, on_done=self._job_done)
+            self.job_saved = None
+            return self.job.start()
+
+    def _job_done(self, job: EvaluationJob) -> None:
+        if job.state == "done":
+            self.job_saved = self.store.save_evaluation(
+                job.preset, job.params_hash, job.params.to_dict(), job.rows, job.summary
+            )
 
     def frame_or_404(self, frame_id: str) -> None:
         try:
@@ -136,6 +191,30 @@ class RunBody(BaseModel):
     session: str | None = None
     pause_ms: float = 0.0
     wait: bool = True
+
+
+class RatingBody(BaseModel):
+    score: Any = None
+    """1..5 (whole number)."""
+    note: Any = ""
+    session: str | None = None
+    """The session whose reconstruction is rated (its preset and parameters are recorded)."""
+
+
+class SavePresetBody(BaseModel):
+    name: str
+    session: str | None = None
+    overwrite: bool = False
+
+
+class UsePresetBody(BaseModel):
+    name: str
+    wait: bool = False
+
+
+class EvaluateBody(BaseModel):
+    session: str | None = None
+    preset: str | None = None
 
 
 class StepBody(BaseModel):
@@ -192,6 +271,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     def frames() -> list[dict[str, Any]]:
         """Every frame of the data folder, with the status of its last run."""
         status = state.sessions.frame_status
+        ratings = _store(state.store.latest_all)
         return [
             {
                 "id": f.id,
@@ -199,6 +279,7 @@ def create_app(config: ServerConfig) -> FastAPI:
                 "kind": f.kind,
                 "has_ground_truth": f.has_ground_truth,
                 "status": status.get(f.id),
+                "rating": ratings[f.id].score if f.id in ratings else None,
             }
             for f in state.library.frames.values()
         ]
@@ -231,10 +312,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         base = session.params
         preset = None
         if body.preset is not None:
-            try:
-                base = resolve_preset(body.preset)
-            except ValueError as exc:
-                raise HTTPException(422, str(exc)) from None
+            base = _load_preset(config.configs, body.preset)
             preset = body.preset
         try:
             params = merge_params(base, body.params or {})
@@ -251,7 +329,7 @@ def create_app(config: ServerConfig) -> FastAPI:
             session.sync_params()
         if body.wait and not session.wait(seq, RUN_TIMEOUT_S):
             raise HTTPException(504, "the run did not finish in time")
-        return JSONResponse(jsonable(session.state()))
+        return JSONResponse(json_safe(session.state()))
 
     @app.get("/api/frames/{frame_id:path}/stages/{stage}")
     def frame_stage(frame_id: str, stage: str, session: str | None = None) -> JSONResponse:
@@ -298,7 +376,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         s = state.session(sid)
         if since is not None and timeout > 0:
             _wait_version(s, since, timeout)
-        return JSONResponse(jsonable(s.state()))
+        return JSONResponse(json_safe(s.state()))
 
     @app.patch("/api/sessions/{sid}/params")
     def patch_params(
@@ -314,7 +392,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         s.sync_params()
         if wait:
             s.wait(seq, RUN_TIMEOUT_S)
-        return JSONResponse(jsonable(s.state()))
+        return JSONResponse(json_safe(s.state()))
 
     @app.post("/api/sessions/{sid}/params/reset")
     def reset_params(sid: str, wait: bool = False) -> JSONResponse:
@@ -323,7 +401,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         s.sync_params()
         if wait:
             s.wait(seq, RUN_TIMEOUT_S)
-        return JSONResponse(jsonable(s.state()))
+        return JSONResponse(json_safe(s.state()))
 
     @app.post("/api/sessions/{sid}/step")
     def step(sid: str, body: StepBody, wait: bool = False) -> JSONResponse:
@@ -340,7 +418,7 @@ def create_app(config: ServerConfig) -> FastAPI:
             raise HTTPException(422, f"action must be run, next or all, got {body.action!r}")
         if wait:
             s.wait(seq, RUN_TIMEOUT_S)
-        return JSONResponse(jsonable(s.state()))
+        return JSONResponse(json_safe(s.state()))
 
     @app.get("/api/sessions/{sid}/overlay")
     def session_overlay(sid: str) -> JSONResponse:
@@ -383,6 +461,234 @@ def create_app(config: ServerConfig) -> FastAPI:
         except LookupError as exc:
             raise HTTPException(409, str(exc.args[0])) from None
 
+    # --- ratings ----------------------------------------------------------------------------
+
+    @app.put("/api/frames/{frame_id:path}/rating")
+    def put_rating(frame_id: str, body: RatingBody) -> JSONResponse:
+        """Rate the frame's reconstruction 1-5 (the paper's quality score; below 3 is a
+        failure) with a note. The rating records the preset and the hash of the parameters of
+        the reconstruction the session shows; earlier ratings stay in the history."""
+        state.frame_or_404(frame_id)
+        s = state.session(body.session)
+        shown = s.rec is not None and s.loaded is not None and s.loaded.frame.id == frame_id
+        params = s.rec.params if shown else s.params  # type: ignore[union-attr]
+        try:
+            rating = _store(
+                state.store.add_rating, frame_id, body.score, body.note, s.preset,
+                params_hash(params),
+            )  # fmt: skip
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from None
+        history = _store(state.store.history, frame_id)
+        return JSONResponse(
+            {
+                "frame_id": frame_id,
+                "latest": rating.to_dict(),
+                "history": [r.to_dict() for r in history],
+            }
+        )
+
+    @app.get("/api/frames/{frame_id:path}/rating")
+    def get_rating(frame_id: str) -> JSONResponse:
+        """The latest rating of the frame (null if none) and its history, newest first."""
+        state.frame_or_404(frame_id)
+        history = _store(state.store.history, frame_id)
+        return JSONResponse(
+            {
+                "frame_id": frame_id,
+                "latest": history[0].to_dict() if history else None,
+                "history": [r.to_dict() for r in history],
+            }
+        )
+
+    @app.get("/api/ratings.csv")
+    def ratings_csv(history: bool = True) -> Response:
+        """Every rating (or only the latest per frame) as CSV."""
+        text = _store(state.store.ratings_csv, history)
+        return Response(
+            text, media_type="text/csv",
+            headers={"Content-Disposition": 'attachment; filename="ratings.csv"'},
+        )  # fmt: skip
+
+    @app.get("/api/ratings/summary")
+    def ratings_summary(session: str | None = None) -> JSONResponse:
+        """The paper's Table II for the rated frames: reprojection errors and coverage of the
+        session's current parameters, the latest score, and the failure rate (score < 3)."""
+        from app.cli import evaluate_frame
+
+        s = state.session(session)
+        current = params_hash(s.params)
+        latest = _store(state.store.latest_all)
+        rows = []
+        for frame_id, rating in sorted(latest.items()):
+            frame = state.library.frames.get(frame_id)
+            if frame is None:
+                continue
+            row, _ = evaluate_frame(frame, s.params)
+            rows.append(
+                {
+                    "frame": frame_id,
+                    "kind": frame.kind,
+                    "score": rating.score,
+                    "note": rating.note,
+                    "rated_at": rating.created_at,
+                    "preset": rating.preset,
+                    "params_hash": rating.params_hash,
+                    "same_params": rating.params_hash == current,
+                    "status": row["status"],
+                    **{c: row[c] for c in METRIC_COLUMNS[5:]},
+                }
+            )
+        n = len(rows)
+        summary: dict[str, Any] = {"rated": n, "failures": sum(r["score"] < 3 for r in rows)}
+        summary["failure_rate"] = summary["failures"] / n if n else None
+        summary["mean_score"] = float(np.mean([r["score"] for r in rows])) if n else None
+        for c in METRIC_COLUMNS[5:]:
+            v = np.array([r[c] for r in rows], dtype=float)
+            v = v[np.isfinite(v)]
+            summary[c] = float(v.mean()) if v.size else None
+        return JSONResponse(json_safe({"rows": rows, "summary": summary, "params_hash": current}))
+
+    # --- presets ----------------------------------------------------------------------------
+
+    @app.get("/api/presets")
+    def presets() -> list[str]:
+        """Names of the presets in the configs folder."""
+        return list_presets(config.configs)
+
+    @app.get("/api/presets/{name}")
+    def preset(name: str) -> JSONResponse:
+        """A preset's values and its difference from the defaults; 422 names a bad key."""
+        params = _load_preset(config.configs, name)
+        return JSONResponse(
+            json_safe({"name": name, "params": params.to_dict(), "diff": diff(params)})
+        )
+
+    @app.post("/api/presets")
+    def save(body: SavePresetBody) -> JSONResponse:
+        """Save the session's current parameters as a preset. An existing name is refused
+        (409) unless ``overwrite`` is true."""
+        s = state.session(body.session)
+        try:
+            path = save_preset(
+                s.params, body.name, config.configs, overwrite=body.overwrite,
+                header=f"saved from the debugger; params hash {params_hash(s.params)}",
+            )  # fmt: skip
+        except FileExistsError as exc:
+            raise HTTPException(409, str(exc)) from None
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from None
+        except OSError as exc:
+            raise HTTPException(507, f"cannot write preset {body.name!r}: {exc}") from None
+        s.preset = body.name
+        s.version += 1
+        return JSONResponse({"name": body.name, "path": str(path)})
+
+    @app.post("/api/sessions/{sid}/preset")
+    def use_preset(sid: str, body: UsePresetBody) -> JSONResponse:
+        """Load a preset into the session: every slider takes its value, then it runs."""
+        s = state.session(sid)
+        params = _load_preset(config.configs, body.name)
+        seq = s.submit(params=params, preset=body.name)
+        s.sync_params()
+        if body.wait:
+            s.wait(seq, RUN_TIMEOUT_S)
+        return JSONResponse(json_safe(s.state()))
+
+    # --- whole-dataset evaluation -----------------------------------------------------------
+
+    @app.post("/api/evaluations")
+    def start_evaluation(body: EvaluateBody) -> JSONResponse:
+        """Evaluate every frame of the data folder in the background with the session's
+        current parameters (or a named preset); poll ``/api/evaluations/current``."""
+        if body.preset is not None:
+            params, name = _load_preset(config.configs, body.preset), body.preset
+        else:
+            s = state.session(body.session)
+            params, name = s.params, s.preset
+        job = state.start_job(params, name)
+        return JSONResponse(job.snapshot())
+
+    @app.get("/api/evaluations/current")
+    def current_evaluation(since: int = Query(0, ge=0)) -> JSONResponse:
+        """Progress and rows (from row ``since`` on) of the running or last evaluation."""
+        job = state.job
+        if job is None:
+            raise HTTPException(404, "no evaluation has been started since the server started")
+        snap = job.snapshot(since)
+        snap["saved_id"] = state.job_saved
+        return JSONResponse(snap)
+
+    @app.post("/api/evaluations/current/cancel")
+    def cancel_evaluation() -> JSONResponse:
+        job = state.job
+        if job is None:
+            raise HTTPException(404, "no evaluation to cancel")
+        job.cancel()
+        job.wait(RUN_TIMEOUT_S)
+        return JSONResponse(job.snapshot())
+
+    @app.get("/api/evaluations")
+    def evaluations() -> JSONResponse:
+        """Saved evaluations, newest first."""
+        return JSONResponse(json_safe(_store(state.store.evaluations)))
+
+    @app.get("/api/evaluations/compare")
+    def compare_evaluations(a: int, b: int) -> JSONResponse:
+        """Two saved evaluations side by side, frame by frame (b - a), with a mean row."""
+        ea, eb = (_store(state.store.evaluation, i) for i in (a, b))
+        for i, e in ((a, ea), (b, eb)):
+            if e is None:
+                raise HTTPException(404, f"no saved evaluation {i}")
+        return JSONResponse(
+            json_safe(
+                {
+                    "a": {k: ea[k] for k in ("id", "preset", "params_hash", "created_at")},
+                    "b": {k: eb[k] for k in ("id", "preset", "params_hash", "created_at")},
+                    "rows": compare(ea["rows"], eb["rows"]),
+                }
+            )
+        )
+
+    @app.get("/api/evaluations/{eid}")
+    def evaluation(eid: str) -> JSONResponse:
+        """One saved evaluation (``last`` for the newest): rows, summary, parameters."""
+        e = _store(state.store.last_evaluation) if eid == "last" else None
+        if eid != "last":
+            if not eid.isdigit():
+                raise HTTPException(404, f"no saved evaluation {eid!r}")
+            e = _store(state.store.evaluation, int(eid))
+        if e is None:
+            raise HTTPException(404, f"no saved evaluation {eid!r}")
+        return JSONResponse(json_safe(e))
+
+    # --- exports ----------------------------------------------------------------------------
+
+    @app.get("/api/sessions/{sid}/export/{name}")
+    def export(sid: str, name: str) -> Response:
+        """The current frame's final spline (JSON: control points, knots, degree, dense
+        points, keypoint reliability; CSV: dense points) or a point cloud as PLY."""
+        if name not in EXPORTS:
+            raise HTTPException(404, f"no export {name!r} (exports: {', '.join(EXPORTS)})")
+        s = state.session(sid)
+        rec, loaded = s.rec, s.loaded
+        if rec is None or loaded is None:
+            raise HTTPException(409, s.load_error or "no reconstruction yet")
+        try:
+            if name == "spline.json":
+                data = json.dumps(spline_json(rec), indent=1, allow_nan=False).encode()
+            elif name == "spline.csv":
+                data = spline_csv(rec).encode()
+            else:
+                data = cloud_ply(rec, name.removesuffix(".ply"))
+        except ValueError as exc:
+            raise HTTPException(409, str(exc)) from None
+        filename = f"{loaded.frame.name}_{name}"
+        return Response(
+            data, media_type=EXPORTS[name],
+            headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+        )  # fmt: skip
+
     @app.get("/favicon.ico", include_in_schema=False)
     def favicon() -> FileResponse:
         return FileResponse(STATIC / "favicon.svg", media_type="image/svg+xml")
@@ -393,6 +699,28 @@ def create_app(config: ServerConfig) -> FastAPI:
         return JSONResponse({"detail": f"internal error: {type(exc).__name__}: {exc}"}, 500)
 
     return app
+
+
+def _store(fn: Any, *args: Any) -> Any:
+    """Call the rating store; a database that fails now answers 503 with the reason."""
+    try:
+        return fn(*args)
+    except StoreError as exc:
+        raise HTTPException(503, str(exc)) from None
+
+
+def _load_preset(folder: Path, name: str) -> ReconParams:
+    from app.presets import NAME_RE
+
+    if not NAME_RE.match(name):
+        raise HTTPException(422, f"invalid preset name {name!r}")
+    path = folder / f"{name}.toml"
+    if not path.exists():
+        raise HTTPException(404, f"no preset {name!r} in {folder}")
+    try:
+        return load_preset(path)
+    except ValueError as exc:
+        raise HTTPException(422, str(exc)) from None
 
 
 def _wait_version(s: Session, since: int, timeout: float) -> None:

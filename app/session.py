@@ -22,7 +22,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from app.dataset import Frame, discover, evaluate_reconstruction, load_frame
-from app.presets import validate
+from app.presets import diff, params_hash, validate
 from core.calibration import StereoCalibration
 from core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction, StageError
 from core.segmentation import StereoPair
@@ -381,6 +381,8 @@ class Session:
                 "busy": self.busy,
                 "preset": self.preset,
                 "params": self.params.to_dict(),
+                "params_hash": params_hash(self.params),
+                "diff": diff(self.params),
                 "reveal": self.reveal,
                 "stages": stages,
                 "status": "failed" if self.load_error else (rec.status if rec else "pending"),

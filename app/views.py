@@ -8,12 +8,12 @@ Nothing here talks to viser or FastAPI, so every view is testable on its own.
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from app.export import json_safe, reliability_colors
 from core.calibration import StereoCalibration
 from core.camera import image_to_camera
 from core.metrics import project, reprojection_errors
@@ -29,30 +29,6 @@ _HEAVY_FIELDS = {
 SPLINE_SAMPLES = 300  # points per drawn curve: smooth on screen, small on the wire
 
 
-def jsonable(value: Any) -> Any:
-    """numpy arrays, numpy scalars and dataclasses -> JSON types; NaN and inf -> None."""
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind == "f":
-            arr = value.astype(np.float64)
-            if not np.isfinite(arr).all():
-                obj = arr.astype(object)
-                obj[~np.isfinite(arr)] = None
-                return obj.tolist()
-            return arr.tolist()
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return jsonable(value.item())
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [jsonable(v) for v in value]
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    return value
-
-
 def stage_json(rec: Reconstruction, stage: str) -> dict[str, Any]:
     """One stage's result as JSON (without the per-pixel images), plus its time."""
     if stage not in STAGES:
@@ -63,7 +39,7 @@ def stage_json(rec: Reconstruction, stage: str) -> dict[str, Any]:
     result = run.result
     skip = _HEAVY_FIELDS.get(stage, set())
     data = {
-        f.name: jsonable(getattr(result, f.name))
+        f.name: json_safe(getattr(result, f.name))
         for f in dataclasses.fields(result)
         if f.name not in skip
     }
@@ -112,7 +88,7 @@ def overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
                     entry.update(mean_px=r.mean, max_px=r.max, coverage=r.coverage)
                 sides[side] = entry
             out[name] = sides
-    return jsonable(out)
+    return json_safe(out)
 
 
 # --- pixel inspector -----------------------------------------------------------------------
@@ -154,7 +130,7 @@ def pixel_info(rec: Reconstruction, x: int, y: int, snap_px: int = 3) -> dict[st
         out["threshold"] = rec.params.reliability.threshold
     if "clustering" in rec.runs:
         out["cluster"] = int(rec["clustering"].labels[i])
-    return jsonable(out)
+    return json_safe(out)
 
 
 def nearest_to_ray(
@@ -224,14 +200,6 @@ LAYER_STAGE = {  # the stage whose result first reveals the layer
 }
 
 GREY = (150, 150, 150)
-
-
-def reliability_colors(R: np.ndarray) -> np.ndarray:
-    """R in [0, 1] -> red (0) through yellow (0.5) to green (1), (N, 3) uint8."""
-    r = np.clip(np.asarray(R, dtype=np.float64), 0.0, 1.0)
-    red = np.where(r < 0.5, 1.0, 2.0 * (1.0 - r))
-    green = np.where(r < 0.5, 2.0 * r, 1.0)
-    return (np.column_stack([red, green, np.full_like(r, 0.15)]) * 235).astype(np.uint8)
 
 
 def palette(n: int) -> np.ndarray:
