@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
-# Set up (first time) and run the main job on the bundled sample data.
-# Until the browser debugger lands this reconstructs every sample frame and prints the
-# evaluation summary; any arguments are passed to `threadrecon evaluate`.
+# Set up (first time) and start the browser debugger on the bundled sample data.
+# Open the URL it prints. Extra arguments go to `threadrecon serve` (e.g. --port 8010, or a
+# data folder of your own: bash scripts/run.sh /path/to/dataset).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-.venv/bin/threadrecon reconstruct --stereo sample_data/simulated/flat/flat_1.png \
-    --mask sample_data/simulated/flat/flat_1_mask.png \
-    --calib sample_data/simulated/flat/calibration.yaml --out out/flat_1.json
-.venv/bin/threadrecon evaluate sample_data --out out/sample_evaluation.csv "$@"
+if [[ $# -gt 0 && "$1" != -* ]]; then
+    exec .venv/bin/threadrecon serve "$@"
+fi
+exec .venv/bin/threadrecon serve sample_data "$@"

@@ -1,0 +1,212 @@
+"""Slider-to-scene latency of the debugger, server side, on every frame of a data folder.
+
+Starts the debugger in this process, opens the page in headless Chromium (so that a real viser
+client is attached and every layer is really sent), then for each frame changes a spline
+parameter, eps1, eps2, eps3 and the reliability threshold through the same path a slider takes
+(``Session.submit``), and reads how long after the change each stage's layer was in the
+scene (``latency_ms`` of the session state: request -> layer handed to viser).
+
+    .venv/bin/python scripts/bench_latency.py [DATA_DIR] [--repeat 3]
+
+Without Chromium it still runs, with no viewer attached (then drawing is not counted).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import socket
+import statistics
+import sys
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import httpx  # noqa: E402
+import uvicorn  # noqa: E402
+
+from app.server import ServerConfig, create_app  # noqa: E402
+from app.session import merge_params  # noqa: E402
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+    "--disable-component-update", "--disable-sync", "--no-first-run",
+]  # fmt: skip
+TARGETS_MS = {"spline": 100.0, "reliability": 300.0}  # issue #4
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextlib.contextmanager
+def running_server(data: Path, db: Path):
+    port = _free_port()
+    config = ServerConfig(data_dir=data, port=port, viser_port=_free_port(), db_path=db)
+    app = create_app(config)
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    while not server.started:
+        time.sleep(0.05)
+    try:
+        yield f"http://127.0.0.1:{port}", app.state.core
+    finally:
+        server.should_exit = True
+        thread.join(10)
+
+
+@contextlib.contextmanager
+def browser_page(url: str, use: bool = True):
+    if not use:
+        yield None
+        return
+    if not CHROMIUM.exists():
+        print("no /usr/bin/chromium: measuring without a viewer attached", file=sys.stderr)
+        yield None
+        return
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1200, "height": 800})
+        page.goto(url)
+        page.wait_for_function("window.threadrecon && window.threadrecon.session")
+        yield page
+        browser.close()
+
+
+@contextlib.contextmanager
+def socket_viewer(viser_port: int, sid: str):
+    """A minimal viser client: connects with the session's websocket path, reports a camera
+    (viser then counts it as connected, and the session attaches its view) and receives every
+    message the server sends. It renders nothing, so it costs the server what a browser on
+    another machine costs it, without a software renderer on these two cores."""
+    import asyncio
+
+    import msgspec
+    import viser
+    import websockets
+
+    stop = threading.Event()
+    received = [0]
+
+    async def run() -> None:
+        uri = f"ws://127.0.0.1:{viser_port}/session/{sid}"
+        async with websockets.connect(
+            uri, subprotocols=[f"viser-v{viser.__version__}"], max_size=None
+        ) as ws:
+            camera = {
+                "type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0],
+                "position": [0.0, 0.0, 0.0], "fov": 1.0, "near": 0.01, "far": 1000.0,
+                "image_height": 800, "image_width": 1200, "look_at": [0.0, 0.0, 1.0],
+                "up_direction": [0.0, -1.0, 0.0],
+            }  # fmt: skip
+            await ws.send(msgspec.msgpack.encode(camera))
+            while not stop.is_set():
+                try:
+                    msg = await asyncio.wait_for(ws.recv(), 0.2)
+                    received[0] += len(msg)
+                except TimeoutError:
+                    pass
+
+    thread = threading.Thread(target=lambda: asyncio.run(run()), daemon=True)
+    thread.start()
+    try:
+        yield received
+    finally:
+        stop.set()
+        thread.join(5)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data", nargs="?", default=str(ROOT / "sample_data"))
+    ap.add_argument("--repeat", type=int, default=3, help="changes per parameter and frame")
+    ap.add_argument(
+        "--viewer",
+        choices=("socket", "chromium", "none"),
+        default="socket",
+        help="socket: a websocket client that receives everything and renders nothing "
+        "(default); chromium: the real page (its software WebGL shares the 2 cores)",
+    )
+    args = ap.parse_args()
+    db = Path("/tmp") / f"threadrecon-bench-{time.time_ns()}.sqlite3"
+    changes = {  # (label, stage, name, values): each value is one slider move
+        "spline.n_ctrl": ("spline", "n_ctrl", [14, 16, 15]),
+        "reliability.eps1": ("reliability", "eps1", [7.0, 9.0, 8.0]),
+        "reliability.eps2": ("reliability", "eps2", [4.0, 6.0, 5.0]),
+        "reliability.eps3": ("reliability", "eps3", [0.7, 0.9, 0.8]),
+        "reliability.threshold": ("reliability", "threshold", [0.85, 0.95, 0.9]),
+    }
+    results: dict[str, list[float]] = {k: [] for k in changes}
+    with (
+        running_server(Path(args.data), db) as (url, state),
+        browser_page(url, args.viewer == "chromium") as page,
+    ):
+        http = httpx.Client(base_url=url, timeout=120)
+        if page is not None:
+            sid = page.evaluate("window.threadrecon.session")
+            deadline = time.monotonic() + 60
+            session = state.sessions.get(sid)
+            while not session.views and time.monotonic() < deadline:
+                time.sleep(0.1)  # the viser client connects after the page loads
+            if not session.views:
+                print("the viewer did not connect: measuring without it", file=sys.stderr)
+        else:
+            sid = http.post("/api/sessions").json()["session"]
+            session = state.sessions.get(sid)
+        viewer = (
+            socket_viewer(state.viser_port, sid)
+            if args.viewer == "socket"
+            else contextlib.nullcontext([0])
+        )
+        stack = contextlib.ExitStack()
+        received = stack.enter_context(viewer)
+        deadline = time.monotonic() + 30
+        while args.viewer != "none" and not session.views and time.monotonic() < deadline:
+            time.sleep(0.05)
+        frames = [f["id"] for f in http.get("/api/frames").json()]
+        for frame in frames:
+            http.post(f"/api/frames/{frame}/run", json={"session": sid, "preset": "default"})
+            for label, (stage, name, values) in changes.items():
+                for value in values[: args.repeat]:
+                    params = merge_params(session.params, {stage: {name: value}})
+                    seq = session.submit(params=params)  # what a slider callback does
+                    session.wait(seq, 120)
+                    lat = session.state()["latency_ms"]
+                    if "camera" in lat:
+                        results[label].append(lat["camera"])
+        viewers = len(session.views)
+        stack.close()
+    with contextlib.suppress(OSError):
+        db.unlink()
+    print(
+        f"{len(frames)} frames of {args.data}, {viewers} viewer(s) attached ({args.viewer}), "
+        f"{received[0] / 1e6:.1f} MB sent to the socket viewer"
+    )
+    print("ms from the parameter change to the new spline (last layer) in the scene, server side")
+    print(f"{'change':<24}{'n':>4}{'median':>10}{'p90':>10}{'max':>10}{'target':>10}")
+    ok = True
+    for label, values in results.items():
+        if not values:
+            continue
+        values.sort()
+        p90 = values[min(len(values) - 1, int(0.9 * len(values)))]
+        target = TARGETS_MS["spline" if label.startswith("spline") else "reliability"]
+        ok &= statistics.median(values) <= target
+        print(
+            f"{label:<24}{len(values):>4}{statistics.median(values):>10.1f}{p90:>10.1f}"
+            f"{values[-1]:>10.1f}{target:>10.0f}"
+        )
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
