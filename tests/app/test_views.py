@@ -1,0 +1,128 @@
+"""The debugger's views: stage JSON, overlays, pixel inspector, 3D layers, controls."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import fields
+
+import numpy as np
+import pytest
+from support import synthetic_case
+
+from app.controls import SLIDERS, controls
+from app.views import (
+    LAYERS,
+    Label,
+    Points,
+    Segments,
+    layer,
+    nearest_to_ray,
+    overlay,
+    palette,
+    pixel_info,
+    stage_json,
+)
+from core.metrics import project
+from core.pipeline import STAGES, ReconParams, reconstruct
+
+
+@pytest.fixture(scope="module")
+def case():
+    pair, calib, gt = synthetic_case(seed=3)
+    rec = reconstruct(pair, calib)
+    assert rec.status == "ok", rec.message
+    return rec, calib, gt
+
+
+def test_every_stage_serialises_to_strict_json(case):
+    rec, _, _ = case
+    for stage in STAGES:
+        data = stage_json(rec, stage)
+        json.dumps(data, allow_nan=False)
+        assert data["stage"] == stage and data["ms"] >= 0
+    assert "energy" not in stage_json(rec, "stereo")["result"]
+    with pytest.raises(KeyError):
+        stage_json(rec, "nope")
+
+
+def test_overlay_spline_is_the_projected_camera_curve(case):
+    rec, calib, _ = case
+    ov = overlay(rec, calib)
+    json.dumps(ov, allow_nan=False)
+    uv = np.array(ov["spline"]["left"]["points"])
+    ref = project(rec["camera"].points, calib.P1)
+    # both sample the same curve: every overlay point lies on the projected camera curve
+    d = np.linalg.norm(uv[:, None, :] - ref[None, :, :], axis=2).min(axis=1)
+    assert d.max() < 1.0
+    assert len(ov["reliable"]) == 2 * rec["reliability"].count
+
+
+def test_pixel_inspector_reports_the_energy_minimum(case):
+    rec, _, _ = case
+    st = rec["stereo"]
+    for i in (0, len(st.pixels) // 2, len(st.pixels) - 1):
+        x, y = (int(v) for v in st.pixels[i])
+        info = pixel_info(rec, x, y)
+        assert (info["x"], info["y"]) == (x, y)
+        assert info["d_min"] == int(np.nanargmin(st.energy[i]))
+        assert info["R"] == pytest.approx(float(rec["reliability"].R[i]))
+    with pytest.raises(ValueError, match="outside"):
+        pixel_info(rec, -1, 0)
+
+
+def test_nearest_to_ray_picks_the_point_under_the_cursor():
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-1, 1, (500, 3)) + [0, 0, 10]
+    target = 123
+    origin = np.array([0.0, 0.0, 0.0])
+    direction = pts[target] / np.linalg.norm(pts[target])
+    assert nearest_to_ray(pts, origin, direction, tol=1e-6) == target
+    assert nearest_to_ray(pts, origin, -direction, tol=0.05) is None  # behind the camera
+    pts[target] = np.nan
+    assert nearest_to_ray(pts, origin, direction, tol=1e-6) is None
+
+
+def test_layers_are_finite_float32_geometry(case):
+    rec, calib, gt = case
+    for name in LAYERS:
+        nodes = layer(name, rec, calib, gt)
+        assert nodes, name
+        for node in nodes.values():
+            if isinstance(node, Points):
+                assert node.points.dtype == np.float32 and node.points.shape[1] == 3
+                assert np.isfinite(node.points).all()
+                assert node.colors.dtype == np.uint8
+            elif isinstance(node, Segments):
+                assert node.points.shape[1:] == (2, 3) and np.isfinite(node.points).all()
+            else:
+                assert isinstance(node, Label)
+    members = layer("clusters", rec, calib, gt)["members"]
+    assert len(members.points) == int((rec["clustering"].labels >= 0).sum())
+
+
+def test_palette_colours_are_distinct():
+    p = palette(40)
+    assert len({tuple(c) for c in p}) == 40
+
+
+def test_controls_cover_every_parameter_and_hold_the_defaults():
+    ctl = {c.key: c for c in controls()}
+    defaults = ReconParams()
+    for stage in STAGES:
+        group = getattr(defaults, stage)
+        for f in fields(group):
+            value = getattr(group, f.name)
+            key = f"{stage}.{f.name}"
+            if value is None:
+                continue  # "auto" values are set in presets
+            assert key in ctl, key
+            c = ctl[key]
+            if c.kind == "slider":
+                assert c.min <= value <= c.max, key
+    assert set(SLIDERS) <= set(ctl)
+    for key in ("segment.seg_delta", "stereo.alpha", "stereo.window", "reliability.eps1",
+                "reliability.eps2", "reliability.eps3", "reliability.threshold",
+                "clustering.min_size", "clustering.max_size", "clustering.radius",
+                "ordering.solidify_radius", "bounds.r_k_frac", "bounds.bound_scale",
+                "bounds.widen_px", "spline.n_ctrl", "spline.degree", "spline.max_iter"):  # fmt: skip
+        assert ctl[key].kind == "slider", key
