@@ -51,6 +51,10 @@ class SceneView:
         self._syncing = threading.local()
         self._inputs: dict[str, tuple[Control, Any]] = {}
         self.scene.set_up_direction("-y")
+        self.gui.configure_theme(
+            control_layout="fixed", control_width="medium", dark_mode=True, show_logo=False,
+            show_share_button=False,
+        )  # fmt: skip
         self._build_gui()
         self.scene.on_click()(self._on_click)
 
@@ -173,7 +177,7 @@ class SceneView:
         """Put the viewer camera above and behind the stereo cameras, looking at the thread."""
         cam = self.client.camera
         cam.up_direction = (0.0, -1.0, 0.0)
-        cam.position = tuple(float(v) for v in target + np.array([0.0, -0.7, -1.6]) * extent)
+        cam.position = tuple(float(v) for v in target + np.array([0.0, -0.45, -0.85]) * extent)
         cam.look_at = tuple(float(v) for v in target)
 
     def show(self, rec: Reconstruction | None, loaded: LoadedFrame | None) -> None:

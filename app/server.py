@@ -611,10 +611,11 @@ def create_app(config: ServerConfig) -> FastAPI:
 
     @app.get("/api/evaluations/current")
     def current_evaluation(since: int = Query(0, ge=0)) -> JSONResponse:
-        """Progress and rows (from row ``since`` on) of the running or last evaluation."""
+        """Progress and rows (from row ``since`` on) of the running or last evaluation (null
+        when none was started since the server started)."""
         job = state.job
         if job is None:
-            raise HTTPException(404, "no evaluation has been started since the server started")
+            return JSONResponse(None)  # none since the server started
         snap = job.snapshot(since)
         snap["saved_id"] = state.job_saved
         return JSONResponse(snap)
@@ -653,11 +654,11 @@ def create_app(config: ServerConfig) -> FastAPI:
     @app.get("/api/evaluations/{eid}")
     def evaluation(eid: str) -> JSONResponse:
         """One saved evaluation (``last`` for the newest): rows, summary, parameters."""
-        e = _store(state.store.last_evaluation) if eid == "last" else None
-        if eid != "last":
-            if not eid.isdigit():
-                raise HTTPException(404, f"no saved evaluation {eid!r}")
-            e = _store(state.store.evaluation, int(eid))
+        if eid == "last":  # the newest, or null when none was saved yet
+            return JSONResponse(json_safe(_store(state.store.last_evaluation)))
+        if not eid.isdigit():
+            raise HTTPException(404, f"no saved evaluation {eid!r}")
+        e = _store(state.store.evaluation, int(eid))
         if e is None:
             raise HTTPException(404, f"no saved evaluation {eid!r}")
         return JSONResponse(json_safe(e))

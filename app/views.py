@@ -74,6 +74,12 @@ def overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
         out["keypoints"] = np.round(rec["clustering"].keypoints_px[:, :2], 2).tolist()
     if "ordering" in rec.runs:
         out["path"] = np.round(rec["ordering"].path_px[:, :2], 2).tolist()
+    if "bounds" in rec.runs:
+        b = rec["bounds"]
+        out["H"] = [
+            [round(float(x), 2), round(float(y), 2), bool(k)]
+            for (x, y, _), k in zip(b.H, b.is_key, strict=True)
+        ]
     if "spline" in rec.runs:
         sp = rec["spline"]
         lifted = rec["segment"]

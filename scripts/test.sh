@@ -4,4 +4,24 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 .venv/bin/ruff check core app tests
+
+# browser: the real-browser tests (tests/app/test_browser.py) drive the system chromium through
+# playwright (never `playwright install`). Install it when missing; if that fails they skip.
+install_chromium() {
+    local sudo=()
+    if [[ $(id -u) -ne 0 ]]; then
+        command -v sudo >/dev/null 2>&1 || return 1
+        sudo=(sudo -n)
+    fi
+    "${sudo[@]}" apt-get install -y chromium \
+        || { "${sudo[@]}" apt-get update && "${sudo[@]}" apt-get install -y chromium; }
+}
+if [[ ! -x /usr/bin/chromium ]]; then
+    echo "test.sh: /usr/bin/chromium is missing: installing it with apt-get" >&2
+    if ! install_chromium || [[ ! -x /usr/bin/chromium ]]; then
+        echo "test.sh: WARNING: could not install chromium (apt-get install -y chromium):" \
+            "the browser tests will be skipped" >&2
+    fi
+fi
+
 .venv/bin/python -m pytest "$@"

@@ -207,16 +207,27 @@ function drawImages() {
       ctx.stroke(); ctx.setLineDash([]);
     };
     if (side === "left") {
-      if (ov.segmented && overlayOn("segmented")) px(ov.segmented, "rgba(90,160,255,0.55)");
+      const onlySegment = S.state && S.state.reveal === 1;  // stage 1 shows the segmentation
+      if (ov.segmented && (overlayOn("segmented") || onlySegment)) px(ov.segmented, "rgba(90,160,255,0.75)");
       if (ov.reliable && overlayOn("reliable")) px(ov.reliable, "#00e5ff");
       if (ov.path && overlayOn("path")) line(ov.path, "#ff8c00", 1.5);
       if (ov.keypoints && overlayOn("keypoints")) {
         ctx.strokeStyle = "#ffe14d"; ctx.lineWidth = 1.5;
         for (const k of ov.keypoints) { ctx.beginPath(); ctx.arc(k[0], k[1], 3, 0, 2 * Math.PI); ctx.stroke(); }
       }
-      if (S.pixel && S.pixel.segmented) {
-        ctx.strokeStyle = "#fff"; ctx.lineWidth = 1;
-        ctx.strokeRect(S.pixel.x - 4, S.pixel.y - 4, 9, 9);
+      if (ov.H && overlayOn("H")) {
+        for (const h of ov.H) {
+          ctx.fillStyle = h[2] ? "#ffffff" : "#ffc83c";
+          ctx.fillRect(h[0] - 1.5, h[1] - 1.5, 3, 3);
+        }
+      }
+      if (S.pixel && S.pixel.segmented) {  // crosshair on the inspected pixel
+        const { x, y } = S.pixel;
+        ctx.strokeStyle = "#00ff66"; ctx.lineWidth = 2;
+        ctx.beginPath();
+        ctx.moveTo(x - 9, y); ctx.lineTo(x - 3, y); ctx.moveTo(x + 3, y); ctx.lineTo(x + 9, y);
+        ctx.moveTo(x, y - 9); ctx.lineTo(x, y - 3); ctx.moveTo(x, y + 3); ctx.lineTo(x, y + 9);
+        ctx.stroke();
       }
     }
     if (ov.spline_initial && overlayOn("spline_initial")) line(ov.spline_initial[side].points, "#6e82ff", 1.5, [4, 3]);
@@ -246,24 +257,25 @@ function drawEnergy() {
   canvas.dataset.pixel = p && p.segmented ? `${p.x},${p.y}` : "";
   if (!p) { $("#pixel-info").textContent = "Click a pixel of the left image, or a point of the 3D cloud."; return; }
   if (!p.segmented) { $("#pixel-info").textContent = `(${p.x}, ${p.y}) is not a segmented thread pixel.`; return; }
-  const E = p.energy.map((v) => (v === null ? NaN : v));
+  // log axis: E_min and E_next are often orders of magnitude apart
+  const E = p.energy.map((v) => (v === null || v < 0 ? NaN : Math.log10(1 + v)));
   const finite = E.filter(Number.isFinite);
   const lo = Math.min(...finite), hi = Math.max(...finite);
   const pad = 22, sx = (d) => pad + (d / (E.length - 1)) * (W - pad - 6);
   const sy = (e) => H - 16 - ((e - lo) / (hi - lo || 1)) * (H - 26);
   ctx.strokeStyle = "#2d313b"; ctx.strokeRect(pad, 4, W - pad - 6, H - 20);
   ctx.fillStyle = "#8d94a3"; ctx.font = "10px sans-serif";
-  ctx.fillText("0", pad - 3, H - 4); ctx.fillText(`α=${E.length - 1}`, W - 34, H - 4); ctx.fillText("E(d)", 2, 12);
+  ctx.fillText("0", pad - 3, H - 4); ctx.fillText(`α=${E.length - 1}`, W - 34, H - 4); ctx.fillText("log E(d)", 2, 12);
   ctx.strokeStyle = "#e3e6ec"; ctx.lineWidth = 1.2; ctx.beginPath();
   let started = false;
   E.forEach((e, d) => { if (!Number.isFinite(e)) return; if (!started) { ctx.moveTo(sx(d), sy(e)); started = true; } else ctx.lineTo(sx(d), sy(e)); });
   ctx.stroke();
-  const mark = (d, color, label) => {
+  const mark = (d, color, label, row) => {
     ctx.strokeStyle = color; ctx.setLineDash([3, 2]); ctx.beginPath(); ctx.moveTo(sx(d), 4); ctx.lineTo(sx(d), H - 16); ctx.stroke(); ctx.setLineDash([]);
-    ctx.fillStyle = color; ctx.fillText(label, Math.min(sx(d) + 2, W - 40), 14);
+    ctx.fillStyle = color; ctx.fillText(label, Math.min(sx(d) + 3, W - 52), 16 + 12 * row);
   };
-  mark(p.d_min, "#3ccf73", `d_min ${p.d_min}`);
-  mark(p.d_next, "#ff5c5c", `d_next ${p.d_next}`);
+  mark(p.d_min, "#3ccf73", `d_min ${p.d_min}`, 0);
+  mark(p.d_next, "#ff5c5c", `d_next ${p.d_next}`, 1);
   const rel = p.R === undefined ? "" : `, R ${fmt(p.R)} (${p.reliable ? "reliable" : "not reliable"}, threshold ${p.threshold})`;
   const depth = p.depth === null ? "no depth" : `depth ${fmt(p.depth, 3)} ${S.state && S.state.unit ? S.state.unit : ""}`;
   $("#pixel-info").textContent = `pixel (${p.x}, ${p.y}): E_min ${fmt(p.E_min, 1)}, E_next ${fmt(p.E_next, 1)}${rel}, ${depth}`;

@@ -141,6 +141,7 @@ async function pollEvaluation() {
   for (;;) {
     let snap;
     try { snap = await api("GET", `/api/evaluations/current?since=${evalRows.length}`); } catch (e) { break; }
+    if (!snap) break;
     evalRows = evalRows.concat(snap.rows);
     $("#eval-progress").max = snap.total; $("#eval-progress").value = snap.done;
     $("#eval-status").textContent = `${snap.state}: ${snap.done}/${snap.total}${snap.current ? ` (${snap.current})` : ""}, ${snap.elapsed_s.toFixed(1)} s, preset ${snap.preset}`;
@@ -219,14 +220,12 @@ async function startWorkflows() {
   bindWorkflows();
   await loadPresetList();
   await loadEvaluationList();
-  try {  // reopening the page shows the last evaluation (a running one is followed)
-    const cur = await api("GET", "/api/evaluations/current");
-    if (["pending", "running"].includes(cur.state)) { pollEvaluation(); return; }
-  } catch (e) { /* none since the server started */ }
-  try {
-    const last = await api("GET", "/api/evaluations/last");
-    renderEvaluation(last, `last saved: #${last.id}, preset ${last.preset}, ${last.created_at.slice(0, 16)}`);
-  } catch (e) { $("#eval-brief").textContent = "(no saved evaluation yet)"; }
+  // reopening the page shows the last evaluation (a running one is followed)
+  const cur = await api("GET", "/api/evaluations/current");
+  if (cur && ["pending", "running"].includes(cur.state)) { pollEvaluation(); return; }
+  const last = await api("GET", "/api/evaluations/last");
+  if (last) renderEvaluation(last, `last saved: #${last.id}, preset ${last.preset}, ${last.created_at.slice(0, 16)}`);
+  else $("#eval-brief").textContent = "(no saved evaluation yet)";
 }
 
 startWorkflows();

@@ -11,11 +11,11 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import urllib.request
@@ -76,8 +76,18 @@ def send_json(method: str, url: str, body: Any, timeout: float = 60.0) -> Any:
 class Server:
     """``threadrecon serve DATA_DIR`` as a subprocess on free ports; ``url`` is the page."""
 
-    def __init__(self, data_dir: Path = SAMPLE, startup_timeout: float = 90.0) -> None:
+    def __init__(
+        self,
+        data_dir: Path = SAMPLE,
+        startup_timeout: float = 90.0,
+        db: Path | None = None,
+        extra_args: tuple[str, ...] = (),
+    ) -> None:
         self.data_dir = data_dir
+        # Ratings and evaluations go to a throw-away database (unless ``db`` names one that
+        # should outlive the server), not into the data folder.
+        self._tmp = tempfile.TemporaryDirectory(prefix="threadrecon-browser-")
+        db = db or Path(self._tmp.name) / "threadrecon.sqlite3"
         self.port = free_port()
         self.viser_port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
@@ -87,6 +97,7 @@ class Server:
             sys.executable, "-m", "app.cli", "serve", str(data_dir),
             "--host", "127.0.0.1", "--port", str(self.port),
             "--viser-port", str(self.viser_port),
+            "--db", str(db), *extra_args,
         ]  # fmt: skip
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.proc = subprocess.Popen(
@@ -134,6 +145,7 @@ class Server:
                 with contextlib.suppress(ProcessLookupError):
                     os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait(10)
+        self._tmp.cleanup()
 
     def __enter__(self) -> Server:
         return self
@@ -153,10 +165,6 @@ def browser() -> Iterator[Any]:
             yield b
         finally:
             b.close()
-
-
-def chromium_available() -> bool:
-    return shutil.which(CHROMIUM) is not None
 
 
 # --- page probes ---------------------------------------------------------------------------
@@ -190,12 +198,3 @@ def png_stats(png: bytes) -> tuple[float, int]:
     assert img is not None, "not a PNG"
     colours = np.unique(img.reshape(-1, 3), axis=0)
     return float(img.std()), len(colours)
-
-
-def viser_folder(viewer: Any, title: str) -> Any:
-    """Expand the viser GUI folder ``title`` (``viewer`` is the iframe's FrameLocator) and
-    return a locator of its content."""
-    header = viewer.get_by_text(title, exact=True)
-    header.wait_for(timeout=60_000)
-    # A collapsed folder renders no content; the sliders of the expanded one appear below.
-    return header

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import re
 import time
+import warnings
 from typing import Any
 
 import cv2
@@ -30,16 +31,14 @@ from browser_support import (
     wait_idle,
 )
 
+from core.pipeline import STAGES
+
 pytestmark = pytest.mark.browser
 
 _reason = missing_browser()
 if _reason is not None:
     pytest.skip(_reason, allow_module_level=True)
 
-FIRST = "simulated/crossing/crossing_1"  # the frame the server runs at start-up
-STAGE_NAMES = (
-    "segment", "stereo", "reliability", "clustering", "ordering", "bounds", "spline", "camera",
-)  # fmt: skip
 RELIABILITY_FOLDER = "3. reliability"
 THRESHOLD_SLIDER = 3  # ε1, ε2, ε3, threshold
 
@@ -52,6 +51,7 @@ class Tab:
         self.page = context.new_page()
         self.errors: list[str] = []
         self.notes: list[str] = []  # messages of the viser client, reported on failure only
+        self.warnings: list[str] = []  # failed requests of the page
         self.page.on("pageerror", self._on_pageerror)
         self.page.on("console", self._on_console)
         self.page.goto(server.url + "/", wait_until="load")
@@ -75,16 +75,24 @@ class Tab:
         if msg.type != "error":
             return
         url = (msg.location or {}).get("url", "")
-        if self._own(url):
-            self.errors.append(f"console error at {url}: {msg.text}")
-        else:
+        if not self._own(url):
             self.notes.append(f"console error (viser) at {url}: {msg.text}")
+        elif msg.text.startswith("Failed to load resource"):
+            # An API answer >= 400 that the page handles (e.g. "nothing yet"): reported only.
+            self.warnings.append(f"{url}: {msg.text}")
+        else:
+            self.errors.append(f"console error at {url}: {msg.text}")
 
     # --- state --------------------------------------------------------------------------------
 
     @property
     def sid(self) -> str:
         return self.page.evaluate("window.threadrecon.session")
+
+    @property
+    def frame_id(self) -> str:
+        """The frame the tab's session shows (a new tab opens the first frame of the list)."""
+        return self.page.evaluate("window.threadrecon.state.frame_id")
 
     def api_state(self) -> dict[str, Any]:
         return self.server.api(f"/api/sessions/{self.sid}")
@@ -128,7 +136,11 @@ class Tab:
 
     def check_errors(self) -> None:
         errors, self.errors = self.errors, []
-        assert not errors, "errors in the page:\n" + "\n".join(errors)
+        warned, self.warnings = sorted(set(self.warnings)), []
+        for w in warned:
+            warnings.warn(f"failed request in the page: {w}", stacklevel=2)
+        notes = "\n".join(["", "viser client:", *self.notes]) if self.notes else ""
+        assert not errors, "errors in the page:\n" + "\n".join(errors) + notes
 
 
 @pytest.fixture(scope="module")
@@ -173,7 +185,7 @@ def coloured_pixels(png: bytes, masks: list[tuple[int, int, int, int]]) -> int:
 
 def test_viewer_renders_the_scene(tab):
     page, viewer = tab.page, tab.viewer
-    wait_idle(page, FIRST)
+    wait_idle(page, tab.frame_id)
     canvas = viewer.locator("canvas").first
     canvas.wait_for(timeout=60_000)
     # The viewer's GUI panel and notifications sit on the canvas: mask them out.
@@ -249,9 +261,9 @@ def test_next_step_reveals_stages_in_order(tab):
     if tab.api_state()["frame_id"] != TISSUE:
         tab.select(TISSUE)
     wait_idle(page, TISSUE)
-    for k in range(1, len(STAGE_NAMES) + 1):
+    for k in range(1, len(STAGES) + 1):
         page.locator("#btn-next").click()
-        stage = STAGE_NAMES[k - 1]
+        stage = STAGES[k - 1]
         page.wait_for_function(
             """([k, stage]) => {
                 const shown = [...document.querySelectorAll('#stepper li:not(.hidden)')];
@@ -265,11 +277,11 @@ def test_next_step_reveals_stages_in_order(tab):
         shown = page.locator("#stepper li:not(.hidden)").evaluate_all(
             "els => els.map(e => e.dataset.stage)"
         )
-        assert shown == list(STAGE_NAMES[:k])
+        assert shown == list(STAGES[:k])
         hidden = page.locator("#stepper li.hidden").evaluate_all(
             "els => els.map(e => [e.dataset.stage, e.dataset.status])"
         )
-        assert [s for s, _ in hidden] == list(STAGE_NAMES[k:])
+        assert [s for s, _ in hidden] == list(STAGES[k:])
         assert all(status == "pending" for _, status in hidden), hidden
         assert tab.api_state()["reveal"] == k
     # One more "Next step" starts over at the first stage; "Run all" reveals every stage.
@@ -279,7 +291,7 @@ def test_next_step_reveals_stages_in_order(tab):
     )
     page.locator("#btn-all").click()
     wait_idle(page, TISSUE)
-    assert page.locator("#stepper li:not(.hidden)").count() == len(STAGE_NAMES)
+    assert page.locator("#stepper li:not(.hidden)").count() == len(STAGES)
     statuses = page.locator("#stepper li").evaluate_all("els => els.map(e => e.dataset.status)")
     assert all(s in ("done", "cached", "fallback") for s in statuses), statuses
 
@@ -303,18 +315,19 @@ def test_pixel_inspector_shows_the_energy_curve(tab):
         }
     )
     energy = page.locator("#energy")
-    page.wait_for_function(
-        "() => document.querySelector('#energy').dataset.pixel", timeout=30_000
-    )
-    assert energy.get_attribute("data-pixel") == f"{x},{y}"
+    page.wait_for_function("() => document.querySelector('#energy').dataset.pixel", timeout=30_000)
+    # The image is drawn smaller than its size and mouse positions are whole CSS pixels, so the
+    # click lands within a pixel or two of (x, y); the server snaps it to a thread pixel.
+    px, py = (int(v) for v in energy.get_attribute("data-pixel").split(","))
+    assert abs(px - x) <= 3 and abs(py - y) <= 3, f"inspected ({px}, {py}), clicked ({x}, {y})"
     info = page.locator("#pixel-info").inner_text()
-    assert f"pixel ({x}, {y})" in info and "E_min" in info and "E_next" in info, info
+    assert f"pixel ({px}, {py})" in info and "E_min" in info and "E_next" in info, info
     assert "reliable" in info, info
     std, colours = png_stats(energy.screenshot())
     assert std > 3 and colours > 5, f"the energy plot looks blank (std {std:.1f})"
     # The session knows the inspected pixel (the 3D view marks it).
     st = tab.api_state()
-    assert st["inspect"]["x"] == x and st["inspect"]["y"] == y
+    assert (st["inspect"]["x"], st["inspect"]["y"]) == (px, py)
     assert {"d_min", "d_next", "E_min", "energy"} <= set(st["inspect"])
 
 
@@ -327,14 +340,14 @@ def test_second_tab_does_not_disturb_the_first(tab, context, server):
     other = Tab(context, server)
     try:
         assert other.sid != tab.sid
-        wait_idle(other.page, FIRST)
+        wait_idle(other.page, other.frame_id)
         thumb = other.viser_sliders(RELIABILITY_FOLDER).nth(THRESHOLD_SLIDER)
         thumb.focus()
         thumb.press("Home")  # threshold 0 in the second tab only
         other.page.wait_for_function(
             "() => window.threadrecon.state.params.reliability.threshold === 0", timeout=30_000
         )
-        wait_idle(other.page, FIRST)
+        wait_idle(other.page, other.frame_id)
         assert other.api_state()["params"]["reliability"]["threshold"] == 0
         other.check_errors()
     finally:

@@ -282,6 +282,8 @@ def test_evaluation_from_the_page_agrees_with_the_cli_to_the_digit(tmp_path, cap
 def test_evaluation_can_be_cancelled_and_two_presets_compared(setup):
     data, configs = setup
     with client_for(data, configs) as c:
+        assert c.get("/api/evaluations/current").json() is None  # nothing yet: null, not 404
+        assert c.get("/api/evaluations/last").json() is None
         c.post("/api/evaluations", json={"preset": "default"})
         assert c.post("/api/evaluations", json={"preset": "default"}).status_code in (200, 409)
         a = _wait_job(c)
