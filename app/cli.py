@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from app.dataset import METRIC_COLUMNS, Frame, discover, evaluate_reconstruction, load_frame
 from app.io import load_calibration, load_pair
@@ -26,7 +27,15 @@ class UserError(Exception):
     """A problem with the user's input: reported in one line, no traceback."""
 
 
+def limit_blas_threads() -> None:
+    """One BLAS thread: the core's matrices are small (tens of control points), and OpenBLAS's
+    spinning worker threads, sharing two cores with a browser or another job, made a 10 ms
+    spline re-run take 300 ms (scripts/bench_latency.py with Chromium on the same machine)."""
+    threadpool_limits(limits=1, user_api="blas")
+
+
 def main(argv: list[str] | None = None) -> int:
+    limit_blas_threads()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not hasattr(args, "func"):

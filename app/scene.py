@@ -177,7 +177,7 @@ class SceneView:
         """Put the viewer camera above and behind the stereo cameras, looking at the thread."""
         cam = self.client.camera
         cam.up_direction = (0.0, -1.0, 0.0)
-        cam.position = tuple(float(v) for v in target + np.array([0.0, -0.45, -0.85]) * extent)
+        cam.position = tuple(float(v) for v in target + np.array([0.0, -0.6, -1.25]) * extent)
         cam.look_at = tuple(float(v) for v in target)
 
     def show(self, rec: Reconstruction | None, loaded: LoadedFrame | None) -> None:

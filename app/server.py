@@ -42,7 +42,7 @@ from app.presets import (
 from app.ratings import RatingStore, StoreError
 from app.scene import SceneView
 from app.session import FrameLibrary, Session, SessionManager, merge_params
-from app.views import overlay, pixel_info, stage_json
+from app.views import pixel_info, stage_json
 from core.pipeline import STAGES, ReconParams
 
 log = logging.getLogger("threadrecon.server")
@@ -423,14 +423,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     @app.get("/api/sessions/{sid}/overlay")
     def session_overlay(sid: str) -> JSONResponse:
         """The 2D overlays of the session's current reconstruction."""
-        s = state.session(sid)
-        with s.draw_lock:
-            rec, loaded = s.rec, s.loaded
-        if rec is None or loaded is None:
-            return JSONResponse({"frame_id": s.frame_id, "version": s.version})
-        data = overlay(rec, loaded.calib)
-        data.update(frame_id=loaded.frame.id, version=s.version)
-        return JSONResponse(data)
+        return JSONResponse(state.session(sid).overlay())
 
     @app.get("/api/sessions/{sid}/pixel")
     def session_pixel(sid: str, x: int, y: int) -> JSONResponse:

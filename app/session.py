@@ -23,6 +23,7 @@ import numpy as np
 
 from app.dataset import Frame, discover, evaluate_reconstruction, load_frame
 from app.presets import diff, params_hash, validate
+from app.views import overlay
 from core.calibration import StereoCalibration
 from core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction, StageError
 from core.segmentation import StereoPair
@@ -145,6 +146,7 @@ class Session:
         self.views: dict[int, View] = {}
         self.last_used = time.time()
         self._pipelines: OrderedDict[str, Pipeline] = OrderedDict()
+        self._overlay: tuple[tuple, dict[str, Any]] | None = None
 
     # --- requests ---------------------------------------------------------------------------
 
@@ -350,6 +352,20 @@ class Session:
         while len(self._pipelines) > PIPELINES_PER_SESSION:
             self._pipelines.popitem(last=False)
         return pipe
+
+    def overlay(self) -> dict[str, Any]:
+        """The 2D overlays of the current reconstruction, computed once per set of stage
+        results (the page asks after every stage; a cached stage costs nothing)."""
+        with self.draw_lock:
+            rec, loaded, version = self.rec, self.loaded, self.version
+        if rec is None or loaded is None:
+            return {"frame_id": self.frame_id, "version": version}
+        key = (loaded.frame.id, *(id(run.result) for run in rec.runs.values()))
+        cached = self._overlay
+        if cached is None or cached[0] != key:
+            cached = (key, overlay(rec, loaded.calib))
+            self._overlay = cached
+        return {**cached[1], "frame_id": loaded.frame.id, "version": version}
 
     # --- state for the page -------------------------------------------------------------------
 

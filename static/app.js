@@ -153,7 +153,7 @@ function renderMetrics(st) {
   tbody.innerHTML = "";
   const m = st.metrics || {};
   const total = st.stages.reduce((a, s) => a + (s.ms || 0), 0);
-  const rows = [["status", st.status], ["computed (ms)", fmt(total, 1)]];
+  const rows = [["status", st.status], ["this run (ms, cached stages 0)", fmt(total, 1)]];
   for (const [k, label] of METRIC_LABELS) if (m[k] !== undefined && m[k] !== null) rows.push([label, fmt(m[k])]);
   for (const [k, v] of rows) {
     const tr = document.createElement("tr");
@@ -164,10 +164,17 @@ function renderMetrics(st) {
 
 // --- 2D overlays -----------------------------------------------------------------------------
 
-let overlayBusy = false;
+let overlayBusy = false, overlayAt = 0, overlayTimer = null;
+const OVERLAY_EVERY_MS = 400;  // while a run is going on, overlays follow at this pace
 async function refreshOverlay() {
   if (overlayBusy || S.overlayVersion === S.version) return;
+  const wait = OVERLAY_EVERY_MS - (Date.now() - overlayAt);
+  if (S.state && S.state.busy && wait > 0) {
+    if (!overlayTimer) overlayTimer = setTimeout(() => { overlayTimer = null; refreshOverlay(); }, wait);
+    return;
+  }
   overlayBusy = true;
+  overlayAt = Date.now();
   try {
     const v = S.version;
     const ov = await api("GET", `/api/sessions/${S.session}/overlay`);
