@@ -22,9 +22,9 @@ import numpy as np
 
 from app.io import load_calibration, load_ground_truth, load_pair
 from core.calibration import StereoCalibration
-from core.metrics import curve_errors, project, reprojection_errors
+from core.metrics import ReprojectionErrors, curve_errors, project, reprojection_errors
 from core.pipeline import Reconstruction
-from core.segmentation import StereoPair
+from core.segmentation import LiftedPair, StereoPair
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 PAPER_OLD_GROUPS = 4  # the paper's blend1..4 use blend_calibration.yaml (1 mm baseline)
@@ -148,12 +148,22 @@ def evaluate_reconstruction(
             length_mm=e.length,
             length_gt_mm=e.length_gt,
         )
-    lifted = rec["segment"]
-    for side, P, mask in (("left", calib.P1, lifted.P_L), ("right", calib.P2, lifted.P_R)):
-        r = reprojection_errors(project(pts, P), mask)
+    for side, (_, r) in reprojections(pts, calib, rec["segment"]).items():
         out[f"{side}_mean_px"], out[f"{side}_max_px"], out[f"coverage_{side}"] = (
             r.mean,
             r.max,
             r.coverage,
         )
+    return out
+
+
+def reprojections(
+    points: np.ndarray, calib: StereoCalibration, lifted: LiftedPair, errors: bool = True
+) -> dict[str, tuple[np.ndarray, ReprojectionErrors | None]]:
+    """(N, 3) camera-frame points projected into the left and right images: per side the
+    (N, 2) pixels and, with ``errors``, their Table II errors against the segmented thread."""
+    out = {}
+    for side, P, mask in (("left", calib.P1, lifted.P_L), ("right", calib.P2, lifted.P_R)):
+        uv = project(points, P)
+        out[side] = (uv, reprojection_errors(uv, mask) if errors else None)
     return out

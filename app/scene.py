@@ -65,9 +65,12 @@ class SceneView:
         with gui.add_folder("Run"):
             self._status = gui.add_markdown("")
             row = gui.add_button_group("", ("Run", "Next step", "Run all"))
-            row.on_click(lambda e: self._run_button(e.target.value))
+            actions = {"Run": "run", "Next step": "next", "Run all": "all"}
+            row.on_click(
+                lambda e: self.session.step(actions[e.target.value], pause_s=STREAM_PAUSE_S)
+            )
             reset = gui.add_button("Reset parameters")
-            reset.on_click(lambda _: self._reset())
+            reset.on_click(lambda _: self.session.submit(params=ReconParams(), preset="default"))
         with gui.add_folder("Layers", expand_by_default=False):
             for name in LAYERS:
                 box = gui.add_checkbox(f"/{name}", True)
@@ -113,28 +116,16 @@ class SceneView:
             return
         self.session.submit(params=params)
 
-    def _run_button(self, which: str) -> None:
-        s = self.session
-        n = len(STAGES)
-        if which == "Run":
-            s.submit(reveal=n, pause_s=STREAM_PAUSE_S, params=s.params)
-        elif which == "Next step":
-            s.submit(reveal=1 if s.reveal >= n else s.reveal + 1)
-        else:
-            s.submit(reveal=n)
-
-    def _reset(self) -> None:
-        self.session.submit(params=ReconParams(), preset="default")
-        self.session.sync_params()
-
     def show_params(self, params: ReconParams) -> None:
         self._syncing.on = True
         try:
             for c, handle in self._inputs.values():
                 value = getattr(getattr(params, c.stage), c.name)
-                if c.kind == "slider":
-                    handle.min = min(handle.min, value)
-                    handle.max = max(handle.max, value)
+                if c.kind == "slider":  # a preset may hold a value beyond the slider's range
+                    if value < handle.min:
+                        handle.min = value
+                    if value > handle.max:
+                        handle.max = value
                 if handle.value != value:
                     handle.value = value
         finally:

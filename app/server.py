@@ -27,11 +27,14 @@ from fastapi.responses import FileResponse, JSONResponse, RedirectResponse, Resp
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel
 
+from app.cli import evaluate_frame
+from app.controls import controls
 from app.dataset import METRIC_COLUMNS
 from app.export import LAYERS as EXPORT_LAYERS
 from app.export import cloud_ply, json_safe, spline_csv, spline_json
 from app.jobs import EvaluationJob, compare
 from app.presets import (
+    NAME_RE,
     default_configs_dir,
     diff,
     list_presets,
@@ -255,8 +258,6 @@ def create_app(config: ServerConfig) -> FastAPI:
     @app.get("/api/info")
     def info() -> dict[str, Any]:
         """Server facts the page needs: the viser port, the stages, the controls."""
-        from app.controls import controls
-
         return {
             "viser_port": state.viser_port,
             "data_dir": str(config.data_dir),
@@ -325,8 +326,6 @@ def create_app(config: ServerConfig) -> FastAPI:
             frame_id=frame_id, params=params, reveal=reveal, pause_s=body.pause_ms / 1000.0,
             preset=preset,
         )  # fmt: skip
-        if preset is not None:
-            session.sync_params()
         if body.wait and not session.wait(seq, RUN_TIMEOUT_S):
             raise HTTPException(504, "the run did not finish in time")
         return JSONResponse(json_safe(session.state()))
@@ -389,7 +388,6 @@ def create_app(config: ServerConfig) -> FastAPI:
         except ValueError as exc:
             raise HTTPException(422, str(exc)) from None
         seq = s.submit(params=params)
-        s.sync_params()
         if wait:
             s.wait(seq, RUN_TIMEOUT_S)
         return JSONResponse(json_safe(s.state()))
@@ -398,7 +396,6 @@ def create_app(config: ServerConfig) -> FastAPI:
     def reset_params(sid: str, wait: bool = False) -> JSONResponse:
         s = state.session(sid)
         seq = s.submit(params=ReconParams(), preset="default")
-        s.sync_params()
         if wait:
             s.wait(seq, RUN_TIMEOUT_S)
         return JSONResponse(json_safe(s.state()))
@@ -407,15 +404,10 @@ def create_app(config: ServerConfig) -> FastAPI:
     def step(sid: str, body: StepBody, wait: bool = False) -> JSONResponse:
         """The stage stepper: run (streamed), next (reveal one more stage) or all."""
         s = state.session(sid)
-        n = len(STAGES)
-        if body.action == "run":
-            seq = s.submit(reveal=n, pause_s=body.pause_ms / 1000.0)
-        elif body.action == "next":
-            seq = s.submit(reveal=1 if s.reveal >= n else s.reveal + 1)
-        elif body.action == "all":
-            seq = s.submit(reveal=n)
-        else:
-            raise HTTPException(422, f"action must be run, next or all, got {body.action!r}")
+        try:
+            seq = s.step(body.action, pause_s=body.pause_ms / 1000.0)
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from None
         if wait:
             s.wait(seq, RUN_TIMEOUT_S)
         return JSONResponse(json_safe(s.state()))
@@ -507,8 +499,6 @@ def create_app(config: ServerConfig) -> FastAPI:
     def ratings_summary(session: str | None = None) -> JSONResponse:
         """The paper's Table II for the rated frames: reprojection errors and coverage of the
         session's current parameters, the latest score, and the failure rate (score < 3)."""
-        from app.cli import evaluate_frame
-
         s = state.session(session)
         current = params_hash(s.params)
         latest = _store(state.store.latest_all)
@@ -583,7 +573,6 @@ def create_app(config: ServerConfig) -> FastAPI:
         s = state.session(sid)
         params = _load_preset(config.configs, body.name)
         seq = s.submit(params=params, preset=body.name)
-        s.sync_params()
         if body.wait:
             s.wait(seq, RUN_TIMEOUT_S)
         return JSONResponse(json_safe(s.state()))
@@ -704,8 +693,6 @@ def _store(fn: Any, *args: Any) -> Any:
 
 
 def _load_preset(folder: Path, name: str) -> ReconParams:
-    from app.presets import NAME_RE
-
     if not NAME_RE.match(name):
         raise HTTPException(422, f"invalid preset name {name!r}")
     path = folder / f"{name}.toml"

@@ -161,6 +161,7 @@ class Session:
         """Ask for a run; returns its sequence number. A newer request supersedes it."""
         if frame_id is not None:
             self.library.get(frame_id)  # KeyError for an unknown frame
+        changed = False
         with self._cond:
             if self._closed:
                 raise RuntimeError(f"session {self.id} is closed")
@@ -196,7 +197,22 @@ class Session:
                 )
                 self._worker.start()
             self._cond.notify_all()
-            return self._seq
+            seq = self._seq
+        if changed:  # every view's controls follow, whoever changed the parameters
+            self.sync_params()
+        return seq
+
+    def step(self, action: str, pause_s: float = 0.0) -> int:
+        """The stage stepper: "run" (every stage, streamed with ``pause_s`` between them),
+        "next" (reveal one more stage, from the first after the last) or "all"."""
+        n = len(STAGES)
+        if action == "run":
+            return self.submit(reveal=n, pause_s=pause_s)
+        if action == "next":
+            return self.submit(reveal=1 if self.reveal >= n else self.reveal + 1)
+        if action == "all":
+            return self.submit(reveal=n)
+        raise ValueError(f"action must be run, next or all, got {action!r}")
 
     def wait(self, seq: int, timeout: float = 60.0) -> bool:
         """Block until request ``seq`` (or a newer one) has finished; False on timeout."""

@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
+from app.dataset import reprojections
 from app.export import json_safe, reliability_colors
 from core.calibration import StereoCalibration
 from core.camera import image_to_camera
-from core.metrics import project, reprojection_errors
 from core.pipeline import STAGES, Reconstruction
 
 # Fields left out of a stage's JSON: per-pixel images and the (N, alpha+1) energy volume are
@@ -82,15 +82,12 @@ def overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
         ]
     if "spline" in rec.runs:
         sp = rec["spline"]
-        lifted = rec["segment"]
         for name, initial in (("spline", False), ("spline_initial", True)):
             pts = image_to_camera(sp.curve(SPLINE_SAMPLES, initial=initial), calib.G)
             sides = {}
-            for side, P, mask in (("left", calib.P1, lifted.P_L), ("right", calib.P2, lifted.P_R)):
-                uv = project(pts, P)
+            for side, (uv, r) in reprojections(pts, calib, rec["segment"], not initial).items():
                 entry: dict[str, Any] = {"points": np.round(uv, 2).tolist()}
-                if not initial:
-                    r = reprojection_errors(uv, mask)
+                if r is not None:
                     entry.update(mean_px=r.mean, max_px=r.max, coverage=r.coverage)
                 sides[side] = entry
             out[name] = sides

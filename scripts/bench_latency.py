@@ -63,66 +63,22 @@ def running_server(data: Path, db: Path):
         thread.join(10)
 
 
-def _confine(exe: Path, core: int) -> None:
-    """Every thread of every process of ``exe`` onto ``core``, at low priority (Chromium raises
-    its GPU process to nice -8 and lets its threads roam; SwiftShader would take both cores)."""
-    import os
-
-    for pid in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[0].decode()
-            if Path(cmd).name != exe.name:  # /usr/bin/chromium execs /usr/lib/chromium/chromium
-                continue
-            for tid in os.listdir(f"/proc/{pid}/task"):
-                os.sched_setaffinity(int(tid), {core})
-                os.setpriority(os.PRIO_PROCESS, int(tid), 10)
-        except OSError:
-            continue
-
-
 @contextlib.contextmanager
-def browser_page(url: str, use: bool = True, separate: bool = True):
-    if not use:
-        yield None
-        return
+def browser_page(url: str):
+    """The real page in headless Chromium; its software WebGL shares the cores with the
+    server, as it would on a laptop without a GPU."""
     if not CHROMIUM.exists():
         print("no /usr/bin/chromium: measuring without a viewer attached", file=sys.stderr)
         yield None
         return
-    import os
-    import tempfile
-
     from playwright.sync_api import sync_playwright
 
-    # Software WebGL (SwiftShader) renders on the CPU: give the browser its own core, as a
-    # browser on the user's machine with a GPU would be, so it does not starve the server.
-    exe = str(CHROMIUM)
-    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
-    if separate and len(cores) > 1:
-        wrapper = Path(tempfile.mkdtemp()) / "chromium"
-        wrapper.write_text(f'#!/bin/sh\nexec taskset -c {cores[-1]} {CHROMIUM} "$@"\n')
-        wrapper.chmod(0o755)
-        exe = str(wrapper)
-        for tid in os.listdir("/proc/self/task"):  # every thread of the server: other cores
-            with contextlib.suppress(OSError):
-                os.sched_setaffinity(int(tid), set(cores[:-1]))
     with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         page = browser.new_page(viewport={"width": 1200, "height": 800})
         page.goto(url)
         page.wait_for_function("window.threadrecon && window.threadrecon.session")
-        if separate and len(cores) > 1:  # again every second: Chromium starts new threads
-            done = threading.Event()
-
-            def keep_confined() -> None:
-                while not done.wait(1.0):
-                    _confine(CHROMIUM, cores[-1])
-
-            _confine(CHROMIUM, cores[-1])
-            threading.Thread(target=keep_confined, daemon=True).start()
         yield page
-        if separate and len(cores) > 1:
-            done.set()
         browser.close()
 
 
@@ -176,11 +132,10 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=3, help="changes per parameter and frame")
     ap.add_argument(
         "--viewer",
-        choices=("socket", "chromium", "chromium-shared", "none"),
+        choices=("socket", "chromium", "none"),
         default="socket",
         help="socket: a websocket client that receives everything and renders nothing "
-        "(default); chromium: the real page, its software WebGL pinned to its own core; "
-        "chromium-shared: the same, competing with the server for every core",
+        "(default); chromium: the real page, its software WebGL on the same cores",
     )
     args = ap.parse_args()
     db = Path("/tmp") / f"threadrecon-bench-{time.time_ns()}.sqlite3"
@@ -195,11 +150,7 @@ def main() -> int:
     compute: dict[str, list[float]] = {k: [] for k in changes}
     with (
         running_server(Path(args.data), db) as (url, state),
-        browser_page(
-            url,
-            args.viewer != "none" and args.viewer.startswith("chromium"),
-            args.viewer == "chromium",
-        ) as page,
+        browser_page(url) if args.viewer == "chromium" else contextlib.nullcontext() as page,
     ):
         http = httpx.Client(base_url=url, timeout=120)
         if page is not None:
