@@ -6,6 +6,7 @@ import argparse
 import csv
 import json
 import math
+import socket
 import sys
 import time
 from dataclasses import replace
@@ -295,6 +296,13 @@ def cmd_serve(args: argparse.Namespace) -> int:
         if port is not None and not 0 < port < 65536:
             raise UserError(f"{name} must be in 1..65535, got {port}")
     viser_port = args.viser_port if args.viser_port is not None else args.port + 1
+    with socket.socket() as probe:  # a taken port is a one-line error, not uvicorn's exit
+        try:
+            probe.bind((args.host, args.port))
+        except OSError as exc:
+            raise UserError(
+                f"cannot listen on {args.host}:{args.port} ({exc.strerror}): choose another --port"
+            ) from None
     config = ServerConfig(
         data_dir=root,
         host=args.host,

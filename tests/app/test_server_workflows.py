@@ -6,6 +6,7 @@ import csv
 import io
 import os
 import shutil
+import socket
 import threading
 import time
 from pathlib import Path
@@ -127,6 +128,16 @@ def test_a_corrupt_database_stops_the_start_and_is_left_untouched(setup, capsys)
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "threadrecon.sqlite3" in err and "--db" in err
     assert db.read_bytes() == junk
+
+
+def test_serve_on_a_taken_port_is_a_one_line_error(setup, capsys):
+    data, _ = setup
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        port = taken.getsockname()[1]
+        assert cli_main(["serve", str(data), "--port", str(port)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(port) in err and "--port" in err
 
 
 def test_a_read_only_database_stops_the_start(setup):
