@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import socket
@@ -16,12 +15,11 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from app.dataset import METRIC_COLUMNS, Frame, discover, evaluate_reconstruction, load_frame
+from app.dataset import discover, load_frame
+from app.evaluation import evaluate_frame, summarise, write_csv
 from app.io import load_calibration, load_pair
 from app.presets import resolve_preset
-from core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
-
-LENGTH_FAILURE_MM = 20.0  # a simulated frame whose length is off by more than 2 cm has failed
+from core.pipeline import STAGES, Pipeline, Reconstruction
 
 
 class UserError(Exception):
@@ -192,54 +190,6 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
 # --- evaluate ----------------------------------------------------------------------------
 
 
-def evaluate_frame(
-    frame: Frame, params: ReconParams
-) -> tuple[dict[str, Any], Reconstruction | None]:
-    """One CSV row for a frame (never raises for a bad frame: the row says what failed)."""
-    row: dict[str, Any] = {"frame": frame.id, "kind": frame.kind}
-    try:
-        pair, calib, gt = load_frame(frame)
-        rec = Pipeline(pair, calib).run(params)
-    except (ValueError, OSError) as exc:
-        row.update(status="failed", error=str(exc), **{c: math.nan for c in METRIC_COLUMNS})
-        return row, None
-    row.update(status=rec.status, error=rec.message or "")
-    row.update(evaluate_reconstruction(rec, calib, gt))
-    if (
-        row["status"] == "ok"
-        and frame.has_ground_truth
-        and not (row["e_length_mm"] <= LENGTH_FAILURE_MM)
-    ):
-        row["status"] = "failed"
-        row["error"] = f"length error {row['e_length_mm']:.1f} mm > {LENGTH_FAILURE_MM:g} mm"
-    row["n_reliable"] = rec["reliability"].count if "reliability" in rec.runs else 0
-    row["n_keypoints"] = rec["clustering"].count if "clustering" in rec.runs else 0
-    for stage in STAGES:
-        row[f"ms_{stage}"] = rec.timings_ms.get(stage, math.nan)
-    row["ms_total"] = sum(rec.timings_ms.values())
-    return row, rec
-
-
-def summarise(rows: list[dict[str, Any]]) -> list[str]:
-    """Mean and standard deviation per metric and kind, then the failures."""
-    lines = []
-    for kind, cols in (("simulated", METRIC_COLUMNS[:3]), ("real", METRIC_COLUMNS[5:])):
-        sel = [r for r in rows if r["kind"] == kind]
-        if not sel:
-            continue
-        good = [r for r in sel if r["status"] == "ok"]
-        lines.append(f"{kind}: {len(sel)} frames, {len(sel) - len(good)} failed")
-        for c in cols:
-            v = np.array([r[c] for r in good], dtype=float)
-            v = v[np.isfinite(v)]
-            if v.size:
-                lines.append(f"  {c:<16} mean {v.mean():8.3f}  sd {v.std():8.3f}")
-    failed = [r for r in rows if r["status"] != "ok"]
-    for r in failed:
-        lines.append(f"FAILED {r['frame']}: {r['error']}")
-    return lines
-
-
 def _progress(i: int, n: int, label: str) -> None:
     if not sys.stderr.isatty():  # logs get no carriage-return bar
         return
@@ -266,21 +216,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         write_csv(Path(args.out), rows)
     for line in summarise(rows):
         print(line)
+    failed = sum(r["status"] != "ok" for r in rows)
+    if failed:
+        print(f"threadrecon: {failed} of {len(rows)} frames failed", file=sys.stderr)
+        return 1
     return 0
-
-
-def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    keys: list[str] = []
-    for r in rows:
-        keys += [k for k in r if k not in keys]
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    with tmp.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=keys)
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-    tmp.replace(path)
 
 
 # --- serve -------------------------------------------------------------------------------

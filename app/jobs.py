@@ -1,6 +1,6 @@
 """Whole-dataset evaluation in a background thread, and side-by-side comparison of two runs.
 
-Each frame's row is :func:`app.cli.evaluate_frame`'s and the summary :func:`app.cli.summarise`'s,
+Each frame's row is :func:`app.evaluation.evaluate_frame`'s and the summary :func:`app.evaluation.summarise`'s,
 so that the page agrees to the digit with ``threadrecon evaluate``.
 """
 
@@ -14,8 +14,8 @@ from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from typing import Any
 
-from app.cli import evaluate_frame, summarise
 from app.dataset import METRIC_COLUMNS, Frame
+from app.evaluation import evaluate_frame, summarise
 from app.export import json_safe
 from app.presets import params_hash
 from core.pipeline import ReconParams

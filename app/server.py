@@ -27,9 +27,9 @@ from fastapi.responses import FileResponse, JSONResponse, RedirectResponse, Resp
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel
 
-from app.cli import evaluate_frame
 from app.controls import controls
 from app.dataset import METRIC_COLUMNS
+from app.evaluation import evaluate_frame
 from app.export import LAYERS as EXPORT_LAYERS
 from app.export import cloud_ply, json_safe, spline_csv, spline_json
 from app.jobs import EvaluationJob, compare

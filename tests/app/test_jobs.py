@@ -11,8 +11,8 @@ from typing import Any
 import pytest
 
 import app.jobs
-from app.cli import evaluate_frame, summarise
 from app.dataset import Frame, discover
+from app.evaluation import evaluate_frame, summarise
 from app.jobs import COMPARE_COLUMNS, EvaluationJob, compare
 from core.pipeline import ReconParams
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from app.cli import evaluate_frame
 from app.dataset import discover
+from app.evaluation import evaluate_frame
 from core.pipeline import ReconParams
 
 PAPER = Path(__file__).resolve().parents[3] / "shared" / "data" / "paper-dataset"

@@ -1,0 +1,92 @@
+"""Evaluation as a library: one row per frame, one summary, one CSV writer.
+
+The CLI (``threadrecon evaluate``), the debugger's background job and the rated-frames table
+all call these, so every view shows the same figures.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.dataset import METRIC_COLUMNS, Frame, evaluate_reconstruction, load_frame
+from core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
+
+LENGTH_FAILURE_MM = 20.0  # a simulated frame whose length is off by more than 2 cm has failed
+
+
+def evaluate_frame(
+    frame: Frame, params: ReconParams
+) -> tuple[dict[str, Any], Reconstruction | None]:
+    """One CSV row for a frame (never raises for a bad frame: the row says what failed)."""
+    row: dict[str, Any] = {"frame": frame.id, "kind": frame.kind}
+    try:
+        pair, calib, gt = load_frame(frame)
+        rec = Pipeline(pair, calib).run(params)
+    except Exception as exc:  # any frame's error is that frame's failed row, never the run's
+        row.update(status="failed", error=_describe(exc), **{c: math.nan for c in METRIC_COLUMNS})
+        return row, None
+    row.update(status=rec.status, error=rec.message or "")
+    try:
+        row.update(evaluate_reconstruction(rec, calib, gt))
+    except Exception as exc:  # e.g. a non-finite curve or ground truth: the row says so
+        row.update(status="failed", error=f"metrics: {_describe(exc)}")
+        row.update({c: math.nan for c in METRIC_COLUMNS})
+    if (
+        row["status"] == "ok"
+        and frame.has_ground_truth
+        and not (row["e_length_mm"] <= LENGTH_FAILURE_MM)
+    ):
+        row["status"] = "failed"
+        row["error"] = f"length error {row['e_length_mm']:.1f} mm > {LENGTH_FAILURE_MM:g} mm"
+    row["n_reliable"] = rec["reliability"].count if "reliability" in rec.runs else 0
+    row["n_keypoints"] = rec["clustering"].count if "clustering" in rec.runs else 0
+    for stage in STAGES:
+        row[f"ms_{stage}"] = rec.timings_ms.get(stage, math.nan)
+    row["ms_total"] = sum(rec.timings_ms.values())
+    return row, rec
+
+
+def _describe(exc: BaseException) -> str:
+    text = str(exc)
+    return (
+        text if isinstance(exc, ValueError | OSError) and text else f"{type(exc).__name__}: {text}"
+    )
+
+
+def summarise(rows: list[dict[str, Any]]) -> list[str]:
+    """Mean and standard deviation per metric and kind, then the failures."""
+    lines = []
+    for kind, cols in (("simulated", METRIC_COLUMNS[:3]), ("real", METRIC_COLUMNS[5:])):
+        sel = [r for r in rows if r["kind"] == kind]
+        if not sel:
+            continue
+        good = [r for r in sel if r["status"] == "ok"]
+        lines.append(f"{kind}: {len(sel)} frames, {len(sel) - len(good)} failed")
+        for c in cols:
+            v = np.array([r[c] for r in good], dtype=float)
+            v = v[np.isfinite(v)]
+            if v.size:
+                lines.append(f"  {c:<16} mean {v.mean():8.3f}  sd {v.std():8.3f}")
+    failed = [r for r in rows if r["status"] != "ok"]
+    for r in failed:
+        lines.append(f"FAILED {r['frame']}: {r['error']}")
+    return lines
+
+
+def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    keys: list[str] = []
+    for r in rows:
+        keys += [k for k in r if k not in keys]
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    with tmp.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=keys)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+    tmp.replace(path)
