@@ -13,93 +13,56 @@ import os
 import re
 import tempfile
 import tomllib
-import typing
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from core.pipeline import STAGES, ReconParams
+from core.params import ParamSpec, specs
+from core.pipeline import STAGE_BY_NAME, STAGES, ReconParams
 
-NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")  # used with fullmatch: no trailing newline
 HASH_HEX = 12  # 48 bits: no collision among the few hundred parameter sets of a study
-
-# Valid ranges (inclusive) of the numeric parameters; the stages check them again on use.
-RANGES: dict[str, tuple[float, float]] = {
-    "segment.seg_delta": (0, 255), "segment.background": (0, 255), "segment.min_component_px": (0, 10_000),
-    "segment.lift_dilate_px": (0, 10),
-    "stereo.alpha": (4, 512), "stereo.window": (1, 51),
-    "reliability.eps1": (0, 1000), "reliability.eps2": (1e-9, 1000), "reliability.eps3": (-1000, 1000),
-    "reliability.threshold": (0, 0.999999),
-    "clustering.radius": (1, 10), "clustering.min_size": (1, 10_000), "clustering.max_size": (1, 10_000),
-    "ordering.solidify_radius": (0, 10), "ordering.extension_min_px": (0, 100_000), "ordering.tip_px": (0, 1000),
-    "ordering.bridge_px": (0, 10_000),
-    "bounds.extra_px": (1, 10_000), "bounds.r_k_frac": (0, 1), "bounds.r_k_min": (1, 1000),
-    "bounds.bound_scale": (1e-6, 100), "bounds.widen_px": (0, 100),
-    "spline.n_ctrl": (3, 200), "spline.degree": (2, 5), "spline.max_iter": (1, 100_000),
-    "spline.quad_per_span": (1, 20), "spline.bound_tol": (0, 10), "spline.data_weight": (0, 1e9),
-    "spline.xy_tol_px": (0.01, 1000),
-    "camera.n_points": (200, 100_000),
-}  # fmt: skip
 
 
 def validate(data: dict[str, Any]) -> ReconParams:
-    """``{stage: {name: value}}`` -> :class:`ReconParams`; errors name the offending key."""
+    """``{stage: {name: value}}`` -> :class:`ReconParams`; errors name the offending key.
+
+    Types, ranges and cross-field rules are the stages' own (``core.params``): this only turns
+    TOML/JSON values into the declared types ("auto" for None, whole floats for ints).
+    """
     if not isinstance(data, dict):
         raise ValueError("a preset must be a table of stage tables")
     params = ReconParams()
-    hints_cache: dict[type, dict[str, Any]] = {}
     for stage, values in data.items():
-        if stage not in STAGES:
+        if stage not in STAGE_BY_NAME:
             raise ValueError(f"unknown parameter group {stage!r} (known: {', '.join(STAGES)})")
         if not isinstance(values, dict):
             raise ValueError(f"{stage}: must be a table of parameters")
-        current = getattr(params, stage)
-        cls = type(current)
-        hints = hints_cache.setdefault(cls, typing.get_type_hints(cls))
-        known = {f.name for f in fields(current)}
+        cls = STAGE_BY_NAME[stage].params
+        by_name = {spec.name: spec for spec in specs(cls)}
         clean: dict[str, Any] = {}
         for name, value in values.items():
-            key = f"{stage}.{name}"
-            if name not in known:
-                raise ValueError(f"unknown parameter {key}")
-            clean[name] = _coerce(key, hints[name], value)
-        params = replace(params, **{stage: replace(current, **clean)})
-    c = params.clustering
-    if c.min_size > c.max_size:
-        raise ValueError("clustering.min_size must not exceed clustering.max_size")
-    if params.spline.n_ctrl < params.spline.degree + 1:
-        raise ValueError("spline.n_ctrl must be at least spline.degree + 1")
-    if params.stereo.window % 2 == 0:
-        raise ValueError("stereo.window must be odd")
+            if name not in by_name:
+                raise ValueError(f"unknown parameter {stage}.{name}")
+            clean[name] = _coerce(by_name[name], value)
+        try:
+            group = replace(getattr(params, stage), **clean)
+        except ValueError as exc:  # the stage's own check, named by stage rather than class
+            raise ValueError(str(exc).replace(f"{cls.__name__}.", f"{stage}.")) from None
+        params = replace(params, **{stage: group})
     return params
 
 
-def _coerce(key: str, hint: Any, value: Any) -> Any:
-    args = typing.get_args(hint)
-    if typing.get_origin(hint) is typing.Literal:
-        if value not in args:
-            raise ValueError(f"{key} must be one of {', '.join(map(repr, args))}, got {value!r}")
-        return value
-    optional = type(None) in args
-    base = next((a for a in args if a is not type(None)), hint) if args else hint
-    if value is None or (optional and value == "auto"):
-        if optional:
-            return None
-        raise ValueError(f"{key} must not be empty")
-    if base is bool:
-        if not isinstance(value, bool):
-            raise ValueError(f"{key} must be true or false, got {value!r}")
-        return value
-    if base in (int, float):
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ValueError(f"{key} must be a number, got {value!r}")
-        if base is int and float(value) != int(value):
-            raise ValueError(f"{key} must be a whole number, got {value!r}")
-        value = base(value)
-        lo, hi = RANGES.get(key, (float("-inf"), float("inf")))
-        if not lo <= value <= hi:
-            raise ValueError(f"{key} must be in [{lo:g}, {hi:g}], got {value!r}")
-        return value
+def _coerce(spec: ParamSpec, value: Any) -> Any:
+    """A TOML/JSON value in the declared type where that is lossless; anything else is passed
+    on unchanged for the Params check to reject with its own message."""
+    if spec.optional and value == "auto":
+        return None
+    if spec.kind in ("slider", "number", "auto") and not isinstance(value, bool):
+        if spec.integer and isinstance(value, float) and value.is_integer():
+            return int(value)
+        if not spec.integer and isinstance(value, int) and abs(value) < 2**53:
+            return float(value)
     return value
 
 
@@ -167,7 +130,7 @@ def save_preset(
     params: ReconParams, name: str, folder: Path, overwrite: bool = False, header: str = ""
 ) -> Path:
     """Write ``folder/name.toml`` atomically; refuses an existing name unless ``overwrite``."""
-    if not NAME_RE.match(name):
+    if not NAME_RE.fullmatch(name):
         raise ValueError(
             f"invalid preset name {name!r}: letters, digits, '.', '_' or '-', at most 64"
         )
@@ -197,5 +160,5 @@ def diff(params: ReconParams, base: ReconParams | None = None) -> list[dict[str,
 def list_presets(folder: Path | None = None) -> list[str]:
     """Names of the presets in ``folder`` (default ``configs/``), sorted, "default" first."""
     folder = folder or default_configs_dir()
-    names = sorted(p.stem for p in folder.glob("*.toml") if NAME_RE.match(p.stem))
+    names = sorted(p.stem for p in folder.glob("*.toml") if NAME_RE.fullmatch(p.stem))
     return sorted(names, key=lambda n: n != "default")

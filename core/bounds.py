@@ -23,20 +23,27 @@ import numpy as np
 
 from core.calibration import StereoCalibration
 from core.ordering import Ordering
+from core.params import Params, param
 from core.stereo import StereoResult
 
 
 @dataclass(frozen=True)
-class BoundsParams:
-    extra_px: int = 24
+class BoundsParams(Params):
+    extra_px: int = param(
+        24, lo=1, hi=10000, unit="px", slider=(4, 100, 1), label="extra point spacing px"
+    )
     """Gap size (segmented px) per extra point; gaps larger than this get extra points."""
-    r_k_frac: float = 0.1
+    r_k_frac: float = param(
+        0.1, lo=0, hi=1, symbol="r_k/|K|", slider=(0.0, 0.5, 0.01), label="r_k = |K| ×"
+    )
     """r_k = r_k_frac * |K| (paper: |K| / 10), at least ``r_k_min``."""
-    r_k_min: int = 2
+    r_k_min: int = param(2, lo=1, hi=1000, unit="keypoints", slider=(1, 20, 1), label="r_k min")
     """Smallest r_k, keypoints."""
-    bound_scale: float = 1.5
+    bound_scale: float = param(1.5, lo=1e-06, hi=100, slider=(1.0, 5.0, 0.05), label="bound scale")
     """Scale of |L(k) - k_z| in Eq. (7)."""
-    widen_px: float = 0.25
+    widen_px: float = param(
+        0.25, lo=0, hi=100, unit="px", slider=(0.0, 3.0, 0.05), label="widen threshold"
+    )
     """Smallest bound half-width, px of disparity."""
 
 

@@ -16,12 +16,15 @@ import numpy as np
 from scipy.interpolate import BSpline
 
 from core.calibration import StereoCalibration
+from core.params import Params, param
 from core.spline import SplineResult
 
 
 @dataclass(frozen=True)
-class CameraParams:
-    n_points: int = 400
+class CameraParams(Params):
+    n_points: int = param(
+        400, lo=200, hi=100000, unit="points", slider=(200, 2000, 50), label="dense points"
+    )
     """Samples of the dense centerline (>= 200)."""
     mode: Literal["refit", "paper"] = "refit"
     """Control-point transform, see module docstring."""

@@ -21,20 +21,26 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
+from core.params import Params, param
 from core.reliability import ReliabilityResult
 from core.stereo import StereoResult
 
 
 @dataclass(frozen=True)
-class ClusterParams:
-    radius: int = 2
+class ClusterParams(Params):
+    radius: int = param(2, lo=1, hi=10, unit="px", slider=(1, 6, 1), label="neighbour radius")
     """Neighbour radius, Manhattan distance in px (paper: 2)."""
-    min_size: int = 8
+    min_size: int = param(8, lo=1, hi=10000, unit="px", slider=(1, 100, 1), label="min size")
     """Smallest explored set that forms a cluster, px."""
-    max_size: int = 30
+    max_size: int = param(30, lo=1, hi=10000, unit="px", slider=(1, 200, 1), label="max size")
     """BFS stops growing a cluster at this many px."""
     mode: Literal["wavefront", "restart"] = "wavefront"
     """BFS start rule, see module docstring; "restart" is the paper's."""
+
+    def _check(self) -> None:
+        super()._check()
+        if self.min_size > self.max_size:
+            raise ValueError("clustering.min_size must not exceed clustering.max_size")
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,7 @@ import scipy.sparse as sp
 from scipy.sparse import csgraph
 
 from core.clustering import Clusters
+from core.params import Params, param
 from core.segmentation import LiftedPair
 from core.stereo import StereoResult
 
@@ -35,15 +36,21 @@ _HALF_8 = ((0, 1), (1, -1), (1, 0), (1, 1))  # half of the 8-neighbourhood: each
 
 
 @dataclass(frozen=True)
-class OrderingParams:
-    solidify_radius: int = 1
+class OrderingParams(Params):
+    solidify_radius: int = param(
+        1, lo=0, hi=10, unit="px", slider=(0, 6, 1), label="solidify radius"
+    )
     """Segmented pixels within this distance of a cluster join it, px (paper: 1-2)."""
-    extension_min_px: int = 6
+    extension_min_px: int = param(
+        6, lo=0, hi=100000, unit="px", slider=(0, 60, 1), label="extension min px"
+    )
     """Dead-end gap size at an end keypoint that triggers endpoint extension, px."""
-    tip_px: float = 2.0
+    tip_px: float = param(2.0, lo=0, hi=1000, unit="px", slider=(0.0, 10.0, 0.5), label="tip px")
     """Extend an end to its cluster's tip when the tip lies this far beyond the end keypoint,
     px (0: off, the paper). The keypoint is a centroid, half a cluster short of the tip."""
-    bridge_px: float = 80.0
+    bridge_px: float = param(
+        80.0, lo=0, hi=10000, unit="px", slider=(0.0, 300.0, 5.0), label="bridge px"
+    )
     """Largest jump between components of A the walk may make, px (0: paper, no jump)."""
     metric: Literal["image", "3d"] = "image"
     """Distance for "closest adjacent keypoint": image-plane px (default) or 3D."""

@@ -174,8 +174,12 @@ def _check_value(owner: str, spec: ParamSpec, value: Any) -> None:
         raise ValueError(f"{where} must be a number, got {value!r}")
     if spec.integer and not isinstance(value, int):
         raise ValueError(f"{where} must be a whole number, got {value!r}")
-    if not math.isfinite(value):
-        raise ValueError(f"{where} must be finite, got {value!r}")
+    try:
+        finite = math.isfinite(value)
+    except OverflowError:  # an int beyond float range
+        finite = False
+    if not finite:
+        raise ValueError(f"{where} must be a finite number in range, got {value!r:.40}")
     lo = -math.inf if spec.lo is None else spec.lo
     hi = math.inf if spec.hi is None else spec.hi
     if not lo <= value <= hi:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, make_dataclass
 from typing import Any
 
 from core.bounds import BoundsParams, depth_bounds
@@ -15,44 +15,82 @@ from core.calibration import StereoCalibration
 from core.camera import CameraParams, to_camera
 from core.clustering import ClusterParams, cluster_keypoints
 from core.ordering import OrderingParams, order_keypoints
+from core.params import Params
 from core.reliability import ReliabilityParams, prune
 from core.segmentation import SegmentationParams, StereoPair, segment
 from core.spline import SplineParams, fit_spline
 from core.stereo import StereoParams, match_stereo
 
-STAGES = (
-    "segment",
-    "stereo",
-    "reliability",
-    "clustering",
-    "ordering",
-    "bounds",
-    "spline",
-    "camera",
-)
-
 
 @dataclass(frozen=True)
-class ReconParams:
-    """Every parameter of the core, one frozen dataclass per stage (field name = stage name)."""
+class Stage:
+    """One stage of the pipeline, declared once: everything else (parameters, presets, sliders,
+    caching, stage JSON, layers, exports) is derived from :data:`STAGE_TABLE`."""
 
-    segment: SegmentationParams = field(default_factory=SegmentationParams)
-    stereo: StereoParams = field(default_factory=StereoParams)
-    reliability: ReliabilityParams = field(default_factory=ReliabilityParams)
-    clustering: ClusterParams = field(default_factory=ClusterParams)
-    ordering: OrderingParams = field(default_factory=OrderingParams)
-    bounds: BoundsParams = field(default_factory=BoundsParams)
-    spline: SplineParams = field(default_factory=SplineParams)
-    camera: CameraParams = field(default_factory=CameraParams)
+    name: str
+    params: type[Params]
+    """Its frozen parameter dataclass; the field of :class:`ReconParams` is named ``name``."""
+    run: Callable[..., Any]
+    """``run(*inputs, params) -> result``."""
+    inputs: tuple[str, ...]
+    """What ``run`` takes before its params, in order: "pair", "calib" or an earlier stage."""
+    title: str
 
+
+STAGE_TABLE: tuple[Stage, ...] = (
+    Stage("segment", SegmentationParams, segment, ("pair",), "Segmentation and lifting, Eq. (1)"),
+    Stage("stereo", StereoParams, match_stereo, ("segment", "calib"), "SSD stereo, Eqs. (2)-(5)"),
+    Stage("reliability", ReliabilityParams, prune, ("stereo",), "Reliability, Eq. (6)"),
+    Stage(
+        "clustering",
+        ClusterParams,
+        cluster_keypoints,
+        ("stereo", "reliability"),
+        "Keypoint clusters (BFS)",
+    ),
+    Stage(
+        "ordering",
+        OrderingParams,
+        order_keypoints,
+        ("segment", "stereo", "clustering"),
+        "Adjacency graph and ordering",
+    ),
+    Stage(
+        "bounds",
+        BoundsParams,
+        depth_bounds,
+        ("stereo", "ordering", "calib"),
+        "Depth bounds, Eq. (7)",
+    ),
+    Stage(
+        "spline", SplineParams, fit_spline, ("bounds", "calib"), "Minimum Variation Spline, Eq. (8)"
+    ),
+    Stage("camera", CameraParams, to_camera, ("spline", "calib"), "Camera frame, Eq. (9)"),
+)
+STAGES: tuple[str, ...] = tuple(s.name for s in STAGE_TABLE)
+STAGE_BY_NAME: dict[str, Stage] = {s.name: s for s in STAGE_TABLE}
+
+
+class _ReconParamsBase:
     def to_dict(self) -> dict[str, dict[str, Any]]:
+        """``{stage: {name: value}}`` in table order."""
         return {
-            f.name: {
-                g.name: getattr(getattr(self, f.name), g.name)
-                for g in fields(getattr(self, f.name))
-            }
-            for f in fields(self)
+            s.name: {g.name: getattr(getattr(self, s.name), g.name) for g in fields(s.params)}
+            for s in STAGE_TABLE
         }
+
+
+ReconParams = make_dataclass(
+    "ReconParams",
+    [(s.name, s.params, field(default_factory=s.params)) for s in STAGE_TABLE],
+    bases=(_ReconParamsBase,),
+    frozen=True,
+)
+ReconParams.__module__ = __name__  # pickled by name (the evaluation job and Dask ship it)
+ReconParams.__doc__ = (
+    "Every parameter of the core: one frozen Params dataclass per stage, the field named after "
+    "the stage (built from :data:`STAGE_TABLE`)."
+)
 
 
 class StageError(ValueError):
@@ -62,6 +100,14 @@ class StageError(ValueError):
         super().__init__(f"{stage}: {message}")
         self.stage = stage
         self.reason = message
+
+
+def _describe(exc: Exception) -> str:
+    """A stage's error in words: the message of a ValueError-like error, else its type too."""
+    text = str(exc)
+    if isinstance(exc, ValueError | ArithmeticError) and text:
+        return text
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 @dataclass(frozen=True)
@@ -86,32 +132,24 @@ class Pipeline:
         self._cache: dict[str, tuple[tuple, Any]] = {}
         self.last_ms: dict[str, float] = {}
 
-    def _compute(self, stage: str, r: dict[str, Any], p: ReconParams) -> Any:
-        c = self.calib
-        fns: dict[str, Callable[[], Any]] = {
-            "segment": lambda: segment(self.pair, p.segment),
-            "stereo": lambda: match_stereo(r["segment"], c, p.stereo),
-            "reliability": lambda: prune(r["stereo"], p.reliability),
-            "clustering": lambda: cluster_keypoints(r["stereo"], r["reliability"], p.clustering),
-            "ordering": lambda: order_keypoints(
-                r["segment"], r["stereo"], r["clustering"], p.ordering
-            ),
-            "bounds": lambda: depth_bounds(r["stereo"], r["ordering"], c, p.bounds),
-            "spline": lambda: fit_spline(r["bounds"], c, p.spline),
-            "camera": lambda: to_camera(r["spline"], c, p.camera),
-        }
-        return fns[stage]()
+    def _compute(self, stage: Stage, results: dict[str, Any], params: Any) -> Any:
+        sources = {"pair": self.pair, "calib": self.calib, **results}
+        return stage.run(*(sources[i] for i in stage.inputs), getattr(params, stage.name))
 
-    def stages(
-        self, params: ReconParams = ReconParams(), until: str = "camera"
-    ) -> Iterator[StageRun]:
-        """Yield each stage's run in order up to ``until``; raises :class:`StageError`."""
+    def stages(self, params: Any = None, until: str | None = None) -> Iterator[StageRun]:
+        """Yield each stage's run in order up to ``until`` (default: the last stage); any error
+        of a stage is raised as :class:`StageError` naming it."""
+        params = ReconParams() if params is None else params
+        until = STAGES[-1] if until is None else until
         if until not in STAGES:
             raise ValueError(f"unknown stage {until!r}")
         results: dict[str, Any] = {}
-        key: tuple = ()
-        for stage in STAGES:
-            key = (*key, getattr(params, stage))
+        keys: dict[str, tuple] = {}
+        for st in STAGE_TABLE:
+            stage = st.name
+            # a result depends on its own params and on the results it reads
+            key = (getattr(params, stage), *(keys[i] for i in st.inputs if i in keys))
+            keys[stage] = key
             hit = self._cache.get(stage)
             if hit is not None and hit[0] == key:
                 results[stage] = hit[1]
@@ -119,12 +157,12 @@ class Pipeline:
             else:
                 t0 = time.perf_counter()
                 try:
-                    out = self._compute(stage, results, params)
+                    out = self._compute(st, results, params)
                 except StageError:
                     raise
-                except (ValueError, ArithmeticError, IndexError) as exc:
+                except Exception as exc:  # a failing stage never takes its caller down
                     self._cache.pop(stage, None)
-                    raise StageError(stage, str(exc)) from exc
+                    raise StageError(stage, _describe(exc)) from exc
                 ms = 1000.0 * (time.perf_counter() - t0)
                 self._cache[stage] = (key, out)
                 self.last_ms[stage] = ms
@@ -133,8 +171,9 @@ class Pipeline:
             if stage == until:
                 return
 
-    def run(self, params: ReconParams = ReconParams(), until: str = "camera") -> Reconstruction:
+    def run(self, params: Any = None, until: str | None = None) -> Reconstruction:
         """Run every stage up to ``until``; a failing stage is reported, not raised."""
+        params = ReconParams() if params is None else params
         runs: dict[str, StageRun] = {}
         try:
             for run in self.stages(params, until):
@@ -184,8 +223,6 @@ class Reconstruction:
         return {name: run.ms for name, run in self.runs.items()}
 
 
-def reconstruct(
-    pair: StereoPair, calib: StereoCalibration, params: ReconParams = ReconParams()
-) -> Reconstruction:
+def reconstruct(pair: StereoPair, calib: StereoCalibration, params: Any = None) -> Reconstruction:
     """One-shot run of the whole pipeline."""
     return Pipeline(pair, calib).run(params)

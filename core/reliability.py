@@ -10,20 +10,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from core.params import Params, param
 from core.stereo import StereoResult
 
 E_FLOOR = 1e-6  # E_min = 0 (a perfect match) gives an infinite ratio: R -> 1 without a 0/0
 
 
 @dataclass(frozen=True)
-class ReliabilityParams:
-    eps1: float = 8.0
+class ReliabilityParams(Params):
+    eps1: float = param(8.0, lo=0, hi=1000, symbol="eps1", slider=(0.0, 30.0, 0.1), label="ε1")
     """Sigmoid gain epsilon_1 of Eq. (6)."""
-    eps2: float = 5.0
+    eps2: float = param(5.0, lo=1e-09, hi=1000, symbol="eps2", slider=(0.1, 30.0, 0.1), label="ε2")
     """Energy-ratio scale epsilon_2 of Eq. (6)."""
-    eps3: float = 0.8
+    eps3: float = param(0.8, lo=-1000, hi=1000, symbol="eps3", slider=(-5.0, 5.0, 0.01), label="ε3")
     """Sigmoid shift epsilon_3 of Eq. (6)."""
-    threshold: float = 0.9
+    threshold: float = param(0.9, lo=0, hi=0.999999, slider=(0.0, 0.99, 0.01), label="threshold")
     """Reliable when R > threshold."""
 
 

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from core.params import Params, param
+
 LIFT_VALUE = 255.0  # Eq. (1): unsegmented pixels are set to 255
 
 
@@ -68,14 +70,26 @@ def split_side_by_side(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @dataclass(frozen=True)
-class SegmentationParams:
-    seg_delta: float = 6.0
+class SegmentationParams(Params):
+    seg_delta: float = param(
+        6.0,
+        lo=0,
+        hi=255,
+        unit="grey levels",
+        symbol="delta",
+        slider=(0, 60, 1),
+        label="seg threshold δ",
+    )
     """Grey levels below the background level B that count as thread."""
-    background: float | None = None
+    background: float | None = param(None, lo=0, hi=255, unit="grey levels")
     """Fixed background level B (0-255); None estimates it per image (histogram mode)."""
-    min_component_px: int = 4
+    min_component_px: int = param(
+        4, lo=0, hi=10000, unit="px", slider=(0, 100, 1), label="min component px"
+    )
     """Connected thread components smaller than this (px) are dropped as specks."""
-    lift_dilate_px: int = 1
+    lift_dilate_px: int = param(
+        1, lo=0, hi=10, unit="px", slider=(0, 4, 1), label="lift dilation px"
+    )
     """Lift (Eq. (1)) outside P dilated by this many px; 0 is the paper's exact Eq. (1).
 
     Deviation: a thread 1-3 px wide crosses the threshold at different pixels in the two views,

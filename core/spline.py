@@ -33,6 +33,7 @@ from scipy.interpolate import BSpline, splprep
 
 from core.bounds import Bounds
 from core.calibration import StereoCalibration
+from core.params import Params, param
 
 EQ_TOL = 1e-3  # endpoint equalities hold to 0.1 % of the median bound half-width
 XY_ROUNDS = 3  # adaptive knots: a uniform span is split into at most 2^3 = 8 parts
@@ -42,22 +43,24 @@ Status = Literal["ok", "solver_failed", "out_of_bounds", "skipped"]
 
 
 @dataclass(frozen=True)
-class SplineParams:
-    n_ctrl: int = 15
+class SplineParams(Params):
+    n_ctrl: int = param(15, lo=3, hi=200, symbol="m", slider=(5, 40, 1), label="control points m")
     """Number of control points m."""
-    degree: int = 4
+    degree: int = param(4, lo=2, hi=5, slider=(2, 5, 1), label="degree")
     """Spline degree (paper: 4)."""
-    max_iter: int = 100
+    max_iter: int = param(100, lo=1, hi=100000, slider=(1, 500, 1), label="solver iterations")
     """Iteration limit of the MVS solver."""
-    quad_per_span: int = 4
+    quad_per_span: int = param(4, lo=1, hi=20, slider=(1, 10, 1), label="quadrature nodes / span")
     """Gauss-Legendre nodes per knot span for the integral of Eq. (8)."""
-    bound_tol: float = 0.02
+    bound_tol: float = param(0.02, lo=0, hi=10, slider=(0.0, 0.5, 0.01), label="bound tolerance")
     """Allowed excursion outside the bounds, as a fraction of the local half-width."""
     optimise: bool = True
     """Solve the MVS problem; False keeps the initial spline (for comparison)."""
     relax_slopes: bool = True
     """When Eq. (8) is infeasible, retry once with only the endpoint values fixed (False: paper)."""
-    data_weight: float = 10.0
+    data_weight: float = param(
+        10.0, lo=0, hi=1000000000.0, slider=(0.0, 100.0, 0.5), label="data weight"
+    )
     """Weight of a data term added to Eq. (8) (0: the paper's pure MVS), see docs/method.md.
 
     The term is the mean over H of ((S_z(u_j) - c_j) / w_j)^2, c_j the bound centre and w_j the
@@ -67,8 +70,20 @@ class SplineParams:
     a knot span in which the 2D fit misses a point of H by more than ``xy_tol_px`` is halved,
     for S_x, S_y only (see ``_adaptive_xy``); S_z keeps its m control points (Eq. (8) is
     unchanged) and is re-expressed exactly on the refined knots: S stays one B-spline."""
-    xy_tol_px: float = 1.0
+    xy_tol_px: float = param(
+        1.0,
+        lo=0.01,
+        hi=1000,
+        unit="px",
+        slider=(0.1, 5.0, 0.1),
+        label="x,y knot split tolerance px",
+    )
     """Largest 2D distance, px, from a point of H to S_x, S_y before its span is halved."""
+
+    def _check(self) -> None:
+        super()._check()
+        if self.n_ctrl < self.degree + 1:
+            raise ValueError("spline.n_ctrl must be at least spline.degree + 1")
 
 
 @dataclass(frozen=True)

@@ -20,19 +20,29 @@ import numpy as np
 import scipy.sparse as sp
 
 from core.calibration import StereoCalibration
+from core.params import Params, param
 from core.segmentation import LIFT_VALUE, LiftedPair
 
 NEXT_GAP = 2  # Eq. (6) text: |d_next - d_min| > 2, neighbours of d_min have similar energies
 
 
 @dataclass(frozen=True)
-class StereoParams:
-    alpha: int = 80
+class StereoParams(Params):
+    alpha: int = param(
+        80, lo=4, hi=512, unit="px", symbol="alpha", slider=(8, 200, 1), label="α max disparity"
+    )
     """Maximum disparity alpha of Eq. (3), px."""
-    window: int = 9
+    window: int = param(
+        9, lo=1, hi=51, unit="px", symbol="g_p", slider=(3, 21, 2), label="window px"
+    )
     """Side of the square window g_p, px (odd)."""
     subpixel: bool = True
     """Refine d_min to sub-pixel precision (deviation, see module docstring)."""
+
+    def _check(self) -> None:
+        super()._check()
+        if self.window % 2 == 0:
+            raise ValueError("stereo.window must be odd")
 
 
 @dataclass(frozen=True)

@@ -3,25 +3,26 @@
 from __future__ import annotations
 
 import re
-import typing
 from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
 from app.presets import load_preset, params_hash, save_preset, validate
+from core.params import ParamSpec, specs
 from core.pipeline import STAGES, ReconParams
 
 
-def _changed(hint: Any, value: Any) -> Any:
-    """A different value of the same declared type."""
-    args = typing.get_args(hint)
-    if typing.get_origin(hint) is typing.Literal:
-        return next(a for a in args if a != value)
+def _changed(spec: ParamSpec, value: Any) -> Any:
+    """A different valid value of the same declared type."""
+    if spec.kind == "dropdown":
+        return next(a for a in spec.options if a != value)
     if value is None:
         return 1.0
     if isinstance(value, bool):
         return not value
-    return value + 1 if isinstance(value, int) else value + 0.5
+    step = 1 if spec.integer else 0.5 * ((spec.hi - value) if spec.hi is not None else 1.0)
+    new = value + step
+    return new if spec.hi is None or new <= spec.hi else value - step
 
 
 def test_params_hash_is_short_hex_and_equal_for_equal_params(tmp_path: Path) -> None:
@@ -41,12 +42,15 @@ def test_params_hash_changes_with_every_single_parameter() -> None:
     n = 0
     for stage in STAGES:
         group = getattr(base, stage)
-        hints = typing.get_type_hints(type(group))
-        for f in fields(group):
-            new = _changed(hints[f.name], getattr(group, f.name))
-            changed = replace(base, **{stage: replace(group, **{f.name: new})})
+        for spec in specs(type(group)):
+            new = _changed(spec, getattr(group, spec.name))
+            try:
+                moved = replace(group, **{spec.name: new})
+            except ValueError:  # a cross-field rule (e.g. an odd window): one step further
+                moved = replace(group, **{spec.name: _changed(spec, new)})
+            changed = replace(base, **{stage: moved})
             h = params_hash(changed)
-            assert h not in seen, f"{stage}.{f.name}: hash did not change"
+            assert h not in seen, f"{stage}.{spec.name}: hash did not change"
             seen.add(h)
             n += 1
     assert n == sum(len(fields(getattr(base, s))) for s in STAGES) > 20

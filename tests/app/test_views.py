@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from support import synthetic_case
 
-from app.controls import SLIDERS, controls
+from app.controls import controls
 from app.views import (
     LAYERS,
     Label,
@@ -119,7 +119,6 @@ def test_controls_cover_every_parameter_and_hold_the_defaults():
             c = ctl[key]
             if c.kind == "slider":
                 assert c.min <= value <= c.max, key
-    assert set(SLIDERS) <= set(ctl)
     for key in ("segment.seg_delta", "stereo.alpha", "stereo.window", "reliability.eps1",
                 "reliability.eps2", "reliability.eps3", "reliability.threshold",
                 "clustering.min_size", "clustering.max_size", "clustering.radius",

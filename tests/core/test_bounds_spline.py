@@ -8,7 +8,7 @@ import pytest
 from scipy.interpolate import BSpline
 from support import assert_close, synthetic_case
 
-from core.bounds import Bounds, BoundsParams, depth_bounds
+from core.bounds import Bounds, BoundsParams
 from core.calibration import StereoCalibration
 from core.camera import to_camera
 from core.pipeline import Pipeline, ReconParams
@@ -114,30 +114,29 @@ def test_optimise_false_keeps_the_initial_spline() -> None:
 
 
 @pytest.mark.parametrize(
-    ("params", "match"),
+    ("kwargs", "match"),
     [
-        (SplineParams(degree=1), "degree"),
-        (SplineParams(degree=6), "degree"),
-        (SplineParams(degree=4, n_ctrl=4), "n_ctrl"),
-        (SplineParams(max_iter=0), "max_iter"),
-        (SplineParams(quad_per_span=0), "quad_per_span"),
-        (SplineParams(xy_tol_px=0.0), "xy_tol_px"),
-        (SplineParams(xy_knots="quadratic"), "xy_knots"),  # type: ignore[arg-type]
+        ({"degree": 1}, "degree"),
+        ({"degree": 6}, "degree"),
+        ({"degree": 4, "n_ctrl": 4}, "n_ctrl"),
+        ({"max_iter": 0}, "max_iter"),
+        ({"quad_per_span": 0}, "quad_per_span"),
+        ({"xy_tol_px": 0.0}, "xy_tol_px"),
+        ({"xy_knots": "quadratic"}, "xy_knots"),
+        ({"n_ctrl": 15.5}, "whole number"),
+        ({"data_weight": float("nan")}, "finite"),
     ],
 )
-def test_invalid_spline_parameters_raise(params: SplineParams, match: str) -> None:
-    b, calib = _bounds(0)
+def test_invalid_spline_parameters_raise_on_construction(kwargs: dict, match: str) -> None:
     with pytest.raises(ValueError, match=match):
-        fit_spline(b, calib, params)
+        SplineParams(**kwargs)
 
 
-def test_invalid_bounds_parameters_raise() -> None:
-    pair, calib, _ = synthetic_case(0)
-    rec = Pipeline(pair, calib).run(until="ordering")
+def test_invalid_bounds_parameters_raise_on_construction() -> None:
     with pytest.raises(ValueError, match="extra_px"):
-        depth_bounds(rec["stereo"], rec["ordering"], calib, BoundsParams(extra_px=0))
+        BoundsParams(extra_px=0)
     with pytest.raises(ValueError, match="bound_scale"):
-        depth_bounds(rec["stereo"], rec["ordering"], calib, BoundsParams(bound_scale=0.0))
+        BoundsParams(bound_scale=0.0)
 
 
 def _hook_bounds(calib: StereoCalibration) -> Bounds:

@@ -69,11 +69,10 @@ def test_no_reliable_pixels_raises() -> None:
         cluster_keypoints(st, none)
 
 
-def test_invalid_parameters_raise() -> None:
-    st, rel = _stereo_rel(0)
+def test_invalid_parameters_raise_on_construction() -> None:
     with pytest.raises(ValueError, match="radius"):
-        cluster_keypoints(st, rel, ClusterParams(radius=0))
+        ClusterParams(radius=0)
     with pytest.raises(ValueError, match="min_size"):
-        cluster_keypoints(st, rel, ClusterParams(min_size=10, max_size=5))
+        ClusterParams(min_size=10, max_size=5)
     with pytest.raises(ValueError, match="mode"):
-        cluster_keypoints(st, rel, ClusterParams(mode="dfs"))  # type: ignore[arg-type]
+        ClusterParams(mode="dfs")  # type: ignore[arg-type]

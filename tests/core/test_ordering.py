@@ -7,7 +7,7 @@ from scipy.spatial import cKDTree
 from support import synthetic_case, synthetic_frame
 
 from core.metrics import resample
-from core.ordering import Ordering, OrderingParams, order_keypoints
+from core.ordering import Ordering, OrderingParams
 from core.pipeline import Pipeline, ReconParams
 from core.reliability import ReliabilityParams
 
@@ -83,9 +83,5 @@ def test_gap_pixel_positions_along_links_are_in_unit_interval() -> None:
 
 
 def test_negative_solidify_radius_raises() -> None:
-    pair, calib, _ = synthetic_case(0)
-    rec = Pipeline(pair, calib).run(until="clustering")
     with pytest.raises(ValueError, match="solidify_radius"):
-        order_keypoints(
-            rec["segment"], rec["stereo"], rec["clustering"], OrderingParams(solidify_radius=-1)
-        )
+        OrderingParams(solidify_radius=-1)

@@ -52,8 +52,8 @@ def test_changing_n_ctrl_reruns_only_spline_and_camera() -> None:
 
 def test_no_reliable_pixels_fails_at_clustering() -> None:
     pair, calib, _ = synthetic_case(0)
-    # eps3 so large that R = sigma(eps1 (ratio - eps3)) is 0 for every pixel.
-    params = ReconParams(reliability=ReliabilityParams(eps3=1e30))
+    # eps1 = 0: R = sigma(0) = 0.5 for every pixel, below the threshold 0.9.
+    params = ReconParams(reliability=ReliabilityParams(eps1=0.0))
     rec = reconstruct(pair, calib, params)
     assert rec.status == "failed"
     assert rec.failed_stage == "clustering"
@@ -75,7 +75,7 @@ def test_empty_segmentation_fails_at_segment() -> None:
 def test_failed_stage_is_recomputed_after_a_fix() -> None:
     pair, calib, _ = synthetic_case(1)
     pipe = Pipeline(pair, calib)
-    bad = pipe.run(ReconParams(reliability=ReliabilityParams(eps3=1e30)))
+    bad = pipe.run(ReconParams(reliability=ReliabilityParams(eps1=0.0)))
     assert bad.failed_stage == "clustering"
     good = pipe.run(ReconParams())
     assert good.status == "ok"
