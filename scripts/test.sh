@@ -4,6 +4,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 .venv/bin/ruff check core app tests
+.venv/bin/lint-imports  # the layering contracts of pyproject.toml [tool.importlinter]
 
 # browser: the real-browser tests (tests/app/test_browser.py) drive the system chromium through
 # playwright (never `playwright install`). Install it when missing; if that fails they skip.
