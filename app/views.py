@@ -8,6 +8,7 @@ Nothing here talks to viser or FastAPI, so every view is testable on its own.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -19,13 +20,8 @@ from core.calibration import StereoCalibration
 from core.camera import image_to_camera
 from core.pipeline import STAGES, Reconstruction
 
-# Fields left out of a stage's JSON: per-pixel images and the (N, alpha+1) energy volume are
-# megabytes; the inspector serves one pixel's energy curve instead.
-_HEAVY_FIELDS = {
-    "segment": {"I_L", "I_R", "grey_L", "grey_R", "P_L", "P_R"},
-    "stereo": {"energy"},
-    "ordering": {"node_image", "pixel_node", "pixel_t", "pixel_link"},
-}
+HEAVY_VALUES = 20_000  # arrays larger than this (per-pixel images, the energy volume) are
+# left out of a stage's JSON: megabytes on the wire; the inspector serves one pixel instead
 SPLINE_SAMPLES = 300  # points per drawn curve: smooth on screen, small on the wire
 
 
@@ -37,15 +33,19 @@ def stage_json(rec: Reconstruction, stage: str) -> dict[str, Any]:
         raise LookupError(_missing(rec, stage))
     run = rec.runs[stage]
     result = run.result
-    skip = _HEAVY_FIELDS.get(stage, set())
-    data = {
-        f.name: json_safe(getattr(result, f.name))
-        for f in dataclasses.fields(result)
-        if f.name not in skip
-    }
-    if stage == "segment":
-        data["n_left"] = int(result.P_L.sum())
-        data["n_right"] = int(result.P_R.sum())
+    data: dict[str, Any] = {}
+    omitted: dict[str, Any] = {}
+    for f in dataclasses.fields(result):
+        value = getattr(result, f.name)
+        if isinstance(value, np.ndarray) and value.size > HEAVY_VALUES:
+            entry: dict[str, Any] = {"shape": list(value.shape), "dtype": str(value.dtype)}
+            if value.dtype == bool:
+                entry["count"] = int(value.sum())
+            omitted[f.name] = entry
+        else:
+            data[f.name] = json_safe(value)
+    if omitted:
+        data["omitted"] = omitted
     if hasattr(result, "count"):
         data["count"] = result.count
     return {"stage": stage, "ms": run.ms, "cached": run.cached, "result": data}
@@ -184,24 +184,6 @@ class Label:
 Layer = dict[str, Points | Segments | Label]
 """Node name (relative to the layer root) -> what to draw there."""
 
-# The layers of the scene, in stage order; each is drawn from the results of the named stages.
-LAYERS: dict[str, tuple[str, ...]] = {
-    "stereo": ("stereo", "reliability"),
-    "reliability": ("stereo", "reliability"),
-    "clusters": ("stereo", "clustering"),
-    "ordering": ("clustering", "ordering"),
-    "bounds": ("bounds",),
-    "spline": ("spline", "camera"),
-}
-LAYER_STAGE = {  # the stage whose result first reveals the layer
-    "stereo": "stereo",
-    "reliability": "reliability",
-    "clusters": "clustering",
-    "ordering": "ordering",
-    "bounds": "bounds",
-    "spline": "spline",
-}
-
 GREY = (150, 150, 150)
 
 
@@ -218,78 +200,140 @@ def _polyline(points: np.ndarray) -> np.ndarray:
     return np.stack([p[:-1], p[1:]], axis=1) if len(p) > 1 else np.zeros((0, 2, 3), np.float32)
 
 
+@dataclass(frozen=True)
+class LayerView:
+    """One 3D layer of the scene: drawn from the results of ``needs``, first shown once the
+    stage ``shows_at`` has run."""
+
+    name: str
+    needs: tuple[str, ...]
+    shows_at: str
+    draw: Callable[[Reconstruction, StereoCalibration, np.ndarray | None], Layer]
+
+
+LAYER_VIEWS: dict[str, LayerView] = {}
+"""The scene's layers in stage order: the one place a stage's 3D view is registered."""
+
+
+def layer_view(
+    name: str, needs: tuple[str, ...], shows_at: str | None = None
+) -> Callable[[Callable[..., Layer]], Callable[..., Layer]]:
+    """Register ``draw(rec, calib, ground_truth) -> Layer`` as the layer ``name``."""
+
+    def register(draw: Callable[..., Layer]) -> Callable[..., Layer]:
+        unknown = set(needs) - set(STAGES)
+        if unknown:
+            raise ValueError(f"layer {name!r} needs unknown stages {sorted(unknown)}")
+        LAYER_VIEWS[name] = LayerView(name, needs, shows_at or needs[0], draw)
+        return draw
+
+    return register
+
+
 def layer(
     name: str, rec: Reconstruction, calib: StereoCalibration, ground_truth: np.ndarray | None
 ) -> Layer:
     """The nodes of one layer from the stage results available in ``rec``."""
-    G = calib.G
-    if name in ("stereo", "reliability", "clusters"):
-        st = rec["stereo"]
-        finite = np.isfinite(st.points).all(axis=1)
-        if name == "stereo":
-            colors = (
-                reliability_colors(rec["reliability"].R[finite])
-                if "reliability" in rec.runs
-                else np.array(GREY, np.uint8)
-            )
-            return {"depth": Points(st.points[finite].astype(np.float32), colors, 1.0)}
-        if name == "reliability":
-            keep = finite & rec["reliability"].reliable
-            pts = st.points[keep].astype(np.float32)
-            return {"reliable": Points(pts, np.array((40, 200, 255), np.uint8), 1.6)}
-        cl = rec["clustering"]
-        keep = finite & (cl.labels >= 0)
-        colors = palette(max(cl.count, 1))[cl.labels[keep]]
-        return {
-            "members": Points(st.points[keep].astype(np.float32), colors, 1.6),
-            "keypoints": Points(
-                cl.keypoints.astype(np.float32), palette(max(cl.count, 1))[: cl.count], 3.0
-            ),
-        }
-    if name == "ordering":
-        cl, od = rec["clustering"], rec["ordering"]
-        path = image_to_camera(od.path_px, G).astype(np.float32)
-        nodes: Layer = {
-            "graph": Segments(cl.keypoints[od.edges].astype(np.float32), (120, 120, 140), 1.5),
-            "path": Segments(_polyline(path), (255, 140, 0), 3.0),
-        }
-        if len(path):
-            nodes["start"] = Points(path[:1], np.array((0, 220, 0), np.uint8), 6.0)
-            nodes["end"] = Points(path[-1:], np.array((230, 0, 0), np.uint8), 6.0)
-            step = max(1, len(path) // 12)  # at most ~12 index labels, readable
-            for i in [*range(0, len(path) - step // 2, step), len(path) - 1]:
-                nodes[f"labels/{i}"] = Label(str(i), path[i])
-        return nodes
-    if name == "bounds":
-        b = rec["bounds"]
-        xy = b.H[:, :2]
-        lo = image_to_camera(np.column_stack([xy, b.lower]), G).astype(np.float32)
-        hi = image_to_camera(np.column_stack([xy, b.upper]), G).astype(np.float32)
-        H = image_to_camera(b.H, G).astype(np.float32)
-        colors = np.where(b.is_key[:, None], [255, 255, 255], [255, 200, 60]).astype(np.uint8)
-        return {
-            "H": Points(H, colors, 2.5),
-            "lower": Segments(_polyline(lo), (80, 160, 255), 2.0),
-            "upper": Segments(_polyline(hi), (255, 90, 90), 2.0),
-            "spans": Segments(np.stack([lo, hi], axis=1), (160, 160, 160), 1.0),
-        }
-    if name == "spline":
-        sp = rec["spline"]
-        nodes = {
-            "initial": Segments(
-                _polyline(image_to_camera(sp.curve(SPLINE_SAMPLES, initial=True), G)),
-                (110, 130, 255),
-                2.0,
-            ),
-            "final": Segments(
-                _polyline(image_to_camera(sp.curve(SPLINE_SAMPLES), G)), (255, 0, 200), 4.0
-            ),
-        }
-        if "camera" in rec.runs:
-            nodes["control_points"] = Points(
-                rec["camera"].ctrl.astype(np.float32), np.array((255, 0, 200), np.uint8), 3.0
-            )
-        if ground_truth is not None:
-            nodes["ground_truth"] = Segments(_polyline(ground_truth), (0, 200, 90), 2.0)
-        return nodes
-    raise KeyError(f"unknown layer {name!r} (layers: {', '.join(LAYERS)})")
+    view = LAYER_VIEWS.get(name)
+    if view is None:
+        raise KeyError(f"unknown layer {name!r} (layers: {', '.join(LAYER_VIEWS)})")
+    return view.draw(rec, calib, ground_truth)
+
+
+def _finite_points(rec: Reconstruction) -> tuple[np.ndarray, np.ndarray]:
+    st = rec["stereo"]
+    return st.points, np.isfinite(st.points).all(axis=1)
+
+
+@layer_view("stereo", needs=("stereo",))
+def _stereo_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None) -> Layer:
+    points, finite = _finite_points(rec)
+    colors = (
+        reliability_colors(rec["reliability"].R[finite])
+        if "reliability" in rec.runs
+        else np.array(GREY, np.uint8)
+    )
+    return {"depth": Points(points[finite].astype(np.float32), colors, 1.0)}
+
+
+@layer_view("reliability", needs=("stereo", "reliability"), shows_at="reliability")
+def _reliability_layer(
+    rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None
+) -> Layer:
+    points, finite = _finite_points(rec)
+    keep = finite & rec["reliability"].reliable
+    return {
+        "reliable": Points(points[keep].astype(np.float32), np.array((40, 200, 255), np.uint8), 1.6)
+    }
+
+
+@layer_view("clusters", needs=("stereo", "clustering"), shows_at="clustering")
+def _clusters_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None) -> Layer:
+    points, finite = _finite_points(rec)
+    cl = rec["clustering"]
+    keep = finite & (cl.labels >= 0)
+    colors = palette(max(cl.count, 1))
+    return {
+        "members": Points(points[keep].astype(np.float32), colors[cl.labels[keep]], 1.6),
+        "keypoints": Points(cl.keypoints.astype(np.float32), colors[: cl.count], 3.0),
+    }
+
+
+@layer_view("ordering", needs=("clustering", "ordering"), shows_at="ordering")
+def _ordering_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None) -> Layer:
+    cl, od = rec["clustering"], rec["ordering"]
+    path = image_to_camera(od.path_px, calib.G).astype(np.float32)
+    nodes: Layer = {
+        "graph": Segments(cl.keypoints[od.edges].astype(np.float32), (120, 120, 140), 1.5),
+        "path": Segments(_polyline(path), (255, 140, 0), 3.0),
+    }
+    if len(path):
+        nodes["start"] = Points(path[:1], np.array((0, 220, 0), np.uint8), 6.0)
+        nodes["end"] = Points(path[-1:], np.array((230, 0, 0), np.uint8), 6.0)
+        step = max(1, len(path) // 12)  # at most ~12 index labels, readable
+        for i in [*range(0, len(path) - step // 2, step), len(path) - 1]:
+            nodes[f"labels/{i}"] = Label(str(i), path[i])
+    return nodes
+
+
+@layer_view("bounds", needs=("bounds",))
+def _bounds_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None) -> Layer:
+    b, G = rec["bounds"], calib.G
+    xy = b.H[:, :2]
+    lo = image_to_camera(np.column_stack([xy, b.lower]), G).astype(np.float32)
+    hi = image_to_camera(np.column_stack([xy, b.upper]), G).astype(np.float32)
+    H = image_to_camera(b.H, G).astype(np.float32)
+    colors = np.where(b.is_key[:, None], [255, 255, 255], [255, 200, 60]).astype(np.uint8)
+    return {
+        "H": Points(H, colors, 2.5),
+        "lower": Segments(_polyline(lo), (80, 160, 255), 2.0),
+        "upper": Segments(_polyline(hi), (255, 90, 90), 2.0),
+        "spans": Segments(np.stack([lo, hi], axis=1), (160, 160, 160), 1.0),
+    }
+
+
+@layer_view("spline", needs=("spline",))
+def _spline_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None) -> Layer:
+    sp, G = rec["spline"], calib.G
+    nodes: Layer = {
+        "initial": Segments(
+            _polyline(image_to_camera(sp.curve(SPLINE_SAMPLES, initial=True), G)),
+            (110, 130, 255),
+            2.0,
+        ),
+        "final": Segments(
+            _polyline(image_to_camera(sp.curve(SPLINE_SAMPLES), G)), (255, 0, 200), 4.0
+        ),
+    }
+    if "camera" in rec.runs:
+        nodes["control_points"] = Points(
+            rec["camera"].ctrl.astype(np.float32), np.array((255, 0, 200), np.uint8), 3.0
+        )
+    if gt is not None:
+        nodes["ground_truth"] = Segments(_polyline(gt), (0, 200, 90), 2.0)
+    return nodes
+
+
+# Derived views of the registry, for the scene and the API.
+LAYERS: dict[str, tuple[str, ...]] = {v.name: v.needs for v in LAYER_VIEWS.values()}
+LAYER_STAGE: dict[str, str] = {v.name: v.shows_at for v in LAYER_VIEWS.values()}
