@@ -82,10 +82,20 @@ def overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
         ]
     if "spline" in rec.runs:
         sp = rec["spline"]
-        for name, initial in (("spline", False), ("spline_initial", True)):
-            pts = image_to_camera(sp.curve(SPLINE_SAMPLES, initial=initial), calib.G)
+        initial = image_to_camera(sp.curve(SPLINE_SAMPLES, initial=True), calib.G)
+        # the final curve's errors are the metrics' own (the camera stage's points), one number
+        have_final = "camera" in rec.runs
+        final = (
+            rec["camera"].points
+            if have_final
+            else image_to_camera(sp.curve(SPLINE_SAMPLES), calib.G)
+        )
+        for name, pts, errors in (
+            ("spline", final, have_final),
+            ("spline_initial", initial, False),
+        ):
             sides = {}
-            for side, (uv, r) in reprojections(pts, calib, rec["segment"], not initial).items():
+            for side, (uv, r) in reprojections(pts, calib, rec["segment"], errors).items():
                 entry: dict[str, Any] = {"points": np.round(uv, 2).tolist()}
                 if r is not None:
                     entry.update(mean_px=r.mean, max_px=r.max, coverage=r.coverage)

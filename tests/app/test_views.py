@@ -10,6 +10,7 @@ import pytest
 from support import synthetic_case
 
 from app.controls import controls
+from app.dataset import evaluate_reconstruction
 from app.views import (
     LAYERS,
     Label,
@@ -40,7 +41,9 @@ def test_every_stage_serialises_to_strict_json(case):
         data = stage_json(rec, stage)
         json.dumps(data, allow_nan=False)
         assert data["stage"] == stage and data["ms"] >= 0
-    assert "energy" not in stage_json(rec, "stereo")["result"]
+    assert "energy" not in stage_json(rec, "stereo")["result"]  # served per pixel instead
+    omitted = stage_json(rec, "segment")["result"]["omitted"]
+    assert omitted["P_L"]["count"] == int(rec["segment"].P_L.sum())
     with pytest.raises(KeyError):
         stage_json(rec, "nope")
 
@@ -55,6 +58,16 @@ def test_overlay_spline_is_the_projected_camera_curve(case):
     d = np.linalg.norm(uv[:, None, :] - ref[None, :, :], axis=2).min(axis=1)
     assert d.max() < 1.0
     assert len(ov["reliable"]) == 2 * rec["reliability"].count
+
+
+def test_overlay_errors_are_the_evaluation_metrics_exactly(case):
+    rec, calib, gt = case
+    ov = overlay(rec, calib)
+    metrics = evaluate_reconstruction(rec, calib, gt)
+    for side in ("left", "right"):
+        assert ov["spline"][side]["mean_px"] == metrics[f"{side}_mean_px"]
+        assert ov["spline"][side]["max_px"] == metrics[f"{side}_max_px"]
+        assert ov["spline"][side]["coverage"] == metrics[f"coverage_{side}"]
 
 
 def test_pixel_inspector_reports_the_energy_minimum(case):
