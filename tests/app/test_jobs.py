@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-import app.jobs
+from app import jobs as app_jobs
 from app.dataset import Frame, discover
 from app.evaluation import evaluate_frame, summarise
 from app.jobs import COMPARE_COLUMNS, EvaluationJob, compare
@@ -124,14 +124,14 @@ def test_cancel_before_start_evaluates_nothing(frames: list[Frame]) -> None:
 def test_unexpected_error_fails_the_job_and_keeps_rows(
     frames: list[Frame], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    real = app.jobs.evaluate_frame
+    real = app_jobs.evaluate_frame
 
     def flaky(frame: Frame, params: ReconParams) -> Any:
         if frame.id == frames[1].id:
             raise RuntimeError("disk on fire")
         return real(frame, params)
 
-    monkeypatch.setattr(app.jobs, "evaluate_frame", flaky)
+    monkeypatch.setattr(app_jobs, "evaluate_frame", flaky)
     states: list[str] = []
     job = EvaluationJob(frames, ReconParams(), "p", on_done=lambda j: states.append(j.state))
     job.start()
