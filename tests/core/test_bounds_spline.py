@@ -9,7 +9,7 @@ from scipy.interpolate import BSpline
 from support import assert_close, synthetic_case
 from threadpoolctl import threadpool_limits
 
-from core.bounds import Bounds, BoundsParams, depth_bounds
+from core.bounds import Bounds, BoundsParams, _window_line_fits, depth_bounds
 from core.calibration import StereoCalibration
 from core.camera import to_camera
 from core.pipeline import Pipeline, ReconParams
@@ -275,3 +275,33 @@ def test_mvs_solution_lowers_eq8_and_stays_in_bounds(seed: int) -> None:
     assert sp.status == "ok", sp.message
     assert sp.objective[1] <= sp.objective[0] * (1 + 1e-9)
     assert sp.max_violation <= SplineParams().bound_tol
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_window_line_fits_equal_one_polyfit_per_keypoint(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    P = 60
+    s = np.cumsum(rng.uniform(0.5, 20.0, P)) + 1000.0
+    z = 80.0 + 0.05 * s + rng.normal(0, 2.0, P)
+    z[rng.random(P) < 0.2] = np.nan  # extra points without a finite depth
+    key_idx = np.sort(rng.choice(P, 15, replace=False))
+    key_idx[0], key_idx[-1] = 0, P - 1
+    z[key_idx] = np.where(np.isfinite(z[key_idx]), z[key_idx], 90.0)
+    r_k = 2
+    line, slope = _window_line_fits(s, z, key_idx, r_k)
+    M = len(key_idx)
+    for i in range(M):
+        lo, hi = key_idx[max(0, i - r_k)], key_idx[min(M - 1, i + r_k)]
+        ss, zz = s[lo : hi + 1], z[lo : hi + 1]
+        ok = np.isfinite(zz)
+        b, a = np.polyfit(ss[ok], zz[ok], 1)
+        assert_close(line[i], a + b * s[key_idx[i]], rtol=1e-9)
+        assert_close(slope[i], b, rtol=1e-7, atol=1e-12)
+
+
+def test_window_line_fit_of_a_single_point_is_its_depth() -> None:
+    s = np.array([0.0, 5.0, 10.0])
+    z = np.array([1.0, np.nan, np.nan])
+    line, slope = _window_line_fits(s, z, np.array([0, 2]), 0)
+    assert line[0] == 1.0 and slope[0] == 0.0
+    assert np.isnan(line[1]) and slope[1] == 0.0  # no finite depth: k_i's own (NaN) depth
