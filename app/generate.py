@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -102,6 +103,13 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
         "--group", default=None, help="folder under simulated/ (default: background or crossing)"
     )
     parser.add_argument("--force", action="store_true", help="overwrite existing frame files")
+    parser.add_argument(
+        "--size",
+        type=_size,
+        default=None,
+        metavar="WxH",
+        help="image size per view, e.g. 1920x1080 (default 640x480); intrinsics scaled",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -184,7 +192,35 @@ def _params(args: argparse.Namespace) -> SyntheticParams:
         )
     except ValueError as err:
         raise ValueError(_flag_message(str(err))) from None
-    return SyntheticParams(thread=thread, render=render)
+    size = getattr(args, "size", None)
+    camera = StereoCamera() if size is None else scaled_camera(StereoCamera(), *size)
+    return SyntheticParams(camera=camera, thread=thread, render=render)
+
+
+def _size(text: str) -> tuple[int, int]:
+    """argparse type of ``--size``: "WxH" -> (W, H)."""
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
+    if m is None:
+        raise argparse.ArgumentTypeError(f"--size must be WxH in px, e.g. 1920x1080, got {text!r}")
+    w, h = int(m.group(1)), int(m.group(2))
+    if w < 16 or h < 16 or w > 8192 or h > 8192:
+        raise argparse.ArgumentTypeError(f"--size must be 16..8192 px per side, got {w}x{h}")
+    return w, h
+
+
+def scaled_camera(camera: StereoCamera, width: int, height: int) -> StereoCamera:
+    """``camera`` at another resolution: the focal length scales with the width (the horizontal
+    field of view is kept), the principal point moves to the same relative position, the
+    baseline is unchanged. A different aspect ratio crops or extends the vertical view."""
+    s = width / camera.width
+    return replace(
+        camera,
+        fx=camera.fx * s,
+        cx=camera.cx * width / camera.width,
+        cy=camera.cy * height / camera.height,
+        width=int(width),
+        height=int(height),
+    )
 
 
 def _flag_message(message: str) -> str:
@@ -276,6 +312,9 @@ def _command(args: argparse.Namespace, group: str) -> str:
         f"--diameter-mm {diameter:g}",
         f"--group {group}",
     ]
+    size = getattr(args, "size", None)
+    if size is not None:
+        parts.append(f"--size {size[0]}x{size[1]}")
     return " ".join(parts)
 
 

@@ -94,15 +94,7 @@ def depth_bounds(
 
     n_kp = int(np.sum(ordering.order >= 0))
     r_k = max(p.r_k_min, int(round(p.r_k_frac * n_kp)))
-    line_at_key = np.empty(M)
-    slopes = np.empty(M)
-    for i in range(M):
-        lo, hi = key_idx[max(0, i - r_k)], key_idx[min(M - 1, i + r_k)]
-        ss, zz = s[lo : hi + 1], H[lo : hi + 1, 2]
-        ok = np.isfinite(zz)
-        a, b = _line_fit(ss[ok], zz[ok], fallback=z_key[i])
-        line_at_key[i] = a + b * s[key_idx[i]]
-        slopes[i] = b
+    line_at_key, slopes = _window_line_fits(s, H[:, 2], key_idx, r_k)
     half = p.bound_scale * np.abs(line_at_key - z_key)  # Eq. (7)
     min_half = p.widen_px * z_key**2 / (calib.focal * calib.baseline)
     half = np.maximum(half, min_half)
@@ -121,35 +113,106 @@ def depth_bounds(
     )
 
 
-def _line_fit(s: np.ndarray, z: np.ndarray, fallback: float) -> tuple[float, float]:
-    """Least-squares z = a + b s; a constant when fewer than 2 distinct s."""
-    if s.size == 0:
-        return fallback, 0.0
-    if s.size < 2 or np.ptp(s) <= 0:
-        return float(np.mean(z)), 0.0
-    b, a = np.polyfit(s, z, 1)
-    return float(a), float(b)
+def _window_line_fits(
+    s: np.ndarray, z: np.ndarray, key_idx: np.ndarray, r_k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """For every keypoint i: the least-squares line z = a + b s through the finite points of H
+    between keypoints i - r_k and i + r_k, evaluated at k_i, and its slope b. All windows at
+    once from prefix sums of 1, s, z, s^2, s z (s centred at each window's keypoint, so that
+    the sums do not cancel). A window with fewer than 2 distinct s gives its mean depth and
+    slope 0; one with no finite depth gives k_i's own depth."""
+    M = len(key_idx)
+    i = np.arange(M)
+    lo = key_idx[np.maximum(0, i - r_k)]
+    hi = key_idx[np.minimum(M - 1, i + r_k)] + 1  # window: H[lo:hi]
+    ok = np.isfinite(z)
+    z0 = np.where(ok, z, 0.0)
+    w = ok.astype(np.float64)
+    s_ref = s[key_idx]  # centre of each window's fit
+
+    def window_sum(v: np.ndarray) -> np.ndarray:
+        c = np.concatenate([[0.0], np.cumsum(v)])
+        return c[hi] - c[lo]
+
+    # Sums over the window of powers of (s - s_ref): expand from the raw prefix sums of s^p
+    # with a global shift first (s - s_mid is small), then re-centre per window exactly.
+    shift = 0.5 * (s[0] + s[-1])
+    t = s - shift
+    n = window_sum(w)
+    S1, S2 = window_sum(w * t), window_sum(w * t * t)
+    Z, SZ = window_sum(z0), window_sum(w * t * z0)
+    c = s_ref - shift  # t of each window's reference point
+    Sx = S1 - n * c  # sum (s - s_ref)
+    Sxx = S2 - 2 * c * S1 + n * c * c  # sum (s - s_ref)^2
+    Sxz = SZ - c * Z  # sum (s - s_ref) z
+    with np.errstate(divide="ignore", invalid="ignore"):
+        var = Sxx - Sx * Sx / n  # n * variance of s in the window
+        b = (Sxz - Sx * Z / n) / var
+        a = (Z - b * Sx) / n  # the line at s_ref
+        mean = Z / n
+    z_key = z[key_idx]
+    degenerate = ~(var > 1e-12 * np.maximum(Sxx, 1e-300)) | (n < 2)
+    line = np.where(degenerate, mean, a)
+    slope = np.where(degenerate, 0.0, b)
+    empty = n == 0
+    line = np.where(empty, z_key, line)
+    slope = np.where(empty, 0.0, slope)
+    return line, slope
 
 
 def _extra_points(
     stereo: StereoResult, ordering: Ordering, extra_px: int
 ) -> tuple[np.ndarray, np.ndarray]:
+    """H: the ordered keypoints with, after keypoint i, the extra points of link i (grouped
+    operations over all links at once: one sort, no loop over links or keypoints)."""
     path = ordering.path_px
-    rows: list[np.ndarray] = [path[:1]]
-    keys: list[bool] = [True]
-    for i in range(len(path) - 1):
-        sel = np.flatnonzero((ordering.pixel_link == i) & np.isfinite(ordering.pixel_t))
-        sel = sel[(ordering.pixel_t[sel] > 0) & (ordering.pixel_t[sel] < 1)]
-        n_extra = sel.size // extra_px
-        if n_extra > 0:
-            xy = stereo.pixels[sel].astype(np.float64)
-            depth = stereo.depth[sel]
-            for run in np.array_split(np.argsort(ordering.pixel_t[sel], kind="stable"), n_extra):
-                d = depth[run]
-                d = d[np.isfinite(d)]
-                if d.size:
-                    rows.append(np.array([[*xy[run].mean(axis=0), np.median(d)]]))
-                    keys.append(False)
-        rows.append(path[i + 1 : i + 2])
-        keys.append(True)
-    return np.concatenate(rows), np.array(keys)
+    M = len(path)
+    t_all, link_all = ordering.pixel_t, ordering.pixel_link
+    sel = np.flatnonzero((link_all >= 0) & (link_all < M - 1) & (t_all > 0) & (t_all < 1))
+    link, t = link_all[sel], t_all[sel]
+    order = np.lexsort((t, link))  # by link, then by position along it (stable on ties)
+    sel, link = sel[order], link[order]
+    count = np.bincount(link, minlength=M - 1)
+    n_extra = count // extra_px
+    keep = n_extra[link] > 0
+    sel, link = sel[keep], link[keep]
+    # Runs as np.array_split: a link of c pixels in n runs has c % n runs of c // n + 1 first.
+    start = np.concatenate([[0], np.cumsum(count)])[:-1]
+    start = start - np.concatenate([[0], np.cumsum(np.where(n_extra > 0, 0, count))])[:-1]
+    j = np.arange(sel.size) - start[link]  # position in the link
+    n, c = n_extra[link], count[link]
+    q, rem = c // n, c % n
+    big = rem * (q + 1)
+    run = np.where(j < big, j // (q + 1), rem + (j - big) // np.maximum(q, 1))
+    run_start = np.concatenate([[0], np.cumsum(n_extra)])[:-1]
+    group = run_start[link] + run  # global run id, in the order of H
+    n_runs = int(n_extra.sum())
+    xy = stereo.pixels[sel].astype(np.float64)
+    size = np.bincount(group, minlength=n_runs)
+    cx = np.bincount(group, weights=xy[:, 0], minlength=n_runs) / np.maximum(size, 1)
+    cy = np.bincount(group, weights=xy[:, 1], minlength=n_runs) / np.maximum(size, 1)
+    # Median stereo depth of each run's finite depths.
+    depth = stereo.depth[sel]
+    fin = np.isfinite(depth)
+    g_f, d_f = group[fin], depth[fin]
+    o = np.lexsort((d_f, g_f))
+    g_f, d_f = g_f[o], d_f[o]
+    n_f = np.bincount(g_f, minlength=n_runs)
+    first = np.concatenate([[0], np.cumsum(n_f)])[:-1]
+    has = n_f > 0
+    lo_i = first + np.maximum(n_f - 1, 0) // 2
+    hi_i = first + n_f // 2
+    med = np.full(n_runs, np.nan)
+    if d_f.size:
+        med[has] = 0.5 * (
+            d_f[np.minimum(lo_i[has], d_f.size - 1)] + d_f[np.minimum(hi_i[has], d_f.size - 1)]
+        )
+    run_link = np.repeat(np.arange(M - 1), n_extra)
+    extras = np.column_stack([cx, cy, med])[has]
+    extra_link = run_link[has]
+    # Keypoint i, then the extra points of link i: sort keys (i, 0) and (link, 1).
+    rows = np.concatenate([path, extras])
+    key_pos = np.concatenate([np.arange(M), extra_link])
+    is_key = np.concatenate([np.ones(M, bool), np.zeros(len(extras), bool)])
+    o = np.lexsort((~is_key, key_pos))  # stable: extras keep their run order
+    return rows[o], is_key[o]

@@ -14,7 +14,11 @@ Choices the paper leaves open (documented in docs/method.md):
   the objective does not depend on the length unit (cm or mm);
 - Gauss-Legendre quadrature (``quad_per_span`` nodes per knot span) with analytic gradients;
 - the bound constraints hold at every point of H and at the midpoints between them;
-- SLSQP (the paper's solver), objective normalised by its value at the initial guess.
+- the solver: the paper uses SLSQP; here a Gauss-Newton SQP (both terms of the objective are
+  sums of squares) whose subproblems are dense QPs solved by DAQP (active set), with
+  Levenberg-Marquardt damping, starting from b0 projected on the constraints along a unit
+  gradient step (the first step SLSQP takes); objective normalised by its value at b0. The
+  QP's exit flag is checked: an infeasible problem is reported as ``status="infeasible"``.
 Deviation (``xy_knots="adaptive"``, default): S_x, S_y get extra knots where the uniform fit
 cuts a bend of H by more than ``xy_tol_px``; S_z and the MVS problem keep the m uniform knots.
 A solver failure, or a solution that leaves the bounds by more than ``bound_tol`` of the local
@@ -27,8 +31,8 @@ import warnings
 from dataclasses import dataclass
 from typing import Literal
 
+import daqp
 import numpy as np
-from scipy import optimize
 from scipy.interpolate import BSpline, splprep
 
 from core.bounds import Bounds
@@ -39,7 +43,7 @@ EQ_TOL = 1e-3  # endpoint equalities hold to 0.1 % of the median bound half-widt
 XY_ROUNDS = 3  # adaptive knots: a uniform span is split into at most 2^3 = 8 parts
 XY_MIN_POINTS = 3  # a span with fewer points of H is not split: a half would hold <= 1
 XY_PENALTY = 1e-3  # P-spline weight, relative to the mean diagonal of B^T B (1e-4..1e-2 alike)
-Status = Literal["ok", "solver_failed", "out_of_bounds", "skipped"]
+Status = Literal["ok", "solver_failed", "infeasible", "out_of_bounds", "skipped"]
 
 
 @dataclass(frozen=True)
@@ -91,7 +95,7 @@ class SplineResult:
     """``knots``, ``ctrl`` (m', 3), ``degree``: the final spline in (x px, y px, z depth) over u
     in [0, ``length``], m' = m unless adaptive knots refined S_x, S_y; ``ctrl_init`` the
     initial one; ``u_H``: parameter of each point of H.
-    ``status``: "ok", "solver_failed" or "out_of_bounds" (then ``ctrl`` = ``ctrl_init``, the
+    ``status``: "ok", "solver_failed", "infeasible" or "out_of_bounds" (then ``ctrl`` = ``ctrl_init``, the
     fallback) or "skipped" (``optimise=False``). ``message``: the solver's message.
     ``objective``: Eq. (8) at the initial and final control points. ``iterations``: solver steps.
     """
@@ -183,66 +187,33 @@ def fit_spline(
     scale = 1.0 / f0 if f0 > 0 else 1.0
     Bd = A[: len(u)]  # basis at the points of H (the first constraint points)
     w_d = p.data_weight / (len(u) * np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12) ** 2)
-
-    def objective(b: np.ndarray) -> tuple[float, np.ndarray]:
-        f, g = mvs.value_grad(b, scale)
-        r = Bd @ b - bounds.centre
-        return f + float(np.sum(w_d * r * r)), g + 2.0 * Bd.T @ (w_d * r)
-
     zs = max(float(np.median(half_c)), 1e-12)  # constraint scaling: depths in half-widths
+    problem = _Problem(mvs, scale, Bd, np.sqrt(w_d), bounds.centre, A / zs, lo_c / zs, hi_c / zs)
 
-    def solve(rows: slice) -> optimize.OptimizeResult:
-        Er, er = E[rows], e_rhs[rows]
-        cons = [
-            {
-                "type": "ineq",
-                "fun": lambda b: np.concatenate([A @ b - lo_c, hi_c - A @ b]) / zs,
-                "jac": lambda b: np.vstack([A, -A]) / zs,
-            },
-            {"type": "eq", "fun": lambda b: (Er @ b - er) / zs, "jac": lambda b: Er / zs},
-        ]
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            return optimize.minimize(
-                objective,
-                b0,
-                jac=True,
-                method="SLSQP",
-                constraints=cons,
-                options={"maxiter": p.max_iter, "ftol": 1e-9},
-            )
-
-    res = solve(slice(None))
+    sol = problem.solve(b0, E / zs, e_rhs / zs, p.max_iter)
     relaxed = False
-    if not res.success and p.relax_slopes:
+    if sol.status == "infeasible" and p.relax_slopes:
         # The endpoint slopes of L_{k_1}, L_{k_n} can contradict tight bounds next to the ends
         # (an infeasible problem): retry with only the endpoint values fixed.
-        retry = solve(slice(0, 4, 2))
-        if retry.success:
-            res, relaxed = retry, True
+        retry = problem.solve(b0, E[0:4:2] / zs, e_rhs[0:4:2] / zs, p.max_iter)
+        if retry.status == "ok":
+            sol, relaxed = retry, True
             E, e_rhs = E[0:4:2], e_rhs[0:4:2]
-    b = res.x
-    viol = _violation(A @ b, lo_c, hi_c, half_c)
-    status: Status = "ok"
-    eq_err = float(np.max(np.abs(E @ b - e_rhs))) / zs
-    # SLSQP mode 8 ("positive directional derivative in line search") stops where the line
-    # search makes no progress, typically at the optimum to machine precision: accepted only
-    # when the iterate satisfies every bound and endpoint constraint.
-    stalled_ok = res.status == 8 and viol <= p.bound_tol and eq_err < EQ_TOL
-    if not (res.success or stalled_ok) or not np.all(np.isfinite(b)):
-        status = "solver_failed"
-    elif viol > p.bound_tol:
+    b = sol.x
+    viol = _violation(A @ b, lo_c, hi_c, half_c) if np.all(np.isfinite(b)) else np.inf
+    status: Status = sol.status
+    if status == "ok" and viol > p.bound_tol:
         status = "out_of_bounds"
     if status != "ok":
         viol_init = _violation(A @ b0, lo_c, hi_c, half_c)
-        msg = f"{res.message} (bound excursion {viol:.3f} of the half-width)"
+        msg = f"{sol.message} (bound excursion {viol:.3f} of the half-width)"
         c0 = final(ctrl_init)
         return SplineResult(
-            t_xy, c0, c0, k, length, u, status, msg, (f0, f0), int(res.nit), viol_init
+            t_xy, c0, c0, k, length, u, status, msg, (f0, f0), sol.iterations, viol_init
         )
     ctrl = ctrl_init.copy()
     ctrl[:, 2] = b
-    msg = str(res.message) + (" (endpoint slope constraints relaxed)" if relaxed else "")
+    msg = sol.message + (" (endpoint slope constraints relaxed)" if relaxed else "")
     return SplineResult(
         t_xy,
         final(ctrl),
@@ -253,7 +224,7 @@ def fit_spline(
         "ok",
         msg,
         (f0, mvs.value(b)),
-        int(res.nit),
+        sol.iterations,
         viol,
     )
 
@@ -348,14 +319,9 @@ def _violation(z: np.ndarray, lo: np.ndarray, hi: np.ndarray, half: np.ndarray) 
 
 def _end_rows(t: np.ndarray, k: int, length: float) -> np.ndarray:
     """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z."""
-    m = len(t) - k - 1
-    rows = np.zeros((4, m))
-    eye = np.eye(m)
-    for j in range(m):
-        bj = BSpline(t, eye[j], k)
-        d1 = bj.derivative(1)
-        rows[:, j] = [bj(0.0), d1(0.0), bj(length), d1(length)]
-    return rows
+    basis = BSpline(t, np.eye(len(t) - k - 1), k)
+    v, d1 = basis(np.array([0.0, length])), basis.derivative(1)(np.array([0.0, length]))
+    return np.stack([v[0], d1[0], v[1], d1[1]])
 
 
 class _Mvs:
@@ -367,12 +333,9 @@ class _Mvs:
         a, b = edges[:-1], edges[1:]
         self.uq = (0.5 * (b - a)[:, None] * (xg[None, :] + 1.0) + a[:, None]).ravel()
         self.wq = (0.5 * (b - a)[:, None] * wg[None, :]).ravel()
-        m = len(t) - k - 1
-        eye = np.eye(m)
-        self.B = [
-            np.array([BSpline(t, eye[j], k).derivative(d)(self.uq) for j in range(m)]).T
-            for d in (1, 2, 3)
-        ]
+        basis = BSpline(t, np.eye(len(t) - k - 1), k)  # all m basis functions at once
+        self.B = [basis.derivative(d)(self.uq) for d in (1, 2, 3)]  # (nq, m) each
+        self.sqrt_wq = np.sqrt(self.wq)
 
     def _terms(self, b: np.ndarray) -> tuple[np.ndarray, ...]:
         z1, z2, z3 = (B @ b for B in self.B)
@@ -383,6 +346,20 @@ class _Mvs:
     def value(self, b: np.ndarray) -> float:
         _, _, _, g, kp = self._terms(b)
         return float(np.sum(self.wq * kp * kp / np.sqrt(g)))
+
+    def residual_jac(self, b: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+        """rho, d rho / d b with scale * Eq. (8) = rho^T rho: rho_q = sqrt(w_q) kappa' g^-1/4."""
+        z1, z2, z3, g, kp = self._terms(b)
+        sw = np.sqrt(scale) * self.sqrt_wq
+        q = g**-0.25
+        g25, g35 = g**-2.5, g**-3.5
+        dk1 = -3.0 * z1 * z3 * g25 - 3.0 * z2 * z2 * g25 + 15.0 * z1 * z1 * z2 * z2 * g35
+        dk2 = -6.0 * z1 * z2 * g25
+        dk3 = g**-1.5
+        j1 = sw * (dk1 * q - 0.5 * kp * z1 * q / g)
+        J = j1[:, None] * self.B[0] + (sw * dk2 * q)[:, None] * self.B[1]
+        J += (sw * dk3 * q)[:, None] * self.B[2]
+        return sw * kp * q, J
 
     def value_grad(self, b: np.ndarray, scale: float) -> tuple[float, np.ndarray]:
         z1, z2, z3, g, kp = self._terms(b)
@@ -397,3 +374,127 @@ class _Mvs:
         g1 = c * dk1 - self.wq * kp * kp * z1 * g**-1.5
         grad = self.B[0].T @ g1 + self.B[1].T @ (c * dk2) + self.B[2].T @ (c * dk3)
         return f * scale, grad * scale
+
+
+# --- the MVS solve: Gauss-Newton SQP with a dense active-set QP -----------------------------
+
+# DAQP exit flags (https://darnstrom.github.io/daqp/parameters), in words for SplineResult.
+_DAQP_FLAGS = {
+    1: "optimal",
+    2: "soft optimal",
+    -1: "infeasible",
+    -2: "cycling",
+    -3: "unbounded",
+    -4: "iteration limit",
+    -5: "non-convex problem",
+    -6: "initial active set overdetermined",
+}
+GN_FTOL = 1e-9  # stop when a step lowers the objective by less than this fraction (SLSQP ftol)
+GN_STEP_TOL = 1e-9  # ... or moves b_z by less than this, in bound half-widths
+LM_MU0 = 1e-3  # initial Levenberg-Marquardt damping, relative to the mean diagonal of J^T J
+
+
+@dataclass(frozen=True)
+class _Solution:
+    x: np.ndarray
+    status: Status
+    message: str
+    iterations: int
+
+
+class _Problem:
+    """min_b  scale * MVS(b) + sum_j w_j (B_d b - c)_j^2  s.t.  lo <= A b <= hi,  E b = e.
+
+    Both terms are sums of squares, rho(b)^T rho(b), so each step solves the Gauss-Newton QP
+    min_d |rho + J d|^2 under the linearised constraints (exact: they are linear) with DAQP,
+    then backtracks along d for sufficient decrease. The constraints are linear, so every
+    iterate after the first (a gradient step from b0 projected on the constraints) is feasible, and a
+    line search between two feasible points stays feasible. The QP's exit flag is checked:
+    an infeasible first QP means Eq. (8)'s constraints admit no spline."""
+
+    def __init__(
+        self,
+        mvs: _Mvs,
+        scale: float,
+        Bd: np.ndarray,
+        sqrt_wd: np.ndarray,
+        centre: np.ndarray,
+        A: np.ndarray,
+        lo: np.ndarray,
+        hi: np.ndarray,
+    ) -> None:
+        self.mvs, self.scale = mvs, scale
+        self.Bd, self.sw, self.c = Bd, sqrt_wd, centre
+        self.A, self.lo, self.hi = A, lo, hi
+
+    def residual(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r_m, J_m = self.mvs.residual_jac(b, self.scale)
+        r_d = self.sw * (self.Bd @ b - self.c)
+        return np.concatenate([r_m, r_d]), np.vstack([J_m, self.sw[:, None] * self.Bd])
+
+    def value(self, b: np.ndarray) -> float:
+        r, _ = self.residual(b)
+        return float(r @ r)
+
+    def _qp(
+        self, H: np.ndarray, f: np.ndarray, b: np.ndarray, E: np.ndarray, e: np.ndarray
+    ) -> tuple[np.ndarray, int]:
+        """DAQP on the step d: min 0.5 d'Hd + f'd, lo <= A(b+d) <= hi, E(b+d) = e."""
+        Ab, Eb = self.A @ b, E @ b
+        C = np.vstack([self.A, E])
+        upper = np.concatenate([self.hi - Ab, e - Eb])
+        lower = np.concatenate([self.lo - Ab, e - Eb])
+        sense = np.concatenate([np.zeros(len(Ab), np.int32), np.full(len(e), 5, np.int32)])
+        d, _, flag, _ = daqp.solve(
+            np.ascontiguousarray(H), f, np.ascontiguousarray(C), upper, lower, sense
+        )
+        return np.asarray(d, dtype=np.float64), int(flag)
+
+    def solve(self, b0: np.ndarray, E: np.ndarray, e: np.ndarray, max_iter: int) -> _Solution:
+        m = b0.size
+        n_crossed = int(np.sum(self.lo > self.hi))
+        if n_crossed:
+            msg = f"infeasible: the lower depth bound lies above the upper at {n_crossed} points"
+            return _Solution(b0, "infeasible", msg, 0)
+        # Step 0: a unit gradient step from b0 projected on the constraints (SLSQP's first QP,
+        # identity Hessian); it lands on the feasible set, where the Gauss-Newton steps start.
+        r0, J0 = self.residual(b0)
+        d, flag = self._qp(np.eye(m), 2.0 * (J0.T @ r0), b0, E, e)
+        if flag not in (1, 2):
+            word = _DAQP_FLAGS.get(flag, f"exit flag {flag}")
+            status: Status = "infeasible" if flag == -1 else "solver_failed"
+            return _Solution(b0, status, f"QP (DAQP) {word} on the constraints of Eq. (8)", 0)
+        b = b0 + d
+        r, J = self.residual(b)
+        F = float(r @ r)
+        JtJ = J.T @ J
+        scale_h = np.trace(JtJ) / m + 1e-12
+        mu, nu = LM_MU0 * scale_h, 2.0
+        for it in range(1, max_iter + 1):
+            g = J.T @ r
+            d, flag = self._qp(2.0 * (JtJ + mu * np.eye(m)), 2.0 * g, b, E, e)
+            if flag not in (1, 2):
+                word = _DAQP_FLAGS.get(flag, f"exit flag {flag}")
+                return _Solution(b, "solver_failed", f"QP (DAQP) {word} at step {it}", it)
+            Jd = J @ d
+            pred = -(2.0 * float(r @ Jd) + float(Jd @ Jd))  # model decrease of F
+            if pred <= GN_FTOL * max(F, 1.0) or float(np.max(np.abs(self.A @ d))) < GN_STEP_TOL:
+                return _Solution(b, "ok", f"converged in {it} Gauss-Newton steps", it)
+            r_t, J_t = self.residual(b + d)
+            F_t = float(r_t @ r_t)
+            rho = (F - F_t) / pred
+            if rho > 0:  # accept; Nielsen's damping update
+                b, r, J = b + d, r_t, J_t
+                done = F - F_t <= GN_FTOL * max(F, 1.0)
+                F = F_t
+                JtJ = J.T @ J
+                mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                nu = 2.0
+                if done:
+                    return _Solution(b, "ok", f"converged in {it} Gauss-Newton steps", it)
+            else:
+                mu *= nu
+                nu *= 2.0
+        return _Solution(
+            b, "solver_failed", f"iteration limit: {max_iter} Gauss-Newton steps", max_iter
+        )

@@ -2,8 +2,18 @@
 
 For every segmented left pixel p the energy curve E(d, p), d = 0..alpha, is the sum over the
 segmented pixels p' of a window around p (g_p, a subset of P_L) of the squared difference
-between I_L^lift(p') and I_R^lift(p' - (d, 0)). Vectorised: the per-pixel squared differences
-C(p', d) form an (N, alpha+1) array, and the window sum is one sparse (N, N) matrix product.
+between I_L^lift(p') and I_R^lift(p' - (d, 0)).
+
+Computation (a compiled kernel, ``_energy_kernel``, that scales with the thread, not the image):
+I_R^lift is the lift value off P_R (dilated by the lift), so (I_L(p') - I_R(p' - d))^2 is a constant c_0(p') except
+where p' - d falls on a segmented right pixel of the same row. E(., p) is therefore the window
+sum of c_0, plus, for each p' in g_p and each segmented right pixel q of its row within the
+search range, the change at d = x' - q_x. Work: N * |g_p| * (right pixels per row), memory:
+the (N, alpha+1) float32 energy itself; no image-sized or (N, alpha+1) int64 temporary.
+
+Search range: ``alpha`` px (the paper's), or, with ``z_near_mm`` / ``z_far_mm`` set, the
+disparities f B / z of that working depth range (docs/method.md, "Disparity range from depth"),
+so that a rig of another resolution or baseline needs no retuning.
 
 Deviation (``subpixel=True``, default): the integer argmin d_min is refined to the exact
 minimiser of the same energy with the right image linearly interpolated between integer
@@ -14,16 +24,18 @@ accuracy. ``subpixel=False`` gives the paper's integer disparities.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
-import scipy.sparse as sp
 
 from core.calibration import StereoCalibration
 from core.params import Params, param
 from core.segmentation import LIFT_VALUE, LiftedPair
 
 NEXT_GAP = 2  # Eq. (6) text: |d_next - d_min| > 2, neighbours of d_min have similar energies
+D_MAX = 4096  # largest disparity search range, px: a depth range that asks for more is an error
 
 
 @dataclass(frozen=True)
@@ -38,6 +50,44 @@ class StereoParams(Params):
     """Side of the square window g_p, px (odd)."""
     subpixel: bool = True
     """Refine d_min to sub-pixel precision (deviation, see module docstring)."""
+    z_near_mm: float | None = param(
+        None,
+        lo=1.0,
+        hi=1e5,
+        unit="mm",
+        label="nearest depth",
+        doc="Nearest working depth: the largest disparity searched is ceil(f B / z_near) "
+        "instead of alpha (empty: alpha).",
+    )
+    z_far_mm: float | None = param(
+        None,
+        lo=1.0,
+        hi=1e6,
+        unit="mm",
+        label="farthest depth",
+        doc="Farthest working depth: d_min and d_next are searched from floor(f B / z_far) "
+        "up (empty: from 0).",
+    )
+
+    def search_range(self, calib: StereoCalibration) -> tuple[int, int]:
+        """(d_lo, d_hi), px: the disparities searched for d_min and d_next."""
+        fB = calib.focal * calib.baseline * calib.mm_per_unit  # px mm
+        d_hi = self.alpha if self.z_near_mm is None else math.ceil(fB / self.z_near_mm)
+        d_lo = 0 if self.z_far_mm is None else math.floor(fB / self.z_far_mm)
+        near, far = self.z_near_mm, self.z_far_mm
+        if near is not None and far is not None and not near < far:
+            raise ValueError(f"z_near_mm ({near:g}) must be below z_far_mm ({far:g})")
+        if d_hi > D_MAX:
+            raise ValueError(
+                f"the search range reaches {d_hi} px of disparity (f B = {fB:.0f} px mm): "
+                f"raise z_near_mm or lower alpha (at most {D_MAX} px)"
+            )
+        if d_hi - d_lo < NEXT_GAP + 2:
+            raise ValueError(
+                f"the disparity search range [{d_lo}, {d_hi}] px is narrower than "
+                f"{NEXT_GAP + 2} px: widen the depth range (z_near_mm, z_far_mm) or raise alpha"
+            )
+        return d_lo, d_hi
 
     def _check(self) -> None:
         super()._check()
@@ -89,33 +139,64 @@ def match_stereo(
     H, W = lifted.P_L.shape
     if calib.image_size != (H, W):
         raise ValueError(f"images are {(H, W)} px but the calibration is for {calib.image_size}")
-    rows, cols = np.nonzero(lifted.P_L)
-    n = rows.size
-    if n == 0:
+    if lifted.P_R.shape != (H, W) or lifted.I_L.shape != (H, W) or lifted.I_R.shape != (H, W):
+        raise ValueError("lifted images and masks must all be (H, W)")
+    d_lo, d_hi = p.search_range(calib)
+    r = p.window // 2
+
+    # Everything below works on the bounding box of P_L: the thread, not the image.
+    rows_any = np.flatnonzero(lifted.P_L.any(axis=1))
+    if rows_any.size == 0:
         raise ValueError("empty segmentation: no thread pixel in the left image")
-    d = np.arange(p.alpha + 1)
+    y0, y1 = int(rows_any[0]), int(rows_any[-1]) + 1
+    band_L = lifted.P_L[y0:y1]
+    cols_any = np.flatnonzero(band_L.any(axis=0))
+    x0, x1 = int(cols_any[0]), int(cols_any[-1]) + 1
+    ry, rx = np.nonzero(band_L[:, x0:x1])  # row-major order of P_L
+    rows, cols = ry + y0, rx + x0
+    n = rows.size
+    index = np.full((y1 - y0, x1 - x0), -1, dtype=np.int32)
+    index[ry, rx] = np.arange(n, dtype=np.int32)
+    I_L_p = lifted.I_L[rows, cols].astype(np.float64)
 
-    # Right image padded with the lift value so that p'_x - d < 0 reads background.
-    pad = p.alpha + 1
-    I_R = np.full((H, W + pad + 1), LIFT_VALUE, dtype=np.float32)
-    I_R[:, pad : pad + W] = lifted.I_R
-    I_L_p = lifted.I_L[rows, cols]
-    right = I_R[rows[:, None], cols[:, None] + pad - d[None, :]]  # (N, alpha+1)
-    C = (I_L_p[:, None] - right) ** 2
+    # Right pixels off the lift value (P_R, dilated by the lift) in the rows of the box that
+    # some left pixel can reach (d in 0..d_hi).
+    xr0 = max(0, x0 - d_hi)
+    qy, qx = np.nonzero(lifted.I_R[y0:y1, xr0:x1] != np.float32(LIFT_VALUE))
+    q_val = lifted.I_R[qy + y0, qx + xr0].astype(np.float64)
+    q_ptr = np.searchsorted(qy, np.arange(y1 - y0 + 1)).astype(np.int64)
+    q_col = (qx + xr0).astype(np.int64)
 
-    A = _window_matrix(rows, cols, (H, W), p.window)
-    energy = np.asarray(A @ C, dtype=np.float32)  # Eq. (2)
-
-    d_min = np.argmin(energy, axis=1)  # Eq. (3)
-    E_min = energy[np.arange(n), d_min].astype(np.float64)
-    far = np.abs(d[None, :] - d_min[:, None]) > NEXT_GAP
-    masked = np.where(far, energy, np.inf)
-    d_next = np.argmin(masked, axis=1)
-    E_next = masked[np.arange(n), d_next].astype(np.float64)
+    energy = _energy_kernel(
+        ry.astype(np.int64),
+        rx.astype(np.int64),
+        I_L_p,
+        index,
+        r,
+        q_ptr,
+        q_col,
+        q_val,
+        x0,
+        d_hi,
+        LIFT_VALUE,
+    )  # Eq. (2)
+    d_min, d_next, E_min, E_next = _best_two(energy, d_lo, NEXT_GAP)  # Eq. (3)
 
     disparity = d_min.astype(np.float64)
     if p.subpixel:
-        disparity = disparity + _subpixel_offset(A, rows, cols, I_L_p, I_R, pad, d_min, p.alpha)
+        disparity = disparity + _subpixel_kernel(
+            ry.astype(np.int64),
+            rx.astype(np.int64),
+            I_L_p,
+            index,
+            r,
+            lifted.I_R,
+            y0,
+            x0,
+            d_min,
+            d_hi,
+            LIFT_VALUE,
+        )
 
     points = _reproject(cols, rows, disparity, calib.Q)
     return StereoResult(
@@ -146,54 +227,134 @@ def _reproject(x: np.ndarray, y: np.ndarray, disparity: np.ndarray, Q: np.ndarra
     return pts
 
 
-def _window_matrix(
-    rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int], window: int
-) -> sp.csr_matrix:
-    """(N, N) 0/1 matrix: A[i, j] = 1 when segmented pixel j lies in the window g_i of pixel i."""
-    H, W = shape
-    r = window // 2
-    idx = np.full((H + 2 * r, W + 2 * r), -1, dtype=np.int64)
-    n = rows.size
-    idx[rows + r, cols + r] = np.arange(n)
-    dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
-    nb = idx[rows[:, None] + r + dy.ravel()[None, :], cols[:, None] + r + dx.ravel()[None, :]]
-    i = np.repeat(np.arange(n), nb.shape[1])
-    j = nb.ravel()
-    ok = j >= 0
-    return sp.csr_matrix((np.ones(ok.sum(), dtype=np.float32), (i[ok], j[ok])), shape=(n, n))
+# --- compiled kernels ------------------------------------------------------------------------
+# cache=True: compiled once per machine (numba's cache beside this file), not once per process.
 
 
-def _subpixel_offset(
-    A: sp.csr_matrix,
-    rows: np.ndarray,
-    cols: np.ndarray,
-    I_L_p: np.ndarray,
-    I_R: np.ndarray,
-    pad: int,
-    d_min: np.ndarray,
-    alpha: int,
-) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def _energy_kernel(ry, rx, I_L_p, index, r, q_ptr, q_col, q_val, x0, d_hi, lift):  # noqa: ANN001
+    """(N, d_hi+1) float32 E(d, p) of Eq. (2), accumulated in float64 (see module docstring).
+
+    ``ry``, ``rx``: rows and columns of P_L in the bounding box (origin row 0, column ``x0``),
+    row-major; ``index``: box image of pixel indices, -1 off P_L; ``q_ptr``, ``q_col``,
+    ``q_val``: the right pixels off the lift value in each box row (CSR by row, columns
+    ascending, absolute), and their I_R. The window slides along a row: moving p one pixel
+    right removes the window's left column and adds a new right column."""
+    n = ry.size
+    h, w = index.shape
+    c0 = np.empty(n)  # (I_L(p') - lift)^2: the cost against the lifted background
+    for j in range(n):
+        c0[j] = (I_L_p[j] - lift) ** 2
+    out = np.empty((n, d_hi + 1), dtype=np.float32)
+    acc = np.zeros(d_hi + 1)
+    base = np.zeros(1)
+    prev_y, prev_x = -1, -1
+    for i in range(n):
+        yi, xi = ry[i], rx[i]
+        if yi == prev_y and xi - prev_x <= 2 * r:
+            for x in range(prev_x + 1, xi + 1):  # slide the window one column at a time
+                _add_column(x - 1 - r, yi, -1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_hi, acc, base)  # fmt: skip
+                _add_column(x + r, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_hi, acc, base)  # fmt: skip
+        else:
+            acc[:] = 0.0
+            base[0] = 0.0
+            for xx in range(xi - r, xi + r + 1):
+                _add_column(xx, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_hi, acc, base)  # fmt: skip
+        for d in range(d_hi + 1):
+            out[i, d] = base[0] + acc[d]
+        prev_y, prev_x = yi, xi
+    return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _add_column(xx, yi, sign, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_hi, acc, base):  # noqa: ANN001
+    """Add (sign 1) or remove (-1) the window column xx of the pixel in row yi."""
+    if xx < 0 or xx >= w:
+        return
+    xa = xx + x0
+    for yy in range(max(0, yi - r), min(h, yi + r + 1)):
+        j = index[yy, xx]
+        if j < 0:
+            continue
+        base[0] += sign * c0[j]
+        vl, cj = I_L_p[j], c0[j]
+        q_a, q_b = q_ptr[yy], q_ptr[yy + 1]
+        k = q_a + np.searchsorted(q_col[q_a:q_b], xa - d_hi)  # first q with d <= d_hi
+        while k < q_b and q_col[k] <= xa:
+            acc[xa - q_col[k]] += sign * ((vl - q_val[k]) ** 2 - cj)
+            k += 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _best_two(energy, d_lo, gap):  # noqa: ANN001
+    """Eq. (3): d_min = argmin E over [d_lo, d_hi]; d_next = argmin over |d - d_min| > gap
+    (first index on ties, as np.argmin); E_next = inf when no such d exists."""
+    n, m = energy.shape
+    d_min = np.empty(n, dtype=np.int64)
+    d_next = np.empty(n, dtype=np.int64)
+    E_min = np.empty(n)
+    E_next = np.empty(n)
+    for i in range(n):
+        e = energy[i]
+        best, vb = d_lo, e[d_lo]
+        for d in range(d_lo + 1, m):
+            if e[d] < vb:
+                best, vb = d, e[d]
+        nxt, vn = -1, np.float32(np.inf)
+        for d in range(d_lo, max(d_lo, best - gap)):
+            if e[d] < vn:
+                nxt, vn = d, e[d]
+        for d in range(best + gap + 1, m):
+            if e[d] < vn:
+                nxt, vn = d, e[d]
+        d_min[i] = best
+        E_min[i] = vb
+        if nxt < 0:
+            d_next[i] = d_lo if best - d_lo > gap else m - 1
+            E_next[i] = np.inf
+        else:
+            d_next[i] = nxt
+            E_next[i] = vn
+    return d_min, d_next, E_min, E_next
+
+
+@numba.njit(cache=True, nogil=True)
+def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  # noqa: ANN001
     """Exact minimiser of Eq. (2) on [d_min - 1, d_min + 1], I_R linearly interpolated."""
-    coo = A.tocoo()
-    i, j = coo.row, coo.col
-    n = d_min.size
-    di = d_min[i]
-    base = cols[j] + pad - di
-    a = I_R[rows[j], base]  # I_R at disparity d_min
-    c = (I_L_p[j] - a).astype(np.float64)
-    best_t = np.zeros(n)
-    E0 = np.bincount(i, weights=c * c, minlength=n)
-    best_E = E0.copy()
-    for sign in (1, -1):  # towards d_min + 1 and d_min - 1
-        e = (I_R[rows[j], base - sign] - a).astype(np.float64)
-        ce = np.bincount(i, weights=c * e, minlength=n)
-        ee = np.bincount(i, weights=e * e, minlength=n)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.clip(np.where(ee > 0, ce / ee, 0.0), 0.0, 1.0)
-        ok = (d_min + sign >= 0) & (d_min + sign <= alpha)
-        t = np.where(ok, t, 0.0)
-        E_t = E0 - 2 * t * ce + t * t * ee
-        better = E_t < best_E - 1e-9
-        best_t = np.where(better, sign * t, best_t)
-        best_E = np.minimum(E_t, best_E)
-    return best_t
+    n = ry.size
+    h, w = index.shape
+    W = I_R.shape[1]
+    out = np.zeros(n)
+    for i in range(n):
+        yi, xi, di = ry[i], rx[i], d_min[i]
+        E0 = 0.0
+        ce_p = ee_p = ce_m = ee_m = 0.0
+        for yy in range(max(0, yi - r), min(h, yi + r + 1)):
+            for xx in range(max(0, xi - r), min(w, xi + r + 1)):
+                j = index[yy, xx]
+                if j < 0:
+                    continue
+                xb = xx + x0 - di
+                row = yy + y0
+                a = float(I_R[row, xb]) if 0 <= xb < W else lift
+                c = I_L_p[j] - a
+                E0 += c * c
+                ap = float(I_R[row, xb - 1]) if 0 <= xb - 1 < W else lift  # d_min + 1
+                am = float(I_R[row, xb + 1]) if 0 <= xb + 1 < W else lift  # d_min - 1
+                ep, em = ap - a, am - a
+                ce_p += c * ep
+                ee_p += ep * ep
+                ce_m += c * em
+                ee_m += em * em
+        best_t, best_E = 0.0, E0
+        for sign in (1, -1):  # towards d_min + 1 and d_min - 1
+            ce, ee = (ce_p, ee_p) if sign == 1 else (ce_m, ee_m)
+            t = min(max(ce / ee, 0.0), 1.0) if ee > 0 else 0.0
+            if not (0 <= di + sign <= d_hi):
+                t = 0.0
+            E_t = E0 - 2 * t * ce + t * t * ee
+            if E_t < best_E - 1e-9:
+                best_t, best_E = sign * t, E_t
+            best_E = min(E_t, best_E)
+        out[i] = best_t
+    return out

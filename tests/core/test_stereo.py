@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 from support import assert_close, synthetic_case, synthetic_frame
 
 from core.metrics import resample
-from core.segmentation import segment
+from core.segmentation import LiftedPair, segment
 from core.stereo import NEXT_GAP, StereoParams, match_stereo, reproject
 
 SEEDS = (0, 1, 2)
@@ -93,3 +93,68 @@ def test_parameter_and_size_checks() -> None:
         match_stereo(lifted, calib, StereoParams(window=4))
     with pytest.raises(ValueError, match=r"\(480, 640\).*\(240, 320\)"):
         match_stereo(lifted, replace(calib, image_size=(240, 320)))
+
+
+def _energy_reference(lifted, alpha: int, window: int) -> np.ndarray:  # noqa: ANN001
+    """Eq. (2) by brute force: every d, every window pixel, straight from the definition."""
+    rows, cols = np.nonzero(lifted.P_L)
+    H, W = lifted.P_L.shape
+    r = window // 2
+    E = np.zeros((rows.size, alpha + 1))
+    for i, (y, x) in enumerate(zip(rows, cols, strict=True)):
+        for yy in range(max(0, y - r), min(H, y + r + 1)):
+            for xx in range(max(0, x - r), min(W, x + r + 1)):
+                if not lifted.P_L[yy, xx]:
+                    continue
+                xr = xx - np.arange(alpha + 1)
+                right = np.where(xr >= 0, lifted.I_R[yy, np.clip(xr, 0, W - 1)], 255.0)
+                E[i] += (float(lifted.I_L[yy, xx]) - right.astype(np.float64)) ** 2
+    return E
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_energy_kernel_equals_the_definition_on_random_masks(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    H, W = 24, 40
+    P_L = rng.random((H, W)) < 0.3
+    P_R = rng.random((H, W)) < 0.3
+    grey_L = rng.integers(0, 256, (H, W)).astype(np.float32)
+    grey_R = rng.integers(0, 256, (H, W)).astype(np.float32)
+    lifted = LiftedPair(
+        I_L=np.where(P_L, grey_L, 255).astype(np.float32),
+        I_R=np.where(P_R, grey_R, 255).astype(np.float32),
+        P_L=P_L,
+        P_R=P_R,
+        grey_L=grey_L,
+        grey_R=grey_R,
+        background=(255.0, 255.0),
+    )
+    _, calib, _ = synthetic_case(0)
+    calib = replace(calib, image_size=(H, W))
+    alpha, window = 12, 5
+    st = match_stereo(lifted, calib, StereoParams(alpha=alpha, window=window))
+    ref = _energy_reference(lifted, alpha, window)
+    assert_close(st.energy.astype(np.float64), ref, rtol=1e-6)
+    assert_close(st.d_min, np.argmin(ref.astype(np.float32), axis=1))
+
+
+def test_search_range_follows_depth_through_f_times_b() -> None:
+    _, calib, _ = synthetic_case(0)
+    fB = calib.focal * calib.baseline * calib.mm_per_unit
+    d_lo, d_hi = StereoParams(z_near_mm=40.0, z_far_mm=250.0).search_range(calib)
+    assert d_hi == int(np.ceil(fB / 40.0)) and d_lo == int(np.floor(fB / 250.0))
+    assert StereoParams(alpha=60).search_range(calib) == (0, 60)
+    # The same depth range on a rig with a 3x focal length searches 3x the disparities.
+    hd = replace(calib, P1=calib.P1 * np.array([[3.0], [3.0], [1.0]]))
+    assert StereoParams(z_near_mm=40.0).search_range(hd)[1] == int(np.ceil(3 * fB / 40.0))
+    pair, _, truth = synthetic_case(0)
+    z_mm = truth[:, 2] * calib.mm_per_unit
+    p = StereoParams(z_near_mm=0.8 * z_mm.min(), z_far_mm=1.25 * z_mm.max())
+    st = match_stereo(segment(pair), calib, p)
+    lo, hi = p.search_range(calib)
+    assert np.all((st.d_min >= lo) & (st.d_min <= hi))
+    assert st.energy.shape[1] == hi + 1
+    with pytest.raises(ValueError, match="z_near_mm"):
+        StereoParams(z_near_mm=300.0, z_far_mm=200.0).search_range(calib)
+    with pytest.raises(ValueError, match="narrower"):
+        StereoParams(z_near_mm=100.0, z_far_mm=101.0).search_range(calib)
