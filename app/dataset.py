@@ -35,11 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
+from app.export import InputFile
 from app.io import load_calibration, load_ground_truth, load_pair, prepare_pair
 from core.calibration import StereoCalibration
 from core.metrics import ReprojectionErrors, curve_errors, project, reprojection_errors
 from core.pipeline import Reconstruction
-from core.rectify import from_left_frame
+from core.rectify import Rectification, from_left_frame, rectification
 from core.segmentation import LiftedPair, StereoPair
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -234,9 +235,7 @@ def load_frame(frame: Frame) -> tuple[StereoPair, StereoCalibration, np.ndarray 
     units) if any. A raw pair is undistorted and rectified here (core/rectify.py): the pair and
     calibration returned are the rectified ones and the ground truth is moved from the left
     camera frame into the left rectified frame, where the pipeline's points are."""
-    calib = load_calibration(
-        frame.calibration, unit=frame_unit(frame.calibration), right=frame.calibration_right
-    )
+    calib = frame_calibration(frame)
     if frame.stereo is not None:
         pair = load_pair(stereo=frame.stereo, mask=frame.mask)
     else:
@@ -249,6 +248,30 @@ def load_frame(frame: Frame) -> tuple[StereoPair, StereoCalibration, np.ndarray 
     if gt is not None and not rect.identity:
         gt = from_left_frame(gt, rect)
     return pair, calib_rect, gt
+
+
+def frame_calibration(frame: Frame) -> StereoCalibration:
+    """The frame's calibration as its file(s) say (before any rectification)."""
+    return load_calibration(
+        frame.calibration, unit=frame_unit(frame.calibration), right=frame.calibration_right
+    )
+
+
+def frame_rectification(frame: Frame) -> Rectification:
+    """How the frame's pair is rectified on load (identity for a rectified pair); cached per
+    calibration, so asking again costs a file read."""
+    return rectification(frame_calibration(frame))
+
+
+def frame_inputs(frame: Frame) -> list[InputFile]:
+    """The frame's files with their roles and SHA-256, for the result JSON's provenance."""
+    roles = ("stereo", "left", "right", "mask", "mask_left", "mask_right", "calibration",
+             "calibration_right")  # fmt: skip
+    return [
+        InputFile.of_file(role, path)
+        for role in roles
+        if (path := getattr(frame, role)) is not None and path.exists()
+    ]
 
 
 METRIC_COLUMNS = (
