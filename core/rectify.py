@@ -99,25 +99,38 @@ def rectification(calib: StereoCalibration) -> Rectification:
 
 
 def rectify_pair(pair: StereoPair, rect: Rectification) -> StereoPair:
-    """The rectified pair: images resampled bilinearly (borders repeat the edge, so no dark
-    frame looks like thread), masks resampled and thresholded at one half."""
+    """The rectified pair: images resampled bicubically, masks bilinearly and thresholded at
+    one half. Rectified pixels that see outside the raw image get the image's median colour
+    (the background of a thread image), so that neither an empty black frame nor a thread
+    cut by the raw border and smeared outwards looks like thread; masks are 0 there."""
     if pair.shape != rect.raw.image_size:
         raise ValueError(
             f"images are {pair.shape} px but the calibration is for {rect.raw.image_size}"
         )
     if rect.maps is None:
         return pair
-    (lx, ly), (rx, ry) = rect.maps
-    left = cv2.remap(pair.left, lx, ly, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    right = cv2.remap(pair.right, rx, ry, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    masks = []
-    for mask, (mx, my) in ((pair.mask_left, (lx, ly)), (pair.mask_right, (rx, ry))):
+    views, masks = [], []
+    for img, mask, (mx, my) in (
+        (pair.left, pair.mask_left, rect.maps[0]),
+        (pair.right, pair.mask_right, rect.maps[1]),
+    ):
+        out = cv2.remap(img, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+        outside = _outside(mx, my, img.shape[:2])
+        if outside.any():
+            out[outside] = np.median(img.reshape(-1, *img.shape[2:]), axis=0).astype(img.dtype)
+        views.append(out)
         if mask is None:
             masks.append(None)
             continue
         m = cv2.remap(mask.astype(np.float32), mx, my, cv2.INTER_LINEAR, borderValue=0.0)
         masks.append(m >= 0.5)
-    return StereoPair(left, right, masks[0], masks[1])
+    return StereoPair(views[0], views[1], masks[0], masks[1])
+
+
+def _outside(mx: np.ndarray, my: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """(H, W) bool: rectified pixels whose raw sample lies outside the raw image."""
+    h, w = shape[:2]
+    return (mx < -0.5) | (mx > w - 0.5) | (my < -0.5) | (my > h - 0.5)
 
 
 def to_left_frame(points: np.ndarray, rect: Rectification) -> np.ndarray:

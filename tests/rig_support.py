@@ -3,8 +3,9 @@
 The generator renders a rectified pair (camera matrix K, baseline B). A raw rig looks at the
 same scene with its cameras rotated (p_raw_i = Ra_i p_rect_i) and with lens distortion D_i:
 each raw pixel is undistorted and rotated into the rectified view (``cv2.undistortPoints``
-with R and P), and the rectified image is sampled there (bilinear). The rig's OpenCV calibration is R = Ra_2 Ra_1^T, T = Ra_2 (-B, 0, 0); the true curve in the
-raw left frame is Ra_1 p_rect.
+with R and P), and the rectified image is sampled there (Lanczos; beyond the rendered view:
+the background colour). The rig's OpenCV calibration is R = Ra_2 Ra_1^T, T = Ra_2 (-B, 0, 0);
+the true curve in the raw left frame is Ra_1 p_rect.
 """
 
 from __future__ import annotations
@@ -64,7 +65,10 @@ def _raw_view(img: np.ndarray, K: np.ndarray, D: np.ndarray, Ra: np.ndarray) -> 
     if img.dtype == bool:
         out = cv2.remap(img.astype(np.float32), mx, my, cv2.INTER_LINEAR, borderValue=0.0)
         return out >= 0.5
-    return cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = cv2.remap(img, mx, my, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE)
+    outside = (mx < -0.5) | (mx > w - 0.5) | (my < -0.5) | (my > h - 0.5)
+    out[outside] = np.median(img.reshape(-1, img.shape[2]), axis=0).astype(img.dtype)
+    return out  # beyond the rendered view the raw camera sees background
 
 
 def _calib(

@@ -189,3 +189,13 @@ def test_cli_single_camera_info_is_a_one_line_error(
     ])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 2 and "--calib-right" in err and len(err.strip().splitlines()) == 1
+
+
+def test_example_script_prints_a_grasp_point() -> None:
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[2] / "examples" / "reconstruct_frame.py"
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert "grasp point (mm):" in run.stdout and "frame left" in run.stdout

@@ -94,8 +94,9 @@ def test_wrong_size_pair_is_refused() -> None:
 def test_raw_rig_curve_in_left_frame_matches_rectified_input() -> None:
     """Rotated (~2 deg) and distorting cameras: the curve, rectified in the load step and
     mapped back to the left camera's frame, is as close to the truth as the rectified-input
-    curve of the same frame: e_S differs by < 0.1 mm in the median over fresh seeds (the
-    per-frame difference comes from the raw images' extra bilinear resampling)."""
+    curve of the same frame: e_S within 0.1 mm on at least 5 of 6 seeds (12 fresh seeds
+    10-21: 11 of 12, median 0.04 mm); the rest of the difference is the raw images' extra
+    resampling (the generator re-images the rendered pair)."""
     diffs, gaps = [], []
     for seed in SEEDS:
         rig = raw_rig(seed)
@@ -112,6 +113,26 @@ def test_raw_rig_curve_in_left_frame_matches_rectified_input() -> None:
         # the wrong frame (no R1^T) is measurably worse: the frame matters
         wrong = curve_errors(rec["camera"].points, rig.truth_left).e_S
         assert wrong > e_raw + 0.5, (seed, wrong, e_raw)
-    assert np.median(diffs) < 0.1, diffs
-    assert max(diffs) < 0.25, diffs
-    assert np.median(gaps) < 0.25, gaps
+    assert sum(d < 0.1 for d in diffs) >= 5, diffs
+    assert np.median(diffs) < 0.1 and max(diffs) < 0.3, diffs
+    assert np.median(gaps) < 0.2, gaps
+
+
+def test_thread_cut_by_the_raw_border_is_not_smeared_into_the_rectified_image() -> None:
+    """Rectified pixels that see outside the raw image take the background colour, and the
+    masks are empty there."""
+    rig = raw_rig(0)
+    rect = rectification(rig.calib)
+    dark = rig.pair.left.copy()
+    dark[:, :3] = 0  # a thread-dark raw border column
+    pair = rectify_pair(
+        StereoPair(dark, rig.pair.right, rig.pair.mask_left, rig.pair.mask_right), rect
+    )
+    mx, my = rect.maps[0]  # type: ignore[index]
+    outside = (mx < -0.5) | (mx > 639.5) | (my < -0.5) | (my > 479.5)
+    assert outside.any()
+    background = np.median(dark.reshape(-1, 3), axis=0)
+    assert_close(
+        pair.left[outside].astype(float), np.broadcast_to(background, (int(outside.sum()), 3))
+    )
+    assert pair.mask_left is not None and not pair.mask_left[outside].any()
