@@ -82,8 +82,12 @@ _cache_lock = threading.Lock()
 
 
 def rectification(calib: StereoCalibration) -> Rectification:
-    """The :class:`Rectification` of ``calib``, computed once per calibration (cached by its
-    numbers: K, D, R, T, size, unit, flag)."""
+    """The :class:`Rectification` of ``calib``: the identity (``calib`` itself) for a rectified
+    pair; otherwise the maps, computed once per calibration (cached by its numbers: K, D, R,
+    T, size, unit, flag)."""
+    if not needs_rectification(calib):  # identity: nothing worth caching, and raw is calib
+        eye = np.eye(3)
+        return Rectification(raw=calib, calib=calib, R1=eye, R2=eye, maps=None)
     key = _calibration_key(calib)
     with _cache_lock:
         hit = _cache.get(key)
@@ -173,9 +177,6 @@ def _rectifying_rotations(calib: StereoCalibration) -> tuple[np.ndarray, np.ndar
 
 
 def _compute(calib: StereoCalibration) -> Rectification:
-    if not needs_rectification(calib):
-        eye = np.eye(3)
-        return Rectification(raw=calib, calib=calib, R1=eye, R2=eye, maps=None)
     R1, R2 = _rectifying_rotations(calib)
     rows, cols = calib.image_size
     maps = tuple(
