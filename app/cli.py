@@ -15,11 +15,12 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from app.dataset import discover, load_frame
+from app.api import reconstruct
+from app.dataset import discover, frame_inputs, frame_rectification, load_frame
 from app.evaluation import evaluate_frame, summarise, write_csv
-from app.io import load_calibration, load_pair
+from app.export import result_json
 from app.presets import resolve_preset
-from core.pipeline import STAGES, Pipeline, Reconstruction
+from core.pipeline import STAGES, Pipeline
 
 
 class UserError(Exception):
@@ -54,19 +55,38 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="threadrecon", description=__doc__)
     sub = parser.add_subparsers(dest="command")
 
-    r = sub.add_parser("reconstruct", help="reconstruct the thread of one rectified stereo pair")
-    r.add_argument("--left", help="left rectified image")
-    r.add_argument("--right", help="right rectified image")
+    r = sub.add_parser(
+        "reconstruct",
+        help="reconstruct the thread of one stereo pair (raw pairs are rectified first)",
+    )
+    r.add_argument("--left", help="left image (rectified, or raw with its calibration)")
+    r.add_argument("--right", help="right image")
     r.add_argument("--stereo", help="side-by-side composite (left half | right half)")
     r.add_argument("--mask", help="optional side-by-side thread mask")
+    r.add_argument("--mask-left", help="optional left thread mask (with --mask-right)")
+    r.add_argument("--mask-right", help="optional right thread mask")
     r.add_argument(
-        "--calib", required=True, help="OpenCV FileStorage YAML (K1 D1 K2 D2 R T ImageSize)"
+        "--calib",
+        required=True,
+        help="OpenCV FileStorage YAML (K1 D1 K2 D2 R T ImageSize), Kalibr camchain.yaml, "
+        "or the left ROS camera_info YAML (with --calib-right)",
+    )
+    r.add_argument("--calib-right", help="the right ROS camera_info YAML")
+    r.add_argument(
+        "--units",
+        choices=("mm", "cm", "m"),
+        help="calibration length unit when the file does not say "
+        "(default: mm for OpenCV files, m for ROS and Kalibr)",
     )
     r.add_argument(
-        "--units", choices=("mm", "cm", "m"), help="calibration unit when the file has no Units key"
+        "--frame",
+        choices=("left", "left_rectified"),
+        default="left",
+        help="frame of the output: the left camera's own (default) or the left rectified one",
     )
     r.add_argument("--config", help="preset name (configs/NAME.toml) or path")
-    r.add_argument("--out", required=True, help="output JSON")
+    r.add_argument("--out", required=True, help="output JSON (docs/result.schema.json)")
+    r.add_argument("--ply", help="also write the curve as a PLY polyline (vertices + edges)")
     r.set_defaults(func=cmd_reconstruct)
 
     e = sub.add_parser("evaluate", help="evaluate every frame of a dataset folder")
@@ -123,35 +143,6 @@ def _sample_data() -> Path:
 # --- reconstruct -------------------------------------------------------------------------
 
 
-def reconstruction_json(rec: Reconstruction) -> dict[str, Any]:
-    out: dict[str, Any] = {
-        "status": rec.status,
-        "error": rec.message,
-        "failed_stage": rec.failed_stage,
-    }
-    out["timings_ms"] = {k: round(v, 3) for k, v in rec.timings_ms.items()}
-    if "camera" in rec.runs:
-        cam = rec["camera"]
-        spline = rec["spline"]
-        out.update(
-            unit=cam.unit,
-            points=cam.points.tolist(),
-            control_points=cam.ctrl.tolist(),
-            knots=cam.knots.tolist(),
-            degree=cam.degree,
-            length=cam.length,
-            spline_status=spline.status,
-            fallback=not spline.ok,
-        )
-    else:
-        out.update(points=None, control_points=None, knots=None, degree=None)
-    if "clustering" in rec.runs:
-        out["n_keypoints"] = rec["clustering"].count
-    if "reliability" in rec.runs:
-        out["n_reliable"] = rec["reliability"].count
-    return out
-
-
 def _write_json(path: Path, data: dict[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
@@ -167,22 +158,33 @@ def _json_default(o: Any) -> Any:
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     params = resolve_preset(args.config)
-    pair = load_pair(left=args.left, right=args.right, stereo=args.stereo, mask=args.mask)
-    calib = load_calibration(args.calib, unit=args.units)
     out = Path(args.out)
-    try:
-        rec = Pipeline(pair, calib).run(params)
-    except ValueError as exc:  # a pair that does not fit its calibration
-        _write_json(out, {"status": "failed", "error": str(exc), "points": None})
-        raise
-    data = reconstruction_json(rec)
+    result = reconstruct(
+        args.left,
+        args.right,
+        args.calib,
+        stereo=args.stereo,
+        mask=args.mask,
+        mask_left=args.mask_left,
+        mask_right=args.mask_right,
+        calib_right=args.calib_right,
+        units=args.units,
+        params=params,
+        frame=args.frame,
+    )
+    data = result.to_json()
+    data["preset"] = args.config or "default"
     _write_json(out, data)
-    if rec.status != "ok":
-        print(f"threadrecon: reconstruction failed: {rec.message}", file=sys.stderr)
+    if args.ply and result.points is not None:
+        ply = Path(args.ply)
+        ply.parent.mkdir(parents=True, exist_ok=True)
+        ply.write_bytes(result.to_ply())
+    if not result.ok:
+        print(f"threadrecon: reconstruction failed: {'; '.join(result.reasons)}", file=sys.stderr)
         return 1
     print(
         f"ok: {len(data['points'])} points, length {data['length']:.2f} {data['unit']}, "
-        f"{sum(rec.timings_ms.values()):.0f} ms -> {out}"
+        f"frame {data['frame']}, {sum(result.timings_ms.values()):.0f} ms -> {out}"
     )
     return 0
 
@@ -210,7 +212,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         row, rec = evaluate_frame(frame, params)
         rows.append(row)
         if args.save_predictions and rec is not None:
-            _write_json(Path(args.save_predictions) / f"{frame.id}.json", reconstruction_json(rec))
+            pred = result_json(
+                rec, frame_rectification(frame), "left", args.config or "default",
+                frame_inputs(frame),
+            )  # fmt: skip
+            _write_json(Path(args.save_predictions) / f"{frame.id}.json", pred)
     _progress(len(frames), len(frames), "done")
     if args.out:
         write_csv(Path(args.out), rows)

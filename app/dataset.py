@@ -1,15 +1,30 @@
-"""Dataset layout of the paper (and of ``threadrecon generate``), and per-frame evaluation.
+"""Dataset folders: where the stereo pairs, masks, ground truth and calibrations are, and
+per-frame evaluation.
 
-```
-DATASET/simulated/<group>/<frame>.png|.jpg    side-by-side pair (left | right)
-DATASET/simulated/<group>/<frame>.npy         ground-truth control points, left camera frame
-DATASET/simulated/<group>/<frame>_mask.png    optional side-by-side mask
-DATASET/simulated/<group>/calibration.yaml    or the paper's simulated/blend_calibration*.yaml
-DATASET/real/<sub>/<name>left<rest>.png       with the matching ...right... image
-DATASET/real/camera_calibration.yaml          or <sub>/calibration.yaml
-```
+A dataset is any folder. Every folder under it (hidden ones skipped) is searched for pairs by
+these rules, in this order; an image belongs to the first rule that claims it:
+
+1. ``left/`` and ``right/`` sub-folders: images with the same name in both are a pair
+   (frame id ``<folder>/<stem>``).
+2. Names with ``left`` / ``right`` (any case; ``img_left_3.png`` + ``img_right_3.png``) or
+   ending in ``_L`` / ``_R`` (``003_L.png`` + ``003_R.png``): the matching names are a pair
+   (id: the name without the token, ``__`` collapsed to ``_``).
+3. Any other image: a side-by-side composite (left half | right half).
+
+Masks: ``<image stem>_mask.png`` beside each image (one composite mask for rule 3, one per
+view otherwise; both views or neither). Ground truth: ``<id stem>.npy`` (clamped cubic B-spline
+control points, left camera frame, calibration units) beside the (left) image or in the
+frame's folder; a frame with ground truth is "simulated", else "real".
+Calibration: per frame ``<id stem>.calib.yaml`` beside the image; otherwise per folder, in the
+frame's folder or the nearest one above it (up to the dataset root): ``calibration.yaml``,
+``camera_calibration.yaml``, ``camchain.yaml`` (Kalibr), or ``left.yaml`` + ``right.yaml``
+(ROS camera_info); the paper's ``simulated/blend_calibration*.yaml`` as before. Frame ids are
+the paths relative to the root without suffix, sorted; two frames with the same id are an
+error naming both files.
+
 Units: a calibration's ``Units`` key; without it the paper's Blender calibrations
-(``blend_calibration*.yaml``) are centimetres (its README) and every other file millimetres.
+(``blend_calibration*.yaml``) are centimetres (its README), OpenCV files millimetres, Kalibr
+and ROS files metres.
 """
 
 from __future__ import annotations
@@ -20,14 +35,20 @@ from pathlib import Path
 
 import numpy as np
 
-from app.io import load_calibration, load_ground_truth, load_pair
+from app.export import InputFile
+from app.io import load_calibration, load_ground_truth, load_pair, prepare_pair
 from core.calibration import StereoCalibration
 from core.metrics import ReprojectionErrors, curve_errors, project, reprojection_errors
 from core.pipeline import Reconstruction
+from core.rectify import Rectification, from_left_frame, rectification
 from core.segmentation import LiftedPair, StereoPair
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 PAPER_OLD_GROUPS = 4  # the paper's blend1..4 use blend_calibration.yaml (1 mm baseline)
+FOLDER_CALIBRATIONS = ("calibration.yaml", "camera_calibration.yaml", "camchain.yaml")
+ROS_PAIR = ("left.yaml", "right.yaml")
+_LR_TOKEN = re.compile(r"(left|right)", re.IGNORECASE)
+_LR_SUFFIX = re.compile(r"_(L|R)$")
 
 
 @dataclass(frozen=True)
@@ -42,6 +63,11 @@ class Frame:
     right: Path | None = None
     ground_truth: Path | None = None
     mask: Path | None = None
+    """Side-by-side mask of a composite."""
+    mask_left: Path | None = None
+    mask_right: Path | None = None
+    calibration_right: Path | None = None
+    """The right camera's ROS camera_info when ``calibration`` is the left one's."""
 
     @property
     def has_ground_truth(self) -> bool:
@@ -57,51 +83,142 @@ def discover(root: str | Path) -> list[Frame]:
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: dataset folder not found")
-    frames: list[Frame] = []
-    sim = root / "simulated"
-    if sim.is_dir():
-        for group in sorted(p for p in sim.iterdir() if p.is_dir()):
-            calib = _sim_calibration(sim, group)
-            for img in sorted(group.iterdir()):
-                if img.suffix.lower() not in IMAGE_SUFFIXES or img.stem.endswith("_mask"):
-                    continue
-                gt = img.with_suffix(".npy")
-                mask = img.with_name(img.stem + "_mask.png")
-                frames.append(
-                    Frame(
-                        id=str(img.relative_to(root).with_suffix("")),
-                        kind="simulated" if gt.exists() else "real",
-                        calibration=calib,
-                        stereo=img,
-                        ground_truth=gt if gt.exists() else None,
-                        mask=mask if mask.exists() else None,
-                    )
+    found: dict[str, tuple[Frame, Path]] = {}
+    for folder in _folders(root):
+        for frame in _frames_in(root, folder):
+            first = frame.left or frame.stereo
+            assert first is not None
+            if frame.id in found:
+                raise ValueError(
+                    f"{root}: two frames have the id {frame.id!r}: {found[frame.id][1]} and {first}"
                 )
-    real = root / "real"
-    if real.is_dir():
-        for sub in sorted(p for p in real.iterdir() if p.is_dir()):
-            calib = sub / "calibration.yaml"
-            calib = calib if calib.exists() else real / "camera_calibration.yaml"
-            for left in sorted(sub.glob("*left*")):
-                if left.suffix.lower() not in IMAGE_SUFFIXES:
-                    continue
-                right = left.with_name(left.name.replace("left", "right", 1))
-                if not right.exists():
-                    continue
-                fid = str(left.relative_to(root).with_suffix("")).replace("left", "", 1)
-                fid = re.sub(r"__+", "_", fid)
-                frames.append(Frame(id=fid, kind="real", calibration=calib, left=left, right=right))
-    if not frames:
+            found[frame.id] = (frame, first)
+    if not found:
         raise FileNotFoundError(
-            f"{root}: no frames found (expected simulated/<group>/*.png or real/<sub>/*left*.png)"
+            f"{root}: no frames found (expected side-by-side images, left/ + right/ folders, "
+            "or *left*/*right* or *_L/*_R image pairs)"
         )
+    return [found[k][0] for k in sorted(found)]
+
+
+def _folders(root: Path) -> list[Path]:
+    out = []
+    for d in sorted([root, *(p for p in root.rglob("*") if p.is_dir())]):
+        rel = d.relative_to(root).parts
+        if any(part.startswith((".", "__")) for part in rel):
+            continue
+        if (
+            d.name in ("left", "right")
+            and (d.parent / "left").is_dir()
+            and (d.parent / "right").is_dir()
+        ):
+            continue  # rule 1 reads these from the parent
+        out.append(d)
+    return out
+
+
+def _images(folder: Path) -> list[Path]:
+    return sorted(
+        p for p in folder.iterdir()
+        if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.stem.endswith("_mask")
+    )  # fmt: skip
+
+
+def _beside(img: Path, suffix: str) -> Path | None:
+    p = img.with_name(img.stem + suffix)
+    return p if p.exists() else None
+
+
+def _frames_in(root: Path, folder: Path) -> list[Frame]:
+    frames: list[Frame] = []
+    if (folder / "left").is_dir() and (folder / "right").is_dir():
+        rights = {p.stem: p for p in _images(folder / "right")}
+        for left in _images(folder / "left"):
+            right = rights.get(left.stem)
+            if right is None:
+                continue
+            fid = (folder / left.stem).relative_to(root).as_posix()
+            gt = _first(left.with_suffix(".npy"), folder / f"{left.stem}.npy")
+            frames.append(_frame(root, fid, folder, left.stem, gt, left=left, right=right))
+    claimed: set[Path] = set()
+    images = _images(folder)
+    names = {p.name: p for p in images}
+    for img in images:
+        if img in claimed:
+            continue
+        m = _LR_SUFFIX.search(img.stem)
+        if m and m.group(1) == "L":
+            partner = names.get(img.stem[:-1] + "R" + img.suffix)
+            stem = img.stem[: m.start()]
+        else:
+            t = _LR_TOKEN.search(img.name)
+            if t is None or t.group(1).lower() != "left":
+                continue
+            repl = {"left": "right", "Left": "Right", "LEFT": "RIGHT"}.get(t.group(1), "right")
+            partner = names.get(img.name[: t.start()] + repl + img.name[t.end() :])
+            stem = re.sub(r"__+", "_", img.stem[: t.start()] + img.stem[t.end() :])
+        if partner is None:
+            continue
+        claimed |= {img, partner}
+        fid = (folder / stem).relative_to(root).as_posix()
+        gt = _first(folder / f"{stem}.npy", img.with_suffix(".npy"))
+        frames.append(_frame(root, fid, folder, stem, gt, left=img, right=partner))
+    for img in images:
+        if img in claimed or _LR_TOKEN.search(img.name) or _LR_SUFFIX.search(img.stem):
+            continue  # an unmatched left/right image is not a composite
+        fid = img.relative_to(root).with_suffix("").as_posix()
+        frames.append(
+            _frame(root, fid, folder, img.stem, _beside(img, ".npy"), stereo=img,
+                   mask=_beside(img, "_mask.png"))
+        )  # fmt: skip
     return frames
 
 
-def _sim_calibration(sim: Path, group: Path) -> Path:
-    own = group / "calibration.yaml"
+def _first(*paths: Path) -> Path | None:
+    return next((p for p in paths if p.exists()), None)
+
+
+def _frame(
+    root: Path, fid: str, folder: Path, stem: str, gt: Path | None, **files: Path | None
+) -> Frame:
+    if "left" in files:
+        ml, mr = (_beside(files[k], "_mask.png") for k in ("left", "right"))  # type: ignore[arg-type]
+        if (ml is None) != (mr is None):
+            ml = mr = None  # one view's mask only: a mask pair or none
+        files.update(mask_left=ml, mask_right=mr)
+    calib, calib_right = _calibration(root, folder, stem)
+    return Frame(
+        id=fid,
+        kind="simulated" if gt is not None else "real",
+        calibration=calib,
+        calibration_right=calib_right,
+        ground_truth=gt,
+        **files,  # type: ignore[arg-type]
+    )
+
+
+def _calibration(root: Path, folder: Path, stem: str) -> tuple[Path, Path | None]:
+    own = folder / f"{stem}.calib.yaml"
     if own.exists():
-        return own
+        return own, None
+    d = folder
+    while True:
+        for name in FOLDER_CALIBRATIONS:
+            if (d / name).exists():
+                return d / name, None
+        if all((d / n).exists() for n in ROS_PAIR):
+            return d / ROS_PAIR[0], d / ROS_PAIR[1]
+        if d.parent.name == "simulated" or d.name == "simulated":
+            paper = _sim_calibration(d if d.name == "simulated" else d.parent, folder)
+            if paper.exists():
+                return paper, None
+        if d == root or root not in d.parents:
+            break
+        d = d.parent
+    return folder / FOLDER_CALIBRATIONS[0], None  # missing: load_frame names it
+
+
+def _sim_calibration(sim: Path, group: Path) -> Path:
     m = re.search(r"(\d+)$", group.name)
     n = int(m.group(1)) if m else 0
     name = "blend_calibration.yaml" if n <= PAPER_OLD_GROUPS else "blend_calibration_new.yaml"
@@ -114,14 +231,47 @@ def frame_unit(calibration: Path) -> str | None:
 
 
 def load_frame(frame: Frame) -> tuple[StereoPair, StereoCalibration, np.ndarray | None]:
-    """The pair, its calibration and the dense ground-truth curve (calib units) if any."""
-    calib = load_calibration(frame.calibration, unit=frame_unit(frame.calibration))
+    """The pair the pipeline runs on, its calibration and the dense ground-truth curve (calib
+    units) if any. A raw pair is undistorted and rectified here (core/rectify.py): the pair and
+    calibration returned are the rectified ones and the ground truth is moved from the left
+    camera frame into the left rectified frame, where the pipeline's points are."""
+    calib = frame_calibration(frame)
     if frame.stereo is not None:
         pair = load_pair(stereo=frame.stereo, mask=frame.mask)
     else:
-        pair = load_pair(left=frame.left, right=frame.right)
+        pair = load_pair(
+            left=frame.left, right=frame.right, mask_left=frame.mask_left,
+            mask_right=frame.mask_right,
+        )  # fmt: skip
+    pair, calib_rect, rect = prepare_pair(pair, calib)
     gt = load_ground_truth(frame.ground_truth) if frame.ground_truth is not None else None
-    return pair, calib, gt
+    if gt is not None and not rect.identity:
+        gt = from_left_frame(gt, rect)
+    return pair, calib_rect, gt
+
+
+def frame_calibration(frame: Frame) -> StereoCalibration:
+    """The frame's calibration as its file(s) say (before any rectification)."""
+    return load_calibration(
+        frame.calibration, unit=frame_unit(frame.calibration), right=frame.calibration_right
+    )
+
+
+def frame_rectification(frame: Frame) -> Rectification:
+    """How the frame's pair is rectified on load (identity for a rectified pair); cached per
+    calibration, so asking again costs a file read."""
+    return rectification(frame_calibration(frame))
+
+
+def frame_inputs(frame: Frame) -> list[InputFile]:
+    """The frame's files with their roles and SHA-256, for the result JSON's provenance."""
+    roles = ("stereo", "left", "right", "mask", "mask_left", "mask_right", "calibration",
+             "calibration_right")  # fmt: skip
+    return [
+        InputFile.of_file(role, path)
+        for role in roles
+        if (path := getattr(frame, role)) is not None and path.exists()
+    ]
 
 
 METRIC_COLUMNS = (

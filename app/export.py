@@ -1,21 +1,37 @@
-"""Downloads of one frame's reconstruction: the final spline (JSON, CSV) and point clouds (PLY).
+"""Outputs of one frame's reconstruction: the result JSON (one schema for the CLI, the Python
+API and the page: ``docs/result.schema.json``), the curve as CSV and as a PLY polyline, and
+point clouds (PLY).
 
-Every 3D point is in the left rectified camera frame (OpenCV: x right, y down, z forward), in
-the calibration's unit: the stereo points and keypoints come from Q, Eqs. (4)-(5), the spline
-from G, Eq. (9), both of the same rectified left camera.
+The pipeline's 3D points are in the left rectified camera frame (OpenCV: x right, y down,
+z forward), in the calibration's unit: the stereo points and keypoints come from Q,
+Eqs. (4)-(5), the spline from G, Eq. (9). The result JSON reports them in the left camera's
+own frame by default (``frame="left"``: R_1^T p, core/rectify.py; the same as the rectified
+frame when the input pair was already rectified) or in ``"left_rectified"``.
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from app.presets import params_hash
 from core.pipeline import Reconstruction
+from core.rectify import FRAMES, Frame, Rectification, in_frame
+
+SCHEMA_ID = "threadrecon-result/1"
+"""Value of the ``schema`` field; bumped when a field changes meaning."""
+FRAME_DESCRIPTIONS = {
+    "left": "left camera's own (unrectified) frame, OpenCV axes: x right, y down, z forward",
+    "left_rectified": "left rectified camera frame, OpenCV axes: x right, y down, z forward",
+}
 
 LAYERS = ("stereo", "reliable", "keypoints", "spline")
 """Point-cloud layers of :func:`cloud_ply`."""
@@ -49,33 +65,144 @@ def json_safe(obj: Any) -> Any:
     return obj
 
 
-def spline_json(rec: Reconstruction) -> dict[str, Any]:
-    """The final spline and the keypoints it was fitted to, JSON-safe.
+@dataclass(frozen=True)
+class InputFile:
+    """One input of a reconstruction: its role ("left", "right", "stereo", "mask", "mask_left",
+    "mask_right", "calibration", "calibration_right"), file name (None for an array given in
+    memory) and the SHA-256 of its bytes (of the array's bytes for an array)."""
 
-    ``points``: (n, 3) dense centerline; ``control_points``, ``knots``, ``degree``: the
-    B-spline over u in [0, 1]; ``length`` in ``unit``. ``keypoints``: ``points`` (K, 3)
-    cluster centroids (the set K), ``reliability`` (K,) mean R of Eq. (6) over each cluster,
-    ``size`` (K,) px, ``rank`` (K,) position along the ordered curve (None: dropped branch).
-    ``fallback`` is True when the MVS fit was rejected and the curve is the initial spline.
-    Raises ValueError when there is no final spline.
+    role: str
+    name: str | None
+    sha256: str
+
+    @classmethod
+    def of_file(cls, role: str, path: str | Path) -> InputFile:
+        path = Path(path)
+        h = hashlib.sha256()
+        with path.open("rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+        return cls(role, path.name, h.hexdigest())
+
+    @classmethod
+    def of_array(cls, role: str, array: np.ndarray) -> InputFile:
+        a = np.ascontiguousarray(array)
+        h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
+        h.update(a.tobytes())
+        return cls(role, None, h.hexdigest())
+
+    def to_json(self) -> dict[str, Any]:
+        return {"role": self.role, "name": self.name, "sha256": self.sha256}
+
+
+def software_version() -> str:
+    """The installed ``threadrecon`` distribution's version, else pyproject.toml's."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("threadrecon")
+    except metadata.PackageNotFoundError:
+        import tomllib
+
+        pyproject = Path(__file__).resolve().parent.parent / "pyproject.toml"
+        try:
+            return str(tomllib.loads(pyproject.read_text())["project"]["version"])
+        except (OSError, KeyError, tomllib.TOMLDecodeError):
+            return "unknown"
+
+
+def result_json(
+    rec: Reconstruction,
+    rect: Rectification | None = None,
+    frame: Frame = "left",
+    preset: str | None = None,
+    inputs: Sequence[InputFile] = (),
+) -> dict[str, Any]:
+    """The one JSON of a reconstruction (schema ``docs/result.schema.json``), JSON-safe.
+
+    ``status`` "ok" or "failed" with ``reasons`` (one line each) and ``error`` (their join);
+    ``frame`` and ``unit`` of every 3D value; ``points`` (n, 3) dense centerline,
+    ``control_points``, ``knots``, ``degree`` (B-spline over u in [0, 1]), ``length``: None
+    when there is no final spline; ``confidence`` (n,) per point when the pipeline gives one;
+    ``keypoints`` as :func:`_keypoints`; ``timings_ms`` per stage; provenance: ``preset``,
+    ``params_hash``, ``params`` (every parameter), ``inputs``, ``software``, and the
+    ``rectification`` that was applied (``R1``: left -> left rectified, p_rect = R1 p_left).
+    ``rect`` None means the pair was rectified already (identity).
     """
-    _require(rec, "camera", "no final spline")
-    cam = rec["camera"]
-    spline = rec["spline"]
+    if frame not in FRAMES:
+        raise ValueError(f"frame must be one of {', '.join(FRAMES)}, got {frame!r}")
+    R1 = np.eye(3) if rect is None else rect.R1
+
+    def moved(points: np.ndarray) -> np.ndarray:
+        if rect is None or frame == "left_rectified":
+            return points
+        return in_frame(points, rect, frame)
+
+    message = rec.message
     out: dict[str, Any] = {
+        "schema": SCHEMA_ID,
+        "software": {"name": "threadrecon", "version": software_version()},
         "status": rec.status,
-        "error": rec.message,
-        "fallback": not spline.ok,
-        "spline_status": spline.status,
-        "unit": cam.unit,
-        "degree": cam.degree,
-        "knots": cam.knots,
-        "control_points": cam.ctrl,
-        "points": cam.points,
-        "length": cam.length,
-        "keypoints": _keypoints(rec),
+        "reasons": [] if message is None else [message],
+        "error": message,
+        "failed_stage": rec.failed_stage,
+        "frame": frame,
+        "frame_description": FRAME_DESCRIPTIONS[frame],
+        "unit": None,
+        "points": None,
+        "control_points": None,
+        "knots": None,
+        "degree": None,
+        "length": None,
+        "confidence": None,
+        "fallback": None,
+        "spline_status": None,
+        "keypoints": None,
+        "n_keypoints": rec["clustering"].count if "clustering" in rec.runs else None,
+        "n_reliable": rec["reliability"].count if "reliability" in rec.runs else None,
+        "timings_ms": {k: round(v, 3) for k, v in rec.timings_ms.items()},
+        "preset": preset,
+        "params_hash": params_hash(rec.params),
+        "params": rec.params.to_dict(),
+        "inputs": [i.to_json() for i in inputs],
+        "rectification": {
+            "applied": rect is not None and not rect.identity,
+            "R1": R1,
+        },
     }
+    if "camera" in rec.runs:
+        cam = rec["camera"]
+        spline = rec["spline"]
+        confidence = getattr(cam, "confidence", None)
+        out.update(
+            unit=cam.unit,
+            points=moved(cam.points),
+            control_points=moved(cam.ctrl),  # a rotation maps a B-spline's control points
+            knots=cam.knots,
+            degree=cam.degree,
+            length=cam.length,
+            confidence=None if confidence is None else np.asarray(confidence, dtype=float),
+            fallback=not spline.ok,
+            spline_status=spline.status,
+        )
+    if "clustering" in rec.runs and "reliability" in rec.runs:
+        kp = _keypoints(rec)
+        kp["points"] = moved(kp["points"]) if len(kp["points"]) else kp["points"]
+        out["keypoints"] = kp
     return json_safe(out)
+
+
+def spline_json(
+    rec: Reconstruction,
+    rect: Rectification | None = None,
+    frame: Frame = "left",
+    preset: str | None = None,
+    inputs: Sequence[InputFile] = (),
+) -> dict[str, Any]:
+    """:func:`result_json` of a reconstruction that has a final spline (the page's download).
+    Raises ValueError when there is no final spline."""
+    _require(rec, "camera", "no final spline")
+    return result_json(rec, rect, frame, preset, inputs)
 
 
 def _keypoints(rec: Reconstruction) -> dict[str, Any]:
@@ -111,10 +238,15 @@ def spline_csv(rec: Reconstruction) -> str:
 
 
 def ply_bytes(
-    points: np.ndarray, colors: np.ndarray | None = None, comments: Sequence[str] = ()
+    points: np.ndarray,
+    colors: np.ndarray | None = None,
+    comments: Sequence[str] = (),
+    edges: np.ndarray | None = None,
 ) -> bytes:
     """Binary little-endian PLY of ``points`` (N, 3) finite, as float32 x y z, and ``colors``
-    (N, 3) uint8 as uchar red green blue (grey when None); ``comments`` go in the header."""
+    (N, 3) uint8 as uchar red green blue (grey when None); ``comments`` go in the header.
+    ``edges`` (E, 2) vertex indices become an ``edge`` element (int vertex1, vertex2): a line
+    set in Open3D, trimesh and plyfile."""
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
@@ -127,6 +259,16 @@ def ply_bytes(
         raise ValueError(f"colors must have shape {pts.shape} like points, got {colors.shape}")
     if colors.dtype != np.uint8:
         raise ValueError(f"colors must be uint8, got {colors.dtype}")
+    edge_block = b""
+    edge_header: list[str] = []
+    if edges is not None:
+        e = np.asarray(edges)
+        if e.ndim != 2 or e.shape[1] != 2 or not np.issubdtype(e.dtype, np.integer):
+            raise ValueError(f"edges must be (E, 2) integers, got {e.shape} {e.dtype}")
+        if e.size and (e.min() < 0 or e.max() >= len(pts)):
+            raise ValueError(f"edges must index the {len(pts)} vertices")
+        edge_block = e.astype("<i4").tobytes()
+        edge_header = [f"element edge {len(e)}", "property int vertex1", "property int vertex2"]
     for c in comments:
         if "\n" in c or "\r" in c:
             raise ValueError(f"a PLY comment must be one line, got {c!r}")
@@ -142,9 +284,27 @@ def ply_bytes(
         f"element vertex {len(pts)}",
         *(f"property float {a}" for a in "xyz"),
         *(f"property uchar {c}" for c in ("red", "green", "blue")),
+        *edge_header,
         "end_header",
     ]
-    return ("\n".join(header) + "\n").encode("ascii") + vertices.tobytes()
+    return ("\n".join(header) + "\n").encode("ascii") + vertices.tobytes() + edge_block
+
+
+def polyline_ply(
+    points: np.ndarray, unit: str, frame: str = "left", comments: Sequence[str] = ()
+) -> bytes:
+    """The curve ``points`` (n, 3) as a PLY polyline: n vertices coloured from cyan (u = 0) to
+    magenta (u = 1) and n - 1 edges (i, i + 1)."""
+    pts = np.asarray(points)
+    u = np.linspace(0.0, 1.0, len(pts))[:, None]
+    ramp = (1 - u) * np.array(SPLINE_START_RGB) + u * np.array(SPLINE_END_RGB)
+    idx = np.arange(max(len(pts) - 1, 0))
+    return ply_bytes(
+        pts,
+        np.round(ramp).astype(np.uint8),
+        ("threadrecon curve", f"unit {unit}", f"frame {frame}", *comments),
+        edges=np.stack([idx, idx + 1], axis=1),
+    )
 
 
 def cloud_ply(rec: Reconstruction, layer: str) -> bytes:
@@ -153,8 +313,8 @@ def cloud_ply(rec: Reconstruction, layer: str) -> bytes:
     ``stereo``: every segmented left pixel's 3D point (Eqs. (4)-(5); pixels without a positive
     disparity are left out), coloured by reliability R (red 0 .. yellow .. green 1);
     ``reliable``: the reliable pixels P_L^R only, same colours; ``keypoints``: the cluster
-    centroids K, coloured by their mean R; ``spline``: the dense final centerline, coloured
-    from cyan (u = 0) to magenta (u = 1).
+    centroids K, coloured by their mean R; ``spline``: the dense final centerline as a
+    polyline (:func:`polyline_ply`). All in the left rectified frame (the 3D view's).
     """
     if layer not in LAYERS:
         raise ValueError(f"unknown layer {layer!r} (known: {', '.join(LAYERS)})")
@@ -170,12 +330,12 @@ def cloud_ply(rec: Reconstruction, layer: str) -> bytes:
         kp = _keypoints(rec)
         pts, colors = kp["points"], reliability_colors(kp["reliability"])
     else:
-        pts = rec["camera"].points
-        u = np.linspace(0.0, 1.0, len(pts))[:, None]
-        ramp = (1 - u) * np.array(SPLINE_START_RGB) + u * np.array(SPLINE_END_RGB)
-        colors = np.round(ramp).astype(np.uint8)
+        cam = rec["camera"]
+        return polyline_ply(
+            cam.points, cam.unit, "left_rectified", comments=(f"threadrecon layer {layer}",)
+        )
     unit = rec["camera"].unit if "camera" in rec.runs else "calibration units"
-    comments = (f"threadrecon layer {layer}", f"unit {unit}", "frame left rectified camera")
+    comments = (f"threadrecon layer {layer}", f"unit {unit}", "frame left_rectified")
     return ply_bytes(pts, colors, comments)
 
 

@@ -1,4 +1,12 @@
-"""Reading images, calibrations and ground truth from disk (the core itself does no I/O)."""
+"""Reading images, calibrations and ground truth from disk (the core itself does no I/O), and
+the load step that undistorts and rectifies a raw pair before the pipeline (core/rectify.py).
+
+Calibration files: OpenCV FileStorage YAML (K1 D1 K2 D2 R T ImageSize, optional Units and
+Rectified), a Kalibr ``camchain.yaml`` (cam0 = left, cam1 = right), or the two ROS
+``camera_info`` YAML files of a stereo pair (left file, and ``right=`` the right one).
+Lengths: OpenCV files state ``Units`` or take ``unit`` (default mm); Kalibr and ROS files are
+in metres unless ``unit`` says otherwise.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +16,14 @@ import cv2
 import numpy as np
 from scipy.interpolate import BSpline
 
-from core.calibration import CalibrationError, StereoCalibration, parse_calibration
+from core.calibration import (
+    CalibrationError,
+    StereoCalibration,
+    from_kalibr_camchain,
+    from_ros_camera_info,
+    parse_calibration,
+)
+from core.rectify import Rectification, rectification, rectify_pair
 from core.segmentation import StereoPair, split_side_by_side
 
 GT_SAMPLES = 2000  # dense samples of a ground-truth spline for the curve metrics
@@ -60,19 +75,70 @@ def load_pair(
     return StereoPair(L, R, mL, mR)
 
 
-def load_calibration(path: str | Path, unit: str | None = None) -> StereoCalibration:
-    """Read an OpenCV FileStorage calibration; errors name the file and the key."""
+def load_calibration(
+    path: str | Path, unit: str | None = None, right: str | Path | None = None
+) -> StereoCalibration:
+    """Read a stereo calibration; errors name the file and the key.
+
+    ``path``: OpenCV FileStorage YAML, a Kalibr camchain, or (with ``right``) the left ROS
+    camera_info YAML. The format is told from the content.
+    """
     path = Path(path)
+    text = _read_text(path)
+    if right is not None:
+        right = Path(right)
+        return from_ros_camera_info(
+            _yaml(text, path), _yaml(_read_text(right), right), unit=unit,
+            source=f"{path} + {right}",
+        )  # fmt: skip
+    if text.lstrip().startswith("%YAML:") or "!!opencv-matrix" in text:
+        return _opencv(text, path, unit)
+    data = _yaml(text, path) if text.strip() else None
+    if isinstance(data, dict) and "cam0" in data:
+        return from_kalibr_camchain(data, unit=unit, source=str(path))
+    if isinstance(data, dict) and any(k in data for k in ("camera_matrix", "K", "k")):
+        raise CalibrationError(
+            f"{path}: a ROS camera_info describes one camera: give the right camera's file "
+            "too (--calib-right)"
+        )
+    return _opencv(text, path, unit)
+
+
+def _read_text(path: Path) -> str:
     try:
-        text = path.read_text()
+        return path.read_text()
     except OSError as exc:
         raise CalibrationError(
             f"{path}: cannot read calibration file ({exc.strerror or exc})"
         ) from None
+    except UnicodeDecodeError:
+        raise CalibrationError(f"{path}: not a text calibration file") from None
+
+
+def _opencv(text: str, path: Path, unit: str | None) -> StereoCalibration:
     try:
         return parse_calibration(text, source=str(path), unit=unit)
     except cv2.error as exc:
         raise CalibrationError(f"{path}: malformed calibration file ({exc.err})") from None
+
+
+def _yaml(text: str, path: Path) -> object:
+    import yaml  # PyYAML: ROS and Kalibr files are plain YAML, not OpenCV FileStorage
+
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise CalibrationError(f"{path}: not a YAML file ({str(exc).splitlines()[0]})") from None
+
+
+def prepare_pair(
+    pair: StereoPair, calib: StereoCalibration
+) -> tuple[StereoPair, StereoCalibration, Rectification]:
+    """The load step: the pair the pipeline runs on (undistorted and rectified when the
+    calibration says the images are raw), its calibration, and the rectification (identity
+    for an already rectified pair) that maps results back to the left camera frame."""
+    rect = rectification(calib)
+    return rectify_pair(pair, rect), rect.calib, rect
 
 
 def ground_truth_curve(ctrl: np.ndarray, n: int = GT_SAMPLES) -> np.ndarray:

@@ -28,7 +28,7 @@ from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel
 
 from app.controls import controls
-from app.dataset import METRIC_COLUMNS
+from app.dataset import METRIC_COLUMNS, frame_inputs, frame_rectification
 from app.evaluation import evaluate_frame
 from app.export import LAYERS as EXPORT_LAYERS
 from app.export import cloud_ply, json_safe, spline_csv, spline_json
@@ -659,7 +659,11 @@ def create_app(config: ServerConfig) -> FastAPI:
             raise HTTPException(409, s.load_error or "no reconstruction yet")
         try:
             if name == "spline.json":
-                data = json.dumps(spline_json(rec), indent=1, allow_nan=False).encode()
+                result = spline_json(  # the CLI's schema, in the left camera frame
+                    rec, frame_rectification(loaded.frame), "left", s.preset,
+                    frame_inputs(loaded.frame),
+                )  # fmt: skip
+                data = json.dumps(result, indent=1, allow_nan=False).encode()
             elif name == "spline.csv":
                 data = spline_csv(rec).encode()
             else:

@@ -30,7 +30,11 @@ class StereoCalibration:
     ``P1``, ``P2``: (3, 4) projection matrices of the rectified left and right cameras.
     ``Q``: (4, 4) disparity-to-depth matrix, Eq. (4).
     ``image_size``: (rows, cols) in px.
-    ``unit``: length unit of ``T`` and of every reconstructed point ("mm" or "cm").
+    ``unit``: length unit of ``T`` and of every reconstructed point ("mm", "cm" or "m").
+    ``rectified``: whether the images this calibration describes are already undistorted and
+    rectified. ``None`` (default): decided from the numbers by
+    :func:`core.rectify.needs_rectification` (D1 = D2 = 0, R = I, K1 = K2 up to the rectified
+    cameras); ``False`` forces the load step to undistort and rectify; ``True`` forbids it.
     """
 
     K1: np.ndarray
@@ -44,6 +48,7 @@ class StereoCalibration:
     P2: np.ndarray
     Q: np.ndarray
     unit: str = "mm"
+    rectified: bool | None = None
 
     @property
     def G(self) -> np.ndarray:
@@ -82,8 +87,13 @@ def make_calibration(
     image_size: tuple[int, int],
     unit: str = "mm",
     source: str = "calibration",
+    rectified: bool | None = None,
 ) -> StereoCalibration:
-    """Build a :class:`StereoCalibration`; ``image_size`` is (rows, cols)."""
+    """Build a :class:`StereoCalibration`; ``image_size`` is (rows, cols).
+
+    OpenCV's stereo convention: a point p_left in the left camera frame is
+    p_right = R p_left + T in the right camera frame; ``T`` in ``unit``.
+    """
     shapes = {"K1": (3, 3), "K2": (3, 3), "R": (3, 3)}
     arrays = {"K1": K1, "D1": D1, "K2": K2, "D2": D2, "R": R, "T": T}
     clean: dict[str, np.ndarray] = {}
@@ -128,6 +138,7 @@ def make_calibration(
         P2=P2,
         Q=Q,
         unit=unit,
+        rectified=rectified,
     )
 
 
@@ -137,6 +148,7 @@ def parse_calibration(
     """Parse OpenCV FileStorage YAML text (keys K1, D1, K2, D2, R, T, ImageSize [rows, cols]).
 
     The optional string key ``Units`` gives the length unit; without it ``unit`` (default "mm").
+    The optional key ``Rectified`` (0 or 1) sets :attr:`StereoCalibration.rectified`.
     """
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
@@ -165,6 +177,8 @@ def parse_calibration(
         file_unit = (
             units_node.string() if not units_node.empty() and units_node.isString() else None
         )
+        rect_node = fs.getNode("Rectified")
+        rectified = None if rect_node.empty() or rect_node.isNone() else bool(rect_node.real())
     finally:
         fs.release()
     return make_calibration(
@@ -177,4 +191,161 @@ def parse_calibration(
         (int(size[0]), int(size[1])),
         unit=file_unit or unit or "mm",
         source=source,
+        rectified=rectified,
     )
+
+
+# --- ROS camera_info and Kalibr camchain (already parsed from YAML by the app) ---------------
+
+ROS_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")  # OpenCV's own D layout
+KALIBR_LENGTH_UNIT = "m"  # Kalibr writes T_cn_cnm1 in metres
+ROS_LENGTH_UNIT = "m"  # REP 103: ROS lengths are metres unless the file's author says otherwise
+
+
+def from_ros_camera_info(
+    left: dict, right: dict, unit: str | None = None, source: str = "camera_info"
+) -> StereoCalibration:
+    """A stereo calibration from the two ``sensor_msgs/CameraInfo`` of a ROS stereo rig.
+
+    ``left``, ``right``: the YAML of ``camera_calibration`` (``image_width``, ``image_height``,
+    ``camera_matrix``, ``distortion_model``, ``distortion_coefficients``,
+    ``rectification_matrix``, ``projection_matrix``; each matrix a ``{rows, cols, data}`` map)
+    or the message's own fields (``width``, ``height``, ``K``, ``D``, ``R``, ``P``). ROS gives
+    each camera's rectifying rotation R_i (p_rect_i = R_i p_i) and the rectified right
+    projection P_2 = K' [I | t], t = (T_x, 0, 0); then R = R_2^T R_1 and T = R_2^T t.
+    ``unit``: the unit of T_x (the files do not say; default metres, ROS's convention).
+    The images they describe are the raw ones: ``rectified`` is left to the numbers.
+    """
+    cams = []
+    for side, info in (("left", left), ("right", right)):
+        where = f"{source} ({side})"
+        if not isinstance(info, dict):
+            raise CalibrationError(f"{where}: not a camera_info mapping")
+        size = (_ros_field(info, where, "image_height", "height"),
+                _ros_field(info, where, "image_width", "width"))  # fmt: skip
+        K = _ros_matrix(info, where, ("camera_matrix", "K", "k"), (3, 3))
+        D = _ros_matrix(info, where, ("distortion_coefficients", "D", "d"), None).ravel()
+        Rr = _ros_matrix(info, where, ("rectification_matrix", "R", "r"), (3, 3))
+        P = _ros_matrix(info, where, ("projection_matrix", "P", "p"), (3, 4))
+        model = info.get("distortion_model", "plumb_bob")
+        if model not in ROS_DISTORTION_MODELS:
+            raise CalibrationError(
+                f"{where}: distortion_model {model!r} is not supported "
+                f"(supported: {', '.join(ROS_DISTORTION_MODELS)})"
+            )
+        if D.size == 0:
+            D = np.zeros(5)
+        cams.append((tuple(int(v) for v in size), K, D, Rr, P))
+    (size1, K1, D1, R1, P1), (size2, K2, D2, R2, P2) = cams
+    if size1 != size2:
+        raise CalibrationError(f"{source}: left image is {size1} px but right is {size2} px")
+    if abs(P1[0, 3]) > 1e-9 * abs(P1[0, 0]) or abs(P1[1, 3]) > 1e-9 * abs(P1[1, 1]):
+        raise CalibrationError(f"{source}: the left projection_matrix must have P[0:2, 3] = 0")
+    if abs(P2[1, 3]) > 1e-9 * abs(P2[1, 1]) or abs(P2[2, 3]) > 1e-12:
+        raise CalibrationError(
+            f"{source}: only horizontal stereo is supported (right P[1, 3] and P[2, 3] must be 0)"
+        )
+    if P2[0, 3] == 0:
+        raise CalibrationError(
+            f"{source}: the right projection_matrix has P[0, 3] = 0 (no baseline): "
+            "give the right camera's camera_info, not the left's twice"
+        )
+    t = np.array([P2[0, 3] / P2[0, 0], 0.0, 0.0])
+    for name, Ri in (("left", R1), ("right", R2)):
+        if not np.allclose(Ri @ Ri.T, np.eye(3), atol=1e-6) or np.linalg.det(Ri) <= 0:
+            raise CalibrationError(f"{source} ({name}): rectification_matrix is not a rotation")
+    return make_calibration(
+        K1, D1, K2, D2, R2.T @ R1, R2.T @ t, size1,
+        unit=unit or ROS_LENGTH_UNIT, source=source,
+    )  # fmt: skip
+
+
+def from_kalibr_camchain(
+    chain: dict, unit: str | None = None, source: str = "camchain"
+) -> StereoCalibration:
+    """A stereo calibration from a Kalibr ``camchain.yaml`` (``cam0`` left, ``cam1`` right).
+
+    Each camera: ``camera_model: pinhole``, ``intrinsics: [fu, fv, pu, pv]``,
+    ``distortion_model`` ``radtan`` (D = [k1, k2, p1, p2]) or ``none``, ``resolution:
+    [width, height]``; ``cam1.T_cn_cnm1`` (4x4) maps cam0 points into cam1, which is OpenCV's
+    [R | T]. ``unit``: the unit of its translation (default metres, Kalibr's unit).
+    """
+    if not isinstance(chain, dict):
+        raise CalibrationError(f"{source}: not a Kalibr camchain mapping")
+    cams = []
+    for name in ("cam0", "cam1"):
+        cam = chain.get(name)
+        where = f"{source} ({name})"
+        if not isinstance(cam, dict):
+            raise CalibrationError(f"{source}: missing key {name}")
+        if cam.get("camera_model", "pinhole") != "pinhole":
+            raise CalibrationError(
+                f"{where}: camera_model {cam.get('camera_model')!r} is not supported (pinhole)"
+            )
+        intr = _as_array(cam.get("intrinsics"), where, "intrinsics")
+        if intr.size != 4:
+            raise CalibrationError(f"{where}: intrinsics must be [fu, fv, pu, pv]")
+        model = cam.get("distortion_model", "none")
+        if model == "radtan":
+            D = _as_array(cam.get("distortion_coeffs"), where, "distortion_coeffs")
+            if D.size != 4:
+                raise CalibrationError(f"{where}: radtan distortion_coeffs must have 4 values")
+        elif model == "none":
+            D = np.zeros(4)
+        else:
+            raise CalibrationError(
+                f"{where}: distortion_model {model!r} is not supported (radtan or none)"
+            )
+        res = _as_array(cam.get("resolution"), where, "resolution")
+        if res.size != 2:
+            raise CalibrationError(f"{where}: resolution must be [width, height]")
+        K = np.array([[intr[0], 0.0, intr[2]], [0.0, intr[1], intr[3]], [0.0, 0.0, 1.0]])
+        cams.append((K, D, (int(res[1]), int(res[0]))))
+    T_cn = _as_array(chain["cam1"].get("T_cn_cnm1"), f"{source} (cam1)", "T_cn_cnm1")
+    if T_cn.shape != (4, 4):
+        raise CalibrationError(f"{source} (cam1): T_cn_cnm1 must be 4x4, got {T_cn.shape}")
+    (K1, D1, size1), (K2, D2, size2) = cams
+    if size1 != size2:
+        raise CalibrationError(f"{source}: cam0 is {size1} px but cam1 is {size2} px")
+    return make_calibration(
+        K1, D1, K2, D2, T_cn[:3, :3], T_cn[:3, 3], size1,
+        unit=unit or KALIBR_LENGTH_UNIT, source=source,
+    )  # fmt: skip
+
+
+def _as_array(value: object, where: str, key: str) -> np.ndarray:
+    if value is None:
+        raise CalibrationError(f"{where}: missing key {key}")
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{where}: key {key} is not numeric") from None
+    return a
+
+
+def _ros_field(info: dict, where: str, *keys: str) -> int:
+    for key in keys:
+        if key in info:
+            try:
+                return int(info[key])
+            except (TypeError, ValueError):
+                raise CalibrationError(f"{where}: key {key} is not an integer") from None
+    raise CalibrationError(f"{where}: missing key {keys[0]}")
+
+
+def _ros_matrix(
+    info: dict, where: str, keys: tuple[str, ...], shape: tuple[int, int] | None
+) -> np.ndarray:
+    key = next((k for k in keys if k in info), None)
+    if key is None:
+        raise CalibrationError(f"{where}: missing key {keys[0]}")
+    value = info[key]
+    data = value.get("data") if isinstance(value, dict) else value
+    a = _as_array(data, where, key)
+    if shape is not None:
+        if a.size != shape[0] * shape[1]:
+            raise CalibrationError(
+                f"{where}: key {key} must have {shape[0]}x{shape[1]} values, got {a.size}"
+            )
+        a = a.reshape(shape)
+    return a

@@ -1,27 +1,39 @@
-"""Exports of a reconstruction: spline JSON/CSV and PLY clouds read back equal what was stored."""
+"""Exports of a reconstruction: spline JSON/CSV and PLY clouds read back equal what was stored;
+the result JSON validates against docs/result.schema.json; the curve PLY is a line set."""
 
 from __future__ import annotations
 
 import csv
 import io
 import json
+from pathlib import Path
 
+import jsonschema
 import numpy as np
 import pytest
+import trimesh
+from plyfile import PlyData
+from rig_support import raw_rig
 from support import assert_close, synthetic_case
 
 from app.export import (
     LAYERS,
     SPLINE_END_RGB,
     SPLINE_START_RGB,
+    InputFile,
     cloud_ply,
     json_safe,
     ply_bytes,
+    polyline_ply,
     reliability_colors,
+    result_json,
+    software_version,
     spline_csv,
     spline_json,
 )
+from app.presets import params_hash
 from core.pipeline import Pipeline, Reconstruction, reconstruct
+from core.rectify import rectification, rectify_pair
 from core.segmentation import StereoPair
 
 
@@ -43,16 +55,10 @@ def failed() -> Reconstruction:
 
 
 def read_ply(data: bytes) -> tuple[list[str], np.ndarray]:
-    """A minimal reader of the binary PLY that ply_bytes writes: header lines and vertices."""
-    end = data.index(b"end_header\n") + len(b"end_header\n")
-    header = data[:end].decode("ascii").splitlines()
-    assert header[:2] == ["ply", "format binary_little_endian 1.0"]
-    n = int(next(line for line in header if line.startswith("element vertex")).split()[-1])
-    types = {"float": "<f4", "uchar": "u1"}
-    props = [line.split() for line in header if line.startswith("property")]
-    dtype = np.dtype([(name, types[t]) for _, t, name in props])
-    assert len(data) - end == n * dtype.itemsize
-    return header, np.frombuffer(data, dtype=dtype, offset=end)
+    """Header lines and vertices of a PLY, read by plyfile (an independent reader)."""
+    ply = PlyData.read(io.BytesIO(data))
+    assert ply.header.splitlines()[:2] == ["ply", "format binary_little_endian 1.0"]
+    return ply.header.splitlines(), ply["vertex"].data
 
 
 def xyz(v: np.ndarray) -> np.ndarray:
@@ -187,3 +193,94 @@ def test_json_safe_replaces_non_finite_and_numpy() -> None:
     got = json_safe({"a": np.array([1.0, np.nan]), "b": (np.int64(3), np.float32(np.inf))})
     assert got == {"a": [1.0, None], "b": [3, None]}
     assert type(got["b"][0]) is int
+
+
+# --- the one result schema and the PLY polyline ------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def schema() -> dict:
+    path = Path(__file__).resolve().parents[2] / "docs" / "result.schema.json"
+    data = json.loads(path.read_text())
+    jsonschema.Draft202012Validator.check_schema(data)
+    return data
+
+
+def test_result_json_of_ok_and_failed_reconstructions_validates(
+    rec: Reconstruction, failed: Reconstruction, schema: dict
+) -> None:
+    inputs = [InputFile.of_array("left", np.zeros((4, 4), np.uint8))]
+    for r in (rec, failed):
+        data = json.loads(
+            json.dumps(result_json(r, preset="default", inputs=inputs), allow_nan=False)
+        )
+        jsonschema.validate(data, schema)
+    ok = result_json(rec, preset="default", inputs=inputs)
+    assert ok["status"] == "ok" and ok["reasons"] == [] and ok["frame"] == "left"
+    assert ok["params_hash"] == params_hash(rec.params) and ok["params"] == json_safe(
+        rec.params.to_dict()
+    )
+    assert ok["software"]["version"] == software_version() != "unknown"
+    assert (
+        ok["inputs"][0]["sha256"] == InputFile.of_array("left", np.zeros((4, 4), np.uint8)).sha256
+    )
+    bad = result_json(failed)
+    assert (
+        bad["status"] == "failed" and bad["points"] is None and bad["reasons"] == [failed.message]
+    )
+
+
+def test_schema_rejects_a_result_with_a_missing_or_wrong_field(
+    rec: Reconstruction, schema: dict
+) -> None:
+    data = result_json(rec)
+    for broken in (
+        {k: v for k, v in data.items() if k != "params_hash"},
+        {**data, "frame": "right"},
+        {**data, "points": [[1.0, 2.0]]},
+        {**data, "surprise": 1},
+    ):
+        with pytest.raises(jsonschema.ValidationError):
+            jsonschema.validate(broken, schema)
+
+
+def test_result_json_reports_the_left_frame_through_R1_or_the_rectified_one() -> None:
+    rig = raw_rig(0)
+    rect = rectification(rig.calib)
+    r = reconstruct(rectify_pair(rig.pair, rect), rect.calib)
+    left = result_json(r, rect, "left")
+    rectified = result_json(r, rect, "left_rectified")
+    assert_close(np.array(rectified["points"]), r["camera"].points)
+    assert_close(np.array(left["points"]), r["camera"].points @ rect.R1)
+    assert_close(np.array(left["control_points"]), r["camera"].ctrl @ rect.R1)
+    assert left["rectification"]["applied"] is True
+    assert_close(np.array(left["rectification"]["R1"]), rect.R1)
+    assert left["length"] == pytest.approx(rectified["length"])
+    with pytest.raises(ValueError, match="frame must be one of"):
+        result_json(r, rect, "world")  # type: ignore[arg-type]
+
+
+def test_curve_ply_is_a_polyline_line_set(rec: Reconstruction) -> None:
+    pts = rec["camera"].points
+    data = polyline_ply(pts, "mm", "left")
+    ply = PlyData.read(io.BytesIO(data))
+    assert_close(xyz(ply["vertex"].data), pts.astype(np.float32))
+    edges = np.stack([ply["edge"].data["vertex1"], ply["edge"].data["vertex2"]], axis=1)
+    np.testing.assert_array_equal(
+        edges, np.stack([np.arange(len(pts) - 1), np.arange(1, len(pts))], 1)
+    )
+    assert "frame left" in ply.comments and "unit mm" in ply.comments
+    path = trimesh.load(io.BytesIO(data), file_type="ply")
+    assert isinstance(path, trimesh.path.Path3D)  # a line set, not a point cloud
+    assert len(path.vertices) == len(pts)
+    assert path.length == pytest.approx(rec["camera"].length, rel=1e-5)
+    # the page's spline.ply is the same polyline
+    page = PlyData.read(io.BytesIO(cloud_ply(rec, "spline")))
+    assert page["edge"].count == len(pts) - 1
+
+
+def test_ply_edges_are_checked() -> None:
+    with pytest.raises(ValueError, match="index the 3 vertices"):
+        ply_bytes(np.zeros((3, 3)), edges=np.array([[0, 3]]))
+    with pytest.raises(ValueError, match=r"\(E, 2\) integers"):
+        ply_bytes(np.zeros((3, 3)), edges=np.array([[0.0, 1.0]]))

@@ -1,0 +1,216 @@
+"""Undistortion and rectification of a raw calibrated pair, before the pipeline.
+
+The pipeline (Section III of the paper) assumes a rectified pair: the same row in both
+images, disparity along x, Eq. (4). A raw pair (lens distortion D != 0, or cameras rotated
+by R != I) is remapped once with ``cv2.stereoRectify`` + ``cv2.initUndistortRectifyMap``;
+the pipeline then runs on the rectified pair with :attr:`Rectification.calib` (D = 0, R = I),
+and its 3D results are in the left *rectified* camera frame. The left camera's own frame
+differs by the rectifying rotation R_1 (p_rect = R_1 p_left); :func:`to_left_frame` maps
+points back.
+
+Frames: "left" is the left camera's own (unrectified) OpenCV frame, "left_rectified" the
+frame of the rectified left camera; both share the left camera centre and the unit of T.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from core.calibration import StereoCalibration, make_calibration
+from core.segmentation import StereoPair
+
+Frame = Literal["left", "left_rectified"]
+FRAMES: tuple[Frame, ...] = ("left", "left_rectified")
+
+ROTATION_TOL = 1e-9  # |R_i - I| below this: no rotation (float64 round-off of an identity)
+PIXEL_TOL = 1e-3  # px: camera matrices closer than this need no remap (OpenCV rounds cy to f32)
+MAP_CACHE_SIZE = 8  # calibrations whose maps stay cached (4 float32 maps, ~5 MB at 640x480)
+
+
+@dataclass(frozen=True)
+class Rectification:
+    """How a raw pair becomes the rectified pair the pipeline expects.
+
+    ``raw``: the calibration as read; ``calib``: the calibration of the rectified pair
+    (K_i = P_i[:, :3], D = 0, R = I, T = (-B, 0, 0)), what the pipeline gets.
+    ``R1``, ``R2``: (3, 3) rectifying rotations, p_rect_i = R_i p_i.
+    ``maps``: per side (map_x, map_y), (H, W) float32: the raw pixel (x, y) sampled for each
+    rectified pixel; ``None`` when the pair is already rectified (identity).
+    """
+
+    raw: StereoCalibration
+    calib: StereoCalibration
+    R1: np.ndarray
+    R2: np.ndarray
+    maps: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None
+
+    @property
+    def identity(self) -> bool:
+        """True when the raw pair is already rectified (no remap, R1 = I)."""
+        return self.maps is None
+
+
+def needs_rectification(calib: StereoCalibration) -> bool:
+    """Whether images of ``calib`` must be undistorted/rectified before the pipeline.
+
+    ``calib.rectified`` decides when set; otherwise the pair is taken as rectified iff
+    D1 = D2 = 0 and ``cv2.stereoRectify`` would neither rotate the cameras (R_1 = R_2 = I) nor
+    change their camera matrices (P_i[:, :3] = K_i within :data:`PIXEL_TOL`).
+    """
+    if calib.rectified is not None:
+        return not calib.rectified
+    if np.any(calib.D1 != 0) or np.any(calib.D2 != 0):
+        return True
+    R1, R2 = _rectifying_rotations(calib)
+    eye = np.eye(3)
+    if np.abs(R1 - eye).max() > ROTATION_TOL or np.abs(R2 - eye).max() > ROTATION_TOL:
+        return True
+    return bool(
+        np.abs(calib.P1[:, :3] - calib.K1).max() > PIXEL_TOL
+        or np.abs(calib.P2[:, :3] - calib.K2).max() > PIXEL_TOL
+    )
+
+
+_cache: OrderedDict[bytes, Rectification] = OrderedDict()
+_cache_lock = threading.Lock()
+
+
+def rectification(calib: StereoCalibration) -> Rectification:
+    """The :class:`Rectification` of ``calib``: the identity (``calib`` itself) for a rectified
+    pair; otherwise the maps, computed once per calibration (cached by its numbers: K, D, R,
+    T, size, unit, flag)."""
+    if not needs_rectification(calib):  # identity: nothing worth caching, and raw is calib
+        eye = np.eye(3)
+        return Rectification(raw=calib, calib=calib, R1=eye, R2=eye, maps=None)
+    key = _calibration_key(calib)
+    with _cache_lock:
+        hit = _cache.get(key)
+        if hit is not None:
+            _cache.move_to_end(key)
+            return hit
+    out = _compute(calib)
+    with _cache_lock:
+        _cache[key] = out
+        while len(_cache) > MAP_CACHE_SIZE:
+            _cache.popitem(last=False)
+    return out
+
+
+def rectify_pair(pair: StereoPair, rect: Rectification) -> StereoPair:
+    """The rectified pair: images resampled bicubically, masks bilinearly and thresholded at
+    one half. Rectified pixels that see outside the raw image get the image's median colour
+    (the background of a thread image), so that neither an empty black frame nor a thread
+    cut by the raw border and smeared outwards looks like thread; masks are 0 there."""
+    if pair.shape != rect.raw.image_size:
+        raise ValueError(
+            f"images are {pair.shape} px but the calibration is for {rect.raw.image_size}"
+        )
+    if rect.maps is None:
+        return pair
+    views, masks = [], []
+    for img, mask, (mx, my) in (
+        (pair.left, pair.mask_left, rect.maps[0]),
+        (pair.right, pair.mask_right, rect.maps[1]),
+    ):
+        out = cv2.remap(img, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+        outside = _outside(mx, my, img.shape[:2])
+        if outside.any():
+            out[outside] = np.median(img.reshape(-1, *img.shape[2:]), axis=0).astype(img.dtype)
+        views.append(out)
+        if mask is None:
+            masks.append(None)
+            continue
+        m = cv2.remap(mask.astype(np.float32), mx, my, cv2.INTER_LINEAR, borderValue=0.0)
+        masks.append(m >= 0.5)
+    return StereoPair(views[0], views[1], masks[0], masks[1])
+
+
+def _outside(mx: np.ndarray, my: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """(H, W) bool: rectified pixels whose raw sample lies outside the raw image."""
+    h, w = shape[:2]
+    return (mx < -0.5) | (mx > w - 0.5) | (my < -0.5) | (my > h - 0.5)
+
+
+def to_left_frame(points: np.ndarray, rect: Rectification) -> np.ndarray:
+    """(N, 3) points of the left rectified frame -> the left camera's own frame: R_1^T p."""
+    p = _check_points(points)
+    return p @ rect.R1  # rows: (R1^T p)^T = p^T R1
+
+
+def from_left_frame(points: np.ndarray, rect: Rectification) -> np.ndarray:
+    """(N, 3) points of the left camera's own frame -> the left rectified frame: R_1 p."""
+    p = _check_points(points)
+    return p @ rect.R1.T
+
+
+def in_frame(points: np.ndarray, rect: Rectification, frame: Frame) -> np.ndarray:
+    """Points of the left rectified frame expressed in ``frame``."""
+    if frame == "left_rectified":
+        return _check_points(points)
+    if frame == "left":
+        return to_left_frame(points, rect)
+    raise ValueError(f"frame must be one of {', '.join(FRAMES)}, got {frame!r}")
+
+
+# --- helpers ------------------------------------------------------------------------------
+
+
+def _rectifying_rotations(calib: StereoCalibration) -> tuple[np.ndarray, np.ndarray]:
+    rows, cols = calib.image_size
+    R1, R2, *_ = cv2.stereoRectify(
+        calib.K1,
+        calib.D1.reshape(1, -1),
+        calib.K2,
+        calib.D2.reshape(1, -1),
+        (cols, rows),
+        calib.R,
+        calib.T.reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY,
+    )
+    return R1, R2
+
+
+def _compute(calib: StereoCalibration) -> Rectification:
+    R1, R2 = _rectifying_rotations(calib)
+    rows, cols = calib.image_size
+    maps = tuple(
+        cv2.initUndistortRectifyMap(K, D.reshape(1, -1), Ri, P, (cols, rows), cv2.CV_32FC1)
+        for K, D, Ri, P in (
+            (calib.K1, calib.D1, R1, calib.P1),
+            (calib.K2, calib.D2, R2, calib.P2),
+        )
+    )
+    baseline = calib.P2[0, 3] / calib.P2[0, 0]  # -B: the rectified right camera's T_x
+    rectified = make_calibration(
+        K1=calib.P1[:, :3],
+        D1=np.zeros(5),
+        K2=calib.P2[:, :3],
+        D2=np.zeros(5),
+        R=np.eye(3),
+        T=np.array([baseline, 0.0, 0.0]),
+        image_size=calib.image_size,
+        unit=calib.unit,
+        source="rectified calibration",
+        rectified=True,
+    )
+    return Rectification(raw=calib, calib=rectified, R1=R1, R2=R2, maps=maps)  # type: ignore[arg-type]
+
+
+def _calibration_key(calib: StereoCalibration) -> bytes:
+    parts = [np.ascontiguousarray(a, dtype=np.float64).tobytes()
+             for a in (calib.K1, calib.D1, calib.K2, calib.D2, calib.R, calib.T)]  # fmt: skip
+    meta = f"{calib.image_size}|{calib.unit}|{calib.rectified}|{calib.D1.size}|{calib.D2.size}"
+    return b"|".join([*parts, meta.encode()])
+
+
+def _check_points(points: np.ndarray) -> np.ndarray:
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"expected (N, 3) points, got shape {p.shape}")
+    return p

@@ -1,0 +1,169 @@
+"""A raw (unrectified, distorted) stereo rig made from a generated rectified frame.
+
+The generator renders a rectified pair (camera matrix K, baseline B). A raw rig looks at the
+same scene with its cameras rotated (p_raw_i = Ra_i p_rect_i) and with lens distortion D_i:
+each raw pixel is undistorted and rotated into the rectified view (``cv2.undistortPoints``
+with R and P), and the rectified image is sampled there (Lanczos; beyond the rendered view:
+the background colour). The rig's OpenCV calibration is R = Ra_2 Ra_1^T, T = Ra_2 (-B, 0, 0);
+the true curve in the raw left frame is Ra_1 p_rect.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from core.calibration import StereoCalibration, make_calibration
+from core.segmentation import StereoPair
+from core.synthetic import (
+    StereoCamera,
+    SyntheticFrame,
+    SyntheticParams,
+    generate_frame,
+)
+
+
+@dataclass(frozen=True)
+class RawRig:
+    frame: SyntheticFrame
+    reference: StereoPair  # the rectified pair at working resolution, with masks
+    reference_calib: StereoCalibration  # its calibration (K, B, mm)
+    pair: StereoPair  # raw images and masks
+    calib: StereoCalibration  # raw calibration: K_raw, D, R, T (mm)
+    K: np.ndarray
+    D1: np.ndarray
+    D2: np.ndarray
+    Ra1: np.ndarray  # p_raw_left = Ra1 p_rect_left
+    Ra2: np.ndarray
+    truth_left: np.ndarray  # (M, 3) true centerline in the raw left camera frame, mm
+
+
+def rotation(rx_deg: float, ry_deg: float, rz_deg: float) -> np.ndarray:
+    rvec = np.deg2rad([rx_deg, ry_deg, rz_deg]).reshape(3, 1)
+    return cv2.Rodrigues(rvec)[0]
+
+
+def _raw_view(img: np.ndarray, K: np.ndarray, D: np.ndarray, Ra: np.ndarray) -> np.ndarray:
+    """The raw camera's image of what the rectified camera ``K`` sees as ``img``."""
+    h, w = img.shape[:2]
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    pts = np.stack([xs.ravel(), ys.ravel()], axis=1).reshape(-1, 1, 2)
+    # raw pixel -> undistorted ray in the raw frame -> rotate to rectified (Ra^T) -> project K
+    rect = cv2.undistortPoints(
+        pts,
+        K,
+        D,
+        R=Ra.T,
+        P=K,
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-9),
+    )
+    mx = rect[:, 0, 0].reshape(h, w).astype(np.float32)
+    my = rect[:, 0, 1].reshape(h, w).astype(np.float32)
+    if img.dtype == bool:
+        out = cv2.remap(img.astype(np.float32), mx, my, cv2.INTER_LINEAR, borderValue=0.0)
+        return out >= 0.5
+    out = cv2.remap(img, mx, my, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE)
+    outside = (mx < -0.5) | (mx > w - 0.5) | (my < -0.5) | (my > h - 0.5)
+    out[outside] = np.median(img.reshape(-1, img.shape[2]), axis=0).astype(img.dtype)
+    return out  # beyond the rendered view the raw camera sees background
+
+
+def _calib(
+    K: np.ndarray,
+    D1: np.ndarray,
+    D2: np.ndarray,
+    R: np.ndarray,
+    T: np.ndarray,
+    size: tuple[int, int],
+) -> StereoCalibration:
+    return make_calibration(K1=K, D1=D1, K2=K, D2=D2, R=R, T=T, image_size=size, unit="mm")
+
+
+@functools.lru_cache(maxsize=8)
+def raw_rig(
+    seed: int,
+    angles1: tuple[float, float, float] = (1.5, -2.0, 1.0),
+    angles2: tuple[float, float, float] = (-1.0, 1.5, -0.5),
+    distortion: bool = True,
+) -> RawRig:
+    """A raw pair of the generated frame ``seed`` seen by rotated, distorting cameras."""
+    cam = StereoCamera()
+    frame = generate_frame(SyntheticParams(camera=cam), rng=seed)
+    K = np.asarray(cam.K, dtype=np.float64)
+    size = (cam.height, cam.width)
+    D1 = np.array([-0.08, 0.02, 0.0005, -0.0003, 0.0]) if distortion else np.zeros(5)
+    D2 = np.array([-0.06, 0.015, -0.0004, 0.0002, 0.0]) if distortion else np.zeros(5)
+    Ra1, Ra2 = rotation(*angles1), rotation(*angles2)
+    raw = StereoPair(
+        _raw_view(frame.left, K, D1, Ra1),
+        _raw_view(frame.right, K, D2, Ra2),
+        _raw_view(frame.mask_left, K, D1, Ra1),
+        _raw_view(frame.mask_right, K, D2, Ra2),
+    )
+    t = np.array([-cam.baseline, 0.0, 0.0])
+    zero = np.zeros(5)
+    return RawRig(
+        frame=frame,
+        reference=StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right),
+        reference_calib=_calib(K, zero, zero, np.eye(3), t, size),
+        pair=raw,
+        calib=_calib(K, D1, D2, Ra2 @ Ra1.T, Ra2 @ t, size),
+        K=K,
+        D1=D1,
+        D2=D2,
+        Ra1=Ra1,
+        Ra2=Ra2,
+        truth_left=frame.truth.centerline @ Ra1.T,
+    )
+
+
+def opencv_yaml(calib: StereoCalibration) -> str:
+    """``calib`` as OpenCV FileStorage YAML text (what the paper's files look like)."""
+    fs = cv2.FileStorage("out.yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
+    for key in ("K1", "D1", "K2", "D2", "R"):
+        fs.write(
+            key,
+            np.asarray(getattr(calib, key), dtype=np.float64).reshape(-1, 3)
+            if key[0] in "KR"
+            else getattr(calib, key).reshape(1, -1),
+        )
+    fs.write("T", calib.T.reshape(3, 1))
+    fs.write("ImageSize", np.array([calib.image_size], dtype=np.float64))
+    fs.write("Units", calib.unit)
+    return fs.releaseAndGetString()
+
+
+def ros_camera_info(calib: StereoCalibration) -> tuple[dict, dict]:
+    """The two camera_info YAML mappings that ROS's camera_calibration writes for ``calib``."""
+    rows, cols = calib.image_size
+    R1, R2, P1, P2, *_ = cv2.stereoRectify(
+        calib.K1,
+        calib.D1.reshape(1, -1),
+        calib.K2,
+        calib.D2.reshape(1, -1),
+        (cols, rows),
+        calib.R,
+        calib.T.reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY,
+    )
+    out = []
+    for name, K, D, R, P in (
+        ("left", calib.K1, calib.D1, R1, P1),
+        ("right", calib.K2, calib.D2, R2, P2),
+    ):
+        out.append(
+            {
+                "image_width": cols,
+                "image_height": rows,
+                "camera_name": name,
+                "camera_matrix": {"rows": 3, "cols": 3, "data": K.ravel().tolist()},
+                "distortion_model": "plumb_bob",
+                "distortion_coefficients": {"rows": 1, "cols": D.size, "data": D.ravel().tolist()},
+                "rectification_matrix": {"rows": 3, "cols": 3, "data": R.ravel().tolist()},
+                "projection_matrix": {"rows": 3, "cols": 4, "data": P.ravel().tolist()},
+            }
+        )
+    return out[0], out[1]
