@@ -363,3 +363,21 @@ def _match(curve: np.ndarray, pred: np.ndarray) -> np.ndarray:
 def _hausdorff(a: np.ndarray, b: np.ndarray) -> float:
     a, b = resample(a, 400), resample(b, 400)
     return float(max(cKDTree(b).query(a)[0].max(), cKDTree(a).query(b)[0].max()))
+
+
+def motion_error(
+    prev: np.ndarray, cur: np.ndarray, prev_gt: np.ndarray, cur_gt: np.ndarray, n: int = 200
+) -> float:
+    """Frame-to-frame jitter: mean over matched points i of
+    ``|(cur_i - prev_i) - (cur_gt_i - prev_gt_i)|``, the error of the curve's motion between
+    two frames. Each curve is resampled to ``n`` points uniform in arc length (point i of one
+    frame is matched to point i of the next) and oriented like its ground truth, so a curve
+    that flips its direction is not counted as motion."""
+    curves = []
+    for c, g in ((prev, prev_gt), (cur, cur_gt)):
+        c, g = resample(c, n), resample(g, n)
+        if _closer_reversed(c, g):
+            c = c[::-1]
+        curves.append((c, g))
+    (a, ag), (b, bg) = curves
+    return float(np.linalg.norm((b - a) - (bg - ag), axis=1).mean())
