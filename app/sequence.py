@@ -264,8 +264,11 @@ class BagSequence(Sequence):
             conn, _, raw = next(reader.messages(connections=match[:1]))
             found.append(reader.deserialize(raw, conn.msgtype))
         left, right = found
-        P1 = np.asarray(left.p, dtype=float).reshape(3, 4)
-        P2 = np.asarray(right.p, dtype=float).reshape(3, 4)
+        # ROS2 names the projection matrix ``p``, ROS1 ``P``
+        P1, P2 = (
+            np.asarray(m.p if hasattr(m, "p") else m.P, dtype=float).reshape(3, 4)
+            for m in (left, right)
+        )
         if P1[0, 0] <= 0 or P2[0, 0] <= 0:
             raise SequenceError(f"{self.source}: camera_info has no projection matrix P")
         baseline_m = -P2[0, 3] / P2[0, 0]  # ROS: P_right[0, 3] = -fx * B, B in m
