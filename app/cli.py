@@ -131,6 +131,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--left-topic", help="left image topic of a bag (default: the one named left)")
     t.add_argument("--right-topic", help="right image topic of a bag")
     t.add_argument("--limit", type=int, help="stop after this many frames")
+    t.add_argument(
+        "--record",
+        metavar="FILE.html",
+        help="also save the 3D view of the whole sequence as a recording that opens without a server",
+    )
     t.set_defaults(func=cmd_track)
 
     try:
@@ -254,7 +259,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def cmd_track(args: argparse.Namespace) -> int:
     from app.sequence import SequenceError, open_sequence, track_sequence
-    from app.track_report import frame_row, summary_lines, tracked_json
+    from app.track_report import frame_row, recorded_frame, summary_lines, tracked_json
 
     params = resolve_preset(args.config)
     if args.limit is not None and args.limit < 1:
@@ -273,6 +278,7 @@ def cmd_track(args: argparse.Namespace) -> int:
     track = TrackParams(enabled=not args.no_tracking)
     n = seq.count if args.limit is None else min(seq.count or args.limit, args.limit)
     rows: list[dict[str, Any]] = []
+    recorded: list[Any] = []
     previous = None
     t0 = time.perf_counter()
     for k, tf in enumerate(track_sequence(seq, calib, params, track), start=1):
@@ -282,6 +288,8 @@ def cmd_track(args: argparse.Namespace) -> int:
         data = reconstruction_json(tf.single)
         data.update(tracked_json(tf, row))
         _write_json(out / "frames" / f"{tf.frame.name}.json", data)
+        if args.record:
+            recorded.append(recorded_frame(tf))
         rate = k / (time.perf_counter() - t0)
         _track_progress(k, n, tf.frame.name, rate)
         if args.limit is not None and k >= args.limit:
@@ -292,6 +300,11 @@ def cmd_track(args: argparse.Namespace) -> int:
     write_csv(out / "summary.csv", rows)
     for line in summary_lines(rows, elapsed):
         print(line)
+    if args.record:
+        from app.recording import save_recording
+
+        save_recording(recorded, args.record, baseline=calib.baseline)
+        print(f"recording of {len(recorded)} frames -> {args.record} (opens without a server)")
     lost = sum(r["curve"] == "none" for r in rows)
     if lost:
         print(f"threadrecon: {lost} of {len(rows)} frames have no curve", file=sys.stderr)

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from app.recording import RecordedFrame
 from app.sequence import TrackedFrame
 from core.calibration import StereoCalibration
 from core.metrics import curve_errors
@@ -133,3 +134,9 @@ def summary_lines(rows: list[dict[str, Any]], elapsed_s: float) -> list[str]:
         jtxt = f", jitter mean {jit.mean():.3f} mm over {jit.size} steps" if jit.size else ""
         lines.append(f"{label} good frames: {good}/{n} ({100 * good / n:.1f}%){jtxt}")
     return lines
+
+
+def recorded_frame(tf: TrackedFrame) -> RecordedFrame:
+    """The curves of a frame for a recording: tracked, single-frame and ground truth."""
+    curves = {"single": _single_points(tf), "tracked": _tracked_points(tf), "truth": tf.frame.truth}
+    return RecordedFrame({k: v for k, v in curves.items() if v is not None}, tf.frame.name)

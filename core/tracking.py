@@ -71,12 +71,16 @@ class TrackParams(Params):
 @dataclass(frozen=True)
 class TrackState:
     """What a frame hands to the next. ``points``: (N, 3) tracked curve, uniform in arc
-    length; ``velocity``: (N, 3) per-sample displacement per frame; ``coasted``: frames in a
-    row predicted without an observation."""
+    length; ``velocity``: (N, 3) per-sample displacement per frame (the same translation for
+    every sample: the thread's motion normal to itself, the part an observation shows);
+    ``coasted``: frames in a row predicted without an observation."""
 
     points: np.ndarray
     velocity: np.ndarray
     coasted: int = 0
+    length_ref: float = math.nan
+    """Longest observed length since the track started: a thread does not stretch, so an
+    observation shorter than this has a hidden piece (calibration units)."""
 
     def __post_init__(self) -> None:
         for name in ("points", "velocity"):
@@ -188,7 +192,7 @@ def track_step(
         res = TrackResult(
             pred, None, "predicted", True, "single-frame failed; curve predicted", *_NO_FIT
         )
-        return res, TrackState(pred, state.velocity, state.coasted + 1)
+        return res, TrackState(pred, state.velocity, state.coasted + 1, state.length_ref)
 
     obs = resample(single, n)
     reversed_ = _closer_reversed(obs, pred)
@@ -201,7 +205,14 @@ def track_step(
         reason = f"observation explains {100 * explained.mean():.0f}% of the prediction; restarted"
         return _replace_flag(res, reason, reversed_), new
 
-    curve, filled = _fill_hidden_ends(obs, pred, explained, cloud, p)
+    length_obs = polyline_length(obs)
+    # A shorter observation than the thread's known length has a hidden piece: keep any predicted
+    # end beyond it; otherwise only ends longer than min_hidden_mm (noise at the ends is no piece).
+    hidden = length_obs < state.length_ref - p.cover_mm
+    min_piece = 0.5 * p.cover_mm if hidden else p.min_hidden_mm
+    if cloud is not None and len(cloud):  # stereo points of the observed curve are not for snapping
+        cloud = cloud[cKDTree(obs).query(cloud)[0] > p.cover_mm]
+    curve, filled = _fill_hidden_ends(obs, pred, min_piece, cloud, p)
     curve = resample(curve, n)
     # Temporal smoothness: pull towards the prediction where the two agree.
     pred_c = _match(curve, pred)
@@ -218,14 +229,12 @@ def track_step(
     )
     if filled > 0:
         reason = (reason + "; " if reason else "") + f"{filled:.1f} filled from the motion prior"
-    ratio = polyline_length(curve) / max(polyline_length(state.points), _EPS)
-    if 0.8 <= ratio <= 1.25:
-        step = curve - state.points  # samples uniform in arc length, similar lengths
-        velocity = p.velocity_gain * step + (1 - p.velocity_gain) * state.velocity
-    else:  # the curve changed length a lot: no reliable correspondence, no velocity
-        velocity = np.zeros_like(curve)
+    # Velocity: mean displacement of the observed samples to the previous curve (normal motion;
+    # motion along the thread is invisible), smoothed over frames.
+    step = np.mean(obs - state.points[cKDTree(state.points).query(obs)[1]], axis=0)
+    velocity = p.velocity_gain * step + (1 - p.velocity_gain) * state.velocity
     res = TrackResult(curve, single, "ok", flagged, reason, disagreement, filled, reversed_, False)
-    return res, TrackState(curve, velocity, 0)
+    return res, TrackState(curve, velocity, 0, max(state.length_ref, length_obs))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -247,7 +256,7 @@ def _restart(
         return TrackResult(None, None, "lost", False, "no observation", *_NO_FIT), None
     x = resample(single, n)
     res = TrackResult(x, single, "ok", False, "", 0.0, 0.0, False, restarted)
-    return res, TrackState(x, np.zeros_like(x), 0)
+    return res, TrackState(x, np.zeros_like(x), 0, polyline_length(x))
 
 
 def _replace_flag(res: TrackResult, reason: str, reversed_: bool) -> TrackResult:
@@ -275,25 +284,23 @@ def _closer_reversed(obs: np.ndarray, pred: np.ndarray) -> bool:
 def _fill_hidden_ends(
     obs: np.ndarray,
     pred: np.ndarray,
-    explained: np.ndarray,
+    min_piece: float,
     cloud: np.ndarray | None,
     p: TrackParams,
 ) -> tuple[np.ndarray, float]:
     """Prepend/append the predicted ends the observation does not explain: each is cut from the
     prediction where the observed end meets it, moved rigidly onto that end, then pulled onto
     this frame's stereo points ``cloud`` where it has some (hidden stretches keep the prior)."""
-    idx = np.flatnonzero(explained)
-    first, last = int(idx[0]), int(idx[-1])
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pred, axis=0), axis=1))])
     s_ends = _arc_position(pred, s, obs[[0, -1]])
     parts = [obs]
     filled = 0.0
-    if s[first] > p.min_hidden_mm:
+    if s_ends[0] > min_piece:
         keep = s < s_ends[0]
         head = pred[keep] + (obs[0] - _at(pred, s, s_ends[0]))
         parts.insert(0, _snap(head, cloud, p, anchor_last=True))
         filled += s_ends[0]
-    if s[-1] - s[last] > p.min_hidden_mm:
+    if s[-1] - s_ends[1] > min_piece:
         keep = s > s_ends[1]
         tail = pred[keep] + (obs[-1] - _at(pred, s, s_ends[1]))
         parts.append(_snap(tail, cloud, p, anchor_last=False))

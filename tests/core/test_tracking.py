@@ -179,3 +179,13 @@ def test_a_still_random_occluder_is_refused_for_sequences():
         next(iter(generate_sequence(p, 0)))
     with pytest.raises(ValueError, match="motion.kind"):
         MotionParams(kind="spin")
+
+
+def test_an_end_hidden_little_by_little_is_kept_since_the_thread_does_not_stretch():
+    p = TrackParams()
+    full = _arc(400)
+    _, state = track_step(full, None, p)
+    for k in range(1, 16):  # 1 mm (4 samples) more of the far end hidden every frame
+        res, state = track_step(full[: len(full) - 4 * k], state, p)
+    assert res.length == pytest.approx(polyline_length(full), abs=1.5)
+    assert res.filled > 10.0
