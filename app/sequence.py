@@ -389,7 +389,11 @@ def track_sequence(
         t0 = time.perf_counter()
         alpha = search_alpha(state, calib.P1, calib.P2, track) if track.enabled else None
         p = params if alpha is None else replace(params, stereo=replace(params.stereo, alpha=alpha))
-        rec = Pipeline(frame.pair, calib).run(p)
+        pipeline = Pipeline(frame.pair, calib)
+        rec = pipeline.run(p)
+        if rec.status != "ok" and alpha is not None and alpha < params.stereo.alpha:
+            p = params  # the prior's search range may be what failed: the configured one
+            rec = pipeline.run(p)
         result = None
         if track.enabled:
             single = rec["camera"].points if rec.status == "ok" else None

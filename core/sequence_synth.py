@@ -35,6 +35,7 @@ from core.synthetic import (
 Motion = Literal["drag", "pull", "instrument"]
 MOTIONS: Final = ("drag", "pull", "instrument")
 _FIT_TRIES: Final = 12  # halvings of the motion amplitude before the thread is left still
+_ROOM_PX: Final = 60.0  # extra margin of the first frame, px, so that the thread can move
 _SHAFT_DEPTH: Final = 0.75  # the shaft floats at this fraction of the depth of the thread point
 
 
@@ -131,7 +132,12 @@ def generate_sequence(
             "'instrument' for one that moves across the sequence"
         )
     cam = fp.camera
-    first = generate_frame(fp, np.random.default_rng([seed, 0]))
+    # Room to move: the first frame keeps a wider margin (the given one if that cannot be met).
+    roomy = replace(fp, thread=replace(fp.thread, margin_px=fp.thread.margin_px + _ROOM_PX))
+    try:
+        first = generate_frame(roomy, np.random.default_rng([seed, 0]))
+    except ValueError:
+        first = generate_frame(fp, np.random.default_rng([seed, 0]))
     ctrls = thread_motion(first.truth.control_points, cam, motion, fp.thread.margin_px, [seed, 2])
     shaft = _shaft_path(ctrls, cam, motion, np.random.default_rng([seed, 3]))
     for k, ctrl in enumerate(ctrls):
