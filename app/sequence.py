@@ -19,6 +19,7 @@ Images are rectified already (the core's assumption); a bag's calibration is bui
 
 from __future__ import annotations
 
+import abc
 import re
 import time
 from collections.abc import Iterator
@@ -58,7 +59,7 @@ class SequenceFrame:
     truth: np.ndarray | None = None
 
 
-class Sequence:
+class Sequence(abc.ABC):
     """A lazily read stereo sequence: iterate it for :class:`SequenceFrame` s."""
 
     source: str
@@ -67,8 +68,9 @@ class Sequence:
     calibration: StereoCalibration | None
     """The calibration carried by the source itself (a bag's camera_info, a folder's YAML)."""
 
+    @abc.abstractmethod
     def __iter__(self) -> Iterator[SequenceFrame]:
-        raise NotImplementedError
+        """Frames in order, decoded one at a time."""
 
 
 def open_sequence(

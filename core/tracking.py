@@ -6,12 +6,17 @@ adds, per frame t, with the previous tracked curve ``x_{t-1}`` and its velocity 
 
 1. **Search range**: the stereo search range alpha of Eq. (3) is set from the predicted
    curve's largest disparity plus a margin (:func:`search_alpha`).
-2. **Prediction** (motion prior): ``x_pred = x_{t-1} + v_{t-1}`` (constant velocity).
+2. **Prediction** (motion prior): ``x_pred = x_{t-1} + v_{t-1}`` (constant velocity; ``v`` is
+   the smoothed mean displacement of the observed curve normal to itself).
 3. **Start and direction**: the single-frame curve is reversed when that brings it closer to
    the prediction, so the curve's u = 0 end stays the same physical end.
-4. **Hidden pieces**: the part of the prediction that no observed point explains (an end hidden
-   by an instrument, or dropped by the ordering) is taken from the prediction, moved rigidly so
-   that it joins the observed curve where the two meet.
+4. **Hidden pieces**: the part of the prediction beyond the observed curve's ends (an end
+   hidden by an instrument, or dropped by the ordering) is taken from the prediction, moved
+   rigidly so that it joins the observed curve where the two meet, and pulled onto this frame's
+   stereo points where it has some. A thread does not stretch: while the observation is
+   shorter than the longest length seen since the track started, any predicted end beyond it
+   is kept (so an end hidden a little more every frame is not lost bit by bit); otherwise only
+   pieces longer than ``min_hidden_mm``.
 5. **Temporal smoothness**: each sample moves towards its predicted position by
    ``smooth * exp(-(d / cover_mm)^2)``, d the distance between the two, so noise is damped and
    real disagreements are not.
@@ -234,7 +239,7 @@ def track_step(
     step = np.mean(obs - state.points[cKDTree(state.points).query(obs)[1]], axis=0)
     velocity = p.velocity_gain * step + (1 - p.velocity_gain) * state.velocity
     res = TrackResult(curve, single, "ok", flagged, reason, disagreement, filled, reversed_, False)
-    return res, TrackState(curve, velocity, 0, max(state.length_ref, length_obs))
+    return res, TrackState(curve, velocity, 0, float(np.fmax(state.length_ref, length_obs)))
 
 
 # ----------------------------------------------------------------------------------------------
