@@ -19,8 +19,10 @@ from app.api import reconstruct
 from app.dataset import discover, frame_inputs, frame_rectification, load_frame
 from app.evaluation import evaluate_frame, summarise, write_csv
 from app.export import result_json
+from app.io import load_calibration
 from app.presets import resolve_preset
 from core.pipeline import STAGES, Pipeline
+from core.tracking import TrackParams
 
 
 class UserError(Exception):
@@ -127,6 +129,36 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--configs", help="preset folder (default: the project's configs/)")
     v.set_defaults(func=cmd_serve)
 
+    t = sub.add_parser(
+        "track",
+        help="reconstruct and track the thread over a stereo video, image folder or ROS bag",
+    )
+    t.add_argument(
+        "source",
+        help="side-by-side video, left video (with --right), image folder, ROS1 .bag or ROS2 bag folder",
+    )
+    t.add_argument("--right", help="right-view video when SOURCE is the left one")
+    t.add_argument(
+        "--calib",
+        help="OpenCV FileStorage YAML (default: the source's own: calibration.yaml in the "
+        "folder, camera_info in a bag)",
+    )
+    t.add_argument(
+        "--units", choices=("mm", "cm", "m"), help="calibration unit when the file has no Units key"
+    )
+    t.add_argument("--config", help="preset name (configs/NAME.toml) or path")
+    t.add_argument("--out", required=True, help="folder: frames/<frame>.json and summary.csv")
+    t.add_argument("--no-tracking", action="store_true", help="single-frame reconstructions only")
+    t.add_argument("--left-topic", help="left image topic of a bag (default: the one named left)")
+    t.add_argument("--right-topic", help="right image topic of a bag")
+    t.add_argument("--limit", type=int, help="stop after this many frames")
+    t.add_argument(
+        "--record",
+        metavar="FILE.html",
+        help="also save the 3D view of the whole sequence as a recording that opens without a server",
+    )
+    t.set_defaults(func=cmd_track)
+
     try:
         from app import generate
     except ImportError:  # the generator ships with the synthetic-data module
@@ -227,6 +259,75 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(f"threadrecon: {failed} of {len(rows)} frames failed", file=sys.stderr)
         return 1
     return 0
+
+
+# --- track -------------------------------------------------------------------------------
+
+
+def cmd_track(args: argparse.Namespace) -> int:
+    from app.sequence import SequenceError, open_sequence, track_sequence
+    from app.track_report import frame_row, recorded_frame, summary_lines, tracked_json
+
+    params = resolve_preset(args.config)
+    if args.limit is not None and args.limit < 1:
+        raise UserError(f"--limit must be >= 1, got {args.limit}")
+    try:
+        seq = open_sequence(args.source, args.right, args.left_topic, args.right_topic)
+    except SequenceError as exc:
+        raise UserError(str(exc)) from None
+    if args.calib is not None:
+        calib = load_calibration(args.calib, unit=args.units)
+    elif seq.calibration is not None:
+        calib = seq.calibration
+    else:
+        raise UserError(f"{args.source} carries no calibration: give --calib")
+    out = Path(args.out)
+    track = TrackParams(enabled=not args.no_tracking)
+    n = seq.count if args.limit is None else min(seq.count or args.limit, args.limit)
+    rows: list[dict[str, Any]] = []
+    recorded: list[Any] = []
+    previous = None
+    t0 = time.perf_counter()
+    for k, tf in enumerate(track_sequence(seq, calib, params, track), start=1):
+        row = frame_row(tf, calib, previous)
+        rows.append(row)
+        previous = tf
+        data = result_json(tf.single)
+        data.update(tracked_json(tf, row))
+        _write_json(out / "frames" / f"{tf.frame.name}.json", data)
+        if args.record:
+            recorded.append(recorded_frame(tf))
+        rate = k / (time.perf_counter() - t0)
+        _track_progress(k, n, tf.frame.name, rate)
+        if args.limit is not None and k >= args.limit:
+            break
+    if not rows:
+        raise UserError(f"{args.source}: no frames")
+    elapsed = time.perf_counter() - t0
+    write_csv(out / "summary.csv", rows)
+    for line in summary_lines(rows, elapsed):
+        print(line)
+    if args.record:
+        from app.recording import save_recording
+
+        save_recording(recorded, args.record, baseline=calib.baseline)
+        print(f"recording of {len(recorded)} frames -> {args.record} (opens without a server)")
+    lost = sum(r["curve"] == "none" for r in rows)
+    if lost:
+        print(f"threadrecon: {lost} of {len(rows)} frames have no curve", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _track_progress(k: int, n: int | None, name: str, rate: float) -> None:
+    total = f"/{n}" if n else ""
+    if sys.stderr.isatty():
+        sys.stderr.write(f"\r[{k}{total}] {name[:30]:<30} {rate:6.2f} frames/s")
+        if n is not None and k == n:
+            sys.stderr.write("\n")
+    elif k == 1 or k % 10 == 0 or k == n:
+        sys.stderr.write(f"[{k}{total}] {name} {rate:.2f} frames/s\n")
+    sys.stderr.flush()
 
 
 # --- serve -------------------------------------------------------------------------------

@@ -110,6 +110,21 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="WxH",
         help="image size per view, e.g. 1920x1080 (default 640x480); intrinsics scaled",
     )
+    parser.add_argument(
+        "--sequence",
+        type=int,
+        metavar="N",
+        help="write a moving thread of N frames (and a video) under sequences/ instead",
+    )
+    parser.add_argument(
+        "--motion",
+        choices=("drag", "pull", "instrument"),
+        default="drag",
+        help="with --sequence: how the thread moves (default drag)",
+    )
+    parser.add_argument(
+        "--speed-mm", type=float, default=0.6, help="with --sequence: mm per frame (default 0.6)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -120,6 +135,10 @@ def run(args: argparse.Namespace) -> int:
     if seed < 0:
         raise ValueError(f"--seed must be >= 0, got {seed}")
     params = _params(args)
+    if getattr(args, "sequence", None) is not None:
+        from app import sequence_gen  # video encoding only when a sequence is asked for
+
+        return sequence_gen.run(args, params, _write_calibration)
     group = args.group or ("crossing" if args.crossing else args.background)
     if not _GROUP_RE.match(group):
         raise ValueError(f"--group must be a plain folder name, got {group!r}")

@@ -1,0 +1,142 @@
+"""Per-frame rows, JSON and summary of ``threadrecon track`` (one place for each figure).
+
+A frame is **good** when its curve's status is "ok" (for the tracked curve: this frame's
+observation was used, not the motion prior alone) and, against the ground truth, the length
+error and the largest curve error (e_S^max) are both <= ``GOOD_MM``. **Jitter** is
+:func:`core.tracking.motion_error` between a frame and the one before it.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from app.recording import RecordedFrame
+from app.sequence import TrackedFrame
+from core.calibration import StereoCalibration
+from core.metrics import curve_errors
+from core.tracking import motion_error
+
+GOOD_MM = 20.0  # a frame's length error and largest curve error must both be within 2 cm
+
+
+def _single_points(tf: TrackedFrame) -> np.ndarray | None:
+    return tf.single["camera"].points if tf.single.status == "ok" else None
+
+
+def _tracked_points(tf: TrackedFrame) -> np.ndarray | None:
+    return None if tf.tracked is None else tf.tracked.points
+
+
+def frame_row(
+    tf: TrackedFrame, calib: StereoCalibration, previous: TrackedFrame | None
+) -> dict[str, Any]:
+    """One summary-CSV row: single-frame and tracked results, and against the ground truth
+    (when the source has it) their errors, goodness and jitter, in mm."""
+    f, rec, tr = tf.frame, tf.single, tf.tracked
+    single = _single_points(tf)
+    row: dict[str, Any] = {
+        "frame": f.index,
+        "name": f.name,
+        "stamp": math.nan if f.stamp is None else f.stamp,
+        "status": rec.status,
+        "error": rec.message or "",
+        "length": rec["camera"].length if "camera" in rec.runs else math.nan,
+        "track_status": "off" if tr is None else tr.status,
+        "track_length": math.nan if tr is None else tr.length,
+        "flagged": bool(tr is not None and tr.flagged),
+        "track_reason": "" if tr is None else tr.reason,
+        "disagreement": math.nan if tr is None else tr.disagreement,
+        "filled": math.nan if tr is None else tr.filled,
+        "alpha": tf.alpha,
+        "ms": tf.ms,
+    }
+    curve = _tracked_points(tf) if tr is not None else single
+    row["curve"] = "none" if curve is None else ("tracked" if tr is not None else "single")
+    if f.truth is None:
+        return row
+    mm = calib.mm_per_unit
+    for prefix, pts, ok in (
+        ("", single, rec.status == "ok"),
+        ("track_", _tracked_points(tf), tr is not None and tr.status == "ok"),
+    ):
+        if tr is None and prefix:
+            continue
+        if pts is None:
+            row.update({f"{prefix}e_S_mm": math.nan, f"{prefix}e_S_max_mm": math.nan})
+            row.update({f"{prefix}e_length_mm": math.nan, f"{prefix}good": False})
+        else:
+            e = curve_errors(pts * mm, f.truth * mm)
+            row[f"{prefix}e_S_mm"] = e.e_S
+            row[f"{prefix}e_S_max_mm"] = e.e_S_max
+            row[f"{prefix}e_length_mm"] = e.e_length
+            row[f"{prefix}good"] = bool(ok and e.e_length <= GOOD_MM and e.e_S_max <= GOOD_MM)
+        row[f"{prefix}jitter_mm"] = math.nan
+        if previous is not None and previous.frame.truth is not None and pts is not None:
+            before = _tracked_points(previous) if prefix else _single_points(previous)
+            if before is not None:
+                row[f"{prefix}jitter_mm"] = mm * motion_error(
+                    before, pts, previous.frame.truth, f.truth
+                )
+    return row
+
+
+def tracked_json(tf: TrackedFrame, row: dict[str, Any]) -> dict[str, Any]:
+    """What a frame's JSON adds to the single-frame reconstruction: the frame, the search
+    range, the tracked curve and its flags, and the ground-truth figures when known."""
+    tr = tf.tracked
+    out: dict[str, Any] = {
+        "frame": tf.frame.index,
+        "name": tf.frame.name,
+        "stamp": tf.frame.stamp,
+        "alpha": tf.alpha,
+        "ms": round(tf.ms, 3),
+        "tracked": None,
+    }
+    if tr is not None:
+        out["tracked"] = {
+            "status": tr.status,
+            "points": None if tr.points is None else tr.points.tolist(),
+            "length": None if tr.points is None else tr.length,
+            "flagged": tr.flagged,
+            "reason": tr.reason,
+            "disagreement": None if math.isnan(tr.disagreement) else tr.disagreement,
+            "filled": tr.filled,
+            "reversed": tr.reversed,
+            "restarted": tr.restarted,
+        }
+    truth = {k: row[k] for k in row if k.endswith(("_mm", "good")) and k not in ("ms",)}
+    out["truth_metrics"] = {
+        k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in truth.items()
+    } or None
+    return out
+
+
+def summary_lines(rows: list[dict[str, Any]], elapsed_s: float) -> list[str]:
+    n = len(rows)
+    lines = [f"{n} frames in {elapsed_s:.1f} s: {n / max(elapsed_s, 1e-9):.2f} frames/s"]
+    lines.append(f"single-frame: {sum(r['status'] == 'ok' for r in rows)} ok")
+    if rows[0]["track_status"] != "off":
+        count = {s: sum(r["track_status"] == s for r in rows) for s in ("ok", "predicted", "lost")}
+        flagged = sum(r["flagged"] for r in rows)
+        lines.append(
+            f"tracked: {count['ok']} ok, {count['predicted']} predicted, {count['lost']} lost, "
+            f"{flagged} flagged (tracking and single-frame disagree)"
+        )
+    for prefix, label in (("", "single-frame"), ("track_", "tracked")):
+        if f"{prefix}good" not in rows[0]:
+            continue
+        good = sum(bool(r[f"{prefix}good"]) for r in rows)
+        jit = np.array([r[f"{prefix}jitter_mm"] for r in rows], dtype=float)
+        jit = jit[np.isfinite(jit)]
+        jtxt = f", jitter mean {jit.mean():.3f} mm over {jit.size} steps" if jit.size else ""
+        lines.append(f"{label} good frames: {good}/{n} ({100 * good / n:.1f}%){jtxt}")
+    return lines
+
+
+def recorded_frame(tf: TrackedFrame) -> RecordedFrame:
+    """The curves of a frame for a recording: tracked, single-frame and ground truth."""
+    curves = {"single": _single_points(tf), "tracked": _tracked_points(tf), "truth": tf.frame.truth}
+    return RecordedFrame({k: v for k, v in curves.items() if v is not None}, tf.frame.name)

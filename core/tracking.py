@@ -1,0 +1,395 @@
+"""Tracking across frames: the previous frame's curve informs the next.
+
+The single-frame pipeline (Section III of the paper) runs unchanged on every frame; tracking
+adds, per frame t, with the previous tracked curve ``x_{t-1}`` and its velocity ``v_{t-1}``
+(both (N, 3) samples uniform in arc length):
+
+1. **Search range**: the stereo search range alpha of Eq. (3) is set from the predicted
+   curve's largest disparity plus a margin (:func:`search_alpha`).
+2. **Prediction** (motion prior): ``x_pred = x_{t-1} + v_{t-1}`` (constant velocity; ``v`` is
+   the smoothed mean displacement of the observed curve normal to itself).
+3. **Start and direction**: the single-frame curve is reversed when that brings it closer to
+   the prediction, so the curve's u = 0 end stays the same physical end.
+4. **Hidden pieces**: the part of the prediction beyond the observed curve's ends (an end
+   hidden by an instrument, or dropped by the ordering) is taken from the prediction, moved
+   rigidly so that it joins the observed curve where the two meet, and pulled onto this frame's
+   stereo points where it has some. A thread does not stretch: while the observation is
+   shorter than the longest length seen since the track started, any predicted end beyond it
+   is kept (so an end hidden a little more every frame is not lost bit by bit); otherwise only
+   pieces longer than ``min_hidden_mm``.
+5. **Temporal smoothness**: each sample moves towards its predicted position by
+   ``smooth * exp(-(d / cover_mm)^2)``, d the distance between the two, so noise is damped and
+   real disagreements are not.
+
+A frame where the tracked and the single-frame curves differ by more than ``disagree_mm``
+(Hausdorff distance) is flagged; the single-frame curve is always kept beside the tracked one.
+Everything here is a pure function of arrays and frozen dataclasses; units are those of the
+points (the calibration's unit, mm for the generator).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Final, Literal
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from core.params import Params, param
+
+MIN_ALPHA: Final = 8  # the smallest stereo search range tracking sets, px (Eq. (3) needs > 4)
+MAX_ALPHA: Final = 512  # the largest the stereo stage accepts, px
+_EPS: Final = 1e-9
+_SNAP_NEIGHBOURS: Final = 8  # stereo points averaged per sample when snapping a filled piece
+_SNAP_SMOOTH: Final = 3.0  # std of the smoothing of snap offsets along a piece, samples
+
+Status = Literal["ok", "predicted", "lost"]
+
+
+@dataclass(frozen=True)
+class TrackParams(Params):
+    enabled: bool = True
+    """Track across frames (on by default for sequences); off: single-frame results only."""
+    n_samples: int = param(200, lo=10, hi=5000, unit="points", label="track samples")
+    """Samples of the tracked curve, uniform in arc length."""
+    smooth: float = param(0.5, lo=0, hi=0.95, slider=(0.0, 0.95, 0.05), label="smoothness")
+    """Weight lambda of the prediction in the temporal smoothness term (0: none)."""
+    cover_mm: float = param(2.0, lo=1e-6, hi=1000, unit="calib. unit", label="cover distance")
+    """An observed point within this distance explains a predicted one (calibration units)."""
+    min_hidden_mm: float = param(4.0, lo=0, hi=1000, unit="calib. unit", label="min hidden piece")
+    """An unexplained predicted end shorter than this is not filled in (calibration units)."""
+    disagree_mm: float = param(8.0, lo=0, hi=1000, unit="calib. unit", label="disagreement flag")
+    """Flag a frame whose tracked and single-frame curves differ by more (Hausdorff)."""
+    min_overlap: float = param(0.3, lo=0, hi=1, label="min overlap")
+    """Below this share of the prediction explained by the observation, the track restarts."""
+    velocity_gain: float = param(0.5, lo=0, hi=1, label="velocity gain")
+    """Exponential smoothing of the per-sample velocity (1: last displacement only)."""
+    snap_mm: float = param(4.0, lo=0, hi=1000, unit="calib. unit", label="snap distance")
+    """A filled piece is pulled onto this frame's stereo points within this distance."""
+    max_coast: int = param(3, lo=0, hi=1000, unit="frames", label="max predicted frames")
+    """Frames in a row the curve may be predicted without an observation before it is lost."""
+    alpha_margin_px: float = param(10.0, lo=0, hi=512, unit="px", label="search margin")
+    """Margin above the predicted largest disparity for the stereo search range, px."""
+
+
+@dataclass(frozen=True)
+class TrackState:
+    """What a frame hands to the next. ``points``: (N, 3) tracked curve, uniform in arc
+    length; ``velocity``: (N, 3) per-sample displacement per frame (the same translation for
+    every sample: the thread's motion normal to itself, the part an observation shows);
+    ``coasted``: frames in a row predicted without an observation."""
+
+    points: np.ndarray
+    velocity: np.ndarray
+    coasted: int = 0
+    length_ref: float = math.nan
+    """Longest observed length since the track started: a thread does not stretch, so an
+    observation shorter than this has a hidden piece (calibration units)."""
+
+    def __post_init__(self) -> None:
+        for name in ("points", "velocity"):
+            a = getattr(self, name)
+            if a.ndim != 2 or a.shape[1] != 3 or len(a) < 2:
+                raise ValueError(f"TrackState.{name} must be (N >= 2, 3), got {a.shape}")
+        if self.points.shape != self.velocity.shape:
+            raise ValueError(
+                f"TrackState points {self.points.shape} and velocity {self.velocity.shape} differ"
+            )
+
+    @property
+    def predicted(self) -> np.ndarray:
+        """(N, 3) constant-velocity prediction of the next frame's curve."""
+        return self.points + self.velocity
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """One frame's tracked curve beside its single-frame curve.
+
+    ``points``: (N, 3) tracked curve (None when lost); ``single``: (M, 3) single-frame curve
+    (None when that failed); ``status``: "ok" (observation used), "predicted" (no usable
+    observation: the motion prior alone) or "lost"; ``flagged`` with ``reason`` when tracking
+    and single-frame disagree; ``disagreement``: their Hausdorff distance (NaN when either is
+    missing); ``filled``: length taken from the motion prior (hidden pieces); ``reversed``:
+    the single-frame curve was flipped to keep the start; ``restarted``: no usable prior.
+    """
+
+    points: np.ndarray | None
+    single: np.ndarray | None
+    status: Status
+    flagged: bool
+    reason: str
+    disagreement: float
+    filled: float
+    reversed: bool
+    restarted: bool
+
+    @property
+    def length(self) -> float:
+        return math.nan if self.points is None else polyline_length(self.points)
+
+
+def polyline_length(points: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+
+def resample(points: np.ndarray, n: int) -> np.ndarray:
+    """(n, 3) points uniform in arc length along the polyline ``points`` (M, 3)."""
+    points = _check_curve(points, "points")
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    if s[-1] <= _EPS:
+        return np.repeat(points[:1], n, axis=0)
+    q = np.linspace(0.0, s[-1], n)
+    return np.column_stack([np.interp(q, s, points[:, a]) for a in range(3)])
+
+
+def search_alpha(
+    state: TrackState | None, P1: np.ndarray, P2: np.ndarray, p: TrackParams
+) -> int | None:
+    """Stereo search range alpha (px) for the next frame from the predicted curve's largest
+    disparity, Eq. (3); None without a prior (keep the configured alpha).
+
+    ``P1``, ``P2``: (3, 4) rectified projection matrices of the left and right cameras.
+    """
+    if state is None or not p.enabled:
+        return None
+    x = state.predicted
+    h = np.column_stack([x, np.ones(len(x))])
+    uL, uR = h @ np.asarray(P1).T, h @ np.asarray(P2).T
+    if np.any(uL[:, 2] <= _EPS):
+        return None
+    disparity = uL[:, 0] / uL[:, 2] - uR[:, 0] / uR[:, 2]
+    if not np.all(np.isfinite(disparity)):
+        return None
+    return int(np.clip(math.ceil(disparity.max() + p.alpha_margin_px), MIN_ALPHA, MAX_ALPHA))
+
+
+def track_step(
+    single: np.ndarray | None,
+    state: TrackState | None,
+    p: TrackParams,
+    cloud: np.ndarray | None = None,
+) -> tuple[TrackResult, TrackState | None]:
+    """One frame of tracking: the single-frame curve ``single`` (M, 3) (None when the
+    single-frame pipeline failed), this frame's reliable stereo points ``cloud`` (K, 3)
+    (optional: pieces filled from the prior are pulled onto them) and the previous state
+    -> this frame's result and state."""
+    if cloud is not None:
+        cloud = np.asarray(cloud, dtype=np.float64)
+        if cloud.ndim != 2 or cloud.shape[1] != 3:
+            raise ValueError(f"cloud must be (K, 3) points, got {cloud.shape}")
+        cloud = cloud[np.all(np.isfinite(cloud), axis=1)]
+    if single is not None:
+        single = _check_curve(single, "single")
+        if not np.all(np.isfinite(single)):
+            single = None  # a non-finite curve is no observation
+    n = p.n_samples
+    if not p.enabled or state is None:
+        return _restart(single, n, restarted=state is None and p.enabled)
+    if len(state.points) != n:
+        raise ValueError(f"state has {len(state.points)} samples, params say {n}")
+    pred = state.predicted
+    if single is None:
+        if state.coasted >= p.max_coast:
+            res = TrackResult(None, None, "lost", True, "no observation; track lost", *_NO_FIT)
+            return res, None
+        res = TrackResult(
+            pred, None, "predicted", True, "single-frame failed; curve predicted", *_NO_FIT
+        )
+        return res, TrackState(pred, state.velocity, state.coasted + 1, state.length_ref)
+
+    obs = resample(single, n)
+    reversed_ = _closer_reversed(obs, pred)
+    if reversed_:
+        obs = obs[::-1]
+    d_pred = cKDTree(obs).query(pred)[0]  # how well the observation explains each prediction
+    explained = d_pred <= p.cover_mm
+    if explained.mean() < p.min_overlap:
+        res, new = _restart(single, n, restarted=True)
+        reason = f"observation explains {100 * explained.mean():.0f}% of the prediction; restarted"
+        return _replace_flag(res, reason, reversed_), new
+
+    length_obs = polyline_length(obs)
+    # A shorter observation than the thread's known length has a hidden piece: keep any predicted
+    # end beyond it; otherwise only ends longer than min_hidden_mm (noise at the ends is no piece).
+    hidden = length_obs < state.length_ref - p.cover_mm
+    min_piece = 0.5 * p.cover_mm if hidden else p.min_hidden_mm
+    if cloud is not None and len(cloud):  # stereo points of the observed curve are not for snapping
+        cloud = cloud[cKDTree(obs).query(cloud)[0] > p.cover_mm]
+    curve, filled = _fill_hidden_ends(obs, pred, min_piece, cloud, p)
+    curve = resample(curve, n)
+    # Temporal smoothness: pull towards the prediction where the two agree.
+    pred_c = _match(curve, pred)
+    d = np.linalg.norm(curve - pred_c, axis=1)
+    w = p.smooth * np.exp(-((d / p.cover_mm) ** 2))
+    curve = resample(curve + w[:, None] * (pred_c - curve), n)
+
+    disagreement = _hausdorff(curve, single)
+    flagged = disagreement > p.disagree_mm
+    reason = (
+        f"tracked and single-frame curves differ by {disagreement:.1f} (> {p.disagree_mm:g})"
+        if flagged
+        else ""
+    )
+    if filled > 0:
+        reason = (reason + "; " if reason else "") + f"{filled:.1f} filled from the motion prior"
+    # Velocity: mean displacement of the observed samples to the previous curve (normal motion;
+    # motion along the thread is invisible), smoothed over frames.
+    step = np.mean(obs - state.points[cKDTree(state.points).query(obs)[1]], axis=0)
+    velocity = p.velocity_gain * step + (1 - p.velocity_gain) * state.velocity
+    res = TrackResult(curve, single, "ok", flagged, reason, disagreement, filled, reversed_, False)
+    return res, TrackState(curve, velocity, 0, float(np.fmax(state.length_ref, length_obs)))
+
+
+# ----------------------------------------------------------------------------------------------
+
+_NO_FIT = (math.nan, 0.0, False, False)  # disagreement, filled, reversed, restarted
+
+
+def _check_curve(points: np.ndarray, name: str) -> np.ndarray:
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) < 2:
+        raise ValueError(f"{name} must be (M >= 2, 3) points, got {points.shape}")
+    return points
+
+
+def _restart(
+    single: np.ndarray | None, n: int, restarted: bool
+) -> tuple[TrackResult, TrackState | None]:
+    if single is None:
+        return TrackResult(None, None, "lost", False, "no observation", *_NO_FIT), None
+    x = resample(single, n)
+    res = TrackResult(x, single, "ok", False, "", 0.0, 0.0, False, restarted)
+    return res, TrackState(x, np.zeros_like(x), 0, polyline_length(x))
+
+
+def _replace_flag(res: TrackResult, reason: str, reversed_: bool) -> TrackResult:
+    return TrackResult(
+        res.points, res.single, res.status, True, reason, 0.0, 0.0, reversed_, res.restarted
+    )
+
+
+def _closer_reversed(obs: np.ndarray, pred: np.ndarray) -> bool:
+    """True when the reversed observation lies closer to the prediction, sample by sample
+    (compared over the observation's ends, which carry the direction)."""
+    k = max(2, len(obs) // 10)
+    fwd = np.linalg.norm(obs[:k] - pred[:k], axis=1).sum()
+    fwd += np.linalg.norm(obs[-k:] - pred[-k:], axis=1).sum()
+    rev = np.linalg.norm(obs[::-1][:k] - pred[:k], axis=1).sum()
+    rev += np.linalg.norm(obs[::-1][-k:] - pred[-k:], axis=1).sum()
+    # Ends may be hidden: compare nearest-point positions along the prediction instead when
+    # the observation is much shorter than the prediction.
+    if polyline_length(obs) < 0.8 * polyline_length(pred):
+        j = cKDTree(pred).query(obs[[0, -1]])[1]
+        return bool(j[0] > j[1])
+    return bool(rev < fwd)
+
+
+def _fill_hidden_ends(
+    obs: np.ndarray,
+    pred: np.ndarray,
+    min_piece: float,
+    cloud: np.ndarray | None,
+    p: TrackParams,
+) -> tuple[np.ndarray, float]:
+    """Prepend/append the predicted ends the observation does not explain: each is cut from the
+    prediction where the observed end meets it, moved rigidly onto that end, then pulled onto
+    this frame's stereo points ``cloud`` where it has some (hidden stretches keep the prior)."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pred, axis=0), axis=1))])
+    s_ends = _arc_position(pred, s, obs[[0, -1]])
+    parts = [obs]
+    filled = 0.0
+    if s_ends[0] > min_piece:
+        keep = s < s_ends[0]
+        head = pred[keep] + (obs[0] - _at(pred, s, s_ends[0]))
+        parts.insert(0, _snap(head, cloud, p, anchor_last=True))
+        filled += s_ends[0]
+    if s[-1] - s_ends[1] > min_piece:
+        keep = s > s_ends[1]
+        tail = pred[keep] + (obs[-1] - _at(pred, s, s_ends[1]))
+        parts.append(_snap(tail, cloud, p, anchor_last=False))
+        filled += s[-1] - s_ends[1]
+    return np.vstack(parts), float(filled)
+
+
+def _arc_position(pred: np.ndarray, s: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Arc position along ``pred`` of the closest point to each of ``q`` (K, 3)."""
+    a, ab = pred[:-1], np.diff(pred, axis=0)
+    out = np.empty(len(q))
+    for i, x in enumerate(q):  # a handful of query points
+        t = np.clip(np.einsum("ij,ij->i", x - a, ab) / np.maximum((ab * ab).sum(1), _EPS), 0, 1)
+        d = np.linalg.norm(a + t[:, None] * ab - x, axis=1)
+        j = int(np.argmin(d))
+        out[i] = s[j] + t[j] * (s[j + 1] - s[j])
+    return out
+
+
+def _at(pred: np.ndarray, s: np.ndarray, si: float) -> np.ndarray:
+    return np.array([np.interp(si, s, pred[:, a]) for a in range(3)])
+
+
+def _snap(piece: np.ndarray, cloud: np.ndarray | None, p: TrackParams, anchor_last: bool):
+    """Move a predicted piece (K, 3) onto the stereo points near it: per sample the mean
+    offset to the cloud points within ``snap_mm``, smoothed along the piece; samples with no
+    point nearby take their neighbours' offsets; the end joined to the observation stays put."""
+    if cloud is None or len(cloud) == 0 or len(piece) == 0:
+        return piece
+    tree = cKDTree(cloud)
+    k = min(_SNAP_NEIGHBOURS, len(cloud))
+    d, j = tree.query(piece, k=k, distance_upper_bound=p.snap_mm)
+    d, j = d.reshape(len(piece), k), j.reshape(len(piece), k)
+    hit = np.isfinite(d)
+    count = hit.sum(1)
+    has = count > 0
+    if not has.any():
+        return piece
+    pts = np.where(hit[..., None], cloud[np.minimum(j, len(cloud) - 1)], 0.0)
+    offset = np.zeros_like(piece)
+    offset[has] = pts[has].sum(1) / count[has, None] - piece[has]
+    i = np.arange(len(piece))
+    anchor = len(piece) - 1 if anchor_last else 0
+    known = has.copy()
+    known[anchor] = True
+    offset[anchor] = 0.0  # the junction with the observed curve does not move
+    offset = np.column_stack([np.interp(i, i[known], offset[known, a]) for a in range(3)])
+    kernel = np.exp(-0.5 * (np.arange(-3 * _SNAP_SMOOTH, 3 * _SNAP_SMOOTH + 1) / _SNAP_SMOOTH) ** 2)
+    kernel /= kernel.sum()
+    padded = np.pad(offset, ((len(kernel) // 2,) * 2, (0, 0)), mode="edge")
+    offset = np.column_stack([np.convolve(padded[:, a], kernel, "valid") for a in range(3)])
+    return piece + offset
+
+
+def _match(curve: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """For each sample of ``curve``, the prediction at the same arc-length share measured from
+    where the curve's start meets the prediction (handles a shorter or longer curve)."""
+    tree = cKDTree(pred)
+    j0, j1 = tree.query(curve[[0, -1]])[1]
+    if j1 <= j0:
+        return pred  # the curve does not run along the prediction: match by index
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pred, axis=0), axis=1))])
+    t = np.linspace(s[j0], s[j1], len(curve))
+    return np.column_stack([np.interp(t, s, pred[:, a]) for a in range(3)])
+
+
+def _hausdorff(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = resample(a, 400), resample(b, 400)
+    return float(max(cKDTree(b).query(a)[0].max(), cKDTree(a).query(b)[0].max()))
+
+
+def motion_error(
+    prev: np.ndarray, cur: np.ndarray, prev_gt: np.ndarray, cur_gt: np.ndarray, n: int = 200
+) -> float:
+    """Frame-to-frame jitter: mean over matched points i of
+    ``|(cur_i - prev_i) - (cur_gt_i - prev_gt_i)|``, the error of the curve's motion between
+    two frames. Each curve is resampled to ``n`` points uniform in arc length (point i of one
+    frame is matched to point i of the next) and oriented like its ground truth, so a curve
+    that flips its direction is not counted as motion."""
+    curves = []
+    for c, g in ((prev, prev_gt), (cur, cur_gt)):
+        c, g = resample(c, n), resample(g, n)
+        if _closer_reversed(c, g):
+            c = c[::-1]
+        curves.append((c, g))
+    (a, ag), (b, bg) = curves
+    return float(np.linalg.norm((b - a) - (bg - ag), axis=1).mean())

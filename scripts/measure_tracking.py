@@ -1,0 +1,105 @@
+"""Tracking vs single-frame on generated sequences (issue 15's "Must show").
+
+    python scripts/measure_tracking.py OUT_DIR --seeds 101 102 103 --frames 60
+
+For every seed and motion (drag, pull, instrument) it writes a sequence with
+``generate --sequence``, runs ``track`` with and without tracking (masks given) and prints the
+share of good frames and the jitter of each, the jitter over the frame steps where both runs are
+good on both frames, and the throughput (frames/s) of each run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+MOTIONS = ("drag", "pull", "instrument")
+
+
+def _run(cmd: list[str]) -> float:
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=False, stdout=subprocess.DEVNULL)
+    return time.perf_counter() - t0
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with path.open() as fh:
+        return list(csv.DictReader(fh))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[101])
+    ap.add_argument("--frames", type=int, default=60)
+    ap.add_argument("--motions", nargs="+", default=list(MOTIONS))
+    args = ap.parse_args()
+    py = [sys.executable, "-m", "app.cli"]
+    total = {"single": [0, 0], "tracked": [0, 0]}
+    jit_all: dict[str, list[float]] = {"single": [], "tracked": []}
+    rates: dict[str, list[float]] = {"single": [], "tracked": []}
+    for seed in args.seeds:
+        for motion in args.motions:
+            group = f"{motion}_{seed}"
+            folder = args.out / "sequences" / group
+            if not folder.exists():
+                _run(
+                    [
+                        *py,
+                        "generate",
+                        str(args.out),
+                        "--sequence",
+                        str(args.frames),
+                        "--motion",
+                        motion,
+                        "--seed",
+                        str(seed),
+                        "--group",
+                        group,
+                    ]
+                )
+            res = {}
+            for mode, extra in (("single", ["--no-tracking"]), ("tracked", [])):
+                out = args.out / "runs" / f"{group}_{mode}"
+                dt = _run([*py, "track", str(folder), "--out", str(out), *extra])
+                rows = _rows(out / "summary.csv")
+                rates[mode].append(len(rows) / dt)
+                res[mode] = rows
+            s, t = res["single"], res["tracked"]
+            gs = [r["good"] == "True" for r in s]
+            gt = [r["track_good"] == "True" for r in t]
+            total["single"][0] += sum(gs)
+            total["single"][1] += len(gs)
+            total["tracked"][0] += sum(gt)
+            total["tracked"][1] += len(gt)
+            both = [k for k in range(1, len(s)) if gs[k] and gs[k - 1] and gt[k] and gt[k - 1]]
+            js = [float(s[k]["jitter_mm"]) for k in both]
+            jt = [float(t[k]["track_jitter_mm"]) for k in both]
+            jit_all["single"] += js
+            jit_all["tracked"] += jt
+            flagged = sum(r["flagged"] == "True" for r in t)
+            print(
+                f"{group:>16}: good single {sum(gs)}/{len(gs)}, tracked {sum(gt)}/{len(gt)}; "
+                f"jitter (both good, {len(both)} steps) single {np.mean(js):.3f} mm, "
+                f"tracked {np.mean(jt):.3f} mm; flagged {flagged}",
+                flush=True,
+            )
+    for mode in ("single", "tracked"):
+        g, n = total[mode]
+        j = np.array(jit_all[mode])
+        print(
+            f"{mode:>8}: good {g}/{n} = {100 * g / n:.1f}%; jitter mean {j.mean():.3f} mm, "
+            f"median {np.median(j):.3f} mm over {j.size} steps; "
+            f"median {np.median(rates[mode]):.2f} frames/s (incl. start-up)"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

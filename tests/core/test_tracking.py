@@ -1,0 +1,191 @@
+"""Tracking across frames (core/tracking.py) and moving-thread sequences (core/sequence_synth.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.sequence_synth import MotionParams, SequenceParams, generate_sequence, thread_motion
+from core.synthetic import RenderParams, StereoCamera, SyntheticParams
+from core.tracking import (
+    TrackParams,
+    TrackState,
+    motion_error,
+    polyline_length,
+    resample,
+    search_alpha,
+    track_step,
+)
+
+CAM = StereoCamera()
+
+
+def _arc(n: int = 300, z: float = 100.0) -> np.ndarray:
+    """A 100 mm planar arc at depth ~z, (n, 3) mm."""
+    t = np.linspace(0, 1, n)
+    return np.column_stack([100 * t - 50, 15 * np.sin(np.pi * t), z + 5 * t])
+
+
+def _P() -> tuple[np.ndarray, np.ndarray]:
+    K = CAM.K
+    P1 = np.hstack([K, np.zeros((3, 1))])
+    P2 = np.hstack([K, np.array([[-CAM.fx * CAM.baseline], [0], [0]])])
+    return P1, P2
+
+
+def test_search_alpha_is_the_predicted_largest_disparity_plus_the_margin():
+    p = TrackParams(n_samples=50)
+    x = resample(_arc(z=100.0), 50)
+    state = TrackState(x, np.zeros_like(x))
+    d_max = CAM.fx * CAM.baseline / x[:, 2].min()
+    assert search_alpha(state, *_P(), p) == int(np.ceil(d_max + p.alpha_margin_px))
+    assert search_alpha(None, *_P(), p) is None
+    assert search_alpha(state, *_P(), TrackParams(n_samples=50, enabled=False)) is None
+
+
+def test_first_frame_starts_the_track_from_the_observation():
+    obs = _arc()
+    res, state = track_step(obs, None, TrackParams())
+    assert res.status == "ok" and res.restarted and not res.flagged
+    assert state is not None and np.allclose(state.velocity, 0)
+    assert res.length == pytest.approx(polyline_length(obs), rel=1e-3)
+
+
+def test_a_reversed_observation_keeps_the_tracked_start():
+    p = TrackParams()
+    _, state = track_step(_arc(), None, p)
+    res, _ = track_step(_arc()[::-1], state, p)
+    assert res.reversed
+    assert np.linalg.norm(res.points[0] - _arc()[0]) < 1.0
+
+
+def test_a_hidden_end_is_filled_from_the_motion_prior_and_flagged():
+    p = TrackParams()
+    full = _arc()
+    _, state = track_step(full, None, p)
+    shift = np.array([0.5, 0.2, 0.0])
+    _, state = track_step(full + shift, state, p)  # now moving at 0.5 mm/frame
+    truth = full + 2 * shift
+    seen = truth[: int(0.55 * len(truth))]  # the far end is hidden
+    res, _ = track_step(seen, state, p)
+    assert res.filled > 30.0
+    assert res.flagged
+    assert abs(res.length - polyline_length(truth)) < 2.0
+    assert np.abs(resample(res.points, 200) - resample(truth, 200)).max() < 2.0
+
+
+def test_a_hidden_end_is_pulled_onto_the_stereo_points_where_it_has_some():
+    p = TrackParams()
+    full = _arc()
+    _, state = track_step(full, None, p)
+    bent = full.copy()
+    bent[200:, 1] += np.linspace(0, 3.0, 100)  # the far end moved 3 mm in y, unlike the prior
+    seen = bent[:150]
+    res_prior, _ = track_step(seen, state, p)
+    res_cloud, _ = track_step(seen, state, p, cloud=bent[::2])
+    err = [np.abs(resample(r.points, 300)[-40:] - bent[-40:]).max() for r in (res_prior, res_cloud)]
+    assert err[1] < 0.5 * err[0]
+
+
+def test_temporal_smoothness_damps_noise_of_a_still_thread():
+    rng = np.random.default_rng(3)
+    p = TrackParams()
+    truth = _arc(200)
+    state = None
+    raw_steps, tracked_steps = [], []
+    prev_raw = prev_tr = None
+    for _ in range(20):
+        obs = truth + rng.normal(0, 0.3, truth.shape)
+        res, state = track_step(obs, state, p)
+        if prev_raw is not None:
+            raw_steps.append(motion_error(prev_raw, obs, truth, truth))
+            tracked_steps.append(motion_error(prev_tr, res.points, truth, truth))
+        prev_raw, prev_tr = obs, res.points
+    assert np.mean(tracked_steps) < 0.8 * np.mean(raw_steps)
+
+
+def test_a_failed_frame_is_predicted_then_the_track_is_lost():
+    p = TrackParams(max_coast=2)
+    _, state = track_step(_arc(), None, p)
+    statuses = []
+    for _ in range(3):
+        res, state = track_step(None, state, p)
+        statuses.append(res.status)
+    assert statuses == ["predicted", "predicted", "lost"] and state is None
+
+
+def test_an_observation_elsewhere_restarts_the_track():
+    p = TrackParams()
+    _, state = track_step(_arc(), None, p)
+    res, new = track_step(_arc() + np.array([0.0, 60.0, 0.0]), state, p)
+    assert res.restarted and res.flagged and np.allclose(new.velocity, 0)
+
+
+def test_tracking_off_returns_the_single_frame_curve():
+    p = TrackParams(enabled=False)
+    _, state = track_step(_arc(), None, p)
+    res, _ = track_step(_arc() + 1.0, state, p)
+    assert not res.restarted and np.allclose(res.points, resample(_arc() + 1.0, p.n_samples))
+
+
+def test_bad_shapes_are_named():
+    with pytest.raises(ValueError, match=r"single must be \(M >= 2, 3\)"):
+        track_step(np.zeros((5, 2)), None, TrackParams())
+    with pytest.raises(ValueError, match="cloud must be"):
+        track_step(_arc(), None, TrackParams(), cloud=np.zeros(3))
+    with pytest.raises(ValueError, match="smooth"):
+        TrackParams(smooth=2.0)
+
+
+def test_motion_error_is_zero_for_exact_curves_and_the_noise_otherwise():
+    a, b = _arc(), _arc() + np.array([1.0, 0.0, 0.0])
+    assert motion_error(a, b, a, b) == pytest.approx(0.0, abs=1e-9)
+    assert motion_error(a, b[::-1], a, b) == pytest.approx(0.0, abs=1e-9)  # a flip is no motion
+    assert motion_error(a, b + np.array([0.0, 0.5, 0.0]), a, b) == pytest.approx(0.5, abs=1e-6)
+
+
+# --- sequences --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kind", ["drag", "pull"])
+def test_thread_motion_stays_in_view_and_moves(kind):
+    ctrl0 = _arc(8)
+    ctrl0[:, :2] *= 0.4  # 40 mm wide at 100 mm: fits the view with room to move
+    motion = MotionParams(kind=kind, n_frames=40)
+    frames = thread_motion(ctrl0, CAM, motion, 10.0, 0)
+    assert frames.shape == (40, 8, 3)
+    for uv in CAM.project(frames.reshape(-1, 3)):
+        assert uv.min() >= 10.0 and uv[:, 0].max() <= CAM.width - 11
+    assert np.linalg.norm(frames[-1] - frames[0], axis=1).max() > 2.0
+
+
+def test_instrument_sequence_hides_a_moving_piece_and_has_truth_per_frame():
+    params = SequenceParams(motion=MotionParams(kind="instrument", n_frames=5))
+    frames = list(generate_sequence(params, seed=4))
+    again = next(iter(generate_sequence(params, seed=4)))
+    assert len(frames) == 5
+    assert np.array_equal(frames[0].left, again.left)  # deterministic per seed
+    shaft_px = [int((f.left.astype(int).sum(2) > 3 * 150).sum()) for f in frames]
+    assert min(shaft_px) > 1000  # a bright metallic shaft is in every frame
+    for f in frames:
+        assert f.truth.centerline.shape[1] == 3 and f.truth.length_mm > 50
+        assert f.mask_left.sum() > 200
+    assert not np.array_equal(frames[0].mask_left, frames[-1].mask_left)
+
+
+def test_a_still_random_occluder_is_refused_for_sequences():
+    p = SequenceParams(frame=SyntheticParams(render=RenderParams(occlusion=True)))
+    with pytest.raises(ValueError, match="instrument"):
+        next(iter(generate_sequence(p, 0)))
+    with pytest.raises(ValueError, match="motion.kind"):
+        MotionParams(kind="spin")
+
+
+def test_an_end_hidden_little_by_little_is_kept_since_the_thread_does_not_stretch():
+    p = TrackParams()
+    full = _arc(400)
+    _, state = track_step(full, None, p)
+    for k in range(1, 16):  # 1 mm (4 samples) more of the far end hidden every frame
+        res, state = track_step(full[: len(full) - 4 * k], state, p)
+    assert res.length == pytest.approx(polyline_length(full), abs=1.5)
+    assert res.filled > 10.0
