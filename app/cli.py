@@ -366,12 +366,10 @@ def _parse_value(text: str) -> Any:
 def _bench_frames(root: Path) -> list[Frame]:
     """Frames of a dataset folder, or else of a plain folder of side-by-side pairs next to one
     calibration YAML (e.g. one group folder written by ``generate``)."""
-    try:
-        frames = discover(root)
-    except FileNotFoundError as exc:
-        raise UserError(str(exc)) from None
-    if frames:
-        return frames
+    if not root.is_dir():
+        raise UserError(f"{root}: dataset folder not found")
+    if (root / "simulated").is_dir() or (root / "real").is_dir():
+        return discover(root)
     calibs = sorted(root.glob("*.yaml")) + sorted(root.glob("*.yml"))
     images = [
         p
