@@ -69,9 +69,12 @@ def to_camera(
         dense = image_to_camera(BSpline(knots, spline.ctrl, k)(u), calib.G)
         B = basis_matrix(u, knots, k)
         ctrl = np.linalg.lstsq(B, dense, rcond=None)[0]
-        points = image_to_camera(
-            BSpline(knots, spline.ctrl, k)(np.linspace(0.0, 1.0, p.n_points)), calib.G
-        )
+        if n_fit == p.n_points:  # the same samples
+            points = dense
+        else:
+            points = image_to_camera(
+                BSpline(knots, spline.ctrl, k)(np.linspace(0.0, 1.0, p.n_points)), calib.G
+            )
     else:
         raise ValueError(f"mode must be 'refit' or 'paper', got {p.mode!r}")
     length = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
