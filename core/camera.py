@@ -17,7 +17,7 @@ from scipy.interpolate import BSpline
 
 from core.calibration import StereoCalibration
 from core.params import Params, param
-from core.spline import SplineResult
+from core.spline import SplineResult, basis_matrix
 
 
 @dataclass(frozen=True)
@@ -70,11 +70,14 @@ def to_camera(
         n_fit = max(p.n_points, 8 * len(spline.ctrl))
         u = np.linspace(0.0, 1.0, n_fit)
         dense = image_to_camera(BSpline(knots, spline.ctrl, k)(u), calib.G)
-        B = BSpline.design_matrix(u, knots, k).toarray()
+        B = basis_matrix(u, knots, k)
         ctrl = np.linalg.lstsq(B, dense, rcond=None)[0]
-        points = image_to_camera(
-            BSpline(knots, spline.ctrl, k)(np.linspace(0.0, 1.0, p.n_points)), calib.G
-        )
+        if n_fit == p.n_points:  # the same samples
+            points = dense
+        else:
+            points = image_to_camera(
+                BSpline(knots, spline.ctrl, k)(np.linspace(0.0, 1.0, p.n_points)), calib.G
+            )
     else:
         raise ValueError(f"mode must be 'refit' or 'paper', got {p.mode!r}")
     length = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())

@@ -100,27 +100,31 @@ def cluster_keypoints(
 
 
 def _neighbour_graph(pixels: np.ndarray, shape: tuple[int, int], radius: int) -> sp.csr_matrix:
-    """Symmetric adjacency of pixels within Manhattan distance ``radius`` (excluding self)."""
-    H, W = shape
+    """Symmetric adjacency of pixels within Manhattan distance ``radius`` (excluding self).
+    The index image covers the pixels' bounding box only (the thread, not the image)."""
     n = len(pixels)
-    idx = np.full((H + 2 * radius, W + 2 * radius), -1, dtype=np.int64)
-    x, y = pixels[:, 0] + radius, pixels[:, 1] + radius
-    idx[y, x] = np.arange(n)
+    x0, y0 = pixels.min(axis=0) if n else (0, 0)
+    x1, y1 = pixels.max(axis=0) if n else (0, 0)
+    idx = np.full((y1 - y0 + 1 + 2 * radius, x1 - x0 + 1 + 2 * radius), -1, dtype=np.int32)
+    x, y = pixels[:, 0] - x0 + radius, pixels[:, 1] - y0 + radius
+    idx[y, x] = np.arange(n, dtype=np.int32)
     offsets = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
     offsets = [o for o in offsets if 0 < abs(o[0]) + abs(o[1]) <= radius]
     dy = np.array([o[0] for o in offsets])
     dx = np.array([o[1] for o in offsets])
-    nb = idx[y[:, None] + dy[None, :], x[:, None] + dx[None, :]]
-    i = np.repeat(np.arange(n), len(offsets))
-    j = nb.ravel()
-    ok = j >= 0
-    return sp.csr_matrix((np.ones(ok.sum(), dtype=np.int8), (i[ok], j[ok])), shape=(n, n))
+    nb = idx[y[:, None] + dy[None, :], x[:, None] + dx[None, :]]  # (n, offsets), row = i
+    ok = nb >= 0
+    indptr = np.concatenate([[0], np.cumsum(ok.sum(axis=1))])
+    data = np.ones(int(indptr[-1]), dtype=np.int8)
+    return sp.csr_matrix((data, nb[ok], indptr), shape=(n, n))
 
 
 def _wavefront_clusters(graph: sp.csr_matrix, min_size: int, max_size: int) -> np.ndarray:
     n = graph.shape[0]
     labels = np.full(n, -1, dtype=np.int64)
-    n_comp, comp = csgraph.connected_components(graph, directed=False)
+    # The graph is symmetric: directed traversals visit exactly what undirected ones do, in
+    # the same order, without scipy building the transpose (graph + graph.T) on every call.
+    n_comp, comp = csgraph.connected_components(graph, directed=True, connection="weak")
     sizes = np.bincount(comp, minlength=n_comp)
     first = np.full(n_comp, -1)
     first[comp[::-1]] = np.arange(n)[::-1]  # lowest pixel index of each component
@@ -128,9 +132,9 @@ def _wavefront_clusters(graph: sp.csr_matrix, min_size: int, max_size: int) -> n
     for c in np.flatnonzero(sizes >= min_size):
         # Two BFS: the last pixel reached from any pixel is an extremity of the component.
         far = csgraph.breadth_first_order(
-            graph, first[c], directed=False, return_predecessors=False
+            graph, first[c], directed=True, return_predecessors=False
         )[-1]
-        order = csgraph.breadth_first_order(graph, far, directed=False, return_predecessors=False)
+        order = csgraph.breadth_first_order(graph, far, directed=True, return_predecessors=False)
         for start in range(0, order.size, max_size):
             chunk = order[start : start + max_size]
             if chunk.size >= min_size:

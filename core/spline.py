@@ -27,6 +27,7 @@ half-width, is reported (``status``) and the initial spline is returned as a vis
 
 from __future__ import annotations
 
+import functools
 import warnings
 from dataclasses import dataclass
 from typing import Literal
@@ -157,11 +158,13 @@ def fit_spline(
     if p.xy_knots == "adaptive":
         t_xy, xy = _adaptive_xy(bounds.H[:, :2], u, t, k, p)
 
+    reexpress = _reexpress_matrix(t, k, t_xy) if xy is not None else None
+
     def final(c: np.ndarray) -> np.ndarray:
         """Control points on the knots of the result: S_x, S_y refined, S_z re-expressed."""
         if xy is None:
             return c
-        return np.column_stack([xy, _reexpress(t, c[:, 2], k, t_xy)])
+        return np.column_stack([xy, reexpress @ c[:, 2]])
 
     du_ds = length / s[-1]
     lo_c, hi_c, u_c = _constraint_points(u, bounds.lower, bounds.upper)
@@ -169,7 +172,7 @@ def fit_spline(
     mvs = _Mvs(t, k, length, p.quad_per_span)
     b0 = ctrl_init[:, 2].copy()
     f0 = mvs.value(b0)
-    A = BSpline.design_matrix(u_c, t, k).toarray()  # rows: u of H, then the midpoints
+    A = basis_matrix(u_c, t, k)  # rows: u of H, then the midpoints
     if not p.optimise:
         viol = _violation(A @ b0, lo_c, hi_c, half_c)
         c0 = final(ctrl_init)
@@ -243,7 +246,7 @@ def _init_fit(Hi: np.ndarray, u: np.ndarray, t: np.ndarray, k: int) -> np.ndarra
         pass
     # Schoenberg-Whitney fails when H is sparse in some knot span: a tiny second-difference
     # ridge keeps the least-squares problem well posed and leaves well-covered spans unchanged.
-    B = BSpline.design_matrix(u, t, k).toarray()
+    B = basis_matrix(u, t, k)
     D = np.diff(np.eye(m), 2, axis=0)
     lam = 1e-6 * np.trace(B.T @ B) / m
     return np.linalg.solve(B.T @ B + lam * D.T @ D, B.T @ Hi)
@@ -267,8 +270,8 @@ def _refine_xy(
 ) -> tuple[np.ndarray, np.ndarray | None]:
     t_xy = t
     for _ in range(XY_ROUNDS):
-        c = _penalised_fit(xy, u, t_xy, k)
-        miss = np.linalg.norm(BSpline(t_xy, c, k)(u) - xy, axis=1)
+        c, B = _penalised_fit(xy, u, t_xy, k)
+        miss = np.linalg.norm(B @ c - xy, axis=1)
         edges = np.unique(t_xy)
         span = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, len(edges) - 2)
         worst = np.zeros(len(edges) - 1)
@@ -280,28 +283,39 @@ def _refine_xy(
         t_xy = np.sort(np.concatenate([t_xy, 0.5 * (edges[:-1] + edges[1:])[split]]))
     if len(t_xy) == len(t):
         return t, None
-    c = _penalised_fit(xy, u, t_xy, k)
+    c, _ = _penalised_fit(xy, u, t_xy, k)
     return (t_xy, c) if np.all(np.isfinite(c)) else (t, None)
 
 
-def _penalised_fit(xy: np.ndarray, u: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
+def _penalised_fit(
+    xy: np.ndarray, u: np.ndarray, t: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Least squares with a small third-difference penalty on the control points (P-spline):
     halved spans may hold only a few points of H, where plain least squares oscillates."""
     m = len(t) - k - 1
-    B = BSpline.design_matrix(u, t, k).toarray()
+    B = basis_matrix(u, t, k)
     BtB = B.T @ B
     D = np.diff(np.eye(m), 3, axis=0)
-    return np.linalg.solve(BtB + XY_PENALTY * np.trace(BtB) / m * (D.T @ D), B.T @ xy)
+    c = np.linalg.solve(BtB + XY_PENALTY * np.trace(BtB) / m * (D.T @ D), B.T @ xy)
+    return c, B
 
 
-def _reexpress(t: np.ndarray, c: np.ndarray, k: int, t_new: np.ndarray) -> np.ndarray:
-    """Coefficients on t_new (a refinement of t) of the spline (t, c, k): exact, as the spline
-    lies in the refined space; least squares at a few points per span of t_new."""
+def _reexpress_matrix(t: np.ndarray, k: int, t_new: np.ndarray) -> np.ndarray:
+    """(m', m) matrix taking coefficients on t to coefficients on t_new (a refinement of t) of
+    the same spline: exact, as the spline lies in the refined space; least squares at a few
+    points per span of t_new."""
     edges = np.unique(t_new)
     xs = np.linspace(0.0, 1.0, k + 2)
     uq = (edges[:-1, None] + np.diff(edges)[:, None] * xs[None, :]).ravel()
-    B = BSpline.design_matrix(uq, t_new, k).toarray()
-    return np.linalg.lstsq(B, BSpline(t, c, k)(uq), rcond=None)[0]
+    return np.linalg.lstsq(basis_matrix(uq, t_new, k), basis_matrix(uq, t, k), rcond=None)[0]
+
+
+def basis_matrix(x: np.ndarray, t: np.ndarray, k: int, nu: int = 0) -> np.ndarray:
+    """(len(x), m) dense matrix of the m B-spline basis functions on knots t (or their nu-th
+    derivatives) at x in [t[k], t[-k-1]]: one evaluation of the spline with identity
+    coefficients."""
+    basis = BSpline.construct_fast(t, np.eye(len(t) - k - 1), k)
+    return (basis.derivative(nu) if nu else basis)(np.asarray(x, dtype=np.float64))
 
 
 def _constraint_points(
@@ -319,22 +333,27 @@ def _violation(z: np.ndarray, lo: np.ndarray, hi: np.ndarray, half: np.ndarray) 
 
 def _end_rows(t: np.ndarray, k: int, length: float) -> np.ndarray:
     """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z."""
-    basis = BSpline(t, np.eye(len(t) - k - 1), k)
-    v, d1 = basis(np.array([0.0, length])), basis.derivative(1)(np.array([0.0, length]))
+    ends = np.array([0.0, length])
+    v, d1 = basis_matrix(ends, t, k), basis_matrix(ends, t, k, 1)
     return np.stack([v[0], d1[0], v[1], d1[1]])
+
+
+@functools.lru_cache(maxsize=16)
+def _leggauss(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre nodes and weights on [-1, 1] (computed once per n)."""
+    return np.polynomial.legendre.leggauss(n)
 
 
 class _Mvs:
     """Eq. (8) by Gauss-Legendre quadrature, with its analytic gradient in b_z."""
 
     def __init__(self, t: np.ndarray, k: int, length: float, n_per_span: int) -> None:
-        xg, wg = np.polynomial.legendre.leggauss(n_per_span)
+        xg, wg = _leggauss(n_per_span)
         edges = np.unique(t)
         a, b = edges[:-1], edges[1:]
         self.uq = (0.5 * (b - a)[:, None] * (xg[None, :] + 1.0) + a[:, None]).ravel()
         self.wq = (0.5 * (b - a)[:, None] * wg[None, :]).ravel()
-        basis = BSpline(t, np.eye(len(t) - k - 1), k)  # all m basis functions at once
-        self.B = [basis.derivative(d)(self.uq) for d in (1, 2, 3)]  # (nq, m) each
+        self.B = [basis_matrix(self.uq, t, k, d) for d in (1, 2, 3)]  # (nq, m) each
         self.sqrt_wq = np.sqrt(self.wq)
 
     def _terms(self, b: np.ndarray) -> tuple[np.ndarray, ...]:

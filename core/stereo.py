@@ -71,10 +71,13 @@ class StereoParams(Params):
 
     def search_range(self, calib: StereoCalibration) -> tuple[int, int]:
         """(d_lo, d_hi), px: the disparities searched for d_min and d_next."""
-        fB = calib.focal * calib.baseline * calib.mm_per_unit  # px mm
-        d_hi = self.alpha if self.z_near_mm is None else math.ceil(fB / self.z_near_mm)
-        d_lo = 0 if self.z_far_mm is None else math.floor(fB / self.z_far_mm)
         near, far = self.z_near_mm, self.z_far_mm
+        for name, z in (("z_near_mm", near), ("z_far_mm", far)):
+            if z is not None and not (math.isfinite(z) and z > 0):
+                raise ValueError(f"{name} must be a positive depth in mm, got {z!r}")
+        fB = calib.focal * calib.baseline * calib.mm_per_unit  # px mm
+        d_hi = self.alpha if near is None else math.ceil(fB / near)
+        d_lo = 0 if far is None else math.floor(fB / far)
         if near is not None and far is not None and not near < far:
             raise ValueError(f"z_near_mm ({near:g}) must be below z_far_mm ({far:g})")
         if d_hi > D_MAX:

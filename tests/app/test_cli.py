@@ -208,3 +208,20 @@ def test_xy_knots_preset_keys_are_checked_and_paper_strict_keeps_uniform_knots()
         validate({"spline": {"xy_knots": "curvature"}})
     with pytest.raises(ValueError, match="spline.xy_tol_px"):
         validate({"spline": {"xy_tol_px": 0.0}})
+
+
+def test_bench_runs_on_a_plain_folder_with_overrides(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    for name in ("calibration.yaml", "flat_1.png", "flat_1_mask.png"):
+        shutil.copy(FLAT / name, tmp_path / name)
+    code, stdout, _ = run(
+        capsys, "bench", tmp_path, "--repeat", "2", "--set", "stereo.z_near_mm=40"
+    )
+    assert code == 0
+    assert "1 frames (640x480)" in stdout
+    assert "p90" in stdout and "peak RSS" in stdout
+    code, _, err = run(capsys, "bench", tmp_path, "--set", "stereo.nothing=1")
+    assert code == 2 and "stereo.nothing" in err
+    code, _, err = run(capsys, "bench", tmp_path, "--set", "stereo.z_near_mm=-5")
+    assert code == 2 and "z_near_mm" in err

@@ -139,3 +139,19 @@ def test_written_settings_match_the_core_parameters(tmp_path: Path) -> None:
     expected = generate_frame(params, np.random.default_rng([2, 1]))
     ctrl = np.load(tmp_path / "simulated" / "flat" / "flat_1.npy")
     np.testing.assert_array_equal(ctrl, expected.truth.control_points)
+
+
+def test_generate_size_scales_the_intrinsics(tmp_path: Path) -> None:
+    assert _run(str(tmp_path), "--count", "1", "--size", "1280x960") == 0
+    group = tmp_path / "simulated" / "flat"
+    pair = cv2.imread(str(group / "flat_1.png"), cv2.IMREAD_COLOR)
+    assert pair.shape == (960, 2560, 3)
+    fs = cv2.FileStorage(str(group / "calibration.yaml"), cv2.FILE_STORAGE_READ)
+    K = fs.getNode("K1").mat()
+    fs.release()
+    base = generate.StereoCamera()
+    assert_k = np.array([[2 * base.fx, 0, 2 * base.cx], [0, 2 * base.fx, 2 * base.cy], [0, 0, 1]])
+    assert np.allclose(K, assert_k)
+    assert "--size 1280x960" in (tmp_path / "README.md").read_text()
+    with pytest.raises(SystemExit):
+        _parse(str(tmp_path), "--size", "1280by960")

@@ -304,3 +304,22 @@ def test_window_line_fit_of_a_single_point_is_its_depth() -> None:
     line, slope = _window_line_fits(s, z, np.array([0, 2]), 0)
     assert line[0] == 1.0 and slope[0] == 0.0
     assert np.isnan(line[1]) and slope[1] == 0.0  # no finite depth: k_i's own (NaN) depth
+
+
+def test_contradictory_endpoint_slopes_are_relaxed_or_reported_infeasible() -> None:
+    b, calib = _bounds(2)
+    # An endpoint slope that leaves the bounds within a pixel: no spline meets both.
+    half = 0.5 * (b.upper - b.lower)
+    tight = replace(
+        b,
+        end_values=(float(b.centre[0]), float(b.centre[-1])),
+        end_slopes=(20.0 * float(half.max()), b.end_slopes[1]),  # per px: leaves at once
+    )
+    strict = fit_spline(tight, calib, SplineParams(relax_slopes=False))
+    assert strict.status == "infeasible" and not strict.ok
+    assert "infeasible" in strict.message
+    assert_close(strict.ctrl, strict.ctrl_init)
+    relaxed = fit_spline(tight, calib, SplineParams(relax_slopes=True))
+    assert relaxed.status == "ok", relaxed.message
+    assert "relaxed" in relaxed.message
+    assert relaxed.max_violation <= SplineParams().bound_tol

@@ -5,6 +5,7 @@ import pytest
 from support import assert_close
 
 from core.metrics import (
+    _zhang_suen,
     curve_errors,
     polyline_length,
     project,
@@ -116,3 +117,21 @@ def test_skeleton_of_a_three_pixel_line_is_one_pixel_wide() -> None:
 def test_curve_errors_reject_bad_shapes() -> None:
     with pytest.raises(ValueError, match=r"\(3,\)"):
         curve_errors(np.zeros(3), np.zeros((4, 3)))
+
+
+def test_skeleton_on_the_bounding_box_equals_the_full_image_thinning() -> None:
+    rng = np.random.default_rng(7)
+    mask = np.zeros((120, 160), dtype=bool)
+    for _ in range(3):  # thick random strokes
+        y, x = rng.integers(20, 100), rng.integers(20, 140)
+        mask[y - 3 : y + 4, x - 25 : x + 25] = True
+        mask[y - 20 : y + 20, x - 2 : x + 3] = True
+    full = _zhang_suen(mask)
+    sk = skeleton(mask)
+    assert np.array_equal(sk, full)
+    assert sk.sum() > 0 and not sk.flags.writeable
+    assert skeleton(mask.copy()) is sk  # same content: cached
+    other = mask.copy()
+    other[0, 0] = True
+    assert skeleton(other) is not sk
+    assert not skeleton(np.zeros((10, 12), dtype=bool)).any()

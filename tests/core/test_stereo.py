@@ -156,5 +156,7 @@ def test_search_range_follows_depth_through_f_times_b() -> None:
     assert st.energy.shape[1] == hi + 1
     with pytest.raises(ValueError, match="z_near_mm"):
         StereoParams(z_near_mm=300.0, z_far_mm=200.0).search_range(calib)
+    with pytest.raises(ValueError, match=r"z_near_mm must be in \[1"):
+        StereoParams(z_near_mm=0.0)  # refused on construction
     with pytest.raises(ValueError, match="narrower"):
         StereoParams(z_near_mm=100.0, z_far_mm=101.0).search_range(calib)
