@@ -28,6 +28,7 @@ import scipy.sparse as sp
 from scipy.sparse import csgraph
 
 from core.clustering import Clusters
+from core.params import param
 from core.segmentation import LiftedPair
 from core.stereo import StereoResult
 
@@ -43,10 +44,41 @@ class OrderingParams:
     tip_px: float = 2.0
     """Extend an end to its cluster's tip when the tip lies this far beyond the end keypoint,
     px (0: off, the paper). The keypoint is a centroid, half a cluster short of the tip."""
-    bridge_px: float = 80.0
+    bridge_px: float = 150.0
     """Largest jump between components of A the walk may make, px (0: paper, no jump)."""
     metric: Literal["image", "3d"] = "image"
     """Distance for "closest adjacent keypoint": image-plane px (default) or 3D."""
+    walk: Literal["bending", "greedy"] = param(
+        "bending",
+        label="walk",
+        doc='"greedy" (paper): closest unexplored adjacent keypoint. "bending": the continuation '
+        "of least bending and disparity change, passing through junctions already on the path "
+        "(crossings) and across gaps (occlusions) when direction and depth agree.",
+    )
+    bend_weight: float = param(
+        2.0,
+        lo=0.0,
+        hi=50.0,
+        label="bending weight",
+        doc="Step cost = distance * (1 + bend_weight * (1 - cos turn)) + ..., 1 (walk=bending).",
+    )
+    disparity_weight: float = param(
+        10.0,
+        lo=0.0,
+        hi=1000.0,
+        unit="px/px",
+        label="disparity weight",
+        doc="Step cost per px of disparity change from the recent path (walk=bending), px.",
+    )
+    max_turn_deg: float = param(
+        60.0,
+        lo=0.0,
+        hi=180.0,
+        unit="deg",
+        label="max turn at a jump",
+        doc="A jump over a gap or through a crossing turns by at most this, and the piece it "
+        "lands on continues within it (walk=bending).",
+    )
 
 
 @dataclass(frozen=True)
@@ -112,7 +144,14 @@ def order_keypoints(
     edges = np.array(sorted(edge_set), dtype=np.int64).reshape(-1, 2)
 
     pos = clusters.keypoints_px[:, :2] if p.metric == "image" else clusters.keypoints
-    walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
+    if p.walk == "greedy":
+        walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
+    else:
+        sel_c = clusters.labels >= 0
+        disp = np.bincount(
+            clusters.labels[sel_c], weights=stereo.disparity[sel_c], minlength=K
+        ) / np.maximum(clusters.sizes, 1)  # mean disparity of each cluster, px
+        walk = _bending_walk(K, edges, clusters.keypoints_px[:, :2], disp, p)
 
     cluster_gaps: dict[int, set[int]] = {}
     for c, g in np.unique(cg, axis=0):
@@ -327,3 +366,109 @@ def _components(K: int, adj: list[list[int]]) -> np.ndarray:
                     stack.append(v)
         c += 1
     return comp
+
+
+def _bending_walk(
+    K: int, edges: np.ndarray, pos: np.ndarray, disp: np.ndarray, p: OrderingParams
+) -> list[int]:
+    """Best of the walks from every end keypoint (degree 1 in A); see :func:`_walk_from`."""
+    adj: list[list[int]] = [[] for _ in range(K)]
+    for a, b in edges:
+        adj[a].append(int(b))
+        adj[b].append(int(a))
+    degree = np.array([len(a) for a in adj])
+    starts = [int(k) for k in np.flatnonzero(degree <= 1)]
+    if not starts:  # a closed loop: start from the lowest degree
+        starts = [int(np.argmin(degree))]
+    best: list[int] = []
+    best_key = (-1, 0.0)
+    for s in starts:
+        walk, cost = _walk_from(s, adj, pos, disp, p)
+        key = (len(walk), -cost)
+        if key > best_key:
+            best, best_key = walk, key
+    return best
+
+
+def _walk_from(
+    start: int, adj: list[list[int]], pos: np.ndarray, disp: np.ndarray, p: OrderingParams
+) -> tuple[list[int], float]:
+    """Walk A from ``start``, each step to the continuation of least cost
+
+        distance * (1 + bend_weight * (1 - cos turn)) + disparity_weight * |disparity change|,
+
+    among, in this order of preference: unvisited neighbours in A; unvisited keypoints two steps
+    away through a keypoint already on the path (the other strand of a crossing); unvisited
+    keypoints within ``bridge_px`` whose direction and disparity agree (across an occlusion or a
+    break in the segmentation). The last two turn by at most ``max_turn_deg``.
+    """
+    K = len(adj)
+    visited = np.zeros(K, dtype=bool)
+    visited[start] = True
+    walk = [start]
+    total = 0.0
+    cos_max = float(np.cos(np.radians(p.max_turn_deg)))
+    while True:
+        cur = walk[-1]
+        back = walk[-3] if len(walk) >= 3 else walk[0]
+        heading = pos[cur] - pos[back]
+        hn = float(np.hypot(*heading))
+        heading = heading / hn if hn > 0 else None
+        ref = float(np.mean(disp[walk[-3:]]))
+        cand = [v for v in adj[cur] if not visited[v]]
+        limited = False
+        if not cand:
+            cand = sorted({w for u in adj[cur] if visited[u] for w in adj[u] if not visited[w]})
+            limited = True
+        jump = False
+        if not cand and p.bridge_px > 0 and heading is not None:
+            free = np.flatnonzero(~visited)
+            d = np.linalg.norm(pos[free] - pos[cur], axis=1)
+            near = d <= p.bridge_px
+            near &= np.abs(disp[free] - ref) <= 1.0 + 0.1 * d  # depth agrees (slope <= B/Z)
+            cand = [int(v) for v in free[near]]
+            limited = jump = True
+        if not cand:
+            break
+        c = np.array(cand)
+        chord = pos[c] - pos[cur]
+        dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
+        cos_t = chord @ heading / dist if heading is not None else np.ones(len(c))
+        cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(
+            disp[c] - ref
+        )
+        if limited:
+            ok = cos_t >= cos_max
+            if jump:  # the piece landed on must continue the same way
+                ok &= np.array(
+                    [
+                        _continues(v, chord[i], adj, visited, pos, cos_max)
+                        for i, v in enumerate(cand)
+                    ]
+                )
+            cost = np.where(ok, cost, np.inf)
+        j = int(np.argmin(cost))
+        if not np.isfinite(cost[j]):
+            break
+        nxt = cand[j]
+        visited[nxt] = True
+        walk.append(nxt)
+        total += float(cost[j])
+    return walk, total
+
+
+def _continues(
+    v: int,
+    chord: np.ndarray,
+    adj: list[list[int]],
+    visited: np.ndarray,
+    pos: np.ndarray,
+    cos_max: float,
+) -> bool:
+    """Does the unvisited piece at ``v`` leave ``v`` within ``cos_max`` of the jump ``chord``?"""
+    nb = [u for u in adj[v] if not visited[u]]
+    if not nb:
+        return True  # a lone keypoint
+    out = pos[nb].mean(axis=0) - pos[v]
+    n = float(np.hypot(*out)) * float(np.hypot(*chord))
+    return n == 0 or float(out @ chord) / n >= cos_max
