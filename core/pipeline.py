@@ -15,6 +15,7 @@ from core.calibration import StereoCalibration
 from core.camera import CameraParams, to_camera
 from core.clustering import ClusterParams, cluster_keypoints
 from core.ordering import OrderingParams, order_keypoints
+from core.refine import RefineParams, refine_depth
 from core.reliability import ReliabilityParams, prune
 from core.segmentation import SegmentationParams, StereoPair, segment
 from core.spline import SplineParams, fit_spline
@@ -28,6 +29,7 @@ STAGES = (
     "ordering",
     "bounds",
     "spline",
+    "refine",
     "camera",
 )
 
@@ -43,6 +45,7 @@ class ReconParams:
     ordering: OrderingParams = field(default_factory=OrderingParams)
     bounds: BoundsParams = field(default_factory=BoundsParams)
     spline: SplineParams = field(default_factory=SplineParams)
+    refine: RefineParams = field(default_factory=RefineParams)
     camera: CameraParams = field(default_factory=CameraParams)
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
@@ -98,7 +101,8 @@ class Pipeline:
             ),
             "bounds": lambda: depth_bounds(r["stereo"], r["ordering"], c, p.bounds),
             "spline": lambda: fit_spline(r["bounds"], c, p.spline),
-            "camera": lambda: to_camera(r["spline"], c, p.camera),
+            "refine": lambda: refine_depth(r["spline"], r["bounds"], r["segment"], c, p.refine),
+            "camera": lambda: to_camera(r["refine"], c, p.camera),
         }
         return fns[stage]()
 
