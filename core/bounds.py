@@ -25,6 +25,8 @@ from core.calibration import StereoCalibration
 from core.ordering import Ordering
 from core.stereo import StereoResult
 
+BORDER_PX = 2.0  # a left pixel within this of where its match leaves the right image: no depth
+
 
 @dataclass(frozen=True)
 class BoundsParams:
@@ -79,7 +81,7 @@ def depth_bounds(
     M = len(path)
     if M < 2:
         raise ValueError(f"need at least 2 ordered keypoints for a curve, got {M}")
-    H, is_key = _extra_points(stereo, ordering, p.extra_px)
+    H, is_key = _extra_points(stereo, ordering, p.extra_px, calib.focal * calib.baseline)
     seg = np.linalg.norm(np.diff(H[:, :2], axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg)])
     key_idx = np.flatnonzero(is_key)
@@ -125,14 +127,20 @@ def _line_fit(s: np.ndarray, z: np.ndarray, fallback: float) -> tuple[float, flo
 
 
 def _extra_points(
-    stereo: StereoResult, ordering: Ordering, extra_px: int
+    stereo: StereoResult, ordering: Ordering, extra_px: int, fB: float
 ) -> tuple[np.ndarray, np.ndarray]:
+    """Points of H between keypoints. A gap pixel whose match would lie left of the right
+    image (x < the disparity of its link's keypoints + ``BORDER_PX``: the thread leaves the
+    right view there) has no stereo depth and gives none."""
     path = ordering.path_px
     rows: list[np.ndarray] = [path[:1]]
     keys: list[bool] = [True]
     for i in range(len(path) - 1):
         sel = np.flatnonzero((ordering.pixel_link == i) & np.isfinite(ordering.pixel_t))
         sel = sel[(ordering.pixel_t[sel] > 0) & (ordering.pixel_t[sel] < 1)]
+        z_ends = path[i : i + 2, 2]
+        d_ref = fB / np.min(z_ends[z_ends > 0]) if np.any(z_ends > 0) else 0.0
+        sel = sel[stereo.pixels[sel, 0] >= d_ref + BORDER_PX]
         n_extra = sel.size // extra_px
         if n_extra > 0:
             xy = stereo.pixels[sel].astype(np.float64)

@@ -33,6 +33,7 @@ from core.segmentation import LiftedPair
 from core.stereo import StereoResult
 
 _HALF_8 = ((0, 1), (1, -1), (1, 0), (1, 1))  # half of the 8-neighbourhood: each pair seen once
+MAX_WALKS = 24  # walks tried per frame (ends, then runner-up turns of the best): bounded time
 
 
 @dataclass(frozen=True)
@@ -371,7 +372,9 @@ def _components(K: int, adj: list[list[int]]) -> np.ndarray:
 def _bending_walk(
     K: int, edges: np.ndarray, pos: np.ndarray, disp: np.ndarray, p: OrderingParams
 ) -> list[int]:
-    """Best of the walks from every end keypoint (degree 1 in A); see :func:`_walk_from`."""
+    """Best of the walks from every end keypoint (degree 1 in A), see :func:`_walk_from`; when
+    the best walk leaves keypoints out, the runner-up continuation at each junction it passed
+    is tried too (a wrong turn at a crossing strands the rest of the thread)."""
     adj: list[list[int]] = [[] for _ in range(K)]
     for a, b in edges:
         adj[a].append(int(b))
@@ -380,33 +383,54 @@ def _bending_walk(
     starts = [int(k) for k in np.flatnonzero(degree <= 1)]
     if not starts:  # a closed loop: start from the lowest degree
         starts = [int(np.argmin(degree))]
-    best: list[int] = []
+    best_walk: list[int] = []
+    best_steps: list[float] = []
+    best_alts: list[tuple[int, int]] = []
     best_key = (-1, 0.0)
-    for s in starts:
-        walk, cost = _walk_from(s, adj, pos, disp, p)
-        key = (len(walk), -cost)
+    tried = 0
+    queue: list[tuple[list[int], list[float], int | None]] = [([s], [], None) for s in starts]
+    while queue and tried < MAX_WALKS:
+        prefix, prefix_steps, forced = queue.pop(0)
+        walk, steps, alts = _walk_from(prefix, prefix_steps, forced, adj, pos, disp, p)
+        tried += 1
+        key = (len(walk), -sum(steps))
         if key > best_key:
-            best, best_key = walk, key
-    return best
+            best_walk, best_steps, best_alts, best_key = walk, steps, alts, key
+        if not queue and len(best_walk) < K and best_alts:
+            # Branch at each decision of the best walk so far, in path order.
+            queue = [(best_walk[: i + 1], best_steps[:i], alt) for i, alt in best_alts]
+            best_alts = []
+    return best_walk
 
 
 def _walk_from(
-    start: int, adj: list[list[int]], pos: np.ndarray, disp: np.ndarray, p: OrderingParams
-) -> tuple[list[int], float]:
-    """Walk A from ``start``, each step to the continuation of least cost
+    prefix: list[int],
+    prefix_steps: list[float],
+    forced: int | None,
+    adj: list[list[int]],
+    pos: np.ndarray,
+    disp: np.ndarray,
+    p: OrderingParams,
+) -> tuple[list[int], float, list[tuple[int, int]]]:
+    """Walk A on from ``prefix`` (its first step ``forced`` when given), each step to the
+    continuation of least cost
 
         distance * (1 + bend_weight * (1 - cos turn)) + disparity_weight * |disparity change|,
 
     among, in this order of preference: unvisited neighbours in A; unvisited keypoints two steps
-    away through a keypoint already on the path (the other strand of a crossing); unvisited
-    keypoints within ``bridge_px`` whose direction and disparity agree (across an occlusion or a
-    break in the segmentation). The last two turn by at most ``max_turn_deg``.
+    away through a keypoint already on the path (the other strand of a crossing; a turn of more
+    than ``max_turn_deg`` only when nothing else is left: a touching turn); unvisited keypoints
+    within ``bridge_px`` whose direction and disparity agree and whose piece continues the same
+    way (across an occlusion or a break in the segmentation), turning by at most
+    ``max_turn_deg``. Returns the walk, the cost of each step and the runner-up at each step
+    that had one (as (index in the walk, keypoint)).
     """
     K = len(adj)
     visited = np.zeros(K, dtype=bool)
-    visited[start] = True
-    walk = [start]
-    total = 0.0
+    visited[prefix] = True
+    walk = list(prefix)
+    steps = list(prefix_steps)
+    alts: list[tuple[int, int]] = []
     cos_max = float(np.cos(np.radians(p.max_turn_deg)))
     while True:
         cur = walk[-1]
@@ -415,19 +439,18 @@ def _walk_from(
         hn = float(np.hypot(*heading))
         heading = heading / hn if hn > 0 else None
         ref = float(np.mean(disp[walk[-3:]]))
+        tier = 0
         cand = [v for v in adj[cur] if not visited[v]]
-        limited = False
         if not cand:
             cand = sorted({w for u in adj[cur] if visited[u] for w in adj[u] if not visited[w]})
-            limited = True
-        jump = False
+            tier = 1
         if not cand and p.bridge_px > 0 and heading is not None:
             free = np.flatnonzero(~visited)
             d = np.linalg.norm(pos[free] - pos[cur], axis=1)
             near = d <= p.bridge_px
             near &= np.abs(disp[free] - ref) <= 1.0 + 0.1 * d  # depth agrees (slope <= B/Z)
             cand = [int(v) for v in free[near]]
-            limited = jump = True
+            tier = 2
         if not cand:
             break
         c = np.array(cand)
@@ -437,24 +460,32 @@ def _walk_from(
         cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(
             disp[c] - ref
         )
-        if limited:
+        if tier > 0:
             ok = cos_t >= cos_max
-            if jump:  # the piece landed on must continue the same way
+            if tier == 2:  # the piece landed on must continue the same way
                 ok &= np.array(
                     [
                         _continues(v, chord[i], adj, visited, pos, cos_max)
                         for i, v in enumerate(cand)
                     ]
                 )
-            cost = np.where(ok, cost, np.inf)
-        j = int(np.argmin(cost))
+            if tier == 2 or ok.any():
+                cost = np.where(ok, cost, np.inf)
+        rank = np.argsort(cost, kind="stable")
+        j = int(rank[0])
+        if forced is not None and len(walk) == len(prefix):
+            if forced not in cand:
+                break
+            j = cand.index(forced)
+        elif len(rank) > 1 and np.isfinite(cost[rank[1]]):
+            alts.append((len(walk) - 1, int(cand[rank[1]])))
         if not np.isfinite(cost[j]):
             break
         nxt = cand[j]
         visited[nxt] = True
         walk.append(nxt)
-        total += float(cost[j])
-    return walk, total
+        steps.append(float(cost[j]))
+    return walk, steps, alts
 
 
 def _continues(
