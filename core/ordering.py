@@ -194,22 +194,7 @@ def order_keypoints(
             path.append(new)
             order.append(-1)
             links.append(tuple(dead))
-    pixel_t = np.full(len(pixel_node), np.nan)
-    pixel_link = np.full(len(pixel_node), -1, dtype=np.int64)
-    for i, gap_ids in enumerate(links):
-        sel = np.flatnonzero(np.isin(pixel_node, gap_ids))
-        if sel.size == 0:
-            continue
-        a, b = order[i], order[i + 1]
-        if a < 0:  # extension at the start: measure from the cluster after it, reversed
-            pixel_t[sel] = 1.0 - _normalised(geo.distance_from(b, sel))
-        elif b < 0:
-            pixel_t[sel] = _normalised(geo.distance_from(a, sel))
-        else:
-            da, db = geo.distance_from(a, sel), geo.distance_from(b, sel)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                pixel_t[sel] = da / (da + db)
-        pixel_link[sel] = i
+    pixel_t, pixel_link = _link_positions(geo, pixel_node, links, order, K + n_gaps)
 
     kept = set(walk)
     dropped = np.array([k for k in range(K) if k not in kept], dtype=np.int64)
@@ -256,6 +241,51 @@ class _GapGeodesics:
         pos = np.searchsorted(sel, src)
         d = csgraph.dijkstra(sub, directed=False, indices=pos, min_only=True)
         return np.where(np.isinf(d), np.nan, d + 1.0)
+
+
+def _link_positions(
+    geo: _GapGeodesics,
+    pixel_node: np.ndarray,
+    links: list[tuple[int, ...]],
+    order: list[int],
+    n_nodes: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``pixel_t``, ``pixel_link`` of every gap pixel on a link, from two multi-source geodesic
+    searches (from the link's first cluster and from its second, all links at once: gaps are
+    disjoint, and the gap graph has no edge between two gaps)."""
+    n = len(pixel_node)
+    pixel_t = np.full(n, np.nan)
+    pixel_link = np.full(n, -1, dtype=np.int64)
+    link_of = np.full(n_nodes, -1, dtype=np.int64)
+    for i, gap_ids in enumerate(links):
+        link_of[list(gap_ids)] = i
+    sel = np.flatnonzero((pixel_node >= 0) & (link_of[np.maximum(pixel_node, 0)] >= 0))
+    if sel.size == 0:
+        return pixel_t, pixel_link
+    lk = link_of[pixel_node[sel]]
+    ends = np.array(order, dtype=np.int64)
+    a, b = ends[lk], ends[lk + 1]
+    nb = geo.nb_node[sel]
+    d = []
+    for end in (a, b):
+        src = sel[(end >= 0) & np.any(nb == end[:, None], axis=1)]
+        if src.size == 0:
+            d.append(np.full(sel.size, np.nan))
+            continue
+        dist = csgraph.dijkstra(geo.graph, directed=False, indices=src, min_only=True)[sel]
+        d.append(np.where(np.isinf(dist), np.nan, dist + 1.0))
+    da, db = d
+    top_a = np.zeros(len(links))
+    top_b = np.zeros(len(links))
+    np.fmax.at(top_a, lk, np.where(np.isfinite(da), da, 0.0))
+    np.fmax.at(top_b, lk, np.where(np.isfinite(db), db, 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = da / (da + db)
+        t = np.where(a < 0, 1.0 - db / top_b[lk], t)  # extension at the start: reversed
+        t = np.where(b < 0, da / top_a[lk], t)
+    pixel_t[sel] = np.where(np.isfinite(t), t, np.nan)
+    pixel_link[sel] = lk
+    return pixel_t, pixel_link
 
 
 def _normalised(d: np.ndarray) -> np.ndarray:

@@ -15,8 +15,8 @@ matches the disparity of the thread itself:
 - smoothness: the integral of (d^3 S_z / ds^3)^2 over the image arc length s, the small-slope
   form of Eq. (8)'s Minimum Variation term, weighted by ``smooth_px``^5 (a length in px: depth
   features shorter than it are smoothed);
-- the depth bounds of Eq. (7) hold at the points of H (quadratic penalty, re-solved until met
-  to ``BOUND_SLACK``).
+- the depth bounds of Eq. (7) hold at the points of H (exact: a least-squares problem with
+  linear inequalities, solved by Lawson and Hanson's reduction to NNLS).
 
 Gauss-Newton over the control values of S_z with re-association of the runs, ``iterations``
 rounds; the result is the spline of the previous stage with its S_z replaced.
@@ -28,6 +28,7 @@ from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
+from scipy import optimize
 from scipy.interpolate import BSpline
 
 from core.bounds import Bounds
@@ -36,8 +37,8 @@ from core.params import param
 from core.segmentation import LiftedPair
 from core.spline import SplineResult
 
-BOUND_PENALTY = 1e4  # weight of a violated bound, relative to the mean data weight
-BOUND_SLACK = 0.02  # bounds hold to 2 % of the half-width (the spline stage's bound_tol)
+QUAD_PER_SPAN = 4  # Gauss-Legendre nodes per knot span: exact for the squared 3rd derivative
+RIDGE = 1e-9  # relative ridge that keeps the least-squares matrix of full column rank
 GATE_PX = 2.0  # a run is associated when the prediction lies within its half-length + 2 px
 
 
@@ -87,16 +88,17 @@ def refine_depth(
     okL = np.isfinite(cL) & (np.abs(cL - xy[:, 0]) <= 0.5 * lL + GATE_PX)
 
     # Smoothness: third derivative over image arc length s = u * xy_len / length.
-    uq = np.linspace(0.0, spline.length, 2 * n)
-    D3 = BSpline(t, np.eye(len(c0)), k).derivative(3)(uq)  # (2n, m): d^3 S_z / du^3 per b
+    uq, wq = _gauss_nodes(t, k, QUAD_PER_SPAN)
+    D3 = BSpline(t, np.eye(len(c0)), k).derivative(3)(uq)  # d^3 S_z / du^3 per control value
     ds_du = xy_len / spline.length
     z_mean = float(np.mean(Bm @ c0[:, 2]))
     to_px = fB / z_mean**2  # depth -> disparity px at the mean depth
-    S = D3 * to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * (xy_len / len(uq)))
+    S = D3 * (to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))[:, None]
 
     BH = BSpline.design_matrix(np.clip(spline.u_H, 0, spline.length), t, k).toarray()
     lo, hi = bounds.lower, bounds.upper
-    slack = BOUND_SLACK * 0.5 * (hi - lo)
+    G = np.vstack([BH, -BH])  # Eq. (7): lower <= S_z(u_H) <= upper
+    h = np.concatenate([lo, -hi])
     b = c0[:, 2].copy()
     for _ in range(p.iterations):
         z = Bm @ b
@@ -110,27 +112,45 @@ def refine_depth(
         w = 1.0 / np.sqrt((lL[ok] ** 2 + lR[ok] ** 2) / 12.0)  # 1 / sigma, px
         target = cL[ok] - cR[ok]
         J = (-fB / z[ok] ** 2)[:, None] * Bm[ok]  # d disparity / d b
-        A = np.vstack([J * w[:, None], S])
-        rhs = np.concatenate([(target - d[ok] + J @ b) * w, np.zeros(len(S))])
-        pen_rows = np.zeros((0, len(b)))
-        pen_rhs = np.zeros(0)
-        scale = np.sqrt(BOUND_PENALTY * np.mean(w**2)) * to_px
-        for _ in range(4):  # bounds of Eq. (7) by quadratic penalty, re-solved while violated
-            b_new = np.linalg.lstsq(np.vstack([A, pen_rows]), np.concatenate([rhs, pen_rhs]))[0]
-            zH = BH @ b_new
-            below, above = zH < lo - slack, zH > hi + slack
-            if not (below.any() or above.any()):
-                break
-            viol = below | above
-            pen_rows = np.vstack([pen_rows, BH[viol] * scale])
-            pen_rhs = np.concatenate([pen_rhs, np.where(below, lo, hi)[viol] * scale])
+        A = J * w[:, None]
+        rhs = (target - d[ok] + J @ b) * w
+        b_new = _lsi(np.vstack([A, S]), np.concatenate([rhs, np.zeros(len(S))]), G, h)
+        if b_new is None:
+            return spline  # the bounds cannot be met with this spline: keep the MVS depth
         b = b_new
-    zH = BH @ b
-    if np.any(zH < lo - 2 * slack - 1e-12) or np.any(zH > hi + 2 * slack + 1e-12):
-        return spline  # bounds not met: keep the MVS depth (no silent violation)
     ctrl = c0.copy()
     ctrl[:, 2] = b
     return replace(spline, ctrl=ctrl)
+
+
+def _gauss_nodes(t: np.ndarray, k: int, per_span: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre nodes and weights, ``per_span`` per non-empty knot span of (t, k)."""
+    x, w = np.polynomial.legendre.leggauss(per_span)
+    brk = np.unique(t[k : len(t) - k])
+    a, b = brk[:-1, None], brk[1:, None]
+    return (0.5 * (b - a) * x + 0.5 * (a + b)).ravel(), (0.5 * (b - a) * w).ravel()
+
+
+def _lsi(A: np.ndarray, r: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarray | None:
+    """min ||A x - r|| subject to G x >= h (Lawson and Hanson, LSI -> LDP -> NNLS).
+    None when the constraints are infeasible."""
+    n = A.shape[1]
+    ridge = RIDGE * max(float(np.abs(A).max()), 1e-300)
+    A = np.vstack([A, ridge * np.eye(n)])
+    r = np.concatenate([r, np.zeros(n)])
+    Q, R = np.linalg.qr(A)
+    qr = Q.T @ r
+    E = np.linalg.solve(R.T, G.T).T  # G R^-1
+    f = h - E @ qr
+    M = np.vstack([E.T, f[None, :]])
+    e = np.zeros(n + 1)
+    e[-1] = 1.0
+    u, _ = optimize.nnls(M, e, maxiter=50 * M.shape[1])
+    res = M @ u - e
+    if abs(res[-1]) < 1e-12:
+        return None
+    y = -res[:n] / res[-1]
+    return np.linalg.solve(R, y + qr)
 
 
 class _Runs:

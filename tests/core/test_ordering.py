@@ -89,3 +89,32 @@ def test_negative_solidify_radius_raises() -> None:
         order_keypoints(
             rec["segment"], rec["stereo"], rec["clustering"], OrderingParams(solidify_radius=-1)
         )
+
+
+@pytest.mark.parametrize("seed", TRIALS[:4])
+def test_link_positions_match_per_link_geodesics(seed: int) -> None:
+    # One multi-source search per side gives the same positions as a search per link.
+    from core.ordering import _GapGeodesics, _normalised
+
+    params = ReconParams(
+        reliability=ReliabilityParams(threshold=0.999), ordering=OrderingParams(solidify_radius=0)
+    )
+    pair, calib, _ = synthetic_case(seed)
+    rec = Pipeline(pair, calib).run(params, until="ordering")
+    o, stereo = rec["ordering"], rec["stereo"]
+    geo = _GapGeodesics(stereo, o.pixel_node, o.n_clusters)
+    expected = np.full(len(o.pixel_node), np.nan)
+    for i, gap_ids in enumerate(o.links):
+        sel = np.flatnonzero(np.isin(o.pixel_node, gap_ids))
+        if sel.size == 0:
+            continue
+        a, b = o.order[i], o.order[i + 1]
+        if a < 0:
+            expected[sel] = 1.0 - _normalised(geo.distance_from(b, sel))
+        elif b < 0:
+            expected[sel] = _normalised(geo.distance_from(a, sel))
+        else:
+            da, db = geo.distance_from(a, sel), geo.distance_from(b, sel)
+            expected[sel] = da / (da + db)
+    assert np.array_equal(np.isfinite(expected), np.isfinite(o.pixel_t))
+    np.testing.assert_allclose(o.pixel_t[np.isfinite(expected)], expected[np.isfinite(expected)])
