@@ -151,6 +151,31 @@ def _extra_points(
                 if d.size:
                     rows.append(np.array([[*xy[run].mean(axis=0), np.median(d)]]))
                     keys.append(False)
+        elif sel.size == 0:
+            fill = _bridge(path, i, extra_px)
+            rows.extend(fill[j : j + 1] for j in range(len(fill)))
+            keys.extend([False] * len(fill))
         rows.append(path[i + 1 : i + 2])
         keys.append(True)
     return np.concatenate(rows), np.array(keys)
+
+
+def _bridge(path: np.ndarray, i: int, extra_px: int) -> np.ndarray:
+    """Points every ``extra_px`` px on the cubic Hermite curve from keypoint i to i + 1 with the
+    path's directions at both ends (a jump across an occlusion: no pixel lies between them),
+    depth linear between the two keypoints. (n, 3), n = 0 for a short link."""
+    p0, p1 = path[i, :2], path[i + 1, :2]
+    chord = float(np.linalg.norm(p1 - p0))
+    n = int(chord // extra_px)
+    if n < 1:
+        return np.zeros((0, 3))
+    t0 = p0 - path[max(i - 1, 0), :2]
+    t1 = path[min(i + 2, len(path) - 1), :2] - p1
+    t0 = chord * t0 / max(float(np.linalg.norm(t0)), 1e-9)
+    t1 = chord * t1 / max(float(np.linalg.norm(t1)), 1e-9)
+    s = np.arange(1, n + 1)[:, None] / (n + 1)
+    h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+    h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+    xy = h00 * p0 + h10 * t0 + h01 * p1 + h11 * t1
+    z = path[i, 2] + s[:, 0] * (path[i + 1, 2] - path[i, 2])
+    return np.column_stack([xy, z])

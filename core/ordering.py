@@ -45,7 +45,7 @@ class OrderingParams:
     tip_px: float = 2.0
     """Extend an end to its cluster's tip when the tip lies this far beyond the end keypoint,
     px (0: off, the paper). The keypoint is a centroid, half a cluster short of the tip."""
-    bridge_px: float = 150.0
+    bridge_px: float = 300.0
     """Largest jump between components of A the walk may make, px (0: paper, no jump)."""
     metric: Literal["image", "3d"] = "image"
     """Distance for "closest adjacent keypoint": image-plane px (default) or 3D."""
@@ -77,8 +77,8 @@ class OrderingParams:
         hi=180.0,
         unit="deg",
         label="max turn at a jump",
-        doc="A jump over a gap or through a crossing turns by at most this, and the piece it "
-        "lands on continues within it (walk=bending).",
+        doc="A step through a crossing turns by at most this (unless nothing else is left); a "
+        "jump over a gap turns in and out by at most twice this together (walk=bending).",
     )
 
 
@@ -450,9 +450,9 @@ def _walk_from(
     among, in this order of preference: unvisited neighbours in A; unvisited keypoints two steps
     away through a keypoint already on the path (the other strand of a crossing; a turn of more
     than ``max_turn_deg`` only when nothing else is left: a touching turn); unvisited keypoints
-    within ``bridge_px`` whose direction and disparity agree and whose piece continues the same
-    way (across an occlusion or a break in the segmentation), turning by at most
-    ``max_turn_deg``. Returns the walk, the cost of each step and the runner-up at each step
+    within ``bridge_px`` whose disparity agrees and whose piece continues the same way (across
+    an occlusion or a break in the segmentation): the turn into the jump and the turn out of
+    it at most 90 deg each and ``2 max_turn_deg`` together. Returns the walk, the cost of each step and the runner-up at each step
     that had one (as (index in the walk, keypoint)).
     """
     K = len(adj)
@@ -490,17 +490,17 @@ def _walk_from(
         cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(
             disp[c] - ref
         )
-        if tier > 0:
+        if tier == 1:
             ok = cos_t >= cos_max
-            if tier == 2:  # the piece landed on must continue the same way
-                ok &= np.array(
-                    [
-                        _continues(v, chord[i], adj, visited, pos, cos_max)
-                        for i, v in enumerate(cand)
-                    ]
-                )
-            if tier == 2 or ok.any():
+            if ok.any():  # else a touching turn: the sharpest continuation is all that is left
                 cost = np.where(ok, cost, np.inf)
+        elif tier == 2:  # across a gap: turn in + turn out <= 2 max_turn_deg, each <= 90 deg
+            turn_in = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
+            turn_out = np.array(
+                [_turn_out(v, chord[i], adj, visited, pos) for i, v in enumerate(cand)]
+            )
+            ok = (turn_in <= 90.0) & (turn_out <= 90.0) & (turn_in + turn_out <= 2 * p.max_turn_deg)
+            cost = np.where(ok, cost, np.inf)
         rank = np.argsort(cost, kind="stable")
         j = int(rank[0])
         if forced is not None and len(walk) == len(prefix):
@@ -518,18 +518,13 @@ def _walk_from(
     return walk, steps, alts
 
 
-def _continues(
-    v: int,
-    chord: np.ndarray,
-    adj: list[list[int]],
-    visited: np.ndarray,
-    pos: np.ndarray,
-    cos_max: float,
-) -> bool:
-    """Does the unvisited piece at ``v`` leave ``v`` within ``cos_max`` of the jump ``chord``?"""
+def _turn_out(
+    v: int, chord: np.ndarray, adj: list[list[int]], visited: np.ndarray, pos: np.ndarray
+) -> float:
+    """Angle, deg, between a jump ``chord`` and the way the unvisited piece at ``v`` leaves it."""
     nb = [u for u in adj[v] if not visited[u]]
     if not nb:
-        return True  # a lone keypoint
+        return 0.0  # a lone keypoint
     out = pos[nb].mean(axis=0) - pos[v]
     n = float(np.hypot(*out)) * float(np.hypot(*chord))
-    return n == 0 or float(out @ chord) / n >= cos_max
+    return 0.0 if n == 0 else float(np.degrees(np.arccos(np.clip(out @ chord / n, -1.0, 1.0))))
