@@ -51,7 +51,7 @@ class RefineParams:
         '"off": the MVS spline as it is (paper).',
     )
     smooth_px: float = param(
-        40.0,
+        20.0,
         lo=1.0,
         hi=1000.0,
         unit="px",
