@@ -81,7 +81,9 @@ def depth_bounds(
     M = len(path)
     if M < 2:
         raise ValueError(f"need at least 2 ordered keypoints for a curve, got {M}")
-    H, is_key = _extra_points(stereo, ordering, p.extra_px, calib.focal * calib.baseline)
+    fB = calib.focal * calib.baseline
+    path = _border_depths(path, fB)
+    H, is_key = _extra_points(stereo, ordering, path, p.extra_px, fB)
     seg = np.linalg.norm(np.diff(H[:, :2], axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg)])
     key_idx = np.flatnonzero(is_key)
@@ -126,13 +128,34 @@ def _line_fit(s: np.ndarray, z: np.ndarray, fallback: float) -> tuple[float, flo
     return float(a), float(b)
 
 
+def _border_depths(path: np.ndarray, fB: float) -> np.ndarray:
+    """Keypoints whose match would lie left of the right image take the depth of the nearest
+    keypoint along the path that lies safely inside it (x >= 2 d + ``BORDER_PX``): the search
+    was cut at the border there, and its depth is meaningless (metres on generated frames)."""
+    x, z = path[:, 0], path[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(z > 0, fB / z, np.inf)
+    safe = np.flatnonzero(x >= 2 * d + BORDER_PX)
+    if safe.size == 0 or safe.size == len(path):
+        return path
+    i = np.arange(len(path))
+    pos = np.clip(np.searchsorted(safe, i), 1, safe.size) - 1
+    nxt = np.minimum(pos + 1, safe.size - 1)
+    near = np.where(np.abs(safe[nxt] - i) < np.abs(safe[pos] - i), safe[nxt], safe[pos])
+    bad = x < d[near] + BORDER_PX
+    if not bad.any():
+        return path
+    out = path.copy()
+    out[bad, 2] = z[near[bad]]
+    return out
+
+
 def _extra_points(
-    stereo: StereoResult, ordering: Ordering, extra_px: int, fB: float
+    stereo: StereoResult, ordering: Ordering, path: np.ndarray, extra_px: int, fB: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Points of H between keypoints. A gap pixel whose match would lie left of the right
     image (x < the disparity of its link's keypoints + ``BORDER_PX``: the thread leaves the
     right view there) has no stereo depth and gives none."""
-    path = ordering.path_px
     rows: list[np.ndarray] = [path[:1]]
     keys: list[bool] = [True]
     for i in range(len(path) - 1):

@@ -33,6 +33,7 @@ from core.segmentation import LiftedPair
 from core.stereo import StereoResult
 
 _HALF_8 = ((0, 1), (1, -1), (1, 0), (1, 1))  # half of the 8-neighbourhood: each pair seen once
+OUTLIER_PX = 2.0  # a pixel > 2 px of disparity from its cluster's median is another match
 MAX_WALKS = 24  # walks tried per frame (ends, then runner-up turns of the best): bounded time
 
 
@@ -148,10 +149,7 @@ def order_keypoints(
     if p.walk == "greedy":
         walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
     else:
-        sel_c = clusters.labels >= 0
-        disp = np.bincount(
-            clusters.labels[sel_c], weights=stereo.disparity[sel_c], minlength=K
-        ) / np.maximum(clusters.sizes, 1)  # mean disparity of each cluster, px
+        disp = _cluster_median(clusters.labels, stereo.disparity, K)
         walk = _bending_walk(K, edges, clusters.keypoints_px[:, :2], disp, p)
 
     cluster_gaps: dict[int, set[int]] = {}
@@ -161,7 +159,17 @@ def order_keypoints(
         tuple(sorted(cluster_gaps.get(a, set()) & cluster_gaps.get(b, set())))
         for a, b in zip(walk[:-1], walk[1:], strict=True)
     ]
-    path = [clusters.keypoints_px[k] for k in walk]
+    key_px = clusters.keypoints_px
+    if p.walk == "bending":  # keypoint depth without pixels matched far from the cluster's
+        d_med = _cluster_median(clusters.labels, stereo.disparity, K)
+        lab = clusters.labels
+        inlier = (lab >= 0) & np.isfinite(stereo.depth)
+        inlier[inlier] &= np.abs(stereo.disparity[inlier] - d_med[lab[inlier]]) <= OUTLIER_PX
+        n_in = np.bincount(lab[inlier], minlength=K)
+        z_in = np.bincount(lab[inlier], weights=stereo.depth[inlier], minlength=K)
+        z_in = np.where(n_in > 0, z_in / np.maximum(n_in, 1), key_px[:, 2])
+        key_px = np.column_stack([key_px[:, :2], z_in])
+    path = [key_px[k] for k in walk]
     order = list(walk)
 
     # Endpoint extension at both ends, then the geodesic position of every gap pixel.
@@ -241,6 +249,25 @@ class _GapGeodesics:
         pos = np.searchsorted(sel, src)
         d = csgraph.dijkstra(sub, directed=False, indices=pos, min_only=True)
         return np.where(np.isinf(d), np.nan, d + 1.0)
+
+
+def _cluster_median(labels: np.ndarray, values: np.ndarray, K: int) -> np.ndarray:
+    """(K,) median of ``values`` over each cluster's pixels (finite values only; NaN if none).
+
+    A single pixel matched at the wrong disparity (e.g. 0.09 px among 31 px: 50 m deep) moves a
+    cluster's mean depth by metres; its median not at all."""
+    sel = (labels >= 0) & np.isfinite(values)
+    lab, val = labels[sel], values[sel]
+    order = np.lexsort((val, lab))
+    lab, val = lab[order], val[order]
+    count = np.bincount(lab, minlength=K)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    out = np.full(K, np.nan)
+    has = count > 0
+    lo = start[has] + (count[has] - 1) // 2
+    hi = start[has] + count[has] // 2
+    out[has] = 0.5 * (val[lo] + val[hi])
+    return out
 
 
 def _link_positions(
