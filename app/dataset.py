@@ -38,7 +38,13 @@ import numpy as np
 from app.export import InputFile
 from app.io import load_calibration, load_ground_truth, load_pair, prepare_pair
 from core.calibration import StereoCalibration
-from core.metrics import ReprojectionErrors, curve_errors, project, reprojection_errors
+from core.metrics import (
+    ReprojectionErrors,
+    curve_errors,
+    project,
+    reprojection_errors,
+    visible_part,
+)
 from core.pipeline import Reconstruction
 from core.rectify import Rectification, from_left_frame, rectification
 from core.segmentation import LiftedPair, StereoPair
@@ -290,6 +296,7 @@ def evaluate_reconstruction(
     pts = rec["camera"].points
     if gt is not None:
         s = calib.mm_per_unit
+        gt = visible_part(gt, calib.P1, calib.P2, calib.image_size)  # a thread may leave the view
         e = curve_errors(pts * s, gt * s)
         out.update(
             e_S_mm=e.e_S,

@@ -75,6 +75,9 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--crossing", action="store_true", help="thread crosses itself")
     parser.add_argument("--occlusion", action="store_true", help="an instrument hides part")
     parser.add_argument(
+        "--hairpin", action="store_true", help="a tight U-turn: two strands side by side"
+    )
+    parser.add_argument(
         "--leaves-image", action="store_true", help="one end of the thread leaves the image"
     )
     parser.add_argument(
@@ -139,7 +142,13 @@ def run(args: argparse.Namespace) -> int:
         from app import sequence_gen  # video encoding only when a sequence is asked for
 
         return sequence_gen.run(args, params, _write_calibration)
-    group = args.group or ("crossing" if args.crossing else args.background)
+    group = args.group or (
+        "crossing"
+        if args.crossing
+        else "hairpin"
+        if getattr(args, "hairpin", False)
+        else args.background
+    )
     if not _GROUP_RE.match(group):
         raise ValueError(f"--group must be a plain folder name, got {group!r}")
     out_dir = Path(args.out_dir)
@@ -202,6 +211,7 @@ def _params(args: argparse.Namespace) -> SyntheticParams:
             diameter_mm=float(getattr(args, "diameter_mm", _DEFAULT_THREAD.diameter_mm)),
             crossing=bool(args.crossing),
             leaves_image=bool(getattr(args, "leaves_image", False)),
+            hairpin=bool(getattr(args, "hairpin", False)),
         )
         render = RenderParams(
             background=args.background,
@@ -319,6 +329,7 @@ def _command(args: argparse.Namespace, group: str) -> str:
             ("--crossing", args.crossing),
             ("--occlusion", args.occlusion),
             ("--leaves-image", getattr(args, "leaves_image", False)),
+            ("--hairpin", getattr(args, "hairpin", False)),
         )
         if on
     ]

@@ -26,6 +26,8 @@ from core.ordering import Ordering
 from core.params import Params, param
 from core.stereo import StereoResult
 
+BORDER_PX = 2.0  # a left pixel within this of where its match leaves the right image: no depth
+
 
 @dataclass(frozen=True)
 class BoundsParams(Params):
@@ -86,7 +88,9 @@ def depth_bounds(
     M = len(path)
     if M < 2:
         raise ValueError(f"need at least 2 ordered keypoints for a curve, got {M}")
-    H, is_key = _extra_points(stereo, ordering, p.extra_px)
+    fB = calib.focal * calib.baseline
+    path = _border_depths(path, fB)
+    H, is_key = _extra_points(stereo, ordering, path, p.extra_px, fB)
     seg = np.linalg.norm(np.diff(H[:, :2], axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg)])
     key_idx = np.flatnonzero(is_key)
@@ -161,14 +165,22 @@ def _window_line_fits(
 
 
 def _extra_points(
-    stereo: StereoResult, ordering: Ordering, extra_px: int
+    stereo: StereoResult, ordering: Ordering, path: np.ndarray, extra_px: int, fB: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """H: the ordered keypoints with, after keypoint i, the extra points of link i (grouped
-    operations over all links at once: one sort, no loop over links or keypoints)."""
-    path = ordering.path_px
+    """H: the ordered keypoints ``path`` with, after keypoint i, the extra points of link i
+    (grouped operations over all links at once: one sort, no loop over links or keypoints).
+
+    A gap pixel whose match would lie left of the right image (x < the disparity of its
+    link's keypoints + ``BORDER_PX``: the thread leaves the right view there) has no stereo
+    depth and gives none; a link left with no pixel at all (a jump across an occlusion) gets
+    points on a smooth bridge between its keypoints (:func:`_bridge`)."""
     M = len(path)
     t_all, link_all = ordering.pixel_t, ordering.pixel_link
     sel = np.flatnonzero((link_all >= 0) & (link_all < M - 1) & (t_all > 0) & (t_all < 1))
+    z_link = np.where(path[:, 2] > 0, path[:, 2], np.inf)
+    z_link = np.minimum(z_link[:-1], z_link[1:])  # nearest keypoint of each link
+    d_ref = np.where(np.isfinite(z_link), fB / z_link, 0.0)
+    sel = sel[stereo.pixels[sel, 0] >= d_ref[link_all[sel]] + BORDER_PX]
     link, t = link_all[sel], t_all[sel]
     order = np.lexsort((t, link))  # by link, then by position along it (stable on ties)
     sel, link = sel[order], link[order]
@@ -210,9 +222,57 @@ def _extra_points(
     run_link = np.repeat(np.arange(M - 1), n_extra)
     extras = np.column_stack([cx, cy, med])[has]
     extra_link = run_link[has]
+    empty = np.flatnonzero(count == 0)  # a handful of links at most
+    bridges = [_bridge(path, int(i), extra_px) for i in empty]
+    if bridges:
+        extras = np.concatenate([extras, *bridges])
+        extra_link = np.concatenate([extra_link, np.repeat(empty, [len(b) for b in bridges])])
     # Keypoint i, then the extra points of link i: sort keys (i, 0) and (link, 1).
     rows = np.concatenate([path, extras])
     key_pos = np.concatenate([np.arange(M), extra_link])
     is_key = np.concatenate([np.ones(M, bool), np.zeros(len(extras), bool)])
     o = np.lexsort((~is_key, key_pos))  # stable: extras keep their run order
     return rows[o], is_key[o]
+
+
+def _border_depths(path: np.ndarray, fB: float) -> np.ndarray:
+    """Keypoints whose match would lie left of the right image take the depth of the nearest
+    keypoint along the path that lies safely inside it (x >= 2 d + ``BORDER_PX``): the search
+    was cut at the border there, and its depth is meaningless (metres on generated frames)."""
+    x, z = path[:, 0], path[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(z > 0, fB / z, np.inf)
+    safe = np.flatnonzero(x >= 2 * d + BORDER_PX)
+    if safe.size == 0 or safe.size == len(path):
+        return path
+    i = np.arange(len(path))
+    pos = np.clip(np.searchsorted(safe, i), 1, safe.size) - 1
+    nxt = np.minimum(pos + 1, safe.size - 1)
+    near = np.where(np.abs(safe[nxt] - i) < np.abs(safe[pos] - i), safe[nxt], safe[pos])
+    bad = x < d[near] + BORDER_PX
+    if not bad.any():
+        return path
+    out = path.copy()
+    out[bad, 2] = z[near[bad]]
+    return out
+
+
+def _bridge(path: np.ndarray, i: int, extra_px: int) -> np.ndarray:
+    """Points every ``extra_px`` px on the cubic Hermite curve from keypoint i to i + 1 with the
+    path's directions at both ends (a jump across an occlusion: no pixel lies between them),
+    depth linear between the two keypoints. (n, 3), n = 0 for a short link."""
+    p0, p1 = path[i, :2], path[i + 1, :2]
+    chord = float(np.linalg.norm(p1 - p0))
+    n = int(chord // extra_px)
+    if n < 1:
+        return np.zeros((0, 3))
+    t0 = p0 - path[max(i - 1, 0), :2]
+    t1 = path[min(i + 2, len(path) - 1), :2] - p1
+    t0 = chord * t0 / max(float(np.linalg.norm(t0)), 1e-9)
+    t1 = chord * t1 / max(float(np.linalg.norm(t1)), 1e-9)
+    s = np.arange(1, n + 1)[:, None] / (n + 1)
+    h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+    h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+    xy = h00 * p0 + h10 * t0 + h01 * p1 + h11 * t1
+    z = path[i, 2] + s[:, 0] * (path[i + 1, 2] - path[i, 2])
+    return np.column_stack([xy, z])

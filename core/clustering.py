@@ -140,7 +140,29 @@ def _wavefront_clusters(graph: sp.csr_matrix, min_size: int, max_size: int) -> n
             if chunk.size >= min_size:
                 labels[chunk] = next_label
                 next_label += 1
-    return labels
+    return _split_disconnected(graph, labels, min_size)
+
+
+def _split_disconnected(graph: sp.csr_matrix, labels: np.ndarray, min_size: int) -> np.ndarray:
+    """Each cluster becomes its connected parts (parts < ``min_size`` px are unclustered).
+
+    Where the thread crosses itself a BFS slice holds both fronts that leave the crossing; its
+    centroid would lie between the strands."""
+    coo = graph.tocoo()
+    same = (labels[coo.row] == labels[coo.col]) & (labels[coo.row] >= 0)
+    n = graph.shape[0]
+    sub = sp.csr_matrix((np.ones(int(same.sum()), np.int8), (coo.row[same], coo.col[same])), (n, n))
+    _, part = csgraph.connected_components(sub, directed=False)
+    part = np.where(labels >= 0, part, -1)
+    sizes = np.bincount(part[part >= 0], minlength=n)
+    part = np.where((part >= 0) & (sizes[np.maximum(part, 0)] >= min_size), part, -1)
+    # Renumber in the order of the original labels (slices along the thread stay in order).
+    keep = part >= 0
+    key = labels[keep].astype(np.int64) * (n + 1) + part[keep]
+    _, new = np.unique(key, return_inverse=True)
+    out = np.full(n, -1, dtype=np.int64)
+    out[keep] = new
+    return out
 
 
 def _restart_clusters(graph: sp.csr_matrix, min_size: int, max_size: int) -> np.ndarray:

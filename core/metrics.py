@@ -73,6 +73,28 @@ def curve_errors(points: np.ndarray, points_gt: np.ndarray) -> CurveErrors:
     )
 
 
+def visible_part(
+    points: np.ndarray, P1: np.ndarray, P2: np.ndarray, shape: tuple[int, int]
+) -> np.ndarray:
+    """The longest run of consecutive curve points (N, 3) whose projections lie inside both
+    images of ``shape`` (rows, cols): a thread that leaves the field of view is judged on the part
+    the cameras see. A curve seen whole is returned unchanged."""
+    points = _check_points(points)
+    H, W = shape
+    inside = np.ones(len(points), dtype=bool)
+    for P in (P1, P2):
+        uv = project(points, P)
+        inside &= (
+            (uv[:, 0] >= -0.5) & (uv[:, 0] <= W - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] <= H - 0.5)
+        )
+    if inside.all() or inside.sum() < 2:
+        return points
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], inside.astype(np.int8), [0]])))
+    starts, ends = edges[::2], edges[1::2]
+    j = int(np.argmax(ends - starts))
+    return points[starts[j] : ends[j]]
+
+
 def project(points: np.ndarray, P: np.ndarray) -> np.ndarray:
     """(N, 3) camera-frame points -> (N, 2) pixels (x, y) with a (3, 4) projection matrix."""
     points = _check_points(points)

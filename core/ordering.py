@@ -33,6 +33,8 @@ from core.segmentation import LiftedPair
 from core.stereo import StereoResult
 
 _HALF_8 = ((0, 1), (1, -1), (1, 0), (1, 1))  # half of the 8-neighbourhood: each pair seen once
+OUTLIER_PX = 2.0  # a pixel > 2 px of disparity from its cluster's median is another match
+MAX_WALKS = 24  # walks tried per frame (ends, then runner-up turns of the best): bounded time
 
 
 @dataclass(frozen=True)
@@ -49,11 +51,42 @@ class OrderingParams(Params):
     """Extend an end to its cluster's tip when the tip lies this far beyond the end keypoint,
     px (0: off, the paper). The keypoint is a centroid, half a cluster short of the tip."""
     bridge_px: float = param(
-        80.0, lo=0, hi=10000, unit="px", slider=(0.0, 300.0, 5.0), label="bridge px"
+        300.0, lo=0, hi=10000, unit="px", slider=(0.0, 300.0, 5.0), label="bridge px"
     )
     """Largest jump between components of A the walk may make, px (0: paper, no jump)."""
     metric: Literal["image", "3d"] = "image"
     """Distance for "closest adjacent keypoint": image-plane px (default) or 3D."""
+    walk: Literal["bending", "greedy"] = param(
+        "bending",
+        label="walk",
+        doc='"greedy" (paper): closest unexplored adjacent keypoint. "bending": the continuation '
+        "of least bending and disparity change, passing through junctions already on the path "
+        "(crossings) and across gaps (occlusions) when direction and depth agree.",
+    )
+    bend_weight: float = param(
+        2.0,
+        lo=0.0,
+        hi=50.0,
+        label="bending weight",
+        doc="Step cost = distance * (1 + bend_weight * (1 - cos turn)) + ..., 1 (walk=bending).",
+    )
+    disparity_weight: float = param(
+        10.0,
+        lo=0.0,
+        hi=1000.0,
+        unit="px/px",
+        label="disparity weight",
+        doc="Step cost per px of disparity change from the recent path (walk=bending), px.",
+    )
+    max_turn_deg: float = param(
+        60.0,
+        lo=0.0,
+        hi=180.0,
+        unit="deg",
+        label="max turn at a jump",
+        doc="A step through a crossing turns by at most this (unless nothing else is left); a "
+        "jump over a gap turns in and out by at most twice this together (walk=bending).",
+    )
 
 
 @dataclass(frozen=True)
@@ -119,7 +152,11 @@ def order_keypoints(
     edges = np.array(sorted(edge_set), dtype=np.int64).reshape(-1, 2)
 
     pos = clusters.keypoints_px[:, :2] if p.metric == "image" else clusters.keypoints
-    walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
+    if p.walk == "greedy":
+        walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
+    else:
+        disp = _cluster_median(clusters.labels, stereo.disparity, K)
+        walk = _bending_walk(K, edges, clusters.keypoints_px[:, :2], disp, p)
 
     cluster_gaps: dict[int, set[int]] = {}
     for c, g in np.unique(cg, axis=0):
@@ -128,7 +165,17 @@ def order_keypoints(
         tuple(sorted(cluster_gaps.get(a, set()) & cluster_gaps.get(b, set())))
         for a, b in zip(walk[:-1], walk[1:], strict=True)
     ]
-    path = [clusters.keypoints_px[k] for k in walk]
+    key_px = clusters.keypoints_px
+    if p.walk == "bending":  # keypoint depth without pixels matched far from the cluster's
+        d_med = _cluster_median(clusters.labels, stereo.disparity, K)
+        lab = clusters.labels
+        inlier = (lab >= 0) & np.isfinite(stereo.depth)
+        inlier[inlier] &= np.abs(stereo.disparity[inlier] - d_med[lab[inlier]]) <= OUTLIER_PX
+        n_in = np.bincount(lab[inlier], minlength=K)
+        z_in = np.bincount(lab[inlier], weights=stereo.depth[inlier], minlength=K)
+        z_in = np.where(n_in > 0, z_in / np.maximum(n_in, 1), key_px[:, 2])
+        key_px = np.column_stack([key_px[:, :2], z_in])
+    path = [key_px[k] for k in walk]
     order = list(walk)
 
     # Endpoint extension at both ends, then the geodesic position of every gap pixel.
@@ -161,22 +208,7 @@ def order_keypoints(
             path.append(new)
             order.append(-1)
             links.append(tuple(dead))
-    pixel_t = np.full(len(pixel_node), np.nan)
-    pixel_link = np.full(len(pixel_node), -1, dtype=np.int64)
-    for i, gap_ids in enumerate(links):
-        sel = np.flatnonzero(np.isin(pixel_node, gap_ids))
-        if sel.size == 0:
-            continue
-        a, b = order[i], order[i + 1]
-        if a < 0:  # extension at the start: measure from the cluster after it, reversed
-            pixel_t[sel] = 1.0 - _normalised(geo.distance_from(b, sel))
-        elif b < 0:
-            pixel_t[sel] = _normalised(geo.distance_from(a, sel))
-        else:
-            da, db = geo.distance_from(a, sel), geo.distance_from(b, sel)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                pixel_t[sel] = da / (da + db)
-        pixel_link[sel] = i
+    pixel_t, pixel_link = _link_positions(geo, pixel_node, links, order, K + n_gaps)
 
     kept = set(walk)
     dropped = np.array([k for k in range(K) if k not in kept], dtype=np.int64)
@@ -223,6 +255,70 @@ class _GapGeodesics:
         pos = np.searchsorted(sel, src)
         d = csgraph.dijkstra(sub, directed=False, indices=pos, min_only=True)
         return np.where(np.isinf(d), np.nan, d + 1.0)
+
+
+def _cluster_median(labels: np.ndarray, values: np.ndarray, K: int) -> np.ndarray:
+    """(K,) median of ``values`` over each cluster's pixels (finite values only; NaN if none).
+
+    A single pixel matched at the wrong disparity (e.g. 0.09 px among 31 px: 50 m deep) moves a
+    cluster's mean depth by metres; its median not at all."""
+    sel = (labels >= 0) & np.isfinite(values)
+    lab, val = labels[sel], values[sel]
+    order = np.lexsort((val, lab))
+    lab, val = lab[order], val[order]
+    count = np.bincount(lab, minlength=K)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    out = np.full(K, np.nan)
+    has = count > 0
+    lo = start[has] + (count[has] - 1) // 2
+    hi = start[has] + count[has] // 2
+    out[has] = 0.5 * (val[lo] + val[hi])
+    return out
+
+
+def _link_positions(
+    geo: _GapGeodesics,
+    pixel_node: np.ndarray,
+    links: list[tuple[int, ...]],
+    order: list[int],
+    n_nodes: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``pixel_t``, ``pixel_link`` of every gap pixel on a link, from two multi-source geodesic
+    searches (from the link's first cluster and from its second, all links at once: gaps are
+    disjoint, and the gap graph has no edge between two gaps)."""
+    n = len(pixel_node)
+    pixel_t = np.full(n, np.nan)
+    pixel_link = np.full(n, -1, dtype=np.int64)
+    link_of = np.full(n_nodes, -1, dtype=np.int64)
+    for i, gap_ids in enumerate(links):
+        link_of[list(gap_ids)] = i
+    sel = np.flatnonzero((pixel_node >= 0) & (link_of[np.maximum(pixel_node, 0)] >= 0))
+    if sel.size == 0:
+        return pixel_t, pixel_link
+    lk = link_of[pixel_node[sel]]
+    ends = np.array(order, dtype=np.int64)
+    a, b = ends[lk], ends[lk + 1]
+    nb = geo.nb_node[sel]
+    d = []
+    for end in (a, b):
+        src = sel[(end >= 0) & np.any(nb == end[:, None], axis=1)]
+        if src.size == 0:
+            d.append(np.full(sel.size, np.nan))
+            continue
+        dist = csgraph.dijkstra(geo.graph, directed=False, indices=src, min_only=True)[sel]
+        d.append(np.where(np.isinf(dist), np.nan, dist + 1.0))
+    da, db = d
+    top_a = np.zeros(len(links))
+    top_b = np.zeros(len(links))
+    np.fmax.at(top_a, lk, np.where(np.isfinite(da), da, 0.0))
+    np.fmax.at(top_b, lk, np.where(np.isfinite(db), db, 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = da / (da + db)
+        t = np.where(a < 0, 1.0 - db / top_b[lk], t)  # extension at the start: reversed
+        t = np.where(b < 0, da / top_a[lk], t)
+    pixel_t[sel] = np.where(np.isfinite(t), t, np.nan)
+    pixel_link[sel] = lk
+    return pixel_t, pixel_link
 
 
 def _normalised(d: np.ndarray) -> np.ndarray:
@@ -334,3 +430,134 @@ def _components(K: int, adj: list[list[int]]) -> np.ndarray:
                     stack.append(v)
         c += 1
     return comp
+
+
+def _bending_walk(
+    K: int, edges: np.ndarray, pos: np.ndarray, disp: np.ndarray, p: OrderingParams
+) -> list[int]:
+    """Best of the walks from every end keypoint (degree 1 in A), see :func:`_walk_from`; when
+    the best walk leaves keypoints out, the runner-up continuation at each junction it passed
+    is tried too (a wrong turn at a crossing strands the rest of the thread)."""
+    adj: list[list[int]] = [[] for _ in range(K)]
+    for a, b in edges:
+        adj[a].append(int(b))
+        adj[b].append(int(a))
+    degree = np.array([len(a) for a in adj])
+    starts = [int(k) for k in np.flatnonzero(degree <= 1)]
+    if not starts:  # a closed loop: start from the lowest degree
+        starts = [int(np.argmin(degree))]
+    best_walk: list[int] = []
+    best_steps: list[float] = []
+    best_alts: list[tuple[int, int]] = []
+    best_key = (-1, 0.0)
+    tried = 0
+    queue: list[tuple[list[int], list[float], int | None]] = [([s], [], None) for s in starts]
+    while queue and tried < MAX_WALKS:
+        prefix, prefix_steps, forced = queue.pop(0)
+        walk, steps, alts = _walk_from(prefix, prefix_steps, forced, adj, pos, disp, p)
+        tried += 1
+        key = (len(walk), -sum(steps))
+        if key > best_key:
+            best_walk, best_steps, best_alts, best_key = walk, steps, alts, key
+        if not queue and len(best_walk) < K and best_alts:
+            # Branch at each decision of the best walk so far, in path order.
+            queue = [(best_walk[: i + 1], best_steps[:i], alt) for i, alt in best_alts]
+            best_alts = []
+    return best_walk
+
+
+def _walk_from(
+    prefix: list[int],
+    prefix_steps: list[float],
+    forced: int | None,
+    adj: list[list[int]],
+    pos: np.ndarray,
+    disp: np.ndarray,
+    p: OrderingParams,
+) -> tuple[list[int], float, list[tuple[int, int]]]:
+    """Walk A on from ``prefix`` (its first step ``forced`` when given), each step to the
+    continuation of least cost
+
+        distance * (1 + bend_weight * (1 - cos turn)) + disparity_weight * |disparity change|,
+
+    among, in this order of preference: unvisited neighbours in A; unvisited keypoints two steps
+    away through a keypoint already on the path (the other strand of a crossing; a turn of more
+    than ``max_turn_deg`` only when nothing else is left: a touching turn); unvisited keypoints
+    within ``bridge_px`` whose disparity agrees and whose piece continues the same way (across
+    an occlusion or a break in the segmentation): the turn into the jump and the turn out of
+    it at most 90 deg each and ``2 max_turn_deg`` together. Returns the walk, the cost of each step and the runner-up at each step
+    that had one (as (index in the walk, keypoint)).
+    """
+    K = len(adj)
+    visited = np.zeros(K, dtype=bool)
+    visited[prefix] = True
+    walk = list(prefix)
+    steps = list(prefix_steps)
+    alts: list[tuple[int, int]] = []
+    cos_max = float(np.cos(np.radians(p.max_turn_deg)))
+    while True:
+        cur = walk[-1]
+        back = walk[-3] if len(walk) >= 3 else walk[0]
+        heading = pos[cur] - pos[back]
+        hn = float(np.hypot(*heading))
+        heading = heading / hn if hn > 0 else None
+        ref = float(np.mean(disp[walk[-3:]]))
+        tier = 0
+        cand = [v for v in adj[cur] if not visited[v]]
+        if not cand:
+            cand = sorted({w for u in adj[cur] if visited[u] for w in adj[u] if not visited[w]})
+            tier = 1
+        if not cand and p.bridge_px > 0 and heading is not None:
+            free = np.flatnonzero(~visited)
+            d = np.linalg.norm(pos[free] - pos[cur], axis=1)
+            near = d <= p.bridge_px
+            near &= np.abs(disp[free] - ref) <= 1.0 + 0.1 * d  # depth agrees (slope <= B/Z)
+            cand = [int(v) for v in free[near]]
+            tier = 2
+        if not cand:
+            break
+        c = np.array(cand)
+        chord = pos[c] - pos[cur]
+        dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
+        cos_t = chord @ heading / dist if heading is not None else np.ones(len(c))
+        cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(
+            disp[c] - ref
+        )
+        if tier == 1:
+            ok = cos_t >= cos_max
+            if ok.any():  # else a touching turn: the sharpest continuation is all that is left
+                cost = np.where(ok, cost, np.inf)
+        elif tier == 2:  # across a gap: turn in + turn out <= 2 max_turn_deg, each <= 90 deg
+            turn_in = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
+            turn_out = np.array(
+                [_turn_out(v, chord[i], adj, visited, pos) for i, v in enumerate(cand)]
+            )
+            ok = (turn_in <= 90.0) & (turn_out <= 90.0) & (turn_in + turn_out <= 2 * p.max_turn_deg)
+            cost = np.where(ok, cost, np.inf)
+        rank = np.argsort(cost, kind="stable")
+        j = int(rank[0])
+        if forced is not None and len(walk) == len(prefix):
+            if forced not in cand:
+                break
+            j = cand.index(forced)
+        elif len(rank) > 1 and np.isfinite(cost[rank[1]]):
+            alts.append((len(walk) - 1, int(cand[rank[1]])))
+        if not np.isfinite(cost[j]):
+            break
+        nxt = cand[j]
+        visited[nxt] = True
+        walk.append(nxt)
+        steps.append(float(cost[j]))
+    return walk, steps, alts
+
+
+def _turn_out(
+    v: int, chord: np.ndarray, adj: list[list[int]], visited: np.ndarray, pos: np.ndarray
+) -> float:
+    """Angle, deg, between a jump ``chord`` and the way the unvisited piece at ``v`` leaves it."""
+    nb = [u for u in adj[v] if not visited[u]]
+    if not nb:
+        return 0.0  # a lone keypoint
+    out = pos[nb].mean(axis=0) - pos[v]
+    n = float(np.hypot(*out)) * float(np.hypot(*chord))
+    return 0.0 if n == 0 else float(np.degrees(np.arccos(np.clip(out @ chord / n, -1.0, 1.0))))

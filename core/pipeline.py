@@ -16,6 +16,7 @@ from core.camera import CameraParams, to_camera
 from core.clustering import ClusterParams, cluster_keypoints
 from core.ordering import OrderingParams, order_keypoints
 from core.params import Params
+from core.refine import RefineParams, refine_depth
 from core.reliability import ReliabilityParams, prune
 from core.segmentation import SegmentationParams, StereoPair, segment
 from core.spline import SplineParams, fit_spline
@@ -65,7 +66,14 @@ STAGE_TABLE: tuple[Stage, ...] = (
     Stage(
         "spline", SplineParams, fit_spline, ("bounds", "calib"), "Minimum Variation Spline, Eq. (8)"
     ),
-    Stage("camera", CameraParams, to_camera, ("spline", "calib"), "Camera frame, Eq. (9)"),
+    Stage(
+        "refine",
+        RefineParams,
+        refine_depth,
+        ("spline", "bounds", "segment", "calib"),
+        "Depth from both views",
+    ),
+    Stage("camera", CameraParams, to_camera, ("refine", "calib"), "Camera frame, Eq. (9)"),
 )
 STAGES: tuple[str, ...] = tuple(s.name for s in STAGE_TABLE)
 STAGE_BY_NAME: dict[str, Stage] = {s.name: s for s in STAGE_TABLE}

@@ -99,6 +99,7 @@ class ThreadParams:
     diameter_mm: float = 0.5  # tube diameter, mm (fx * d / Z = 3-6.4 px at the default depths)
     crossing: bool = False  # the thread crosses itself in the left image at least once
     leaves_image: bool = False  # one end leaves both images; the rest keeps margin_px
+    hairpin: bool = False  # a tight U-turn: two strands side by side, a few px apart, not touching
     margin_px: float = 10.0  # min distance of the projected centreline to the image border, px
 
     def __post_init__(self) -> None:
@@ -109,6 +110,8 @@ class ThreadParams:
             raise ValueError(
                 f"thread.n_control must be integers >= {DEGREE + 1}, got {self.n_control}"
             )
+        if self.hairpin and self.crossing:
+            raise ValueError("thread.hairpin and thread.crossing cannot both be set")
         if self.crossing and self.n_control[1] < 7:
             raise ValueError(
                 f"thread.n_control max must be >= 7 to make a crossing, got {self.n_control}"
@@ -276,11 +279,23 @@ def _arc_length(ctrl: np.ndarray) -> float:
     return float(_arc_table(ctrl)[2][-1])
 
 
-def _random_polygon(n: int, curliness: float, loop: bool, rng: np.random.Generator) -> np.ndarray:
+def _random_polygon(
+    n: int, curliness: float, loop: bool, rng: np.random.Generator, hairpin: bool = False
+) -> np.ndarray:
     """Control polygon (n, 3) of a random walk with smoothly varying heading and elevation."""
     legs = n - 1
     dtheta = rng.normal(0.0, curliness, legs)
     dphi = rng.normal(0.0, 0.2, legs)
+    step = None
+    if hairpin:  # a U-turn over two short legs, then the walk runs back nearly parallel
+        start = int(rng.integers(1, legs - 3))
+        sign = rng.choice([-1.0, 1.0])
+        dtheta[start : start + 2] = sign * 0.5 * math.pi + rng.normal(0.0, 0.05, 2)
+        dtheta[start + 2 :] *= 0.3
+        dtheta[:start] *= 0.3
+        dphi[start - 1 : start + 3] *= 0.3
+        step = rng.uniform(0.6, 1.4, legs)[:, None]
+        step[start] *= rng.uniform(0.08, 0.2)  # the bend leg sets the strands' separation
     if loop:
         k = 5  # legs that wind one loop; 5 legs of ~90 deg overshoot a full turn
         start = int(rng.integers(0, legs - k + 1))
@@ -290,7 +305,8 @@ def _random_polygon(n: int, curliness: float, loop: bool, rng: np.random.Generat
         dphi[start : start + k] += rng.choice([-1.0, 1.0]) * 0.12  # helix: branches part in depth
     theta = rng.uniform(0.0, 2 * math.pi) + np.cumsum(dtheta)
     phi = np.clip(np.cumsum(dphi), -0.6, 0.6)
-    step = rng.uniform(0.6, 1.4, legs)[:, None]
+    if step is None:
+        step = rng.uniform(0.6, 1.4, legs)[:, None]
     dirs = np.stack([np.cos(phi) * np.cos(theta), np.cos(phi) * np.sin(theta), np.sin(phi)], 1)
     return np.vstack([np.zeros(3), np.cumsum(step * dirs, axis=0)])
 
@@ -435,6 +451,11 @@ def _acceptable(ctrl: np.ndarray, cam: StereoCamera, tp: ThreadParams) -> bool:
             near = cKDTree(uv1).query_pairs(reach, output_type="ndarray")
             if near.size and np.any(np.abs(s1[near[:, 0]] - s1[near[:, 1]]) > 2.5 * reach):
                 return False
+            if tp.hairpin and view == 0:  # side by side over >= 4 reach, within 3 reach
+                close = cKDTree(uv1).query_pairs(3 * reach, output_type="ndarray")
+                far = close[np.abs(s1[close[:, 0]] - s1[close[:, 1]]) > 2.5 * reach]
+                if len(np.unique(far[:, 0])) < 4 * reach:
+                    return False
     return True
 
 
@@ -444,7 +465,7 @@ def _random_thread(cam: StereoCamera, tp: ThreadParams, rng: np.random.Generator
     for _ in range(_MAX_ATTEMPTS):
         n = int(rng.integers(n_lo, tp.n_control[1] + 1))
         length = rng.uniform(*tp.length_mm)
-        poly = _random_polygon(n, tp.curliness, tp.crossing, rng)
+        poly = _random_polygon(n, tp.curliness, tp.crossing, rng, tp.hairpin)
         ctrl = _fit_length_and_depth(poly, length, span)
         if ctrl is None:
             continue

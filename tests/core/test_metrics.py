@@ -12,6 +12,7 @@ from core.metrics import (
     reprojection_errors,
     resample,
     skeleton,
+    visible_part,
 )
 
 TRIALS = 10
@@ -135,3 +136,18 @@ def test_skeleton_on_the_bounding_box_equals_the_full_image_thinning() -> None:
     other[0, 0] = True
     assert skeleton(other) is not sk
     assert not skeleton(np.zeros((10, 12), dtype=bool)).any()
+
+
+def test_visible_part_keeps_the_run_inside_both_images() -> None:
+    P1 = np.array([[100.0, 0, 50, 0], [0, 100.0, 40, 0], [0, 0, 1, 0]])
+    P2 = P1.copy()
+    P2[0, 3] = -100.0 * 5.0  # baseline 5
+    x = np.linspace(-10.0, 60.0, 141)  # at z = 100: u = x + 50 (left), x + 45 (right)
+    pts = np.column_stack([x, np.zeros_like(x), np.full_like(x, 100.0)])
+    seen = visible_part(pts, P1, P2, (80, 100))
+    for P in (P1, P2):
+        uv = project(seen, P)
+        assert np.all((uv[:, 0] >= -0.5) & (uv[:, 0] <= 99.5))
+    assert len(seen) < len(pts) and seen[0, 0] == pts[np.flatnonzero(x + 45 >= -0.5)[0], 0]
+    inside = pts[(x > 0) & (x < 40)]
+    assert np.array_equal(visible_part(inside, P1, P2, (80, 100)), inside)  # seen whole

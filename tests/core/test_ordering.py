@@ -1,15 +1,24 @@
 """Tests of core/ordering.py over seeded random synthetic threads: the walk keeps each keypoint
 at most once, covers a clean thread completely, and follows the true curve."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
-from support import synthetic_case, synthetic_frame
+from support import calibration_for, synthetic_case, synthetic_frame
 
-from core.metrics import resample
-from core.ordering import Ordering, OrderingParams
+from core.metrics import curve_errors, polyline_length, resample
+from core.ordering import (
+    Ordering,
+    OrderingParams,
+    _GapGeodesics,
+    _normalised,
+)
 from core.pipeline import Pipeline, ReconParams
 from core.reliability import ReliabilityParams
+from core.segmentation import StereoPair
+from core.synthetic import RenderParams, SyntheticParams, generate_frame
 
 TRIALS = tuple(range(10))
 
@@ -85,3 +94,62 @@ def test_gap_pixel_positions_along_links_are_in_unit_interval() -> None:
 def test_negative_solidify_radius_raises() -> None:
     with pytest.raises(ValueError, match="solidify_radius"):
         OrderingParams(solidify_radius=-1)
+
+
+@pytest.mark.parametrize("seed", TRIALS[:4])
+def test_link_positions_match_per_link_geodesics(seed: int) -> None:
+    # One multi-source search per side gives the same positions as a search per link.
+
+    params = ReconParams(
+        reliability=ReliabilityParams(threshold=0.999), ordering=OrderingParams(solidify_radius=0)
+    )
+    pair, calib, _ = synthetic_case(seed)
+    rec = Pipeline(pair, calib).run(params, until="ordering")
+    o, stereo = rec["ordering"], rec["stereo"]
+    geo = _GapGeodesics(stereo, o.pixel_node, o.n_clusters)
+    expected = np.full(len(o.pixel_node), np.nan)
+    for i, gap_ids in enumerate(o.links):
+        sel = np.flatnonzero(np.isin(o.pixel_node, gap_ids))
+        if sel.size == 0:
+            continue
+        a, b = o.order[i], o.order[i + 1]
+        if a < 0:
+            expected[sel] = 1.0 - _normalised(geo.distance_from(b, sel))
+        elif b < 0:
+            expected[sel] = _normalised(geo.distance_from(a, sel))
+        else:
+            da, db = geo.distance_from(a, sel), geo.distance_from(b, sel)
+            expected[sel] = da / (da + db)
+    assert np.array_equal(np.isfinite(expected), np.isfinite(o.pixel_t))
+    np.testing.assert_allclose(o.pixel_t[np.isfinite(expected)], expected[np.isfinite(expected)])
+
+
+@pytest.mark.parametrize("seed", TRIALS[:4])
+def test_crossing_thread_is_walked_through_its_crossing(seed: int) -> None:
+    # The walk passes the crossing and keeps (almost) every keypoint: a wrong turn strands
+    # one side of the loop.
+    pair, calib, truth = synthetic_case(seed, crossing=True)
+    rec = Pipeline(pair, calib).run(ReconParams())
+    o = rec["ordering"]
+    assert np.sum(o.order >= 0) >= 0.95 * o.n_clusters
+    assert curve_errors(rec["camera"].points, truth).e_length < 0.1 * polyline_length(truth)
+
+
+@pytest.mark.parametrize("seed", TRIALS[:4])
+def test_occluded_thread_is_joined_across_the_occluder(seed: int) -> None:
+    frame = generate_frame(SyntheticParams(render=RenderParams(occlusion=True)), rng=seed)
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    calib = calibration_for(frame.camera)
+    for walk, joined in (("bending", True), ("greedy", None)):
+        params = replace(ReconParams(), ordering=OrderingParams(walk=walk))
+        o = Pipeline(pair, calib).run(params, until="ordering")["ordering"]
+        kept = o.order[o.order >= 0]
+        assert kept.size == np.unique(kept).size  # a permutation of the kept keypoints
+        if joined:
+            assert kept.size >= 0.95 * o.n_clusters
+
+
+def test_paper_walk_stays_reachable() -> None:
+    a = _ordering(0, replace(ReconParams(), ordering=OrderingParams(walk="greedy")))
+    b = _ordering(0)
+    assert np.array_equal(np.sort(a.order[a.order >= 0]), np.sort(b.order[b.order >= 0]))

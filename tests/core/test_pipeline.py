@@ -29,7 +29,7 @@ def test_reconstruction_of_flat_frame_is_accurate(seed: int) -> None:
     assert err.e_length < 5.0
 
 
-def test_changing_n_ctrl_reruns_only_spline_and_camera() -> None:
+def test_changing_n_ctrl_reruns_only_spline_refine_and_camera() -> None:
     pair, calib, _ = synthetic_case(0)
     pipe = Pipeline(pair, calib)
     params = ReconParams()
@@ -40,7 +40,7 @@ def test_changing_n_ctrl_reruns_only_spline_and_camera() -> None:
     assert all(run.cached for run in again.runs.values())
     changed = pipe.run(replace(params, spline=replace(params.spline, n_ctrl=12)))
     cached = {name: run.cached for name, run in changed.runs.items()}
-    assert cached == {name: name not in ("spline", "camera") for name in STAGES}
+    assert cached == {name: name not in ("spline", "refine", "camera") for name in STAGES}
     assert changed["stereo"] is first["stereo"]
     sp = changed["spline"]
     # 12 control points: the 8 uniform spans of S_z (S_x, S_y may split some of them).

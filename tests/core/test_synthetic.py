@@ -290,3 +290,20 @@ def test_thread_that_cannot_fit_the_view_raises_value_error() -> None:
     hard = SyntheticParams(thread=ThreadParams(length_mm=(140.0, 140.0), depth_mm=(20.0, 25.0)))
     with pytest.raises(ValueError, match="length_mm"):
         generate_frame(hard, 0)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_hairpin_strands_run_side_by_side_without_touching(seed: int) -> None:
+    frame = generate_frame(SyntheticParams(thread=ThreadParams(hairpin=True)), rng=seed)
+    n, _ = cv2.connectedComponents(frame.mask_left.astype(np.uint8), connectivity=8)
+    assert n == 2  # one thread, strands never merged
+    uv, _ = frame.camera.project(frame.truth.centerline)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
+    d = np.linalg.norm(uv[:, None] - uv[None, :], axis=2)
+    far = np.abs(s[:, None] - s[None, :]) > 60.0  # arc-distant parts of the curve
+    assert np.min(d[far]) < 30.0  # yet close in the image: side by side
+
+
+def test_hairpin_and_crossing_cannot_both_be_set() -> None:
+    with pytest.raises(ValueError, match="hairpin"):
+        ThreadParams(hairpin=True, crossing=True)

@@ -1,0 +1,198 @@
+"""Two-view depth refinement: the final curve's projection lies on the thread in both views.
+
+The MVS spline of Eq. (8) takes its depth from the keypoints' stereo depths and the bounds of
+Eq. (7) only; nothing checks that its projection into the right image lies on the thread. This
+stage (a deviation, ``mode="two_view"``; ``mode="off"`` is the paper) refits S_z with S_x, S_y
+fixed so that, row by row along the epipolar lines, the curve's disparity d(u) = f B / S_z(u)
+matches the disparity of the thread itself:
+
+- on image row y(u) the thread crosses the left mask in a run of pixels and the right mask in
+  another; their centres (intensity-weighted, sub-pixel) c_L, c_R give the observed disparity
+  t = c_L - c_R. The run nearest the curve's prediction (x(u), x(u) - d(u)) is taken.
+- a run of length L pins its centre only to +- L / sqrt(12) along the row: where the thread runs
+  along the epipolar lines (long runs), both views agree with many depths and the term fades;
+  the smoothness term then interpolates the depth across the segment.
+- smoothness: the integral of (d^3 S_z / ds^3)^2 over the image arc length s, the small-slope
+  form of Eq. (8)'s Minimum Variation term, weighted by ``smooth_px``^5 (a length in px: depth
+  features shorter than it are smoothed);
+- the depth bounds of Eq. (7) hold at the points of H (exact: a least-squares problem with
+  linear inequalities, solved by Lawson and Hanson's reduction to NNLS).
+
+Gauss-Newton over the control values of S_z with re-association of the runs, ``iterations``
+rounds; the result is the spline of the previous stage with its S_z replaced.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+from scipy import optimize
+from scipy.interpolate import BSpline
+
+from core.bounds import Bounds
+from core.calibration import StereoCalibration
+from core.params import Params, param
+from core.segmentation import LiftedPair
+from core.spline import SplineResult
+
+QUAD_PER_SPAN = 4  # Gauss-Legendre nodes per knot span: exact for the squared 3rd derivative
+RIDGE = 1e-9  # relative ridge that keeps the least-squares matrix of full column rank
+GATE_PX = 2.0  # a run is associated when the prediction lies within its half-length + 2 px
+
+
+@dataclass(frozen=True)
+class RefineParams(Params):
+    mode: Literal["two_view", "off"] = param(
+        "two_view",
+        label="two-view refinement",
+        doc='"two_view": refit S_z so that the curve lies on the thread in both views; '
+        '"off": the MVS spline as it is (paper).',
+    )
+    smooth_px: float = param(
+        20.0,
+        lo=1.0,
+        hi=1000.0,
+        unit="px",
+        label="smoothness length",
+        doc="Depth features shorter than this along the image curve are smoothed, px.",
+        slider=(5.0, 200.0, 1.0),
+    )
+    iterations: int = param(
+        3, lo=1, hi=20, label="rounds", doc="Gauss-Newton rounds with re-association."
+    )
+
+
+def refine_depth(
+    spline: SplineResult,
+    bounds: Bounds,
+    lifted: LiftedPair,
+    calib: StereoCalibration,
+    p: RefineParams = RefineParams(),
+) -> SplineResult:
+    """S with S_z refitted to the disparity of the thread along the epipolar lines."""
+    if p.mode == "off" or not spline.ok:
+        return spline
+    t, k, c0 = spline.knots, spline.degree, spline.ctrl
+    fB = calib.focal * calib.baseline
+    xy_len = float(np.linalg.norm(np.diff(spline.curve(200)[:, :2], axis=0), axis=1).sum())
+    n = int(np.clip(xy_len, 50, 3000))  # about one sample per px of image arc length
+    u = np.linspace(0.0, spline.length, n)
+    Bm = BSpline.design_matrix(u, t, k).toarray()
+    xy = Bm @ c0[:, :2]
+    runs_L = _Runs(lifted.P_L, lifted.grey_L, lifted.background[0])
+    runs_R = _Runs(lifted.P_R, lifted.grey_R, lifted.background[1])
+    rows = np.rint(xy[:, 1]).astype(np.int64)
+    cL, lL = runs_L.nearest(rows, xy[:, 0])
+    okL = np.isfinite(cL) & (np.abs(cL - xy[:, 0]) <= 0.5 * lL + GATE_PX)
+
+    # Smoothness: third derivative over image arc length s = u * xy_len / length.
+    uq, wq = _gauss_nodes(t, k, QUAD_PER_SPAN)
+    D3 = BSpline(t, np.eye(len(c0)), k).derivative(3)(uq)  # d^3 S_z / du^3 per control value
+    ds_du = xy_len / spline.length
+    z_mean = float(np.mean(Bm @ c0[:, 2]))
+    to_px = fB / z_mean**2  # depth -> disparity px at the mean depth
+    S = D3 * (to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))[:, None]
+
+    BH = BSpline.design_matrix(np.clip(spline.u_H, 0, spline.length), t, k).toarray()
+    lo, hi = bounds.lower, bounds.upper
+    G = np.vstack([BH, -BH])  # Eq. (7): lower <= S_z(u_H) <= upper
+    h = np.concatenate([lo, -hi])
+    b = c0[:, 2].copy()
+    for _ in range(p.iterations):
+        z = Bm @ b
+        if np.any(z <= 0):
+            return spline
+        d = fB / z
+        cR, lR = runs_R.nearest(rows, xy[:, 0] - d)
+        ok = okL & np.isfinite(cR) & (np.abs(cR - (xy[:, 0] - d)) <= 0.5 * lR + GATE_PX)
+        if ok.sum() < 10:
+            return spline
+        w = 1.0 / np.sqrt((lL[ok] ** 2 + lR[ok] ** 2) / 12.0)  # 1 / sigma, px
+        target = cL[ok] - cR[ok]
+        J = (-fB / z[ok] ** 2)[:, None] * Bm[ok]  # d disparity / d b
+        A = J * w[:, None]
+        rhs = (target - d[ok] + J @ b) * w
+        b_new = _lsi(np.vstack([A, S]), np.concatenate([rhs, np.zeros(len(S))]), G, h)
+        if b_new is None:
+            return spline  # the bounds cannot be met with this spline: keep the MVS depth
+        b = b_new
+    ctrl = c0.copy()
+    ctrl[:, 2] = b
+    return replace(spline, ctrl=ctrl)
+
+
+def _gauss_nodes(t: np.ndarray, k: int, per_span: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre nodes and weights, ``per_span`` per non-empty knot span of (t, k)."""
+    x, w = np.polynomial.legendre.leggauss(per_span)
+    brk = np.unique(t[k : len(t) - k])
+    a, b = brk[:-1, None], brk[1:, None]
+    return (0.5 * (b - a) * x + 0.5 * (a + b)).ravel(), (0.5 * (b - a) * w).ravel()
+
+
+def _lsi(A: np.ndarray, r: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarray | None:
+    """min ||A x - r|| subject to G x >= h (Lawson and Hanson, LSI -> LDP -> NNLS).
+    None when the constraints are infeasible."""
+    n = A.shape[1]
+    ridge = RIDGE * max(float(np.abs(A).max()), 1e-300)
+    A = np.vstack([A, ridge * np.eye(n)])
+    r = np.concatenate([r, np.zeros(n)])
+    Q, R = np.linalg.qr(A)
+    qr = Q.T @ r
+    E = np.linalg.solve(R.T, G.T).T  # G R^-1
+    f = h - E @ qr
+    M = np.vstack([E.T, f[None, :]])
+    e = np.zeros(n + 1)
+    e[-1] = 1.0
+    u, _ = optimize.nnls(M, e, maxiter=50 * M.shape[1])
+    res = M @ u - e
+    if abs(res[-1]) < 1e-12:
+        return None
+    y = -res[:n] / res[-1]
+    return np.linalg.solve(R, y + qr)
+
+
+class _Runs:
+    """Horizontal runs of a mask (one per maximal row segment) with sub-pixel centres."""
+
+    def __init__(self, mask: np.ndarray, grey: np.ndarray, background: float) -> None:
+        H, W = mask.shape
+        ys, xs = np.nonzero(mask)  # row-major: a run is a stretch of consecutive x on one row
+        w = np.clip(background - grey[ys, xs].astype(np.float64), 1.0, None)  # darkness
+        new = np.ones(len(xs), dtype=bool)
+        new[1:] = (np.diff(xs) != 1) | (np.diff(ys) != 0)
+        start = np.flatnonzero(new)
+        sw = np.add.reduceat(w, start) if start.size else np.zeros(0)
+        self.centre = np.add.reduceat(w * xs, start) / sw if start.size else np.zeros(0)
+        self.length = np.diff(np.append(start, len(xs))).astype(np.float64)
+        self.row = ys[start]
+        self.H = H
+        self.key_scale = 4.0 * W
+        self.key = self.row * self.key_scale + self.centre  # sorted: row-major, then by x
+        self.row_start = np.searchsorted(self.row, np.arange(H + 1))
+
+    def nearest(self, rows: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Centre and length of the run nearest ``x`` on each row; inf where the row has none."""
+        c = np.full(len(x), np.inf)
+        ln = np.full(len(x), np.inf)
+        valid = (rows >= 0) & (rows < self.H)
+        r = np.where(valid, rows, 0)
+        lo, hi = self.row_start[r], self.row_start[r + 1]
+        has = valid & (hi > lo)
+        if not has.any() or self.centre.size == 0:
+            return c, ln
+        pos = np.searchsorted(self.key, self.key_scale * r + x)
+        best = np.full(len(x), -1)
+        best_d = np.full(len(x), np.inf)
+        for cand in (pos - 1, pos):
+            ok = has & (cand >= lo) & (cand < hi)
+            cc = np.clip(cand, 0, self.centre.size - 1)
+            dist = np.where(ok, np.abs(self.centre[cc] - x), np.inf)
+            better = dist < best_d
+            best = np.where(better, cc, best)
+            best_d = np.where(better, dist, best_d)
+        found = best >= 0
+        c[found] = self.centre[best[found]]
+        ln[found] = self.length[best[found]]
+        return c, ln

@@ -1,0 +1,95 @@
+"""Tests of core/refine.py: the two-view depth refinement stays inside the bounds of Eq. (7),
+brings the curve closer to the truth on seeded synthetic threads, and its parts (row runs, the
+constrained least-squares solver) are exact on small known cases."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.interpolate import BSpline
+from support import assert_close, synthetic_case
+
+from core.metrics import curve_errors
+from core.pipeline import Pipeline, ReconParams
+from core.refine import RefineParams, _lsi, _Runs, refine_depth
+
+TRIALS = tuple(range(6))
+
+
+def _run(seed: int, mode: str = "two_view"):
+    pair, calib, truth = synthetic_case(seed)
+    rec = Pipeline(pair, calib).run(replace(ReconParams(), refine=RefineParams(mode=mode)))
+    assert rec.status == "ok", rec.message
+    return rec, calib, truth
+
+
+@pytest.mark.parametrize("seed", TRIALS)
+def test_refined_depth_stays_inside_the_bounds(seed: int) -> None:
+    rec, _, _ = _run(seed)
+    s, b = rec["refine"], rec["bounds"]
+    z = BSpline(s.knots, s.ctrl[:, 2], s.degree)(np.clip(s.u_H, 0, s.length))
+    tol = 1e-6 * (b.upper - b.lower) + 1e-9
+    assert np.all(z >= b.lower - tol) and np.all(z <= b.upper + tol)
+
+
+def test_refinement_brings_the_curve_closer_to_the_truth() -> None:
+    before, after = [], []
+    for seed in TRIALS:
+        for mode, out in (("off", before), ("two_view", after)):
+            rec, _, truth = _run(seed, mode)
+            out.append(curve_errors(rec["camera"].points, truth).e_S)
+    assert np.mean(after) < np.mean(before)
+    assert sum(a <= b + 0.02 for a, b in zip(after, before, strict=True)) >= len(TRIALS) - 1
+
+
+def test_refinement_keeps_the_image_curve() -> None:
+    rec, _, _ = _run(0)
+    assert_close(rec["refine"].ctrl[:, :2], rec["spline"].ctrl[:, :2])
+    assert not np.array_equal(rec["refine"].ctrl[:, 2], rec["spline"].ctrl[:, 2])
+
+
+def test_mode_off_returns_the_mvs_spline_unchanged() -> None:
+    rec, calib, _ = _run(1, "off")
+    assert rec["refine"] is rec["spline"]
+    again = refine_depth(
+        rec["spline"], rec["bounds"], rec["segment"], calib, RefineParams(mode="off")
+    )
+    assert again is rec["spline"]
+
+
+def test_row_runs_have_exact_centres_and_lengths() -> None:
+    mask = np.zeros((6, 20), dtype=bool)
+    mask[1, 3:7] = True  # centre 4.5, length 4
+    mask[1, 10:13] = True  # centre 11, length 3
+    mask[4, 0:20] = True  # a whole row: centre 9.5, length 20
+    grey = np.full(mask.shape, 100.0)
+    runs = _Runs(mask, grey, background=200.0)
+    c, ln = runs.nearest(np.array([1, 1, 1, 4, 2, -1, 6]), np.array([0.0, 9.0, 30, 3, 5, 5, 5]))
+    assert_close(c[:4], np.array([4.5, 11.0, 11.0, 9.5]))
+    assert_close(ln[:4], np.array([4.0, 3.0, 3.0, 20.0]))
+    assert np.all(np.isinf(c[4:])) and np.all(np.isinf(ln[4:]))  # empty row, outside the image
+
+
+def test_row_run_centres_follow_the_darkness() -> None:
+    mask = np.zeros((1, 10), dtype=bool)
+    mask[0, 2:5] = True
+    grey = np.full(mask.shape, 200.0)
+    grey[0, 2:5] = (150.0, 100.0, 100.0)  # the left pixel is only half dark: centre right of 3
+    c, _ = _Runs(mask, grey, background=200.0).nearest(np.array([0]), np.array([3.0]))
+    assert_close(c, np.array([(2 * 50 + 3 * 100 + 4 * 100) / 250.0]))
+
+
+def test_constrained_least_squares_matches_known_solutions() -> None:
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(30, 4))
+    x_true = np.array([1.0, -2.0, 0.5, 3.0])
+    r = A @ x_true
+    # Inactive constraints: the unconstrained solution.
+    G = np.eye(4)
+    assert_close(_lsi(A, r, G, np.full(4, -10.0)), x_true, rtol=1e-6, atol=1e-6)
+    # With A = I the solution is the projection onto the box x >= 0.
+    x = _lsi(np.eye(4), x_true, np.eye(4), np.zeros(4))
+    assert_close(x, np.maximum(x_true, 0.0), rtol=1e-6, atol=1e-6)
+    # Contradicting constraints (x0 >= 1 and -x0 >= 0) are reported, not violated silently.
+    G = np.array([[1.0, 0, 0, 0], [-1.0, 0, 0, 0]])
+    assert _lsi(A, r, G, np.array([1.0, 0.0])) is None
