@@ -208,7 +208,6 @@ def _json_default(o: Any) -> Any:
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
-    params = resolve_preset(args.config)
     out = Path(args.out)
     result = reconstruct(
         args.left,
@@ -220,11 +219,10 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         mask_right=args.mask_right,
         calib_right=args.calib_right,
         units=args.units,
-        params=params,
+        params=args.config,  # a preset name or path; None: the default preset
         frame=args.frame,
     )
     data = result.to_json()
-    data["preset"] = args.config or "default"
     _write_json(out, data)
     if args.ply and result.points is not None:
         ply = Path(args.ply)

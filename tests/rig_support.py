@@ -22,8 +22,11 @@ from core.synthetic import (
     StereoCamera,
     SyntheticFrame,
     SyntheticParams,
+    ThreadParams,
     generate_frame,
 )
+
+RAW_MARGIN_PX = 40.0  # px: the thread's distance to the rendered view's border
 
 
 @dataclass(frozen=True)
@@ -46,8 +49,10 @@ def rotation(rx_deg: float, ry_deg: float, rz_deg: float) -> np.ndarray:
     return cv2.Rodrigues(rvec)[0]
 
 
-def _raw_view(img: np.ndarray, K: np.ndarray, D: np.ndarray, Ra: np.ndarray) -> np.ndarray:
-    """The raw camera's image of what the rectified camera ``K`` sees as ``img``."""
+def _raw_views(
+    img: np.ndarray, mask: np.ndarray, K: np.ndarray, D: np.ndarray, Ra: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The raw camera's image and mask of what the rectified camera ``K`` sees."""
     h, w = img.shape[:2]
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
     pts = np.stack([xs.ravel(), ys.ravel()], axis=1).reshape(-1, 1, 2)
@@ -62,13 +67,11 @@ def _raw_view(img: np.ndarray, K: np.ndarray, D: np.ndarray, Ra: np.ndarray) -> 
     )
     mx = rect[:, 0, 0].reshape(h, w).astype(np.float32)
     my = rect[:, 0, 1].reshape(h, w).astype(np.float32)
-    if img.dtype == bool:
-        out = cv2.remap(img.astype(np.float32), mx, my, cv2.INTER_LINEAR, borderValue=0.0)
-        return out >= 0.5
+    raw_mask = cv2.remap(mask.astype(np.float32), mx, my, cv2.INTER_LINEAR, borderValue=0.0)
     out = cv2.remap(img, mx, my, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE)
     outside = (mx < -0.5) | (mx > w - 0.5) | (my < -0.5) | (my > h - 0.5)
     out[outside] = np.median(img.reshape(-1, img.shape[2]), axis=0).astype(img.dtype)
-    return out  # beyond the rendered view the raw camera sees background
+    return out, raw_mask >= 0.5  # beyond the rendered view the raw camera sees background
 
 
 def _calib(
@@ -91,18 +94,18 @@ def raw_rig(
 ) -> RawRig:
     """A raw pair of the generated frame ``seed`` seen by rotated, distorting cameras."""
     cam = StereoCamera()
-    frame = generate_frame(SyntheticParams(camera=cam), rng=seed)
+    # the raw cameras' views are rotated by ~2 deg (up to ~25 px at the borders): a wider margin
+    # keeps the whole thread in both raw views, so both inputs see the same thread
+    thread = ThreadParams(margin_px=RAW_MARGIN_PX)
+    frame = generate_frame(SyntheticParams(camera=cam, thread=thread), rng=seed)
     K = np.asarray(cam.K, dtype=np.float64)
     size = (cam.height, cam.width)
     D1 = np.array([-0.08, 0.02, 0.0005, -0.0003, 0.0]) if distortion else np.zeros(5)
     D2 = np.array([-0.06, 0.015, -0.0004, 0.0002, 0.0]) if distortion else np.zeros(5)
     Ra1, Ra2 = rotation(*angles1), rotation(*angles2)
-    raw = StereoPair(
-        _raw_view(frame.left, K, D1, Ra1),
-        _raw_view(frame.right, K, D2, Ra2),
-        _raw_view(frame.mask_left, K, D1, Ra1),
-        _raw_view(frame.mask_right, K, D2, Ra2),
-    )
+    left, mask_left = _raw_views(frame.left, frame.mask_left, K, D1, Ra1)
+    right, mask_right = _raw_views(frame.right, frame.mask_right, K, D2, Ra2)
+    raw = StereoPair(left, right, mask_left, mask_right)
     t = np.array([-cam.baseline, 0.0, 0.0])
     zero = np.zeros(5)
     return RawRig(

@@ -13,7 +13,7 @@ from rig_support import opencv_yaml, raw_rig, ros_camera_info
 from support import assert_close, calibration_for, synthetic_frame
 
 from app.dataset import discover, load_frame
-from core.rectify import rectification
+from core.rectify import rectification, rectify_pair
 
 
 def _png(path: Path, img: np.ndarray) -> Path:
@@ -194,3 +194,17 @@ def test_raw_frame_is_rectified_on_load_with_ground_truth_in_the_rectified_frame
     # ground truth in the rectified frame: the truth of the reference, rotated by R1 Ra1
     ref_truth = rig.frame.truth.centerline @ (rect.R1 @ rig.Ra1).T
     assert np.abs(gt[0] - ref_truth[0]).max() < 1e-6
+
+
+def test_debugger_library_holds_the_rectified_pair_of_a_raw_frame(tmp_path: Path) -> None:
+    from app.session import FrameLibrary
+
+    rig = raw_rig(0)
+    _png(tmp_path / "a_L.png", rig.pair.left)
+    _png(tmp_path / "a_R.png", rig.pair.right)
+    (tmp_path / "calibration.yaml").write_text(opencv_yaml(rig.calib))
+    loaded = FrameLibrary(tmp_path).load("a")
+    expected = rectify_pair(rig.pair, rectification(rig.calib))
+    np.testing.assert_array_equal(loaded.pair.left, expected.left)  # what the page shows
+    np.testing.assert_array_equal(loaded.pair.right, expected.right)
+    assert loaded.calib.rectified is True

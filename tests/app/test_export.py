@@ -284,3 +284,22 @@ def test_ply_edges_are_checked() -> None:
         ply_bytes(np.zeros((3, 3)), edges=np.array([[0, 3]]))
     with pytest.raises(ValueError, match=r"\(E, 2\) integers"):
         ply_bytes(np.zeros((3, 3)), edges=np.array([[0.0, 1.0]]))
+
+
+def test_page_spline_json_is_the_cli_schema_with_preset_and_inputs(
+    tmp_path: Path, schema: dict
+) -> None:
+    import shutil
+
+    from test_server import FLAT, SAMPLE, url
+    from test_server_workflows import CONFIGS, client_for
+
+    data = tmp_path / "data"
+    shutil.copytree(SAMPLE / "simulated" / "flat", data / "simulated" / "flat")
+    with client_for(data, CONFIGS) as c:
+        sid = c.post(url(FLAT, "run"), json={}).json()["session"]
+        js = c.get(f"/api/sessions/{sid}/export/spline.json").json()
+    jsonschema.validate(js, schema)
+    assert js["preset"] == "default" and js["frame"] == "left"
+    roles = {i["role"]: i["name"] for i in js["inputs"]}
+    assert roles["stereo"] == "flat_1.png" and roles["calibration"] == "calibration.yaml"

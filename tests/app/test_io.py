@@ -62,6 +62,21 @@ def test_ros_camera_info_pair_reads_as_the_opencv_file_of_the_same_rig(tmp_path:
     assert load_calibration(lp, right=rp).unit == "m"  # ROS convention when not told
 
 
+def test_ros_message_fields_read_as_the_calibration_files(tmp_path: Path) -> None:
+    calib = raw_rig(0).calib
+    msgs = []
+    for info in ros_camera_info(calib):  # sensor_msgs/CameraInfo as `rostopic echo` prints it
+        msgs.append({
+            "height": info["image_height"], "width": info["image_width"],
+            "distortion_model": info["distortion_model"],
+            "D": info["distortion_coefficients"]["data"], "K": info["camera_matrix"]["data"],
+            "R": info["rectification_matrix"]["data"], "P": info["projection_matrix"]["data"],
+        })  # fmt: skip
+    (tmp_path / "l.yaml").write_text(yaml.safe_dump(msgs[0]))
+    (tmp_path / "r.yaml").write_text(yaml.safe_dump(msgs[1]))
+    _same_rig(load_calibration(tmp_path / "l.yaml", unit="mm", right=tmp_path / "r.yaml"), calib)
+
+
 def test_kalibr_camchain_reads_as_the_same_rig_in_metres(tmp_path: Path) -> None:
     calib = raw_rig(0).calib
     (tmp_path / "camchain.yaml").write_text(yaml.safe_dump(_kalibr(calib, scale=1e-3)))
