@@ -410,6 +410,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         frame_reruns: list[float] = []
         rec = None
         for _ in range(args.repeat):
+            pipe = rec = None  # free the previous run's results first: one frame in memory
             pipe = Pipeline(pair, calib)
             rec, timings = _timed_run(pipe, params, clock)
             if rec.failed_stage:
@@ -417,8 +418,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
             runs.append(timings)
             _, re_timings = _timed_run(pipe, changed, clock)  # spline and camera re-run
             frame_reruns.append(sum(re_timings.values()))
+        message = rec.message if rec else "no run"
+        pipe = rec = None
         if not runs:
-            print(f"skipped {frame.id}: {rec.message if rec else 'no run'}", file=sys.stderr)
+            print(f"skipped {frame.id}: {message}", file=sys.stderr)
             continue
         h, w = pair.shape
         sizes.add(f"{w}x{h}")

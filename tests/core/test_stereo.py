@@ -5,11 +5,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
-from support import assert_close, synthetic_case, synthetic_frame
+from support import assert_close, calibration_for, synthetic_case, synthetic_frame
 
 from core.metrics import resample
-from core.segmentation import LiftedPair, segment
+from core.segmentation import LiftedPair, StereoPair, segment
 from core.stereo import NEXT_GAP, StereoParams, match_stereo, reproject
+from core.synthetic import StereoCamera, SyntheticParams, generate_frame
 
 SEEDS = (0, 1, 2)
 
@@ -160,3 +161,20 @@ def test_search_range_follows_depth_through_f_times_b() -> None:
         StereoParams(z_near_mm=0.0)  # refused on construction
     with pytest.raises(ValueError, match="narrower"):
         StereoParams(z_near_mm=100.0, z_far_mm=101.0).search_range(calib)
+
+
+def test_depth_range_needs_no_retuning_at_twice_the_resolution() -> None:
+    # The same scene at 1280x960 (2x the focal length): the paper's alpha = 80 px no longer
+    # reaches the thread's disparities, the working depth range does, unchanged.
+    cam = StereoCamera(fx=2 * 890.0, cx=640.0, cy=480.0, width=1280, height=960)
+    frame = generate_frame(SyntheticParams(camera=cam), rng=5)
+    pair, calib = StereoPair(frame.left, frame.right), calibration_for(cam)
+    lifted = segment(pair)
+    z = frame.truth.centerline[:, 2]
+    assert cam.disparity(z.min()) > 80  # beyond the paper's alpha
+    st = match_stereo(lifted, calib, StereoParams(z_near_mm=40.0, z_far_mm=250.0))
+    ok = np.isfinite(st.depth)
+    assert ok.mean() > 0.95
+    assert z.min() - 2.0 < np.median(st.depth[ok]) < z.max() + 2.0
+    truth_d = cam.disparity(z)
+    assert np.median(st.disparity) > truth_d.min() - 1.0
