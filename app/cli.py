@@ -104,7 +104,33 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument(
         "--db", help="ratings and evaluations database (default: DATASET/threadrecon.sqlite3)"
     )
-    v.add_argument("--configs", help="preset folder (default: the project's configs/)")
+    v.add_argument(
+        "--configs",
+        help="folder of the user's presets (default: the platform's user data folder; "
+        "the built-in presets are read-only)",
+    )
+    v.add_argument(
+        "--allow-origin",
+        action="append",
+        default=[],
+        metavar="URL",
+        help="also accept requests from this origin (http://host:port) and its host name; "
+        "repeatable; '*' accepts any (default: loopback names only)",
+    )
+    v.add_argument(
+        "--idle-timeout",
+        type=float,
+        default=600.0,
+        metavar="S",
+        help="close a session without a 3D view after S seconds unused (default 600)",
+    )
+    v.add_argument(
+        "--max-body",
+        type=int,
+        default=4 * 1024 * 1024,
+        metavar="BYTES",
+        help="largest request body accepted (default 4 MiB; larger: 413)",
+    )
     v.set_defaults(func=cmd_serve)
 
     try:
@@ -236,13 +262,30 @@ def cmd_serve(args: argparse.Namespace) -> int:
         if port is not None and not 0 < port < 65536:
             raise UserError(f"{name} must be in 1..65535, got {port}")
     viser_port = args.viser_port if args.viser_port is not None else args.port + 1
-    with socket.socket() as probe:  # a taken port is a one-line error, not uvicorn's exit
-        try:
-            probe.bind((args.host, args.port))
-        except OSError as exc:
-            raise UserError(
-                f"cannot listen on {args.host}:{args.port} ({exc.strerror}): choose another --port"
-            ) from None
+    if not args.idle_timeout > 0:
+        raise UserError(f"--idle-timeout must be > 0, got {args.idle_timeout}")
+    if args.max_body < 1:
+        raise UserError(f"--max-body must be >= 1, got {args.max_body}")
+    family = socket.AF_INET6 if ":" in args.host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    # SO_REUSEADDR: a restart right after Ctrl-C binds despite the old connections in
+    # TIME_WAIT; the socket is handed to uvicorn, so a taken port is a one-line error here.
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((args.host, args.port))
+        sock.listen(2048)
+    except OSError as exc:
+        sock.close()
+        raise UserError(
+            f"cannot listen on {args.host}:{args.port} ({exc.strerror}): choose another --port"
+        ) from None
+    try:
+        from app.api.guard import Policy
+
+        Policy(args.allow_origin)
+    except ValueError as exc:
+        sock.close()
+        raise UserError(str(exc)) from None
     config = ServerConfig(
         data_dir=root,
         host=args.host,
@@ -250,9 +293,12 @@ def cmd_serve(args: argparse.Namespace) -> int:
         viser_port=viser_port,
         db_path=Path(args.db) if args.db else None,
         configs_dir=Path(args.configs) if args.configs else None,
+        allow_origins=tuple(args.allow_origin),
+        idle_timeout_s=args.idle_timeout,
+        max_body_bytes=args.max_body,
     )
     try:
-        serve(config)
+        serve(config, sock)
     except StoreError as exc:  # an unusable database stops the start, and nothing is written
         raise UserError(str(exc)) from None
     return 0

@@ -28,7 +28,7 @@ def free_port() -> int:
 
 def make_client(data_dir: Path) -> TestClient:
     config = ServerConfig(data_dir=data_dir, viser_port=free_port(), open_first=False)
-    return TestClient(create_app(config))
+    return TestClient(create_app(config), base_url="http://127.0.0.1")
 
 
 @pytest.fixture(scope="module")
