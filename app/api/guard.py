@@ -75,10 +75,6 @@ class Policy:
         return None
 
 
-class BodyTooLarge(Exception):
-    pass
-
-
 class Guard:
     """ASGI middleware: Host/Origin policy on every HTTP and websocket request, and a body
     limit (413) checked on Content-Length first and then counted as the body streams in, so a
@@ -102,27 +98,33 @@ class Guard:
         if length is not None and (not length.isdigit() or int(length) > self.max_body):
             return await _answer(send, 413, self._too_large())
         seen = 0
-        started = False
+        started = refused = False
 
         async def counted() -> Message:
-            nonlocal seen
+            nonlocal seen, started, refused
             message = await receive()
-            if message["type"] == "http.request":
+            if message["type"] == "http.request" and not refused:
                 seen += len(message.get("body", b""))
-                if seen > self.max_body:
-                    raise BodyTooLarge
+                if seen > self.max_body:  # answer now; the app sees a client that left
+                    refused = True
+                    if not started:
+                        started = True
+                        await _answer(send, 413, self._too_large())
+                    return {"type": "http.disconnect"}
             return message
 
         async def tracked(message: Message) -> None:
             nonlocal started
+            if refused:
+                return
             started = started or message["type"] == "http.response.start"
             await send(message)
 
         try:
             await self.app(scope, counted, tracked)
-        except BodyTooLarge:
-            if not started:
-                await _answer(send, 413, self._too_large())
+        except Exception:
+            if not refused:
+                raise
 
     def _too_large(self) -> str:
         return f"request body too large: at most {self.max_body} bytes"
