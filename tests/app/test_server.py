@@ -269,7 +269,7 @@ def test_a_failing_frame_shows_its_stage_and_the_server_keeps_serving(broken_dat
 def test_page_and_docs_are_served(client):
     page = client.get("/")
     assert page.status_code == 200 and "threadrecon" in page.text
-    for asset in ("app.js", "style.css"):
+    for asset in ("js/main.js", "js/core.js", "style.css"):
         assert client.get(f"/static/{asset}").status_code == 200
     assert client.get("/docs").status_code == 200
     spec = client.get("/openapi.json").json()
