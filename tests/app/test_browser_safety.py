@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import shutil
 import urllib.parse
-from pathlib import Path
 
 import pytest
 from browser_support import SAMPLE, Server, browser, get_json, missing_browser, send_json, wait_idle
@@ -54,8 +53,16 @@ def _rating(server: Server, frame_id: str) -> dict:
 
 def test_html_in_a_file_name_and_a_note_shows_as_text(server, page):
     evil_id = next(f["id"] for f in get_json(server.url + "/api/frames") if "<img" in f["id"])
-    send_json("PUT", f"{server.url}/api/frames/{urllib.parse.quote(A)}/rating", {"score": 2, "note": PAYLOAD})
-    send_json("PUT", f"{server.url}/api/frames/{urllib.parse.quote(evil_id)}/rating", {"score": 4, "note": PAYLOAD})
+    send_json(
+        "PUT",
+        f"{server.url}/api/frames/{urllib.parse.quote(A)}/rating",
+        {"score": 2, "note": PAYLOAD},
+    )
+    send_json(
+        "PUT",
+        f"{server.url}/api/frames/{urllib.parse.quote(evil_id)}/rating",
+        {"score": 4, "note": PAYLOAD},
+    )
     page.reload(wait_until="load")
     page.wait_for_function("window.threadrecon && window.threadrecon.state", timeout=60_000)
     names = page.locator("#frames td").all_text_contents()
