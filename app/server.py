@@ -43,5 +43,12 @@ def serve(config: ServerConfig, sock: socket.socket | None = None) -> None:
                 flush=True,
             )
 
+    original_shutdown = uv.shutdown
+
+    async def shutdown(sockets: Any = None) -> None:
+        state.sessions.stop_waiting()  # open long polls answer at once instead of at the grace
+        await original_shutdown(sockets)
+
     uv.startup = startup  # type: ignore[method-assign]
+    uv.shutdown = shutdown  # type: ignore[method-assign]
     uv.run(sockets=[sock] if sock is not None else None)

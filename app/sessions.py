@@ -86,6 +86,13 @@ class SessionManager:
             release_memory()
         return [s.id for s in old]
 
+    def stop_waiting(self) -> None:
+        """The server is stopping: every long poll answers now."""
+        with self._lock:
+            sessions = list(self._sessions.values())
+        for s in sessions:
+            s.changes.close()
+
     def close(self) -> None:
         with self._lock:
             sessions = list(self._sessions.values())
