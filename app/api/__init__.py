@@ -54,6 +54,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         description="Suture-thread reconstruction, stage by stage.",
         lifespan=lifespan,
         favicon_url="/static/favicon.svg",
+        swagger_ui_parameters={"validatorUrl": None},  # no badge fetched from swagger.io
     )
     app.state.core = state
     app.mount("/static", StaticFiles(directory=STATIC), name="static")

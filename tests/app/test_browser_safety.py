@@ -101,3 +101,15 @@ def test_a_note_stays_with_the_frame_it_was_typed_on(server, page):
         "document.querySelector('#rating-latest').dataset.score === '3'", timeout=30_000
     )
     assert _rating(server, A)["latest"]["note"] == "only about flat_1"
+
+
+def test_the_api_docs_render_with_no_request_leaving_the_machine(server):
+    with browser() as b:
+        page = b.new_page()
+        hosts: list[str] = []
+        page.on("request", lambda r: hosts.append(urllib.parse.urlsplit(r.url).hostname or ""))
+        page.goto(server.url + "/docs", wait_until="networkidle")
+        page.wait_for_selector(".swagger-ui .opblock", timeout=30_000)
+        assert page.locator(".swagger-ui .opblock").count() > 20
+        assert hosts and set(hosts) <= {"127.0.0.1"}, sorted(set(hosts))
+        page.close()
