@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import socket
 import sys
 import time
@@ -15,12 +16,12 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from app.api import reconstruct
 from app.dataset import Frame, discover, frame_inputs, frame_rectification, load_frame
 from app.evaluation import evaluate_frame, summarise, write_csv
 from app.export import result_json
 from app.io import load_calibration
 from app.presets import resolve_preset, validate
+from app.python_api import reconstruct
 from core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction, StageError
 from core.tracking import TrackParams
 
@@ -145,7 +146,33 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument(
         "--db", help="ratings and evaluations database (default: DATASET/threadrecon.sqlite3)"
     )
-    v.add_argument("--configs", help="preset folder (default: the project's configs/)")
+    v.add_argument(
+        "--configs",
+        help="folder of the user's presets (default: the platform's user data folder; "
+        "the built-in presets are read-only)",
+    )
+    v.add_argument(
+        "--allow-origin",
+        action="append",
+        default=[],
+        metavar="URL",
+        help="also accept requests from this origin (http://host:port) and its host name; "
+        "repeatable; '*' accepts any (default: loopback names only)",
+    )
+    v.add_argument(
+        "--idle-timeout",
+        type=float,
+        default=600.0,
+        metavar="S",
+        help="close a session without a 3D view after S seconds unused (default 600)",
+    )
+    v.add_argument(
+        "--max-body",
+        type=int,
+        default=4 * 1024 * 1024,
+        metavar="BYTES",
+        help="largest request body accepted (default 4 MiB; larger: 413)",
+    )
     v.set_defaults(func=cmd_serve)
 
     t = sub.add_parser(
@@ -360,13 +387,30 @@ def cmd_serve(args: argparse.Namespace) -> int:
         if port is not None and not 0 < port < 65536:
             raise UserError(f"{name} must be in 1..65535, got {port}")
     viser_port = args.viser_port if args.viser_port is not None else args.port + 1
-    with socket.socket() as probe:  # a taken port is a one-line error, not uvicorn's exit
-        try:
-            probe.bind((args.host, args.port))
-        except OSError as exc:
-            raise UserError(
-                f"cannot listen on {args.host}:{args.port} ({exc.strerror}): choose another --port"
-            ) from None
+    if not args.idle_timeout > 0:
+        raise UserError(f"--idle-timeout must be > 0, got {args.idle_timeout}")
+    if args.max_body < 1:
+        raise UserError(f"--max-body must be >= 1, got {args.max_body}")
+    family = socket.AF_INET6 if ":" in args.host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    # SO_REUSEADDR: a restart right after Ctrl-C binds despite the old connections in
+    # TIME_WAIT; the socket is handed to uvicorn, so a taken port is a one-line error here.
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((args.host, args.port))
+        sock.listen(2048)
+    except OSError as exc:
+        sock.close()
+        raise UserError(
+            f"cannot listen on {args.host}:{args.port} ({exc.strerror}): choose another --port"
+        ) from None
+    try:
+        from app.api.guard import Policy
+
+        Policy(args.allow_origin)
+    except ValueError as exc:
+        sock.close()
+        raise UserError(str(exc)) from None
     config = ServerConfig(
         data_dir=root,
         host=args.host,
@@ -374,12 +418,23 @@ def cmd_serve(args: argparse.Namespace) -> int:
         viser_port=viser_port,
         db_path=Path(args.db) if args.db else None,
         configs_dir=Path(args.configs) if args.configs else None,
+        allow_origins=tuple(args.allow_origin),
+        idle_timeout_s=args.idle_timeout,
+        max_body_bytes=args.max_body,
     )
+    code = 0
     try:
-        serve(config)
+        serve(config, sock)
     except StoreError as exc:  # an unusable database stops the start, and nothing is written
         raise UserError(str(exc)) from None
-    return 0
+    except KeyboardInterrupt:  # uvicorn re-raises Ctrl-C once it has stopped cleanly
+        print("threadrecon: interrupted", file=sys.stderr)
+        code = 130
+    # Stopped cleanly: the database is closed and viser stopped. Skip the interpreter's
+    # teardown (seconds of freeing a large heap on a busy machine) so that Ctrl-C is quick.
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 # --- bench -------------------------------------------------------------------------------

@@ -1,8 +1,12 @@
 """Parameter presets: TOML files with one table per stage (``[stereo]``, ``[spline]`` ...).
 
-Unknown keys, wrong types and out-of-range values are rejected with the key's name. Writing
-never replaces an existing preset unless asked to, and goes through a temporary file so that a
-crash cannot leave half a preset behind.
+Unknown keys, wrong types and out-of-range values are rejected with the key's name.
+
+Storage: the built-in presets (the project's ``configs/``) are read-only. User presets live in
+a user data folder (``serve --configs DIR``, else the platform's data dir, e.g.
+``~/.local/share/threadrecon/presets``), never in the installed package. Writing never replaces
+an existing preset unless asked to, never takes a built-in name, and goes through a temporary
+file so that a crash cannot leave half a preset behind.
 """
 
 from __future__ import annotations
@@ -17,10 +21,11 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from app.errors import AlreadyExists, Forbidden, Invalid, NotFound
 from core.params import ParamSpec, specs
 from core.pipeline import STAGE_BY_NAME, STAGES, ReconParams
 
-NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")  # used with fullmatch: no trailing newline
+NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")  # whole name only: use valid_name()
 HASH_HEX = 12  # 48 bits: no collision among the few hundred parameter sets of a study
 
 
@@ -92,22 +97,52 @@ def load_preset(path: str | Path) -> ReconParams:
         raise ValueError(f"{path}: {exc}") from None
 
 
+def valid_name(name: object) -> bool:
+    """True for a preset name: letters, digits, '.', '_' or '-', at most 64, nothing else
+    (``fullmatch``: a trailing newline is refused too)."""
+    return isinstance(name, str) and NAME_RE.fullmatch(name) is not None
+
+
+def default_configs_dir() -> Path:
+    """The built-in presets (read-only)."""
+    return Path(__file__).resolve().parent.parent / "configs"
+
+
+def user_configs_dir() -> Path:
+    """The platform's folder for the user's presets (created on first save)."""
+    import platformdirs
+
+    return Path(platformdirs.user_data_dir("threadrecon", appauthor=False)) / "presets"
+
+
+def builtin_presets() -> list[str]:
+    return sorted(p.stem for p in default_configs_dir().glob("*.toml") if valid_name(p.stem))
+
+
+def find_preset(name: str, user_dir: Path | None = None) -> Path:
+    """The file of preset ``name``: a built-in one, else one of ``user_dir``. Raises
+    :class:`Invalid` for a bad name and :class:`NotFound` for an unknown one."""
+    if not valid_name(name):
+        raise Invalid(f"invalid preset name {name!r}")
+    for folder in (default_configs_dir(), user_dir or user_configs_dir()):
+        path = folder / f"{name}.toml"
+        if path.is_file():
+            return path
+    raise NotFound(f"no preset {name!r} (presets: {', '.join(list_presets(user_dir))})")
+
+
 def resolve_preset(name_or_path: str | None, configs_dir: Path | None = None) -> ReconParams:
-    """A preset by file path, or by name in ``configs/``; None gives the defaults."""
+    """A preset by file path, or by name (built-in, else in the user folder); None gives
+    the defaults."""
     if name_or_path is None:
         return ReconParams()
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
         return load_preset(p)
-    folder = configs_dir or default_configs_dir()
-    candidate = folder / f"{name_or_path}.toml"
-    if not candidate.exists():
-        raise ValueError(f"preset {name_or_path!r} not found in {folder}")
-    return load_preset(candidate)
-
-
-def default_configs_dir() -> Path:
-    return Path(__file__).resolve().parent.parent / "configs"
+    try:
+        return load_preset(find_preset(name_or_path, configs_dir))
+    except LookupError as exc:
+        raise ValueError(str(exc.args[0])) from None
 
 
 def to_toml(params: ReconParams, header: str = "") -> str:
@@ -129,15 +164,18 @@ def to_toml(params: ReconParams, header: str = "") -> str:
 def save_preset(
     params: ReconParams, name: str, folder: Path, overwrite: bool = False, header: str = ""
 ) -> Path:
-    """Write ``folder/name.toml`` atomically; refuses an existing name unless ``overwrite``."""
-    if not NAME_RE.fullmatch(name):
-        raise ValueError(
-            f"invalid preset name {name!r}: letters, digits, '.', '_' or '-', at most 64"
-        )
+    """Write ``folder/name.toml`` atomically; refuses an existing name unless ``overwrite``
+    (:class:`Conflict`), a built-in name or the built-in folder (:class:`Forbidden`)."""
+    if not valid_name(name):
+        raise Invalid(f"invalid preset name {name!r}: letters, digits, '.', '_' or '-', at most 64")
+    if name in builtin_presets():
+        raise Forbidden(f"preset {name!r} is built in and read-only: save under another name")
+    if folder.resolve() == default_configs_dir().resolve():
+        raise Forbidden(f"{folder} holds the built-in presets: user presets go elsewhere")
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{name}.toml"
     if path.exists() and not overwrite:
-        raise FileExistsError(f"preset {name!r} exists: confirm to overwrite it")
+        raise AlreadyExists(f"preset {name!r} exists: confirm to overwrite it")
     fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name}.", suffix=".tmp")
     with os.fdopen(fd, "w") as fh:
         fh.write(to_toml(params, header))
@@ -157,8 +195,14 @@ def diff(params: ReconParams, base: ReconParams | None = None) -> list[dict[str,
     ]
 
 
-def list_presets(folder: Path | None = None) -> list[str]:
-    """Names of the presets in ``folder`` (default ``configs/``), sorted, "default" first."""
-    folder = folder or default_configs_dir()
-    names = sorted(p.stem for p in folder.glob("*.toml") if NAME_RE.fullmatch(p.stem))
-    return sorted(names, key=lambda n: n != "default")
+def list_presets(user_dir: Path | None = None) -> list[str]:
+    """The built-in presets ("default" first), then the user's (a user file with a built-in
+    name is ignored: built-ins cannot be shadowed)."""
+    builtin = sorted(builtin_presets(), key=lambda n: n != "default")
+    folder = user_dir or user_configs_dir()
+    user = (
+        sorted(p.stem for p in folder.glob("*.toml") if valid_name(p.stem))
+        if folder.is_dir()
+        else []
+    )
+    return builtin + [n for n in user if n not in builtin]

@@ -3,18 +3,15 @@
 One file holds three tables: ``meta`` (which program wrote the file, schema version),
 ``ratings`` (every rating ever given: re-rating a frame appends, the history is kept) and
 ``evaluations`` (a whole-dataset evaluation: parameters, one row per frame, summary lines).
-
 The store refuses, on opening, any file it cannot safely use: not an SQLite database (or a
 corrupt one), an SQLite database of another program, a newer schema, a read-only file or
 folder, a file locked by another program. The error names the file and what to do; the file
 is never deleted, truncated or overwritten. Opening writes one meta row inside a transaction,
 so that a file that cannot be written fails at start, not at the first rating.
-
 Threads: one connection (``check_same_thread=False``) guarded by a lock, in autocommit mode;
 every write is one ``BEGIN IMMEDIATE`` ... ``COMMIT`` transaction, so that several stores (or
 processes) on the same file wait for each other (``timeout``) instead of failing. The journal
 is SQLite's default rollback journal, which needs write access to the file's folder.
-
 Evaluation rows are stored as strict JSON: a NaN (a metric that does not apply, e.g. 3D error
 of a real frame) is stored as ``null`` and read back as ``float("nan")``.
 """
@@ -23,8 +20,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
-import math
 import os
 import sqlite3
 import threading
@@ -34,6 +29,9 @@ from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
+
+from app.errors import Unavailable
+from app.store_rows import dumps, evaluation_from_row
 
 APP_ID = "threadrecon-ratings"  # meta.app: tells our database from another program's
 SCHEMA_VERSION = 1  # bump, with a migration in _open_schema, when a table changes
@@ -74,7 +72,7 @@ _RATING_SELECT = f"SELECT {', '.join(CSV_COLUMNS)} FROM ratings"
 _EVAL_COLUMNS = "id, created_at, preset, params_hash, n_frames, params, rows, summary"
 
 
-class StoreError(RuntimeError):
+class StoreError(Unavailable, RuntimeError):
     """The database file cannot be used; the message names it and says what to do."""
 
     def __init__(self, path: Path, problem: str, advice: str = ADVICE) -> None:
@@ -88,15 +86,11 @@ class Rating:
     """One quality rating of one frame."""
 
     id: int
-    frame_id: str
-    """Dataset-relative frame id (``Frame.id``)."""
-    score: int
-    """Quality score, 1 (unusable) .. 5 (perfect), the paper's scale."""
+    frame_id: str  # dataset-relative frame id (``Frame.id``)
+    score: int  # quality score, 1 (unusable) .. 5 (perfect), the paper's scale
     note: str
-    created_at: str
-    """ISO-8601 UTC time of the rating."""
-    preset: str
-    """Preset name in use when rating ("" if none)."""
+    created_at: str  # ISO-8601 UTC time of the rating
+    preset: str  # preset name in use when rating ("" if none)
     params_hash: str
     """:func:`app.presets.params_hash` of the parameters in use ("" if unknown)."""
 
@@ -349,7 +343,7 @@ class RatingStore:
             raise ValueError("rows must be a list of dicts (one per frame)")
         if not isinstance(summary, list) or not all(isinstance(s, str) for s in summary):
             raise ValueError("summary must be a list of str")
-        blobs = (_dumps("params", params), _dumps("rows", rows), _dumps("summary", summary))
+        blobs = (dumps("params", params), dumps("rows", rows), dumps("summary", summary))
         with self._write() as cur:
             cur.execute(
                 "INSERT INTO evaluations"
@@ -361,21 +355,25 @@ class RatingStore:
         assert eid is not None
         return eid
 
-    def last_evaluation(self, preset: str | None = None) -> dict[str, Any] | None:
-        """The newest evaluation (of ``preset`` when given), or None."""
-        if preset is None:
-            rows = self._read(f"SELECT {_EVAL_COLUMNS} FROM evaluations ORDER BY id DESC LIMIT 1")
-        else:
-            rows = self._read(
-                f"SELECT {_EVAL_COLUMNS} FROM evaluations WHERE preset = ? ORDER BY id DESC LIMIT 1",
-                (preset,),
-            )
-        return _evaluation(rows[0]) if rows else None
+    def last_evaluation(
+        self, preset: str | None = None, params_hash: str | None = None
+    ) -> dict[str, Any] | None:
+        """The newest evaluation (of ``preset`` / ``params_hash`` when given), or None."""
+        where = [
+            (c, v) for c, v in (("preset", preset), ("params_hash", params_hash)) if v is not None
+        ]
+        sql = " AND ".join(f"{c} = ?" for c, _ in where)
+        rows = self._read(
+            f"SELECT {_EVAL_COLUMNS} FROM evaluations {'WHERE ' + sql if sql else ''}"
+            " ORDER BY id DESC LIMIT 1",
+            tuple(v for _, v in where),
+        )
+        return evaluation_from_row(rows[0]) if rows else None
 
     def evaluation(self, eid: int) -> dict[str, Any] | None:
         """The evaluation with id ``eid``, or None."""
         rows = self._read(f"SELECT {_EVAL_COLUMNS} FROM evaluations WHERE id = ?", (eid,))
-        return _evaluation(rows[0]) if rows else None
+        return evaluation_from_row(rows[0]) if rows else None
 
     def evaluations(self) -> list[dict[str, Any]]:
         """Id, created_at, preset, params_hash and n_frames of every evaluation, newest first."""
@@ -399,38 +397,3 @@ def _check_text(name: str, value: object, max_chars: int, empty: bool = True) ->
         raise ValueError(f"{name} is {len(value)} characters long, at most {max_chars} allowed")
     if not empty and not value:
         raise ValueError(f"{name} must not be empty")
-
-
-def _nan_to_null(obj: Any) -> Any:
-    """Non-finite floats -> None, numpy scalars -> Python, tuples -> lists, recursively."""
-    if isinstance(obj, dict):
-        return {k: _nan_to_null(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_nan_to_null(v) for v in obj]
-    if hasattr(obj, "dtype") and hasattr(obj, "item") and getattr(obj, "ndim", None) == 0:
-        obj = obj.item()  # numpy scalar
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
-def _dumps(name: str, obj: Any) -> str:
-    try:
-        return json.dumps(_nan_to_null(obj), allow_nan=False, separators=(",", ":"))
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} cannot be stored as JSON: {exc}") from None
-
-
-def _evaluation(r: tuple[Any, ...]) -> dict[str, Any]:
-    eid, created_at, preset, params_hash, n_frames, params, rows, summary = r
-    frames = [{k: math.nan if v is None else v for k, v in row.items()} for row in json.loads(rows)]
-    return {
-        "id": eid,
-        "created_at": created_at,
-        "preset": preset,
-        "params_hash": params_hash,
-        "n_frames": n_frames,
-        "params": json.loads(params),
-        "rows": frames,
-        "summary": json.loads(summary),
-    }

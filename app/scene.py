@@ -21,7 +21,8 @@ import numpy as np
 import viser
 
 from app.controls import Control, controls
-from app.session import LoadedFrame, Session, merge_params
+from app.library import LoadedFrame, merge_params
+from app.session import Session
 from app.views import (
     LAYER_STAGE,
     LAYERS,

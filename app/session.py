@@ -4,73 +4,35 @@ A session holds the frame being looked at, the parameters, how many stages are r
 latest reconstruction, and the 3D views (viser clients) that show it. Controls only *submit*
 what they want (frame, parameters, stages to reveal); one worker thread per session computes
 the newest request (latest wins: an older request still running stops at its next stage) and
-publishes each stage's layers as soon as the stage exists. Each session keeps its own pipelines,
-so two tabs never disturb each other's cache or scene.
+publishes each stage's layers as soon as the stage exists. The worker survives any exception
+(the stage that raised shows the error; the next request runs). Waiting is possible from a
+thread (:meth:`Session.wait`) or the event loop, holding no thread (:meth:`Session.finished`).
 """
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import threading
 import time
-import uuid
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Protocol
 
-import numpy as np
-
-from app.dataset import Frame, discover, evaluate_reconstruction, load_frame
-from app.presets import diff, params_hash, validate
+from app.dataset import evaluate_reconstruction
+from app.errors import Conflict, Invalid
+from app.library import FrameLibrary, LoadedFrame, merge_params
+from app.notify import Changes
+from app.session_state import describe
 from app.views import overlay
-from core.calibration import StereoCalibration
 from core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction, StageError
-from core.segmentation import StereoPair
 
+__all__ = ["FrameLibrary", "LoadedFrame", "Session", "View", "merge_params"]
+
+log = logging.getLogger("threadrecon.session")
 PIPELINES_PER_SESSION = 3  # frames whose stage cache a session keeps (back-and-forth browsing)
-LOADED_FRAMES = 16  # decoded frames kept by the library
-MAX_SESSIONS = 64  # the oldest session without a viewer is dropped beyond this
-
-
-@dataclass(frozen=True)
-class LoadedFrame:
-    frame: Frame
-    pair: StereoPair
-    calib: StereoCalibration
-    ground_truth: np.ndarray | None
-
-
-class FrameLibrary:
-    """The frames of a data folder, decoded on demand and kept in a small LRU cache."""
-
-    def __init__(self, root: str | Path) -> None:
-        self.root = Path(root)
-        self.frames: dict[str, Frame] = {f.id: f for f in discover(self.root)}
-        self._cache: OrderedDict[str, LoadedFrame] = OrderedDict()
-        self._lock = threading.Lock()
-
-    def get(self, frame_id: str) -> Frame:
-        try:
-            return self.frames[frame_id]
-        except KeyError:
-            raise KeyError(f"unknown frame {frame_id!r}") from None
-
-    def load(self, frame_id: str) -> LoadedFrame:
-        """Raises KeyError for an unknown id, ValueError/OSError for an unreadable frame."""
-        frame = self.get(frame_id)
-        with self._lock:
-            hit = self._cache.get(frame_id)
-            if hit is not None:
-                self._cache.move_to_end(frame_id)
-                return hit
-        pair, calib, gt = load_frame(frame)
-        loaded = LoadedFrame(frame, pair, calib, gt)
-        with self._lock:
-            self._cache[frame_id] = loaded
-            while len(self._cache) > LOADED_FRAMES:
-                self._cache.popitem(last=False)
-        return loaded
+MAX_PAUSE_S = 10.0  # longest pause between streamed stages (a watchable step, not a hang)
 
 
 class View(Protocol):
@@ -87,29 +49,9 @@ class Request:
     seq: int
     frame_id: str
     params: ReconParams
-    reveal: int
-    """Number of stages to compute and show (1..len(STAGES))."""
-    pause_s: float
-    """Pause after each stage, so that a streamed run can be watched."""
-    t0: float
-    """perf_counter() when the request was made (for the latency figures)."""
-
-
-def merge_params(params: ReconParams, patch: dict[str, Any]) -> ReconParams:
-    """``params`` with the values of ``{stage: {name: value}}`` (or ``{"stage.name": value}``)
-    applied; raises ValueError naming the parameter when a value is invalid."""
-    data = params.to_dict()
-    for key, value in patch.items():
-        if isinstance(value, dict):
-            if key not in data:
-                raise ValueError(f"unknown parameter group {key!r} (known: {', '.join(STAGES)})")
-            data[key].update(value)
-        else:
-            stage, _, name = key.partition(".")
-            if stage not in data or not name:
-                raise ValueError(f"unknown parameter {key}")
-            data[stage][name] = value
-    return validate(data)
+    reveal: int  # number of stages to compute and show (1..len(STAGES))
+    pause_s: float  # pause after each stage, so that a streamed run can be watched
+    t0: float  # perf_counter() when the request was made (for the latency figures)
 
 
 class Session:
@@ -128,6 +70,7 @@ class Session:
         self._pending: Request | None = None
         self._closed = False
         self._worker: threading.Thread | None = None
+        self.changes = Changes()
         self.draw_lock = threading.RLock()
         # What the user asked for most recently (the controls show this).
         self.frame_id: str | None = None
@@ -138,13 +81,13 @@ class Session:
         self.loaded: LoadedFrame | None = None
         self.rec: Reconstruction | None = None
         self.load_error: str | None = None
+        self.metrics_error: str | None = None
         self.running: str | None = None
         self.metrics: dict[str, float] = {}
         self.latency_ms: dict[str, float] = {}
         self.inspect: dict[str, Any] | None = None
-        self.version = 0
         self.views: dict[int, View] = {}
-        self.last_used = time.time()
+        self.last_used = time.monotonic()
         self._pipelines: OrderedDict[str, Pipeline] = OrderedDict()
         self._overlay: tuple[tuple, dict[str, Any]] | None = None
 
@@ -160,11 +103,17 @@ class Session:
     ) -> int:
         """Ask for a run; returns its sequence number. A newer request supersedes it."""
         if frame_id is not None:
-            self.library.get(frame_id)  # KeyError for an unknown frame
+            self.library.get(frame_id)  # NotFound for an unknown frame
+        if reveal is not None and not 1 <= reveal <= len(STAGES):
+            raise Invalid(f"reveal must be in [1, {len(STAGES)}], got {reveal}")
+        if not 0.0 <= pause_s <= MAX_PAUSE_S:  # NaN fails too
+            raise Invalid(f"pause must be in [0, {MAX_PAUSE_S:g}] s, got {pause_s!r}")
+        if not self.library.frames:
+            raise Conflict(f"no frames in {self.library.root}")
         changed = False
         with self._cond:
             if self._closed:
-                raise RuntimeError(f"session {self.id} is closed")
+                raise Conflict(f"session {self.id} is closed")
             if frame_id is not None and frame_id != self.frame_id:
                 self.frame_id = frame_id
                 self.inspect = None
@@ -178,20 +127,13 @@ class Session:
                 elif changed:
                     self.preset = "custom"
             if reveal is not None:
-                if not 1 <= reveal <= len(STAGES):
-                    raise ValueError(f"reveal must be in [1, {len(STAGES)}], got {reveal}")
                 self.reveal = reveal
             self._seq += 1
             self._pending = Request(
-                self._seq,
-                self.frame_id,
-                self.params,
-                self.reveal,
-                max(0.0, pause_s),
-                time.perf_counter(),
+                self._seq, self.frame_id, self.params, self.reveal, pause_s, time.perf_counter()
             )
-            self.last_used = time.time()
-            if self._worker is None:
+            self.touch()
+            if self._worker is None or not self._worker.is_alive():
                 self._worker = threading.Thread(
                     target=self._loop, name=f"session-{self.id[:8]}", daemon=True
                 )
@@ -212,7 +154,19 @@ class Session:
             return self.submit(reveal=1 if self.reveal >= n else self.reveal + 1)
         if action == "all":
             return self.submit(reveal=n)
-        raise ValueError(f"action must be run, next or all, got {action!r}")
+        raise Invalid(f"action must be run, next or all, got {action!r}")
+
+    def rename_preset(self, name: str) -> None:
+        """The session's parameters were saved as preset ``name``."""
+        self.preset = name
+        self._bump()
+
+    def touch(self) -> None:
+        self.last_used = time.monotonic()
+
+    def idle_for(self) -> float:
+        """Seconds since the session was last used (0 while a 3D view is attached)."""
+        return 0.0 if self.views else time.monotonic() - self.last_used
 
     def wait(self, seq: int, timeout: float = 60.0) -> bool:
         """Block until request ``seq`` (or a newer one) has finished; False on timeout."""
@@ -225,21 +179,36 @@ class Session:
                 self._cond.wait(left)
         return True
 
-    def wait_idle(self, timeout: float = 60.0) -> bool:
-        """Block until every request made so far has finished."""
-        with self._cond:
-            seq = self._seq
-        return self.wait(seq, timeout)
+    async def finished(self, seq: int, timeout: float) -> bool:
+        """:meth:`wait` for the event loop, holding no thread."""
+        return await self.changes.until(lambda: self._done_seq >= seq, timeout)
+
+    async def changed(self, since: int, timeout: float) -> bool:
+        """Wait in the event loop until the session's version is newer than ``since``."""
+        return await self.changes.until(lambda: self.version > since, timeout)
+
+    @property
+    def seq(self) -> int:
+        return self._seq
 
     @property
     def busy(self) -> bool:
-        with self._cond:
-            return self._done_seq < self._seq
+        return self._done_seq < self._seq
 
     def close(self) -> None:
+        """Stop the worker and drop every result, so that the memory is freed."""
         with self._cond:
             self._closed = True
+            self._pending = None
             self._cond.notify_all()
+        with self.draw_lock:
+            self.views.clear()
+            self._release()
+        self.changes.close()
+
+    def _release(self) -> None:
+        self._pipelines.clear()
+        self.rec, self.loaded, self._overlay, self.inspect = None, None, None, None
 
     # --- views --------------------------------------------------------------------------------
 
@@ -254,19 +223,27 @@ class Session:
     def detach(self, key: int) -> None:
         with self.draw_lock:
             self.views.pop(key, None)
+        self.touch()  # the idle time counts from the last view's departure
 
     def set_inspect(self, info: dict[str, Any] | None) -> None:
         with self.draw_lock:
             self.inspect = info
             for view in list(self.views.values()):
                 view.show_inspect(info)
-            self.version += 1
+        self._bump()
 
     def sync_params(self) -> None:
         """Show the current parameters in every view (after a preset load or a reset)."""
         with self.draw_lock:
             for view in list(self.views.values()):
                 view.show_params(self.params)
+
+    def _bump(self) -> None:
+        self.changes.bump()  # a new version; long polls wake up
+
+    @property
+    def version(self) -> int:
+        return self.changes.version
 
     # --- the worker ---------------------------------------------------------------------------
 
@@ -279,16 +256,37 @@ class Session:
                 while self._pending is None and not self._closed:
                     self._cond.wait()
                 if self._closed:
-                    return
+                    break
                 req, self._pending = self._pending, None
             try:
                 self._execute(req)
+            except Exception as exc:  # any error is this request's failed stage, never the worker's
+                log.exception("session %s: request %d failed", self.id, req.seq)
+                self._fail(req, exc)
             finally:
                 with self._cond:
                     if self._pending is None:
                         self._done_seq = max(self._done_seq, req.seq)
                     self.running = None
                     self._cond.notify_all()
+                self.changes.notify()
+        with self.draw_lock:
+            self._release()
+
+    def _fail(self, req: Request, exc: Exception) -> None:
+        stage = self.running or STAGES[0]
+        rec = self.rec
+        runs = dict(rec.runs) if rec is not None and rec.params == req.params else {}
+        runs.pop(stage, None)
+        message = f"{stage}: internal error: {type(exc).__name__}: {exc}"
+        with self.draw_lock:
+            self.rec = Reconstruction(runs, stage, message, req.params)
+            self.metrics = {}
+            for view in list(self.views.values()):
+                with contextlib.suppress(Exception):
+                    view.show(self.rec, self.loaded)
+        self._bump()
+        self._status(req.frame_id, "failed")
 
     def _execute(self, req: Request) -> None:
         self.latency_ms = {}
@@ -302,7 +300,7 @@ class Session:
                 for view in list(self.views.values()):
                     view.show_frame(None)
                     view.show(None, None)
-                self.version += 1
+            self._bump()
             self._status(req.frame_id, "failed")
             return
         if self.loaded is not loaded:
@@ -341,10 +339,16 @@ class Session:
         if rec is None:
             return
         self._publish(rec, loaded)
-        metrics = evaluate_reconstruction(rec, loaded.calib, loaded.ground_truth)
+        try:
+            metrics, self.metrics_error = (
+                evaluate_reconstruction(rec, loaded.calib, loaded.ground_truth),
+                None,
+            )
+        except Exception as exc:  # e.g. a ground truth holding NaN: the figures say why
+            metrics, self.metrics_error = {}, f"metrics: {type(exc).__name__}: {exc}"
         with self.draw_lock:
             self.metrics = metrics
-            self.version += 1
+        self._bump()
         if rec.failed_stage is not None or "camera" in rec.runs:
             self._status(req.frame_id, rec.status)
 
@@ -353,7 +357,7 @@ class Session:
             self.rec = rec
             for view in list(self.views.values()):
                 view.show(rec, loaded)
-            self.version += 1
+        self._bump()
 
     def _status(self, frame_id: str, status: str) -> None:
         if self._on_status is not None:
@@ -383,92 +387,12 @@ class Session:
             self._overlay = cached
         return {**cached[1], "frame_id": loaded.frame.id, "version": version}
 
-    # --- state for the page -------------------------------------------------------------------
+    def shows(self, frame_id: str) -> bool:
+        """True when the session's reconstruction is of ``frame_id``."""
+        loaded = self.loaded
+        return self.rec is not None and loaded is not None and loaded.frame.id == frame_id
 
     def state(self) -> dict[str, Any]:
         """The stepper, metrics and errors, as the page polls them."""
         with self.draw_lock:
-            rec, version = self.rec, self.version
-            stages = []
-            for i, stage in enumerate(STAGES):
-                entry: dict[str, Any] = {"stage": stage, "revealed": i < self.reveal}
-                if rec is not None and stage in rec.runs:
-                    run = rec.runs[stage]
-                    entry.update(status="cached" if run.cached else "done", ms=run.ms)
-                    if stage == "spline" and not run.result.ok:
-                        entry["status"] = "fallback"
-                elif rec is not None and rec.failed_stage == stage:
-                    entry["status"] = "failed"
-                elif self.running == stage:
-                    entry["status"] = "running"
-                else:
-                    entry["status"] = "pending"
-                stages.append(entry)
-            error = self.load_error or (rec.message if rec is not None else None)
-            return {
-                "session": self.id,
-                "version": version,
-                "frame_id": self.frame_id,
-                "shown_frame": self.loaded.frame.id if self.loaded is not None else None,
-                "busy": self.busy,
-                "preset": self.preset,
-                "params": self.params.to_dict(),
-                "params_hash": params_hash(self.params),
-                "diff": diff(self.params),
-                "reveal": self.reveal,
-                "stages": stages,
-                "status": "failed" if self.load_error else (rec.status if rec else "pending"),
-                "failed_stage": "load"
-                if self.load_error
-                else (rec.failed_stage if rec is not None else None),
-                "error": error,
-                "metrics": self.metrics,
-                "latency_ms": dict(self.latency_ms),
-                "inspect": self.inspect,
-                "unit": self.loaded.calib.unit if self.loaded is not None else None,
-            }
-
-
-class SessionManager:
-    """All sessions of the server, by id."""
-
-    def __init__(self, library: FrameLibrary) -> None:
-        self.library = library
-        self._sessions: dict[str, Session] = {}
-        self._lock = threading.Lock()
-        self.frame_status: dict[str, str] = {}
-
-    def _on_status(self, frame_id: str, status: str) -> None:
-        self.frame_status[frame_id] = status
-
-    def create(self, sid: str | None = None) -> Session:
-        with self._lock:
-            sid = sid or uuid.uuid4().hex
-            if sid in self._sessions:
-                return self._sessions[sid]
-            if len(self._sessions) >= MAX_SESSIONS:
-                idle = [s for s in self._sessions.values() if not s.views]
-                if idle:
-                    oldest = min(idle, key=lambda s: s.last_used)
-                    oldest.close()
-                    del self._sessions[oldest.id]
-            session = Session(sid, self.library, self._on_status)
-            self._sessions[sid] = session
-            return session
-
-    def get(self, sid: str) -> Session:
-        with self._lock:
-            try:
-                return self._sessions[sid]
-            except KeyError:
-                raise KeyError(f"unknown session {sid!r}") from None
-
-    def find(self, sid: str) -> Session | None:
-        with self._lock:
-            return self._sessions.get(sid)
-
-    def close(self) -> None:
-        with self._lock:
-            for s in self._sessions.values():
-                s.close()
-            self._sessions.clear()
+            return describe(self)

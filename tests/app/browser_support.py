@@ -82,14 +82,18 @@ class Server:
         startup_timeout: float = 90.0,
         db: Path | None = None,
         extra_args: tuple[str, ...] = (),
+        port: int | None = None,
+        viser_port: int | None = None,
     ) -> None:
         self.data_dir = data_dir
         # Ratings and evaluations go to a throw-away database (unless ``db`` names one that
         # should outlive the server), not into the data folder.
         self._tmp = tempfile.TemporaryDirectory(prefix="threadrecon-browser-")
         db = db or Path(self._tmp.name) / "threadrecon.sqlite3"
-        self.port = free_port()
-        self.viser_port = free_port()
+        self.port = port or free_port()
+        self.viser_port = viser_port or free_port()
+        if "--configs" not in extra_args:  # user presets never go to the real user folder
+            extra_args = (*extra_args, "--configs", str(Path(self._tmp.name) / "presets"))
         self.url = f"http://127.0.0.1:{self.port}"
         self.output: list[str] = []
         self._ready = threading.Event()

@@ -28,7 +28,7 @@ def free_port() -> int:
 
 def make_client(data_dir: Path) -> TestClient:
     config = ServerConfig(data_dir=data_dir, viser_port=free_port(), open_first=False)
-    return TestClient(create_app(config))
+    return TestClient(create_app(config), base_url="http://127.0.0.1")
 
 
 @pytest.fixture(scope="module")
@@ -269,7 +269,7 @@ def test_a_failing_frame_shows_its_stage_and_the_server_keeps_serving(broken_dat
 def test_page_and_docs_are_served(client):
     page = client.get("/")
     assert page.status_code == 200 and "threadrecon" in page.text
-    for asset in ("app.js", "style.css"):
+    for asset in ("js/main.js", "js/core.js", "style.css"):
         assert client.get(f"/static/{asset}").status_code == 200
     assert client.get("/docs").status_code == 200
     spec = client.get("/openapi.json").json()

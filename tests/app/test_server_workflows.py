@@ -9,6 +9,7 @@ import shutil
 import socket
 import threading
 import time
+import urllib.parse
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +39,7 @@ def client_for(data: Path, configs: Path, db: Path | None = None) -> TestClient:
     config = ServerConfig(
         data_dir=data, viser_port=free_port(), open_first=False, configs_dir=configs, db_path=db
     )
-    return TestClient(create_app(config))
+    return TestClient(create_app(config), base_url="http://127.0.0.1")
 
 
 # --- ratings ---------------------------------------------------------------------------------
@@ -100,7 +101,10 @@ def test_two_ratings_sent_at_once_from_two_clients_are_both_kept(setup):
     app = create_app(
         ServerConfig(data_dir=data, viser_port=free_port(), open_first=False, configs_dir=configs)
     )
-    with TestClient(app) as c1, TestClient(app) as c2:
+    with (
+        TestClient(app, base_url="http://127.0.0.1") as c1,
+        TestClient(app, base_url="http://127.0.0.1") as c2,
+    ):
         barrier = threading.Barrier(2)
         codes: list[int] = []
 
@@ -167,8 +171,17 @@ def test_ratings_summary_is_table_ii_with_the_failure_rate(setup):
         assert [r["frame"] for r in got["rows"]] == [FLAT, "simulated/flat/flat_2"]
         assert [r["score"] for r in got["rows"]] == [5, 1]
         assert got["summary"]["failure_rate"] == 0.5 and got["summary"]["rated"] == 2
+        # Nothing is recomputed in the request: without a saved evaluation, no figures.
+        assert got["evaluation"] is None
+        assert all(r["left_mean_px"] is None for r in got["rows"])
+        c.post("/api/evaluations", json={})
+        _wait_job(c)
+        got = c.get("/api/ratings/summary").json()
+        assert got["evaluation"]["same_params"] is True
+        saved = {r["frame"]: r for r in c.get("/api/evaluations/last").json()["rows"]}
         for r in got["rows"]:
             assert 0 <= r["left_mean_px"] < 1.0 and 0.9 <= r["coverage_right"] <= 1.0
+            assert r["left_mean_px"] == saved[r["frame"]]["left_mean_px"]  # the stored figure
             assert r["same_params"] is True
 
 
@@ -198,19 +211,44 @@ def test_saving_and_loading_a_preset_restores_every_parameter(setup):
     assert "threshold = 0.95" in out.getvalue()
 
 
-def test_an_existing_preset_is_not_overwritten_without_confirmation(setup):
+def test_built_in_presets_are_read_only_and_user_presets_go_to_the_user_folder(setup):
     data, configs = setup
-    before = (configs / "default.toml").read_text()
+    tracked = CONFIGS / "default.toml"
+    before = tracked.read_bytes()
     with client_for(data, configs) as c:
         sid = c.post("/api/sessions").json()["session"]
         c.patch(f"/api/sessions/{sid}/params", json={"spline": {"n_ctrl": 9}})
-        r = c.post("/api/presets", json={"name": "default", "session": sid})
-        assert r.status_code == 409 and "overwrite" in r.json()["detail"]
-        assert (configs / "default.toml").read_text() == before
-        for bad in ("", "../evil", "a b", "x" * 80):
+        for name in ("default", "paper-real"):
+            for overwrite in (False, True):
+                body = {"name": name, "session": sid, "overwrite": overwrite}
+                r = c.post("/api/presets", json=body)
+                assert r.status_code == 403 and "read-only" in r.json()["detail"]
+        assert tracked.read_bytes() == before
+        assert c.get("/api/presets/default").json()["params"]["spline"]["n_ctrl"] != 9
+        assert c.get("/api/presets/default").json()["builtin"] is True
+        r = c.post("/api/presets", json={"name": "mine", "session": sid})
+        assert r.status_code == 200 and Path(r.json()["path"]).parent == configs
+        assert (
+            c.get("/api/presets").json()[0] == "default" and "mine" in c.get("/api/presets").json()
+        )
+    assert not (CONFIGS / "mine.toml").exists()
+
+
+def test_an_existing_preset_is_not_overwritten_without_confirmation(setup):
+    data, configs = setup
+    with client_for(data, configs) as c:
+        sid = c.post("/api/sessions").json()["session"]
+        c.patch(f"/api/sessions/{sid}/params", json={"spline": {"n_ctrl": 9}})
+        for bad in ("", "../evil", "a b", "x" * 80, "mine\n", "mine\n\n"):
             assert c.post("/api/presets", json={"name": bad, "session": sid}).status_code == 422
+            path = "/api/presets/" + urllib.parse.quote(bad, safe="")
+            assert not bad or c.get(path).status_code in (404, 422)
         r = c.post("/api/presets", json={"name": "mine", "session": sid})
         assert r.status_code == 200
+        c.patch(f"/api/sessions/{sid}/params", json={"spline": {"n_ctrl": 10}})
+        r = c.post("/api/presets", json={"name": "mine", "session": sid})
+        assert r.status_code == 409 and "overwrite" in r.json()["detail"]
+        assert c.get("/api/presets/mine").json()["params"]["spline"]["n_ctrl"] == 9
         c.patch(f"/api/sessions/{sid}/params", json={"spline": {"n_ctrl": 11}})
         r = c.post("/api/presets", json={"name": "mine", "session": sid, "overwrite": True})
         assert r.status_code == 200

@@ -1,7 +1,7 @@
 """The Python API: one call from a stereo pair and its calibration to the thread's centerline.
 
 ```python
-from app.api import reconstruct   # ``from threadrecon import reconstruct`` once packaged
+from app.python_api import reconstruct   # ``from threadrecon import reconstruct`` once packaged
 
 result = reconstruct("left.png", "right.png", "calibration.yaml")
 if result.ok:

@@ -16,8 +16,8 @@ from plyfile import PlyData
 from rig_support import opencv_yaml, raw_rig, ros_camera_info
 from support import assert_close
 
-from app.api import ThreadResult, reconstruct
 from app.cli import main
+from app.python_api import ThreadResult, reconstruct
 from core.metrics import curve_errors
 
 SCHEMA = json.loads(

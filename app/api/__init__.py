@@ -1,0 +1,65 @@
+"""The debugger's web server: a FastAPI app with one router per resource.
+
+``create_app`` wires the state (:mod:`app.api.state`), the guard (Host/Origin, body limit:
+:mod:`app.api.guard`), the error mapping (:mod:`app.api.errors`), the routers and the API docs
+served from local files (``fastapi_offline``: no request leaves the machine).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import AsyncIterator
+
+from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
+from fastapi_offline import FastAPIOffline
+
+from app.api import errors
+from app.api.config import ServerConfig
+from app.api.guard import Guard
+from app.api.routes_evaluations import router as evaluations
+from app.api.routes_exports import router as exports
+from app.api.routes_frames import router as frames
+from app.api.routes_page import STATIC
+from app.api.routes_page import router as page
+from app.api.routes_presets import router as presets
+from app.api.routes_ratings import router as ratings
+from app.api.routes_sessions import router as sessions
+from app.api.state import AppState
+
+__all__ = ["AppState", "ServerConfig", "create_app"]
+log = logging.getLogger("threadrecon.server")
+
+
+def create_app(config: ServerConfig) -> FastAPI:
+    state = AppState(config)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        state.start_viser()
+        if config.open_first and state.library.frames:
+            state.session(None).submit(frame_id=next(iter(state.library.frames)))
+        log.info("viser on port %d", state.viser_port)
+        reaper = asyncio.create_task(state.expire_sessions())
+        try:
+            yield
+        finally:
+            reaper.cancel()
+            state.stop()
+
+    app = FastAPIOffline(
+        title="threadrecon debugger",
+        description="Suture-thread reconstruction, stage by stage.",
+        lifespan=lifespan,
+        favicon_url="/static/favicon.svg",
+        swagger_ui_parameters={"validatorUrl": None},  # no badge fetched from swagger.io
+    )
+    app.state.core = state
+    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+    for router in (page, frames, sessions, ratings, presets, evaluations, exports):
+        app.include_router(router)
+    errors.install(app)
+    app.add_middleware(Guard, policy=state.policy, max_body=config.max_body_bytes)
+    return app

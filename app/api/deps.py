@@ -1,0 +1,23 @@
+"""What the routes share: the server state as a dependency, and JSON answers."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import Depends, Request
+from fastapi.responses import JSONResponse
+
+from app.api.state import AppState
+from app.export import json_safe
+
+
+def _state(request: Request) -> AppState:
+    return request.app.state.core
+
+
+State = Annotated[AppState, Depends(_state)]
+
+
+def answer(data: Any) -> JSONResponse:
+    """``data`` as strict JSON (NaN and infinities as null)."""
+    return JSONResponse(json_safe(data))

@@ -1,0 +1,132 @@
+"""Sessions (one per browser tab): state (long poll), parameters, stepper, overlays, pixels."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Body, Query
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse, Response
+
+from app.api import schemas
+from app.api.deps import State, answer
+from app.api.state import AppState
+from app.errors import Conflict, Invalid, NotFound, TimedOut
+from app.library import merge_params
+from app.session import Session
+from app.views import pixel_info, stage_json
+from core.pipeline import ReconParams
+
+router = APIRouter(prefix="/api/sessions", tags=["sessions"])
+MAX_POLL_S = 25.0  # a long poll answers after this long even without news
+
+
+async def _reply(state: AppState, s: Session, seq: int, wait: bool) -> JSONResponse:
+    if wait and not await s.finished(seq, state.config.run_timeout_s):
+        raise TimedOut("the run did not finish in time")
+    return answer(await run_in_threadpool(s.state))
+
+
+@router.post("")
+def new_session(state: State, frame_id: str | None = None) -> schemas.NewSession:
+    """A session for one browser tab; its viser client connects to ``viser_path``."""
+    if frame_id is not None:
+        state.frame(frame_id)
+    s = state.sessions.create()
+    s.submit(frame_id=frame_id)
+    return schemas.NewSession(
+        session=s.id, viser_port=state.viser_port, viser_path=f"/session/{s.id}"
+    )
+
+
+@router.delete("/{sid}", status_code=204)
+def close_session(state: State, sid: str) -> Response:
+    """Close the session now (a tab that goes away); idle sessions also expire by themselves."""
+    state.sessions.delete(sid)
+    return Response(status_code=204)
+
+
+@router.get("/{sid}")
+async def session_state(
+    state: State,
+    sid: str,
+    since: int | None = None,
+    timeout: float = Query(0.0, ge=0.0, le=MAX_POLL_S),
+) -> JSONResponse:
+    """The session's stepper, metrics and errors; with ``since``, waits up to ``timeout`` s
+    for a version newer than ``since`` (a long poll: no thread is held while waiting)."""
+    s = state.session(sid)
+    if since is not None and timeout > 0:
+        await s.changed(since, timeout)
+    return answer(await run_in_threadpool(s.state))
+
+
+@router.patch("/{sid}/params")
+async def patch_params(
+    state: State, sid: str, patch: Annotated[dict[str, Any], Body()], wait: bool = False
+) -> JSONResponse:
+    """Change parameters (``{stage: {name: value}}``); 422 names a refused parameter."""
+    s = state.session(sid)
+    seq = s.submit(params=merge_params(s.params, patch))
+    return await _reply(state, s, seq, wait)
+
+
+@router.post("/{sid}/params/reset")
+async def reset_params(state: State, sid: str, wait: bool = False) -> JSONResponse:
+    s = state.session(sid)
+    seq = s.submit(params=ReconParams(), preset="default")
+    return await _reply(state, s, seq, wait)
+
+
+@router.post("/{sid}/step")
+async def step(state: State, sid: str, body: schemas.StepBody, wait: bool = False) -> JSONResponse:
+    """The stage stepper: run (streamed), next (reveal one more stage) or all."""
+    s = state.session(sid)
+    seq = s.step(body.action, pause_s=body.pause_ms / 1000.0)
+    return await _reply(state, s, seq, wait)
+
+
+@router.post("/{sid}/preset")
+async def use_preset(state: State, sid: str, body: schemas.UsePresetBody) -> JSONResponse:
+    """Load a preset into the session: every slider takes its value, then it runs."""
+    s = state.session(sid)
+    seq = s.submit(params=state.preset(body.name), preset=body.name)
+    return await _reply(state, s, seq, body.wait)
+
+
+@router.get("/{sid}/overlay")
+def session_overlay(state: State, sid: str) -> JSONResponse:
+    """The 2D overlays of the session's current reconstruction."""
+    return JSONResponse(state.session(sid).overlay())
+
+
+@router.get("/{sid}/pixel")
+def session_pixel(state: State, sid: str, x: int, y: int) -> JSONResponse:
+    """Pixel inspector: the energy curve E(d) of a left-image pixel, d_min, d_next, R, depth.
+    The pixel becomes the session's inspected pixel (marked in 3D)."""
+    s = state.session(sid)
+    rec = s.rec
+    if rec is None:
+        raise Conflict("no reconstruction yet")
+    try:
+        info = pixel_info(rec, x, y)
+    except LookupError as exc:
+        raise Conflict(str(exc.args[0])) from None
+    except (ValueError, OverflowError) as exc:
+        raise Invalid(str(exc)) from None
+    s.set_inspect(info)
+    return JSONResponse(info)
+
+
+@router.get("/{sid}/stages/{stage}")
+def session_stage(state: State, sid: str, stage: str) -> JSONResponse:
+    s = state.session(sid)
+    rec = s.rec
+    if rec is None:
+        raise Conflict(s.load_error or "no reconstruction yet")
+    try:
+        return JSONResponse(stage_json(rec, stage))
+    except KeyError as exc:
+        raise NotFound(str(exc.args[0])) from None
+    except LookupError as exc:
+        raise Conflict(str(exc.args[0])) from None

@@ -1,0 +1,157 @@
+// Images panel: the rectified pair with the stage overlays, and the pixel inspector's E(d).
+import { $, S, api, enc, fmt, onState } from "./core.js";
+
+export function loadImages(id) {
+  if (S.imageFrame === id) return;
+  S.imageFrame = id;
+  for (const side of ["left", "right"]) {
+    const img = new Image();
+    img.onload = () => { if (S.imageFrame === id) { S.images[side] = img; drawImages(); } };
+    img.src = `/api/frames/${enc(id)}/images/${side}`;
+  }
+  S.images = {};
+}
+
+// --- 2D overlays -----------------------------------------------------------------------------
+
+let overlayBusy = false, overlayAt = 0, overlayTimer = null;
+const OVERLAY_EVERY_MS = 400;  // while a run is going on, overlays follow at this pace
+async function refreshOverlay() {
+  if (overlayBusy || S.overlayVersion === S.version) return;
+  const wait = OVERLAY_EVERY_MS - (Date.now() - overlayAt);
+  if (S.state && S.state.busy && wait > 0) {
+    if (!overlayTimer) overlayTimer = setTimeout(() => { overlayTimer = null; refreshOverlay(); }, wait);
+    return;
+  }
+  overlayBusy = true;
+  overlayAt = Date.now();
+  try {
+    const v = S.version;
+    const ov = await api("GET", `/api/sessions/${S.session}/overlay`);
+    S.overlay = ov;
+    S.overlayVersion = v;
+    drawImages();
+  } catch (e) { /* the next state refreshes it */ }
+  overlayBusy = false;
+  if (S.overlayVersion !== S.version) refreshOverlay();
+}
+
+function overlayOn(name) {
+  const box = document.querySelector(`[data-ov="${name}"]`);
+  return box ? box.checked : true;
+}
+
+function drawImages() {
+  const ov = S.overlay && S.overlay.frame_id === S.frameId ? S.overlay : {};
+  $("#reliable-count").textContent = ov.reliable ? `(${ov.reliable.length / 2})` : "";
+  $("#keypoint-count").textContent = ov.keypoints ? `(${ov.keypoints.length})` : "";
+  for (const side of ["left", "right"]) {
+    const canvas = $(`#img-${side}`);
+    const img = S.images[side];
+    const ctx = canvas.getContext("2d");
+    if (!img) { ctx.clearRect(0, 0, canvas.width, canvas.height); continue; }
+    if (canvas.width !== img.width) { canvas.width = img.width; canvas.height = img.height; }
+    ctx.drawImage(img, 0, 0);
+    const px = (flat, color) => {
+      ctx.fillStyle = color;
+      for (let i = 0; i < flat.length; i += 2) ctx.fillRect(flat[i], flat[i + 1], 1, 1);
+    };
+    const line = (pts, color, width, dash) => {
+      if (!pts || pts.length < 2) return;
+      ctx.strokeStyle = color; ctx.lineWidth = width; ctx.setLineDash(dash || []);
+      ctx.beginPath(); ctx.moveTo(pts[0][0], pts[0][1]);
+      for (const p of pts) ctx.lineTo(p[0], p[1]);
+      ctx.stroke(); ctx.setLineDash([]);
+    };
+    if (side === "left") {
+      const onlySegment = S.state && S.state.reveal === 1;  // stage 1 shows the segmentation
+      if (ov.segmented && (overlayOn("segmented") || onlySegment)) px(ov.segmented, "rgba(90,160,255,0.75)");
+      if (ov.reliable && overlayOn("reliable")) px(ov.reliable, "#00e5ff");
+      if (ov.path && overlayOn("path")) line(ov.path, "#ff8c00", 1.5);
+      if (ov.keypoints && overlayOn("keypoints")) {
+        ctx.strokeStyle = "#ffe14d"; ctx.lineWidth = 1.5;
+        for (const k of ov.keypoints) { ctx.beginPath(); ctx.arc(k[0], k[1], 3, 0, 2 * Math.PI); ctx.stroke(); }
+      }
+      if (ov.H && overlayOn("H")) {
+        for (const h of ov.H) {
+          ctx.fillStyle = h[2] ? "#ffffff" : "#ffc83c";
+          ctx.fillRect(h[0] - 1.5, h[1] - 1.5, 3, 3);
+        }
+      }
+      if (S.pixel && S.pixel.segmented) {  // crosshair on the inspected pixel
+        const { x, y } = S.pixel;
+        ctx.strokeStyle = "#00ff66"; ctx.lineWidth = 2;
+        ctx.beginPath();
+        ctx.moveTo(x - 9, y); ctx.lineTo(x - 3, y); ctx.moveTo(x + 3, y); ctx.lineTo(x + 9, y);
+        ctx.moveTo(x, y - 9); ctx.lineTo(x, y - 3); ctx.moveTo(x, y + 3); ctx.lineTo(x, y + 9);
+        ctx.stroke();
+      }
+    }
+    if (ov.spline_initial && overlayOn("spline_initial")) line(ov.spline_initial[side].points, "#6e82ff", 1.5, [4, 3]);
+    const sp = ov.spline && ov.spline[side];
+    if (sp && overlayOn("spline")) line(sp.points, "#ff3ecf", 1.5);
+    $(`#err-${side}`).textContent = sp ? `reprojection mean ${fmt(sp.mean_px, 2)} px, max ${fmt(sp.max_px, 2)} px, coverage ${fmt(sp.coverage, 2)}` : "";
+  }
+}
+
+// --- pixel inspector -------------------------------------------------------------------------
+
+async function inspect(x, y) {
+  try {
+    const info = await api("GET", `/api/sessions/${S.session}/pixel?x=${x}&y=${y}`);
+    S.pixel = Object.assign(info, { version: S.version });
+  } catch (e) { S.pixel = null; $("#pixel-info").textContent = e.message; }
+  drawEnergy();
+  drawImages();
+}
+
+function drawEnergy() {
+  const canvas = $("#energy");
+  const ctx = canvas.getContext("2d");
+  const W = canvas.width, H = canvas.height;
+  ctx.clearRect(0, 0, W, H);
+  const p = S.pixel;
+  canvas.dataset.pixel = p && p.segmented ? `${p.x},${p.y}` : "";
+  if (!p) { $("#pixel-info").textContent = "Click a pixel of the left image, or a point of the 3D cloud."; return; }
+  if (!p.segmented) { $("#pixel-info").textContent = `(${p.x}, ${p.y}) is not a segmented thread pixel.`; return; }
+  // log axis: E_min and E_next are often orders of magnitude apart
+  const E = p.energy.map((v) => (v === null || v < 0 ? NaN : Math.log10(1 + v)));
+  const finite = E.filter(Number.isFinite);
+  const lo = Math.min(...finite), hi = Math.max(...finite);
+  const pad = 22, sx = (d) => pad + (d / (E.length - 1)) * (W - pad - 6);
+  const sy = (e) => H - 16 - ((e - lo) / (hi - lo || 1)) * (H - 26);
+  ctx.strokeStyle = "#2d313b"; ctx.strokeRect(pad, 4, W - pad - 6, H - 20);
+  ctx.fillStyle = "#8d94a3"; ctx.font = "10px sans-serif";
+  ctx.fillText("0", pad - 3, H - 4); ctx.fillText(`α=${E.length - 1}`, W - 34, H - 4); ctx.fillText("log E(d)", 2, 12);
+  ctx.strokeStyle = "#e3e6ec"; ctx.lineWidth = 1.2; ctx.beginPath();
+  let started = false;
+  E.forEach((e, d) => { if (!Number.isFinite(e)) return; if (!started) { ctx.moveTo(sx(d), sy(e)); started = true; } else ctx.lineTo(sx(d), sy(e)); });
+  ctx.stroke();
+  const mark = (d, color, label, row) => {
+    ctx.strokeStyle = color; ctx.setLineDash([3, 2]); ctx.beginPath(); ctx.moveTo(sx(d), 4); ctx.lineTo(sx(d), H - 16); ctx.stroke(); ctx.setLineDash([]);
+    ctx.fillStyle = color; ctx.fillText(label, Math.min(sx(d) + 3, W - 52), 16 + 12 * row);
+  };
+  mark(p.d_min, "#3ccf73", `d_min ${p.d_min}`, 0);
+  mark(p.d_next, "#ff5c5c", `d_next ${p.d_next}`, 1);
+  const rel = p.R === undefined ? "" : `, R ${fmt(p.R)} (${p.reliable ? "reliable" : "not reliable"}, threshold ${p.threshold})`;
+  const depth = p.depth === null ? "no depth" : `depth ${fmt(p.depth, 3)} ${S.state && S.state.unit ? S.state.unit : ""}`;
+  $("#pixel-info").textContent = `pixel (${p.x}, ${p.y}): E_min ${fmt(p.E_min, 1)}, E_next ${fmt(p.E_next, 1)}${rel}, ${depth}`;
+}
+
+onState((st) => {
+  if (st.frame_id !== S.shownFrame) { S.shownFrame = st.frame_id; S.pixel = null; drawEnergy(); }
+  if (st.frame_id) loadImages(st.frame_id);
+  if (st.inspect && st.inspect.segmented && (!S.pixel || S.pixel.x !== st.inspect.x || S.pixel.y !== st.inspect.y || S.pixel.version !== st.version)) {
+    S.pixel = Object.assign({}, st.inspect, { version: st.version });
+    drawEnergy();
+  }
+  refreshOverlay();
+});
+
+for (const box of document.querySelectorAll("[data-ov]")) box.addEventListener("change", drawImages);
+$("#img-left").addEventListener("click", (ev) => {
+  const c = ev.currentTarget, r = c.getBoundingClientRect();
+  const x = Math.floor((ev.clientX - r.left) * c.width / r.width);
+  const y = Math.floor((ev.clientY - r.top) * c.height / r.height);
+  inspect(x, y);
+});

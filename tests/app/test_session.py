@@ -1,0 +1,110 @@
+"""Session logic without HTTP: the worker, waiting, closing, expiry."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from app.errors import Invalid, NotFound
+from app.library import FrameLibrary, merge_params
+from app.sessions import SessionManager
+from core import pipeline
+from core.pipeline import ReconParams
+
+SAMPLE = Path(__file__).resolve().parents[2] / "sample_data"
+FLAT = "simulated/flat/flat_1"
+
+
+@pytest.fixture(scope="module")
+def library() -> FrameLibrary:
+    return FrameLibrary(SAMPLE)
+
+
+def test_an_exception_in_a_stage_fails_that_stage_and_the_worker_goes_on(library, monkeypatch):
+    original = pipeline.Pipeline.stages
+
+    def broken(self, params, until=None):
+        for run in original(self, params, until):
+            yield run
+            if run.stage == "stereo":
+                raise MemoryError("no room")
+
+    manager = SessionManager(library)
+    s = manager.create()
+    monkeypatch.setattr(pipeline.Pipeline, "stages", broken)
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    st = s.state()
+    assert st["failed_stage"] == "reliability" and "MemoryError: no room" in st["error"]
+    assert not st["busy"]
+    monkeypatch.setattr(pipeline.Pipeline, "stages", original)
+    assert s.wait(s.submit(params=ReconParams()), 120)
+    assert s.state()["status"] == "ok"
+    manager.close()
+
+
+@pytest.mark.parametrize("pause", [1e10, -1.0, math.nan, math.inf])
+def test_a_pause_outside_its_range_is_refused(library, pause):
+    s = SessionManager(library).create()
+    with pytest.raises(Invalid, match="pause"):
+        s.submit(frame_id=FLAT, pause_s=pause)
+
+
+def test_huge_or_non_finite_parameters_are_invalid_not_overflow():
+    for patch in ({"spline.n_ctrl": 10**400}, {"stereo": {"alpha": math.inf}}, {"nope.x": 1}):
+        with pytest.raises(Invalid):
+            merge_params(ReconParams(), patch)
+
+
+def test_waiting_in_the_event_loop_holds_no_thread_and_wakes_on_a_change(library):
+    s = SessionManager(library).create()
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+
+    async def scenario() -> tuple[bool, bool, int, float]:
+        threads = threading.active_count()
+        v = s.version
+        waits = [asyncio.create_task(s.changed(v, 30)) for _ in range(50)]
+        await asyncio.sleep(0.2)
+        during = threading.active_count() - threads  # no thread per waiter
+        t0 = time.perf_counter()
+        s.set_inspect(None)  # any change wakes every waiter
+        woke = all(await asyncio.gather(*waits))
+        elapsed = time.perf_counter() - t0
+        timed_out = await s.changed(s.version, 0.05)
+        return woke, timed_out, during, elapsed
+
+    woke, timed_out, during, elapsed = asyncio.run(scenario())
+    assert woke and not timed_out and during == 0 and elapsed < 1.0
+
+
+def test_closing_a_session_frees_its_results_and_stops_its_worker(library):
+    manager = SessionManager(library)
+    s = manager.create()
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    worker = s._worker
+    assert s.rec is not None and worker is not None and worker.is_alive()
+    manager.delete(s.id)
+    worker.join(5)
+    assert not worker.is_alive() and s.rec is None and s.loaded is None
+    with pytest.raises(NotFound):
+        manager.get(s.id)
+
+
+def test_idle_sessions_expire_but_ones_with_a_view_stay(library):
+    manager = SessionManager(library, idle_timeout_s=0.1)
+    idle, viewed = manager.create(), manager.create()
+    viewed.views[1] = object()  # a 3D view attached
+    time.sleep(0.2)
+    assert manager.expire() == [idle.id]
+    assert manager.find(viewed.id) is viewed and manager.find(idle.id) is None
+
+
+def test_the_number_of_sessions_is_bounded(library):
+    manager = SessionManager(library, max_sessions=5)
+    for _ in range(12):
+        manager.create()
+    assert len(manager) == 5
