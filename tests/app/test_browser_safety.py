@@ -27,8 +27,8 @@ def server(tmp_path_factory):
     data = tmp_path_factory.mktemp("xss") / "data"
     group = data / "simulated" / "flat"
     shutil.copytree(SAMPLE / "simulated" / "flat", group)
-    for ext in (".png", ".npy"):  # a file name that is HTML
-        shutil.copy(group / f"flat_3{ext}", group / f"{PAYLOAD}_left{ext}")
+    for ext in (".png", ".npy"):  # a side-by-side frame whose file name is HTML
+        shutil.copy(group / f"flat_3{ext}", group / f"{PAYLOAD}{ext}")
     presets = tmp_path_factory.mktemp("presets")
     with Server(data, extra_args=("--configs", str(presets))) as s:
         yield s
