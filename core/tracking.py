@@ -8,7 +8,9 @@ adds, per frame t, with the previous tracked curve ``x_{t-1}`` and its velocity 
    curve's largest disparity plus a margin (:func:`search_alpha`).
 2. **Prediction** (motion prior): ``x_pred = x_{t-1} + v_{t-1}`` (constant velocity; ``v`` is
    the smoothed mean displacement of the observed curve normal to itself).
-3. **Start and direction**: the single-frame curve is reversed when that brings it closer to
+3. **Observed part**: an end of the single-frame curve that no stereo point of the frame
+   supports (the spline ran on past its data) is trimmed; the prior fills it in (4.).
+   **Start and direction**: the single-frame curve is reversed when that brings it closer to
    the prediction, so the curve's u = 0 end stays the same physical end.
 4. **Hidden pieces**: the part of the prediction beyond the observed curve's ends (an end
    hidden by an instrument, or dropped by the ordering) is taken from the prediction, moved
@@ -41,6 +43,7 @@ from core.params import Params, param
 MIN_ALPHA: Final = 8  # the smallest stereo search range tracking sets, px (Eq. (3) needs > 4)
 MAX_ALPHA: Final = 512  # the largest the stereo stage accepts, px
 _EPS: Final = 1e-9
+_MIN_SUPPORTED: Final = 0.2  # share of a curve that must be supported before trimming its ends
 _SNAP_NEIGHBOURS: Final = 8  # stereo points averaged per sample when snapping a filled piece
 _SNAP_SMOOTH: Final = 3.0  # std of the smoothing of snap offsets along a piece, samples
 
@@ -67,6 +70,9 @@ class TrackParams(Params):
     """Exponential smoothing of the per-sample velocity (1: last displacement only)."""
     snap_mm: float = param(4.0, lo=0, hi=1000, unit="calib. unit", label="snap distance")
     """A filled piece is pulled onto this frame's stereo points within this distance."""
+    support_mm: float = param(4.0, lo=0, hi=1000, unit="calib. unit", label="support distance")
+    """An end of the single-frame curve farther than this from every stereo point of the frame
+    was not observed (the spline ran on past its data): it is trimmed and taken from the prior."""
     max_coast: int = param(3, lo=0, hi=1000, unit="frames", label="max predicted frames")
     """Frames in a row the curve may be predicted without an observation before it is lost."""
     alpha_margin_px: float = param(10.0, lo=0, hi=512, unit="px", label="search margin")
@@ -199,7 +205,7 @@ def track_step(
         )
         return res, TrackState(pred, state.velocity, state.coasted + 1, state.length_ref)
 
-    obs = resample(single, n)
+    obs = resample(_trim_unsupported(single, cloud, p), n)
     reversed_ = _closer_reversed(obs, pred)
     if reversed_:
         obs = obs[::-1]
@@ -252,6 +258,18 @@ def _check_curve(points: np.ndarray, name: str) -> np.ndarray:
     if points.ndim != 2 or points.shape[1] != 3 or len(points) < 2:
         raise ValueError(f"{name} must be (M >= 2, 3) points, got {points.shape}")
     return points
+
+
+def _trim_unsupported(single: np.ndarray, cloud: np.ndarray | None, p: TrackParams) -> np.ndarray:
+    """``single`` without the end runs that no stereo point of the frame supports (kept whole
+    when nothing or almost nothing would remain)."""
+    if cloud is None or len(cloud) == 0:
+        return single
+    x = resample(single, p.n_samples)
+    supported = np.flatnonzero(cKDTree(cloud).query(x)[0] <= p.support_mm)
+    if supported.size < _MIN_SUPPORTED * len(x):
+        return single
+    return x[supported[0] : supported[-1] + 1]
 
 
 def _restart(

@@ -189,3 +189,15 @@ def test_an_end_hidden_little_by_little_is_kept_since_the_thread_does_not_stretc
         res, state = track_step(full[: len(full) - 4 * k], state, p)
     assert res.length == pytest.approx(polyline_length(full), abs=1.5)
     assert res.filled > 10.0
+
+
+def test_an_end_without_stereo_support_is_trimmed_and_taken_from_the_prior():
+    p = TrackParams()
+    full = _arc(400)
+    _, state = track_step(full, None, p, cloud=full)
+    wild = full.copy()
+    wild[340:, 2] += np.linspace(0, 30, 60)  # the spline ran on past its data, in depth
+    res, _ = track_step(wild, state, p, cloud=full[:330])
+    assert np.abs(resample(res.points, 400) - full).max() < 1.5
+    res_no_cloud, _ = track_step(wild, state, p)
+    assert np.abs(resample(res_no_cloud.points, 400) - full).max() > 10.0
