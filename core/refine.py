@@ -103,7 +103,7 @@ def refine_depth(
     mismatched = _mismatched(bounds, runs_L, runs_R, fB)
     keep = ~mismatched
     # Stereo matched another strand somewhere: pair runs by rank on rows where the two views
-    # hold equally many, and start with one solve linear in depth (Gauss-Newton in disparity
+    # hold two runs, and start with one solve linear in depth (Gauss-Newton in disparity
     # cannot cross from one strand's depth to the other's).
     remedy = bool(mismatched.any())
     iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1))
@@ -147,7 +147,7 @@ def refine_depth(
 
 def _mismatched(bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float) -> np.ndarray:
     """(P,) points of H whose stereo depth matched the wrong strand: on a row where both views
-    hold the same number (>= 2) of runs, the run of the same rank (runs keep their left-to-right
+    hold two runs, the run of the same rank (runs keep their left-to-right
     order between the views) gives a disparity more than ``MISMATCH_PX`` away, over at least
     ``MISMATCH_RUN`` consecutive points. Their bounds of Eq. (7), built on that depth, are
     dropped."""
@@ -259,10 +259,11 @@ class _Runs:
 
     def same_rank(self, other: _Runs, rows: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """Index of ``other``'s run with the same rank on the row as run ``idx`` of this view,
-        where both views have the same number (>= 2) of runs on the row; -1 elsewhere."""
+        where both views hold two runs on the row (two strands side by side; with more, near
+        crossings and loops, the left-to-right order need not hold); -1 elsewhere."""
         out = np.full(len(idx), -1)
         n_self, n_other = self.count(rows), other.count(rows)
-        use = (idx >= 0) & (n_self == n_other) & (n_self >= 2)
+        use = (idx >= 0) & (n_self == 2) & (n_other == 2)  # two strands side by side
         r = rows[use]
         out[use] = other.row_start[r] + (idx[use] - self.row_start[r])
         return out
