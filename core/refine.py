@@ -40,6 +40,9 @@ from core.spline import SplineResult
 QUAD_PER_SPAN = 4  # Gauss-Legendre nodes per knot span: exact for the squared 3rd derivative
 RIDGE = 1e-9  # relative ridge that keeps the least-squares matrix of full column rank
 GATE_PX = 2.0  # a run is associated when the prediction lies within its half-length + 2 px
+MISMATCH_PX = 4.0  # stereo off by more than this from the same-rank runs: another strand
+MISMATCH_RUN = 3  # consecutive points of H that make a mismatched section
+MIN_DISPARITY_PX = 0.5  # the solve linear in depth needs a positive target disparity
 
 
 @dataclass(frozen=True)
@@ -84,7 +87,8 @@ def refine_depth(
     runs_L = _Runs(lifted.P_L, lifted.grey_L, lifted.background[0])
     runs_R = _Runs(lifted.P_R, lifted.grey_R, lifted.background[1])
     rows = np.rint(xy[:, 1]).astype(np.int64)
-    cL, lL = runs_L.nearest(rows, xy[:, 0])
+    iL = runs_L.nearest_index(rows, xy[:, 0])
+    cL, lL = runs_L.at(iL)
     okL = np.isfinite(cL) & (np.abs(cL - xy[:, 0]) <= 0.5 * lL + GATE_PX)
 
     # Smoothness: third derivative over image arc length s = u * xy_len / length.
@@ -96,24 +100,42 @@ def refine_depth(
     S = D3 * (to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))[:, None]
 
     BH = BSpline.design_matrix(np.clip(spline.u_H, 0, spline.length), t, k).toarray()
-    lo, hi = bounds.lower, bounds.upper
-    G = np.vstack([BH, -BH])  # Eq. (7): lower <= S_z(u_H) <= upper
+    mismatched = _mismatched(bounds, runs_L, runs_R, fB)
+    keep = ~mismatched
+    # Stereo matched another strand somewhere: pair runs by rank on rows where the two views
+    # hold two runs, and start with one solve linear in depth (Gauss-Newton in disparity
+    # cannot cross from one strand's depth to the other's).
+    remedy = bool(mismatched.any())
+    iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1))
+    if not remedy:
+        iR_rank[:] = -1
+    lo, hi = bounds.lower[keep], bounds.upper[keep]
+    G = np.vstack([BH[keep], -BH[keep]])  # Eq. (7): lower <= S_z(u_H) <= upper
     h = np.concatenate([lo, -hi])
     b = c0[:, 2].copy()
-    for _ in range(p.iterations):
+    for it in range(int(not remedy), p.iterations + 1):
         z = Bm @ b
         if np.any(z <= 0):
             return spline
         d = fB / z
-        cR, lR = runs_R.nearest(rows, xy[:, 0] - d)
-        ok = okL & np.isfinite(cR) & (np.abs(cR - (xy[:, 0] - d)) <= 0.5 * lR + GATE_PX)
+        iR = np.where(iR_rank >= 0, iR_rank, runs_R.nearest_index(rows, xy[:, 0] - d))
+        cR, lR = runs_R.at(iR)
+        gate = np.abs(cR - (xy[:, 0] - d)) <= 0.5 * lR + GATE_PX
+        ok = okL & np.isfinite(cR) & ((iR_rank >= 0) | gate)
+        if it == 0:
+            ok &= cL - cR > MIN_DISPARITY_PX
         if ok.sum() < 10:
             return spline
         w = 1.0 / np.sqrt((lL[ok] ** 2 + lR[ok] ** 2) / 12.0)  # 1 / sigma, px
         target = cL[ok] - cR[ok]
-        J = (-fB / z[ok] ** 2)[:, None] * Bm[ok]  # d disparity / d b
-        A = J * w[:, None]
-        rhs = (target - d[ok] + J @ b) * w
+        if it == 0:  # linear in depth: reaches the right strand's depth from any start
+            wz = w * target**2 / fB  # a depth residual in px of disparity at the target depth
+            A = Bm[ok] * wz[:, None]
+            rhs = fB / target * wz
+        else:  # Gauss-Newton in disparity, the space of the observation's noise
+            J = (-fB / z[ok] ** 2)[:, None] * Bm[ok]  # d disparity / d b
+            A = J * w[:, None]
+            rhs = (target - d[ok] + J @ b) * w
         b_new = _lsi(np.vstack([A, S]), np.concatenate([rhs, np.zeros(len(S))]), G, h)
         if b_new is None:
             return spline  # the bounds cannot be met with this spline: keep the MVS depth
@@ -121,6 +143,30 @@ def refine_depth(
     ctrl = c0.copy()
     ctrl[:, 2] = b
     return replace(spline, ctrl=ctrl)
+
+
+def _mismatched(bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float) -> np.ndarray:
+    """(P,) points of H whose stereo depth matched the wrong strand: on a row where both views
+    hold two runs, the run of the same rank (runs keep their left-to-right
+    order between the views) gives a disparity more than ``MISMATCH_PX`` away, over at least
+    ``MISMATCH_RUN`` consecutive points. Their bounds of Eq. (7), built on that depth, are
+    dropped."""
+    H = bounds.H
+    rows = np.rint(H[:, 1]).astype(np.int64)
+    iL = runs_L.nearest_index(rows, H[:, 0])
+    iR = runs_L.same_rank(runs_R, rows, iL)
+    cL, _ = runs_L.at(iL)
+    cR, _ = runs_R.at(iR)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d_H = fB / bounds.centre
+    bad = (iR >= 0) & (np.abs(cL - cR - d_H) > MISMATCH_PX)
+    # A strand matched to its neighbour is a section of consecutive points, not one point.
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(np.int8), [0]])))
+    out = np.zeros_like(bad)
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        if b - a >= MISMATCH_RUN:
+            out[a:b] = True
+    return out
 
 
 def _gauss_nodes(t: np.ndarray, k: int, per_span: int) -> tuple[np.ndarray, np.ndarray]:
@@ -174,16 +220,33 @@ class _Runs:
 
     def nearest(self, rows: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Centre and length of the run nearest ``x`` on each row; inf where the row has none."""
-        c = np.full(len(x), np.inf)
-        ln = np.full(len(x), np.inf)
+        return self.at(self.nearest_index(rows, x))
+
+    def at(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Centre and length of runs ``idx``; inf where ``idx`` < 0."""
+        found = idx >= 0
+        c = np.full(len(idx), np.inf)
+        ln = np.full(len(idx), np.inf)
+        c[found] = self.centre[idx[found]]
+        ln[found] = self.length[idx[found]]
+        return c, ln
+
+    def count(self, rows: np.ndarray) -> np.ndarray:
+        """Runs on each row (0 outside the image)."""
+        valid = (rows >= 0) & (rows < self.H)
+        r = np.where(valid, rows, 0)
+        return np.where(valid, self.row_start[r + 1] - self.row_start[r], 0)
+
+    def nearest_index(self, rows: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Index of the run nearest ``x`` on each row; -1 where the row has none."""
+        best = np.full(len(x), -1)
         valid = (rows >= 0) & (rows < self.H)
         r = np.where(valid, rows, 0)
         lo, hi = self.row_start[r], self.row_start[r + 1]
         has = valid & (hi > lo)
         if not has.any() or self.centre.size == 0:
-            return c, ln
+            return best
         pos = np.searchsorted(self.key, self.key_scale * r + x)
-        best = np.full(len(x), -1)
         best_d = np.full(len(x), np.inf)
         for cand in (pos - 1, pos):
             ok = has & (cand >= lo) & (cand < hi)
@@ -192,7 +255,15 @@ class _Runs:
             better = dist < best_d
             best = np.where(better, cc, best)
             best_d = np.where(better, dist, best_d)
-        found = best >= 0
-        c[found] = self.centre[best[found]]
-        ln[found] = self.length[best[found]]
-        return c, ln
+        return best
+
+    def same_rank(self, other: _Runs, rows: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """Index of ``other``'s run with the same rank on the row as run ``idx`` of this view,
+        where both views hold two runs on the row (two strands side by side; with more, near
+        crossings and loops, the left-to-right order need not hold); -1 elsewhere."""
+        out = np.full(len(idx), -1)
+        n_self, n_other = self.count(rows), other.count(rows)
+        use = (idx >= 0) & (n_self == 2) & (n_other == 2)  # two strands side by side
+        r = rows[use]
+        out[use] = other.row_start[r] + (idx[use] - self.row_start[r])
+        return out

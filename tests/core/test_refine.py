@@ -93,3 +93,20 @@ def test_constrained_least_squares_matches_known_solutions() -> None:
     # Contradicting constraints (x0 >= 1 and -x0 >= 0) are reported, not violated silently.
     G = np.array([[1.0, 0, 0, 0], [-1.0, 0, 0, 0]])
     assert _lsi(A, r, G, np.array([1.0, 0.0])) is None
+
+
+def test_runs_pair_by_rank_only_where_both_views_hold_equally_many() -> None:
+    left = np.zeros((3, 30), dtype=bool)
+    right = np.zeros((3, 30), dtype=bool)
+    left[0, [10, 11, 20, 21]] = True  # two strands on row 0 in both views
+    right[0, [4, 5, 13, 14]] = True
+    left[1, [10, 11, 20, 21]] = True  # row 1: the right view holds one run only
+    right[1, [4, 5]] = True
+    grey = np.full((3, 30), 100.0)
+    rl, rr = _Runs(left, grey, 200.0), _Runs(right, grey, 200.0)
+    rows = np.array([0, 0, 1])
+    idx = rl.nearest_index(rows, np.array([10.5, 20.5, 20.5]))
+    paired = rl.same_rank(rr, rows, idx)
+    c, _ = rr.at(paired)
+    assert_close(c[:2], np.array([4.5, 13.5]))  # first with first, second with second
+    assert paired[2] == -1
