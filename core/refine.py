@@ -48,7 +48,8 @@ MIN_DISPARITY_PX = 0.5  # the solve linear in depth needs a positive target disp
 @dataclass(frozen=True)
 class RefineParams(Params):
     mode: Literal["two_view", "off"] = param(
-        "two_view",
+        "off",  # default off: it did not carry over to fresh generated or re-imaged frames
+        # (docs/method.md, "Two-view refinement: default off"); the paper presets turn it on
         label="two-view refinement",
         doc='"two_view": refit S_z so that the curve lies on the thread in both views; '
         '"off": the MVS spline as it is (paper).',
