@@ -51,3 +51,7 @@ class TimedOut(DomainError, TimeoutError):
 
 class AlreadyExists(Conflict, FileExistsError):
     """A name that is taken (a preset saved without ``overwrite``)."""
+
+
+class UserError(Exception):
+    """A problem with a command-line user's input: reported in one line, no traceback."""

@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import io
+import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -352,3 +353,17 @@ def _require(rec: Reconstruction, stage: str, what: str) -> None:
     if rec.failed_stage is not None:
         raise ValueError(f"{what}: the reconstruction failed at {rec.failed_stage}: {rec.error}")
     raise ValueError(f"{what}: the pipeline stopped before the {stage} stage")
+
+
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    """Write ``data`` as strict JSON (no NaN) through a temporary file: never half a file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(data, indent=1, allow_nan=False, default=_json_default))
+    tmp.replace(path)
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

@@ -9,10 +9,16 @@ is what the page and the tests use.
 
 from __future__ import annotations
 
+import argparse
+import os
 import socket
+import sys
+from pathlib import Path
 from typing import Any
 
 from app.api import AppState, ServerConfig, create_app
+from app.dataset import discover
+from app.errors import UserError
 
 __all__ = ["ServerConfig", "create_app", "serve"]
 SHUTDOWN_GRACE_S = 1.0  # open long polls are cut after this long on Ctrl-C
@@ -52,3 +58,63 @@ def serve(config: ServerConfig, sock: socket.socket | None = None) -> None:
     uv.startup = startup  # type: ignore[method-assign]
     uv.shutdown = shutdown  # type: ignore[method-assign]
     uv.run(sockets=[sock] if sock is not None else None)
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    from app.ratings import StoreError
+    from app.server import ServerConfig, serve
+
+    root = Path(args.dataset)
+    discover(root)  # a wrong folder is a one-line error, before anything starts
+    for name, port in (("--port", args.port), ("--viser-port", args.viser_port)):
+        if port is not None and not 0 < port < 65536:
+            raise UserError(f"{name} must be in 1..65535, got {port}")
+    viser_port = args.viser_port if args.viser_port is not None else args.port + 1
+    if not args.idle_timeout > 0:
+        raise UserError(f"--idle-timeout must be > 0, got {args.idle_timeout}")
+    if args.max_body < 1:
+        raise UserError(f"--max-body must be >= 1, got {args.max_body}")
+    family = socket.AF_INET6 if ":" in args.host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    # SO_REUSEADDR: a restart right after Ctrl-C binds despite the old connections in
+    # TIME_WAIT; the socket is handed to uvicorn, so a taken port is a one-line error here.
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((args.host, args.port))
+        sock.listen(2048)
+    except OSError as exc:
+        sock.close()
+        raise UserError(
+            f"cannot listen on {args.host}:{args.port} ({exc.strerror}): choose another --port"
+        ) from None
+    try:
+        from app.api.guard import Policy
+
+        Policy(args.allow_origin)
+    except ValueError as exc:
+        sock.close()
+        raise UserError(str(exc)) from None
+    config = ServerConfig(
+        data_dir=root,
+        host=args.host,
+        port=args.port,
+        viser_port=viser_port,
+        db_path=Path(args.db) if args.db else None,
+        configs_dir=Path(args.configs) if args.configs else None,
+        allow_origins=tuple(args.allow_origin),
+        idle_timeout_s=args.idle_timeout,
+        max_body_bytes=args.max_body,
+    )
+    code = 0
+    try:
+        serve(config, sock)
+    except StoreError as exc:  # an unusable database stops the start, and nothing is written
+        raise UserError(str(exc)) from None
+    except KeyboardInterrupt:  # uvicorn re-raises Ctrl-C once it has stopped cleanly
+        print("threadrecon: interrupted", file=sys.stderr)
+        code = 130
+    # Stopped cleanly: the database is closed and viser stopped. Skip the interpreter's
+    # teardown (seconds of freeing a large heap on a busy machine) so that Ctrl-C is quick.
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

@@ -8,16 +8,25 @@ error and the largest curve error (e_S^max) are both <= ``GOOD_MM``. **Jitter** 
 
 from __future__ import annotations
 
+import argparse
 import math
+import sys
+import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from app.errors import UserError
+from app.evaluation import write_csv
+from app.export import result_json, write_json
+from app.io import load_calibration
+from app.presets import resolve_preset
 from app.recording import RecordedFrame
 from app.sequence import TrackedFrame
 from core.calibration import StereoCalibration
 from core.metrics import curve_errors
-from core.tracking import motion_error
+from core.tracking import TrackParams, motion_error
 
 GOOD_MM = 20.0  # a frame's length error and largest curve error must both be within 2 cm
 
@@ -140,3 +149,69 @@ def recorded_frame(tf: TrackedFrame) -> RecordedFrame:
     """The curves of a frame for a recording: tracked, single-frame and ground truth."""
     curves = {"single": _single_points(tf), "tracked": _tracked_points(tf), "truth": tf.frame.truth}
     return RecordedFrame({k: v for k, v in curves.items() if v is not None}, tf.frame.name)
+
+
+def cmd_track(args: argparse.Namespace) -> int:
+    from app.sequence import SequenceError, open_sequence, track_sequence
+    from app.track_report import frame_row, recorded_frame, summary_lines, tracked_json
+
+    params = resolve_preset(args.config)
+    if args.limit is not None and args.limit < 1:
+        raise UserError(f"--limit must be >= 1, got {args.limit}")
+    try:
+        seq = open_sequence(args.source, args.right, args.left_topic, args.right_topic)
+    except SequenceError as exc:
+        raise UserError(str(exc)) from None
+    if args.calib is not None:
+        calib = load_calibration(args.calib, unit=args.units)
+    elif seq.calibration is not None:
+        calib = seq.calibration
+    else:
+        raise UserError(f"{args.source} carries no calibration: give --calib")
+    out = Path(args.out)
+    track = TrackParams(enabled=not args.no_tracking)
+    n = seq.count if args.limit is None else min(seq.count or args.limit, args.limit)
+    rows: list[dict[str, Any]] = []
+    recorded: list[Any] = []
+    previous = None
+    t0 = time.perf_counter()
+    for k, tf in enumerate(track_sequence(seq, calib, params, track), start=1):
+        row = frame_row(tf, calib, previous)
+        rows.append(row)
+        previous = tf
+        data = result_json(tf.single)
+        data.update(tracked_json(tf, row))
+        write_json(out / "frames" / f"{tf.frame.name}.json", data)
+        if args.record:
+            recorded.append(recorded_frame(tf))
+        rate = k / (time.perf_counter() - t0)
+        _track_progress(k, n, tf.frame.name, rate)
+        if args.limit is not None and k >= args.limit:
+            break
+    if not rows:
+        raise UserError(f"{args.source}: no frames")
+    elapsed = time.perf_counter() - t0
+    write_csv(out / "summary.csv", rows)
+    for line in summary_lines(rows, elapsed):
+        print(line)
+    if args.record:
+        from app.recording import save_recording
+
+        save_recording(recorded, args.record, baseline=calib.baseline)
+        print(f"recording of {len(recorded)} frames -> {args.record} (opens without a server)")
+    lost = sum(r["curve"] == "none" for r in rows)
+    if lost:
+        print(f"threadrecon: {lost} of {len(rows)} frames have no curve", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _track_progress(k: int, n: int | None, name: str, rate: float) -> None:
+    total = f"/{n}" if n else ""
+    if sys.stderr.isatty():
+        sys.stderr.write(f"\r[{k}{total}] {name[:30]:<30} {rate:6.2f} frames/s")
+        if n is not None and k == n:
+            sys.stderr.write("\n")
+    elif k == 1 or k % 10 == 0 or k == n:
+        sys.stderr.write(f"[{k}{total}] {name} {rate:.2f} frames/s\n")
+    sys.stderr.flush()

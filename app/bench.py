@@ -1,0 +1,165 @@
+"""``threadrecon bench``: per-stage times (median and p90 over frames), peak memory."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.dataset import Frame, discover, load_frame
+from app.errors import UserError
+from app.presets import resolve_preset, validate
+from core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction, StageError
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    params = _with_overrides(resolve_preset(args.config), args.set)
+    frames = _bench_frames(Path(args.dataset))
+    if args.limit is not None:
+        if args.limit < 1:
+            raise UserError("--limit must be >= 1")
+        frames = frames[: args.limit]
+    if args.repeat < 1:
+        raise UserError("--repeat must be >= 1")
+    per_stage: dict[str, list[float]] = {s: [] for s in STAGES}
+    totals, reruns = [], []
+    changed = replace(params, spline=replace(params.spline, n_ctrl=params.spline.n_ctrl - 1))
+    sizes: set[str] = set()
+    warmup_ms: float | None = None
+    clock = time.thread_time if args.clock == "cpu" else time.perf_counter
+    for frame in frames:
+        pair, calib, _ = load_frame(frame)
+        if warmup_ms is None:  # first call in the process: loads the compiled kernels
+            t0 = time.perf_counter()
+            Pipeline(pair, calib).run(params)
+            warmup_ms = 1000 * (time.perf_counter() - t0)
+        runs: list[dict[str, float]] = []
+        frame_reruns: list[float] = []
+        rec = None
+        for _ in range(args.repeat):
+            pipe = rec = None  # free the previous run's results first: one frame in memory
+            pipe = Pipeline(pair, calib)
+            rec, timings = _timed_run(pipe, params, clock)
+            if rec.failed_stage:
+                break
+            runs.append(timings)
+            _, re_timings = _timed_run(pipe, changed, clock)  # spline and camera re-run
+            frame_reruns.append(sum(re_timings.values()))
+        message = rec.message if rec else "no run"
+        pipe = rec = None
+        if not runs:
+            print(f"skipped {frame.id}: {message}", file=sys.stderr)
+            continue
+        h, w = pair.shape
+        sizes.add(f"{w}x{h}")
+        for s in STAGES:
+            per_stage[s].append(float(np.median([r.get(s, 0.0) for r in runs])))
+        totals.append(float(np.median([sum(r.values()) for r in runs])))
+        reruns.append(float(np.median(frame_reruns)))
+    if not totals:
+        raise UserError("no frame could be reconstructed")
+    print(
+        f"{len(totals)} frames ({', '.join(sorted(sizes))}) of {args.dataset}, "
+        f"median of {args.repeat} runs per frame, {args.clock} ms; median and p90 over frames"
+    )
+    print(f"{'stage':<14}{'median':>10}{'p90':>10}")
+    for s in STAGES:
+        v = np.array(per_stage[s])
+        print(f"{s:<14}{np.median(v):10.2f}{np.percentile(v, 90):10.2f}")
+    print(f"{'total':<14}{np.median(totals):10.2f}{np.percentile(totals, 90):10.2f}")
+    print(
+        f"{'spline rerun':<14}{np.median(reruns):10.2f}{np.percentile(reruns, 90):10.2f}"
+        "   (n_ctrl changed: spline + camera stages only)"
+    )
+    print(f"first run in this process (loads compiled kernels): {warmup_ms:.0f} ms")
+    print(f"peak RSS: {_peak_rss_mb():.0f} MB")
+    return 0
+
+
+def _timed_run(
+    pipe: Pipeline, params: ReconParams, clock: Callable[[], float]
+) -> tuple[Reconstruction, dict[str, float]]:
+    """One pipeline run, each stage timed with ``clock`` (cached stages count 0)."""
+    timings: dict[str, float] = {}
+    t0 = clock()
+    try:
+        for run in pipe.stages(params):
+            t1 = clock()
+            timings[run.stage] = 0.0 if run.cached else 1000 * (t1 - t0)
+            t0 = t1
+    except StageError:
+        pass  # pipe.run below reports the failed stage
+    return pipe.run(params), timings
+
+
+def _with_overrides(params: ReconParams, items: list[str]) -> ReconParams:
+    """``STAGE.NAME=VALUE`` overrides on top of a preset, checked like a preset."""
+    if not items:
+        return params
+    data = params.to_dict()
+    for item in items:
+        key, sep, text = item.partition("=")
+        stage, dot, name = key.strip().partition(".")
+        if not (sep and dot and name):
+            raise UserError(f"--set expects STAGE.NAME=VALUE, got {item!r}")
+        if stage not in data:
+            raise UserError(f"--set {item!r}: unknown stage {stage!r}")
+        data[stage][name] = _parse_value(text.strip())
+    return validate(data)
+
+
+def _parse_value(text: str) -> Any:
+    if text.lower() in ("none", "null", ""):
+        return None
+    if text.lower() in ("true", "false"):
+        return text.lower() == "true"
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return text
+
+
+def _bench_frames(root: Path) -> list[Frame]:
+    """Frames of a dataset folder, or else of a plain folder of side-by-side pairs next to one
+    calibration YAML (e.g. one group folder written by ``generate``)."""
+    if not root.is_dir():
+        raise UserError(f"{root}: dataset folder not found")
+    if (root / "simulated").is_dir() or (root / "real").is_dir():
+        return discover(root)
+    calibs = sorted(root.glob("*.yaml")) + sorted(root.glob("*.yml"))
+    images = [
+        p
+        for p in sorted(root.iterdir())
+        if p.suffix.lower() in (".png", ".jpg", ".jpeg") and not p.stem.endswith("_mask")
+    ]
+    if len(calibs) != 1 or not images:
+        raise UserError(
+            f"{root}: no dataset layout (simulated/, real/) and not a folder of side-by-side "
+            "pairs with exactly one calibration .yaml"
+        )
+    return [
+        Frame(
+            id=p.stem,
+            kind="real",
+            calibration=calibs[0],
+            stereo=p,
+            mask=m if (m := p.with_name(p.stem + "_mask.png")).exists() else None,
+        )
+        for p in images
+    ]
+
+
+def _peak_rss_mb() -> float:
+    """Peak resident memory of this process, MB (Linux reports KB, macOS bytes)."""
+    import resource
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / (1024 * 1024) if sys.platform == "darwin" else peak / 1024
