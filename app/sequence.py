@@ -21,9 +21,8 @@ from __future__ import annotations
 
 import abc
 import re
-import time
 from collections.abc import Iterator
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,9 +31,7 @@ import numpy as np
 
 from app.io import load_calibration, load_ground_truth, read_image, read_mask
 from core.calibration import StereoCalibration, make_calibration
-from core.pipeline import Pipeline, ReconParams, Reconstruction
 from core.segmentation import StereoPair, split_side_by_side
-from core.tracking import TrackParams, TrackResult, TrackState, search_alpha, track_step
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 VIDEO_SUFFIXES = (".mp4", ".mkv", ".avi", ".mov", ".webm", ".m4v")
@@ -359,49 +356,3 @@ def _decode_image(msg: Any, msgtype: str, where: str) -> np.ndarray:
     if enc.startswith("bgr"):
         img = img[:, :, 2::-1]
     return np.ascontiguousarray(img[:, :, :3])
-
-
-# --- tracking over a sequence ----------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class TrackedFrame:
-    """One frame's results: the single-frame reconstruction (``single``; with tracking, run
-    with the tracked search range), the tracked curve beside it (None when tracking is off),
-    the search range used and the wall time of the frame (pipeline and tracking), ms."""
-
-    frame: SequenceFrame
-    single: Reconstruction
-    tracked: TrackResult | None
-    alpha: int
-    ms: float
-
-
-def track_sequence(
-    frames: Iterator[SequenceFrame] | Sequence,
-    calib: StereoCalibration,
-    params: ReconParams | None = None,
-    track: TrackParams | None = None,
-) -> Iterator[TrackedFrame]:
-    """Reconstruct every frame and, when ``track.enabled``, track the curve across them."""
-    params = ReconParams() if params is None else params
-    track = TrackParams() if track is None else track
-    state: TrackState | None = None
-    for frame in frames:
-        t0 = time.perf_counter()
-        alpha = search_alpha(state, calib.P1, calib.P2, track) if track.enabled else None
-        p = params if alpha is None else replace(params, stereo=replace(params.stereo, alpha=alpha))
-        pipeline = Pipeline(frame.pair, calib)
-        rec = pipeline.run(p)
-        if rec.status != "ok" and alpha is not None and alpha < params.stereo.alpha:
-            p = params  # the prior's search range may be what failed: the configured one
-            rec = pipeline.run(p)
-        result = None
-        if track.enabled:
-            single = rec["camera"].points if rec.status == "ok" else None
-            cloud = None
-            if "reliability" in rec.runs:
-                cloud = rec["stereo"].points[rec["reliability"].reliable]
-            result, state = track_step(single, state, track, cloud)
-        ms = 1000.0 * (time.perf_counter() - t0)
-        yield TrackedFrame(frame, rec, result, p.stereo.alpha, ms)

@@ -12,6 +12,8 @@ import argparse
 import math
 import sys
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -23,12 +25,63 @@ from app.export import result_json, write_json
 from app.io import load_calibration
 from app.presets import resolve_preset
 from app.recording import RecordedFrame
-from app.sequence import TrackedFrame
+from app.sequence import Sequence, SequenceFrame
 from core.calibration import StereoCalibration
 from core.metrics import curve_errors
-from core.tracking import TrackParams, motion_error
+from core.pipeline import Pipeline, ReconParams, Reconstruction
+from core.tracking import (
+    TrackParams,
+    TrackResult,
+    TrackState,
+    motion_error,
+    search_alpha,
+    track_step,
+)
 
 GOOD_MM = 20.0  # a frame's length error and largest curve error must both be within 2 cm
+
+
+@dataclass(frozen=True)
+class TrackedFrame:
+    """One frame's results: the single-frame reconstruction (``single``; with tracking, run
+    with the tracked search range), the tracked curve beside it (None when tracking is off),
+    the search range used and the wall time of the frame (pipeline and tracking), ms."""
+
+    frame: SequenceFrame
+    single: Reconstruction
+    tracked: TrackResult | None
+    alpha: int
+    ms: float
+
+
+def track_sequence(
+    frames: Iterator[SequenceFrame] | Sequence,
+    calib: StereoCalibration,
+    params: ReconParams | None = None,
+    track: TrackParams | None = None,
+) -> Iterator[TrackedFrame]:
+    """Reconstruct every frame and, when ``track.enabled``, track the curve across them."""
+    params = ReconParams() if params is None else params
+    track = TrackParams() if track is None else track
+    state: TrackState | None = None
+    for frame in frames:
+        t0 = time.perf_counter()
+        alpha = search_alpha(state, calib.P1, calib.P2, track) if track.enabled else None
+        p = params if alpha is None else replace(params, stereo=replace(params.stereo, alpha=alpha))
+        pipeline = Pipeline(frame.pair, calib)
+        rec = pipeline.run(p)
+        if rec.status != "ok" and alpha is not None and alpha < params.stereo.alpha:
+            p = params  # the prior's search range may be what failed: the configured one
+            rec = pipeline.run(p)
+        result = None
+        if track.enabled:
+            single = rec["camera"].points if rec.status == "ok" else None
+            cloud = None
+            if "reliability" in rec.runs:
+                cloud = rec["stereo"].points[rec["reliability"].reliable]
+            result, state = track_step(single, state, track, cloud)
+        ms = 1000.0 * (time.perf_counter() - t0)
+        yield TrackedFrame(frame, rec, result, p.stereo.alpha, ms)
 
 
 def _single_points(tf: TrackedFrame) -> np.ndarray | None:
@@ -152,7 +205,7 @@ def recorded_frame(tf: TrackedFrame) -> RecordedFrame:
 
 
 def cmd_track(args: argparse.Namespace) -> int:
-    from app.sequence import SequenceError, open_sequence, track_sequence
+    from app.sequence import SequenceError, open_sequence
     from app.track_report import frame_row, recorded_frame, summary_lines, tracked_json
 
     params = resolve_preset(args.config)

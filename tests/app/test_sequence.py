@@ -15,9 +15,9 @@ from app.sequence import (
     BagSequence,
     SequenceError,
     open_sequence,
-    track_sequence,
     write_video,
 )
+from app.track_report import track_sequence
 from core.metrics import curve_errors
 from core.sequence_synth import MotionParams, SequenceParams, generate_sequence
 from core.tracking import TrackParams
