@@ -54,7 +54,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="threadrecon", description=__doc__)
     sub = parser.add_subparsers(dest="command")
 
-    r = sub.add_parser("reconstruct", help="reconstruct the thread of one rectified stereo pair")
+    r = sub.add_parser(
+        "reconstruct",
+        help="reconstruct the thread of one rectified stereo pair",
+        description="Reconstruct one pair and write its JSON (always, with status and reasons). "
+        "Exit code: 0 ok, 1 failed, 3 suspect (the check stage doubts the curve), 2 bad input.",
+    )
     r.add_argument("--left", help="left rectified image")
     r.add_argument("--right", help="right rectified image")
     r.add_argument("--stereo", help="side-by-side composite (left half | right half)")
@@ -123,9 +128,13 @@ def _sample_data() -> Path:
 # --- reconstruct -------------------------------------------------------------------------
 
 
+EXIT_OK, EXIT_FAILED, EXIT_SUSPECT = 0, 1, 3  # reconstruct's exit code by check status
+
+
 def reconstruction_json(rec: Reconstruction) -> dict[str, Any]:
     out: dict[str, Any] = {
         "status": rec.status,
+        "reasons": list(rec.reasons),
         "error": rec.message,
         "failed_stage": rec.failed_stage,
     }
@@ -145,6 +154,24 @@ def reconstruction_json(rec: Reconstruction) -> dict[str, Any]:
         )
     else:
         out.update(points=None, control_points=None, knots=None, degree=None)
+    if "check" in rec.runs:
+        chk = rec["check"]
+        g = chk.grasp
+        out.update(
+            score=chk.score,
+            confidence=chk.confidence.tolist(),
+            grasp=None
+            if g is None
+            else {
+                "point": g.point.tolist(),
+                "confidence": g.confidence,
+                "tangent": g.tangent.tolist(),
+                "index": g.index,
+                "from_end": g.from_end,
+                "distance": g.distance,
+            },
+            check=chk.evidence(),
+        )
     if "clustering" in rec.runs:
         out["n_keypoints"] = rec["clustering"].count
     if "reliability" in rec.runs:
@@ -153,10 +180,21 @@ def reconstruction_json(rec: Reconstruction) -> dict[str, Any]:
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
+    """Strict JSON; a non-finite number (a diverged curve) is written as null."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=1, allow_nan=False, default=_json_default))
+    tmp.write_text(json.dumps(_finite(data), indent=1, allow_nan=False, default=_json_default))
     tmp.replace(path)
+
+
+def _finite(o: Any) -> Any:
+    if isinstance(o, float | np.floating):
+        return float(o) if math.isfinite(o) else None
+    if isinstance(o, dict):
+        return {k: _finite(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_finite(v) for v in o]
+    return o
 
 
 def _json_default(o: Any) -> Any:
@@ -173,18 +211,26 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     try:
         rec = Pipeline(pair, calib).run(params)
     except ValueError as exc:  # a pair that does not fit its calibration
-        _write_json(out, {"status": "failed", "error": str(exc), "points": None})
+        _write_json(
+            out, {"status": "failed", "reasons": [str(exc)], "error": str(exc), "points": None}
+        )
         raise
     data = reconstruction_json(rec)
     _write_json(out, data)
-    if rec.status != "ok":
-        print(f"threadrecon: reconstruction failed: {rec.message}", file=sys.stderr)
-        return 1
-    print(
-        f"ok: {len(data['points'])} points, length {data['length']:.2f} {data['unit']}, "
-        f"{sum(rec.timings_ms.values()):.0f} ms -> {out}"
+    if rec.status == "failed":
+        print(f"threadrecon: reconstruction failed: {rec.message} -> {out}", file=sys.stderr)
+        return EXIT_FAILED
+    summary = (
+        f"{len(data['points'])} points, length {data['length']:.2f} {data['unit']}, "
+        f"score {data['score']}/5, {sum(rec.timings_ms.values()):.0f} ms -> {out}"
     )
-    return 0
+    if rec.status == "suspect":
+        print(f"suspect: {summary}", file=sys.stderr)
+        for reason in rec.reasons:
+            print(f"  - {reason}", file=sys.stderr)
+        return EXIT_SUSPECT
+    print(f"ok: {summary}")
+    return EXIT_OK
 
 
 # --- evaluate ----------------------------------------------------------------------------

@@ -10,15 +10,23 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, fields
 from typing import Any
 
+from threadpoolctl import ThreadpoolController
+
 from core.bounds import BoundsParams, depth_bounds
 from core.calibration import StereoCalibration
 from core.camera import CameraParams, to_camera
+from core.check import CheckParams, check_curve
 from core.clustering import ClusterParams, cluster_keypoints
 from core.ordering import OrderingParams, order_keypoints
 from core.reliability import ReliabilityParams, prune
 from core.segmentation import SegmentationParams, StereoPair, segment
 from core.spline import SplineParams, fit_spline
 from core.stereo import StereoParams, match_stereo
+
+# One BLAS thread while a stage runs: a multithreaded BLAS sums in another order, and SLSQP's
+# path through Eq. (8) amplified that into a different curve ("n_ctrl = 40" on blend3_1 failed
+# with one thread and gave 552 km with several). Created once: creation scans loaded libraries.
+_BLAS = ThreadpoolController()
 
 STAGES = (
     "segment",
@@ -29,6 +37,7 @@ STAGES = (
     "bounds",
     "spline",
     "camera",
+    "check",
 )
 
 
@@ -44,6 +53,7 @@ class ReconParams:
     bounds: BoundsParams = field(default_factory=BoundsParams)
     spline: SplineParams = field(default_factory=SplineParams)
     camera: CameraParams = field(default_factory=CameraParams)
+    check: CheckParams = field(default_factory=CheckParams)
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
         return {
@@ -99,11 +109,18 @@ class Pipeline:
             "bounds": lambda: depth_bounds(r["stereo"], r["ordering"], c, p.bounds),
             "spline": lambda: fit_spline(r["bounds"], c, p.spline),
             "camera": lambda: to_camera(r["spline"], c, p.camera),
+            "check": lambda: check_curve(
+                *(r[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds")),
+                r["spline"],
+                r["camera"],
+                c,
+                p.check,
+            ),  # fmt: skip
         }
         return fns[stage]()
 
     def stages(
-        self, params: ReconParams = ReconParams(), until: str = "camera"
+        self, params: ReconParams = ReconParams(), until: str = STAGES[-1]
     ) -> Iterator[StageRun]:
         """Yield each stage's run in order up to ``until``; raises :class:`StageError`."""
         if until not in STAGES:
@@ -119,7 +136,8 @@ class Pipeline:
             else:
                 t0 = time.perf_counter()
                 try:
-                    out = self._compute(stage, results, params)
+                    with _BLAS.limit(limits=1, user_api="blas"):
+                        out = self._compute(stage, results, params)
                 except StageError:
                     raise
                 except (ValueError, ArithmeticError, IndexError) as exc:
@@ -133,7 +151,7 @@ class Pipeline:
             if stage == until:
                 return
 
-    def run(self, params: ReconParams = ReconParams(), until: str = "camera") -> Reconstruction:
+    def run(self, params: ReconParams = ReconParams(), until: str = STAGES[-1]) -> Reconstruction:
         """Run every stage up to ``until``; a failing stage is reported, not raised."""
         runs: dict[str, StageRun] = {}
         try:
@@ -148,8 +166,9 @@ class Pipeline:
 class Reconstruction:
     """Stage runs of one pipeline call; ``failed_stage``/``error`` are set when a stage failed.
 
-    ``status`` is "ok", or "failed" when a stage raised or the MVS solver's result was rejected
-    (then the spline stage holds the visible fallback and ``error`` says why).
+    ``status`` is the check stage's: "ok", "suspect" or "failed" (with its reasons in
+    ``message``); "failed" when a stage raised. Without a check run (``until`` before it),
+    "failed" when the MVS solver's result was rejected, else "ok".
     """
 
     runs: dict[str, StageRun]
@@ -164,20 +183,29 @@ class Reconstruction:
     def status(self) -> str:
         if self.failed_stage is not None:
             return "failed"
+        if "check" in self.runs:
+            return self.runs["check"].result.status
         spline = self.runs.get("spline")
         if spline is not None and not spline.result.ok:
             return "failed"
         return "ok"
 
     @property
-    def message(self) -> str | None:
+    def reasons(self) -> tuple[str, ...]:
+        """Every reason for a status other than "ok", in words."""
         if self.error is not None:
-            return f"{self.failed_stage}: {self.error}"
+            return (f"{self.failed_stage}: {self.error}",)
+        if "check" in self.runs:
+            return self.runs["check"].result.reasons
         spline = self.runs.get("spline")
         if spline is not None and not spline.result.ok:
             s = spline.result
-            return f"spline: MVS {s.status}: {s.message}; the curve shown is the initial spline (fallback)"
-        return None
+            return (f"spline: MVS {s.status}: {s.message}; the curve shown is the initial spline",)
+        return ()
+
+    @property
+    def message(self) -> str | None:
+        return "; ".join(self.reasons) or None
 
     @property
     def timings_ms(self) -> dict[str, float]:

@@ -208,3 +208,49 @@ def test_xy_knots_preset_keys_are_checked_and_paper_strict_keeps_uniform_knots()
         validate({"spline": {"xy_knots": "curvature"}})
     with pytest.raises(ValueError, match="spline.xy_tol_px"):
         validate({"spline": {"xy_tol_px": 0.0}})
+
+
+def test_reconstruct_suspect_frame_exits_3_with_reasons_in_json(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 11: tissue_2 without its mask came back "ok", 879 m long, exit code 0."""
+    tissue = SAMPLE / "simulated" / "tissue"
+    out = tmp_path / "t.json"
+    code, _, err = run(
+        capsys,
+        "reconstruct",
+        "--stereo",
+        tissue / "tissue_2.png",
+        "--calib",
+        tissue / "calibration.yaml",
+        "--out",
+        out,
+    )
+    data = json.loads(out.read_text())
+    assert data["status"] in ("suspect", "failed")
+    assert code == {"suspect": 3, "failed": 1}[data["status"]]
+    assert data["reasons"] and data["reasons"][0] in err
+
+
+def test_reconstruct_ok_json_has_confidence_grasp_and_score(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "c.json"
+    args = ["--stereo", FLAT / "flat_2.png", "--mask", FLAT / "flat_2_mask.png"]
+    code, _, _ = run(
+        capsys, "reconstruct", *args, "--calib", FLAT / "calibration.yaml", "--out", out
+    )
+    data = json.loads(out.read_text())
+    assert code == 0 and data["status"] == "ok" and data["reasons"] == []
+    assert len(data["confidence"]) == len(data["points"])
+    assert data["grasp"]["point"] == data["points"][data["grasp"]["index"]]
+    assert 1 <= data["score"] <= 5 and "coverage_left" in data["check"]
+
+
+def test_non_finite_values_are_written_as_null(tmp_path: Path) -> None:
+    """A diverged curve still gets its JSON (status, reasons), non-finite numbers as null."""
+    from app.cli import _write_json
+
+    path = tmp_path / "n.json"
+    _write_json(path, {"status": "failed", "reasons": ["x"], "points": [[np.nan, np.inf, 1.0]]})
+    assert json.loads(path.read_text())["points"] == [[None, None, 1.0]]
