@@ -32,7 +32,7 @@ per frame), so the stage costs a few milliseconds.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -167,6 +167,22 @@ class CheckParams(Params):
         5.0, lo=0.0, unit="px", slider=(0.0, 50.0, 1.0), label="border",
         doc="An end closer than this to the image border (either view) is not the free end.",
     )  # fmt: skip
+    max_unseen_px: float = param(
+        10.0, lo=0.0, unit="px", slider=(0.0, 200.0, 1.0), label="one-view stretch",
+        doc="Suspect when more than this 2D length (left view) of the curve projects outside "
+        "the right image: the depth there is not observed by the stereo pair.",
+    )  # fmt: skip
+    border_suspect: bool = param(
+        False, label="end at border is suspect",
+        doc="An end at the image border makes the curve suspect (the thread's length outside "
+        "the view is unknown). Off by default: threads in surgical views usually leave them.",
+    )  # fmt: skip
+    crossing_degree: int = param(
+        4, lo=3, slider=(3, 10, 1), label="crossing degree",
+        doc="A keypoint adjacent to at least this many keypoints in the graph A is a crossing "
+        "of the thread pixels; a crossing makes the curve suspect (order and depth there are "
+        "ambiguous between the strands).",
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -222,6 +238,9 @@ class CheckResult:
     solver_status: str
     longest_jump_px: float
     overlap_px: float
+    crossings: int = 0
+    unseen_px: float = 0.0
+    ends_at_border: tuple[str, ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -231,7 +250,7 @@ class CheckResult:
     def message(self) -> str | None:
         return "; ".join(self.reasons) if self.reasons else None
 
-    def evidence(self) -> dict[str, float | str | list[float]]:
+    def evidence(self) -> dict[str, Any]:
         """The measured evidence as plain values (for JSON, tables and exports)."""
         return {
             "reproj_left_mean_px": self.reproj_left_mean,
@@ -249,6 +268,9 @@ class CheckResult:
             "solver_status": self.solver_status,
             "longest_jump_px": self.longest_jump_px,
             "overlap_px": self.overlap_px,
+            "crossings": self.crossings,
+            "unseen_px": self.unseen_px,
+            "ends_at_border": list(self.ends_at_border),
         }
 
 
@@ -264,7 +286,6 @@ def check_curve(
     p: CheckParams = CheckParams(),
 ) -> CheckResult:
     """Check the camera-frame curve against the images, the depth range and the bounds."""
-    del ordering  # the ordering's evidence is read from the curve's projection (jumps, loops)
     pts = np.asarray(curve.points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
         raise ValueError(f"curve points must be (N >= 2, 3), got {pts.shape}")
@@ -357,12 +378,21 @@ def check_curve(
                 ("suspect", f"the curve covers {100 * cov:.0f} % of the {side} thread pixels "
                  f"(at least {100 * p.coverage_min:.0f} % expected)")
             )  # fmt: skip
-    for end, i in (("start", 0), ("end", -1)):
-        if _border_distance(uv_l[i], uv_r[i], (H, W)) < p.border_px:
-            findings.append(
-                ("suspect", f"the curve's {end} is at the image border: the thread may continue "
-                 "outside the view, its length there is unknown")
-            )  # fmt: skip
+    unseen_px = float(np.sum(np.where(in_l & ~in_r, np.r_[step, 0.0], 0.0)))
+    if unseen_px > p.max_unseen_px:
+        findings.append(
+            ("suspect", f"{unseen_px:.0f} px of the curve lie outside the right image: their "
+             f"depth is not observed (limit {p.max_unseen_px:g} px)")
+        )  # fmt: skip
+    at_border = tuple(
+        end for end, i in (("start", 0), ("end", -1))
+        if _border_distance(uv_l[i], uv_r[i], (H, W)) < p.border_px
+    )  # fmt: skip
+    for end in at_border if p.border_suspect else ():
+        findings.append(
+            ("suspect", f"the curve's {end} is at the image border: the thread may continue "
+             "outside the view, its length there is unknown")
+        )  # fmt: skip
 
     # Length against the 2D path length and the depth span of the bounds.
     path_px = float(bounds.s[-1])
@@ -391,7 +421,15 @@ def check_curve(
              f"{spline.message}); the curve is the initial spline")
         )  # fmt: skip
 
-    # Ordering anomalies (2): overlaps the pixels do not show.
+    # Ordering anomalies (2): crossings of the thread pixels, overlaps the pixels do not show.
+    K = ordering.n_clusters
+    degree = np.bincount(ordering.edges.ravel(), minlength=K) if ordering.edges.size else []
+    crossings = int(np.sum(np.asarray(degree) >= p.crossing_degree))
+    if crossings:
+        findings.append(
+            ("suspect", f"the thread pixels cross or branch at {crossings} keypoint(s) (>= "
+             f"{p.crossing_degree} neighbours): order and depth there are ambiguous")
+        )  # fmt: skip
     overlap = _overlap(uv_l, step, p.loop_px)
     if overlap > p.max_overlap_px:
         findings.append(
@@ -435,6 +473,9 @@ def check_curve(
         solver_status=spline.status,
         longest_jump_px=longest_jump,
         overlap_px=overlap,
+        crossings=crossings,
+        unseen_px=unseen_px,
+        ends_at_border=at_border,
     )
 
 

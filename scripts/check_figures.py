@@ -92,8 +92,10 @@ def _cpu_ms(rec, calib, params) -> float:
 def _flat(ev: dict) -> dict:
     out = {}
     for k, v in ev.items():
-        if isinstance(v, list):
+        if isinstance(v, list) and len(v) == 2 and all(isinstance(x, float) for x in v):
             out[f"{k}_lo"], out[f"{k}_hi"] = v
+        elif isinstance(v, list):
+            out[k] = " ".join(map(str, v))
         else:
             out[k] = v
     return out
