@@ -545,13 +545,18 @@ class _View:
 
 def _view(mask: np.ndarray, uv: np.ndarray, inside: np.ndarray, margin: float) -> _View:
     H, W = mask.shape
-    ys, xs = np.nonzero(mask)
+    m8 = np.ascontiguousarray(mask).view(np.uint8)
+    total = cv2.countNonZero(m8)
+    bx, by, bw, bh = cv2.boundingRect(m8)  # box of the thread pixels
     q = np.rint(uv[inside]) if inside.any() else np.zeros((0, 2))
-    xa, xb = np.concatenate([xs, q[:, 0]]), np.concatenate([ys, q[:, 1]])
+    xa = np.concatenate([[bx, bx + bw - 1] if total else [], q[:, 0]])
+    ya = np.concatenate([[by, by + bh - 1] if total else [], q[:, 1]])
+    if xa.size == 0:
+        return _View(mask[:0, :0], 0, 0, 0)
     m = int(np.ceil(margin))
     x0, x1 = max(0, int(xa.min()) - m), min(W, int(xa.max()) + m + 1)
-    y0, y1 = max(0, int(xb.min()) - m), min(H, int(xb.max()) + m + 1)
-    return _View(mask[y0:y1, x0:x1], x0, y0, int(xs.size))
+    y0, y1 = max(0, int(ya.min()) - m), min(H, int(ya.max()) + m + 1)
+    return _View(mask[y0:y1, x0:x1], x0, y0, int(total))
 
 
 def _distance_to_mask(v: _View, uv: np.ndarray, margin: float) -> np.ndarray:
@@ -567,7 +572,8 @@ def _distance_to_mask(v: _View, uv: np.ndarray, margin: float) -> np.ndarray:
     h, w = v.mask.shape
     q = np.rint(uv[ok]) - [v.x0, v.y0]
     qc = np.clip(q, 0, [w - 1, h - 1])
-    dt = cv2.distanceTransform((~v.mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_3)
+    background = cv2.compare(np.ascontiguousarray(v.mask).view(np.uint8), 0, cv2.CMP_EQ)
+    dt = cv2.distanceTransform(background, cv2.DIST_L2, cv2.DIST_MASK_3)
     qi = qc.astype(np.intp)
     off = np.hypot(*(uv[ok] - [v.x0, v.y0] - qc).T)  # beyond the crop (off the image), px
     out[ok] = np.minimum(dt[qi[:, 1], qi[:, 0]] + off, margin)
