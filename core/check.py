@@ -180,8 +180,16 @@ class CheckParams(Params):
     crossing_degree: int = param(
         4, lo=3, slider=(3, 10, 1), label="crossing degree",
         doc="A keypoint adjacent to at least this many keypoints in the graph A is a crossing "
-        "of the thread pixels; a crossing makes the curve suspect (order and depth there are "
-        "ambiguous between the strands).",
+        "of the thread pixels (order and depth there are ambiguous between the strands).",
+    )  # fmt: skip
+    ambiguous_mm: float = param(
+        10.0, lo=0.0, unit="mm", slider=(0.0, 50.0, 0.5), label="ambiguous error",
+        doc="A curve point whose expected error e_i exceeds this is ambiguous.",
+    )  # fmt: skip
+    max_ambiguous_mm: float = param(
+        20.0, lo=0.0, unit="mm", slider=(0.0, 200.0, 1.0), label="ambiguous length",
+        doc="With a crossing of the thread pixels, suspect when more than this length of the "
+        "curve is ambiguous (the strands' depths were mixed up near the crossing).",
     )  # fmt: skip
 
 
@@ -240,6 +248,7 @@ class CheckResult:
     overlap_px: float
     crossings: int = 0
     unseen_px: float = 0.0
+    ambiguous_mm: float = 0.0
     ends_at_border: tuple[str, ...] = ()
 
     @property
@@ -270,6 +279,7 @@ class CheckResult:
             "overlap_px": self.overlap_px,
             "crossings": self.crossings,
             "unseen_px": self.unseen_px,
+            "ambiguous_mm": self.ambiguous_mm,
             "ends_at_border": list(self.ends_at_border),
         }
 
@@ -425,11 +435,6 @@ def check_curve(
     K = ordering.n_clusters
     degree = np.bincount(ordering.edges.ravel(), minlength=K) if ordering.edges.size else []
     crossings = int(np.sum(np.asarray(degree) >= p.crossing_degree))
-    if crossings:
-        findings.append(
-            ("suspect", f"the thread pixels cross or branch at {crossings} keypoint(s) (>= "
-             f"{p.crossing_degree} neighbours): order and depth there are ambiguous")
-        )  # fmt: skip
     overlap = _overlap(uv_l, step, p.loop_px)
     if overlap > p.max_overlap_px:
         findings.append(
@@ -448,6 +453,15 @@ def check_curve(
     e_mm[(z <= 0) | (z_right <= 0)] = np.inf
     conf = np.exp(-e_mm / p.conf_mm)
 
+    seg_mm = np.linalg.norm(np.diff(pts, axis=0), axis=1) * mm
+    ambiguous = float(np.sum(seg_mm * ((e_mm[1:] > p.ambiguous_mm) | (e_mm[:-1] > p.ambiguous_mm))))
+    if crossings and ambiguous > p.max_ambiguous_mm:
+        findings.append(
+            ("suspect", f"the thread pixels cross or branch at {crossings} keypoint(s) and "
+             f"{ambiguous:.0f} mm of the curve have an expected error above "
+             f"{p.ambiguous_mm:g} mm (limit {p.max_ambiguous_mm:g} mm): the strands' order or "
+             "depth may be mixed up")
+        )  # fmt: skip
     status: Status = max((s for s, _ in findings), key=_RANK.__getitem__, default="ok")
     score = _score(float(np.mean(np.minimum(e_mm, 1e6))), status, p.score_mm)
     grasp = _grasp(pts, conf, uv_l, uv_r, (H, W), mm, p)
@@ -475,6 +489,7 @@ def check_curve(
         overlap_px=overlap,
         crossings=crossings,
         unseen_px=unseen_px,
+        ambiguous_mm=ambiguous,
         ends_at_border=at_border,
     )
 
