@@ -296,6 +296,21 @@ def check_curve(
     p: CheckParams = CheckParams(),
 ) -> CheckResult:
     """Check the camera-frame curve against the images, the depth range and the bounds."""
+    with np.errstate(all="ignore"):  # a diverged curve overflows: it is reported, not warned
+        return _check(lifted, stereo, rel, ordering, bounds, spline, curve, calib, p)
+
+
+def _check(
+    lifted: LiftedPair,
+    stereo: StereoResult,
+    rel: ReliabilityResult,
+    ordering: Ordering,
+    bounds: Bounds,
+    spline: SplineResult,
+    curve: CameraCurve,
+    calib: StereoCalibration,
+    p: CheckParams,
+) -> CheckResult:
     pts = np.asarray(curve.points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
         raise ValueError(f"curve points must be (N >= 2, 3), got {pts.shape}")
@@ -708,9 +723,11 @@ def _grasp(
     shape: tuple[int, int],
     mm: float,
     p: CheckParams,
-) -> GraspPoint:
+) -> GraspPoint | None:
     """The most confident point within ``grasp_window_mm`` of ``grasp_mm`` from the free end."""
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))]) * mm
+    if not np.isfinite(s[-1]):
+        return None
     from_start, from_end = s, s[-1] - s
     lo, hi = p.grasp_mm - p.grasp_window_mm, p.grasp_mm + p.grasp_window_mm
     near = {

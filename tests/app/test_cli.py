@@ -254,3 +254,25 @@ def test_non_finite_values_are_written_as_null(tmp_path: Path) -> None:
     path = tmp_path / "n.json"
     _write_json(path, {"status": "failed", "reasons": ["x"], "points": [[np.nan, np.inf, 1.0]]})
     assert json.loads(path.read_text())["points"] == [[None, None, 1.0]]
+
+
+def test_evaluate_never_aborts_on_a_nan_ground_truth_or_n_ctrl_80(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 11: a NaN in a ground-truth file, or n_ctrl = 80, aborted the whole run."""
+    data = tmp_path / "data" / "simulated" / "flat"
+    shutil.copytree(FLAT, data)
+    gt = np.load(data / "flat_1.npy")
+    gt[2, 1] = np.nan
+    np.save(data / "flat_1.npy", gt)
+    out = tmp_path / "res.csv"
+    code, _, err = run(capsys, "evaluate", tmp_path / "data", "--out", out)
+    rows = {r["frame"]: r for r in csv.DictReader(out.open())}
+    assert len(rows) == 4 and code == 1 and "1 of 4 frames failed" in err
+    assert rows["simulated/flat/flat_1"]["status"] == "failed"
+    assert rows["simulated/flat/flat_1"]["error"]
+    preset = tmp_path / "p.toml"
+    preset.write_text("[spline]\nn_ctrl = 80\n")
+    code, _, _ = run(capsys, "evaluate", tmp_path / "data", "--out", out, "--config", preset)
+    rows = list(csv.DictReader(out.open()))
+    assert len(rows) == 4 and all(r["status"] in ("ok", "suspect", "failed") for r in rows)
