@@ -8,6 +8,7 @@ from G, Eq. (9), both of the same rectified left camera.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import math
 from collections.abc import Sequence
@@ -42,6 +43,8 @@ def json_safe(obj: Any) -> Any:
         return [json_safe(v) for v in obj]
     if isinstance(obj, np.ndarray):
         return json_safe(obj.tolist())
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):  # e.g. the grasp point
+        return {f.name: json_safe(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
     if isinstance(obj, np.generic):
         obj = obj.item()
     if isinstance(obj, float) and not math.isfinite(obj):

@@ -443,7 +443,7 @@ def _check(
     if not spline.ok and p.solver_suspect:
         findings.append(
             ("suspect", f"the MVS solver's result was rejected ({spline.status}: "
-             f"{spline.message}); the curve is the initial spline")
+             f"{spline.message}); the curve shown is the initial spline (fallback)")
         )  # fmt: skip
 
     # Ordering anomalies (2): crossings of the thread pixels, overlaps the pixels do not show.

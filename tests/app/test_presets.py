@@ -21,7 +21,9 @@ def _changed(hint: Any, value: Any) -> Any:
         return 1.0
     if isinstance(value, bool):
         return not value
-    return value + 1 if isinstance(value, int) else value + 0.5
+    if isinstance(value, int):
+        return value + 1
+    return value / 2 if 0 < value < 1 else value + 0.5  # a share stays inside [0, 1]
 
 
 def test_params_hash_is_short_hex_and_equal_for_equal_params(tmp_path: Path) -> None:
