@@ -50,6 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser(
         "reconstruct",
         help="reconstruct the thread of one stereo pair (raw pairs are rectified first)",
+        description="Reconstruct one pair and write its JSON (always, with status and reasons). "
+        "Exit code: 0 ok, 1 failed, 3 suspect (the check stage doubts the curve), 2 bad input.",
     )
     r.add_argument("--left", help="left image (rectified, or raw with its calibration)")
     r.add_argument("--right", help="right image")
@@ -210,35 +212,54 @@ def _sample_data() -> Path:
 # --- reconstruct -------------------------------------------------------------------------
 
 
+EXIT_OK, EXIT_FAILED, EXIT_SUSPECT = 0, 1, 3  # reconstruct's exit code by check status
+
+
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     out = Path(args.out)
-    result = reconstruct(
-        args.left,
-        args.right,
-        args.calib,
-        stereo=args.stereo,
-        mask=args.mask,
-        mask_left=args.mask_left,
-        mask_right=args.mask_right,
-        calib_right=args.calib_right,
-        units=args.units,
-        params=args.config,  # a preset name or path; None: the default preset
-        frame=args.frame,
-    )
+    try:
+        result = reconstruct(
+            args.left,
+            args.right,
+            args.calib,
+            stereo=args.stereo,
+            mask=args.mask,
+            mask_left=args.mask_left,
+            mask_right=args.mask_right,
+            calib_right=args.calib_right,
+            units=args.units,
+            params=args.config,  # a preset name or path; None: the default preset
+            frame=args.frame,
+        )
+    except ValueError as exc:  # unreadable input or a pair that does not fit its calibration
+        write_json(
+            out, {"status": "failed", "reasons": [str(exc)], "error": str(exc), "points": None}
+        )
+        raise
     data = result.to_json()
     write_json(out, data)
     if args.ply and result.points is not None:
         ply = Path(args.ply)
         ply.parent.mkdir(parents=True, exist_ok=True)
         ply.write_bytes(result.to_ply())
-    if not result.ok:
-        print(f"threadrecon: reconstruction failed: {'; '.join(result.reasons)}", file=sys.stderr)
-        return 1
-    print(
-        f"ok: {len(data['points'])} points, length {data['length']:.2f} {data['unit']}, "
-        f"frame {data['frame']}, {sum(result.timings_ms.values()):.0f} ms -> {out}"
+    if result.status == "failed":
+        print(
+            f"threadrecon: reconstruction failed: {'; '.join(result.reasons)} -> {out}",
+            file=sys.stderr,
+        )
+        return EXIT_FAILED
+    summary = (
+        f"{len(data['points'])} points, length {data['length']:.2f} {data['unit']}, "
+        f"frame {data['frame']}, score {data['score']}/5, "
+        f"{sum(result.timings_ms.values()):.0f} ms -> {out}"
     )
-    return 0
+    if result.status == "suspect":
+        print(f"suspect: {summary}", file=sys.stderr)
+        for reason in result.reasons:
+            print(f"  - {reason}", file=sys.stderr)
+        return EXIT_SUSPECT
+    print(f"ok: {summary}")
+    return EXIT_OK
 
 
 # --- evaluate ----------------------------------------------------------------------------
@@ -274,7 +295,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         write_csv(Path(args.out), rows)
     for line in summarise(rows):
         print(line)
-    failed = sum(r["status"] != "ok" for r in rows)
+    failed = sum(r["status"] == "failed" for r in rows)  # suspect frames are listed, not failed
     if failed:
         print(f"threadrecon: {failed} of {len(rows)} frames failed", file=sys.stderr)
         return 1

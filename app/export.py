@@ -12,6 +12,7 @@ frame when the input pair was already rectified) or in ``"left_rectified"``.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import hashlib
 import io
 import json
@@ -59,6 +60,8 @@ def json_safe(obj: Any) -> Any:
         return [json_safe(v) for v in obj]
     if isinstance(obj, np.ndarray):
         return json_safe(obj.tolist())
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):  # e.g. the grasp point
+        return {f.name: json_safe(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
     if isinstance(obj, np.generic):
         obj = obj.item()
     if isinstance(obj, float) and not math.isfinite(obj):
@@ -144,7 +147,7 @@ def result_json(
         "schema": SCHEMA_ID,
         "software": {"name": "threadrecon", "version": software_version()},
         "status": rec.status,
-        "reasons": [] if message is None else [message],
+        "reasons": list(rec.reasons),
         "error": message,
         "failed_stage": rec.failed_stage,
         "frame": frame,
@@ -185,6 +188,24 @@ def result_json(
             confidence=None if confidence is None else np.asarray(confidence, dtype=float),
             fallback=not spline.ok,
             spline_status=spline.status,
+        )
+    if "check" in rec.runs:
+        chk = rec["check"]
+        g = chk.grasp
+        out.update(
+            score=chk.score,
+            confidence=chk.confidence,
+            grasp=None
+            if g is None
+            else {
+                "point": moved(g.point[None, :])[0],
+                "confidence": g.confidence,
+                "tangent": moved(g.tangent[None, :])[0],  # a rotation, no shift
+                "index": g.index,
+                "from_end": g.from_end,
+                "distance": g.distance,
+            },
+            check=chk.evidence(),
         )
     if "clustering" in rec.runs and "reliability" in rec.runs:
         kp = _keypoints(rec)
@@ -359,7 +380,7 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
     """Write ``data`` as strict JSON (no NaN) through a temporary file: never half a file."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=1, allow_nan=False, default=_json_default))
+    tmp.write_text(json.dumps(json_safe(data), indent=1, allow_nan=False, default=_json_default))
     tmp.replace(path)
 
 

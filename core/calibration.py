@@ -20,7 +20,12 @@ REQUIRED_KEYS = ("K1", "D1", "K2", "D2", "R", "T", "ImageSize")
 
 
 class CalibrationError(ValueError):
-    """A calibration file is missing, unreadable, or has a missing or malformed key."""
+    """A calibration file is missing, unreadable, or has a missing or malformed key, or its
+    geometry is not a usable stereo rig (see :func:`make_calibration`)."""
+
+
+ROTATION_TOL = 1e-3  # |R^T R - I| and |det R - 1| above this: not a rotation (6-digit files pass)
+ROW_ALIGN_TOL = 1e-3  # vertical offset of the rectified right camera, fraction of the baseline
 
 
 @dataclass(frozen=True)
@@ -84,7 +89,7 @@ def make_calibration(
     D2: np.ndarray,
     R: np.ndarray,
     T: np.ndarray,
-    image_size: tuple[int, int],
+    image_size: tuple[float, float],
     unit: str = "mm",
     source: str = "calibration",
     rectified: bool | None = None,
@@ -93,6 +98,11 @@ def make_calibration(
 
     OpenCV's stereo convention: a point p_left in the left camera frame is
     p_right = R p_left + T in the right camera frame; ``T`` in ``unit``.
+
+    Sanity checks, each a :class:`CalibrationError` naming the problem: finite values, positive
+    focal lengths in K1 and K2 (last row [0 0 1]), R a proper rotation (orthonormal, det +1), a
+    finite positive whole-number ImageSize, and after rectification a baseline along x with the
+    right camera to the right of the left one (the disparity search of Eq. (3) looks left).
     """
     shapes = {"K1": (3, 3), "K2": (3, 3), "R": (3, 3)}
     arrays = {"K1": K1, "D1": D1, "K2": K2, "D2": D2, "R": R, "T": T}
@@ -108,7 +118,30 @@ def make_calibration(
         if not np.all(np.isfinite(a)):
             raise CalibrationError(f"{source}: key {key} has non-finite values")
         clean[key] = a
-    rows, cols = (int(v) for v in image_size)
+    for key in ("K1", "K2"):
+        K = clean[key]
+        if not (K[0, 0] > 0 and K[1, 1] > 0):
+            raise CalibrationError(
+                f"{source}: key {key} must have positive focal lengths, got fx = {K[0, 0]:g}, "
+                f"fy = {K[1, 1]:g}"
+            )
+        if not np.allclose(K[2], [0.0, 0.0, 1.0]):
+            raise CalibrationError(f"{source}: key {key} must have last row [0 0 1], got {K[2]}")
+    R = clean["R"]
+    orth = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    det = float(np.linalg.det(R))
+    if orth > ROTATION_TOL or abs(det - 1.0) > ROTATION_TOL:
+        raise CalibrationError(
+            f"{source}: key R is not a proper rotation (|R^T R - I| = {orth:.3g}, "
+            f"det R = {det:.3g}; expected 0 and 1)"
+        )
+    size = np.asarray(image_size, dtype=np.float64).ravel()
+    if size.size != 2 or not np.all(np.isfinite(size)) or np.any(size != np.round(size)):
+        raise CalibrationError(
+            f"{source}: key ImageSize must be two finite whole numbers [rows, cols], got "
+            f"{size.tolist()}"
+        )
+    rows, cols = (int(v) for v in size)
     if rows <= 0 or cols <= 0:
         raise CalibrationError(f"{source}: key ImageSize must be positive [rows, cols]")
     if unit not in ("mm", "cm", "m"):
@@ -126,6 +159,7 @@ def make_calibration(
         T3,
         flags=cv2.CALIB_ZERO_DISPARITY,
     )
+    _check_rectified(P1, P2, source)
     return StereoCalibration(
         K1=clean["K1"],
         D1=clean["D1"],
@@ -140,6 +174,26 @@ def make_calibration(
         unit=unit,
         rectified=rectified,
     )
+
+
+def _check_rectified(P1: np.ndarray, P2: np.ndarray, source: str) -> None:
+    """The rectified rig must have a positive focal length and a baseline along +x."""
+    if not (np.all(np.isfinite(P1)) and np.all(np.isfinite(P2))):
+        raise CalibrationError(f"{source}: rectification gave non-finite projection matrices")
+    f = P1[0, 0]
+    if not (f > 0 and P2[0, 0] > 0):
+        raise CalibrationError(f"{source}: rectified focal length must be positive, got {f:g}")
+    tx, ty = P2[0, 3] / P2[0, 0], P2[1, 3] / P2[0, 0]
+    if abs(ty) > ROW_ALIGN_TOL * abs(tx) or P2[2, 3] != 0 or tx == 0:
+        raise CalibrationError(
+            f"{source}: after rectification the baseline is not along x (offset x {-tx:.4g}, "
+            f"y {-ty:.4g}); key T must hold a mostly horizontal baseline"
+        )
+    if tx > 0:
+        raise CalibrationError(
+            f"{source}: after rectification the right camera lies left of the left camera "
+            f"(baseline {-tx:.4g}): swap the images or the sign of key T"
+        )
 
 
 def parse_calibration(
@@ -188,7 +242,7 @@ def parse_calibration(
         values["D2"],
         values["R"],
         values["T"],
-        (int(size[0]), int(size[1])),
+        (size[0], size[1]),
         unit=file_unit or unit or "mm",
         source=source,
         rectified=rectified,

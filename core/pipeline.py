@@ -10,9 +10,12 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, fields, make_dataclass
 from typing import Any
 
+from threadpoolctl import ThreadpoolController
+
 from core.bounds import BoundsParams, depth_bounds
 from core.calibration import StereoCalibration
 from core.camera import CameraParams, to_camera
+from core.check import CheckParams, check_curve
 from core.clustering import ClusterParams, cluster_keypoints
 from core.ordering import OrderingParams, order_keypoints
 from core.params import Params
@@ -21,6 +24,11 @@ from core.reliability import ReliabilityParams, prune
 from core.segmentation import SegmentationParams, StereoPair, segment
 from core.spline import SplineParams, fit_spline
 from core.stereo import StereoParams, match_stereo
+
+# One BLAS thread while a stage runs: a multithreaded BLAS sums in another order, and SLSQP's
+# path through Eq. (8) amplified that into a different curve ("n_ctrl = 40" on blend3_1 failed
+# with one thread and gave 552 km with several). Created once: creation scans loaded libraries.
+_BLAS = ThreadpoolController()
 
 
 @dataclass(frozen=True)
@@ -74,6 +82,13 @@ STAGE_TABLE: tuple[Stage, ...] = (
         "Depth from both views",
     ),
     Stage("camera", CameraParams, to_camera, ("refine", "calib"), "Camera frame, Eq. (9)"),
+    Stage(
+        "check",
+        CheckParams,
+        check_curve,
+        ("segment", "stereo", "reliability", "ordering", "bounds", "refine", "camera", "calib"),
+        "Self-check against the evidence",
+    ),
 )
 STAGES: tuple[str, ...] = tuple(s.name for s in STAGE_TABLE)
 STAGE_BY_NAME: dict[str, Stage] = {s.name: s for s in STAGE_TABLE}
@@ -165,7 +180,8 @@ class Pipeline:
             else:
                 t0 = time.perf_counter()
                 try:
-                    out = self._compute(st, results, params)
+                    with _BLAS.limit(limits=1, user_api="blas"):
+                        out = self._compute(st, results, params)
                 except StageError:
                     raise
                 except Exception as exc:  # a failing stage never takes its caller down
@@ -195,8 +211,9 @@ class Pipeline:
 class Reconstruction:
     """Stage runs of one pipeline call; ``failed_stage``/``error`` are set when a stage failed.
 
-    ``status`` is "ok", or "failed" when a stage raised or the MVS solver's result was rejected
-    (then the spline stage holds the visible fallback and ``error`` says why).
+    ``status`` is the check stage's: "ok", "suspect" or "failed" (with its reasons in
+    ``message``); "failed" when a stage raised. Without a check run (``until`` before it),
+    "failed" when the MVS solver's result was rejected, else "ok".
     """
 
     runs: dict[str, StageRun]
@@ -211,20 +228,29 @@ class Reconstruction:
     def status(self) -> str:
         if self.failed_stage is not None:
             return "failed"
+        if "check" in self.runs:
+            return self.runs["check"].result.status
         spline = self.runs.get("spline")
         if spline is not None and not spline.result.ok:
             return "failed"
         return "ok"
 
     @property
-    def message(self) -> str | None:
+    def reasons(self) -> tuple[str, ...]:
+        """Every reason for a status other than "ok", in words."""
         if self.error is not None:
-            return f"{self.failed_stage}: {self.error}"
+            return (f"{self.failed_stage}: {self.error}",)
+        if "check" in self.runs:
+            return self.runs["check"].result.reasons
         spline = self.runs.get("spline")
         if spline is not None and not spline.result.ok:
             s = spline.result
-            return f"spline: MVS {s.status}: {s.message}; the curve shown is the initial spline (fallback)"
-        return None
+            return (f"spline: MVS {s.status}: {s.message}; the curve shown is the initial spline",)
+        return ()
+
+    @property
+    def message(self) -> str | None:
+        return "; ".join(self.reasons) or None
 
     @property
     def timings_ms(self) -> dict[str, float]:

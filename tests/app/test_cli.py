@@ -225,3 +225,71 @@ def test_bench_runs_on_a_plain_folder_with_overrides(
     assert code == 2 and "stereo.nothing" in err
     code, _, err = run(capsys, "bench", tmp_path, "--set", "stereo.z_near_mm=-5")
     assert code == 2 and "z_near_mm" in err
+
+
+def test_reconstruct_suspect_frame_exits_3_with_reasons_in_json(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 11: tissue_2 without its mask came back "ok", 879 m long, exit code 0."""
+    tissue = SAMPLE / "simulated" / "tissue"
+    out = tmp_path / "t.json"
+    code, _, err = run(
+        capsys,
+        "reconstruct",
+        "--stereo",
+        tissue / "tissue_2.png",
+        "--calib",
+        tissue / "calibration.yaml",
+        "--out",
+        out,
+    )
+    data = json.loads(out.read_text())
+    assert data["status"] in ("suspect", "failed")
+    assert code == {"suspect": 3, "failed": 1}[data["status"]]
+    assert data["reasons"] and data["reasons"][0] in err
+
+
+def test_reconstruct_ok_json_has_confidence_grasp_and_score(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "c.json"
+    args = ["--stereo", FLAT / "flat_2.png", "--mask", FLAT / "flat_2_mask.png"]
+    code, _, _ = run(
+        capsys, "reconstruct", *args, "--calib", FLAT / "calibration.yaml", "--out", out
+    )
+    data = json.loads(out.read_text())
+    assert code == 0 and data["status"] == "ok" and data["reasons"] == []
+    assert len(data["confidence"]) == len(data["points"])
+    assert data["grasp"]["point"] == data["points"][data["grasp"]["index"]]
+    assert 1 <= data["score"] <= 5 and "coverage_left" in data["check"]
+
+
+def test_non_finite_values_are_written_as_null(tmp_path: Path) -> None:
+    """A diverged curve still gets its JSON (status, reasons), non-finite numbers as null."""
+    from app.export import write_json as _write_json
+
+    path = tmp_path / "n.json"
+    _write_json(path, {"status": "failed", "reasons": ["x"], "points": [[np.nan, np.inf, 1.0]]})
+    assert json.loads(path.read_text())["points"] == [[None, None, 1.0]]
+
+
+def test_evaluate_never_aborts_on_a_nan_ground_truth_or_n_ctrl_80(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 11: a NaN in a ground-truth file, or n_ctrl = 80, aborted the whole run."""
+    data = tmp_path / "data" / "simulated" / "flat"
+    shutil.copytree(FLAT, data)
+    gt = np.load(data / "flat_1.npy")
+    gt[2, 1] = np.nan
+    np.save(data / "flat_1.npy", gt)
+    out = tmp_path / "res.csv"
+    code, _, err = run(capsys, "evaluate", tmp_path / "data", "--out", out)
+    rows = {r["frame"]: r for r in csv.DictReader(out.open())}
+    assert len(rows) == 4 and code == 1 and "1 of 4 frames failed" in err
+    assert rows["simulated/flat/flat_1"]["status"] == "failed"
+    assert rows["simulated/flat/flat_1"]["error"]
+    preset = tmp_path / "p.toml"
+    preset.write_text("[spline]\nn_ctrl = 80\n")
+    code, _, _ = run(capsys, "evaluate", tmp_path / "data", "--out", out, "--config", preset)
+    rows = list(csv.DictReader(out.open()))
+    assert len(rows) == 4 and all(r["status"] in ("ok", "suspect", "failed") for r in rows)

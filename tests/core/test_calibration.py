@@ -88,3 +88,44 @@ def test_units_key_sets_the_length_unit() -> None:
 def test_non_yaml_text_raises_calibration_error() -> None:
     with pytest.raises(CalibrationError):
         parse_calibration("this is not a calibration file")
+
+
+def test_negative_focal_lengths_are_rejected_naming_the_key() -> None:
+    """Issue 11: negative focal lengths made every depth negative, status "ok"."""
+    neg = f"{-FOCAL}, 0.0, 445.06, 0.0, {-FOCAL}, 190.24, 0., 0., 1."
+    with pytest.raises(CalibrationError, match=r"K1 must have positive focal lengths"):
+        parse_calibration(_yaml(override={"K1": (3, 3, neg)}), source="cal.yaml")
+    with pytest.raises(CalibrationError, match=r"K2 must have positive focal lengths"):
+        parse_calibration(_yaml(override={"K2": (3, 3, neg)}))
+
+
+@pytest.mark.parametrize(
+    "R",
+    [
+        "0., 0., 0., 0., 0., 0., 0., 0., 0.",  # issue 11: R all zeros shifted the curve ~20 mm
+        "2., 0., 0., 0., 1., 0., 0., 0., 1.",  # not orthonormal
+        "-1., 0., 0., 0., 1., 0., 0., 0., 1.",  # a reflection, det -1
+    ],
+)
+def test_r_must_be_a_proper_rotation(R: str) -> None:
+    with pytest.raises(CalibrationError, match=r"key R is not a proper rotation"):
+        parse_calibration(_yaml(override={"R": (3, 3, R)}))
+
+
+def test_rotation_with_six_digit_rounding_is_accepted() -> None:
+    c, s = np.cos(0.01), np.sin(0.01)
+    R = f"{c:.6f}, {-s:.6f}, 0., {s:.6f}, {c:.6f}, 0., 0., 0., 1."
+    assert parse_calibration(_yaml(override={"R": (3, 3, R)})).focal > 0
+
+
+def test_baseline_must_lie_along_x_after_rectification() -> None:
+    with pytest.raises(CalibrationError, match=r"baseline is not along x"):
+        parse_calibration(_yaml(override={"T": (3, 1, "-1., -5., 0.")}))
+    with pytest.raises(CalibrationError, match=r"right camera lies left of the left camera"):
+        parse_calibration(_yaml(override={"T": (3, 1, "5., 0., 0.")}))
+
+
+@pytest.mark.parametrize("size", ["480.5, 640", ".nan, 640", "480, .inf"])
+def test_image_size_must_be_finite_whole_numbers(size: str) -> None:
+    with pytest.raises(CalibrationError, match=r"ImageSize must be two finite whole numbers"):
+        parse_calibration(_yaml(override={"ImageSize": (1, 2, size)}))

@@ -40,7 +40,7 @@ def test_changing_n_ctrl_reruns_only_spline_refine_and_camera() -> None:
     assert all(run.cached for run in again.runs.values())
     changed = pipe.run(replace(params, spline=replace(params.spline, n_ctrl=12)))
     cached = {name: run.cached for name, run in changed.runs.items()}
-    assert cached == {name: name not in ("spline", "refine", "camera") for name in STAGES}
+    assert cached == {name: name not in ("spline", "refine", "camera", "check") for name in STAGES}
     assert changed["stereo"] is first["stereo"]
     sp = changed["spline"]
     # 12 control points: the 8 uniform spans of S_z (S_x, S_y may split some of them).

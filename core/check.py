@@ -1,0 +1,765 @@
+"""The check stage: the final curve held against the evidence it came from.
+
+A curve is never returned silently wrong: after the camera stage (Eq. (9)) the curve is
+projected back into both rectified views and compared with the segmented thread pixels P_L,
+P_R, its depths with the range the disparity search of Eq. (3) can produce, its length with the
+2D path and the depth span of the thread, and the MVS solution (Eq. (8)) with its bounds
+(Eq. (7)). Every finding is a reason in words; the status is the worst of them:
+
+- ``failed``: the curve cannot be right (non-finite, behind a camera, outside the depths the
+  disparity search allows, or far off the thread pixels);
+- ``suspect``: a measurement disagrees with the evidence by more than its threshold;
+- ``ok``: every measurement is within its threshold.
+
+The stage also gives a per-point confidence, a grasp point and an automatic quality score on
+the paper's 1-5 rating scale (Sec. IV-B: 1 very bad .. 5 very good, below 3 a failure).
+
+Per-point confidence. For each point i of the dense curve an expected 3D error is predicted
+from the evidence near it, in mm:
+
+    e_i = (Z_i^2 / (f B)) * sqrt(sigma_d^2 + r_i^2 + h_i^2) + (Z_i / f) * rho_i,
+
+with Z_i / f and Z_i^2 / (f B) the lateral and depth size of a pixel and of a pixel of
+disparity at the point's depth, r_i the disparity residual against the nearest reliable pixel
+of P_L^R (stretched when that pixel is far away), h_i the bound half-width of Eq. (7) in px of
+disparity, rho_i the larger of the two reprojection distances to the thread pixels, and sigma_d
+the matching precision (``sigma_disparity_px``). The confidence is exp(-e_i / ``conf_mm``).
+
+All image measurements use one distance transform per view of the thread masks (computed once
+per frame), so the stage costs a few milliseconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+from scipy.interpolate import BSpline
+from scipy.spatial import cKDTree
+
+from core.bounds import Bounds
+from core.calibration import StereoCalibration
+from core.camera import CameraCurve
+from core.ordering import Ordering
+from core.params import Params, param
+from core.reliability import ReliabilityResult
+from core.segmentation import LiftedPair
+from core.spline import SplineResult
+from core.stereo import StereoResult
+
+Status = Literal["ok", "suspect", "failed"]
+_RANK = {"ok": 0, "suspect": 1, "failed": 2}
+BAND_PX = 8  # band around the curve in which the thread width is measured, px
+_SCORE_STEPS = (1.0, 2.0, 4.0, 8.0)  # score 5..1 edges, in multiples of score_mm
+
+
+@dataclass(frozen=True)
+class CheckParams(Params):
+    """Thresholds of the check stage; each one's doc says what exceeding it means."""
+
+    reproj_mean_px: float = param(
+        2.0, lo=0.0, unit="px", slider=(0.5, 10.0, 0.1), label="max mean reprojection",
+        doc="Suspect when the mean distance of the projected curve to the thread pixels "
+        "exceeds this in either view.",
+    )  # fmt: skip
+    reproj_max_px: float = param(
+        8.0, lo=0.0, unit="px", slider=(1.0, 50.0, 0.5), label="max reprojection",
+        doc="Suspect when a projected curve point lies farther than this from the thread "
+        "pixels in either view.",
+    )  # fmt: skip
+    reproj_fail_px: float = param(
+        40.0, lo=0.0, unit="px", slider=(5.0, 200.0, 1.0), label="failed reprojection",
+        doc="Failed when a projected curve point lies farther than this from the thread pixels.",
+    )  # fmt: skip
+    coverage_min: float = param(
+        0.85, lo=0.0, hi=1.0, slider=(0.0, 1.0, 0.01), label="min coverage",
+        doc="Suspect when a smaller share of the thread pixels lies near the projected curve "
+        "(within cover_px plus the thread's half-width) in either view.",
+    )  # fmt: skip
+    cover_px: float = param(
+        3.0, lo=0.0, unit="px", slider=(0.0, 10.0, 0.5), label="coverage distance",
+        doc="A thread pixel is covered when the projected curve passes within this distance "
+        "plus the thread's half-width.",
+    )  # fmt: skip
+    min_disparity_px: float = param(
+        1.0, lo=0.0, unit="px", slider=(0.0, 10.0, 0.5), symbol="d_min",
+        label="smallest disparity",
+        doc="Smallest disparity a depth may have: the curve must lie between f B / alpha and "
+        "f B / d_min (Eq. (3) searches d = 0..alpha).",
+    )  # fmt: skip
+    disparity_tol_px: float = param(
+        0.5, lo=0.0, unit="px", slider=(0.0, 10.0, 0.5), label="disparity tolerance",
+        doc="Failed when the curve's disparity leaves [d_min, alpha] by more than this.",
+    )  # fmt: skip
+    length_tol: float = param(
+        0.25, lo=0.0, slider=(0.0, 2.0, 0.05), label="length tolerance",
+        doc="Suspect when the 3D length leaves [(1 - tol) L_min, (1 + tol) L_max], L_min = "
+        "s Z_lo / f and L_max = s Z_hi / f + depth_turns (Z_hi - Z_lo), s the 2D path length "
+        "in px and [Z_lo, Z_hi] the depth span of the bounds.",
+    )  # fmt: skip
+    depth_turns: float = param(
+        2.0, lo=0.0, slider=(0.0, 10.0, 0.5), label="depth turns",
+        doc="How many times the curve may traverse the depth span of the bounds (length test).",
+    )  # fmt: skip
+    bound_tol: float = param(
+        0.25, lo=0.0, slider=(0.0, 5.0, 0.05), label="bound excursion",
+        doc="Suspect when the curve leaves its depth bounds (Eq. (7)) by more than this "
+        "fraction of the local half-width.",
+    )  # fmt: skip
+    solver_suspect: bool = param(
+        True, label="solver failure is suspect",
+        doc="A rejected MVS solution (the initial spline is shown) makes the curve suspect.",
+    )  # fmt: skip
+    jump_px: float = param(
+        3.0, lo=0.0, unit="px", slider=(0.0, 20.0, 0.5), label="off-thread distance",
+        doc="A curve sample farther than this from the left thread pixels is off the thread.",
+    )  # fmt: skip
+    max_jump_px: float = param(
+        60.0, lo=0.0, unit="px", slider=(0.0, 200.0, 1.0), label="longest jump",
+        doc="Suspect when the curve crosses more than this length of unsegmented image "
+        "(left view) in one run.",
+    )  # fmt: skip
+    loop_px: float = param(
+        1.5, lo=0.0, unit="px", slider=(0.0, 10.0, 0.5), label="loop distance",
+        doc="Two curve samples this close in the left image, but far apart along the curve, "
+        "overlap.",
+    )  # fmt: skip
+    max_overlap_px: float = param(
+        25.0, lo=0.0, unit="px", slider=(0.0, 200.0, 1.0), label="longest overlap",
+        doc="Suspect when more than this length of the left projection runs over another part "
+        "of the curve (a loop or doubling back the pixels do not show; a crossing is short).",
+    )  # fmt: skip
+    sigma_disparity_px: float = param(
+        0.25, lo=0.0, unit="px", slider=(0.0, 2.0, 0.05), symbol="sigma_d",
+        label="matching precision",
+        doc="Disparity precision of a reliable match, for the per-point expected error.",
+    )  # fmt: skip
+    support_px: float = param(
+        10.0, lo=1.0, unit="px", slider=(1.0, 50.0, 1.0), label="support distance",
+        doc="Distance to the nearest reliable pixel at which its disparity counts one pixel "
+        "less (adds to the residual r_i).",
+    )  # fmt: skip
+    conf_mm: float = param(
+        2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
+        doc="Expected error at which the confidence is exp(-1).",
+    )  # fmt: skip
+    score_mm: float = param(
+        1.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="score scale",
+        doc="Quality score from the mean expected error e: 5 below 1x, 4 below 2x, 3 below "
+        "4x, 2 below 8x this, else 1; suspect curves score at most 2, failed ones 1.",
+    )  # fmt: skip
+    grasp_mm: float = param(
+        10.0, lo=0.0, unit="mm", slider=(0.0, 100.0, 1.0), label="grasp distance",
+        doc="Distance along the curve from the free end around which the grasp point lies.",
+    )  # fmt: skip
+    grasp_window_mm: float = param(
+        5.0, lo=0.0, unit="mm", slider=(0.0, 50.0, 0.5), label="grasp window",
+        doc="The grasp point is the most confident point within this distance of grasp_mm.",
+    )  # fmt: skip
+    free_end: Literal["auto", "start", "end"] = param(
+        "auto", label="free end",
+        doc="Which end of the curve is free: 'auto' excludes an end at the image border and "
+        "takes the more confident one.",
+    )  # fmt: skip
+    border_px: float = param(
+        5.0, lo=0.0, unit="px", slider=(0.0, 50.0, 1.0), label="border",
+        doc="An end closer than this to the image border (either view) is not the free end.",
+    )  # fmt: skip
+    max_unseen_px: float = param(
+        10.0, lo=0.0, unit="px", slider=(0.0, 200.0, 1.0), label="one-view stretch",
+        doc="Suspect when more than this 2D length (left view) of the curve projects outside "
+        "the right image: the depth there is not observed by the stereo pair.",
+    )  # fmt: skip
+    border_suspect: bool = param(
+        False, label="end at border is suspect",
+        doc="An end at the image border makes the curve suspect (the thread's length outside "
+        "the view is unknown). Off by default: threads in surgical views usually leave them.",
+    )  # fmt: skip
+    crossing_degree: int = param(
+        4, lo=3, slider=(3, 10, 1), label="crossing degree",
+        doc="A keypoint adjacent to at least this many keypoints in the graph A is a crossing "
+        "of the thread pixels (order and depth there are ambiguous between the strands).",
+    )  # fmt: skip
+    ambiguous_mm: float = param(
+        10.0, lo=0.0, unit="mm", slider=(0.0, 50.0, 0.5), label="ambiguous error",
+        doc="A curve point whose expected error e_i exceeds this is ambiguous.",
+    )  # fmt: skip
+    max_ambiguous_mm: float = param(
+        20.0, lo=0.0, unit="mm", slider=(0.0, 200.0, 1.0), label="ambiguous length",
+        doc="With a crossing of the thread pixels, suspect when more than this length of the "
+        "curve is ambiguous (the strands' depths were mixed up near the crossing).",
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class GraspPoint:
+    """``point``: (3,) left camera frame, calib units; ``tangent``: (3,) unit vector along the
+    curve (start -> end); ``index`` into ``CameraCurve.points``; ``confidence`` in [0, 1];
+    ``from_end``: "start" or "end", the end taken as free; ``distance``: arc length to it."""
+
+    point: np.ndarray
+    confidence: float
+    tangent: np.ndarray
+    index: int
+    from_end: str
+    distance: float
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """The check of one curve.
+
+    ``status``: "ok", "suspect" or "failed"; ``reasons``: every finding, in words.
+    ``confidence``: (N,) in [0, 1] per point of ``CameraCurve.points``; ``expected_error_mm``:
+    (N,) the predicted error e_i behind it (module docstring). ``grasp``: None when the curve
+    is not finite. ``score``: 1-5, the paper's rating scale.
+    Evidence: reprojection distances (px) of the curve to the thread pixels per view,
+    ``coverage_*`` the share of thread pixels near the projected curve, ``depth_range`` the
+    curve's (min, max) depth and ``depth_allowed`` the range f B / alpha .. f B / d_min,
+    ``length`` (calib units) and ``length_range`` the plausible [L_min, L_max],
+    ``path_px`` the 2D length of H, ``bound_excursion`` the largest excursion outside the depth
+    bounds (fraction of the half-width), ``solver_status`` the spline's, ``longest_jump_px``
+    the longest run of the left projection off the thread, ``overlap_px`` the length of the
+    left projection running over another part of the curve.
+    """
+
+    status: Status
+    reasons: tuple[str, ...]
+    confidence: np.ndarray
+    expected_error_mm: np.ndarray
+    grasp: GraspPoint | None
+    score: int
+    reproj_left_mean: float
+    reproj_left_max: float
+    reproj_right_mean: float
+    reproj_right_max: float
+    coverage_left: float
+    coverage_right: float
+    depth_range: tuple[float, float]
+    depth_allowed: tuple[float, float]
+    length: float
+    length_range: tuple[float, float]
+    path_px: float
+    bound_excursion: float
+    solver_status: str
+    longest_jump_px: float
+    overlap_px: float
+    crossings: int = 0
+    unseen_px: float = 0.0
+    ambiguous_mm: float = 0.0
+    ends_at_border: tuple[str, ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    @property
+    def message(self) -> str | None:
+        return "; ".join(self.reasons) if self.reasons else None
+
+    def evidence(self) -> dict[str, Any]:
+        """The measured evidence as plain values (for JSON, tables and exports)."""
+        return {
+            "reproj_left_mean_px": self.reproj_left_mean,
+            "reproj_left_max_px": self.reproj_left_max,
+            "reproj_right_mean_px": self.reproj_right_mean,
+            "reproj_right_max_px": self.reproj_right_max,
+            "coverage_left": self.coverage_left,
+            "coverage_right": self.coverage_right,
+            "depth_range": list(self.depth_range),
+            "depth_allowed": list(self.depth_allowed),
+            "length": self.length,
+            "length_range": list(self.length_range),
+            "path_px": self.path_px,
+            "bound_excursion": self.bound_excursion,
+            "solver_status": self.solver_status,
+            "longest_jump_px": self.longest_jump_px,
+            "overlap_px": self.overlap_px,
+            "crossings": self.crossings,
+            "unseen_px": self.unseen_px,
+            "ambiguous_mm": self.ambiguous_mm,
+            "ends_at_border": list(self.ends_at_border),
+        }
+
+
+def check_curve(
+    lifted: LiftedPair,
+    stereo: StereoResult,
+    rel: ReliabilityResult,
+    ordering: Ordering,
+    bounds: Bounds,
+    spline: SplineResult,
+    curve: CameraCurve,
+    calib: StereoCalibration,
+    p: CheckParams = CheckParams(),
+) -> CheckResult:
+    """Check the camera-frame curve against the images, the depth range and the bounds."""
+    with np.errstate(all="ignore"):  # a diverged curve overflows: it is reported, not warned
+        return _check(lifted, stereo, rel, ordering, bounds, spline, curve, calib, p)
+
+
+def _check(
+    lifted: LiftedPair,
+    stereo: StereoResult,
+    rel: ReliabilityResult,
+    ordering: Ordering,
+    bounds: Bounds,
+    spline: SplineResult,
+    curve: CameraCurve,
+    calib: StereoCalibration,
+    p: CheckParams,
+) -> CheckResult:
+    pts = np.asarray(curve.points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
+        raise ValueError(f"curve points must be (N >= 2, 3), got {pts.shape}")
+    n = len(pts)
+    f, B = calib.focal, calib.baseline
+    alpha = stereo.energy.shape[1] - 1
+    d_lo = p.min_disparity_px
+    z_allowed = (f * B / alpha, f * B / d_lo if d_lo > 0 else np.inf)
+    findings: list[tuple[Status, str]] = []
+    unit = calib.unit
+
+    if not np.all(np.isfinite(pts)):
+        bad = int(np.sum(~np.all(np.isfinite(pts), axis=1)))
+        return _failed_early(
+            f"the curve is not finite ({bad} of {n} points are NaN or infinite)",
+            n, z_allowed, spline, bounds,
+        )  # fmt: skip
+
+    # Depths: in front of both cameras and inside the range of the disparity search.
+    z = pts[:, 2]
+    depth_range = (float(z.min()), float(z.max()))
+    z_right = (np.column_stack([pts, np.ones(n)]) @ calib.P2.T)[:, 2]
+    if np.any(z <= 0) or np.any(z_right <= 0):
+        findings.append(
+            ("failed", f"{int(np.sum((z <= 0) | (z_right <= 0)))} of {n} points lie behind a "
+             f"camera (depth {depth_range[0]:.4g} to {depth_range[1]:.4g} {unit})")
+        )  # fmt: skip
+    else:
+        disp = f * B / z
+        tol = p.disparity_tol_px
+        if disp.max() > alpha + tol or disp.min() < d_lo - tol:
+            findings.append(
+                ("failed", f"depth {depth_range[0]:.4g} to {depth_range[1]:.4g} {unit} leaves "
+                 f"the range the disparity search allows ({z_allowed[0]:.4g} to "
+                 f"{z_allowed[1]:.4g} {unit}, disparity {d_lo:g}..{alpha} px)")
+            )  # fmt: skip
+
+    # Reprojection onto the thread pixels of both views (one distance transform per view);
+    # a point projecting outside a view cannot be seen there and is left out of its figures.
+    H, W = lifted.P_L.shape
+    uv_l = _project(pts, calib.P1)
+    uv_r = _project(pts, calib.P2)
+    in_l, in_r = _in_image(uv_l, (H, W)), _in_image(uv_r, (H, W))
+    margin = p.reproj_fail_px + 2.0
+    view_l = _view(lifted.P_L, uv_l, in_l, margin)
+    view_r = _view(lifted.P_R, uv_r, in_r, margin)
+    rho_l = _distance_to_mask(view_l, uv_l, margin)
+    rho_r = _distance_to_mask(view_r, uv_r, margin)
+    # Ordering anomalies (1): runs of the left projection across unsegmented pixels. A short
+    # run between two thread parts is a bridge (an occluded or unsegmented stretch) and is
+    # left out of the reprojection figures; a long one is a jump.
+    step = np.linalg.norm(np.diff(uv_l, axis=0), axis=1)
+    run_l, bridge_l = _off_thread_runs(in_l & (rho_l > p.jump_px), step)
+    step_r = np.linalg.norm(np.diff(uv_r, axis=0), axis=1)
+    run_r, bridge_r = _off_thread_runs(in_r & (rho_r > p.jump_px), step_r)
+    bridge_l &= run_l <= p.max_jump_px
+    bridge_r &= run_r <= p.max_jump_px
+    longest_jump = float(max(run_l.max(), run_r.max()))
+    if longest_jump > p.max_jump_px:
+        findings.append(
+            ("suspect", f"the curve runs {longest_jump:.0f} px across unsegmented pixels in "
+             f"one stretch (limit {p.max_jump_px:g} px)")
+        )  # fmt: skip
+    rep = []
+    views = (("left", rho_l, in_l & ~bridge_l), ("right", rho_r, in_r & ~bridge_r))
+    for side, rho, inside in views:
+        if inside.sum() < 2:
+            findings.append(("failed", f"the curve lies outside the {side} image"))
+            rep += [float("nan"), float("nan")]
+            continue
+        mean, mx = float(rho[inside].mean()), float(rho[inside].max())
+        rep += [mean, mx]
+        if mx > p.reproj_fail_px:
+            findings.append(
+                ("failed", f"the curve's {side} projection lies {_px(mx, margin)} from the "
+                 f"thread pixels (limit {p.reproj_fail_px:g} px)")
+            )  # fmt: skip
+        elif mean > p.reproj_mean_px or mx > p.reproj_max_px:
+            findings.append(
+                ("suspect", f"the curve's {side} projection lies {mean:.2f} px (mean) and up to "
+                 f"{mx:.1f} px from the thread pixels (limits {p.reproj_mean_px:g} / "
+                 f"{p.reproj_max_px:g} px)")
+            )  # fmt: skip
+
+    cov_l = _coverage(view_l, uv_l, in_l, p.cover_px)
+    cov_r = _coverage(view_r, uv_r, in_r, p.cover_px)
+    for side, cov in (("left", cov_l), ("right", cov_r)):
+        if cov < p.coverage_min:
+            findings.append(
+                ("suspect", f"the curve covers {100 * cov:.0f} % of the {side} thread pixels "
+                 f"(at least {100 * p.coverage_min:.0f} % expected)")
+            )  # fmt: skip
+    unseen_px = float(np.sum(np.where(in_l & ~in_r, np.r_[step, 0.0], 0.0)))
+    if unseen_px > p.max_unseen_px:
+        findings.append(
+            ("suspect", f"{unseen_px:.0f} px of the curve lie outside the right image: their "
+             f"depth is not observed (limit {p.max_unseen_px:g} px)")
+        )  # fmt: skip
+    at_border = tuple(
+        end for end, i in (("start", 0), ("end", -1))
+        if _border_distance(uv_l[i], uv_r[i], (H, W)) < p.border_px
+    )  # fmt: skip
+    for end in at_border if p.border_suspect else ():
+        findings.append(
+            ("suspect", f"the curve's {end} is at the image border: the thread may continue "
+             "outside the view, its length there is unknown")
+        )  # fmt: skip
+
+    # Length against the 2D path length and the depth span of the bounds.
+    path_px = float(bounds.s[-1])
+    z_lo = float(max(np.min(bounds.lower), z_allowed[0]))
+    z_hi = float(min(np.max(bounds.upper), z_allowed[1]))
+    L_min = path_px * z_lo / f
+    L_max = path_px * z_hi / f + p.depth_turns * max(z_hi - z_lo, 0.0)
+    length = float(curve.length)
+    if not (1 - p.length_tol) * L_min <= length <= (1 + p.length_tol) * L_max:
+        findings.append(
+            ("suspect", f"length {length:.4g} {unit} is implausible for a {path_px:.0f} px path "
+             f"at depths {z_lo:.4g} to {z_hi:.4g} {unit} (expected {L_min:.4g} to "
+             f"{L_max:.4g} {unit})")
+        )  # fmt: skip
+
+    # Bound excursions of the returned spline and the solver's status.
+    excursion = _excursion(spline, bounds)
+    if excursion > p.bound_tol:
+        findings.append(
+            ("suspect", f"the curve leaves its depth bounds by {excursion:.2f} of the bound "
+             f"half-width (limit {p.bound_tol:g})")
+        )  # fmt: skip
+    if not spline.ok and p.solver_suspect:
+        findings.append(
+            ("suspect", f"the MVS solver's result was rejected ({spline.status}: "
+             f"{spline.message}); the curve shown is the initial spline (fallback)")
+        )  # fmt: skip
+
+    # Ordering anomalies (2): crossings of the thread pixels, overlaps the pixels do not show.
+    K = ordering.n_clusters
+    degree = np.bincount(ordering.edges.ravel(), minlength=K) if ordering.edges.size else []
+    crossings = int(np.sum(np.asarray(degree) >= p.crossing_degree))
+    overlap = _overlap(uv_l, step, p.loop_px)
+    if overlap > p.max_overlap_px:
+        findings.append(
+            ("suspect", f"{overlap:.0f} px of the curve run over another part of it (a loop or "
+             f"doubling back the thread pixels do not show; limit {p.max_overlap_px:g} px)")
+        )  # fmt: skip
+
+    # Per-point expected error and confidence.
+    mm = calib.mm_per_unit
+    z_pos = np.maximum(z, 1e-12)
+    r = _disparity_residual(stereo, rel, uv_l, f * B / z_pos, p.support_px)
+    h = _bound_halfwidth_px(spline, bounds, n, f * B)
+    rho = np.maximum(np.where(bridge_l, 0.0, rho_l), np.where(in_r & ~bridge_r, rho_r, 0.0))
+    e = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h**2) + z_pos / f * rho
+    e_mm = e * mm
+    e_mm[(z <= 0) | (z_right <= 0)] = np.inf
+    conf = np.exp(-e_mm / p.conf_mm)
+
+    seg_mm = np.linalg.norm(np.diff(pts, axis=0), axis=1) * mm
+    ambiguous = float(np.sum(seg_mm * ((e_mm[1:] > p.ambiguous_mm) | (e_mm[:-1] > p.ambiguous_mm))))
+    if crossings and ambiguous > p.max_ambiguous_mm:
+        findings.append(
+            ("suspect", f"the thread pixels cross or branch at {crossings} keypoint(s) and "
+             f"{ambiguous:.0f} mm of the curve have an expected error above "
+             f"{p.ambiguous_mm:g} mm (limit {p.max_ambiguous_mm:g} mm): the strands' order or "
+             "depth may be mixed up")
+        )  # fmt: skip
+    status: Status = max((s for s, _ in findings), key=_RANK.__getitem__, default="ok")
+    score = _score(float(np.mean(np.minimum(e_mm, 1e6))), status, p.score_mm)
+    grasp = _grasp(pts, conf, uv_l, uv_r, (H, W), mm, p)
+    return CheckResult(
+        status=status,
+        reasons=tuple(msg for _, msg in sorted(findings, key=lambda x: -_RANK[x[0]])),
+        confidence=conf,
+        expected_error_mm=e_mm,
+        grasp=grasp,
+        score=score,
+        reproj_left_mean=rep[0],
+        reproj_left_max=rep[1],
+        reproj_right_mean=rep[2],
+        reproj_right_max=rep[3],
+        coverage_left=cov_l,
+        coverage_right=cov_r,
+        depth_range=depth_range,
+        depth_allowed=z_allowed,
+        length=length,
+        length_range=(L_min, L_max),
+        path_px=path_px,
+        bound_excursion=excursion,
+        solver_status=spline.status,
+        longest_jump_px=longest_jump,
+        overlap_px=overlap,
+        crossings=crossings,
+        unseen_px=unseen_px,
+        ambiguous_mm=ambiguous,
+        ends_at_border=at_border,
+    )
+
+
+def _failed_early(
+    reason: str, n: int, z_allowed: tuple[float, float], spline: SplineResult, bounds: Bounds
+) -> CheckResult:
+    nan = float("nan")
+    return CheckResult(
+        status="failed",
+        reasons=(reason,),
+        confidence=np.zeros(n),
+        expected_error_mm=np.full(n, np.inf),
+        grasp=None,
+        score=1,
+        reproj_left_mean=nan,
+        reproj_left_max=nan,
+        reproj_right_mean=nan,
+        reproj_right_max=nan,
+        coverage_left=0.0,
+        coverage_right=0.0,
+        depth_range=(nan, nan),
+        depth_allowed=z_allowed,
+        length=nan,
+        length_range=(nan, nan),
+        path_px=float(bounds.s[-1]),
+        bound_excursion=_excursion(spline, bounds),
+        solver_status=spline.status,
+        longest_jump_px=nan,
+        overlap_px=nan,
+    )
+
+
+def _px(v: float, margin: float) -> str:
+    return f"more than {margin:g} px" if v >= margin else f"up to {v:.1f} px"
+
+
+def _project(pts: np.ndarray, P: np.ndarray) -> np.ndarray:
+    h = np.column_stack([pts, np.ones(len(pts))]) @ P.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return h[:, :2] / h[:, 2:3]
+
+
+def _in_image(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    H, W = shape
+    with np.errstate(invalid="ignore"):
+        return (uv[:, 0] > -0.5) & (uv[:, 0] < W - 0.5) & (uv[:, 1] > -0.5) & (uv[:, 1] < H - 0.5)
+
+
+def _border_distance(a: np.ndarray, b: np.ndarray, shape: tuple[int, int]) -> float:
+    """Smallest distance (px) of two image points to the image border (negative outside)."""
+    H, W = shape
+    xs, ys = np.array([a[0], b[0]]), np.array([a[1], b[1]])
+    d = min(xs.min(), ys.min(), W - 1 - xs.max(), H - 1 - ys.max())
+    return float(d) if np.isfinite(d) else -np.inf
+
+
+@dataclass(frozen=True)
+class _View:
+    """One view's thread mask cropped to the box of the mask and the curve, grown by a
+    margin: every image measurement of the stage works on this crop."""
+
+    mask: np.ndarray
+    x0: int
+    y0: int
+    total: int
+
+
+def _view(mask: np.ndarray, uv: np.ndarray, inside: np.ndarray, margin: float) -> _View:
+    H, W = mask.shape
+    m8 = np.ascontiguousarray(mask).view(np.uint8)
+    total = cv2.countNonZero(m8)
+    bx, by, bw, bh = cv2.boundingRect(m8)  # box of the thread pixels
+    q = np.rint(uv[inside]) if inside.any() else np.zeros((0, 2))
+    xa = np.concatenate([[bx, bx + bw - 1] if total else [], q[:, 0]])
+    ya = np.concatenate([[by, by + bh - 1] if total else [], q[:, 1]])
+    if xa.size == 0:
+        return _View(mask[:0, :0], 0, 0, 0)
+    m = int(np.ceil(margin))
+    x0, x1 = max(0, int(xa.min()) - m), min(W, int(xa.max()) + m + 1)
+    y0, y1 = max(0, int(ya.min()) - m), min(H, int(ya.max()) + m + 1)
+    return _View(mask[y0:y1, x0:x1], x0, y0, int(total))
+
+
+def _distance_to_mask(v: _View, uv: np.ndarray, margin: float) -> np.ndarray:
+    """Distance (px) of each (x, y) to the nearest thread pixel, saturated at ``margin``.
+
+    One distance transform (3x3 L2 mask, error < 3 %) of the crop: as the crop holds every
+    in-image point grown by ``margin``, distances below ``margin`` are those of the full image;
+    an off-image point adds its distance to the nearest in-image pixel."""
+    out = np.full(len(uv), margin)
+    ok = np.all(np.isfinite(uv), axis=1)
+    if v.total == 0 or not ok.any():
+        return out
+    h, w = v.mask.shape
+    q = np.rint(uv[ok]) - [v.x0, v.y0]
+    qc = np.clip(q, 0, [w - 1, h - 1])
+    background = cv2.compare(np.ascontiguousarray(v.mask).view(np.uint8), 0, cv2.CMP_EQ)
+    dt = cv2.distanceTransform(background, cv2.DIST_L2, cv2.DIST_MASK_3)
+    qi = qc.astype(np.intp)
+    off = np.hypot(*(uv[ok] - [v.x0, v.y0] - qc).T)  # beyond the crop (off the image), px
+    out[ok] = np.minimum(dt[qi[:, 1], qi[:, 0]] + off, margin)
+    return out
+
+
+def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> float:
+    """Share of thread pixels within ``cover_px`` + the thread's half-width of the curve.
+
+    The half-width is the thread area in a band around the curve divided by twice the curve's
+    2D length (a wrong curve over background gets a thin band: stricter, never looser)."""
+    if inside.sum() < 2 or v.total == 0:
+        return 0.0
+    xy = uv[inside] - [v.x0, v.y0]
+    poly = np.rint(xy * 4).astype(np.int32).reshape(-1, 1, 2)  # 2 fractional bits
+    mask = v.mask.view(np.uint8)
+    band = np.zeros(mask.shape, np.uint8)
+    cv2.polylines(band, [poly], False, 1, 2 * BAND_PX + 1, cv2.LINE_8, 2)
+    length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
+    half = min(0.5 * float(np.count_nonzero(band & mask)) / max(length, 1.0), BAND_PX)
+    reach = int(np.ceil(cover_px + half))
+    band[:] = 0
+    cv2.polylines(band, [poly], False, 1, 2 * reach + 1, cv2.LINE_8, 2)
+    return float(np.count_nonzero(band & mask)) / v.total
+
+
+def _excursion(spline: SplineResult, bounds: Bounds) -> float:
+    """Largest excursion of S_z outside [lower, upper] at the points of H, in half-widths."""
+    zs = BSpline(spline.knots, spline.ctrl[:, 2], spline.degree)(spline.u_H)
+    half = np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12)
+    out = np.maximum(bounds.lower - zs, zs - bounds.upper) / half
+    if not np.all(np.isfinite(out)):
+        return float("inf")
+    return float(max(0.0, out.max()))
+
+
+def _off_thread_runs(off: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Runs of consecutive off-thread samples: per sample its run's 2D length (px, including
+    the steps onto and off the thread; 0 on the thread) and whether the run is a bridge (both
+    of its ends on the thread, i.e. not at an end of the curve)."""
+    n = len(off)
+    if not off.any():
+        return np.zeros(n), np.zeros(n, dtype=bool)
+    start = off & ~np.concatenate([[False], off[:-1]])
+    run = np.where(off, np.cumsum(start) - 1, -1)
+    # a step belongs to a run when either of its samples does (entering, inside, leaving)
+    step_run = np.maximum(run[1:], run[:-1])
+    k = int(run.max()) + 1
+    length = np.bincount(step_run[step_run >= 0], weights=step[step_run >= 0], minlength=k)
+    at_end = np.zeros(k, dtype=bool)
+    at_end[run[[0, -1]][run[[0, -1]] >= 0]] = True
+    return np.where(off, length[run], 0.0), off & ~at_end[run]
+
+
+def _overlap(uv: np.ndarray, step: np.ndarray, loop_px: float) -> float:
+    """2D length (px) of the curve lying within ``loop_px`` of a part of the curve more than
+    ``pi * loop_px`` + 3 px away along it (a crossing contributes a few px)."""
+    ok = np.all(np.isfinite(uv), axis=1)
+    if ok.sum() < 3 or loop_px <= 0:
+        return 0.0
+    s = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))])
+    idx = np.flatnonzero(ok)
+    pairs = cKDTree(uv[ok]).query_pairs(loop_px, output_type="ndarray")
+    if pairs.size == 0:
+        return 0.0
+    a, b = idx[pairs[:, 0]], idx[pairs[:, 1]]
+    far = np.abs(s[a] - s[b]) > np.pi * loop_px + 3.0
+    hit = np.zeros(len(uv), dtype=bool)
+    hit[a[far]] = True
+    hit[b[far]] = True
+    seg = np.where(np.isfinite(step), step, 0.0)
+    return float(0.5 * np.sum(seg * (hit[1:] & hit[:-1])))
+
+
+def _disparity_residual(
+    stereo: StereoResult,
+    rel: ReliabilityResult,
+    uv_l: np.ndarray,
+    disp_curve: np.ndarray,
+    support_px: float,
+) -> np.ndarray:
+    """|curve disparity - disparity of the nearest reliable pixel| + distance / support_px."""
+    sel = np.flatnonzero(rel.reliable)
+    if sel.size == 0:
+        return np.full(len(uv_l), 1e3)
+    ok = np.all(np.isfinite(uv_l), axis=1)
+    q = np.where(ok[:, None], uv_l, 0.0)
+    dist, j = cKDTree(stereo.pixels[sel].astype(np.float64)).query(q)
+    r = np.abs(disp_curve - stereo.disparity[sel][j]) + dist / support_px
+    return np.where(ok & np.isfinite(r), r, 1e3)
+
+
+def _bound_halfwidth_px(spline: SplineResult, bounds: Bounds, n: int, fB: float) -> np.ndarray:
+    """Bound half-width of Eq. (7) at each curve point, in px of disparity (|dd/dz| = fB/z^2)."""
+    u = np.linspace(0.0, 1.0, n)
+    uh = spline.u_H / spline.length if spline.length > 0 else np.linspace(0, 1, len(spline.u_H))
+    half = np.interp(u, uh, 0.5 * (bounds.upper - bounds.lower))
+    centre = np.maximum(np.interp(u, uh, bounds.centre), 1e-12)
+    return half * fB / centre**2
+
+
+def _score(mean_error_mm: float, status: Status, score_mm: float) -> int:
+    """The paper's 1-5 rating from the mean expected error, capped by the status."""
+    score = 5 - int(np.searchsorted(np.array(_SCORE_STEPS) * score_mm, mean_error_mm))
+    if status == "failed":
+        return 1
+    if status == "suspect":
+        return min(score, 2)
+    return max(1, score)
+
+
+def _grasp(
+    pts: np.ndarray,
+    conf: np.ndarray,
+    uv_l: np.ndarray,
+    uv_r: np.ndarray,
+    shape: tuple[int, int],
+    mm: float,
+    p: CheckParams,
+) -> GraspPoint | None:
+    """The most confident point within ``grasp_window_mm`` of ``grasp_mm`` from the free end."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))]) * mm
+    if not np.isfinite(s[-1]):
+        return None
+    from_start, from_end = s, s[-1] - s
+    lo, hi = p.grasp_mm - p.grasp_window_mm, p.grasp_mm + p.grasp_window_mm
+    near = {
+        "start": (from_start >= lo) & (from_start <= hi),
+        "end": (from_end >= lo) & (from_end <= hi),
+    }
+    if p.free_end == "auto":
+        H, W = shape
+        at_border = {}
+        for end, i in (("start", 0), ("end", -1)):
+            xs = np.array([uv_l[i, 0], uv_r[i, 0]])
+            ys = np.array([uv_l[i, 1], uv_r[i, 1]])
+            m = min(xs.min(), ys.min(), W - 1 - xs.max(), H - 1 - ys.max())
+            at_border[end] = not (m >= p.border_px)
+        ends = [e for e in ("start", "end") if not at_border[e]] or ["start", "end"]
+        best = max(ends, key=lambda e: float(conf[near[e]].mean()) if near[e].any() else -1.0)
+    else:
+        best = p.free_end
+    cand = np.flatnonzero(near[best])
+    if cand.size == 0:  # a curve shorter than the grasp distance: its far end
+        dist = from_start if best == "start" else from_end
+        cand = np.array([int(np.argmin(np.abs(dist - p.grasp_mm)))])
+    i = int(cand[np.argmax(conf[cand])])
+    tangent = np.gradient(pts, axis=0)[i]
+    norm = np.linalg.norm(tangent)
+    tangent = tangent / norm if norm > 0 else np.zeros(3)
+    dist = from_start if best == "start" else from_end
+    return GraspPoint(
+        point=pts[i].copy(),
+        confidence=float(conf[i]),
+        tangent=tangent,
+        index=i,
+        from_end=best,
+        distance=float(dist[i] / mm),
+    )

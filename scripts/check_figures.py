@@ -1,0 +1,193 @@
+"""Figures of the check stage (issue 11) on dataset folders with 3D ground truth.
+
+    python scripts/check_figures.py DATASET [DATASET ...] [--csv rows.csv] [--params preset]
+
+For every frame: the check's status against the truth ("wrong": |length error| > 20 mm or
+max curve error > 20 mm), the rank correlation of per-point confidence with the true 3D error
+of each point, the grasp point's true error, the score against e_S, and the check's time.
+Frames without ground truth (real) only count towards the status table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.stats import spearmanr
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from app.dataset import discover, load_frame  # noqa: E402
+from app.presets import resolve_preset  # noqa: E402
+from core.check import check_curve  # noqa: E402
+from core.metrics import curve_errors, resample  # noqa: E402
+from core.pipeline import Pipeline  # noqa: E402
+
+WRONG_MM = 20.0  # the issue's "wrong": length or max curve error above 2 cm
+
+
+def frame_rows(root: str, params, point_sets: list) -> list[dict]:
+    rows = []
+    for frame in discover(root):
+        row: dict = {"dataset": root, "frame": frame.id, "kind": frame.kind}
+        try:
+            pair, calib, gt = load_frame(frame)
+            rec = Pipeline(pair, calib).run(params)
+        except Exception as exc:  # noqa: BLE001 - a frame that cannot load is reported
+            row.update(status="failed", reasons=f"load: {exc}", wrong=True, has_curve=False)
+            rows.append(row)
+            continue
+        row.update(status=rec.status, reasons=rec.message or "")
+        row["has_curve"] = "check" in rec.runs
+        if "check" in rec.runs:
+            chk = rec["check"]
+            row.update(score=chk.score, ms_check=rec.runs["check"].ms, **_flat(chk.evidence()))
+            row["cpu_ms_check"] = _cpu_ms(rec, calib, params)
+            e_mm = np.minimum(chk.expected_error_mm, 1e6)
+            row.update(exp_mean=float(e_mm.mean()), exp_p90=float(np.percentile(e_mm, 90)))
+            row["exp_max"] = float(e_mm.max())
+        if gt is None:
+            row["wrong"] = math.nan
+            rows.append(row)
+            continue
+        if not row["has_curve"] or not np.all(np.isfinite(rec["camera"].points)):
+            row.update(wrong=True, e_S=math.inf, e_S_max=math.inf, e_length=math.inf)
+            rows.append(row)
+            continue
+        mm = calib.mm_per_unit
+        pts = rec["camera"].points * mm
+        e = curve_errors(pts, gt * mm)
+        row.update(e_S=e.e_S, e_S_max=e.e_S_max, e_length=e.e_length)
+        row["wrong"] = bool(e.e_length > WRONG_MM or e.e_S_max > WRONG_MM)
+        tree = cKDTree(resample(gt * mm, 20000))
+        err_pts = tree.query(pts)[0]
+        chk = rec["check"]
+        point_sets.append((frame.id, chk.confidence, err_pts, root))
+        if chk.grasp is not None:
+            row["grasp_error_mm"] = float(tree.query(chk.grasp.point * mm)[0])
+            row["grasp_conf"] = chk.grasp.confidence
+        rho = spearmanr(chk.confidence, err_pts)[0]
+        row["conf_rho"] = float(rho) if np.isfinite(rho) else math.nan
+        rows.append(row)
+    return rows
+
+
+def _cpu_ms(rec, calib, params) -> float:
+    """CPU time of the check stage (best of 3): wall time is meaningless on a loaded machine."""
+    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds")]
+    best = math.inf
+    for _ in range(3):
+        t0 = time.thread_time()
+        check_curve(*args, rec["spline"], rec["camera"], calib, params.check)
+        best = min(best, time.thread_time() - t0)
+    return 1000.0 * best
+
+
+def _flat(ev: dict) -> dict:
+    out = {}
+    for k, v in ev.items():
+        if isinstance(v, list) and len(v) == 2 and all(isinstance(x, float) for x in v):
+            out[f"{k}_lo"], out[f"{k}_hi"] = v
+        elif isinstance(v, list):
+            out[k] = " ".join(map(str, v))
+        else:
+            out[k] = v
+    return out
+
+
+def report(rows: list[dict], point_sets: list, label: str) -> None:
+    gt_rows = [r for r in rows if r.get("wrong") in (True, False)]
+    n = len(rows)
+    by = {s: sum(r["status"] == s for r in rows) for s in ("ok", "suspect", "failed")}
+    ok_wrong = [r for r in gt_rows if r["status"] == "ok" and r["wrong"]]
+    flagged = [r for r in gt_rows if r["status"] != "ok"]
+    flagged_wrong = [r for r in flagged if r["wrong"]]
+    wrong = [r for r in gt_rows if r["wrong"]]
+    print(f"== {label}: {n} frames ({len(gt_rows)} with ground truth)")
+    print(f"  status: ok {by['ok']}, suspect {by['suspect']}, failed {by['failed']}")
+    print(f"  wrong (|e_l| or e_S_max > {WRONG_MM:g} mm): {len(wrong)}")
+    print(f"  ok and wrong: {len(ok_wrong)}  {[r['frame'] for r in ok_wrong]}")
+    prec = len(flagged_wrong) / len(flagged) if flagged else math.nan
+    print(
+        f"  flagged (suspect/failed) with ground truth: {len(flagged)}, really wrong "
+        f"{len(flagged_wrong)} ({100 * prec:.0f} %)"
+    )
+    for r in flagged:
+        if not r["wrong"]:
+            print(
+                f"    flagged but right: {r['frame']} e_l {r.get('e_length', math.nan):.1f} "
+                f"e_S_max {r.get('e_S_max', math.nan):.1f}: {r['reasons']}"
+            )
+    sets = [s for s in point_sets if s[3] in {r["dataset"] for r in rows}]
+    if sets:
+        conf = np.concatenate([s[1] for s in sets])
+        err = np.concatenate([s[2] for s in sets])
+        ok_ids = {r["frame"] for r in gt_rows if r["status"] == "ok"}
+        ok_sets = [s for s in sets if s[0] in ok_ids]
+        per = [r["conf_rho"] for r in gt_rows if np.isfinite(r.get("conf_rho", math.nan))]
+        print(
+            f"  confidence vs point error, Spearman: pooled {spearmanr(conf, err)[0]:.3f}, "
+            f"median per frame {np.median(per):.3f}"
+        )
+        if ok_sets:
+            c2 = np.concatenate([s[1] for s in ok_sets])
+            e2 = np.concatenate([s[2] for s in ok_sets])
+            print(f"    pooled over ok frames only: {spearmanr(c2, e2)[0]:.3f}")
+    g = np.array([r["grasp_error_mm"] for r in gt_rows if "grasp_error_mm" in r])
+    g_ok = np.array(
+        [r["grasp_error_mm"] for r in gt_rows if "grasp_error_mm" in r and r["status"] == "ok"]
+    )
+    if g.size:
+        print(
+            f"  grasp point true error mm: median {np.median(g):.2f} (all), "
+            f"{np.median(g_ok) if g_ok.size else math.nan:.2f} (ok frames), p90 "
+            f"{np.percentile(g, 90):.2f}"
+        )
+    sc = [(r["score"], r["e_S"]) for r in gt_rows if "score" in r]
+    if len(sc) > 2:
+        s, e = np.array(sc, dtype=float).T
+        e = np.where(np.isfinite(e), e, 1e9)
+        print(f"  score vs e_S, Spearman: {spearmanr(s, e)[0]:.3f} (negative = agrees)")
+    ms = [r["ms_check"] for r in rows if "ms_check" in r]
+    cpu = [r["cpu_ms_check"] for r in rows if "cpu_ms_check" in r]
+    if ms:
+        print(
+            f"  check stage: CPU ms median {np.median(cpu):.2f}, p90 {np.percentile(cpu, 90):.2f}; "
+            f"wall ms median {np.median(ms):.2f}"
+        )
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("datasets", nargs="+")
+    ap.add_argument("--config", default=None, help="preset name or path")
+    ap.add_argument("--csv", default=None, help="write one row per frame")
+    args = ap.parse_args()
+    params = resolve_preset(args.config)
+    all_rows: list[dict] = []
+    point_sets: list = []
+    for root in args.datasets:
+        rows = frame_rows(root, params, point_sets)
+        report(rows, point_sets, root)
+        all_rows += rows
+    if len(args.datasets) > 1:
+        report(all_rows, point_sets, "all")
+    if args.csv:
+        keys: list[str] = []
+        for r in all_rows:
+            keys += [k for k in r if k not in keys]
+        with open(args.csv, "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=keys)
+            w.writeheader()
+            w.writerows(all_rows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
