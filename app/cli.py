@@ -16,7 +16,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from app.dataset import discover, load_frame
-from app.evaluation import evaluate_frame, summarise, write_csv
+from app.distributed import connect, describe, evaluate_frames
+from app.evaluation import summarise, write_csv
 from app.io import load_calibration, load_pair
 from app.presets import resolve_preset
 from core.pipeline import STAGES, Pipeline, Reconstruction
@@ -76,6 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument(
         "--save-predictions", metavar="DIR", help="write each frame's reconstruction JSON here"
     )
+    _add_dask_arguments(e, default_help="default: in this process, one frame after another")
     e.set_defaults(func=cmd_evaluate)
 
     b = sub.add_parser("bench", help="per-stage timings (median, p90) over a dataset")
@@ -88,6 +90,52 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--config", help="preset name or path")
     b.add_argument("--repeat", type=int, default=3, help="runs per frame (the fastest counts)")
     b.set_defaults(func=cmd_bench)
+
+    t = sub.add_parser(
+        "tune",
+        help="grid or search (Optuna TPE) over parameters of the stage table, frames on Dask",
+        description="Tune parameters on a dataset: every trial on every frame, kept in a store "
+        "that survives a kill (run the same command again to resume).",
+    )
+    t.add_argument("dataset", help="folder with simulated/ and/or real/")
+    t.add_argument(
+        "--space", required=True, help="TOML: [stage] name = [choices] or {low, high[, step]}"
+    )
+    t.add_argument(
+        "--objective",
+        action="append",
+        metavar="NAME",
+        help="e_S, reprojection, coverage, failure_rate or time; repeat for several (the first "
+        "picks the best trial; default e_S)",
+    )
+    t.add_argument(
+        "--constraint",
+        action="append",
+        metavar="EXPR",
+        help="e.g. 'failure_rate<=0.02' or 'time<=80'; repeatable (default: failure_rate<=0.02)",
+    )
+    t.add_argument("--grid", action="store_true", help="every point of the space's grid, in order")
+    t.add_argument(
+        "--trials", type=int, help="trials in the store when done (default: 50, grid: its size)"
+    )
+    t.add_argument(
+        "--holdout",
+        type=float,
+        default=0.0,
+        help="fraction of frames held back from tuning; best and base are compared on them",
+    )
+    t.add_argument("--seed", type=int, default=0, help="sampler and frame-order seed (default 0)")
+    t.add_argument(
+        "--rungs", type=int, default=4, help="parts of the frames after which a trial may be pruned"
+    )
+    t.add_argument("--no-prune", action="store_true", help="evaluate every trial on every frame")
+    t.add_argument("--config", help="base preset the space varies (default: the defaults)")
+    t.add_argument("--store", required=True, help="folder of the trial store (created; resumable)")
+    t.add_argument("--save-preset", metavar="DIR", help="save the best setting as a preset here")
+    t.add_argument("--preset-name", help="its name (default: tuned-<hash of the setting>)")
+    t.add_argument("--force", action="store_true", help="replace an existing preset of that name")
+    _add_dask_arguments(t, default_help="default: one process per CPU")
+    t.set_defaults(func=cmd_tune)
 
     v = sub.add_parser("serve", help="start the browser debugger on a data folder")
     v.add_argument(
@@ -201,17 +249,34 @@ def _progress(i: int, n: int, label: str) -> None:
     sys.stderr.flush()
 
 
+def _add_dask_arguments(p: argparse.ArgumentParser, default_help: str) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run frames on an existing Dask cluster (`dask scheduler`), e.g. tcp://host:8786",
+    )
+    g.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help=f"run frames on a local Dask cluster of N processes (0: in this process; {default_help})",
+    )
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     params = resolve_preset(args.config)
     frames = discover(args.dataset)
-    rows = []
-    for i, frame in enumerate(frames):
-        _progress(i, len(frames), frame.id)
-        row, rec = evaluate_frame(frame, params)
-        rows.append(row)
-        if args.save_predictions and rec is not None:
-            _write_json(Path(args.save_predictions) / f"{frame.id}.json", reconstruction_json(rec))
-    _progress(len(frames), len(frames), "done")
+    workers = 0 if args.workers is None and args.scheduler is None else args.workers
+    rows: list[dict[str, Any] | None] = [None] * len(frames)
+    keep = bool(args.save_predictions)
+    with connect(args.scheduler, workers) as client:
+        for i, row, rec in evaluate_frames(client, frames, params, keep, _progress):
+            rows[i] = row
+            if keep and rec is not None:
+                path = Path(args.save_predictions) / f"{frames[i].id}.json"
+                _write_json(path, reconstruction_json(rec))
+    rows = [r for r in rows if r is not None]
     if args.out:
         write_csv(Path(args.out), rows)
     for line in summarise(rows):
@@ -221,6 +286,60 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(f"threadrecon: {failed} of {len(rows)} frames failed", file=sys.stderr)
         return 1
     return 0
+
+
+# --- tune --------------------------------------------------------------------------------
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    from app import tune
+
+    cfg = tune.TuneConfig(
+        dataset=args.dataset,
+        space=tune.load_space(args.space),
+        objectives=tuple(args.objective or ("e_S",)),
+        constraints=tuple(
+            tune.Constraint.parse(c) for c in (args.constraint or tune.DEFAULT_CONSTRAINTS)
+        ),
+        mode="grid" if args.grid else "search",
+        trials=args.trials,
+        holdout=args.holdout,
+        seed=args.seed,
+        rungs=args.rungs,
+        prune=not args.no_prune,
+        base=resolve_preset(args.config),
+    )
+    t0 = time.perf_counter()
+    with connect(args.scheduler, args.workers) as client:
+        print(f"threadrecon tune: {describe(client)}")
+        result = tune.tune(cfg, args.store, client)
+        wall = time.perf_counter() - t0
+        n = len(result.trials)
+        print(f"{n} trials in {args.store} ({wall:.1f} s this run)")
+        if result.best is None:
+            print("threadrecon: no feasible trial", file=sys.stderr)
+            return 1
+        print(
+            f"best: trial {result.best.number}: "
+            + ", ".join(f"{k}={v}" for k, v in result.best.values.items())
+        )
+        _print_metrics({"best (tuning frames)": result.best.objectives})
+        _, held = tune.split_frames(discover(args.dataset), args.holdout)
+        if held:
+            cmp = tune.compare_on(held, {"base": cfg.base, "best": result.best_params}, client)
+            print(f"held-back frames ({len(held)}):")
+            _print_metrics(cmp)
+    if args.save_preset:
+        path = tune.save_best(result, Path(args.save_preset), args.preset_name, args.force)
+        print(f"preset -> {path}")
+    return 0
+
+
+def _print_metrics(table: dict[str, dict[str, float]]) -> None:
+    names = ("e_S", "reprojection", "coverage", "failure_rate", "time")
+    print(f"  {'':<22}" + "".join(f"{n:>14}" for n in names))
+    for label, m in table.items():
+        print(f"  {label:<22}" + "".join(f"{m.get(n, math.nan):14.4g}" for n in names))
 
 
 # --- serve -------------------------------------------------------------------------------
