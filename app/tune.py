@@ -445,9 +445,6 @@ class TuneResult:
     best: TrialResult | None
     best_params: ReconParams | None
     store: Path
-    holdout: dict[str, dict[str, float]] = field(default_factory=dict)
-    """On the held-back frames: {"default": metrics, "best": metrics} (empty without holdout)."""
-    preset: Path | None = None
 
 
 STUDY_NAME = "threadrecon"
