@@ -309,13 +309,13 @@ def cmd_tune(args: argparse.Namespace) -> int:
         prune=not args.no_prune,
         base=resolve_preset(args.config),
     )
-    t0 = time.perf_counter()
     with connect(args.scheduler, args.workers) as client:
         print(f"threadrecon tune: {describe(client)}")
+        t0 = time.perf_counter()
         result = tune.tune(cfg, args.store, client)
         wall = time.perf_counter() - t0
         n = len(result.trials)
-        print(f"{n} trials in {args.store} ({wall:.1f} s this run)")
+        print(f"{n} trials in {args.store} ({wall:.1f} s of trials in this run)")
         if result.best is None:
             print("threadrecon: no feasible trial", file=sys.stderr)
             return 1
