@@ -78,7 +78,7 @@ def connect(
             processes=True,
             host="127.0.0.1",
             dashboard_address="127.0.0.1:0",  # any free port, loopback: not the shared 8787
-            silence_logs=40,  # errors only
+            silence_logs=50,  # task errors reach the caller; shutdown chatter does not
         ) as cluster,
         Client(cluster) as client,
     ):

@@ -448,6 +448,7 @@ class TuneResult:
 
 
 STUDY_NAME = "threadrecon"
+INTERRUPTED = "interrupted; run again"  # the error of a trial cut short by a kill
 _STORE_DB = "study.sqlite3"
 
 
@@ -513,15 +514,19 @@ def _finished(study: Any) -> list[Any]:
     ]
 
 
-def _recover(study: Any) -> int:
-    """A trial left running by a killed tuner is marked failed and queued again; returns how many."""
+def _recover(study: Any, cfg: TuneConfig) -> int:
+    """A trial left running by a killed tuner is marked failed (and left out of every report);
+    a search queues its setting again, a grid finds the point still to do by itself. Returns
+    how many there were."""
     from optuna.trial import TrialState
 
     stale = [t for t in study.get_trials(deepcopy=False) if t.state == TrialState.RUNNING]
     for t in stale:
-        study._storage.set_trial_user_attr(t._trial_id, "error", "interrupted; run again")
+        study._storage.set_trial_user_attr(t._trial_id, "error", INTERRUPTED)
         study._storage.set_trial_state_values(t._trial_id, TrialState.FAIL)
-        study.enqueue_trial(t.params, user_attrs={"requeued_from": t.number})
+        # killed inside ask(), a trial may hold only some of its values: nothing to repeat
+        if cfg.mode == "search" and set(t.params) == set(cfg.space.keys()):
+            study.enqueue_trial(t.params, user_attrs={"requeued_from": t.number})
     return len(stale)
 
 
@@ -551,7 +556,7 @@ def tune(
     with _locked(store):
         _check_identity(store, cfg)
         study = open_study(store, cfg)
-        n_stale = _recover(study)
+        n_stale = _recover(study, cfg)
         if n_stale:
             log(f"resuming: {n_stale} interrupted trial(s) will run again")
         done = [t for t in _finished(study) if not _interrupted(t)]
@@ -615,7 +620,7 @@ def tune(
 
 
 def _interrupted(t: Any) -> bool:
-    return t.user_attrs.get("error") == "interrupted; run again"
+    return t.user_attrs.get("error") == INTERRUPTED
 
 
 def _has_waiting(study: Any) -> bool:

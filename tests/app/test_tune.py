@@ -328,3 +328,31 @@ def test_default_params_are_the_base_of_every_trial() -> None:
     assert params_of({}) == ReconParams()
     p = params_of({"stereo.window": 7}, base=params_of({"spline.n_ctrl": 9}))
     assert (p.stereo.window, p.spline.n_ctrl) == (7, 9)
+
+
+def test_several_objectives_are_kept_per_trial_and_the_first_picks_the_best(
+    dataset: Path, tmp_path: Path
+) -> None:
+    cfg = replace(_grid_cfg(dataset, trials=2), objectives=("reprojection", "coverage"), prune=True)
+    result = tune(cfg, tmp_path / "store", log=lambda _: None)
+    study = open_study(tmp_path / "store", cfg, create=False)
+    assert [d.name for d in study.directions] == ["MINIMIZE", "MAXIMIZE"]
+    assert [t.values for t in study.trials] == [
+        [t.objectives["reprojection"], t.objectives["coverage"]] for t in result.trials
+    ]
+    assert result.best is min(result.trials, key=lambda t: t.objectives["reprojection"])
+
+
+def test_a_trial_cut_short_inside_ask_leaves_no_duplicate_grid_point(
+    dataset: Path, tmp_path: Path
+) -> None:
+    cfg = _grid_cfg(dataset, trials=3)
+    store = tmp_path / "store"
+    tune(replace(cfg, trials=1), store, log=lambda _: None)
+    study = open_study(store, cfg)
+    study.ask()  # a kill inside ask(): a running trial without its values
+    study.ask({"reliability.threshold": cfg.space.dims[0].distribution()})  # with some of them
+    lines: list[str] = []
+    result = tune(cfg, store, log=lines.append)
+    assert "resuming: 2 interrupted trial(s) will run again" in lines
+    assert [t.values for t in result.trials] == cfg.space.grid()[:3]
