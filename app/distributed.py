@@ -20,6 +20,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
+import cv2
 from threadpoolctl import threadpool_limits
 
 from app.dataset import Frame
@@ -41,8 +42,15 @@ def evaluate_task(
     frame: Frame, params: ReconParams, keep: bool = False
 ) -> tuple[dict[str, Any], Reconstruction | None]:
     """One frame's evaluation row (and its reconstruction with ``keep``), as run by a worker."""
-    with threadpool_limits(limits=1, user_api="blas"):  # same arithmetic on every worker
-        row, rec = evaluate_frame(frame, params)
+    cv_threads = cv2.getNumThreads()
+    # one thread per task: the workers are the parallelism (OpenCV's own pool on every worker
+    # oversubscribed the cores), and BLAS gives the same arithmetic on every worker
+    cv2.setNumThreads(1)
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):
+            row, rec = evaluate_frame(frame, params)
+    finally:
+        cv2.setNumThreads(cv_threads)
     return row, (rec if keep else None)
 
 

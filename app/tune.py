@@ -547,7 +547,10 @@ def tune(
     check_config(cfg, frames)
     tune_frames, _ = split_frames(frames, cfg.holdout)
     ordered = _rung_order(tune_frames, cfg.seed)
-    bounds = np.linspace(0, len(ordered), min(cfg.rungs, len(ordered)) + 1).round().astype(int)
+    parts = (
+        min(cfg.rungs, len(ordered)) if cfg.prune else 1
+    )  # one map per part: no parts to wait for
+    bounds = np.linspace(0, len(ordered), parts + 1).round().astype(int)
     dists = {d.key: d.distribution() for d in cfg.space.dims}
     grid = cfg.space.grid() if cfg.mode == "grid" else []
     target = cfg.trials or (len(grid) if grid else 50)
