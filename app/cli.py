@@ -5,18 +5,21 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from threadpoolctl import threadpool_limits
 
 from app.bench import cmd_bench
 from app.dataset import discover, frame_inputs, frame_rectification
+from app.distributed import connect, evaluate_frames
 from app.errors import UserError
-from app.evaluation import evaluate_frame, summarise, write_csv
+from app.evaluation import summarise, write_csv
 from app.export import result_json, write_json
 from app.presets import resolve_preset
 from app.python_api import reconstruct
 from app.server import cmd_serve
 from app.track_report import cmd_track
+from app.tune.command import cmd_tune
 
 
 def limit_blas_threads() -> None:
@@ -90,6 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument(
         "--save-predictions", metavar="DIR", help="write each frame's reconstruction JSON here"
     )
+    _add_dask_arguments(e, default_help="default: in this process, one frame after another")
     e.set_defaults(func=cmd_evaluate)
 
     b = sub.add_parser(
@@ -121,6 +125,52 @@ def build_parser() -> argparse.ArgumentParser:
         help="wall time (default), or this thread's CPU time: steadier on a loaded machine",
     )
     b.set_defaults(func=cmd_bench)
+
+    t = sub.add_parser(
+        "tune",
+        help="grid or search (Optuna TPE) over parameters of the stage table, frames on Dask",
+        description="Tune parameters on a dataset: every trial on every frame, kept in a store "
+        "that survives a kill (run the same command again to resume).",
+    )
+    t.add_argument("dataset", help="folder with simulated/ and/or real/")
+    t.add_argument(
+        "--space", required=True, help="TOML: [stage] name = [choices] or {low, high[, step]}"
+    )
+    t.add_argument(
+        "--objective",
+        action="append",
+        metavar="NAME",
+        help="e_S, reprojection, coverage, failure_rate or time; repeat for several (the first "
+        "picks the best trial; default e_S)",
+    )
+    t.add_argument(
+        "--constraint",
+        action="append",
+        metavar="EXPR",
+        help="e.g. 'failure_rate<=0.02' or 'time<=80'; repeatable (default: failure_rate<=0.02)",
+    )
+    t.add_argument("--grid", action="store_true", help="every point of the space's grid, in order")
+    t.add_argument(
+        "--trials", type=int, help="trials in the store when done (default: 50, grid: its size)"
+    )
+    t.add_argument(
+        "--holdout",
+        type=float,
+        default=0.0,
+        help="fraction of frames held back from tuning; best and base are compared on them",
+    )
+    t.add_argument("--seed", type=int, default=0, help="sampler and frame-order seed (default 0)")
+    t.add_argument(
+        "--rungs", type=int, default=4, help="parts of the frames after which a trial may be pruned"
+    )
+    t.add_argument("--no-prune", action="store_true", help="evaluate every trial on every frame")
+    t.add_argument("--config", help="base preset the space varies (default: the defaults)")
+    t.add_argument("--store", required=True, help="folder of the trial store (created; resumable)")
+    t.add_argument("--save-preset", metavar="DIR", help="save the best setting as a preset here")
+    t.add_argument("--preset-name", help="its name (default: tuned-<hash of the setting>)")
+    t.add_argument("--force", action="store_true", help="replace an existing preset of that name")
+    _add_dask_arguments(t, default_help="default: one process per CPU")
+    t.set_defaults(func=cmd_tune)
 
     v = sub.add_parser("serve", help="start the browser debugger on a data folder")
     v.add_argument(
@@ -276,21 +326,38 @@ def _progress(i: int, n: int, label: str) -> None:
     sys.stderr.flush()
 
 
+def _add_dask_arguments(p: argparse.ArgumentParser, default_help: str) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run frames on an existing Dask cluster (`dask scheduler`), e.g. tcp://host:8786",
+    )
+    g.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help=f"run frames on a local Dask cluster of N processes (0: in this process; {default_help})",
+    )
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     params = resolve_preset(args.config)
     frames = discover(args.dataset)
-    rows = []
-    for i, frame in enumerate(frames):
-        _progress(i, len(frames), frame.id)
-        row, rec = evaluate_frame(frame, params)
-        rows.append(row)
-        if args.save_predictions and rec is not None:
-            pred = result_json(
-                rec, frame_rectification(frame), "left", args.config or "default",
-                frame_inputs(frame),
-            )  # fmt: skip
-            write_json(Path(args.save_predictions) / f"{frame.id}.json", pred)
-    _progress(len(frames), len(frames), "done")
+    workers = 0 if args.workers is None and args.scheduler is None else args.workers
+    rows: list[dict[str, Any] | None] = [None] * len(frames)
+    keep = bool(args.save_predictions)
+    with connect(args.scheduler, workers) as client:
+        for i, row, rec in evaluate_frames(client, frames, params, keep, _progress):
+            rows[i] = row
+            if keep and rec is not None:
+                path = Path(args.save_predictions) / f"{frames[i].id}.json"
+                pred = result_json(
+                    rec, frame_rectification(frames[i]), "left", args.config or "default",
+                    frame_inputs(frames[i]),
+                )  # fmt: skip
+                write_json(path, pred)
+    rows = [r for r in rows if r is not None]
     if args.out:
         write_csv(Path(args.out), rows)
     for line in summarise(rows):
