@@ -135,6 +135,23 @@ class SegmentationParams:
         "strongest piece's (vessels and fibres fainter than the thread are dropped).",
         slider=(0.0, 1.0, 0.05),
     )
+    blood_rg: float = param(
+        0.1,
+        lo=0.0,
+        hi=5.0,
+        label="raw: vessel redness",
+        doc="A dark piece whose R/G ratio exceeds the tissue around it by more than this "
+        "(natural log; 0.1 ~ 10 %) looks like blood: a vessel.",
+        slider=(0.0, 1.0, 0.01),
+    )
+    vessel_weight: float = param(
+        0.35,
+        lo=0.0,
+        hi=1.0,
+        label="raw: vessel weight",
+        doc="Weight of a vessel-like piece when choosing the thread (1: no preference).",
+        slider=(0.0, 1.0, 0.05),
+    )
     max_disparity_px: int = param(
         80,
         lo=0,
@@ -251,6 +268,10 @@ _LOG_OFFSET: Final = (
 _BAND_PX: Final = 4  # the mask is grown at most this far from a kept piece (half of 6 px + 1)
 _BG_SIGMA: Final = 8.0  # local background colour: thread-free Gaussian average, px
 _CORE_FRACTION: Final = 0.4  # core pixels respond >= 40 % of their piece's mean
+_SAME_DYE_COS: Final = 0.8  # pieces of one thread: colour contrasts within ~37 degrees
+_SAME_DYE_COS_PX: Final = 0.5  # per pixel (noisier): within 60 degrees
+_GREY_CHROMA: Final = 3.0  # chroma contrast below ~10 %: a grey (black, white) dye
+_LOG_SCALE: Final = 32.0  # channels are 32 log(.), so 1 unit ~ 3 % of contrast
 
 
 def segment_raw(
@@ -273,45 +294,91 @@ def segment_raw(
     Returns P_L, P_R (H, W) bool and score_L, score_R (H, W) float32 in [0, 1].
     Raises ``ValueError("no thread found ...")`` when no piece survives in a view.
     """
-    S = [_line_response(_log_channels(img)) for img in (left, right)]
+    F = [_log_channels(img) for img in (left, right)]
+    S = [_line_response(f) for f in F]
     levels = [_robust_level(s) for s in S]
-    pieces = [
-        _pieces(s, lvl, p) for s, lvl in zip(S, levels, strict=True)
-    ]  # (labels, candidate mask, per-label mean S, length)
+    pieces = [_pieces(s, lvl, p) for s, lvl in zip(S, levels, strict=True)]
     # Stereo consistency: left piece pixel (r, c) needs a right candidate in (r, c - D .. c).
     D = int(p.max_disparity_px)
     cand_L, cand_R = pieces[0][1], pieces[1][1]
     partner_L = _reach(cand_R, D, look_left=True)
     partner_R = _reach(cand_L, D, look_left=False)
-    keep = [
-        _consistent(labels, partner, ok)
-        for (labels, _, _, _, ok), partner in zip(pieces, (partner_L, partner_R), strict=True)
-    ]
-    # The strongest piece over both views sets the bar: a faint vessel never beats the thread.
-    best = max(
-        (float(means[k].max()) if k.any() else 0.0)
-        for (_, _, means, _, _), k in zip(pieces, keep, strict=True)
-    )
     out = []
-    for img, s, lvl, (labels, _, means, _, _), k in zip(
-        (left, right), S, levels, pieces, keep, strict=True
+    for side, img, f, s, lvl, (labels, cand, means, length, ok), partner in zip(
+        ("left", "right"), (left, right), F, S, levels, pieces, (partner_L, partner_R), strict=True
     ):
-        k = k & (means >= p.keep_ratio * best)
-        k[0] = False
-        # Within a kept piece, pixels far fainter than the piece (a vessel branch touching the
-        # thread) are not its core.
-        core = k[labels] & (s >= _CORE_FRACTION * means[labels])
-        if not core.any():
-            side = "left" if len(out) == 0 else "right"
+        k = _consistent(labels, partner, ok)
+        if not k.any():
             raise ValueError(
                 f"no thread found in the {side} image: no long thin piece stands out of the "
                 f"background (raw segmentation; ridge_hi={p.ridge_hi:g}, "
                 f"min_length_px={p.min_length_px:g})"
             )
-        mask = _grow_mask(img, core)
+        delta, px_delta, rows, cols = _piece_contrast(f, labels, cand, len(k))
+        # The thread: the most salient long piece; a piece redder and darker than the tissue
+        # around it (blood: a vessel) counts vessel_weight as much.
+        blood = (delta[:, 1] > p.blood_rg * _LOG_SCALE) & (delta[:, 0] < 0) if f.shape[2] > 1 else 0
+        rank = np.where(k, means * np.sqrt(length) * np.where(blood, p.vessel_weight, 1.0), -1.0)
+        best = int(np.argmax(rank))
+        # Other pieces of the same thread (split by an occluder or a crossing) share its dye:
+        # same colour contrast direction and a comparable line response.
+        d_best = delta[best]
+        cos = _same_dye(delta, d_best)
+        k = k & (means >= p.keep_ratio * means[best]) & (cos >= _SAME_DYE_COS)
+        k[best] = True
+        k[0] = False
+        # Within a kept piece, pixels far fainter than the piece (a vessel branch touching the
+        # thread) are not its core.
+        core = k[labels] & (s >= _CORE_FRACTION * means[labels])
+        # ... nor are pixels of another colour (a vessel merged into the thread's piece).
+        px_cos = _same_dye(px_delta, d_best)
+        other = px_cos < _SAME_DYE_COS_PX
+        core[rows[other], cols[other]] = False
+        if not core.any():
+            core = labels == best
+        mask = _drop_specks(_grow_mask(img, core), max(int(p.min_length_px), 1))
         score = np.clip(s / (2.0 * p.ridge_hi * lvl), 0.0, 1.0).astype(np.float32)
         out.append((mask, score))
     return out[0][0], out[1][0], out[0][1], out[1][1]
+
+
+def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """Cosine between colour contrasts (M, C) and ``ref`` (C,): on the chroma channels (hue
+    of the contrast, independent of its strength and of lighting) when there is colour, with
+    -1 where the brightness contrast has the other sign; the brightness sign alone for grey."""
+    sign = np.where(delta[:, 0] * ref[0] >= 0, 1.0, -1.0)
+    if delta.shape[1] == 1:
+        return sign
+    d, r = delta[:, 1:], ref[1:]
+    nr = float(np.linalg.norm(r))
+    if nr < _GREY_CHROMA:  # a grey thread (black, white): chroma contrast must stay small too
+        return np.where(np.linalg.norm(d, axis=1) < 2 * _GREY_CHROMA, sign, -1.0)
+    cos = (d @ r) / np.maximum(np.linalg.norm(d, axis=1) * nr, 1e-9)
+    return np.minimum(cos, sign)
+
+
+def _piece_contrast(
+    f: np.ndarray, labels: np.ndarray, cand: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(n, C) mean log-channel contrast of each piece to the local background around it
+    (candidate-free Gaussian average at quarter resolution), and per candidate pixel: (M, C)
+    contrast, (M,) rows, (M,) cols."""
+    h, w, c = f.shape
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * _BAND_PX + 1, 2 * _BAND_PX + 1))
+    free = 1 - cv2.dilate(cand.view(np.uint8), k)
+    small = (max(w // 4, 1), max(h // 4, 1))
+    num = cv2.resize(f * free[:, :, None], small, interpolation=cv2.INTER_AREA)
+    den = cv2.resize(free.astype(np.float32), small, interpolation=cv2.INTER_AREA)
+    s4 = _BG_SIGMA / 4.0
+    num = cv2.GaussianBlur(num, (0, 0), s4).reshape(small[1], small[0], c)
+    den = cv2.GaussianBlur(den, (0, 0), s4)
+    bg = num / np.maximum(den, 1e-3)[:, :, None]
+    rows, cols = np.nonzero(cand)
+    d = f[rows, cols] - bg[np.minimum(rows // 4, small[1] - 1), np.minimum(cols // 4, small[0] - 1)]
+    lab = labels[rows, cols]
+    area = np.maximum(np.bincount(lab, minlength=n), 1).astype(np.float64)
+    means = np.stack([np.bincount(lab, weights=d[:, j], minlength=n) / area for j in range(c)], 1)
+    return means, d, rows, cols
 
 
 def _log_channels(img: np.ndarray) -> np.ndarray:
@@ -328,7 +395,9 @@ def _log_channels(img: np.ndarray) -> np.ndarray:
     return cv2.transform(logs, _LOG_MIX)
 
 
-_LOG_LUT: Final = (32.0 * np.log(np.arange(256, dtype=np.float64) + _LOG_OFFSET)).astype(np.float32)
+_LOG_LUT: Final = (_LOG_SCALE * np.log(np.arange(256, dtype=np.float64) + _LOG_OFFSET)).astype(
+    np.float32
+)
 _LOG_MIX: Final = np.array(
     [[0.299, 0.587, 0.114], [1.0, -1.0, 0.0], [0.0, -1.0, 1.0]], np.float32
 )  # (brightness, log R/G, log B/G) from (log R, log G, log B)
