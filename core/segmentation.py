@@ -144,14 +144,6 @@ class SegmentationParams:
         "(natural log; 0.1 ~ 10 %) looks like blood: a vessel.",
         slider=(0.0, 1.0, 0.01),
     )
-    vessel_weight: float = param(
-        0.35,
-        lo=0.0,
-        hi=1.0,
-        label="raw: vessel weight",
-        doc="Weight of a vessel-like piece when choosing the thread (1: no preference).",
-        slider=(0.0, 1.0, 0.05),
-    )
     max_disparity_px: int = param(
         80,
         lo=0,
@@ -279,67 +271,123 @@ def segment_raw(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Thread masks and scores of a raw rectified pair, no mask given.
 
-    1. Line response S: per colour channel of log(I), the scale-normalised Hessian line
-       strength 2 min(|l1 + l2| / 2, |l1 - l2| / 2) sigma^2 (zero on blobs and flat parts) minus
-       the gradient sigma |g| (zero on step edges), combined over channels and the max over scales.
-    2. Hysteresis: pieces of S >= ridge_lo * level that hold a pixel of S >= ridge_hi * level,
-       ``level`` being the image's robust response (median + 1.4826 MAD): no absolute contrast.
-    3. Shape: a piece's length (skeleton-free estimate: area / mean width) >= min_length_px.
+    1. Line response S: on 32 log(I) (brightness, log R/G, log B/G), the scale-normalised
+       Hessian line strength 2 min(|l1 + l2| / 2, |l1 - l2| / 2) sigma^2 (zero on blobs and
+       flat parts) minus 2 sigma |gradient| (zero on step edges), max over two scales.
+    2. Hysteresis: pieces of S >= ridge_lo * level holding a pixel of S >= ridge_hi * level,
+       ``level`` being the image's typical response (90th percentile): no absolute contrast.
+       Before the pieces are formed, pixels darker and redder than the tissue around them
+       (blood: vessels, ``blood_rg``) are set aside; they come back only if nothing else is
+       left (a red thread).
+    3. Shape: a piece's length >= min_length_px and mean width <= 8 px.
     4. Stereo: a piece keeps >= half of its pixels with a candidate pixel on the same row of the
        other view within [0, max_disparity_px] of disparity.
-    5. Selection: pieces whose mean response is >= keep_ratio of the strongest piece's.
-    6. Mask: within _BAND_PX of kept pieces, pixels whose colour is nearer the thread colour
-       than the local background colour (coverage >= 0.5 for a blended edge pixel).
+    5. Selection: the most salient piece (mean S x sqrt(length)) is the thread; other pieces
+       and pixels join it when they share its dye (direction of the colour contrast) and their
+       mean S is >= keep_ratio of its.
+    6. Mask: within _BAND_PX of the kept pixels, those with coverage >= 0.5 of a thread colour
+       blended over the local background colour (see :func:`_grow_mask`).
 
     Returns P_L, P_R (H, W) bool and score_L, score_R (H, W) float32 in [0, 1].
     Raises ``ValueError("no thread found ...")`` when no piece survives in a view.
     """
-    F = [_log_channels(img) for img in (left, right)]
-    S = [_line_response(f) for f in F]
-    levels = [_robust_level(s) for s in S]
-    pieces = [_pieces(s, lvl, p) for s, lvl in zip(S, levels, strict=True)]
-    # Stereo consistency: left piece pixel (r, c) needs a right candidate in (r, c - D .. c).
-    D = int(p.max_disparity_px)
-    cand_L, cand_R = pieces[0][1], pieces[1][1]
-    partner_L = _reach(cand_R, D, look_left=True)
-    partner_R = _reach(cand_L, D, look_left=False)
+    views = [_View.build(img, p) for img in (left, right)]
+    found = _select(views, p, set_blood_aside=True)
+    if found is None:  # nothing but blood-like pieces: the thread may be red
+        views = [v.with_blood(p) for v in views]
+        found = _select(views, p, set_blood_aside=False)
+    if found is None:
+        raise ValueError(
+            "no thread found: no long thin piece with a partner in the other view stands out "
+            f"of the background (raw segmentation; ridge_hi={p.ridge_hi:g}, "
+            f"min_length_px={p.min_length_px:g})"
+        )
     out = []
-    for side, img, f, s, lvl, (labels, cand, means, length, ok), partner in zip(
-        ("left", "right"), (left, right), F, S, levels, pieces, (partner_L, partner_R), strict=True
-    ):
-        k = _consistent(labels, partner, ok)
-        if not k.any():
-            raise ValueError(
-                f"no thread found in the {side} image: no long thin piece stands out of the "
-                f"background (raw segmentation; ridge_hi={p.ridge_hi:g}, "
-                f"min_length_px={p.min_length_px:g})"
-            )
-        delta, px_delta, rows, cols = _piece_contrast(f, labels, cand, len(k))
-        # The thread: the most salient long piece; a piece redder and darker than the tissue
-        # around it (blood: a vessel) counts vessel_weight as much.
-        blood = (delta[:, 1] > p.blood_rg * _LOG_SCALE) & (delta[:, 0] < 0) if f.shape[2] > 1 else 0
-        rank = np.where(k, means * np.sqrt(length) * np.where(blood, p.vessel_weight, 1.0), -1.0)
-        best = int(np.argmax(rank))
-        # Other pieces of the same thread (split by an occluder or a crossing) share its dye:
-        # same colour contrast direction and a comparable line response.
-        d_best = delta[best]
-        cos = _same_dye(delta, d_best)
-        k = k & (means >= p.keep_ratio * means[best]) & (cos >= _SAME_DYE_COS)
-        k[best] = True
-        k[0] = False
-        # Within a kept piece, pixels far fainter than the piece (a vessel branch touching the
-        # thread) are not its core.
-        core = k[labels] & (s >= _CORE_FRACTION * means[labels])
-        # ... nor are pixels of another colour (a vessel merged into the thread's piece).
-        px_cos = _same_dye(px_delta, d_best)
-        other = px_cos < _SAME_DYE_COS_PX
-        core[rows[other], cols[other]] = False
-        if not core.any():
-            core = labels == best
-        mask = _drop_specks(_grow_mask(img, core), max(int(p.min_length_px), 1))
-        score = np.clip(s / (2.0 * p.ridge_hi * lvl), 0.0, 1.0).astype(np.float32)
+    for v, core in zip(views, found, strict=True):
+        mask = _drop_specks(_grow_mask(v.img, core), max(int(p.min_length_px), 1))
+        score = np.clip(v.S / (2.0 * p.ridge_hi * v.level), 0.0, 1.0).astype(np.float32)
         out.append((mask, score))
     return out[0][0], out[1][0], out[0][1], out[1][1]
+
+
+@dataclass
+class _View:
+    """One view's intermediate results of :func:`segment_raw`."""
+
+    img: np.ndarray
+    S: np.ndarray  # (H, W) line response
+    level: float
+    lo: np.ndarray  # (H, W) bool, S >= ridge_lo * level
+    rows: np.ndarray  # (M,) of the lo pixels
+    cols: np.ndarray
+    delta: np.ndarray  # (M, C) log-channel contrast of the lo pixels to the local background
+    blood: np.ndarray  # (M,) bool, darker and redder than the tissue around
+    pieces: tuple = ()
+
+    @classmethod
+    def build(cls, img: np.ndarray, p: SegmentationParams) -> _View:
+        f = _log_channels(img)
+        S = _line_response(f)
+        level = _robust_level(S)
+        lo = S >= p.ridge_lo * level  # noqa: SIM300
+        rows, cols = np.nonzero(lo)
+        delta = _contrast(f, lo, rows, cols)
+        if f.shape[2] > 1:
+            blood = (delta[:, 1] > p.blood_rg * _LOG_SCALE) & (delta[:, 0] < 0)
+        else:
+            blood = np.zeros(len(rows), bool)
+        v = cls(img, S, level, lo, rows, cols, delta, blood)
+        mask = lo.copy()
+        mask[rows[blood], cols[blood]] = False
+        v.pieces = _pieces(S, mask, level, p)
+        return v
+
+    def with_blood(self, p: SegmentationParams) -> _View:
+        v = _View(
+            self.img, self.S, self.level, self.lo, self.rows, self.cols, self.delta, self.blood
+        )
+        v.pieces = _pieces(self.S, self.lo, self.level, p)
+        return v
+
+
+def _select(
+    views: list[_View], p: SegmentationParams, set_blood_aside: bool
+) -> list[np.ndarray] | None:
+    """Core thread pixels (H, W) bool of both views, or None when a view has no piece."""
+    D = int(p.max_disparity_px)
+    cands = [v.pieces[1] for v in views]
+    partners = (_reach(cands[1], D, look_left=True), _reach(cands[0], D, look_left=False))
+    out = []
+    for v, partner in zip(views, partners, strict=True):
+        labels, cand, means, length, ok = v.pieces
+        k = _consistent(labels, partner, ok)
+        if not k.any():
+            return None
+        lab = labels[v.rows, v.cols]  # piece of each lo pixel (0: none)
+        use = lab > 0
+        n = len(k)
+        area = np.maximum(np.bincount(lab[use], minlength=n), 1).astype(np.float64)
+        delta = np.stack(
+            [np.bincount(lab[use], weights=v.delta[use, j], minlength=n) / area
+             for j in range(v.delta.shape[1])],
+            1,
+        )  # fmt: skip
+        rank = np.where(k, means * np.sqrt(length), -1.0)
+        best = int(np.argmax(rank))
+        d_best = delta[best]
+        # Other pieces of the same thread (split by an occluder or a crossing) share its dye.
+        k = k & (means >= p.keep_ratio * means[best]) & (_same_dye(delta, d_best) >= _SAME_DYE_COS)
+        k[best] = True
+        k[0] = False
+        # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
+        # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
+        core = k[labels] & (v.S >= _CORE_FRACTION * means[labels])  # noqa: SIM300
+        other = use & (_same_dye(v.delta, d_best) < _SAME_DYE_COS_PX)
+        core[v.rows[other], v.cols[other]] = False
+        if not core.any():
+            core = labels == best
+        out.append(core)
+    return out
 
 
 def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
@@ -357,15 +405,12 @@ def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
     return np.minimum(cos, sign)
 
 
-def _piece_contrast(
-    f: np.ndarray, labels: np.ndarray, cand: np.ndarray, n: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(n, C) mean log-channel contrast of each piece to the local background around it
-    (candidate-free Gaussian average at quarter resolution), and per candidate pixel: (M, C)
-    contrast, (M,) rows, (M,) cols."""
+def _contrast(f: np.ndarray, lo: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(M, C) log-channel contrast of pixels (rows, cols) to the local background: the Gaussian
+    average of the pixels away from ``lo`` at quarter resolution (normalised convolution)."""
     h, w, c = f.shape
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * _BAND_PX + 1, 2 * _BAND_PX + 1))
-    free = 1 - cv2.dilate(cand.view(np.uint8), k)
+    free = 1 - cv2.dilate(lo.view(np.uint8), k)
     small = (max(w // 4, 1), max(h // 4, 1))
     num = cv2.resize(f * free[:, :, None], small, interpolation=cv2.INTER_AREA)
     den = cv2.resize(free.astype(np.float32), small, interpolation=cv2.INTER_AREA)
@@ -373,12 +418,9 @@ def _piece_contrast(
     num = cv2.GaussianBlur(num, (0, 0), s4).reshape(small[1], small[0], c)
     den = cv2.GaussianBlur(den, (0, 0), s4)
     bg = num / np.maximum(den, 1e-3)[:, :, None]
-    rows, cols = np.nonzero(cand)
-    d = f[rows, cols] - bg[np.minimum(rows // 4, small[1] - 1), np.minimum(cols // 4, small[0] - 1)]
-    lab = labels[rows, cols]
-    area = np.maximum(np.bincount(lab, minlength=n), 1).astype(np.float64)
-    means = np.stack([np.bincount(lab, weights=d[:, j], minlength=n) / area for j in range(c)], 1)
-    return means, d, rows, cols
+    return (
+        f[rows, cols] - bg[np.minimum(rows // 4, small[1] - 1), np.minimum(cols // 4, small[0] - 1)]
+    )
 
 
 def _log_channels(img: np.ndarray) -> np.ndarray:
@@ -456,9 +498,9 @@ def _robust_level(s: np.ndarray) -> float:
     return max(float(np.percentile(s[::2, ::2], 90)), 1e-3)
 
 
-def _pieces(s: np.ndarray, level: float, p: SegmentationParams):
-    """Hysteresis pieces of S: labels, candidate mask, per-label mean S, length, shape ok."""
-    lo = s >= p.ridge_lo * level
+def _pieces(s: np.ndarray, lo: np.ndarray, level: float, p: SegmentationParams) -> tuple:
+    """Hysteresis pieces of the mask ``lo`` (S >= ridge_lo * level): labels, candidate mask,
+    per-label mean S, length, shape ok."""
     n, labels, stats, _ = cv2.connectedComponentsWithStats(lo.view(np.uint8), connectivity=8)
     idx = np.flatnonzero(lo)
     lab = labels.ravel()[idx]
