@@ -76,6 +76,11 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument(
         "--save-predictions", metavar="DIR", help="write each frame's reconstruction JSON here"
     )
+    e.add_argument(
+        "--no-masks",
+        action="store_true",
+        help="withhold the *_mask.png files: segment every frame from its raw images",
+    )
     e.set_defaults(func=cmd_evaluate)
 
     b = sub.add_parser("bench", help="per-stage timings (median, p90) over a dataset")
@@ -204,6 +209,8 @@ def _progress(i: int, n: int, label: str) -> None:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     params = resolve_preset(args.config)
     frames = discover(args.dataset)
+    if getattr(args, "no_masks", False):
+        frames = [replace(f, mask=None) for f in frames]
     rows = []
     for i, frame in enumerate(frames):
         _progress(i, len(frames), frame.id)

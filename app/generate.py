@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 
 from core.synthetic import (
+    THREAD_COLOURS,
     RenderParams,
     StereoCamera,
     SyntheticFrame,
@@ -46,8 +47,14 @@ _FLAG_NAMES = {
     "render.noise_sigma": "--noise",
     "render.blur_sigma": "--blur",
     "render.background": "--background",
+    "render.thread_colour": "--thread-colour",
+    "render.distractors": "--distractors",
+    "render.lighting": "--lighting",
+    "render.jpeg_quality": "--jpeg",
+    "render.specular": "--specular",
 }
 _DEFAULT_THREAD = ThreadParams()
+_DEFAULT_RENDER = RenderParams()
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -99,6 +106,32 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
         help="thread diameter, mm (default %(default)s)",
     )
     parser.add_argument(
+        "--thread-colour",
+        choices=(*THREAD_COLOURS, "random"),
+        default=None,
+        help="thread dye; random: one per frame (default: violet on tissue, grey on flat)",
+    )
+    parser.add_argument(
+        "--distractors",
+        type=int,
+        default=0,
+        help="thread-wide vessels and fibres on the tissue (needs --background tissue)",
+    )
+    parser.add_argument(
+        "--instrument", action="store_true", help="a grasper (shaft and open jaws) in view"
+    )
+    parser.add_argument(
+        "--lighting", type=float, default=0.0, help="uneven light: darkest loss, 0-0.8"
+    )
+    parser.add_argument("--jpeg", type=int, default=0, help="JPEG quality 1-100 (0: none)")
+    parser.add_argument(
+        "--specular",
+        type=float,
+        default=_DEFAULT_RENDER.specular,
+        help="highlight on the thread, fraction of 255 (default %(default)s)",
+    )
+    parser.add_argument("--no-mask", action="store_true", help="write no *_mask.png (raw frames)")
+    parser.add_argument(
         "--group", default=None, help="folder under simulated/ (default: background or crossing)"
     )
     parser.add_argument("--force", action="store_true", help="overwrite existing frame files")
@@ -135,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
         if k == 1:  # nothing is written before the first frame succeeds
             group_dir.mkdir(parents=True, exist_ok=True)
             _write_calibration(group_dir / "calibration.yaml", params.camera)
-        _write_frame(group_dir, name, frame)
+        _write_frame(group_dir, name, frame, mask=not getattr(args, "no_mask", False))
         z = frame.truth.centerline[:, 2]
         rows.append(
             f"| {name} | {len(frame.truth.control_points)} | {frame.truth.length_mm:.1f} "
@@ -181,6 +214,12 @@ def _params(args: argparse.Namespace) -> SyntheticParams:
             noise_sigma=float(args.noise),
             blur_sigma=float(args.blur),
             occlusion=bool(args.occlusion),
+            thread_colour=getattr(args, "thread_colour", None),
+            distractors=int(getattr(args, "distractors", 0)),
+            instrument=bool(getattr(args, "instrument", False)),
+            lighting=float(getattr(args, "lighting", 0.0)),
+            jpeg_quality=int(getattr(args, "jpeg", 0)),
+            specular=float(getattr(args, "specular", _DEFAULT_RENDER.specular)),
         )
     except ValueError as err:
         raise ValueError(_flag_message(str(err))) from None
@@ -197,13 +236,18 @@ def _frame_paths(group_dir: Path, name: str) -> tuple[Path, Path, Path]:
     return group_dir / f"{name}.png", group_dir / f"{name}.npy", group_dir / f"{name}_mask.png"
 
 
-def _write_frame(group_dir: Path, name: str, frame: SyntheticFrame) -> None:
+def _write_frame(group_dir: Path, name: str, frame: SyntheticFrame, mask: bool = True) -> None:
     image_path, truth_path, mask_path = _frame_paths(group_dir, name)
     pair = cv2.cvtColor(np.hstack([frame.left, frame.right]), cv2.COLOR_RGB2BGR)
-    mask = np.hstack([frame.mask_left, frame.mask_right]).astype(np.uint8) * 255
     png = [cv2.IMWRITE_PNG_COMPRESSION, 9]
-    if not (cv2.imwrite(str(image_path), pair, png) and cv2.imwrite(str(mask_path), mask, png)):
-        raise OSError(f"could not write {image_path} / {mask_path}")
+    if not cv2.imwrite(str(image_path), pair, png):
+        raise OSError(f"could not write {image_path}")
+    if mask:
+        binary = np.hstack([frame.mask_left, frame.mask_right]).astype(np.uint8) * 255
+        if not cv2.imwrite(str(mask_path), binary, png):
+            raise OSError(f"could not write {mask_path}")
+    elif mask_path.exists():  # a stale mask would be read as this frame's
+        mask_path.unlink()
     np.save(truth_path, frame.truth.control_points.astype(np.float64))
 
 
@@ -264,9 +308,22 @@ def _command(args: argparse.Namespace, group: str) -> str:
             ("--crossing", args.crossing),
             ("--occlusion", args.occlusion),
             ("--leaves-image", getattr(args, "leaves_image", False)),
+            ("--instrument", getattr(args, "instrument", False)),
+            ("--no-mask", getattr(args, "no_mask", False)),
         )
         if on
     ]
+    if getattr(args, "thread_colour", None):
+        parts.append(f"--thread-colour {args.thread_colour}")
+    for flag, attr, default in (
+        ("--distractors", "distractors", 0),
+        ("--lighting", "lighting", 0.0),
+        ("--jpeg", "jpeg", 0),
+        ("--specular", "specular", _DEFAULT_RENDER.specular),
+    ):
+        value = getattr(args, attr, default)
+        if value != default:
+            parts.append(f"{flag} {value:g}")
     length = getattr(args, "length_mm", _DEFAULT_THREAD.length_mm)
     depth = getattr(args, "depth_mm", _DEFAULT_THREAD.depth_mm)
     diameter = getattr(args, "diameter_mm", _DEFAULT_THREAD.diameter_mm)
@@ -299,7 +356,9 @@ def _section(args: argparse.Namespace, params: SyntheticParams, group: str, rows
         f"points, curliness {tp.curliness:g} rad, diameter {tp.diameter_mm:g} mm, crossing "
         f"{tp.crossing}, leaves image {tp.leaves_image}, margin {tp.margin_px:g} px.",
         f"- Render: background {rp.background}, noise sigma {rp.noise_sigma:g}, blur sigma "
-        f"{rp.blur_sigma:g} px, specular {rp.specular:g}, occlusion {rp.occlusion}.",
+        f"{rp.blur_sigma:g} px, specular {rp.specular:g}, occlusion {rp.occlusion}, thread "
+        f"colour {rp.thread_colour or 'default'}, distractors {rp.distractors}, instrument "
+        f"{rp.instrument}, lighting {rp.lighting:g}, JPEG quality {rp.jpeg_quality or 'none'}.",
         "",
         "| frame | control points | length (mm) | Z range (mm) | mask px left | mask px right |",
         "|---|---|---|---|---|---|",

@@ -16,7 +16,7 @@ from typing import Final, Literal
 import cv2
 import numpy as np
 
-from core.params import param
+from core.params import Params, param
 
 LIFT_VALUE = 255.0  # Eq. (1): unsegmented pixels are set to 255
 
@@ -198,8 +198,7 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
         raise ValueError(f"seg_delta must be >= 0, got {p.seg_delta}")
     if p.lift_dilate_px < 0:
         raise ValueError(f"lift_dilate_px must be >= 0, got {p.lift_dilate_px}")
-    if p.method not in ("auto", "raw", "threshold"):
-        raise ValueError(f"method must be 'auto', 'raw' or 'threshold', got {p.method!r}")
+    Params._check(p)  # type: ignore[arg-type]  # declared ranges of every field
     grey_L, grey_R = to_grey(pair.left), to_grey(pair.right)
     bg = (_background_level(grey_L, p), _background_level(grey_R, p))
     score_L = score_R = None
@@ -263,6 +262,10 @@ _CORE_FRACTION: Final = 0.4  # core pixels respond >= 40 % of their piece's mean
 _SAME_DYE_COS: Final = 0.8  # pieces of one thread: colour contrasts within ~37 degrees
 _SAME_DYE_COS_PX: Final = 0.5  # per pixel (noisier): within 60 degrees
 _GREY_CHROMA: Final = 3.0  # chroma contrast below ~10 %: a grey (black, white) dye
+_MAX_HALF_WIDTH_PX: Final = (
+    6.0  # a piece wider than 12 px (a 6 px thread's response ~8 px) is not thread
+)
+_RED_THREAD_GAIN: Final = 3.0  # blood-like pieces win when 3x as salient as the rest
 _LOG_SCALE: Final = 32.0  # channels are 32 log(.), so 1 unit ~ 3 % of contrast
 
 
@@ -292,10 +295,14 @@ def segment_raw(
     Raises ``ValueError("no thread found ...")`` when no piece survives in a view.
     """
     views = [_View.build(img, p) for img in (left, right)]
-    found = _select(views, p, set_blood_aside=True)
-    if found is None:  # nothing but blood-like pieces: the thread may be red
-        views = [v.with_blood(p) for v in views]
-        found = _select(views, p, set_blood_aside=False)
+    found, salience = _select(views, p)
+    if any(v.blood.any() for v in views):
+        # A red thread is blood-like too: it wins back when it stands out far more than
+        # anything left without the blood-like pixels.
+        red_views = [v.with_blood(p) for v in views]
+        red, red_salience = _select(red_views, p)
+        if red is not None and (found is None or red_salience >= _RED_THREAD_GAIN * salience):
+            views, found = red_views, red
     if found is None:
         raise ValueError(
             "no thread found: no long thin piece with a partner in the other view stands out "
@@ -350,19 +357,19 @@ class _View:
         return v
 
 
-def _select(
-    views: list[_View], p: SegmentationParams, set_blood_aside: bool
-) -> list[np.ndarray] | None:
-    """Core thread pixels (H, W) bool of both views, or None when a view has no piece."""
+def _select(views: list[_View], p: SegmentationParams) -> tuple[list[np.ndarray] | None, float]:
+    """Core thread pixels (H, W) bool of both views (None when a view has no piece) and the
+    salience (mean S x sqrt(length), summed over the views) of the chosen pieces."""
     D = int(p.max_disparity_px)
     cands = [v.pieces[1] for v in views]
     partners = (_reach(cands[1], D, look_left=True), _reach(cands[0], D, look_left=False))
     out = []
+    salience = 0.0
     for v, partner in zip(views, partners, strict=True):
         labels, cand, means, length, ok = v.pieces
         k = _consistent(labels, partner, ok)
         if not k.any():
-            return None
+            return None, 0.0
         lab = labels[v.rows, v.cols]  # piece of each lo pixel (0: none)
         use = lab > 0
         n = len(k)
@@ -374,6 +381,7 @@ def _select(
         )  # fmt: skip
         rank = np.where(k, means * np.sqrt(length), -1.0)
         best = int(np.argmax(rank))
+        salience += float(rank[best])
         d_best = delta[best]
         # Other pieces of the same thread (split by an occluder or a crossing) share its dye.
         k = k & (means >= p.keep_ratio * means[best]) & (_same_dye(delta, d_best) >= _SAME_DYE_COS)
@@ -387,7 +395,7 @@ def _select(
         if not core.any():
             core = labels == best
         out.append(core)
-    return out
+    return out, salience
 
 
 def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
@@ -509,15 +517,29 @@ def _pieces(s: np.ndarray, lo: np.ndarray, level: float, p: SegmentationParams) 
     seeded = np.zeros(n, bool)
     seeded[lab[s.ravel()[idx] >= p.ridge_hi * level]] = True
     means = sums / np.maximum(area, 1.0)
-    # Length of a thin piece: its bounding box diagonal bounds it below; area / width above.
+    # Half-width of a piece: its largest distance to the outside; length: area / width (a loop
+    # or a coil is long in a small box), at least the bounding box diagonal.
+    dist = cv2.distanceTransform(lo.view(np.uint8), cv2.DIST_L2, 3)
+    half = _label_max(lab, dist.ravel()[idx], n)
     diag = np.hypot(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT])
-    length = np.maximum(diag, area / 6.0)
-    ok = seeded & (length >= p.min_length_px)
-    ok &= area <= 8.0 * np.maximum(diag, 1.0)  # thin: mean width <= 8 px along the diagonal
+    length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
+    ok = seeded & (length >= p.min_length_px) & (half <= _MAX_HALF_WIDTH_PX)
     ok[0] = False
     means[0] = 0.0
     cand = ok[labels]
     return labels, cand, means, length, ok
+
+
+def _label_max(lab: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """(n,) largest value per label (0 where a label has none): one sort and a reduceat."""
+    out = np.zeros(n)
+    if lab.size == 0:
+        return out
+    order = np.argsort(lab, kind="stable")
+    lab_s = lab[order]
+    starts = np.flatnonzero(np.concatenate([[True], lab_s[1:] != lab_s[:-1]]))
+    out[lab_s[starts]] = np.maximum.reduceat(values[order], starts)
+    return out
 
 
 def _reach(mask: np.ndarray, d: int, look_left: bool) -> np.ndarray:
