@@ -123,7 +123,12 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--lighting", type=float, default=0.0, help="uneven light: darkest loss, 0-0.8"
     )
-    parser.add_argument("--jpeg", type=int, default=0, help="JPEG quality 1-100 (0: none)")
+    parser.add_argument(
+        "--jpeg",
+        type=int,
+        default=0,
+        help="write each pair as <frame>.jpg at this quality 1-100, compressed once (0: PNG)",
+    )
     parser.add_argument(
         "--specular",
         type=float,
@@ -154,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     force = bool(getattr(args, "force", False))
     if not force:
         for name in names:
-            for path in _frame_paths(group_dir, name):
+            for path in _frame_paths(group_dir, name, jpeg=int(getattr(args, "jpeg", 0)) > 0):
                 if path.exists():
                     raise ValueError(f"{path} exists; use --force to overwrite")
         _check_calibration(group_dir / "calibration.yaml", params.camera)
@@ -168,7 +173,13 @@ def run(args: argparse.Namespace) -> int:
         if k == 1:  # nothing is written before the first frame succeeds
             group_dir.mkdir(parents=True, exist_ok=True)
             _write_calibration(group_dir / "calibration.yaml", params.camera)
-        _write_frame(group_dir, name, frame, mask=not getattr(args, "no_mask", False))
+        _write_frame(
+            group_dir,
+            name,
+            frame,
+            mask=not getattr(args, "no_mask", False),
+            jpeg=int(getattr(args, "jpeg", 0)),
+        )
         z = frame.truth.centerline[:, 2]
         rows.append(
             f"| {name} | {len(frame.truth.control_points)} | {frame.truth.length_mm:.1f} "
@@ -176,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
             f"| {int(frame.mask_right.sum())} |"
         )
         print(
-            f"[{k}/{count}] {group_dir / name}.png  length {frame.truth.length_mm:.1f} mm, "
+            f"[{k}/{count}] {_frame_paths(group_dir, name, jpeg=int(getattr(args, 'jpeg', 0)) > 0)[0]}  length {frame.truth.length_mm:.1f} mm, "
             f"Z {z.min():.0f}-{z.max():.0f} mm",
             flush=True,
         )
@@ -218,7 +229,8 @@ def _params(args: argparse.Namespace) -> SyntheticParams:
             distractors=int(getattr(args, "distractors", 0)),
             instrument=bool(getattr(args, "instrument", False)),
             lighting=float(getattr(args, "lighting", 0.0)),
-            jpeg_quality=int(getattr(args, "jpeg", 0)),
+            # Compressed once, when the pair is written (see _write_frame); validated here.
+            jpeg_quality=0 if 0 <= int(getattr(args, "jpeg", 0)) <= 100 else int(args.jpeg),
             specular=float(getattr(args, "specular", _DEFAULT_RENDER.specular)),
         )
     except ValueError as err:
@@ -232,16 +244,22 @@ def _flag_message(message: str) -> str:
     return message
 
 
-def _frame_paths(group_dir: Path, name: str) -> tuple[Path, Path, Path]:
-    return group_dir / f"{name}.png", group_dir / f"{name}.npy", group_dir / f"{name}_mask.png"
+def _frame_paths(group_dir: Path, name: str, jpeg: bool = False) -> tuple[Path, Path, Path]:
+    image = group_dir / f"{name}.{'jpg' if jpeg else 'png'}"
+    return image, group_dir / f"{name}.npy", group_dir / f"{name}_mask.png"
 
 
-def _write_frame(group_dir: Path, name: str, frame: SyntheticFrame, mask: bool = True) -> None:
-    image_path, truth_path, mask_path = _frame_paths(group_dir, name)
+def _write_frame(
+    group_dir: Path, name: str, frame: SyntheticFrame, mask: bool = True, jpeg: int = 0
+) -> None:
+    image_path, truth_path, mask_path = _frame_paths(group_dir, name, jpeg=jpeg > 0)
     pair = cv2.cvtColor(np.hstack([frame.left, frame.right]), cv2.COLOR_RGB2BGR)
     png = [cv2.IMWRITE_PNG_COMPRESSION, 9]
-    if not cv2.imwrite(str(image_path), pair, png):
+    options = [cv2.IMWRITE_JPEG_QUALITY, jpeg] if jpeg > 0 else png
+    if not cv2.imwrite(str(image_path), pair, options):
         raise OSError(f"could not write {image_path}")
+    for other in _frame_paths(group_dir, name, jpeg=jpeg <= 0)[:1]:
+        other.unlink(missing_ok=True)  # a stale pair in the other format would be read too
     if mask:
         binary = np.hstack([frame.mask_left, frame.mask_right]).astype(np.uint8) * 255
         if not cv2.imwrite(str(mask_path), binary, png):
@@ -358,7 +376,8 @@ def _section(args: argparse.Namespace, params: SyntheticParams, group: str, rows
         f"- Render: background {rp.background}, noise sigma {rp.noise_sigma:g}, blur sigma "
         f"{rp.blur_sigma:g} px, specular {rp.specular:g}, occlusion {rp.occlusion}, thread "
         f"colour {rp.thread_colour or 'default'}, distractors {rp.distractors}, instrument "
-        f"{rp.instrument}, lighting {rp.lighting:g}, JPEG quality {rp.jpeg_quality or 'none'}.",
+        f"{rp.instrument}, lighting {rp.lighting:g}, stored as JPEG quality "
+        f"{getattr(args, 'jpeg', 0) or 'none (PNG)'}.",
         "",
         "| frame | control points | length (mm) | Z range (mm) | mask px left | mask px right |",
         "|---|---|---|---|---|---|",

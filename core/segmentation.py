@@ -266,6 +266,7 @@ _MAX_HALF_WIDTH_PX: Final = (
     6.0  # a piece wider than 12 px (a 6 px thread's response ~8 px) is not thread
 )
 _RED_THREAD_GAIN: Final = 3.0  # blood-like pieces win when 3x as salient as the rest
+_GREY_TOOL: Final = 0.12  # |log R/G|, |log B/G| below this: unsaturated, e.g. steel
 _LOG_SCALE: Final = 32.0  # channels are 32 log(.), so 1 unit ~ 3 % of contrast
 
 
@@ -337,6 +338,8 @@ class _View:
         S = _line_response(f)
         level = _robust_level(S)
         lo = S >= p.ridge_lo * level  # noqa: SIM300
+        if f.shape[2] > 1:
+            lo &= ~_instrument_mask(f)
         rows, cols = np.nonzero(lo)
         delta = _contrast(f, lo, rows, cols)
         if f.shape[2] > 1:
@@ -411,6 +414,19 @@ def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
         return np.where(np.linalg.norm(d, axis=1) < 2 * _GREY_CHROMA, sign, -1.0)
     cos = (d @ r) / np.maximum(np.linalg.norm(d, axis=1) * nr, 1e-9)
     return np.minimum(cos, sign)
+
+
+def _instrument_mask(f: np.ndarray) -> np.ndarray:
+    """(H, W) bool: large unsaturated regions (metal or plastic instruments), found at quarter
+    resolution. A grey region survives an opening by a 5 x 5 disc there (~20 px): a white or
+    black thread, a fibre or a glint is thinner and does not."""
+    h, w = f.shape[:2]
+    small = (max(w // 4, 1), max(h // 4, 1))
+    chroma = cv2.resize(np.ascontiguousarray(f[:, :, 1:]), small, interpolation=cv2.INTER_AREA)
+    grey = (np.abs(chroma).max(axis=2) < _GREY_TOOL * _LOG_SCALE).astype(np.uint8)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    tool = cv2.dilate(cv2.morphologyEx(grey, cv2.MORPH_OPEN, disc), disc)
+    return cv2.resize(tool, (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
 
 
 def _contrast(f: np.ndarray, lo: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:

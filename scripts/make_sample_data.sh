@@ -13,10 +13,16 @@ PYTHON="${PYTHON:-python}"
 OUT=sample_data
 
 # Only what this script writes is removed, so that stale frames never linger.
-rm -rf "$OUT/simulated/flat" "$OUT/simulated/tissue" "$OUT/simulated/crossing" "$OUT/README.md"
+rm -rf "$OUT/simulated/flat" "$OUT/simulated/tissue" "$OUT/simulated/crossing" "$OUT/simulated/raw" \
+    "$OUT/README.md"
 
 "$PYTHON" -m app.generate "$OUT" --count 4 --seed 1 --background flat
 "$PYTHON" -m app.generate "$OUT" --count 4 --seed 2 --background tissue --noise 2 --blur 0.5
 "$PYTHON" -m app.generate "$OUT" --count 2 --seed 3 --background flat --crossing
+# Raw frames, no mask: the segmentation must find the thread (dyes, vessels and fibres as wide
+# as the thread, a grasper, uneven light, JPEG). Stored as JPEG to keep sample_data small.
+"$PYTHON" -m app.generate "$OUT" --count 4 --seed 4 --background tissue --noise 2 --blur 0.5 \
+    --thread-colour random --distractors 6 --instrument --lighting 0.5 --jpeg 85 --no-mask \
+    --group raw
 
 du -sh "$OUT"
