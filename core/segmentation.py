@@ -6,6 +6,13 @@ background level B of each image as the mode of its grey histogram and call a pi
 it is darker than ``B - seg_delta``. With ``seg_delta = 6`` this reproduces the paper's ``< 200``
 on the Blender frames (B = 206) and keeps every hand-segmented pixel of the real frames
 (B = 255), with no per-set flag. Masks given by the user replace the thresholding.
+
+Raw frames (tissue, vessels, instruments, uneven light; no mask) need more: ``method="raw"``
+(:func:`segment_raw`) finds the thread as the most salient long thin line of one dye with a
+partner in the other view, and gives a per-pixel thread score. ``method="auto"`` (default)
+thresholds when the background is flat (>= ``flat_share`` of the pixels within 1 grey level of
+B: the paper's Blender and hand-segmented frames) and segments raw otherwise. A raw frame in
+which no piece qualifies raises ``ValueError("no thread found ...")``: never a curve.
 """
 
 from __future__ import annotations
