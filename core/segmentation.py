@@ -426,13 +426,16 @@ def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
 def _instrument_mask(f: np.ndarray) -> np.ndarray:
     """(H, W) bool: large unsaturated regions (metal or plastic instruments), found at quarter
     resolution. A grey region survives an opening by a 5 x 5 disc there (~20 px): a white or
-    black thread, a fibre or a glint is thinner and does not."""
+    black thread, a fibre or a glint is thinner and does not. When grey covers most of the
+    view it is the scene itself (a flat grey background), and nothing is masked."""
     h, w = f.shape[:2]
     small = (max(w // 4, 1), max(h // 4, 1))
     chroma = cv2.resize(np.ascontiguousarray(f[:, :, 1:]), small, interpolation=cv2.INTER_AREA)
     grey = (np.abs(chroma).max(axis=2) < _GREY_TOOL * _LOG_SCALE).astype(np.uint8)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
     tool = cv2.dilate(cv2.morphologyEx(grey, cv2.MORPH_OPEN, disc), disc)
+    if np.count_nonzero(tool) > 0.5 * tool.size:  # a grey scene (flat background), not a tool
+        return np.zeros((h, w), bool)
     return cv2.resize(tool, (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
 
 
