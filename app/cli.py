@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -94,6 +95,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--save-predictions", metavar="DIR", help="write each frame's reconstruction JSON here"
     )
     _add_dask_arguments(e, default_help="default: in this process, one frame after another")
+    e.add_argument(
+        "--no-masks",
+        action="store_true",
+        help="withhold the *_mask.png files: segment every frame from its raw images",
+    )
     e.set_defaults(func=cmd_evaluate)
 
     b = sub.add_parser(
@@ -344,6 +350,8 @@ def _add_dask_arguments(p: argparse.ArgumentParser, default_help: str) -> None:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     params = resolve_preset(args.config)
     frames = discover(args.dataset)
+    if args.no_masks:  # raw frames: every mask withheld, segmentation from the images
+        frames = [replace(f, mask=None, mask_left=None, mask_right=None) for f in frames]
     workers = 0 if args.workers is None and args.scheduler is None else args.workers
     rows: list[dict[str, Any] | None] = [None] * len(frames)
     keep = bool(args.save_predictions)

@@ -42,6 +42,15 @@ _HIGHLIGHT_HALF_WIDTH: Final = 0.3  # specular stripe half-width, fraction of th
 _MIN_CROSSING_SIN: Final = math.sin(math.radians(25.0))  # crossings must not be grazing
 
 Background = Literal["flat", "tissue"]
+ThreadColour = Literal["violet", "blue", "green", "black", "white", "red", "random"]
+THREAD_COLOURS: Final = {
+    "violet": (75.0, 55.0, 105.0),  # braided polyglactin (Vicryl)
+    "blue": (45.0, 70.0, 150.0),  # polypropylene (Prolene)
+    "green": (45.0, 120.0, 80.0),  # dyed polyester
+    "black": (35.0, 33.0, 38.0),  # silk, nylon
+    "white": (225.0, 220.0, 205.0),  # undyed
+    "red": (165.0, 35.0, 45.0),  # dyed, close to a vessel's hue
+}  # thread colour on its axis, RGB
 
 
 @dataclass(frozen=True)
@@ -135,8 +144,29 @@ class RenderParams:
     noise_sigma: float = 0.0  # std of additive Gaussian pixel noise, grey levels
     blur_sigma: float = 0.0  # std of the Gaussian blur (optics), px
     occlusion: bool = False  # an instrument shaft hides part of the thread
+    thread_colour: ThreadColour | None = None  # a named dye (overrides thread_rgb); "random"
+    distractors: int = 0  # thread-wide dark vessels and light fibres drawn on the tissue
+    instrument: bool = False  # a grasper (shaft and open jaws) somewhere in view; may occlude
+    lighting: float = 0.0  # uneven light (vignetting + gradient): the darkest spot loses this
+    jpeg_quality: int = 0  # JPEG round trip of both views at this quality (1-100); 0: none
 
     def __post_init__(self) -> None:
+        if self.thread_colour is not None and self.thread_colour not in (
+            *THREAD_COLOURS,
+            "random",
+        ):
+            raise ValueError(
+                f"render.thread_colour must be one of {', '.join(THREAD_COLOURS)} or 'random', "
+                f"got {self.thread_colour!r}"
+            )
+        if not (isinstance(self.distractors, int) and 0 <= self.distractors <= 100):
+            raise ValueError(f"render.distractors must be in 0..100, got {self.distractors}")
+        if self.distractors and self.background != "tissue":
+            raise ValueError("render.distractors needs render.background 'tissue'")
+        if not (np.isfinite(self.lighting) and 0 <= self.lighting <= 0.8):
+            raise ValueError(f"render.lighting must be in [0, 0.8], got {self.lighting}")
+        if not (isinstance(self.jpeg_quality, int) and 0 <= self.jpeg_quality <= 100):
+            raise ValueError(f"render.jpeg_quality must be in 0..100, got {self.jpeg_quality}")
         if self.background not in ("flat", "tissue"):
             raise ValueError(
                 f"render.background must be 'flat' or 'tissue', got {self.background!r}"
@@ -523,7 +553,16 @@ def _render_pair(
         flat = np.full((h, w, 3), rp.background_level, dtype=np.float32)
         backgrounds = (flat, flat.copy())
         rgb = (120.0, 120.0, 120.0)  # like the paper's Blender thread (~107-140 grey)
-    thread_rgb = np.asarray(rp.thread_rgb if rp.thread_rgb is not None else rgb, dtype=np.float32)
+    if rp.distractors and rp.background == "tissue":
+        backgrounds = _add_distractors(tex, w, d_bg, rp.distractors, cam, diameter, z, rng)
+    if rp.thread_colour == "random":
+        rgb = THREAD_COLOURS[str(rng.choice(sorted(THREAD_COLOURS)))]
+    elif rp.thread_colour is not None:
+        rgb = THREAD_COLOURS[rp.thread_colour]
+    thread_rgb = np.asarray(
+        rp.thread_rgb if rp.thread_rgb is not None and rp.thread_colour is None else rgb,
+        dtype=np.float32,
+    )
     images, coverages = [], []
     for uv, bg in zip(views, backgrounds, strict=True):
         img, cov = _render_tube(uv, z, cam, diameter, thread_rgb, rp.specular, bg)
@@ -531,13 +570,21 @@ def _render_pair(
         coverages.append(cov)
     if rp.occlusion:
         _occlude(images, coverages, views, z, cam, rng)
+    if rp.instrument:
+        _instrument(images, coverages, z, cam, rng)
+    if rp.lighting > 0:
+        gain = _light_field(h, w, rp.lighting, rng)
+        images = [img * gain[:, :, None] for img in images]
     out = []
     for img in images:
         if rp.blur_sigma > 0:
             img = cv2.GaussianBlur(img, (0, 0), rp.blur_sigma)
         if rp.noise_sigma > 0:
             img = img + rng.normal(0.0, rp.noise_sigma, img.shape).astype(np.float32)
-        out.append(np.clip(np.rint(img), 0, 255).astype(np.uint8))
+        img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+        if rp.jpeg_quality > 0:
+            img = _jpeg(img, rp.jpeg_quality)
+        out.append(img)
     return out[0], out[1], coverages[0] >= 0.5, coverages[1] >= 0.5
 
 
@@ -740,3 +787,93 @@ def _capsule(
     shade = shade * (1.0 - 0.45 * jaw)
     colour = np.clip(shade[..., None] * np.array([190.0, 195.0, 200.0], np.float32), 0, 255)
     return cov.astype(np.float32), colour.astype(np.float32)
+
+
+def _jpeg(img: np.ndarray, quality: int) -> np.ndarray:
+    """JPEG round trip of an RGB uint8 image (OpenCV's default 4:2:0 chroma subsampling)."""
+    bgr = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+    ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise ValueError(f"JPEG encoding failed at quality {quality}")
+    return cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+def _light_field(h: int, w: int, strength: float, rng: np.random.Generator) -> np.ndarray:
+    """(h, w) float32 gain in [1 - strength, 1]: the endoscope's radial fall-off (vignetting)
+    around an off-centre light axis plus a linear gradient (tissue tilted to the light)."""
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    cx, cy = rng.uniform(0.3, 0.7) * w, rng.uniform(0.3, 0.7) * h
+    r2 = ((xs - cx) ** 2 + (ys - cy) ** 2) / float(0.25 * (w * w + h * h))
+    angle = rng.uniform(0, 2 * math.pi)
+    ramp = (math.cos(angle) * (xs / w - 0.5) + math.sin(angle) * (ys / h - 0.5)) + 0.5
+    share = rng.uniform(0.3, 0.7)  # of the fall-off due to vignetting vs the gradient
+    loss = share * np.clip(r2, 0, 1) + (1 - share) * np.clip(ramp, 0, 1)
+    return (1.0 - strength * loss / max(float(loss.max()), 1e-6)).astype(np.float32)
+
+
+def _add_distractors(
+    tex: np.ndarray,
+    w: int,
+    d_bg: int,
+    count: int,
+    cam: StereoCamera,
+    diameter: float,
+    z: np.ndarray,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Draw ``count`` vessels (dark, tissue hue) and fibres (light) as wide as the thread into
+    the tissue texture, so they lie on the tissue plane and match in both views; return the
+    two views' backgrounds."""
+    h, wt = tex.shape[:2]
+    w_lo, w_hi = float(cam.fx * diameter / z.max()), float(cam.fx * diameter / z.min())
+    for _ in range(count):
+        n = 40
+        heading = rng.uniform(0, 2 * math.pi) + np.cumsum(rng.normal(0, 0.12, n))
+        pts = rng.uniform([0, 0], [wt, h]) + np.cumsum(
+            6.0 * np.stack([np.cos(heading), np.sin(heading)], 1), axis=0
+        )
+        width = rng.uniform(max(1.0, 0.7 * w_lo), w_hi)
+        layer = np.zeros((h, wt), np.float32)
+        fixed = np.round(pts * 16).astype(np.int32).reshape(-1, 1, 2)
+        cv2.polylines(layer, [fixed], False, 1.0, max(1, round(width)), cv2.LINE_AA, shift=4)
+        layer = cv2.GaussianBlur(layer, (0, 0), 0.6)[..., None]
+        if rng.uniform() < 0.6:  # a vessel: darker and more saturated than the tissue
+            colour = tex * np.array([0.55, 0.3, 0.38], np.float32)
+            strength = rng.uniform(0.4, 0.8)
+        else:  # a fibre or fascia strand: lighter, slightly yellow
+            colour = np.broadcast_to(np.array([240.0, 225.0, 200.0], np.float32), tex.shape)
+            strength = rng.uniform(0.35, 0.7)
+        tex = tex * (1 - strength * layer) + strength * layer * colour
+    return tex[:, :w], tex[:, d_bg : d_bg + w]
+
+
+def _instrument(
+    images: list[np.ndarray],
+    coverages: list[np.ndarray],
+    z: np.ndarray,
+    cam: StereoCamera,
+    rng: np.random.Generator,
+) -> None:
+    """A grasper in front of the thread, in place: a shaft from outside the view ending in two
+    open jaws, anywhere in the view, so it may or may not hide the thread (coverage removed)."""
+    h, w = cam.height, cam.width
+    tip = rng.uniform([0.2 * w, 0.2 * h], [0.8 * w, 0.8 * h])
+    angle = rng.uniform(0, 2 * math.pi)
+    axis = np.array([math.cos(angle), math.sin(angle)])
+    radius = float(rng.uniform(14.0, 24.0))  # shaft half-width, px
+    opening = float(rng.uniform(0.2, 0.45))  # half-angle between the jaws, rad
+    jaw_len = float(rng.uniform(2.0, 3.5)) * radius
+    d_inst = float(cam.disparity(0.7 * float(z.min())))
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    far = tip - axis * 4 * (w + h)
+    for view in range(2):
+        shift = np.array([d_inst if view else 0.0, 0.0])
+        parts = [_capsule(xs, ys, far - shift, tip - shift, radius, axis)]
+        for sign in (-1.0, 1.0):
+            ca, sa = math.cos(sign * opening), math.sin(sign * opening)
+            jaw_axis = np.array([ca * axis[0] - sa * axis[1], sa * axis[0] + ca * axis[1]])
+            base = tip - shift + sign * 0.45 * radius * np.array([-axis[1], axis[0]])
+            parts.append(_capsule(xs, ys, base, base + jaw_axis * jaw_len, 0.3 * radius, jaw_axis))
+        for co, colour in parts:
+            images[view] = co[..., None] * colour + (1 - co[..., None]) * images[view]
+            coverages[view] = coverages[view] * (1 - co)

@@ -230,9 +230,12 @@ def test_bench_runs_on_a_plain_folder_with_overrides(
 def test_reconstruct_suspect_frame_exits_3_with_reasons_in_json(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """Issue 11: tissue_2 without its mask came back "ok", 879 m long, exit code 0."""
+    """Issue 11: tissue_2 without its mask came back "ok", 879 m long, exit code 0 (with the
+    grey threshold, the segmentation of the time; the raw-frame default now finds the thread)."""
     tissue = SAMPLE / "simulated" / "tissue"
     out = tmp_path / "t.json"
+    grey = tmp_path / "grey.toml"
+    grey.write_text('[segment]\nmethod = "threshold"\n')
     code, _, err = run(
         capsys,
         "reconstruct",
@@ -240,6 +243,8 @@ def test_reconstruct_suspect_frame_exits_3_with_reasons_in_json(
         tissue / "tissue_2.png",
         "--calib",
         tissue / "calibration.yaml",
+        "--config",
+        grey,
         "--out",
         out,
     )

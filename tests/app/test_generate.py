@@ -155,3 +155,46 @@ def test_generate_size_scales_the_intrinsics(tmp_path: Path) -> None:
     assert "--size 1280x960" in (tmp_path / "README.md").read_text()
     with pytest.raises(SystemExit):
         _parse(str(tmp_path), "--size", "1280by960")
+
+
+def test_realism_flags_reach_the_renderer_and_no_mask_writes_none(tmp_path: Path) -> None:
+    argv = [str(tmp_path), "--count", "1", "--seed", "3", "--background", "tissue"]
+    flags = ["--thread-colour", "blue", "--distractors", "4", "--instrument", "--lighting", "0.4"]
+    assert _run(*argv, *flags, "--specular", "0.3", "--no-mask", "--group", "raw") == 0
+    group = tmp_path / "simulated" / "raw"
+    assert sorted(p.name for p in group.iterdir()) == ["calibration.yaml", "raw_1.npy", "raw_1.png"]
+    render = RenderParams(
+        background="tissue",
+        thread_colour="blue",
+        distractors=4,
+        instrument=True,
+        lighting=0.4,
+        specular=0.3,
+    )
+    expected = generate_frame(SyntheticParams(render=render), np.random.default_rng([3, 1]))
+    pair = cv2.cvtColor(cv2.imread(str(group / "raw_1.png"), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    np.testing.assert_array_equal(pair, np.hstack([expected.left, expected.right]))
+    readme = (tmp_path / "README.md").read_text()
+    assert "--thread-colour blue" in readme and "--no-mask" in readme
+
+
+def test_jpeg_flag_writes_the_pair_as_jpeg_once(tmp_path: Path) -> None:
+    assert _run(str(tmp_path), "--count", "1", "--seed", "2", "--jpeg", "80") == 0
+    group = tmp_path / "simulated" / "flat"
+    assert (group / "flat_1.jpg").exists() and not (group / "flat_1.png").exists()
+    expected = generate_frame(SyntheticParams(), np.random.default_rng([2, 1]))
+    pair = cv2.cvtColor(cv2.imread(str(group / "flat_1.jpg"), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    err = np.abs(pair.astype(int) - np.hstack([expected.left, expected.right]).astype(int))
+    assert 0 < err.mean() < 3
+
+
+@pytest.mark.parametrize(
+    ("flags", "flag"),
+    [
+        (["--background", "flat", "--distractors", "2"], "--distractors"),
+        (["--jpeg", "101"], "--jpeg"),
+    ],
+)
+def test_bad_realism_flags_are_named(tmp_path: Path, flags: list[str], flag: str) -> None:
+    with pytest.raises(ValueError, match=flag):
+        _run(str(tmp_path), *flags)

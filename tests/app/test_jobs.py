@@ -44,15 +44,15 @@ def _assert_rows_equal(got: list[dict[str, Any]], expected: list[dict[str, Any]]
 
 
 def test_job_rows_equal_evaluate_frame_rows(frames: list[Frame]) -> None:
-    assert len(frames) == 3
+    assert len(frames) == 4  # one per sample group: crossing, flat, raw, tissue
     params = ReconParams()
     calls: list[EvaluationJob] = []
     job = EvaluationJob(frames, params, "default", on_done=calls.append)
-    assert job.state == "pending" and job.done == 0 and job.total == 3
+    assert job.state == "pending" and job.done == 0 and job.total == 4
     job.start()
     assert job.wait(TIMEOUT_S)
     expected = [evaluate_frame(f, params)[0] for f in frames]
-    assert job.state == "done" and job.done == job.total == 3 and job.error is None
+    assert job.state == "done" and job.done == job.total == 4 and job.error is None
     _assert_rows_equal(job.rows, expected)
     assert job.summary == summarise(expected)
     assert any(not math.isnan(r["e_S_mm"]) for r in job.rows)
@@ -106,7 +106,7 @@ def test_cancel_after_first_frame_stops_early(frames: list[Frame]) -> None:
         on_frame=lambda j, row: j.cancel(),
     ).start()
     assert job.wait(TIMEOUT_S)
-    assert job.state == "cancelled" and job.done == 1 and job.total == 3
+    assert job.state == "cancelled" and job.done == 1 and job.total == len(frames)
     assert [r["frame"] for r in job.rows] == [frames[0].id]
     assert job.summary == summarise(job.rows)
     assert done_calls == ["cancelled"]

@@ -49,7 +49,7 @@ def run(client: TestClient, frame_id: str = FLAT, **body) -> dict:
 
 def test_frames_lists_the_sample_data(client):
     frames = client.get("/api/frames").json()
-    assert len(frames) == 10
+    assert len(frames) == 14  # flat 4, tissue 4, crossing 2, raw 4 (no masks)
     assert {f["kind"] for f in frames} == {"simulated"}
     assert all({"id", "kind", "has_ground_truth", "name", "status"} <= set(f) for f in frames)
     assert any(f["id"] == FLAT for f in frames)

@@ -286,13 +286,13 @@ def _wait_job(c: TestClient, timeout: float = 120.0) -> dict:
 def test_evaluation_from_the_page_agrees_with_the_cli_to_the_digit(tmp_path, capsys):
     with client_for(SAMPLE, CONFIGS, tmp_path / "db.sqlite3") as c:
         snap = c.post("/api/evaluations", json={"preset": "paper-simulated"}).json()
-        assert snap["total"] == 10
+        assert snap["total"] == 14
         t0 = time.perf_counter()
         assert c.get("/api/frames").status_code == 200  # answered during the run
         answered_ms = 1000 * (time.perf_counter() - t0)
         running = c.get("/api/evaluations/current").json()
         snap = _wait_job(c)
-        assert snap["state"] == "done" and snap["done"] == 10
+        assert snap["state"] == "done" and snap["done"] == 14
         saved = c.get("/api/evaluations/last").json()
         assert saved["id"] == c.get("/api/evaluations/current").json()["saved_id"]
     assert running["state"] in ("running", "done") and answered_ms < 2000

@@ -1,11 +1,14 @@
 """Tests of core/segmentation.py: input pair checks, thresholding and lifting, Eq. (1)."""
 
 import re
+from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
-from support import assert_close
+from support import assert_close, calibration_for
 
+from core.pipeline import Pipeline
 from core.segmentation import (
     LIFT_VALUE,
     SegmentationParams,
@@ -13,6 +16,7 @@ from core.segmentation import (
     segment,
     split_side_by_side,
 )
+from core.synthetic import RenderParams, SyntheticParams, ThreadParams, generate_frame
 
 BG, INK = 200, 60
 
@@ -119,3 +123,143 @@ def test_split_side_by_side_halves_and_rejects_odd_width() -> None:
     assert_close(right, img[:, 5:])
     with pytest.raises(ValueError, match=r"even width.*\(6, 11\)"):
         split_side_by_side(np.zeros((6, 11)))
+
+
+# --- raw frames (no mask): method "raw", "auto", "threshold" -----------------------------------
+
+TISSUE = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum()) / max(float((a | b).sum()), 1.0)
+
+
+def _raw(render: RenderParams, seed: int, **thread: object) -> tuple[StereoPair, object]:
+    frame = generate_frame(SyntheticParams(thread=ThreadParams(**thread), render=render), seed)
+    return StereoPair(frame.left, frame.right), frame
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_raw_method_finds_the_thread_on_tissue(seed: int) -> None:
+    pair, frame = _raw(TISSUE, seed)
+    lifted = segment(pair)
+    assert lifted.method == "raw"
+    assert _iou(lifted.P_L, frame.mask_left) >= 0.8
+    assert _iou(lifted.P_R, frame.mask_right) >= 0.8
+
+
+@pytest.mark.parametrize("colour", ["violet", "blue", "green", "black", "white"])
+def test_raw_method_finds_threads_of_any_dye(colour: str) -> None:
+    pair, frame = _raw(replace(TISSUE, thread_colour=colour), 21)
+    lifted = segment(pair)
+    assert _iou(lifted.P_L, frame.mask_left) >= 0.75
+    assert _iou(lifted.P_R, frame.mask_right) >= 0.75
+
+
+def test_raw_method_leaves_thread_wide_vessels_and_fibres_out() -> None:
+    pair, frame = _raw(replace(TISSUE, distractors=8), 31)
+    lifted = segment(pair)
+    assert _iou(lifted.P_L, frame.mask_left) >= 0.8
+    # Little far from the thread: <= 8 % of the segmented pixels lie > 3 px from the true mask.
+    near = cv2.dilate(frame.mask_left.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+    assert (lifted.P_L & ~near).sum() <= 0.08 * lifted.P_L.sum()
+
+
+def test_raw_method_survives_uneven_light_jpeg_and_a_grasper() -> None:
+    render = replace(TISSUE, lighting=0.6, jpeg_quality=70, instrument=True, noise_sigma=3.0)
+    pair, frame = _raw(render, 41)
+    lifted = segment(pair)
+    assert _iou(lifted.P_L, frame.mask_left) >= 0.7
+    assert _iou(lifted.P_R, frame.mask_right) >= 0.7
+
+
+def test_raw_method_gives_a_score_layer_in_unit_range() -> None:
+    pair, frame = _raw(TISSUE, 11)
+    lifted = segment(pair)
+    for score, mask in ((lifted.score_L, frame.mask_left), (lifted.score_R, frame.mask_right)):
+        assert score is not None and score.dtype == np.float32 and score.shape == mask.shape
+        assert score.min() >= 0.0 and score.max() <= 1.0
+        assert np.median(score[mask]) > 4 * np.median(score[~mask])
+
+
+@pytest.mark.parametrize(
+    "render",
+    [
+        pytest.param(
+            TISSUE,
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason="known gap: on thread-free tissue a vessel or texture line passes as thread (no absolute contrast floor yet)",
+            ),
+        ),
+        RenderParams(noise_sigma=6.0),
+    ],
+)
+def test_a_frame_without_a_thread_is_no_thread_found(render: RenderParams) -> None:
+    # A thread 1e-6 mm thick covers no pixel: tissue (or noise) only, with vessels and glints.
+    empty = generate_frame(
+        SyntheticParams(thread=ThreadParams(diameter_mm=1e-6), render=render), 51
+    )
+    assert not empty.mask_left.any()
+    with pytest.raises(ValueError, match="no thread found"):
+        segment(StereoPair(empty.left, empty.right), SegmentationParams(method="raw"))
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="known gap: on thread-free tissue a vessel or texture line passes as thread (no absolute contrast floor yet)",
+)
+def test_no_thread_found_stops_the_pipeline_with_that_reason() -> None:
+    empty = generate_frame(
+        SyntheticParams(thread=ThreadParams(diameter_mm=1e-6), render=TISSUE), 52
+    )
+    rec = Pipeline(StereoPair(empty.left, empty.right), calibration_for(empty.camera)).run()
+    assert rec.status == "failed" and rec.failed_stage == "segment"
+    assert "no thread found" in (rec.message or "")
+    assert "camera" not in rec.runs
+
+
+def test_threshold_method_is_the_grey_threshold_unchanged() -> None:
+    pair, _ = _raw(TISSUE, 11)
+    p = SegmentationParams(method="threshold", min_component_px=1, lift_dilate_px=0)
+    lifted = segment(pair, p)
+    grey = cv2.cvtColor(pair.left, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    level = float(np.argmax(np.bincount(grey.astype(np.uint8).ravel(), minlength=256)))
+    assert lifted.method == "threshold"
+    assert_close(lifted.P_L, grey < level - p.seg_delta)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_auto_uses_the_threshold_on_flat_backgrounds(seed: int) -> None:
+    pair, _ = _raw(RenderParams(), seed)
+    auto = segment(pair)
+    threshold = segment(pair, SegmentationParams(method="threshold"))
+    assert auto.method == "threshold"
+    assert_close(auto.P_L, threshold.P_L)
+    assert_close(auto.P_R, threshold.P_R)
+    assert_close(auto.I_L, threshold.I_L)
+
+
+def test_given_masks_skip_segmentation_and_have_no_score() -> None:
+    pair, frame = _raw(TISSUE, 11)
+    masked = StereoPair(pair.left, pair.right, frame.mask_left, frame.mask_right)
+    lifted = segment(masked, SegmentationParams(method="raw"))
+    assert lifted.method == "mask" and lifted.score_L is None
+    assert_close(lifted.P_L, frame.mask_left)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"), [("method", "magic"), ("flat_share", 1.5), ("ridge_hi", -1.0)]
+)
+def test_bad_raw_parameters_are_rejected_by_name(field: str, value: object) -> None:
+    pair, _ = _raw(TISSUE, 11)
+    with pytest.raises(ValueError, match=field):
+        segment(pair, replace(SegmentationParams(), **{field: value}))
+
+
+def test_raw_method_finds_the_thread_on_a_noisy_flat_background() -> None:
+    pair, frame = _raw(RenderParams(noise_sigma=6.0, blur_sigma=0.7), 61)
+    lifted = segment(pair)
+    assert lifted.method == "raw"  # noise: the background is not flat to 1 grey level
+    assert _iou(lifted.P_L, frame.mask_left) >= 0.8
+    assert _iou(lifted.P_R, frame.mask_right) >= 0.8

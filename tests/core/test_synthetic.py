@@ -6,6 +6,7 @@ ground truth spline, evaluated here with scipy from the returned control points 
 """
 
 import math
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -13,6 +14,7 @@ import pytest
 from scipy.interpolate import BSpline
 
 from core.synthetic import (
+    THREAD_COLOURS,
     RenderParams,
     StereoCamera,
     SyntheticFrame,
@@ -307,3 +309,84 @@ def test_hairpin_strands_run_side_by_side_without_touching(seed: int) -> None:
 def test_hairpin_and_crossing_cannot_both_be_set() -> None:
     with pytest.raises(ValueError, match="hairpin"):
         ThreadParams(hairpin=True, crossing=True)
+
+
+# --- realism options: dyes, distractors, grasper, lighting, JPEG --------------------------------
+
+TISSUE = RenderParams(background="tissue")
+
+
+@pytest.mark.parametrize(
+    "option",
+    [
+        {"distractors": 8},
+        {"lighting": 0.6},
+        {"jpeg_quality": 60},
+        {"thread_colour": "green"},
+        {"specular": 0.4},
+    ],
+)
+def test_realism_options_keep_the_thread_and_its_mask(option: dict) -> None:
+    base = generate_frame(SyntheticParams(render=TISSUE), 7)
+    other = generate_frame(SyntheticParams(render=replace(TISSUE, **option)), 7)
+    np.testing.assert_array_equal(other.truth.control_points, base.truth.control_points)
+    np.testing.assert_array_equal(other.mask_left, base.mask_left)
+    np.testing.assert_array_equal(other.mask_right, base.mask_right)
+    assert not np.array_equal(other.left, base.left)
+
+
+@pytest.mark.parametrize("colour", ["violet", "blue", "green", "black", "white", "red"])
+def test_thread_colour_paints_the_thread_in_that_dye(colour: str) -> None:
+    frame = generate_frame(SyntheticParams(render=replace(TISSUE, thread_colour=colour)), 3)
+    core = cv2.erode(frame.mask_left.astype(np.uint8), np.ones((2, 2), np.uint8)).astype(bool)
+    mean = frame.left[core].astype(float).mean(axis=0)
+    target = np.array(THREAD_COLOURS[colour])
+    # The tube is shaded (edges at 75 %) and highlighted: within 30 % of the dye per channel.
+    assert np.all(np.abs(mean - target) <= 0.3 * target + 25), (mean, target)
+
+
+def test_distractors_add_thread_wide_lines_off_the_thread() -> None:
+    base = generate_frame(SyntheticParams(render=TISSUE), 9)
+    other = generate_frame(SyntheticParams(render=replace(TISSUE, distractors=10)), 9)
+    changed = np.abs(other.left.astype(int) - base.left.astype(int)).max(axis=2) > 20
+    assert changed[~base.mask_left].sum() > 2000  # new lines on the tissue
+    # Lines, not blobs: most changed pixels are within 4 px of an unchanged one.
+    thin = cv2.erode(changed.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    assert thin.sum() < 0.1 * changed.sum()
+
+
+def test_instrument_hides_thread_only_where_it_covers_it() -> None:
+    for seed in range(6):
+        base = generate_frame(SyntheticParams(render=TISSUE), seed)
+        other = generate_frame(SyntheticParams(render=replace(TISSUE, instrument=True)), seed)
+        assert not np.any(other.mask_left & ~base.mask_left)  # coverage only removed
+        grey = np.abs(other.left.astype(int) - base.left.astype(int)).max(axis=2) > 30
+        assert grey.sum() > 2000  # a shaft is drawn
+        hidden = base.mask_left & ~other.mask_left
+        # the thread disappears only under the drawn instrument: within 2 px of where the image
+        # changed by > 30 grey levels (at the shaft's edge its shading can match the thread's)
+        drawn = cv2.dilate(grey.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+        assert np.all(drawn[hidden])
+
+
+def test_lighting_darkens_part_of_the_view_by_up_to_the_setting() -> None:
+    base = generate_frame(SyntheticParams(render=TISSUE), 4)
+    lit = generate_frame(SyntheticParams(render=replace(TISSUE, lighting=0.6)), 4)
+    ratio = (lit.left.astype(float) + 1) / (base.left.astype(float) + 1)
+    assert ratio.max() <= 1.01
+    assert 0.35 <= np.percentile(ratio, 1) <= 0.6
+
+
+@pytest.mark.parametrize(
+    ("render", "setting"),
+    [
+        ({"thread_colour": "pink"}, "render.thread_colour"),
+        ({"distractors": -1}, "render.distractors"),
+        ({"lighting": 0.9}, "render.lighting"),
+        ({"jpeg_quality": 101}, "render.jpeg_quality"),
+        ({"background": "flat", "distractors": 3}, "render.distractors"),
+    ],
+)
+def test_invalid_realism_settings_name_the_setting(render: dict, setting: str) -> None:
+    with pytest.raises(ValueError, match=setting.replace(".", r"\.")):
+        RenderParams(**{"background": "tissue", **render})
