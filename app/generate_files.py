@@ -222,4 +222,3 @@ def _write_readme(path: Path, group: str, section: str) -> None:
     sections[group] = section
     body = "\n".join(sections[name] for name in sorted(sections))
     path.write_text(_README_HEAD + body, encoding="utf-8")
-

@@ -17,15 +17,17 @@ import os
 import re
 import tempfile
 import tomllib
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from app.errors import AlreadyExists, Forbidden, Invalid, NotFound
 from core.params import ParamSpec, specs
 from core.pipeline import STAGE_BY_NAME, STAGES, ReconParams
 
 NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")  # whole name only: use valid_name()
+T = TypeVar("T")
 HASH_HEX = 12  # 48 bits: no collision among the few hundred parameter sets of a study
 
 
@@ -83,18 +85,23 @@ def params_hash(params: ReconParams) -> str:
     return hashlib.sha256(canonical.encode()).hexdigest()[:HASH_HEX]
 
 
-def load_preset(path: str | Path) -> ReconParams:
+def read_toml(path: str | Path, what: str, parse: Callable[[dict[str, Any]], T]) -> T:
+    """``parse`` of the TOML file at ``path``; every error is a ValueError naming the file."""
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text())
     except OSError as exc:
-        raise ValueError(f"{path}: cannot read preset ({exc.strerror or exc})") from None
+        raise ValueError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: not valid TOML ({exc})") from None
     try:
-        return validate(data)
+        return parse(data)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
+
+
+def load_preset(path: str | Path) -> ReconParams:
+    return read_toml(path, "preset", validate)
 
 
 def valid_name(name: object) -> bool:

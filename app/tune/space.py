@@ -6,7 +6,6 @@ import itertools
 import math
 import operator
 import re
-import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -14,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from app.presets import validate
+from app.presets import read_toml, validate
 from core.params import ParamSpec, specs
 from core.pipeline import STAGE_BY_NAME, STAGES, ReconParams
 
@@ -94,17 +93,7 @@ class Space:
 
 
 def load_space(path: str | Path) -> Space:
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read space ({exc.strerror or exc})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not valid TOML ({exc})") from None
-    try:
-        return parse_space(data)
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
+    return read_toml(path, "space", parse_space)
 
 
 def parse_space(data: dict[str, Any]) -> Space:
