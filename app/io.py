@@ -66,7 +66,7 @@ def load_pair(
         raise ValueError("need --left and --right, or --stereo")
     mL = mR = None
     if mask is not None:
-        mL, mR = split_side_by_side(read_mask(mask).astype(np.uint8))
+        mL, mR = split_side_by_side(read_mask(mask).astype(np.uint8), "mask")
         mL, mR = mL.astype(bool), mR.astype(bool)
     elif mask_left is not None or mask_right is not None:
         if mask_left is None or mask_right is None:

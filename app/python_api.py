@@ -33,7 +33,7 @@ from app.presets import resolve_preset
 from core.calibration import StereoCalibration
 from core.pipeline import Pipeline, ReconParams, Reconstruction
 from core.rectify import FRAMES, Frame, Rectification, in_frame, rectification, rectify_pair
-from core.segmentation import StereoPair
+from core.segmentation import StereoPair, split_side_by_side
 
 Image = str | Path | np.ndarray
 
@@ -127,11 +127,7 @@ def reconstruct(
     if stereo is not None:
         if left is not None or right is not None:
             raise ValueError("give either stereo= or left and right, not both")
-        both = _image(stereo, "stereo", inputs)
-        if both.shape[1] % 2:
-            raise ValueError(f"side-by-side image must have an even width, got {both.shape}")
-        w = both.shape[1] // 2
-        L, R = both[:, :w], both[:, w:]
+        L, R = split_side_by_side(_image(stereo, "stereo", inputs))
     else:
         if left is None or right is None:
             raise ValueError("need left and right images, or stereo=")
@@ -140,11 +136,7 @@ def reconstruct(
     if mask is not None:
         if mask_left is not None or mask_right is not None:
             raise ValueError("give either mask= or mask_left and mask_right, not both")
-        both_masks = _mask(mask, "mask", inputs)
-        if both_masks.shape[1] % 2:
-            raise ValueError(f"side-by-side mask must have an even width, got {both_masks.shape}")
-        mw = both_masks.shape[1] // 2
-        mL, mR = both_masks[:, :mw], both_masks[:, mw:]
+        mL, mR = split_side_by_side(_mask(mask, "mask", inputs), "mask")
     elif (mask_left is None) != (mask_right is None):
         raise ValueError("give both masks or neither")
     if mask_left is not None and mask_right is not None:

@@ -69,10 +69,11 @@ class StereoPair:
         return (int(self.left.shape[0]), int(self.left.shape[1]))
 
 
-def split_side_by_side(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Split a side-by-side composite (left half, right half) into two views."""
+def split_side_by_side(image: np.ndarray, what: str = "image") -> tuple[np.ndarray, np.ndarray]:
+    """Split a side-by-side composite (left half, right half) into two views; ``what`` names it
+    in the error ("image", "mask")."""
     if image.ndim not in (2, 3) or image.shape[1] % 2:
-        raise ValueError(f"side-by-side image must have an even width, got shape {image.shape}")
+        raise ValueError(f"side-by-side {what} must have an even width, got shape {image.shape}")
     w = image.shape[1] // 2
     return image[:, :w], image[:, w:]
 

@@ -31,6 +31,8 @@ import numpy as np
 from scipy.interpolate import BSpline
 from scipy.spatial import cKDTree
 
+from core.calibration import StereoCalibration, make_calibration
+
 DEGREE: Final = 3  # cubic B-spline, as in the paper dataset's ground truth
 _ARC_TABLE_SIZE: Final = 4096  # parameter samples for arc-length tables (relative error ~1e-7)
 _MIN_CLEARANCE_STEP_MM: Final = 0.01  # a thread thinner than 0.02 mm (a thread-free test
@@ -83,6 +85,19 @@ class StereoCamera:
     def K(self) -> np.ndarray:
         """(3, 3) float64 intrinsic matrix, shared by both views."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fx, self.cy], [0.0, 0.0, 1.0]])
+
+    def calibration(self) -> StereoCalibration:
+        """This rectified rig as a :class:`StereoCalibration` (mm; OpenCV's T = -baseline x)."""
+        return make_calibration(
+            K1=self.K,
+            D1=np.zeros(5),
+            K2=self.K,
+            D2=np.zeros(5),
+            R=np.eye(3),
+            T=np.array([-self.baseline, 0.0, 0.0]),
+            image_size=(self.height, self.width),
+            unit="mm",
+        )
 
     def disparity(self, z: np.ndarray | float) -> np.ndarray:
         """Disparity ``x_left - x_right`` in px of points at depth ``z`` (mm)."""

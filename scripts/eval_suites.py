@@ -26,7 +26,7 @@ from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from core.calibration import make_calibration  # noqa: E402
+from core.calibration import StereoCalibration  # noqa: E402
 from core.metrics import curve_errors  # noqa: E402
 from core.pipeline import Pipeline, ReconParams  # noqa: E402
 from core.segmentation import StereoPair, segment  # noqa: E402
@@ -70,17 +70,9 @@ SUITES: dict[str, tuple[ThreadParams, RenderParams]] = {
 }
 
 
-def calibration_for(camera: StereoCamera):
-    return make_calibration(
-        K1=camera.K,
-        D1=np.zeros(5),
-        K2=camera.K,
-        D2=np.zeros(5),
-        R=np.eye(3),
-        T=np.array([-camera.baseline, 0.0, 0.0]),
-        image_size=(camera.height, camera.width),
-        unit="mm",
-    )
+def calibration_for(camera: StereoCamera) -> StereoCalibration:
+    """The :class:`StereoCalibration` of a synthetic rectified camera (mm)."""
+    return camera.calibration()
 
 
 def run_frame(frame, params: ReconParams, masks: bool) -> dict:
@@ -104,9 +96,7 @@ def run_frame(frame, params: ReconParams, masks: bool) -> dict:
     if "camera" in rec.runs:
         e = curve_errors(rec["camera"].points, frame.truth.centerline)
         row.update(e_S=e.e_S, e_S_max=e.e_S_max, e_length=e.e_length)
-        row["good"] = bool(
-            rec.status == "ok" and e.e_length <= GOOD_MM and e.e_S_max <= GOOD_MM
-        )
+        row["good"] = bool(rec.status == "ok" and e.e_length <= GOOD_MM and e.e_S_max <= GOOD_MM)
     else:
         row["good"] = False
     return row

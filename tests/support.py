@@ -6,7 +6,7 @@ import functools
 
 import numpy as np
 
-from core.calibration import StereoCalibration, make_calibration
+from core.calibration import StereoCalibration
 from core.segmentation import StereoPair
 from core.synthetic import (
     StereoCamera,
@@ -56,16 +56,7 @@ def assert_close(
 
 def calibration_for(camera: StereoCamera) -> StereoCalibration:
     """The :class:`StereoCalibration` of a synthetic rectified camera (mm)."""
-    return make_calibration(
-        K1=camera.K,
-        D1=np.zeros(5),
-        K2=camera.K,
-        D2=np.zeros(5),
-        R=np.eye(3),
-        T=np.array([-camera.baseline, 0.0, 0.0]),
-        image_size=(camera.height, camera.width),
-        unit="mm",
-    )
+    return camera.calibration()
 
 
 @functools.lru_cache(maxsize=64)
