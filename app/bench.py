@@ -12,10 +12,10 @@ from typing import Any
 
 import numpy as np
 
-from app.dataset import Frame, discover, load_frame
-from app.errors import UserError
-from app.presets import resolve_preset, validate
-from core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction, StageError
+from threadrecon.app.dataset import Frame, discover, load_frame
+from threadrecon.app.errors import UserError
+from threadrecon.app.presets import resolve_preset, validate
+from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction, StageError
 
 
 def cmd_bench(args: argparse.Namespace) -> int:

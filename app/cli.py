@@ -10,17 +10,18 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
-from app.bench import cmd_bench
-from app.dataset import discover, frame_inputs, frame_rectification
-from app.distributed import connect, evaluate_frames
-from app.errors import UserError
-from app.evaluation import summarise, write_csv
-from app.export import result_json, write_json
-from app.presets import resolve_preset
-from app.python_api import reconstruct
-from app.server import cmd_serve
-from app.track_report import cmd_track
-from app.tune.command import cmd_tune
+from threadrecon.app.bench import cmd_bench
+from threadrecon.app.dataset import discover, frame_inputs, frame_rectification
+from threadrecon.app.distributed import connect, evaluate_frames
+from threadrecon.app.errors import UserError
+from threadrecon.app.evaluation import summarise, write_csv
+from threadrecon.app.export import result_json, software_version, write_json
+from threadrecon.app.presets import resolve_preset
+from threadrecon.app.python_api import reconstruct
+from threadrecon.app.resources import sample_data_dir
+from threadrecon.app.server import cmd_serve
+from threadrecon.app.track_report import cmd_track
+from threadrecon.app.tune.command import cmd_tune
 
 
 def limit_blas_threads() -> None:
@@ -49,6 +50,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="threadrecon", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"threadrecon {software_version()}")
     sub = parser.add_subparsers(dest="command")
 
     r = sub.add_parser(
@@ -191,7 +193,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="port of the 3D view (default: --port + 1; the next free one if taken)",
     )
     v.add_argument(
-        "--db", help="ratings and evaluations database (default: DATASET/threadrecon.sqlite3)"
+        "--db",
+        help="ratings and evaluations database (default: DATASET/threadrecon.sqlite3; for the "
+        "bundled sample, sample_data.sqlite3 in the user data folder)",
     )
     v.add_argument(
         "--configs",
@@ -253,7 +257,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.set_defaults(func=cmd_track)
 
     try:
-        from app import generate
+        from threadrecon.app import generate
     except ImportError:  # the generator ships with the synthetic-data module
         generate = None
     if generate is not None:
@@ -262,7 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _sample_data() -> Path:
-    return Path(__file__).resolve().parent.parent / "sample_data"
+    return sample_data_dir()
 
 
 # --- reconstruct -------------------------------------------------------------------------

@@ -12,8 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from core.params import specs
-from core.pipeline import STAGE_TABLE
+from threadrecon.core.params import specs
+from threadrecon.core.pipeline import STAGE_TABLE
 
 Kind = Literal["slider", "checkbox", "dropdown", "number"]
 

@@ -35,19 +35,19 @@ from pathlib import Path
 
 import numpy as np
 
-from app.export import InputFile
-from app.io import load_calibration, load_ground_truth, load_pair, prepare_pair
-from core.calibration import StereoCalibration
-from core.metrics import (
+from threadrecon.app.export import InputFile
+from threadrecon.app.io import load_calibration, load_ground_truth, load_pair, prepare_pair
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.metrics import (
     ReprojectionErrors,
     curve_errors,
     project,
     reprojection_errors,
     visible_part,
 )
-from core.pipeline import Reconstruction
-from core.rectify import Rectification, from_left_frame, rectification
-from core.segmentation import LiftedPair, StereoPair
+from threadrecon.core.pipeline import Reconstruction
+from threadrecon.core.rectify import Rectification, from_left_frame, rectification
+from threadrecon.core.segmentation import LiftedPair, StereoPair
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 PAPER_OLD_GROUPS = 4  # the paper's blend1..4 use blend_calibration.yaml (1 mm baseline)

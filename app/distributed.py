@@ -23,9 +23,9 @@ from typing import Any
 import cv2
 from threadpoolctl import threadpool_limits
 
-from app.dataset import Frame
-from app.evaluation import evaluate_frame
-from core.pipeline import ReconParams, Reconstruction
+from threadrecon.app.dataset import Frame
+from threadrecon.app.evaluation import evaluate_frame
+from threadrecon.core.pipeline import ReconParams, Reconstruction
 
 Progress = Callable[[int, int, str], None]
 

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from app.dataset import METRIC_COLUMNS, Frame, evaluate_reconstruction, load_frame
-from core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
+from threadrecon.app.dataset import METRIC_COLUMNS, Frame, evaluate_reconstruction, load_frame
+from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
 
 LENGTH_FAILURE_MM = 20.0  # a simulated frame whose length is off by more than 2 cm has failed
 

@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from app.presets import params_hash
-from core.pipeline import Reconstruction
-from core.rectify import FRAMES, Frame, Rectification, in_frame
+from threadrecon.app.presets import params_hash
+from threadrecon.core.pipeline import Reconstruction
+from threadrecon.core.rectify import FRAMES, Frame, Rectification, in_frame
 
 SCHEMA_ID = "threadrecon-result/1"
 """Value of the ``schema`` field; bumped when a field changes meaning."""
@@ -100,19 +100,10 @@ class InputFile:
 
 
 def software_version() -> str:
-    """The installed ``threadrecon`` distribution's version, else pyproject.toml's."""
-    from importlib import metadata
+    """The installed ``threadrecon`` distribution's version."""
+    import threadrecon
 
-    try:
-        return metadata.version("threadrecon")
-    except metadata.PackageNotFoundError:
-        import tomllib
-
-        pyproject = Path(__file__).resolve().parent.parent / "pyproject.toml"
-        try:
-            return str(tomllib.loads(pyproject.read_text())["project"]["version"])
-        except (OSError, KeyError, tomllib.TOMLDecodeError):
-            return "unknown"
+    return threadrecon.__version__
 
 
 def result_json(

@@ -11,7 +11,7 @@
 Frame k (from 1) is drawn with ``np.random.default_rng([seed, k])``, so a frame does not depend
 on ``--count``. Unlike the paper's ground truth (cm), ours is in mm (``Units`` in the YAML).
 
-Use ``add_parser(subparsers)`` from the main CLI, or run ``python -m app.generate OUT_DIR ...``.
+Use ``add_parser(subparsers)`` from the main CLI, or run ``python -m threadrecon.app.generate OUT_DIR ...``.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from app.generate_files import (
+from threadrecon.app.generate_files import (
     _DEFAULT_RENDER,
     _DEFAULT_THREAD,
     _GROUP_RE,
@@ -39,7 +39,7 @@ from app.generate_files import (
     _write_frame,
     _write_readme,
 )
-from core.synthetic import (
+from threadrecon.core.synthetic import (
     THREAD_COLOURS,
     RenderParams,
     StereoCamera,
@@ -168,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--seed must be >= 0, got {seed}")
     params = _params(args)
     if getattr(args, "sequence", None) is not None:
-        from app import sequence_gen  # video encoding only when a sequence is asked for
+        from threadrecon.app import sequence_gen  # video encoding only when a sequence is asked for
 
         return sequence_gen.run(args, params, _write_calibration)
     group = args.group or (
@@ -223,8 +223,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m app.generate OUT_DIR ...``: the same command without the main CLI."""
-    parser = argparse.ArgumentParser(prog="python -m app.generate", description=DESCRIPTION)
+    """``python -m threadrecon.app.generate OUT_DIR ...``: the same command without the main CLI."""
+    parser = argparse.ArgumentParser(
+        prog="python -m threadrecon.app.generate", description=DESCRIPTION
+    )
     _add_arguments(parser)
     args = parser.parse_args(argv)
     try:

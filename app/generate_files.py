@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from core.synthetic import (
+from threadrecon.core.synthetic import (
     RenderParams,
     StereoCamera,
     SyntheticFrame,
@@ -166,7 +166,7 @@ def _section(args: argparse.Namespace, params: SyntheticParams, group: str, rows
         f"<!-- group: {group} -->",
         f"## simulated/{group}",
         "",
-        "Command (equivalently `python -m app.generate ...` with the same arguments):",
+        "Command (equivalently `python -m threadrecon.app.generate ...` with the same arguments):",
         "",
         "```",
         _command(args, group),

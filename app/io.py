@@ -16,15 +16,15 @@ import cv2
 import numpy as np
 from scipy.interpolate import BSpline
 
-from core.calibration import (
+from threadrecon.core.calibration import (
     CalibrationError,
     StereoCalibration,
     from_kalibr_camchain,
     from_ros_camera_info,
     parse_calibration,
 )
-from core.rectify import Rectification, rectification, rectify_pair
-from core.segmentation import StereoPair, split_side_by_side
+from threadrecon.core.rectify import Rectification, rectification, rectify_pair
+from threadrecon.core.segmentation import StereoPair, split_side_by_side
 
 GT_SAMPLES = 2000  # dense samples of a ground-truth spline for the curve metrics
 

@@ -14,11 +14,11 @@ from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from typing import Any
 
-from app.dataset import METRIC_COLUMNS, Frame
-from app.evaluation import evaluate_frame, summarise
-from app.export import json_safe
-from app.presets import params_hash
-from core.pipeline import ReconParams
+from threadrecon.app.dataset import METRIC_COLUMNS, Frame
+from threadrecon.app.evaluation import evaluate_frame, summarise
+from threadrecon.app.export import json_safe
+from threadrecon.app.presets import params_hash
+from threadrecon.core.pipeline import ReconParams
 
 log = logging.getLogger(__name__)
 

@@ -14,12 +14,12 @@ from typing import Any
 
 import numpy as np
 
-from app.dataset import Frame, discover, load_frame
-from app.errors import Invalid, NotFound
-from app.presets import validate
-from core.calibration import StereoCalibration
-from core.pipeline import STAGES, ReconParams
-from core.segmentation import StereoPair
+from threadrecon.app.dataset import Frame, discover, load_frame
+from threadrecon.app.errors import Invalid, NotFound
+from threadrecon.app.presets import validate
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.pipeline import STAGES, ReconParams
+from threadrecon.core.segmentation import StereoPair
 
 LOADED_FRAMES = 16  # decoded frames kept by the library (bounded memory, whatever the tabs)
 

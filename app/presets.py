@@ -22,9 +22,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, TypeVar
 
-from app.errors import AlreadyExists, Forbidden, Invalid, NotFound
-from core.params import ParamSpec, specs
-from core.pipeline import STAGE_BY_NAME, STAGES, ReconParams
+from threadrecon.app.errors import AlreadyExists, Forbidden, Invalid, NotFound
+from threadrecon.app.resources import configs_dir, user_data_dir
+from threadrecon.core.params import ParamSpec, specs
+from threadrecon.core.pipeline import STAGE_BY_NAME, STAGES, ReconParams
 
 NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")  # whole name only: use valid_name()
 T = TypeVar("T")
@@ -112,14 +113,12 @@ def valid_name(name: object) -> bool:
 
 def default_configs_dir() -> Path:
     """The built-in presets (read-only)."""
-    return Path(__file__).resolve().parent.parent / "configs"
+    return configs_dir()
 
 
 def user_configs_dir() -> Path:
     """The platform's folder for the user's presets (created on first save)."""
-    import platformdirs
-
-    return Path(platformdirs.user_data_dir("threadrecon", appauthor=False)) / "presets"
+    return user_data_dir() / "presets"
 
 
 def builtin_presets() -> list[str]:

@@ -1,7 +1,7 @@
 """The Python API: one call from a stereo pair and its calibration to the thread's centerline.
 
 ```python
-from app.python_api import reconstruct   # ``from threadrecon import reconstruct`` once packaged
+from threadrecon.app.python_api import reconstruct   # ``from threadrecon import reconstruct`` once packaged
 
 result = reconstruct("left.png", "right.png", "calibration.yaml")
 if result.ok:
@@ -27,13 +27,20 @@ from typing import Any
 
 import numpy as np
 
-from app.export import InputFile, polyline_ply, result_json
-from app.io import load_calibration, read_image, read_mask
-from app.presets import resolve_preset
-from core.calibration import StereoCalibration
-from core.pipeline import Pipeline, ReconParams, Reconstruction
-from core.rectify import FRAMES, Frame, Rectification, in_frame, rectification, rectify_pair
-from core.segmentation import StereoPair, split_side_by_side
+from threadrecon.app.export import InputFile, polyline_ply, result_json
+from threadrecon.app.io import load_calibration, read_image, read_mask
+from threadrecon.app.presets import resolve_preset
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.pipeline import Pipeline, ReconParams, Reconstruction
+from threadrecon.core.rectify import (
+    FRAMES,
+    Frame,
+    Rectification,
+    in_frame,
+    rectification,
+    rectify_pair,
+)
+from threadrecon.core.segmentation import StereoPair, split_side_by_side
 
 Image = str | Path | np.ndarray
 

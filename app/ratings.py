@@ -30,8 +30,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from app.errors import Unavailable
-from app.store_rows import dumps, evaluation_from_row
+from threadrecon.app.errors import Unavailable
+from threadrecon.app.store_rows import dumps, evaluation_from_row
 
 APP_ID = "threadrecon-ratings"  # meta.app: tells our database from another program's
 SCHEMA_VERSION = 1  # bump, with a migration in _open_schema, when a table changes

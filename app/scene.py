@@ -20,10 +20,10 @@ from typing import Any
 import numpy as np
 import viser
 
-from app.controls import Control, controls
-from app.library import LoadedFrame, merge_params
-from app.session import Session
-from app.views import (
+from threadrecon.app.controls import Control, controls
+from threadrecon.app.library import LoadedFrame, merge_params
+from threadrecon.app.session import Session
+from threadrecon.app.views import (
     LAYER_STAGE,
     LAYERS,
     Label,
@@ -33,7 +33,7 @@ from app.views import (
     nearest_to_ray,
     pixel_info,
 )
-from core.pipeline import STAGES, ReconParams, Reconstruction
+from threadrecon.core.pipeline import STAGES, ReconParams, Reconstruction
 
 POINT_SIZE_FRAC = 0.0025  # base point size as a fraction of the median thread depth
 STREAM_PAUSE_S = 0.35  # pause between stages of a streamed run, so each layer can be seen

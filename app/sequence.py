@@ -29,9 +29,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from app.io import load_calibration, load_ground_truth, read_image, read_mask
-from core.calibration import StereoCalibration, make_calibration
-from core.segmentation import StereoPair, split_side_by_side
+from threadrecon.app.io import load_calibration, load_ground_truth, read_image, read_mask
+from threadrecon.core.calibration import StereoCalibration, make_calibration
+from threadrecon.core.segmentation import StereoPair, split_side_by_side
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 VIDEO_SUFFIXES = (".mp4", ".mkv", ".avi", ".mov", ".webm", ".m4v")

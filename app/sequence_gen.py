@@ -22,9 +22,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from app.sequence import write_video
-from core.sequence_synth import MotionParams, SequenceParams, generate_sequence
-from core.synthetic import SyntheticParams
+from threadrecon.app.sequence import write_video
+from threadrecon.core.sequence_synth import MotionParams, SequenceParams, generate_sequence
+from threadrecon.core.synthetic import SyntheticParams
 
 VIDEO_FPS = 15.0  # frame rate written into the video, frames/s
 

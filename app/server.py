@@ -16,9 +16,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from app.api import AppState, ServerConfig, create_app
-from app.dataset import discover
-from app.errors import UserError
+from threadrecon.app.api import AppState, ServerConfig, create_app
+from threadrecon.app.dataset import discover
+from threadrecon.app.errors import UserError
 
 __all__ = ["ServerConfig", "create_app", "serve"]
 SHUTDOWN_GRACE_S = 1.0  # open long polls are cut after this long on Ctrl-C
@@ -61,8 +61,8 @@ def serve(config: ServerConfig, sock: socket.socket | None = None) -> None:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    from app.ratings import StoreError
-    from app.server import ServerConfig, serve
+    from threadrecon.app.ratings import StoreError
+    from threadrecon.app.server import ServerConfig, serve
 
     root = Path(args.dataset)
     discover(root)  # a wrong folder is a one-line error, before anything starts
@@ -88,7 +88,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             f"cannot listen on {args.host}:{args.port} ({exc.strerror}): choose another --port"
         ) from None
     try:
-        from app.api.guard import Policy
+        from threadrecon.app.api.guard import Policy
 
         Policy(args.allow_origin)
     except ValueError as exc:

@@ -20,13 +20,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from app.dataset import evaluate_reconstruction
-from app.errors import Conflict, Invalid
-from app.library import FrameLibrary, LoadedFrame, merge_params
-from app.notify import Changes
-from app.session_state import describe
-from app.views import overlay
-from core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction, StageError
+from threadrecon.app.dataset import evaluate_reconstruction
+from threadrecon.app.errors import Conflict, Invalid
+from threadrecon.app.library import FrameLibrary, LoadedFrame, merge_params
+from threadrecon.app.notify import Changes
+from threadrecon.app.session_state import describe
+from threadrecon.app.views import overlay
+from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction, StageError
 
 __all__ = ["FrameLibrary", "LoadedFrame", "Session", "View", "merge_params"]
 

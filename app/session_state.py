@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from app.presets import diff, params_hash
-from core.pipeline import STAGES
+from threadrecon.app.presets import diff, params_hash
+from threadrecon.core.pipeline import STAGES
 
 if TYPE_CHECKING:
-    from app.session import Session
+    from threadrecon.app.session import Session
 
 
 def describe(s: Session) -> dict[str, Any]:

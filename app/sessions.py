@@ -7,9 +7,9 @@ import ctypes.util
 import threading
 import uuid
 
-from app.errors import NotFound
-from app.library import FrameLibrary
-from app.session import Session
+from threadrecon.app.errors import NotFound
+from threadrecon.app.library import FrameLibrary
+from threadrecon.app.session import Session
 
 MAX_SESSIONS = 64  # beyond this the longest-idle session without a 3D view is closed
 IDLE_TIMEOUT_S = 600.0  # a session without a view and unused this long is closed

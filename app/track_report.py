@@ -19,17 +19,17 @@ from typing import Any
 
 import numpy as np
 
-from app.errors import UserError
-from app.evaluation import write_csv
-from app.export import result_json, write_json
-from app.io import load_calibration
-from app.presets import resolve_preset
-from app.recording import RecordedFrame
-from app.sequence import Sequence, SequenceFrame
-from core.calibration import StereoCalibration
-from core.metrics import curve_errors
-from core.pipeline import Pipeline, ReconParams, Reconstruction
-from core.tracking import (
+from threadrecon.app.errors import UserError
+from threadrecon.app.evaluation import write_csv
+from threadrecon.app.export import result_json, write_json
+from threadrecon.app.io import load_calibration
+from threadrecon.app.presets import resolve_preset
+from threadrecon.app.recording import RecordedFrame
+from threadrecon.app.sequence import Sequence, SequenceFrame
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.metrics import curve_errors
+from threadrecon.core.pipeline import Pipeline, ReconParams, Reconstruction
+from threadrecon.core.tracking import (
     TrackParams,
     TrackResult,
     TrackState,
@@ -205,8 +205,8 @@ def recorded_frame(tf: TrackedFrame) -> RecordedFrame:
 
 
 def cmd_track(args: argparse.Namespace) -> int:
-    from app.sequence import SequenceError, open_sequence
-    from app.track_report import frame_row, recorded_frame, summary_lines, tracked_json
+    from threadrecon.app.sequence import SequenceError, open_sequence
+    from threadrecon.app.track_report import frame_row, recorded_frame, summary_lines, tracked_json
 
     params = resolve_preset(args.config)
     if args.limit is not None and args.limit < 1:
@@ -248,7 +248,7 @@ def cmd_track(args: argparse.Namespace) -> int:
     for line in summary_lines(rows, elapsed):
         print(line)
     if args.record:
-        from app.recording import save_recording
+        from threadrecon.app.recording import save_recording
 
         save_recording(recorded, args.record, baseline=calib.baseline)
         print(f"recording of {len(recorded)} frames -> {args.record} (opens without a server)")

@@ -21,10 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.calibration import StereoCalibration
-from core.ordering import Ordering
-from core.params import Params, param
-from core.stereo import StereoResult
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.ordering import Ordering
+from threadrecon.core.params import Params, param
+from threadrecon.core.stereo import StereoResult
 
 BORDER_PX = 2.0  # a left pixel within this of where its match leaves the right image: no depth
 

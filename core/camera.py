@@ -15,9 +15,9 @@ from typing import Literal
 import numpy as np
 from scipy.interpolate import BSpline
 
-from core.calibration import StereoCalibration
-from core.params import Params, param
-from core.spline import SplineResult, basis_matrix
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.params import Params, param
+from threadrecon.core.spline import SplineResult, basis_matrix
 
 
 @dataclass(frozen=True)

@@ -39,15 +39,15 @@ import numpy as np
 from scipy.interpolate import BSpline
 from scipy.spatial import cKDTree
 
-from core.bounds import Bounds
-from core.calibration import StereoCalibration
-from core.camera import CameraCurve
-from core.ordering import Ordering
-from core.params import Params, param
-from core.reliability import ReliabilityResult
-from core.segmentation import LiftedPair
-from core.spline import SplineResult
-from core.stereo import StereoResult
+from threadrecon.core.bounds import Bounds
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.camera import CameraCurve
+from threadrecon.core.ordering import Ordering
+from threadrecon.core.params import Params, param
+from threadrecon.core.reliability import ReliabilityResult
+from threadrecon.core.segmentation import LiftedPair
+from threadrecon.core.spline import SplineResult
+from threadrecon.core.stereo import StereoResult
 
 Status = Literal["ok", "suspect", "failed"]
 _RANK = {"ok": 0, "suspect": 1, "failed": 2}

@@ -21,9 +21,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
-from core.params import Params, param
-from core.reliability import ReliabilityResult
-from core.stereo import StereoResult
+from threadrecon.core.params import Params, param
+from threadrecon.core.reliability import ReliabilityResult
+from threadrecon.core.stereo import StereoResult
 
 
 @dataclass(frozen=True)

@@ -27,10 +27,10 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
-from core.clustering import Clusters
-from core.params import Params, param
-from core.segmentation import LiftedPair
-from core.stereo import StereoResult
+from threadrecon.core.clustering import Clusters
+from threadrecon.core.params import Params, param
+from threadrecon.core.segmentation import LiftedPair
+from threadrecon.core.stereo import StereoResult
 
 _HALF_8 = ((0, 1), (1, -1), (1, 0), (1, 1))  # half of the 8-neighbourhood: each pair seen once
 OUTLIER_PX = 2.0  # a pixel > 2 px of disparity from its cluster's median is another match

@@ -12,18 +12,18 @@ from typing import Any
 
 from threadpoolctl import ThreadpoolController
 
-from core.bounds import BoundsParams, depth_bounds
-from core.calibration import StereoCalibration
-from core.camera import CameraParams, to_camera
-from core.check import CheckParams, check_curve
-from core.clustering import ClusterParams, cluster_keypoints
-from core.ordering import OrderingParams, order_keypoints
-from core.params import Params
-from core.refine import RefineParams, refine_depth
-from core.reliability import ReliabilityParams, prune
-from core.segmentation import SegmentationParams, StereoPair, segment
-from core.spline import SplineParams, fit_spline
-from core.stereo import StereoParams, match_stereo
+from threadrecon.core.bounds import BoundsParams, depth_bounds
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.camera import CameraParams, to_camera
+from threadrecon.core.check import CheckParams, check_curve
+from threadrecon.core.clustering import ClusterParams, cluster_keypoints
+from threadrecon.core.ordering import OrderingParams, order_keypoints
+from threadrecon.core.params import Params
+from threadrecon.core.refine import RefineParams, refine_depth
+from threadrecon.core.reliability import ReliabilityParams, prune
+from threadrecon.core.segmentation import SegmentationParams, StereoPair, segment
+from threadrecon.core.spline import SplineParams, fit_spline
+from threadrecon.core.stereo import StereoParams, match_stereo
 
 # One BLAS thread while a stage runs: a multithreaded BLAS sums in another order, and SLSQP's
 # path through Eq. (8) amplified that into a different curve ("n_ctrl = 40" on blend3_1 failed

@@ -22,8 +22,8 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from core.calibration import StereoCalibration, make_calibration
-from core.segmentation import StereoPair
+from threadrecon.core.calibration import StereoCalibration, make_calibration
+from threadrecon.core.segmentation import StereoPair
 
 Frame = Literal["left", "left_rectified"]
 FRAMES: tuple[Frame, ...] = ("left", "left_rectified")

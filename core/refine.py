@@ -31,11 +31,11 @@ import numpy as np
 from scipy import optimize
 from scipy.interpolate import BSpline
 
-from core.bounds import Bounds
-from core.calibration import StereoCalibration
-from core.params import Params, param
-from core.segmentation import LiftedPair
-from core.spline import SplineResult
+from threadrecon.core.bounds import Bounds
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.params import Params, param
+from threadrecon.core.segmentation import LiftedPair
+from threadrecon.core.spline import SplineResult
 
 QUAD_PER_SPAN = 4  # Gauss-Legendre nodes per knot span: exact for the squared 3rd derivative
 RIDGE = 1e-9  # relative ridge that keeps the least-squares matrix of full column rank

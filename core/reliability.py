@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.params import Params, param
-from core.stereo import StereoResult
+from threadrecon.core.params import Params, param
+from threadrecon.core.stereo import StereoResult
 
 E_FLOOR = 1e-6  # E_min = 0 (a perfect match) gives an infinite ratio: R -> 1 without a 0/0
 

@@ -23,7 +23,7 @@ from typing import Final, Literal
 import cv2
 import numpy as np
 
-from core.params import Params, param
+from threadrecon.core.params import Params, param
 
 LIFT_VALUE = 255.0  # Eq. (1): unsegmented pixels are set to 255
 

@@ -23,7 +23,7 @@ from typing import Final, Literal
 
 import numpy as np
 
-from core.synthetic import (
+from threadrecon.core.synthetic import (
     StereoCamera,
     SyntheticFrame,
     SyntheticParams,

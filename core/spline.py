@@ -36,9 +36,9 @@ import daqp
 import numpy as np
 from scipy.interpolate import BSpline, splprep
 
-from core.bounds import Bounds
-from core.calibration import StereoCalibration
-from core.params import Params, param
+from threadrecon.core.bounds import Bounds
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.params import Params, param
 
 EQ_TOL = 1e-3  # endpoint equalities hold to 0.1 % of the median bound half-width
 XY_ROUNDS = 3  # adaptive knots: a uniform span is split into at most 2^3 = 8 parts

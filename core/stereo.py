@@ -30,9 +30,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from core.calibration import StereoCalibration
-from core.params import Params, param
-from core.segmentation import LIFT_VALUE, LiftedPair
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.params import Params, param
+from threadrecon.core.segmentation import LIFT_VALUE, LiftedPair
 
 NEXT_GAP = 2  # Eq. (6) text: |d_next - d_min| > 2, neighbours of d_min have similar energies
 D_MAX = 4096  # largest disparity search range, px: a depth range that asks for more is an error

@@ -31,7 +31,7 @@ import numpy as np
 from scipy.interpolate import BSpline
 from scipy.spatial import cKDTree
 
-from core.calibration import StereoCalibration, make_calibration
+from threadrecon.core.calibration import StereoCalibration, make_calibration
 
 DEGREE: Final = 3  # cubic B-spline, as in the paper dataset's ground truth
 _ARC_TABLE_SIZE: Final = 4096  # parameter samples for arc-length tables (relative error ~1e-7)

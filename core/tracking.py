@@ -38,7 +38,7 @@ from typing import Final, Literal
 import numpy as np
 from scipy.spatial import cKDTree
 
-from core.params import Params, param
+from threadrecon.core.params import Params, param
 
 MIN_ALPHA: Final = 8  # the smallest stereo search range tracking sets, px (Eq. (3) needs > 4)
 MAX_ALPHA: Final = 512  # the largest the stereo stage accepts, px

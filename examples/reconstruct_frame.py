@@ -21,7 +21,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # run from a checkout without installing
 
-from app.python_api import reconstruct  # noqa: E402  (``from threadrecon import reconstruct`` once packaged)
+from threadrecon.app.python_api import reconstruct  # noqa: E402  (``from threadrecon import reconstruct`` once packaged)
 
 
 def main() -> int:

@@ -28,9 +28,9 @@ sys.path.insert(0, str(ROOT))
 import httpx  # noqa: E402
 import uvicorn  # noqa: E402
 
-from app.cli import limit_blas_threads  # noqa: E402
-from app.library import merge_params  # noqa: E402
-from app.server import ServerConfig, create_app  # noqa: E402
+from threadrecon.app.cli import limit_blas_threads  # noqa: E402
+from threadrecon.app.library import merge_params  # noqa: E402
+from threadrecon.app.server import ServerConfig, create_app  # noqa: E402
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = [

@@ -23,11 +23,11 @@ from scipy.stats import spearmanr
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from app.dataset import discover, load_frame  # noqa: E402
-from app.presets import resolve_preset  # noqa: E402
-from core.check import check_curve  # noqa: E402
-from core.metrics import curve_errors, resample  # noqa: E402
-from core.pipeline import Pipeline  # noqa: E402
+from threadrecon.app.dataset import discover, load_frame  # noqa: E402
+from threadrecon.app.presets import resolve_preset  # noqa: E402
+from threadrecon.core.check import check_curve  # noqa: E402
+from threadrecon.core.metrics import curve_errors, resample  # noqa: E402
+from threadrecon.core.pipeline import Pipeline  # noqa: E402
 
 WRONG_MM = 20.0  # the "wrong": length or max curve error above 2 cm
 

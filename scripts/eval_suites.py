@@ -26,11 +26,11 @@ from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from core.calibration import StereoCalibration  # noqa: E402
-from core.metrics import curve_errors  # noqa: E402
-from core.pipeline import Pipeline, ReconParams  # noqa: E402
-from core.segmentation import StereoPair, segment  # noqa: E402
-from core.synthetic import (  # noqa: E402
+from threadrecon.core.calibration import StereoCalibration  # noqa: E402
+from threadrecon.core.metrics import curve_errors  # noqa: E402
+from threadrecon.core.pipeline import Pipeline, ReconParams  # noqa: E402
+from threadrecon.core.segmentation import StereoPair, segment  # noqa: E402
+from threadrecon.core.synthetic import (  # noqa: E402
     RenderParams,
     StereoCamera,
     SyntheticParams,

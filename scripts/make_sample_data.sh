@@ -16,13 +16,13 @@ OUT=sample_data
 rm -rf "$OUT/simulated/flat" "$OUT/simulated/tissue" "$OUT/simulated/crossing" "$OUT/simulated/raw" \
     "$OUT/README.md"
 
-"$PYTHON" -m app.generate "$OUT" --count 4 --seed 1 --background flat
-"$PYTHON" -m app.generate "$OUT" --count 4 --seed 2 --background tissue --noise 2 --blur 0.5
-"$PYTHON" -m app.generate "$OUT" --count 2 --seed 3 --background flat --crossing
+"$PYTHON" -m threadrecon.app.generate "$OUT" --count 4 --seed 1 --background flat
+"$PYTHON" -m threadrecon.app.generate "$OUT" --count 4 --seed 2 --background tissue --noise 2 --blur 0.5
+"$PYTHON" -m threadrecon.app.generate "$OUT" --count 2 --seed 3 --background flat --crossing
 # Raw frames, no mask: the segmentation must find the thread among vessels and fibres as wide
 # as the thread, under uneven light, JPEG-compressed (stored as JPEG to keep sample_data small).
 # Dyes, graspers and their combinations: scripts/eval_suites.py (the combined suite is harder).
-"$PYTHON" -m app.generate "$OUT" --count 4 --seed 4 --background tissue --noise 2 --blur 0.5 \
+"$PYTHON" -m threadrecon.app.generate "$OUT" --count 4 --seed 4 --background tissue --noise 2 --blur 0.5 \
     --distractors 6 --lighting 0.4 --jpeg 85 --no-mask --group raw
 
 du -sh "$OUT"

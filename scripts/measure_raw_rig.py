@@ -20,10 +20,10 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from rig_support import raw_rig  # noqa: E402
 
-from core.metrics import curve_errors  # noqa: E402
-from core.pipeline import reconstruct  # noqa: E402
-from core.rectify import rectification, rectify_pair, to_left_frame  # noqa: E402
-from core.segmentation import StereoPair  # noqa: E402
+from threadrecon.core.metrics import curve_errors  # noqa: E402
+from threadrecon.core.pipeline import reconstruct  # noqa: E402
+from threadrecon.core.rectify import rectification, rectify_pair, to_left_frame  # noqa: E402
+from threadrecon.core.segmentation import StereoPair  # noqa: E402
 
 
 def main() -> None:

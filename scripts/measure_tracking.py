@@ -40,7 +40,7 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--motions", nargs="+", default=list(MOTIONS))
     args = ap.parse_args()
-    py = [sys.executable, "-m", "app.cli"]
+    py = [sys.executable, "-m", "threadrecon.app.cli"]
     total = {"single": [0, 0], "tracked": [0, 0]}
     jit_all: dict[str, list[float]] = {"single": [], "tracked": []}
     rates: dict[str, list[float]] = {"single": [], "tracked": []}

@@ -30,7 +30,7 @@ from browser_support import (  # noqa: E402
     wait_idle,
 )
 
-from core.pipeline import STAGES  # noqa: E402
+from threadrecon.core.pipeline import STAGES  # noqa: E402
 
 RENDER_S = 2.0  # time the software-rendered 3D view gets to draw the new layers
 

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from core.calibration import StereoCalibration, make_calibration
-from core.segmentation import StereoPair
-from core.synthetic import (
+from threadrecon.core.calibration import StereoCalibration, make_calibration
+from threadrecon.core.segmentation import StereoPair
+from threadrecon.core.synthetic import (
     StereoCamera,
     SyntheticFrame,
     SyntheticParams,

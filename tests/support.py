@@ -6,9 +6,9 @@ import functools
 
 import numpy as np
 
-from core.calibration import StereoCalibration
-from core.segmentation import StereoPair
-from core.synthetic import (
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.segmentation import StereoPair
+from threadrecon.core.synthetic import (
     StereoCamera,
     SyntheticFrame,
     SyntheticParams,

@@ -16,18 +16,18 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 
-from app.api import errors
-from app.api.config import ServerConfig
-from app.api.guard import Guard
-from app.api.routes_evaluations import router as evaluations
-from app.api.routes_exports import router as exports
-from app.api.routes_frames import router as frames
-from app.api.routes_page import STATIC
-from app.api.routes_page import router as page
-from app.api.routes_presets import router as presets
-from app.api.routes_ratings import router as ratings
-from app.api.routes_sessions import router as sessions
-from app.api.state import AppState
+from threadrecon.app.api import errors
+from threadrecon.app.api.config import ServerConfig
+from threadrecon.app.api.guard import Guard
+from threadrecon.app.api.routes_evaluations import router as evaluations
+from threadrecon.app.api.routes_exports import router as exports
+from threadrecon.app.api.routes_frames import router as frames
+from threadrecon.app.api.routes_page import STATIC
+from threadrecon.app.api.routes_page import router as page
+from threadrecon.app.api.routes_presets import router as presets
+from threadrecon.app.api.routes_ratings import router as ratings
+from threadrecon.app.api.routes_sessions import router as sessions
+from threadrecon.app.api.state import AppState
 
 __all__ = ["AppState", "ServerConfig", "create_app"]
 log = logging.getLogger("threadrecon.server")

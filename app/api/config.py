@@ -5,8 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from app.presets import user_configs_dir
-from app.sessions import IDLE_TIMEOUT_S
+from threadrecon.app.presets import user_configs_dir
+from threadrecon.app.resources import sample_data_dir, user_data_dir
+from threadrecon.app.sessions import IDLE_TIMEOUT_S
 
 DB_NAME = "threadrecon.sqlite3"
 MAX_BODY_BYTES = 4 * 1024 * 1024  # a request body is a few parameters or a note, never more
@@ -21,7 +22,8 @@ class ServerConfig:
     open_first: bool = True
     """Run the first frame at start-up, so the page shows a reconstruction without a click."""
     db_path: Path | None = None
-    """Ratings and evaluations (SQLite); default ``<data_dir>/threadrecon.sqlite3``."""
+    """Ratings and evaluations (SQLite); default ``<data_dir>/threadrecon.sqlite3``, or the user
+    data folder's ``sample_data.sqlite3`` for the bundled sample (never inside the package)."""
     configs_dir: Path | None = None
     """User presets; default the platform's data folder (built-in presets are read-only)."""
     allow_origins: tuple[str, ...] = ()
@@ -36,7 +38,13 @@ class ServerConfig:
 
     @property
     def db(self) -> Path:
-        return self.db_path or self.data_dir / DB_NAME
+        if self.db_path is not None:
+            return self.db_path
+        if self.data_dir.resolve() == sample_data_dir().resolve():
+            folder = user_data_dir()
+            folder.mkdir(parents=True, exist_ok=True)
+            return folder / "sample_data.sqlite3"
+        return self.data_dir / DB_NAME
 
     @property
     def configs(self) -> Path:

@@ -7,8 +7,8 @@ from typing import Annotated, Any
 from fastapi import Depends, Request
 from fastapi.responses import JSONResponse
 
-from app.api.state import AppState
-from app.export import json_safe
+from threadrecon.app.api.state import AppState
+from threadrecon.app.export import json_safe
 
 
 def _state(request: Request) -> AppState:

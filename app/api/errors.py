@@ -9,8 +9,8 @@ from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
-from app.errors import DomainError
-from app.export import json_safe
+from threadrecon.app.errors import DomainError
+from threadrecon.app.export import json_safe
 
 log = logging.getLogger("threadrecon.server")
 

@@ -6,10 +6,10 @@ from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
-from app.api import schemas
-from app.api.deps import State, answer
-from app.errors import NotFound
-from app.jobs import compare
+from threadrecon.app.api import schemas
+from threadrecon.app.api.deps import State, answer
+from threadrecon.app.errors import NotFound
+from threadrecon.app.jobs import compare
 
 router = APIRouter(prefix="/api/evaluations", tags=["evaluations"])
 HEAD = ("id", "preset", "params_hash", "created_at")

@@ -8,10 +8,10 @@ from urllib.parse import quote
 from fastapi import APIRouter
 from fastapi.responses import Response
 
-from app.api.deps import State
-from app.dataset import frame_inputs, frame_rectification
-from app.errors import Conflict, NotFound
-from app.export import LAYERS, cloud_ply, spline_csv, spline_json
+from threadrecon.app.api.deps import State
+from threadrecon.app.dataset import frame_inputs, frame_rectification
+from threadrecon.app.errors import Conflict, NotFound
+from threadrecon.app.export import LAYERS, cloud_ply, spline_csv, spline_json
 
 router = APIRouter(tags=["exports"])
 EXPORTS = {  # export name -> media type

@@ -10,12 +10,12 @@ from fastapi import APIRouter, Body
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 
-from app.api import schemas
-from app.api.deps import State, answer
-from app.errors import Conflict, Invalid, NotFound, TimedOut
-from app.library import merge_params
-from app.views import stage_json
-from core.pipeline import STAGES
+from threadrecon.app.api import schemas
+from threadrecon.app.api.deps import State, answer
+from threadrecon.app.errors import Conflict, Invalid, NotFound, TimedOut
+from threadrecon.app.library import merge_params
+from threadrecon.app.views import stage_json
+from threadrecon.core.pipeline import STAGES
 
 router = APIRouter(prefix="/api/frames", tags=["frames"])
 

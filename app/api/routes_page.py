@@ -2,20 +2,19 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from fastapi import APIRouter
 from fastapi.responses import FileResponse, RedirectResponse
 
-from app.api import schemas
-from app.api.deps import State
-from app.api.routes_exports import EXPORTS
-from app.controls import controls
-from app.dataset import METRIC_COLUMNS
-from app.export import LAYERS
-from core.pipeline import STAGES, ReconParams
+from threadrecon.app.api import schemas
+from threadrecon.app.api.deps import State
+from threadrecon.app.api.routes_exports import EXPORTS
+from threadrecon.app.controls import controls
+from threadrecon.app.dataset import METRIC_COLUMNS
+from threadrecon.app.export import LAYERS
+from threadrecon.app.resources import static_dir
+from threadrecon.core.pipeline import STAGES, ReconParams
 
-STATIC = Path(__file__).resolve().parents[2] / "static"
+STATIC = static_dir()
 METRIC_LABELS = {  # key -> (label, unit) shown by the page's metrics and tables
     "e_S_mm": ("e_S", "mm"), "e_S_max_mm": ("e_S max", "mm"),
     "e_length_mm": ("length error", "mm"), "length_mm": ("length", "mm"),

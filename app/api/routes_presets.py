@@ -5,10 +5,10 @@ from __future__ import annotations
 from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
-from app.api import schemas
-from app.api.deps import State, answer
-from app.errors import Unavailable
-from app.presets import builtin_presets, diff, list_presets, params_hash, save_preset
+from threadrecon.app.api import schemas
+from threadrecon.app.api.deps import State, answer
+from threadrecon.app.errors import Unavailable
+from threadrecon.app.presets import builtin_presets, diff, list_presets, params_hash, save_preset
 
 router = APIRouter(prefix="/api/presets", tags=["presets"])
 

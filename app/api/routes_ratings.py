@@ -8,11 +8,11 @@ import numpy as np
 from fastapi import APIRouter
 from fastapi.responses import JSONResponse, Response
 
-from app.api import schemas
-from app.api.deps import State, answer
-from app.dataset import METRIC_COLUMNS
-from app.errors import Invalid
-from app.presets import params_hash
+from threadrecon.app.api import schemas
+from threadrecon.app.api.deps import State, answer
+from threadrecon.app.dataset import METRIC_COLUMNS
+from threadrecon.app.errors import Invalid
+from threadrecon.app.presets import params_hash
 
 router = APIRouter(tags=["ratings"])
 TABLE_METRICS = METRIC_COLUMNS[5:]  # the image-space figures every frame has (Table II)

@@ -8,14 +8,14 @@ from fastapi import APIRouter, Body, Query
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 
-from app.api import schemas
-from app.api.deps import State, answer
-from app.api.state import AppState
-from app.errors import Conflict, Invalid, NotFound, TimedOut
-from app.library import merge_params
-from app.session import Session
-from app.views import pixel_info, stage_json
-from core.pipeline import ReconParams
+from threadrecon.app.api import schemas
+from threadrecon.app.api.deps import State, answer
+from threadrecon.app.api.state import AppState
+from threadrecon.app.errors import Conflict, Invalid, NotFound, TimedOut
+from threadrecon.app.library import merge_params
+from threadrecon.app.session import Session
+from threadrecon.app.views import pixel_info, stage_json
+from threadrecon.core.pipeline import ReconParams
 
 router = APIRouter(prefix="/api/sessions", tags=["sessions"])
 MAX_POLL_S = 25.0  # a long poll answers after this long even without news

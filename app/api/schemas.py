@@ -6,7 +6,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from app.session import MAX_PAUSE_S
+from threadrecon.app.session import MAX_PAUSE_S
 
 PauseMs = Field(0.0, ge=0.0, le=1000.0 * MAX_PAUSE_S, allow_inf_nan=False)
 

@@ -11,17 +11,17 @@ import threading
 
 import viser
 
-from app.api.config import ServerConfig
-from app.api.guard import Policy, guard_viser
-from app.errors import Conflict, Invalid, NotFound
-from app.jobs import EvaluationJob
-from app.library import FrameLibrary
-from app.presets import find_preset, load_preset
-from app.ratings import RatingStore
-from app.scene import SceneView
-from app.session import Session
-from app.sessions import SessionManager
-from core.pipeline import ReconParams
+from threadrecon.app.api.config import ServerConfig
+from threadrecon.app.api.guard import Policy, guard_viser
+from threadrecon.app.errors import Conflict, Invalid, NotFound
+from threadrecon.app.jobs import EvaluationJob
+from threadrecon.app.library import FrameLibrary
+from threadrecon.app.presets import find_preset, load_preset
+from threadrecon.app.ratings import RatingStore
+from threadrecon.app.scene import SceneView
+from threadrecon.app.session import Session
+from threadrecon.app.sessions import SessionManager
+from threadrecon.core.pipeline import ReconParams
 
 log = logging.getLogger("threadrecon.server")
 API_SESSION = "api"  # the session used by REST calls that name none

@@ -28,10 +28,16 @@ Trials run one after another, each on all frames at once, and the TPE sampler is
 never on how many workers ran them.
 """
 
-from app.tune.config import TrialResult, TuneConfig, TuneResult, check_config, split_frames
-from app.tune.report import compare_on, pick_best, save_best
-from app.tune.run import INTERRUPTED, STUDY_NAME, open_study, tune
-from app.tune.space import (
+from threadrecon.app.tune.config import (
+    TrialResult,
+    TuneConfig,
+    TuneResult,
+    check_config,
+    split_frames,
+)
+from threadrecon.app.tune.report import compare_on, pick_best, save_best
+from threadrecon.app.tune.run import INTERRUPTED, STUDY_NAME, open_study, tune
+from threadrecon.app.tune.space import (
     DEFAULT_CONSTRAINTS,
     GRID_DIGITS,
     OBJECTIVES,

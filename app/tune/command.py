@@ -8,13 +8,13 @@ import sys
 import time
 from pathlib import Path
 
-from app.dataset import discover
-from app.distributed import connect, describe
-from app.presets import resolve_preset
-from app.tune.config import TuneConfig, split_frames
-from app.tune.report import compare_on, save_best
-from app.tune.run import tune
-from app.tune.space import DEFAULT_CONSTRAINTS, Constraint, load_space
+from threadrecon.app.dataset import discover
+from threadrecon.app.distributed import connect, describe
+from threadrecon.app.presets import resolve_preset
+from threadrecon.app.tune.config import TuneConfig, split_frames
+from threadrecon.app.tune.report import compare_on, save_best
+from threadrecon.app.tune.run import tune
+from threadrecon.app.tune.space import DEFAULT_CONSTRAINTS, Constraint, load_space
 
 
 def cmd_tune(args: argparse.Namespace) -> int:

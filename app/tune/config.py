@@ -10,10 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from app.dataset import Frame
-from app.presets import params_hash
-from app.tune.space import OBJECTIVES, Constraint, Space
-from core.pipeline import ReconParams
+from threadrecon.app.dataset import Frame
+from threadrecon.app.presets import params_hash
+from threadrecon.app.tune.space import OBJECTIVES, Constraint, Space
+from threadrecon.core.pipeline import ReconParams
 
 
 @dataclass(frozen=True)

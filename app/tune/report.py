@@ -7,17 +7,17 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from app.dataset import Frame
-from app.distributed import Progress, evaluate_rows
-from app.evaluation import write_csv
-from app.presets import load_preset, params_hash, save_preset
-from app.tune.config import (
+from threadrecon.app.dataset import Frame
+from threadrecon.app.distributed import Progress, evaluate_rows
+from threadrecon.app.evaluation import write_csv
+from threadrecon.app.presets import load_preset, params_hash, save_preset
+from threadrecon.app.tune.config import (
     TrialResult,
     TuneConfig,
     TuneResult,
 )
-from app.tune.space import OBJECTIVES
-from core.pipeline import ReconParams
+from threadrecon.app.tune.space import OBJECTIVES
+from threadrecon.core.pipeline import ReconParams
 
 
 def pick_best(trials: Sequence[TrialResult], cfg: TuneConfig) -> TrialResult | None:

@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from app.dataset import Frame, discover
-from app.distributed import Progress, evaluate_rows
-from app.tune.config import (
+from threadrecon.app.dataset import Frame, discover
+from threadrecon.app.distributed import Progress, evaluate_rows
+from threadrecon.app.tune.config import (
     TrialResult,
     TuneConfig,
     TuneResult,
@@ -23,9 +23,9 @@ from app.tune.config import (
     check_config,
     split_frames,
 )
-from app.tune.report import _trial_line, _write_reports, pick_best
-from app.tune.space import OBJECTIVES, Dimension, params_of
-from core.pipeline import ReconParams
+from threadrecon.app.tune.report import _trial_line, _write_reports, pick_best
+from threadrecon.app.tune.space import OBJECTIVES, Dimension, params_of
+from threadrecon.core.pipeline import ReconParams
 
 STUDY_NAME = "threadrecon"
 INTERRUPTED = "interrupted; run again"  # the error of a trial cut short by a kill

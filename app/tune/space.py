@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from app.presets import read_toml, validate
-from core.params import ParamSpec, specs
-from core.pipeline import STAGE_BY_NAME, STAGES, ReconParams
+from threadrecon.app.presets import read_toml, validate
+from threadrecon.core.params import ParamSpec, specs
+from threadrecon.core.pipeline import STAGE_BY_NAME, STAGES, ReconParams
 
 # --- search space ------------------------------------------------------------------------
 

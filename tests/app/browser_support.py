@@ -98,7 +98,7 @@ class Server:
         self.output: list[str] = []
         self._ready = threading.Event()
         cmd = [
-            sys.executable, "-m", "app.cli", "serve", str(data_dir),
+            sys.executable, "-m", "threadrecon.app.cli", "serve", str(data_dir),
             "--host", "127.0.0.1", "--port", str(self.port),
             "--viser-port", str(self.viser_port),
             "--db", str(db), *extra_args,

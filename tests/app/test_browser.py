@@ -31,7 +31,7 @@ from browser_support import (
     wait_idle,
 )
 
-from core.pipeline import STAGES
+from threadrecon.core.pipeline import STAGES
 
 pytestmark = pytest.mark.browser
 

@@ -11,9 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
-from app.cli import main
-from app.presets import load_preset, save_preset, validate
-from core.pipeline import ReconParams
+from threadrecon.app.cli import main
+from threadrecon.app.presets import load_preset, save_preset, validate
+from threadrecon.core.pipeline import ReconParams
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "sample_data"
@@ -271,7 +271,7 @@ def test_reconstruct_ok_json_has_confidence_grasp_and_score(
 
 def test_non_finite_values_are_written_as_null(tmp_path: Path) -> None:
     """A diverged curve still gets its JSON (status, reasons), non-finite numbers as null."""
-    from app.export import write_json as _write_json
+    from threadrecon.app.export import write_json as _write_json
 
     path = tmp_path / "n.json"
     _write_json(path, {"status": "failed", "reasons": ["x"], "points": [[np.nan, np.inf, 1.0]]})

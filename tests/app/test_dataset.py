@@ -12,8 +12,8 @@ import yaml
 from rig_support import opencv_yaml, raw_rig, ros_camera_info
 from support import assert_close, calibration_for, synthetic_frame
 
-from app.dataset import discover, load_frame
-from core.rectify import rectification, rectify_pair
+from threadrecon.app.dataset import discover, load_frame
+from threadrecon.core.rectify import rectification, rectify_pair
 
 
 def _png(path: Path, img: np.ndarray) -> Path:
@@ -197,7 +197,7 @@ def test_raw_frame_is_rectified_on_load_with_ground_truth_in_the_rectified_frame
 
 
 def test_debugger_library_holds_the_rectified_pair_of_a_raw_frame(tmp_path: Path) -> None:
-    from app.session import FrameLibrary
+    from threadrecon.app.session import FrameLibrary
 
     rig = raw_rig(0)
     _png(tmp_path / "a_L.png", rig.pair.left)

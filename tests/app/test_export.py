@@ -16,7 +16,7 @@ from plyfile import PlyData
 from rig_support import raw_rig
 from support import assert_close, synthetic_case
 
-from app.export import (
+from threadrecon.app.export import (
     LAYERS,
     SPLINE_END_RGB,
     SPLINE_START_RGB,
@@ -31,10 +31,10 @@ from app.export import (
     spline_csv,
     spline_json,
 )
-from app.presets import params_hash
-from core.pipeline import Pipeline, Reconstruction, reconstruct
-from core.rectify import rectification, rectify_pair
-from core.segmentation import StereoPair
+from threadrecon.app.presets import params_hash
+from threadrecon.core.pipeline import Pipeline, Reconstruction, reconstruct
+from threadrecon.core.rectify import rectification, rectify_pair
+from threadrecon.core.segmentation import StereoPair
 
 
 @pytest.fixture(scope="module")

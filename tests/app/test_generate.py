@@ -7,8 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
-from app import generate
-from core.synthetic import RenderParams, SyntheticParams, ThreadParams, generate_frame
+from threadrecon.app import generate
+from threadrecon.core.synthetic import RenderParams, SyntheticParams, ThreadParams, generate_frame
 
 
 def _parse(*argv: str) -> argparse.Namespace:

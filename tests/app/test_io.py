@@ -11,8 +11,8 @@ import yaml
 from rig_support import opencv_yaml, raw_rig, ros_camera_info
 from support import assert_close
 
-from app.io import load_calibration, prepare_pair
-from core.calibration import CalibrationError, StereoCalibration
+from threadrecon.app.io import load_calibration, prepare_pair
+from threadrecon.core.calibration import CalibrationError, StereoCalibration
 
 
 def _same_rig(a: StereoCalibration, b: StereoCalibration) -> None:

@@ -10,11 +10,11 @@ from typing import Any
 
 import pytest
 
-from app import jobs as app_jobs
-from app.dataset import Frame, discover
-from app.evaluation import evaluate_frame, summarise
-from app.jobs import COMPARE_COLUMNS, EvaluationJob, compare
-from core.pipeline import ReconParams
+from threadrecon.app import jobs as app_jobs
+from threadrecon.app.dataset import Frame, discover
+from threadrecon.app.evaluation import evaluate_frame, summarise
+from threadrecon.app.jobs import COMPARE_COLUMNS, EvaluationJob, compare
+from threadrecon.core.pipeline import ReconParams
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_data"
 TIMEOUT_S = 60.0  # generous: the machine is shared; a few frames take well under a second

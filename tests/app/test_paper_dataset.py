@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from app.dataset import discover
-from app.evaluation import evaluate_frame
-from core.pipeline import ReconParams
+from threadrecon.app.dataset import discover
+from threadrecon.app.evaluation import evaluate_frame
+from threadrecon.core.pipeline import ReconParams
 
 PAPER = Path(__file__).resolve().parents[3] / "shared" / "data" / "paper-dataset"
 pytestmark = [

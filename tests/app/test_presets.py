@@ -7,9 +7,9 @@ from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
-from app.presets import load_preset, params_hash, save_preset, validate
-from core.params import ParamSpec, specs
-from core.pipeline import STAGES, ReconParams
+from threadrecon.app.presets import load_preset, params_hash, save_preset, validate
+from threadrecon.core.params import ParamSpec, specs
+from threadrecon.core.pipeline import STAGES, ReconParams
 
 
 def _changed(spec: ParamSpec, value: Any) -> Any:

@@ -16,9 +16,9 @@ from plyfile import PlyData
 from rig_support import opencv_yaml, raw_rig, ros_camera_info
 from support import assert_close
 
-from app.cli import main
-from app.python_api import ThreadResult, reconstruct
-from core.metrics import curve_errors
+from threadrecon.app.cli import main
+from threadrecon.app.python_api import ThreadResult, reconstruct
+from threadrecon.core.metrics import curve_errors
 
 SCHEMA = json.loads(
     (Path(__file__).resolve().parents[2] / "docs" / "result.schema.json").read_text()

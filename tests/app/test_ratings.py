@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.ratings import CSV_COLUMNS, MAX_NOTE_CHARS, Rating, RatingStore, StoreError
+from threadrecon.app.ratings import CSV_COLUMNS, MAX_NOTE_CHARS, Rating, RatingStore, StoreError
 
 NASTY_NOTE = 'thread frays, "badly", near the tip\nsecond line\r\nthird; 50% ok, = sum(1)'
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.recording import RecordedFrame, save_recording
 from tests.app.browser_support import CHROMIUM, CHROMIUM_ARGS, missing_browser
+from threadrecon.app.recording import RecordedFrame, save_recording
 
 
 def _curve(k: int) -> np.ndarray:

@@ -10,17 +10,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli import main
-from app.sequence import (
+from threadrecon.app.cli import main
+from threadrecon.app.sequence import (
     BagSequence,
     SequenceError,
     open_sequence,
     write_video,
 )
-from app.track_report import track_sequence
-from core.metrics import curve_errors
-from core.sequence_synth import MotionParams, SequenceParams, generate_sequence
-from core.tracking import TrackParams
+from threadrecon.app.track_report import track_sequence
+from threadrecon.core.metrics import curve_errors
+from threadrecon.core.sequence_synth import MotionParams, SequenceParams, generate_sequence
+from threadrecon.core.tracking import TrackParams
 
 N_FRAMES = 4
 

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.server import ServerConfig, create_app
-from core.pipeline import STAGES
+from threadrecon.app.server import ServerConfig, create_app
+from threadrecon.core.pipeline import STAGES
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_data"
 FLAT = "simulated/flat/flat_1"

@@ -143,7 +143,7 @@ def test_closed_sessions_give_their_memory_back(tmp_path):
 @pytest.mark.parametrize("bad", [["--idle-timeout", "0"], ["--allow-origin", "evil.example"]])
 def test_bad_serve_options_are_one_line_errors(bad):
     r = subprocess.run(
-        [sys.executable, "-m", "app.cli", "serve", str(SAMPLE), "--port", str(free_port()), *bad],
+        [sys.executable, "-m", "threadrecon.app.cli", "serve", str(SAMPLE), "--port", str(free_port()), *bad],
         cwd=ROOT, capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert r.returncode != 0 and READY_LINE not in r.stdout

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.server import ServerConfig, create_app
+from threadrecon.app.server import ServerConfig, create_app
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_data"
 FLAT2 = "simulated/flat/flat_2"
@@ -50,7 +50,7 @@ def test_the_api_session_survives_a_huge_spline_and_the_next_run_completes(clien
 
 
 def test_a_worker_exception_is_the_stage_error_and_the_next_request_runs(client, monkeypatch):
-    from core import pipeline
+    from threadrecon.core import pipeline
 
     original = pipeline.Pipeline.stages
 

@@ -17,10 +17,10 @@ import pytest
 from fastapi.testclient import TestClient
 from test_server import FLAT, SAMPLE, free_port, url
 
-from app.cli import main as cli_main
-from app.ratings import StoreError
-from app.server import ServerConfig, create_app
-from core.pipeline import STAGES
+from threadrecon.app.cli import main as cli_main
+from threadrecon.app.ratings import StoreError
+from threadrecon.app.server import ServerConfig, create_app
+from threadrecon.core.pipeline import STAGES
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 

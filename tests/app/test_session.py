@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from app.errors import Invalid, NotFound
-from app.library import FrameLibrary, merge_params
-from app.sessions import SessionManager
-from core import pipeline
-from core.pipeline import ReconParams
+from threadrecon.app.errors import Invalid, NotFound
+from threadrecon.app.library import FrameLibrary, merge_params
+from threadrecon.app.sessions import SessionManager
+from threadrecon.core import pipeline
+from threadrecon.core.pipeline import ReconParams
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_data"
 FLAT = "simulated/flat/flat_1"

@@ -16,11 +16,11 @@ from typing import Any
 
 import pytest
 
-from app import generate
-from app.dataset import discover
-from app.distributed import connect, evaluate_rows
-from app.presets import load_preset
-from app.tune import (
+from threadrecon.app import generate
+from threadrecon.app.dataset import discover
+from threadrecon.app.distributed import connect, evaluate_rows
+from threadrecon.app.presets import load_preset
+from threadrecon.app.tune import (
     OBJECTIVES,
     Constraint,
     TuneConfig,
@@ -34,7 +34,7 @@ from app.tune import (
     split_frames,
     tune,
 )
-from core.pipeline import ReconParams
+from threadrecon.core.pipeline import ReconParams
 
 ROOT = Path(__file__).resolve().parents[2]
 GRID_SPACE = {"reliability": {"threshold": [0.6, 0.9]}, "spline": {"n_ctrl": [8, 12, 15]}}
@@ -270,7 +270,7 @@ def test_killing_the_tuner_mid_run_loses_no_finished_trial(dataset: Path, tmp_pa
         "[reliability]\nthreshold = [0.6, 0.75, 0.9]\n[spline]\nn_ctrl = [8, 10, 12, 15]\n"
     )  # 12 trials: time to be killed
     store = tmp_path / "store"
-    argv = [sys.executable, "-m", "app.cli", "tune", str(dataset), "--space", str(space),
+    argv = [sys.executable, "-m", "threadrecon.app.cli", "tune", str(dataset), "--space", str(space),
             "--grid", "--workers", "0", "--no-prune", "--constraint", "failure_rate<=0.5",
             "--store", str(store)]  # fmt: skip
     cfg = replace(_grid_cfg(dataset), space=load_space(space))
@@ -311,7 +311,7 @@ def test_killing_the_tuner_mid_run_loses_no_finished_trial(dataset: Path, tmp_pa
 def test_evaluate_cli_maps_frames_over_dask_with_the_same_rows(
     dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from app.cli import main
+    from threadrecon.app.cli import main
 
     assert main(["evaluate", str(dataset), "--out", str(tmp_path / "a.csv")]) == 0
     assert main(["evaluate", str(dataset), "--workers", "1", "--out", str(tmp_path / "b.csv")]) == 0

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from support import synthetic_case
 
-from app.controls import controls
-from app.dataset import evaluate_reconstruction
-from app.views import (
+from threadrecon.app.controls import controls
+from threadrecon.app.dataset import evaluate_reconstruction
+from threadrecon.app.views import (
     LAYERS,
     Label,
     Points,
@@ -23,8 +23,8 @@ from app.views import (
     pixel_info,
     stage_json,
 )
-from core.metrics import project
-from core.pipeline import STAGES, ReconParams, reconstruct
+from threadrecon.core.metrics import project
+from threadrecon.core.pipeline import STAGES, ReconParams, reconstruct
 
 
 @pytest.fixture(scope="module")

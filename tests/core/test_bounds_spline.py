@@ -9,11 +9,11 @@ from scipy.interpolate import BSpline
 from support import assert_close, synthetic_case
 from threadpoolctl import threadpool_limits
 
-from core.bounds import Bounds, BoundsParams, _window_line_fits
-from core.calibration import StereoCalibration
-from core.camera import to_camera
-from core.pipeline import Pipeline, ReconParams
-from core.spline import SplineParams, SplineResult, _Mvs, fit_spline
+from threadrecon.core.bounds import Bounds, BoundsParams, _window_line_fits
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.camera import to_camera
+from threadrecon.core.pipeline import Pipeline, ReconParams
+from threadrecon.core.spline import SplineParams, SplineResult, _Mvs, fit_spline
 
 TRIALS = tuple(range(8))
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from support import assert_close
 
-from core.calibration import CalibrationError, parse_calibration
+from threadrecon.core.calibration import CalibrationError, parse_calibration
 
 FOCAL = 882.99611514
 BASELINE = 5.908927288994923

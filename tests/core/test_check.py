@@ -11,13 +11,13 @@ import pytest
 from support import synthetic_case
 from threadpoolctl import threadpool_limits
 
-from app.dataset import discover, load_frame
-from app.io import load_calibration, load_ground_truth, load_pair
-from core.camera import CameraCurve
-from core.check import CheckParams, CheckResult, check_curve
-from core.metrics import curve_errors
-from core.params import specs
-from core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
+from threadrecon.app.dataset import discover, load_frame
+from threadrecon.app.io import load_calibration, load_ground_truth, load_pair
+from threadrecon.core.camera import CameraCurve
+from threadrecon.core.check import CheckParams, CheckResult, check_curve
+from threadrecon.core.metrics import curve_errors
+from threadrecon.core.params import specs
+from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
 
 ROOT = Path(__file__).resolve().parents[2]
 TISSUE = ROOT / "sample_data" / "simulated" / "tissue"

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from support import assert_close, synthetic_case
 
-from core.clustering import ClusterParams, cluster_keypoints
-from core.pipeline import Pipeline
-from core.reliability import ReliabilityResult
-from core.stereo import StereoResult
+from threadrecon.core.clustering import ClusterParams, cluster_keypoints
+from threadrecon.core.pipeline import Pipeline
+from threadrecon.core.reliability import ReliabilityResult
+from threadrecon.core.stereo import StereoResult
 
 MODES = ("wavefront", "restart")
 

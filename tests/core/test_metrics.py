@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from support import assert_close
 
-from core.metrics import (
+from threadrecon.core.metrics import (
     _zhang_suen,
     curve_errors,
     polyline_length,

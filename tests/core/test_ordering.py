@@ -8,17 +8,17 @@ import pytest
 from scipy.spatial import cKDTree
 from support import calibration_for, synthetic_case, synthetic_frame
 
-from core.metrics import curve_errors, polyline_length, resample
-from core.ordering import (
+from threadrecon.core.metrics import curve_errors, polyline_length, resample
+from threadrecon.core.ordering import (
     Ordering,
     OrderingParams,
     _GapGeodesics,
     _normalised,
 )
-from core.pipeline import Pipeline, ReconParams
-from core.reliability import ReliabilityParams
-from core.segmentation import StereoPair
-from core.synthetic import RenderParams, SyntheticParams, generate_frame
+from threadrecon.core.pipeline import Pipeline, ReconParams
+from threadrecon.core.reliability import ReliabilityParams
+from threadrecon.core.segmentation import StereoPair
+from threadrecon.core.synthetic import RenderParams, SyntheticParams, generate_frame
 
 TRIALS = tuple(range(10))
 

@@ -8,8 +8,8 @@ from typing import Literal
 
 import pytest
 
-from core.params import Params, param, specs
-from core.pipeline import STAGE_TABLE, STAGES, ReconParams
+from threadrecon.core.params import Params, param, specs
+from threadrecon.core.pipeline import STAGE_TABLE, STAGES, ReconParams
 
 
 @dataclass(frozen=True)

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from support import calibration_for, synthetic_case, synthetic_frame
 
-from core.metrics import curve_errors
-from core.pipeline import STAGES, Pipeline, ReconParams, reconstruct
-from core.reliability import ReliabilityParams
-from core.segmentation import StereoPair
-from core.spline import SplineParams
+from threadrecon.core.metrics import curve_errors
+from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, reconstruct
+from threadrecon.core.reliability import ReliabilityParams
+from threadrecon.core.segmentation import StereoPair
+from threadrecon.core.spline import SplineParams
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])

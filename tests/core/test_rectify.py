@@ -9,10 +9,10 @@ import pytest
 from rig_support import raw_rig
 from support import assert_close, calibration_for, synthetic_frame
 
-from core.calibration import make_calibration
-from core.metrics import curve_errors
-from core.pipeline import reconstruct
-from core.rectify import (
+from threadrecon.core.calibration import make_calibration
+from threadrecon.core.metrics import curve_errors
+from threadrecon.core.pipeline import reconstruct
+from threadrecon.core.rectify import (
     from_left_frame,
     in_frame,
     needs_rectification,
@@ -20,7 +20,7 @@ from core.rectify import (
     rectify_pair,
     to_left_frame,
 )
-from core.segmentation import StereoPair
+from threadrecon.core.segmentation import StereoPair
 
 SEEDS = tuple(range(8))  # generator seeds; 10-21 were held out to check the figures
 

@@ -9,9 +9,9 @@ import pytest
 from scipy.interpolate import BSpline
 from support import assert_close, synthetic_case
 
-from core.metrics import curve_errors
-from core.pipeline import Pipeline, ReconParams
-from core.refine import RefineParams, _lsi, _Runs, refine_depth
+from threadrecon.core.metrics import curve_errors
+from threadrecon.core.pipeline import Pipeline, ReconParams
+from threadrecon.core.refine import RefineParams, _lsi, _Runs, refine_depth
 
 TRIALS = tuple(range(6))
 

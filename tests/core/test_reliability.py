@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from support import assert_close
 
-from core.reliability import ReliabilityParams, prune, reliability
-from core.stereo import StereoResult
+from threadrecon.core.reliability import ReliabilityParams, prune, reliability
+from threadrecon.core.stereo import StereoResult
 
 TRIALS = 20
 

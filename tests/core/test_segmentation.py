@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 from support import assert_close, calibration_for
 
-from core.pipeline import Pipeline
-from core.segmentation import (
+from threadrecon.core.pipeline import Pipeline
+from threadrecon.core.segmentation import (
     LIFT_VALUE,
     SegmentationParams,
     StereoPair,
     segment,
     split_side_by_side,
 )
-from core.synthetic import RenderParams, SyntheticParams, ThreadParams, generate_frame
+from threadrecon.core.synthetic import RenderParams, SyntheticParams, ThreadParams, generate_frame
 
 BG, INK = 200, 60
 

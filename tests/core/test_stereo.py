@@ -7,10 +7,10 @@ import pytest
 from scipy.spatial import cKDTree
 from support import assert_close, calibration_for, synthetic_case, synthetic_frame
 
-from core.metrics import resample
-from core.segmentation import LiftedPair, StereoPair, segment
-from core.stereo import NEXT_GAP, StereoParams, match_stereo, reproject
-from core.synthetic import StereoCamera, SyntheticParams, generate_frame
+from threadrecon.core.metrics import resample
+from threadrecon.core.segmentation import LiftedPair, StereoPair, segment
+from threadrecon.core.stereo import NEXT_GAP, StereoParams, match_stereo, reproject
+from threadrecon.core.synthetic import StereoCamera, SyntheticParams, generate_frame
 
 SEEDS = (0, 1, 2)
 

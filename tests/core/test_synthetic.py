@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import BSpline
 
-from core.synthetic import (
+from threadrecon.core.synthetic import (
     THREAD_COLOURS,
     RenderParams,
     StereoCamera,

@@ -5,9 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.sequence_synth import MotionParams, SequenceParams, generate_sequence, thread_motion
-from core.synthetic import RenderParams, StereoCamera, SyntheticParams
-from core.tracking import (
+from threadrecon.core.sequence_synth import (
+    MotionParams,
+    SequenceParams,
+    generate_sequence,
+    thread_motion,
+)
+from threadrecon.core.synthetic import RenderParams, StereoCamera, SyntheticParams
+from threadrecon.core.tracking import (
     TrackParams,
     TrackState,
     motion_error,

@@ -1,0 +1,61 @@
+"""What the debugger shows, as plain data: stage results as JSON, the 2D overlays of the
+stereo images, the pixel inspector, and the 3D layers (numpy arrays in the left camera frame,
+calibration units) that ``app.scene`` hands to viser.
+
+Nothing here talks to viser or FastAPI, so every view is testable on its own. A new stage's 3D
+view is one ``@layer_view`` function in a module of this package, listed in ``_LAYER_MODULES``.
+"""
+
+from __future__ import annotations
+
+from threadrecon.app.views import stages
+from threadrecon.app.views.data import (
+    HEAVY_VALUES,
+    SPLINE_SAMPLES,
+    nearest_to_ray,
+    overlay,
+    pixel_info,
+    stage_json,
+)
+from threadrecon.app.views.registry import (
+    GREY,
+    LAYER_VIEWS,
+    Label,
+    Layer,
+    LayerView,
+    Points,
+    Segments,
+    layer,
+    layer_view,
+    palette,
+    polyline,
+)
+
+_LAYER_MODULES = (stages,)
+"""The modules whose ``@layer_view`` functions make the scene's layers, in stage order."""
+
+# Derived views of the registry, for the scene and the API.
+LAYERS: dict[str, tuple[str, ...]] = {v.name: v.needs for v in LAYER_VIEWS.values()}
+LAYER_STAGE: dict[str, str] = {v.name: v.shows_at for v in LAYER_VIEWS.values()}
+
+__all__ = [
+    "GREY",
+    "HEAVY_VALUES",
+    "LAYERS",
+    "LAYER_STAGE",
+    "LAYER_VIEWS",
+    "SPLINE_SAMPLES",
+    "Label",
+    "Layer",
+    "LayerView",
+    "Points",
+    "Segments",
+    "layer",
+    "layer_view",
+    "nearest_to_ray",
+    "overlay",
+    "palette",
+    "pixel_info",
+    "polyline",
+    "stage_json",
+]

@@ -1,0 +1,115 @@
+"""The 3D layers of the paper's stages (stereo .. spline), registered with ``@layer_view``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from threadrecon.app.export import reliability_colors
+from threadrecon.app.views.data import SPLINE_SAMPLES
+from threadrecon.app.views.registry import (
+    GREY,
+    Label,
+    Layer,
+    Points,
+    Segments,
+    layer_view,
+    palette,
+    polyline,
+)
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.camera import image_to_camera
+from threadrecon.core.pipeline import Reconstruction
+
+
+def _finite_points(rec: Reconstruction) -> tuple[np.ndarray, np.ndarray]:
+    st = rec["stereo"]
+    return st.points, np.isfinite(st.points).all(axis=1)
+
+
+@layer_view("stereo", needs=("stereo",))
+def _stereo_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None) -> Layer:
+    points, finite = _finite_points(rec)
+    colors = (
+        reliability_colors(rec["reliability"].R[finite])
+        if "reliability" in rec.runs
+        else np.array(GREY, np.uint8)
+    )
+    return {"depth": Points(points[finite].astype(np.float32), colors, 1.0)}
+
+
+@layer_view("reliability", needs=("stereo", "reliability"), shows_at="reliability")
+def _reliability_layer(
+    rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None
+) -> Layer:
+    points, finite = _finite_points(rec)
+    keep = finite & rec["reliability"].reliable
+    return {
+        "reliable": Points(points[keep].astype(np.float32), np.array((40, 200, 255), np.uint8), 1.6)
+    }
+
+
+@layer_view("clusters", needs=("stereo", "clustering"), shows_at="clustering")
+def _clusters_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None) -> Layer:
+    points, finite = _finite_points(rec)
+    cl = rec["clustering"]
+    keep = finite & (cl.labels >= 0)
+    colors = palette(max(cl.count, 1))
+    return {
+        "members": Points(points[keep].astype(np.float32), colors[cl.labels[keep]], 1.6),
+        "keypoints": Points(cl.keypoints.astype(np.float32), colors[: cl.count], 3.0),
+    }
+
+
+@layer_view("ordering", needs=("clustering", "ordering"), shows_at="ordering")
+def _ordering_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None) -> Layer:
+    cl, od = rec["clustering"], rec["ordering"]
+    path = image_to_camera(od.path_px, calib.G).astype(np.float32)
+    nodes: Layer = {
+        "graph": Segments(cl.keypoints[od.edges].astype(np.float32), (120, 120, 140), 1.5),
+        "path": Segments(polyline(path), (255, 140, 0), 3.0),
+    }
+    if len(path):
+        nodes["start"] = Points(path[:1], np.array((0, 220, 0), np.uint8), 6.0)
+        nodes["end"] = Points(path[-1:], np.array((230, 0, 0), np.uint8), 6.0)
+        step = max(1, len(path) // 12)  # at most ~12 index labels, readable
+        for i in [*range(0, len(path) - step // 2, step), len(path) - 1]:
+            nodes[f"labels/{i}"] = Label(str(i), path[i])
+    return nodes
+
+
+@layer_view("bounds", needs=("bounds",))
+def _bounds_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None) -> Layer:
+    b, G = rec["bounds"], calib.G
+    xy = b.H[:, :2]
+    lo = image_to_camera(np.column_stack([xy, b.lower]), G).astype(np.float32)
+    hi = image_to_camera(np.column_stack([xy, b.upper]), G).astype(np.float32)
+    H = image_to_camera(b.H, G).astype(np.float32)
+    colors = np.where(b.is_key[:, None], [255, 255, 255], [255, 200, 60]).astype(np.uint8)
+    return {
+        "H": Points(H, colors, 2.5),
+        "lower": Segments(polyline(lo), (80, 160, 255), 2.0),
+        "upper": Segments(polyline(hi), (255, 90, 90), 2.0),
+        "spans": Segments(np.stack([lo, hi], axis=1), (160, 160, 160), 1.0),
+    }
+
+
+@layer_view("spline", needs=("spline",))
+def _spline_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None) -> Layer:
+    sp, G = rec["spline"], calib.G
+    nodes: Layer = {
+        "initial": Segments(
+            polyline(image_to_camera(sp.curve(SPLINE_SAMPLES, initial=True), G)),
+            (110, 130, 255),
+            2.0,
+        ),
+        "final": Segments(
+            polyline(image_to_camera(sp.curve(SPLINE_SAMPLES), G)), (255, 0, 200), 4.0
+        ),
+    }
+    if "camera" in rec.runs:
+        nodes["control_points"] = Points(
+            rec["camera"].ctrl.astype(np.float32), np.array((255, 0, 200), np.uint8), 3.0
+        )
+    if gt is not None:
+        nodes["ground_truth"] = Segments(polyline(gt), (0, 200, 90), 2.0)
+    return nodes
