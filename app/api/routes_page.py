@@ -12,6 +12,7 @@ from threadrecon.app.controls import controls
 from threadrecon.app.dataset import METRIC_COLUMNS
 from threadrecon.app.export import LAYERS
 from threadrecon.app.resources import static_dir
+from threadrecon.app.views import OVERLAY_VIEWS
 from threadrecon.core.pipeline import STAGES, ReconParams
 
 STATIC = static_dir()
@@ -57,5 +58,6 @@ def info(state: State) -> schemas.Info:
         defaults=ReconParams().to_dict(),
         metrics=metrics,
         layers=list(LAYERS),
+        overlays=[v.spec() for v in OVERLAY_VIEWS.values()],
         exports=list(EXPORTS),
     )

@@ -68,6 +68,18 @@ class Frame(BaseModel):
     rating: int | None
 
 
+class OverlaySpec(BaseModel):
+    key: str
+    label: str
+    kind: Literal["pixels", "circles", "squares", "polyline"]
+    color: str
+    color2: str | None
+    on: bool
+    dash: bool
+    count: bool
+    reveal: str | None
+
+
 class Info(BaseModel):
     viser_port: int
     data_dir: str
@@ -78,6 +90,8 @@ class Info(BaseModel):
     """Metric keys with their label and unit, in display order (the page has no copy)."""
     layers: list[str]
     """Point-cloud layers that can be exported as PLY."""
+    overlays: list[OverlaySpec]
+    """The 2D overlays over the stereo images, in drawing order (the page's toggles)."""
     exports: list[str]
 
 

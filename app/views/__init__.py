@@ -2,8 +2,10 @@
 stereo images, the pixel inspector, and the 3D layers (numpy arrays in the left camera frame,
 calibration units) that ``app.scene`` hands to viser.
 
-Nothing here talks to viser or FastAPI, so every view is testable on its own. A new stage's 3D
-view is one ``@layer_view`` function in a module of this package, listed in ``_LAYER_MODULES``.
+Nothing here talks to viser or FastAPI, so every view is testable on its own. A new stage's
+views are a module of this package, listed in ``_VIEW_MODULES``: a ``@layer_view`` function
+for its 3D layer and an ``@overlay_view`` function for its 2D overlay. The page builds its
+layer list and its overlay toggles from these registries (``/api/info``).
 """
 
 from __future__ import annotations
@@ -20,19 +22,23 @@ from threadrecon.app.views.data import (
 from threadrecon.app.views.registry import (
     GREY,
     LAYER_VIEWS,
+    OVERLAY_VIEWS,
     Label,
     Layer,
     LayerView,
+    OverlayView,
     Points,
     Segments,
     layer,
     layer_view,
+    overlay_view,
     palette,
     polyline,
 )
 
-_LAYER_MODULES = (stages,)
-"""The modules whose ``@layer_view`` functions make the scene's layers, in stage order."""
+_VIEW_MODULES = (stages,)
+"""The modules whose ``@layer_view`` and ``@overlay_view`` functions make the scene's 3D layers
+and the 2D overlays, in stage order."""
 
 # Derived views of the registry, for the scene and the API.
 LAYERS: dict[str, tuple[str, ...]] = {v.name: v.needs for v in LAYER_VIEWS.values()}
@@ -44,16 +50,19 @@ __all__ = [
     "LAYERS",
     "LAYER_STAGE",
     "LAYER_VIEWS",
+    "OVERLAY_VIEWS",
     "SPLINE_SAMPLES",
     "Label",
     "Layer",
     "LayerView",
+    "OverlayView",
     "Points",
     "Segments",
     "layer",
     "layer_view",
     "nearest_to_ray",
     "overlay",
+    "overlay_view",
     "palette",
     "pixel_info",
     "polyline",

@@ -8,10 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from threadrecon.app.dataset import reprojections
 from threadrecon.app.export import json_safe
+from threadrecon.app.views.registry import OVERLAY_VIEWS
 from threadrecon.core.calibration import StereoCalibration
-from threadrecon.core.camera import image_to_camera
 from threadrecon.core.pipeline import STAGES, Reconstruction
 
 HEAVY_VALUES = 20_000  # arrays larger than this (per-pixel images, the energy volume) are
@@ -55,46 +54,12 @@ def _missing(rec: Reconstruction, stage: str) -> str:
 
 
 def overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
-    """What is drawn over the stereo images: segmented, reliable and keypoint pixels of the
-    left image, the ordered path, and the final (and initial) spline projected into both images
-    with its reprojection errors. Pixel lists are flat [x0, y0, x1, y1, ...] integer lists."""
+    """What is drawn over the stereo images: every registered overlay whose stages have run,
+    as ``{key: {side: payload}}`` (see ``registry.OverlayKind``), plus the image shape."""
     out: dict[str, Any] = {"shape": list(calib.image_size)}
-    if "stereo" in rec.runs:
-        st = rec["stereo"]
-        out["segmented"] = st.pixels.ravel().tolist()
-        if "reliability" in rec.runs:
-            out["reliable"] = st.pixels[rec["reliability"].reliable].ravel().tolist()
-    if "clustering" in rec.runs:
-        out["keypoints"] = np.round(rec["clustering"].keypoints_px[:, :2], 2).tolist()
-    if "ordering" in rec.runs:
-        out["path"] = np.round(rec["ordering"].path_px[:, :2], 2).tolist()
-    if "bounds" in rec.runs:
-        b = rec["bounds"]
-        out["H"] = [
-            [round(float(x), 2), round(float(y), 2), bool(k)]
-            for (x, y, _), k in zip(b.H, b.is_key, strict=True)
-        ]
-    if "spline" in rec.runs:
-        sp = rec["spline"]
-        initial = image_to_camera(sp.curve(SPLINE_SAMPLES, initial=True), calib.G)
-        # the final curve's errors are the metrics' own (the camera stage's points), one number
-        have_final = "camera" in rec.runs
-        final = (
-            rec["camera"].points
-            if have_final
-            else image_to_camera(sp.curve(SPLINE_SAMPLES), calib.G)
-        )
-        for name, pts, errors in (
-            ("spline", final, have_final),
-            ("spline_initial", initial, False),
-        ):
-            sides = {}
-            for side, (uv, r) in reprojections(pts, calib, rec["segment"], errors).items():
-                entry: dict[str, Any] = {"points": np.round(uv, 2).tolist()}
-                if r is not None:
-                    entry.update(mean_px=r.mean, max_px=r.max, coverage=r.coverage)
-                sides[side] = entry
-            out[name] = sides
+    for view in OVERLAY_VIEWS.values():
+        if all(stage in rec.runs for stage in view.needs):
+            out[view.key] = view.make(rec, calib)
     return json_safe(out)
 
 

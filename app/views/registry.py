@@ -1,10 +1,13 @@
-"""The 3D layers' registry: what a layer draws (points, segments, labels in the left camera
-frame, calibration units) and the one place a layer is registered (``@layer_view``)."""
+"""The views' registries: the 3D layers (points, segments, labels in the left camera frame,
+calibration units; ``@layer_view``) and the 2D overlays drawn over the stereo images
+(``@overlay_view``). Each is the one place its kind of view is registered; the page builds
+its layer list and its overlay toggles from them."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
 
@@ -94,3 +97,74 @@ def layer(
     if view is None:
         raise KeyError(f"unknown layer {name!r} (layers: {', '.join(LAYER_VIEWS)})")
     return view.draw(rec, calib, ground_truth)
+
+
+# --- 2D overlays ---------------------------------------------------------------------------
+
+OverlayKind = Literal["pixels", "circles", "squares", "polyline"]
+"""How the page draws an overlay's payload (per side):
+
+- ``pixels``: a flat ``[x0, y0, x1, y1, ...]`` list of integer pixels, one dot each;
+- ``circles``: ``[[x, y], ...]``, a small ring each;
+- ``squares``: ``[[x, y, flag], ...]``, a small square each, ``color`` if flag else ``color2``;
+- ``polyline``: ``{"points": [[x, y], ...]}``, a line through them; optional ``"colors"``
+  (one CSS colour per point, for the segment that starts there) and any statistics
+  (``mean_px``, ``max_px``, ``coverage``) the page shows beside the image.
+"""
+
+
+@dataclass(frozen=True)
+class OverlayView:
+    """One 2D overlay: ``make(rec, calib) -> {side: payload}`` once every stage in ``needs``
+    has run."""
+
+    key: str
+    label: str
+    kind: OverlayKind
+    needs: tuple[str, ...]
+    color: str
+    """CSS colour."""
+    on: bool = True
+    """Shown when the page opens."""
+    color2: str | None = None
+    dash: bool = False
+    count: bool = False
+    """Show the number of items beside the toggle."""
+    reveal: str | None = None
+    """Shown whatever its toggle while the stepper shows exactly this stage."""
+    make: Callable[[Reconstruction, StereoCalibration], dict[str, Any]] = field(
+        default=lambda rec, calib: {}, repr=False, compare=False
+    )
+
+    def spec(self) -> dict[str, Any]:
+        """What the page needs to build the toggle and draw the payload."""
+        return {
+            "key": self.key,
+            "label": self.label,
+            "kind": self.kind,
+            "color": self.color,
+            "color2": self.color2,
+            "on": self.on,
+            "dash": self.dash,
+            "count": self.count,
+            "reveal": self.reveal,
+        }
+
+
+OVERLAY_VIEWS: dict[str, OverlayView] = {}
+"""The 2D overlays in drawing order (later ones on top)."""
+
+
+def overlay_view(
+    key: str, label: str, kind: OverlayKind, needs: tuple[str, ...], color: str, **options: Any
+) -> Callable[[Callable[..., dict[str, Any]]], Callable[..., dict[str, Any]]]:
+    """Register ``make(rec, calib) -> {side: payload}`` as the 2D overlay ``key``."""
+
+    def register(make: Callable[..., dict[str, Any]]) -> Callable[..., dict[str, Any]]:
+        unknown = set(needs) - set(STAGES)
+        if unknown:
+            raise ValueError(f"overlay {key!r} needs unknown stages {sorted(unknown)}")
+        OVERLAY_VIEWS[key] = OverlayView(key, label, kind, needs, color, make=make, **options)
+        return make
+
+    return register

@@ -1,9 +1,13 @@
-"""The 3D layers of the paper's stages (stereo .. spline), registered with ``@layer_view``."""
+"""The views of the paper's stages (segment .. spline): their 2D overlays over the stereo
+images (``@overlay_view``) and their 3D layers (``@layer_view``)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
+from threadrecon.app.dataset import reprojections
 from threadrecon.app.export import reliability_colors
 from threadrecon.app.views.data import SPLINE_SAMPLES
 from threadrecon.app.views.registry import (
@@ -13,12 +17,88 @@ from threadrecon.app.views.registry import (
     Points,
     Segments,
     layer_view,
+    overlay_view,
     palette,
     polyline,
 )
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import image_to_camera
 from threadrecon.core.pipeline import Reconstruction
+
+# --- 2D overlays (drawn in this order) -----------------------------------------------------
+
+
+@overlay_view(
+    "segmented",
+    "segmented",
+    "pixels",
+    ("stereo",),
+    "rgba(90,160,255,0.75)",
+    on=False,
+    reveal="segment",
+)
+def _segmented_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
+    return {"left": rec["stereo"].pixels.ravel().tolist()}
+
+
+@overlay_view("reliable", "reliable", "pixels", ("stereo", "reliability"), "#00e5ff", count=True)
+def _reliable_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
+    return {"left": rec["stereo"].pixels[rec["reliability"].reliable].ravel().tolist()}
+
+
+@overlay_view("path", "ordering", "polyline", ("ordering",), "#ff8c00")
+def _path_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
+    return {"left": {"points": np.round(rec["ordering"].path_px[:, :2], 2).tolist()}}
+
+
+@overlay_view("keypoints", "keypoints", "circles", ("clustering",), "#ffe14d", count=True)
+def _keypoints_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
+    return {"left": np.round(rec["clustering"].keypoints_px[:, :2], 2).tolist()}
+
+
+@overlay_view("H", "points H", "squares", ("bounds",), "#ffffff", color2="#ffc83c")
+def _h_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
+    b = rec["bounds"]
+    return {
+        "left": [
+            [round(float(x), 2), round(float(y), 2), bool(k)]
+            for (x, y, _), k in zip(b.H, b.is_key, strict=True)
+        ]
+    }
+
+
+def _projected(
+    points: np.ndarray, calib: StereoCalibration, rec: Reconstruction, errors: bool
+) -> dict[str, Any]:
+    sides: dict[str, Any] = {}
+    for side, (uv, r) in reprojections(points, calib, rec["segment"], errors).items():
+        entry: dict[str, Any] = {"points": np.round(uv, 2).tolist()}
+        if r is not None:
+            entry.update(mean_px=r.mean, max_px=r.max, coverage=r.coverage)
+        sides[side] = entry
+    return sides
+
+
+@overlay_view(
+    "spline_initial", "initial spline", "polyline", ("spline",), "#6e82ff", on=False, dash=True
+)
+def _initial_spline_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
+    initial = image_to_camera(rec["spline"].curve(SPLINE_SAMPLES, initial=True), calib.G)
+    return _projected(initial, calib, rec, errors=False)
+
+
+@overlay_view("spline", "final spline", "polyline", ("spline",), "#ff3ecf")
+def _spline_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
+    """The final curve with its reprojection errors: the camera stage's points, so the errors
+    are the metrics' own (one number everywhere)."""
+    if "camera" in rec.runs:
+        return _projected(rec["camera"].points, calib, rec, errors=True)
+    return _projected(
+        image_to_camera(rec["spline"].curve(SPLINE_SAMPLES), calib.G), calib, rec, errors=False
+    )
+
+
+# --- 3D layers -----------------------------------------------------------------------------
 
 
 def _finite_points(rec: Reconstruction) -> tuple[np.ndarray, np.ndarray]:

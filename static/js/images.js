@@ -1,5 +1,5 @@
 // Images panel: the rectified pair with the stage overlays, and the pixel inspector's E(d).
-import { $, S, api, enc, fmt, onState } from "./core.js";
+import { $, S, api, enc, fill, fmt, h, onState } from "./core.js";
 
 export function loadImages(id) {
   if (S.imageFrame === id) return;
@@ -36,15 +36,64 @@ async function refreshOverlay() {
   if (S.overlayVersion !== S.version) refreshOverlay();
 }
 
-function overlayOn(name) {
-  const box = document.querySelector(`[data-ov="${name}"]`);
-  return box ? box.checked : true;
+// The toggles come from /api/info (the server's overlay registry), never from a copy here.
+export function buildOverlayToggles() {
+  const boxes = S.info.overlays.map((o) => h("label", {},
+    h("input", { type: "checkbox", dataset: { ov: o.key }, checked: o.on, onchange: drawImages }),
+    ` ${o.label} `, o.count ? h("span", { class: "count", dataset: { count: o.key } }) : null));
+  fill("#overlay-toggles", boxes);
 }
+
+function overlayOn(o) {
+  const box = document.querySelector(`[data-ov="${CSS.escape(o.key)}"]`);
+  if (box && box.checked) return true;
+  // the stepper showing exactly the overlay's stage shows it whatever the toggle
+  return Boolean(o.reveal && S.state && S.info.stages[S.state.reveal - 1] === o.reveal);
+}
+
+// One drawing routine per overlay kind (app/views/registry.OverlayKind).
+const DRAW = {
+  pixels(ctx, o, flat) {
+    ctx.fillStyle = o.color;
+    for (let i = 0; i < flat.length; i += 2) ctx.fillRect(flat[i], flat[i + 1], 1, 1);
+  },
+  circles(ctx, o, pts) {
+    ctx.strokeStyle = o.color; ctx.lineWidth = 1.5;
+    for (const k of pts) { ctx.beginPath(); ctx.arc(k[0], k[1], 3, 0, 2 * Math.PI); ctx.stroke(); }
+  },
+  squares(ctx, o, pts) {
+    for (const q of pts) {
+      ctx.fillStyle = q[2] === false && o.color2 ? o.color2 : o.color;
+      ctx.fillRect(q[0] - 1.5, q[1] - 1.5, 3, 3);
+    }
+  },
+  polyline(ctx, o, line) {
+    const pts = line.points;
+    if (!pts || pts.length < 2) return;
+    ctx.lineWidth = 1.5; ctx.setLineDash(o.dash ? [4, 3] : []);
+    if (line.colors) {  // one colour per segment (e.g. confidence along the curve)
+      for (let i = 0; i + 1 < pts.length; i++) {
+        ctx.strokeStyle = line.colors[i] || o.color;
+        ctx.beginPath(); ctx.moveTo(pts[i][0], pts[i][1]); ctx.lineTo(pts[i + 1][0], pts[i + 1][1]); ctx.stroke();
+      }
+    } else {
+      ctx.strokeStyle = o.color; ctx.beginPath(); ctx.moveTo(pts[0][0], pts[0][1]);
+      for (const q of pts) ctx.lineTo(q[0], q[1]);
+      ctx.stroke();
+    }
+    ctx.setLineDash([]);
+  },
+};
+
+const countOf = (o, payload) => (o.kind === "pixels" ? payload.length / 2 : o.kind === "polyline" ? payload.points.length : payload.length);
 
 function drawImages() {
   const ov = S.overlay && S.overlay.frame_id === S.frameId ? S.overlay : {};
-  $("#reliable-count").textContent = ov.reliable ? `(${ov.reliable.length / 2})` : "";
-  $("#keypoint-count").textContent = ov.keypoints ? `(${ov.keypoints.length})` : "";
+  const overlays = S.info ? S.info.overlays : [];
+  for (const o of overlays) {
+    const badge = document.querySelector(`[data-count="${CSS.escape(o.key)}"]`);
+    if (badge) badge.textContent = ov[o.key] && ov[o.key].left ? `(${countOf(o, ov[o.key].left)})` : "";
+  }
   for (const side of ["left", "right"]) {
     const canvas = $(`#img-${side}`);
     const img = S.images[side];
@@ -52,45 +101,20 @@ function drawImages() {
     if (!img) { ctx.clearRect(0, 0, canvas.width, canvas.height); continue; }
     if (canvas.width !== img.width) { canvas.width = img.width; canvas.height = img.height; }
     ctx.drawImage(img, 0, 0);
-    const px = (flat, color) => {
-      ctx.fillStyle = color;
-      for (let i = 0; i < flat.length; i += 2) ctx.fillRect(flat[i], flat[i + 1], 1, 1);
-    };
-    const line = (pts, color, width, dash) => {
-      if (!pts || pts.length < 2) return;
-      ctx.strokeStyle = color; ctx.lineWidth = width; ctx.setLineDash(dash || []);
-      ctx.beginPath(); ctx.moveTo(pts[0][0], pts[0][1]);
-      for (const p of pts) ctx.lineTo(p[0], p[1]);
-      ctx.stroke(); ctx.setLineDash([]);
-    };
-    if (side === "left") {
-      const onlySegment = S.state && S.state.reveal === 1;  // stage 1 shows the segmentation
-      if (ov.segmented && (overlayOn("segmented") || onlySegment)) px(ov.segmented, "rgba(90,160,255,0.75)");
-      if (ov.reliable && overlayOn("reliable")) px(ov.reliable, "#00e5ff");
-      if (ov.path && overlayOn("path")) line(ov.path, "#ff8c00", 1.5);
-      if (ov.keypoints && overlayOn("keypoints")) {
-        ctx.strokeStyle = "#ffe14d"; ctx.lineWidth = 1.5;
-        for (const k of ov.keypoints) { ctx.beginPath(); ctx.arc(k[0], k[1], 3, 0, 2 * Math.PI); ctx.stroke(); }
-      }
-      if (ov.H && overlayOn("H")) {
-        for (const h of ov.H) {
-          ctx.fillStyle = h[2] ? "#ffffff" : "#ffc83c";
-          ctx.fillRect(h[0] - 1.5, h[1] - 1.5, 3, 3);
-        }
-      }
-      if (S.pixel && S.pixel.segmented) {  // crosshair on the inspected pixel
-        const { x, y } = S.pixel;
-        ctx.strokeStyle = "#00ff66"; ctx.lineWidth = 2;
-        ctx.beginPath();
-        ctx.moveTo(x - 9, y); ctx.lineTo(x - 3, y); ctx.moveTo(x + 3, y); ctx.lineTo(x + 9, y);
-        ctx.moveTo(x, y - 9); ctx.lineTo(x, y - 3); ctx.moveTo(x, y + 3); ctx.lineTo(x, y + 9);
-        ctx.stroke();
-      }
+    for (const o of overlays) {
+      const payload = ov[o.key] && ov[o.key][side];
+      if (payload && overlayOn(o)) DRAW[o.kind](ctx, o, payload);
     }
-    if (ov.spline_initial && overlayOn("spline_initial")) line(ov.spline_initial[side].points, "#6e82ff", 1.5, [4, 3]);
+    if (side === "left" && S.pixel && S.pixel.segmented) {  // crosshair on the inspected pixel
+      const { x, y } = S.pixel;
+      ctx.strokeStyle = "#00ff66"; ctx.lineWidth = 2;
+      ctx.beginPath();
+      ctx.moveTo(x - 9, y); ctx.lineTo(x - 3, y); ctx.moveTo(x + 3, y); ctx.lineTo(x + 9, y);
+      ctx.moveTo(x, y - 9); ctx.lineTo(x, y - 3); ctx.moveTo(x, y + 3); ctx.lineTo(x, y + 9);
+      ctx.stroke();
+    }
     const sp = ov.spline && ov.spline[side];
-    if (sp && overlayOn("spline")) line(sp.points, "#ff3ecf", 1.5);
-    $(`#err-${side}`).textContent = sp ? `reprojection mean ${fmt(sp.mean_px, 2)} px, max ${fmt(sp.max_px, 2)} px, coverage ${fmt(sp.coverage, 2)}` : "";
+    $(`#err-${side}`).textContent = sp && sp.mean_px !== undefined ? `reprojection mean ${fmt(sp.mean_px, 2)} px, max ${fmt(sp.max_px, 2)} px, coverage ${fmt(sp.coverage, 2)}` : "";
   }
 }
 
@@ -148,7 +172,6 @@ onState((st) => {
   refreshOverlay();
 });
 
-for (const box of document.querySelectorAll("[data-ov]")) box.addEventListener("change", drawImages);
 $("#img-left").addEventListener("click", (ev) => {
   const c = ev.currentTarget, r = c.getBoundingClientRect();
   const x = Math.floor((ev.clientX - r.left) * c.width / r.width);

@@ -3,7 +3,7 @@
 import { $, S, api, showError } from "./core.js";
 import { loadFrames, renderFrames } from "./frames.js";
 import "./stages.js";
-import { loadImages } from "./images.js";
+import { buildOverlayToggles, loadImages } from "./images.js";
 import "./rating.js";
 import { loadPresetList } from "./presets.js";
 import "./exports.js";
@@ -41,6 +41,7 @@ async function poll() {
 async function start() {
   S.info = await api("GET", "/api/info");
   $("#data-dir").textContent = S.info.data_dir;
+  buildOverlayToggles();
   const sess = await api("POST", "/api/sessions");
   S.session = sess.session;
   await loadFrames();

@@ -112,9 +112,9 @@ class Tab:
         )  # fmt: skip
 
     def page_count(self) -> int:
-        text = self.page.locator("#reliable-count").inner_text()
+        text = self.page.locator('[data-count="reliable"]').inner_text()
         m = re.fullmatch(r"\((\d+)\)", text.strip())
-        assert m, f"#reliable-count shows {text!r}"
+        assert m, f"the reliable count shows {text!r}"
         return int(m.group(1))
 
     def select(self, frame_id: str) -> None:
@@ -256,6 +256,15 @@ def test_viser_threshold_slider_changes_reliable_pixels(tab):
     assert float(thumb.get_attribute("aria-valuenow")) == pytest.approx(0.5)
 
 
+def test_overlay_toggles_come_from_the_server(tab):
+    page = tab.page
+    info = tab.server.api("/api/info")
+    keys = page.locator("#overlay-toggles input").evaluate_all("els => els.map(e => e.dataset.ov)")
+    assert keys == [o["key"] for o in info["overlays"]]
+    checked = page.locator("#overlay-toggles input").evaluate_all("els => els.map(e => e.checked)")
+    assert checked == [o["on"] for o in info["overlays"]]
+
+
 def test_next_step_reveals_stages_in_order(tab):
     page = tab.page
     if tab.api_state()["frame_id"] != TISSUE:
@@ -300,7 +309,7 @@ def test_pixel_inspector_shows_the_energy_curve(tab):
     page = tab.page
     wait_idle(page, TISSUE)
     tab.wait_overlay(TISSUE)
-    reliable = page.evaluate("window.threadrecon.overlay.reliable")
+    reliable = page.evaluate("window.threadrecon.overlay.reliable.left")
     assert len(reliable) >= 2
     i = (len(reliable) // 4) & ~1  # a pixel a quarter along the list
     x, y = reliable[i], reliable[i + 1]

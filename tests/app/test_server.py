@@ -224,8 +224,8 @@ def test_overlay_projects_the_spline_into_both_images(client):
             st["metrics"][f"{side}_mean_px"], abs=0.05
         )
         assert len(ov["spline"][side]["points"]) > 100
-    assert len(ov["reliable"]) % 2 == 0 and len(ov["reliable"]) > 0
-    assert len(ov["keypoints"]) > 3
+    assert len(ov["reliable"]["left"]) % 2 == 0 and len(ov["reliable"]["left"]) > 0
+    assert len(ov["keypoints"]["left"]) > 3
 
 
 @pytest.fixture(scope="module")

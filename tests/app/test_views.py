@@ -13,18 +13,20 @@ from threadrecon.app.controls import controls
 from threadrecon.app.dataset import evaluate_reconstruction
 from threadrecon.app.views import (
     LAYERS,
+    OVERLAY_VIEWS,
     Label,
     Points,
     Segments,
     layer,
     nearest_to_ray,
     overlay,
+    overlay_view,
     palette,
     pixel_info,
     stage_json,
 )
 from threadrecon.core.metrics import project
-from threadrecon.core.pipeline import STAGES, ReconParams, reconstruct
+from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, reconstruct
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +59,7 @@ def test_overlay_spline_is_the_projected_camera_curve(case):
     # both sample the same curve: every overlay point lies on the projected camera curve
     d = np.linalg.norm(uv[:, None, :] - ref[None, :, :], axis=2).min(axis=1)
     assert d.max() < 1.0
-    assert len(ov["reliable"]) == 2 * rec["reliability"].count
+    assert len(ov["reliable"]["left"]) == 2 * rec["reliability"].count
 
 
 def test_overlay_errors_are_the_evaluation_metrics_exactly(case):
@@ -138,3 +140,40 @@ def test_controls_cover_every_parameter_and_hold_the_defaults():
                 "ordering.solidify_radius", "bounds.r_k_frac", "bounds.bound_scale",
                 "bounds.widen_px", "spline.n_ctrl", "spline.degree", "spline.max_iter"):  # fmt: skip
         assert ctl[key].kind == "slider", key
+
+
+PAYLOAD_CHECKS = {
+    "pixels": lambda p: (
+        isinstance(p, list) and len(p) % 2 == 0 and all(isinstance(v, int) for v in p)
+    ),
+    "circles": lambda p: all(len(q) == 2 for q in p),
+    "squares": lambda p: all(len(q) == 3 and isinstance(q[2], bool) for q in p),
+    "polyline": lambda p: (
+        all(len(q) == 2 for q in p["points"])
+        and ("colors" not in p or len(p["colors"]) == len(p["points"]))
+    ),
+}
+
+
+def test_every_registered_overlay_has_the_payload_of_its_kind(case):
+    rec, calib, _ = case
+    ov = overlay(rec, calib)
+    assert set(OVERLAY_VIEWS) <= set(ov)  # every stage ran: every overlay is there
+    for key, view in OVERLAY_VIEWS.items():
+        assert ov[key], key
+        for side, payload in ov[key].items():
+            assert side in ("left", "right"), (key, side)
+            assert PAYLOAD_CHECKS[view.kind](payload), (key, side)
+
+
+def test_overlays_wait_for_their_stages():
+    pair, calib, _ = synthetic_case(seed=3)
+    rec = Pipeline(pair, calib).run(until="stereo")
+    ov = overlay(rec, calib)
+    assert "segmented" in ov and "reliable" not in ov and "spline" not in ov
+
+
+def test_an_overlay_on_an_unknown_stage_is_refused():
+    with pytest.raises(ValueError, match="unknown stages"):
+        overlay_view("x", "x", "pixels", ("nope",), "#fff")(lambda rec, calib: {})
+    assert "x" not in OVERLAY_VIEWS
