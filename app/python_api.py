@@ -1,17 +1,18 @@
 """The Python API: one call from a stereo pair and its calibration to the thread's centerline.
 
 ```python
-from threadrecon.app.python_api import reconstruct   # ``from threadrecon import reconstruct`` once packaged
+from threadrecon import reconstruct
 
 result = reconstruct("left.png", "right.png", "calibration.yaml")
 if result.ok:
     print(result.points.shape, result.unit, result.frame)   # (400, 3) mm left
+    print(result.grasp.point, result.grasp.tangent)          # where (and along what) to grasp
 result.to_json()                                        # the CLI's JSON (result.schema.json)
 ```
 
 Images are paths or arrays ((H, W, 3) RGB uint8 or (H, W) grey); the calibration is a path
 (OpenCV FileStorage, Kalibr camchain, or a ROS camera_info with ``calib_right``) or a
-:class:`core.calibration.StereoCalibration`. A raw pair (distortion, rotated cameras) is
+:class:`threadrecon.core.calibration.StereoCalibration`. A raw pair (distortion, rotated cameras) is
 undistorted and rectified first; the curve comes back in the left camera's own frame
 (``frame="left"``, default) or in the left rectified frame (``frame="left_rectified"``).
 Bad input raises ``ValueError``/``FileNotFoundError`` naming the problem; a reconstruction
@@ -46,6 +47,19 @@ Image = str | Path | np.ndarray
 
 
 @dataclass(frozen=True)
+class Grasp:
+    """The check stage's grasp point in the result's frame: ``point`` (3,), ``tangent`` (3,)
+    unit vector along the curve (start -> end), ``confidence`` in [0, 1], ``distance`` (arc
+    length, calibration units) from the end taken as free, ``from_end`` ("start" or "end")."""
+
+    point: np.ndarray
+    tangent: np.ndarray
+    confidence: float
+    distance: float
+    from_end: str
+
+
+@dataclass(frozen=True)
 class ThreadResult:
     """A reconstruction in ``frame`` and ``unit``.
 
@@ -54,7 +68,10 @@ class ThreadResult:
     the pipeline produced no final spline (then ``reasons`` says why). ``reconstruction``: every
     stage's result (in the left rectified frame, on the rectified pair); ``rectification``:
     how the raw pair was rectified (``R1``: p_rect = R1 p_left; identity for a rectified pair).
-    ``point_at(0.5)``: the point halfway along the curve (a grasp point, say).
+    ``confidence``: (n,) per point in [0, 1]; ``grasp``: the most confident point at the
+    configured distance from the free end (:class:`Grasp`); ``score``: the automatic 1-5
+    rating. These three are None when the check stage did not run (a failed stage).
+    ``point_at(0.5)``: the point halfway along the curve.
     """
 
     status: str
@@ -66,6 +83,9 @@ class ThreadResult:
     knots: np.ndarray | None
     degree: int | None
     length: float | None
+    confidence: np.ndarray | None
+    grasp: Grasp | None
+    score: int | None
     timings_ms: dict[str, float]
     params: ReconParams
     preset: str | None
@@ -176,7 +196,7 @@ def _result(
     inputs: Sequence[InputFile],
 ) -> ThreadResult:
     fields: dict[str, Any] = dict.fromkeys(
-        ("points", "control_points", "knots", "degree", "length")
+        ("points", "control_points", "knots", "degree", "length", "confidence", "grasp", "score")
     )
     unit = rect.calib.unit
     if "camera" in rec.runs:
@@ -188,9 +208,21 @@ def _result(
             degree=cam.degree,
             length=cam.length,
         )
+    if "check" in rec.runs:
+        chk = rec["check"]
+        fields.update(confidence=chk.confidence, score=chk.score)
+        if chk.grasp is not None:
+            g = chk.grasp
+            fields["grasp"] = Grasp(
+                point=in_frame(g.point[None], rect, frame)[0],
+                tangent=in_frame(g.tangent[None], rect, frame)[0],  # a rotation: no offset
+                confidence=g.confidence,
+                distance=g.distance,
+                from_end=g.from_end,
+            )
     return ThreadResult(
         status=rec.status,
-        reasons=() if rec.message is None else (rec.message,),
+        reasons=rec.reasons,
         frame=frame,
         unit=unit,
         timings_ms=dict(rec.timings_ms),

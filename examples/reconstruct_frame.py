@@ -6,22 +6,19 @@
 LEFT and RIGHT may be raw (distorted, unrectified) images: the calibration says so, and they
 are undistorted and rectified before the reconstruction. The curve comes back in the left
 camera's own frame (OpenCV axes: x right, y down, z forward) in the calibration's unit. The
-grasp point here is the point halfway along the thread (``point_at(0.5)``); a gripper needs
-the curve's tangent there too, so it is printed as well.
+grasp point is the check stage's: the most confident point at the configured distance from
+the free end, with the thread's direction there (a gripper needs both) and its confidence.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))  # run from a checkout without installing
-
-from threadrecon.app.python_api import reconstruct  # noqa: E402  (``from threadrecon import reconstruct`` once packaged)
+from threadrecon import reconstruct
+from threadrecon.app.resources import sample_data_dir
 
 
 def main() -> int:
@@ -34,7 +31,7 @@ def main() -> int:
     args = parser.parse_args()
 
     if args.left is None:
-        sample = ROOT / "sample_data" / "simulated" / "flat"
+        sample = sample_data_dir() / "simulated" / "flat"
         result = reconstruct(
             None,
             stereo=sample / "flat_1.png",
@@ -49,16 +46,16 @@ def main() -> int:
         )
 
     if not result.ok:
-        print(f"reconstruction failed: {'; '.join(result.reasons)}", file=sys.stderr)
+        print(f"reconstruction {result.status}: {'; '.join(result.reasons)}", file=sys.stderr)
         return 1
-    grasp = result.point_at(0.5)
-    tangent = result.point_at(0.51) - result.point_at(0.49)
-    tangent /= np.linalg.norm(tangent)
+    g = result.grasp
     print(
         f"{len(result.points)} points, length {result.length:.1f} {result.unit}, frame {result.frame}"
+        f", score {result.score}/5"
     )
-    print(f"grasp point ({result.unit}): {np.array2string(grasp, precision=2)}")
-    print(f"thread direction there:  {np.array2string(tangent, precision=3)}")
+    print(f"grasp point ({result.unit}): {np.array2string(g.point, precision=2)}")
+    print(f"thread direction there:  {np.array2string(g.tangent, precision=3)}")
+    print(f"confidence {g.confidence:.2f}, {g.distance:.1f} {result.unit} from the {g.from_end}")
     print(f"total time {sum(result.timings_ms.values()):.0f} ms")
     return 0
 

@@ -116,6 +116,22 @@ def test_frame_option_gives_the_rectified_frame(
     R1 = from_opencv.rectification.R1
     assert_close(rect.points @ R1, from_opencv.points, atol=1e-9, rtol=0)
     assert rect.to_json()["frame"] == "left_rectified"
+    # the grasp point and its tangent turn with the curve
+    assert_close(rect.grasp.point @ R1, from_opencv.grasp.point, atol=1e-9, rtol=0)
+    assert_close(rect.grasp.tangent @ R1, from_opencv.grasp.tangent, atol=1e-12, rtol=0)
+
+
+def test_grasp_point_lies_on_the_curve_with_its_confidence(from_opencv: ThreadResult) -> None:
+    r = from_opencv
+    g = r.grasp
+    i = int(np.argmin(np.linalg.norm(r.points - g.point, axis=1)))
+    assert_close(r.points[i], g.point, atol=1e-9, rtol=0)
+    assert g.confidence == pytest.approx(float(r.confidence[i]))
+    assert np.linalg.norm(g.tangent) == pytest.approx(1.0)
+    step = r.points[min(i + 1, len(r.points) - 1)] - r.points[max(i - 1, 0)]
+    assert float(g.tangent @ step) > 0.9 * np.linalg.norm(step)  # along the curve, start -> end
+    assert r.confidence.shape == (len(r.points),) and 1 <= r.score <= 5
+    assert r.reasons == r.reconstruction.reasons
 
 
 def test_result_json_validates_and_names_its_inputs(
