@@ -51,6 +51,7 @@ def describe(s: Session) -> dict[str, Any]:
         "status": status,
         "failed_stage": failed,
         "error": error or s.metrics_error,
+        "reasons": list(rec.reasons) if rec is not None and not s.load_error else [],
         "metrics": dict(s.metrics),
         "latency_ms": dict(s.latency_ms),
         "inspect": s.inspect,

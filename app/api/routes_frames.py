@@ -8,10 +8,10 @@ import cv2
 import numpy as np
 from fastapi import APIRouter, Body
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import Response
 
 from threadrecon.app.api import schemas
-from threadrecon.app.api.deps import State, answer
+from threadrecon.app.api.deps import State, session_answer, stage_answer
 from threadrecon.app.errors import Conflict, Invalid, NotFound, TimedOut
 from threadrecon.app.library import merge_params
 from threadrecon.app.views import stage_json
@@ -60,7 +60,7 @@ def frame_image(state: State, frame_id: str, side: str) -> Response:
 @router.post("/{frame_id:path}/run")
 async def run_frame(
     state: State, frame_id: str, body: Annotated[schemas.RunBody | None, Body()] = None
-) -> JSONResponse:
+) -> schemas.SessionState:
     """Select the frame in a session (default: the API session) and run it with the given
     parameters; answers with the session state when done (waiting holds no thread)."""
     state.frame(frame_id)
@@ -77,13 +77,13 @@ async def run_frame(
     )  # fmt: skip
     if body.wait and not await session.finished(seq, state.config.run_timeout_s):
         raise TimedOut("the run did not finish in time")
-    return answer(await run_in_threadpool(session.state))
+    return session_answer(await run_in_threadpool(session.state))
 
 
 @router.get("/{frame_id:path}/stages/{stage}")
 async def frame_stage(
     state: State, frame_id: str, stage: str, session: str | None = None
-) -> JSONResponse:
+) -> schemas.StageAnswer:
     """One stage's result of the frame as the session last computed it (the frame is run
     with the session's parameters first if the session shows another frame)."""
     state.frame(frame_id)
@@ -98,6 +98,6 @@ async def frame_stage(
     if rec is None:
         raise Conflict(s.load_error or "no reconstruction")
     try:
-        return JSONResponse(await run_in_threadpool(stage_json, rec, stage))
+        return stage_answer(await run_in_threadpool(stage_json, rec, stage))
     except LookupError as exc:
         raise Conflict(str(exc.args[0])) from None

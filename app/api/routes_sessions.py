@@ -9,7 +9,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
 
 from threadrecon.app.api import schemas
-from threadrecon.app.api.deps import State, answer
+from threadrecon.app.api.deps import State, session_answer, stage_answer
 from threadrecon.app.api.state import AppState
 from threadrecon.app.errors import Conflict, Invalid, NotFound, TimedOut
 from threadrecon.app.library import merge_params
@@ -21,10 +21,10 @@ router = APIRouter(prefix="/api/sessions", tags=["sessions"])
 MAX_POLL_S = 25.0  # a long poll answers after this long even without news
 
 
-async def _reply(state: AppState, s: Session, seq: int, wait: bool) -> JSONResponse:
+async def _reply(state: AppState, s: Session, seq: int, wait: bool) -> schemas.SessionState:
     if wait and not await s.finished(seq, state.config.run_timeout_s):
         raise TimedOut("the run did not finish in time")
-    return answer(await run_in_threadpool(s.state))
+    return session_answer(await run_in_threadpool(s.state))
 
 
 @router.post("")
@@ -52,19 +52,19 @@ async def session_state(
     sid: str,
     since: int | None = None,
     timeout: float = Query(0.0, ge=0.0, le=MAX_POLL_S),
-) -> JSONResponse:
+) -> schemas.SessionState:
     """The session's stepper, metrics and errors; with ``since``, waits up to ``timeout`` s
     for a version newer than ``since`` (a long poll: no thread is held while waiting)."""
     s = state.session(sid)
     if since is not None and timeout > 0:
         await s.changed(since, timeout)
-    return answer(await run_in_threadpool(s.state))
+    return session_answer(await run_in_threadpool(s.state))
 
 
 @router.patch("/{sid}/params")
 async def patch_params(
     state: State, sid: str, patch: Annotated[dict[str, Any], Body()], wait: bool = False
-) -> JSONResponse:
+) -> schemas.SessionState:
     """Change parameters (``{stage: {name: value}}``); 422 names a refused parameter."""
     s = state.session(sid)
     seq = s.submit(params=merge_params(s.params, patch))
@@ -72,14 +72,16 @@ async def patch_params(
 
 
 @router.post("/{sid}/params/reset")
-async def reset_params(state: State, sid: str, wait: bool = False) -> JSONResponse:
+async def reset_params(state: State, sid: str, wait: bool = False) -> schemas.SessionState:
     s = state.session(sid)
     seq = s.submit(params=ReconParams(), preset="default")
     return await _reply(state, s, seq, wait)
 
 
 @router.post("/{sid}/step")
-async def step(state: State, sid: str, body: schemas.StepBody, wait: bool = False) -> JSONResponse:
+async def step(
+    state: State, sid: str, body: schemas.StepBody, wait: bool = False
+) -> schemas.SessionState:
     """The stage stepper: run (streamed), next (reveal one more stage) or all."""
     s = state.session(sid)
     seq = s.step(body.action, pause_s=body.pause_ms / 1000.0)
@@ -87,7 +89,7 @@ async def step(state: State, sid: str, body: schemas.StepBody, wait: bool = Fals
 
 
 @router.post("/{sid}/preset")
-async def use_preset(state: State, sid: str, body: schemas.UsePresetBody) -> JSONResponse:
+async def use_preset(state: State, sid: str, body: schemas.UsePresetBody) -> schemas.SessionState:
     """Load a preset into the session: every slider takes its value, then it runs."""
     s = state.session(sid)
     seq = s.submit(params=state.preset(body.name), preset=body.name)
@@ -119,13 +121,13 @@ def session_pixel(state: State, sid: str, x: int, y: int) -> JSONResponse:
 
 
 @router.get("/{sid}/stages/{stage}")
-def session_stage(state: State, sid: str, stage: str) -> JSONResponse:
+def session_stage(state: State, sid: str, stage: str) -> schemas.StageAnswer:
     s = state.session(sid)
     rec = s.rec
     if rec is None:
         raise Conflict(s.load_error or "no reconstruction yet")
     try:
-        return JSONResponse(stage_json(rec, stage))
+        return stage_answer(stage_json(rec, stage))
     except KeyError as exc:
         raise NotFound(str(exc.args[0])) from None
     except LookupError as exc:

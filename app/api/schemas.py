@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
 
 from threadrecon.app.session import MAX_PAUSE_S
 
@@ -51,6 +51,62 @@ class UsePresetBody(BaseModel):
 class EvaluateBody(BaseModel):
     session: str | None = None
     preset: str | None = None
+
+
+class StageState(BaseModel):
+    stage: str
+    revealed: bool
+    status: Literal["pending", "running", "done", "cached", "fallback", "failed"]
+    """"fallback": the spline stage returned its initial curve (the solver did not finish)."""
+    ms: float | None = None
+
+
+class ParamChange(BaseModel):
+    key: str
+    """``stage.name``."""
+    value: Any
+    base: Any
+
+
+class SessionState(BaseModel):
+    """What a session shows: its frame, parameters, stepper, status and metrics. Answers every
+    session call and frame run (NaN and infinities become null)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    session: str
+    version: int
+    """Grows with every change; a long poll waits for a newer one."""
+    frame_id: str | None
+    shown_frame: str | None
+    """The frame whose reconstruction is on screen (None while the first one loads)."""
+    busy: bool
+    preset: str | None
+    params: dict[str, dict[str, Any]]
+    params_hash: str
+    diff: list[ParamChange]
+    """The parameters that differ from the paper's defaults."""
+    reveal: int
+    stages: list[StageState]
+    status: Literal["pending", "ok", "suspect", "failed"]
+    failed_stage: str | None
+    error: str | None
+    reasons: list[str]
+    """Every reason for a status other than "ok", in words (the check stage's findings)."""
+    metrics: dict[str, float | int | str | None]
+    latency_ms: dict[str, float]
+    inspect: dict[str, Any] | None
+    """The inspected pixel (see ``/pixel``), or None."""
+    unit: str | None
+
+
+class StageAnswer(BaseModel):
+    """One stage's result as JSON (per-pixel images are left out: see ``omitted``)."""
+
+    stage: str
+    ms: float
+    cached: bool
+    result: dict[str, Any]
 
 
 class NewSession(BaseModel):

@@ -279,3 +279,25 @@ def test_page_and_docs_are_served(client):
     keys = {c["key"] for c in info["controls"]}
     for key in ("reliability.eps1", "reliability.threshold", "spline.n_ctrl", "bounds.bound_scale"):
         assert key in keys
+
+
+def test_session_and_run_answers_are_declared_response_models(client):
+    spec = client.get("/openapi.json").json()
+
+    def ref(path: str, method: str) -> str:
+        content = spec["paths"][path][method]["responses"]["200"]["content"]
+        return content["application/json"]["schema"]["$ref"].rsplit("/", 1)[-1]
+
+    for path, method in (
+        ("/api/sessions/{sid}", "get"),
+        ("/api/sessions/{sid}/params", "patch"),
+        ("/api/sessions/{sid}/step", "post"),
+        ("/api/frames/{frame_id}/run", "post"),
+    ):
+        assert ref(path, method) == "SessionState", path
+    assert ref("/api/sessions/{sid}/stages/{stage}", "get") == "StageAnswer"
+    assert ref("/api/info", "get") == "Info"
+    state = run(client, preset="default")
+    assert set(state) == set(spec["components"]["schemas"]["SessionState"]["properties"])
+    assert state["status"] in ("ok", "suspect") and isinstance(state["reasons"], list)
+    assert all(s["status"] in ("done", "cached") for s in state["stages"])
