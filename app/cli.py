@@ -90,7 +90,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_reconstruct)
 
     e = sub.add_parser("evaluate", help="evaluate every frame of a dataset folder")
-    e.add_argument("dataset", help="folder with simulated/ and/or real/")
+    e.add_argument(
+        "dataset",
+        nargs="?",
+        default=str(_sample_data()),
+        help="data folder, any layout (default: the bundled sample)",
+    )
     e.add_argument("--config", help="preset name or path")
     e.add_argument("--out", help="CSV with one row per frame")
     e.add_argument(
