@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -12,16 +14,12 @@ from threadpoolctl import threadpool_limits
 
 from threadrecon.app.bench import cmd_bench
 from threadrecon.app.dataset import discover, frame_inputs, frame_rectification
-from threadrecon.app.distributed import connect, evaluate_frames
 from threadrecon.app.errors import UserError
 from threadrecon.app.evaluation import summarise, write_csv
 from threadrecon.app.export import result_json, software_version, write_json
 from threadrecon.app.presets import resolve_preset
 from threadrecon.app.python_api import reconstruct
 from threadrecon.app.resources import sample_data_dir
-from threadrecon.app.server import cmd_serve
-from threadrecon.app.track_report import cmd_track
-from threadrecon.app.tune.command import cmd_tune
 
 
 def limit_blas_threads() -> None:
@@ -46,6 +44,16 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("threadrecon: interrupted", file=sys.stderr)
         return 130
+
+
+def _lazy(module: str, name: str) -> Callable[[argparse.Namespace], int]:
+    """The command ``module.name``, imported when it runs: the server (viser, FastAPI), the
+    tuner (Optuna) and Dask load only for the commands that use them."""
+
+    def command(args: argparse.Namespace) -> int:
+        return getattr(importlib.import_module(module), name)(args)
+
+    return command
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -183,7 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--preset-name", help="its name (default: tuned-<hash of the setting>)")
     t.add_argument("--force", action="store_true", help="replace an existing preset of that name")
     _add_dask_arguments(t, default_help="default: one process per CPU")
-    t.set_defaults(func=cmd_tune)
+    t.set_defaults(func=_lazy("threadrecon.app.tune.command", "cmd_tune"))
 
     v = sub.add_parser("serve", help="start the browser debugger on a data folder")
     v.add_argument(
@@ -229,7 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="BYTES",
         help="largest request body accepted (default 4 MiB; larger: 413)",
     )
-    v.set_defaults(func=cmd_serve)
+    v.set_defaults(func=_lazy("threadrecon.app.server", "cmd_serve"))
 
     t = sub.add_parser(
         "track",
@@ -259,7 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE.html",
         help="also save the 3D view of the whole sequence as a recording that opens without a server",
     )
-    t.set_defaults(func=cmd_track)
+    t.set_defaults(func=_lazy("threadrecon.app.track_report", "cmd_track"))
 
     try:
         from threadrecon.app import generate
@@ -364,6 +372,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     workers = 0 if args.workers is None and args.scheduler is None else args.workers
     rows: list[dict[str, Any] | None] = [None] * len(frames)
     keep = bool(args.save_predictions)
+    from threadrecon.app.distributed import connect, evaluate_frames
+
     with connect(args.scheduler, workers) as client:
         for i, row, rec in evaluate_frames(client, frames, params, keep, _progress):
             rows[i] = row
