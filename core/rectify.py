@@ -118,7 +118,10 @@ def rectify_pair(pair: StereoPair, rect: Rectification) -> StereoPair:
         (pair.left, pair.mask_left, rect.maps[0]),
         (pair.right, pair.mask_right, rect.maps[1]),
     ):
-        out = cv2.remap(img, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+        # Lanczos keeps a 1-6 px thread sharper than cubic: sub-pixel disparities move less
+        # (scripts/measure_raw_rig.py, 24 held-out frames: e_S within 0.1 mm of the rectified
+        # input on 19 against 17, median difference 0.04 against 0.07 mm)
+        out = cv2.remap(img, mx, my, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE)
         outside = _outside(mx, my, img.shape[:2])
         if outside.any():
             out[outside] = np.median(img.reshape(-1, *img.shape[2:]), axis=0).astype(img.dtype)
