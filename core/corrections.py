@@ -10,7 +10,8 @@ A correction is one user action on one view's mask, in the rectified image the d
   contrast has the same colour and at least half its strength, at most ``ADD_REACH_PX`` from
   the click (see :func:`_evidence_piece`);
 - ``erase`` / ``paint``: a brush stroke of radius ``radius`` through ``points`` clears / sets P;
-- ``clear``: the view's mask is the segmenter's again (later actions apply on top of it).
+- ``clear``: the view's mask (view "both": both masks) is the segmenter's again; later
+  actions apply on top of it.
 
 Corrections are applied in order, each to the mask the previous ones left, so that a removed
 piece stays removed when the segmentation parameters change and the piece moves a little.
@@ -40,7 +41,7 @@ ADD_MIN_CONTRAST: Final = 6.0  # grey levels: weaker contrast to the background 
 _MEDIAN_PX: Final = 21  # local background of the contrast cue: median over 21 px (> 3x a thread)
 
 Op = Literal["remove", "add", "erase", "paint", "clear"]
-View = Literal["left", "right"]
+View = Literal["left", "right", "both"]
 
 
 @dataclass(frozen=True)
@@ -60,7 +61,7 @@ class Correction:
     def __post_init__(self) -> None:
         if self.op not in OPS:
             raise ValueError(f"unknown correction {self.op!r} (known: {', '.join(OPS)})")
-        if self.view not in VIEWS:
+        if self.view not in VIEWS and not (self.op == "clear" and self.view == "both"):
             raise ValueError(f"view must be left or right, got {self.view!r}")
         if not isinstance(self.radius, int | float) or not math.isfinite(self.radius):
             raise ValueError(f"radius must be a finite number of px, got {self.radius!r}")
@@ -155,6 +156,10 @@ def apply_corrections(
         if not isinstance(c, Correction):
             raise ValueError(f"a correction must be a Correction, got {type(c).__name__}")
         c.check_inside(lifted.P_L.shape)
+        if c.view == "both":  # clear both views
+            changed.append(sum(int(np.count_nonzero(masks[v] != segmented[v])) for v in VIEWS))
+            masks = {v: segmented[v].copy() for v in VIEWS}
+            continue
         old = masks[c.view]
         new = _apply_one(c, old, segmented[c.view], evidence[c.view])
         changed.append(int(np.count_nonzero(new != old)))

@@ -138,6 +138,11 @@ def test_clear_returns_to_the_segmentation_and_later_actions_apply_on_top() -> N
     assert np.array_equal(cleared.P_L, lifted.P_L)
     again = apply_corrections(lifted, (*ops, Correction("remove", "left", ((x, y),))))
     assert np.array_equal(again.P_L, f.mask_left)
+    both = apply_corrections(
+        again, (Correction("erase", "right", ((x, y),), 30), Correction("clear", "both"))
+    )
+    assert np.array_equal(both.P_L, lifted.P_L) and np.array_equal(both.P_R, lifted.P_R)
+    assert both.changed_px[-1] > 0
 
 
 def test_corrections_that_empty_a_view_are_refused_with_advice() -> None:
@@ -159,6 +164,7 @@ def test_corrections_that_empty_a_view_are_refused_with_advice() -> None:
     [
         ({"op": "grow", "view": "left", "points": ((1, 1),)}, "unknown correction"),
         ({"op": "add", "view": "middle", "points": ((1, 1),)}, "left or right"),
+        ({"op": "erase", "view": "both", "points": ((1, 1),)}, "left or right"),
         ({"op": "erase", "view": "left", "points": ((1, 1),), "radius": 1e9}, "radius"),
         ({"op": "erase", "view": "left", "points": ((1, 1),), "radius": float("nan")}, "finite"),
         ({"op": "erase", "view": "left", "points": ()}, "1 to"),
