@@ -173,6 +173,7 @@ onState((st) => {
 });
 
 $("#img-left").addEventListener("click", (ev) => {
+  if (S.tool && S.tool !== "inspect") return;  // a correction tool (corrections.js) has the click
   const c = ev.currentTarget, r = c.getBoundingClientRect();
   const x = Math.floor((ev.clientX - r.left) * c.width / r.width);
   const y = Math.floor((ev.clientY - r.top) * c.height / r.height);
