@@ -293,7 +293,7 @@ class Session:
         try:
             loaded = self.library.load(req.frame_id)
             pipe = self._pipeline(req.frame_id, loaded)
-            corrections = self.library.corrections(req.frame_id)
+            pipe.corrections = self.library.corrections(req.frame_id)  # the worker's alone
         except (ValueError, OSError, DomainError) as exc:  # DomainError: the correction store
             with self.draw_lock:
                 self.loaded, self.rec, self.metrics = None, None, {}
@@ -314,7 +314,7 @@ class Session:
         until = STAGES[req.reveal - 1]
         runs: dict[str, Any] = {}
         rec: Reconstruction | None = None
-        stages = pipe.stages(req.params, until, corrections)
+        stages = pipe.stages(req.params, until)
         self.running = STAGES[0]
         while True:
             try:

@@ -146,7 +146,9 @@ class StageRun:
 class Pipeline:
     """Runs the stages on one stereo pair; results are cached per stage."""
 
-    def __init__(self, pair: StereoPair, calib: StereoCalibration) -> None:
+    def __init__(
+        self, pair: StereoPair, calib: StereoCalibration, corrections: tuple[Correction, ...] = ()
+    ) -> None:
         if pair.shape != calib.image_size:
             raise ValueError(
                 f"images are {pair.shape} px but the calibration is for {calib.image_size}"
@@ -154,6 +156,8 @@ class Pipeline:
         self.pair = pair
         self.calib = calib
         self._cache: dict[str, tuple[tuple, Any]] = {}
+        self.corrections = tuple(corrections)
+        """The user's mask corrections that runs apply unless they name their own."""
         self._segmented: tuple[Any, Any] | None = None  # (segment params, uncorrected result)
         self.last_ms: dict[str, float] = {}
 
@@ -180,14 +184,14 @@ class Pipeline:
         self,
         params: Any = None,
         until: str | None = None,
-        corrections: tuple[Correction, ...] = (),
+        corrections: tuple[Correction, ...] | None = None,
     ) -> Iterator[StageRun]:
         """Yield each stage's run in order up to ``until`` (default: the last stage); any error
         of a stage is raised as :class:`StageError` naming it. ``corrections`` (the user's, in
-        order) change the masks P_L, P_R right after the segment stage
-        (:func:`core.corrections.apply_corrections`)."""
+        order; default :attr:`corrections`) change the masks P_L, P_R right after the segment
+        stage (:func:`core.corrections.apply_corrections`)."""
         params = ReconParams() if params is None else params
-        corrections = tuple(corrections)
+        corrections = self.corrections if corrections is None else tuple(corrections)
         until = STAGES[-1] if until is None else until
         if until not in STAGES:
             raise ValueError(f"unknown stage {until!r}")
@@ -226,7 +230,7 @@ class Pipeline:
         self,
         params: Any = None,
         until: str | None = None,
-        corrections: tuple[Correction, ...] = (),
+        corrections: tuple[Correction, ...] | None = None,
     ) -> Reconstruction:
         """Run every stage up to ``until``; a failing stage is reported, not raised."""
         params = ReconParams() if params is None else params
@@ -296,4 +300,4 @@ def reconstruct(
     corrections: tuple[Correction, ...] = (),
 ) -> Reconstruction:
     """One-shot run of the whole pipeline (with the user's mask corrections, if any)."""
-    return Pipeline(pair, calib).run(params, corrections=corrections)
+    return Pipeline(pair, calib, corrections).run(params)

@@ -20,7 +20,7 @@ _reason = missing_browser()
 if _reason is not None:
     pytest.skip(_reason, allow_module_level=True)
 
-SEED = 13  # the given mask's vessel drags the curve off the thread (test_corrections.py)
+SEED = 13  # the given mask's vessel drags the curve off the thread (test_server_corrections.py)
 
 
 def _open(b: Any, server: Server, frame_id: str) -> Any:
