@@ -32,11 +32,12 @@ _TABLE = (
     " view TEXT NOT NULL,"
     " points TEXT NOT NULL,"
     " radius REAL NOT NULL,"
+    " stereo INTEGER NOT NULL DEFAULT 0,"
     " state TEXT NOT NULL CHECK (state IN ('active', 'undone', 'dropped')),"
     " created_at TEXT NOT NULL)"
 )
 _INDEX = "CREATE INDEX IF NOT EXISTS corrections_by_frame ON corrections (frame_id, state, id)"
-_COLUMNS = "id, op, view, points, radius, state, created_at"
+_COLUMNS = "id, op, view, points, radius, stereo, state, created_at"
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,7 @@ class StoredCorrection:
             "view": c.view,
             "points": [list(p) for p in c.points],
             "radius": c.radius,
+            "stereo": c.stereo,
             "state": self.state,
             "created_at": self.created_at,
         }
@@ -102,9 +104,18 @@ class CorrectionStore:
                 (frame_id,),
             )
             cur.execute(
-                "INSERT INTO corrections (frame_id, op, view, points, radius, state, created_at)"
-                " VALUES (?, ?, ?, ?, ?, 'active', ?)",
-                (frame_id, correction.op, correction.view, points, float(correction.radius), now),
+                "INSERT INTO corrections"
+                " (frame_id, op, view, points, radius, stereo, state, created_at)"
+                " VALUES (?, ?, ?, ?, ?, ?, 'active', ?)",
+                (
+                    frame_id,
+                    correction.op,
+                    correction.view,
+                    points,
+                    float(correction.radius),
+                    int(correction.stereo),
+                    now,
+                ),  # fmt: skip
             )
             rid = cur.lastrowid
         assert rid is not None
@@ -141,9 +152,10 @@ class CorrectionStore:
 
 
 def _from_row(r: tuple[Any, ...]) -> StoredCorrection:
-    rid, op, view, points, radius, state, created_at = r
+    rid, op, view, points, radius, stereo, state, created_at = r
     try:
-        c = Correction(op, view, tuple((int(x), int(y)) for x, y in json.loads(points)), radius)
+        pts = tuple((int(x), int(y)) for x, y in json.loads(points))
+        c = Correction(op, view, pts, radius, bool(stereo))
     except (ValueError, TypeError) as exc:  # a row edited by hand: name it, never skip it
         raise Invalid(f"stored correction {rid} is unreadable: {exc}") from None
     return StoredCorrection(rid, c, state, created_at)

@@ -4,7 +4,8 @@ A correction is one user action on one view's mask, in the rectified image the d
 (pixel ``(x, y)``: x to the right, y down):
 
 - ``remove``: the connected piece of P (8-connected) nearest the click, within ``radius``,
-  is dropped (a vessel or fibre taken for thread);
+  is dropped (a vessel or fibre taken for thread); with ``stereo``, its partner in the other
+  view too (the piece on the same rows at a disparity >= 0, :func:`_partner`);
 - ``add``: the piece of thread at the click joins P: around the strongest colour contrast to
   the local (median) background within ``radius`` of the click, the connected pixels whose
   contrast has the same colour and at least half its strength, at most ``ADD_REACH_PX`` from
@@ -39,6 +40,9 @@ ADD_PEAK_FRACTION: Final = 0.5  # an added piece: evidence >= half its peak (hal
 ADD_CLICK_SIGMA: Final = 0.5  # peak search: contrast weighted by a Gaussian of radius / 2
 ADD_SAME_COLOUR_COS: Final = 0.8  # same dye: contrast directions within ~37 degrees
 ADD_MIN_CONTRAST: Final = 6.0  # grey levels: weaker contrast to the background is noise
+PARTNER_ROWS: Final = 0.6  # a stereo partner covers the same rows (IoU of the row sets)
+PARTNER_SLACK_PX: Final = 2.0  # disparity >= -2 px: a partner is never on the wrong side
+PARTNER_CANDIDATES: Final = 50  # pieces looked at (a mask of specks has hundreds)
 _MEDIAN_PX: Final = 20  # local background of the contrast cue: median over 20 px (> 3x a thread)
 _MEDIAN_STEP: Final = 4  # ... taken at quarter resolution: the background is smooth, 30x faster
 
@@ -59,8 +63,12 @@ class Correction:
     view: View
     points: tuple[tuple[int, int], ...] = ()
     radius: float = 8.0
+    stereo: bool = False
+    """remove: the piece's partner in the other view goes too (see :func:`_partner`)."""
 
     def __post_init__(self) -> None:
+        if self.stereo is not False and not (self.stereo is True and self.op == "remove"):
+            raise ValueError("stereo (the partner piece in the other view) is for remove only")
         if self.op not in OPS:
             raise ValueError(f"unknown correction {self.op!r} (known: {', '.join(OPS)})")
         if self.view not in VIEWS and not (self.op == "clear" and self.view == "both"):
@@ -166,6 +174,11 @@ def apply_corrections(
         new = _apply_one(c, old, segmented[c.view], evidence[c.view])
         changed.append(int(np.count_nonzero(new != old)))
         masks[c.view] = new
+        if c.stereo and changed[-1]:
+            other = "right" if c.view == "left" else "left"
+            partner = _partner(old & ~new, masks[other], look_left=c.view == "left")
+            changed[-1] += int(np.count_nonzero(partner))
+            masks[other] = masks[other] & ~partner
     error = lifted.segment_error if isinstance(lifted, CorrectedPair) else None
     for view, m in masks.items():
         if not m.any():
@@ -264,6 +277,41 @@ def _remove_piece(mask: np.ndarray, x: int, y: int, r: float) -> np.ndarray:
     _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
     piece = labels[rows[hit[0]], cols[hit[0]]]
     return mask & (labels != piece)
+
+
+def _partner(piece: np.ndarray, other: np.ndarray, look_left: bool) -> np.ndarray:
+    """(H, W) bool: the piece of the ``other`` view's mask that is the stereo partner of
+    ``piece``, or nothing. A partner lies on the same rows (row-set IoU >= ``PARTNER_ROWS``:
+    a thread merged with the partner spans other rows and is never taken) at a disparity
+    >= 0 (to the left in the right view when ``look_left``); of several, the best row match."""
+    rows = np.flatnonzero(piece.any(axis=1))
+    if rows.size == 0 or not other.any():
+        return np.zeros_like(other)
+    n, labels = cv2.connectedComponents(other.astype(np.uint8), connectivity=8)
+    lo, hi = rows[0], rows[-1] + 1
+    band = labels[lo:hi]
+    cands = np.unique(band[band > 0])
+    best, best_iou = 0, PARTNER_ROWS
+    mean_col = _row_mean_cols(piece)
+    for k in cands[:PARTNER_CANDIDATES]:  # the pieces crossing the clicked piece's rows: a few
+        cand = labels == k
+        cand_rows = np.flatnonzero(cand.any(axis=1))
+        iou = np.intersect1d(rows, cand_rows).size / np.union1d(rows, cand_rows).size
+        if iou < best_iou:
+            continue
+        common = np.intersect1d(rows, cand_rows)
+        d = np.median(mean_col[common] - _row_mean_cols(cand)[common])  # disparity x_L - x_R
+        if (d if look_left else -d) >= -PARTNER_SLACK_PX:
+            best, best_iou = int(k), iou
+    return labels == best if best else np.zeros_like(other)
+
+
+def _row_mean_cols(mask: np.ndarray) -> np.ndarray:
+    """(H,) mean column of the mask pixels of each row (NaN for an empty row)."""
+    cols = np.arange(mask.shape[1], dtype=np.float64)
+    count = mask.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (mask * cols).sum(axis=1) / count
 
 
 def _evidence_piece(image: np.ndarray, x: int, y: int, r: float) -> np.ndarray:

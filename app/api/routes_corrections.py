@@ -47,6 +47,8 @@ class CorrectionBody(BaseModel):
     """(x, y) pixels of the rectified image: one click (remove, add) or a brush stroke."""
     radius: float = Field(8.0, gt=0.0, allow_inf_nan=False)
     """px: brush radius (erase, paint) or how far from the click a piece is looked for."""
+    stereo: bool = False
+    """remove: the piece's stereo partner in the other view goes too."""
     session: str | None = None
     """The session that shows the result (others showing the frame run again too)."""
     wait: bool = True
@@ -71,7 +73,8 @@ async def add_correction(state: State, frame_id: str, body: CorrectionBody) -> J
     if body.radius > MAX_RADIUS_PX:
         raise Invalid(f"radius must be at most {MAX_RADIUS_PX:g} px, got {body.radius:g}")
     try:
-        c = Correction(body.op, body.view, tuple(tuple(p) for p in body.points), body.radius)
+        points = tuple(tuple(p) for p in body.points)
+        c = Correction(body.op, body.view, points, body.radius, body.stereo)
     except ValueError as exc:
         raise Invalid(str(exc)) from None
     s = state.session(body.session)

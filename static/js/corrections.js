@@ -23,6 +23,8 @@ function buildBar() {
   }, label));
   fill("#correct-tools",
     h("span", { class: "hint" }, "Mask:"), ...tools,
+    h("label", { title: "Remove piece: its partner in the other view (same rows) goes too" },
+      h("input", { id: "corr-stereo", type: "checkbox", checked: true }), " both views"),
     h("label", { title: "brush radius, px" }, " radius ",
       h("input", { id: "brush-radius", type: "number", min: "1", max: "200", step: "1", value: "6" })),
     h("button", { id: "corr-undo", title: "undo the last correction (Ctrl+Z)", onclick: () => action("undo") }, "Undo"),
@@ -117,7 +119,9 @@ for (const side of ["left", "right"]) {
   });
   canvas.addEventListener("click", (ev) => {
     if (S.tool !== "remove" && S.tool !== "add") return;
-    send("POST", "corrections", { op: S.tool, view: side, points: [pixelOf(canvas, ev)] });
+    const body = { op: S.tool, view: side, points: [pixelOf(canvas, ev)] };
+    if (S.tool === "remove") body.stereo = $("#corr-stereo").checked;
+    send("POST", "corrections", body);
   });
 }
 window.addEventListener("mouseup", () => {

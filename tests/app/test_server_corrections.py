@@ -115,6 +115,21 @@ def test_undo_redo_and_clear(case: Case, tmp_path: Path) -> None:
         assert r.json()["state"]["metrics"]["length_mm"] == pytest.approx(fixed)
 
 
+def test_one_stereo_click_removes_the_vessel_from_both_views(case: Case, tmp_path: Path) -> None:
+    with _client(case.root, tmp_path / "db.sqlite3") as client:
+        client.post(_url(case, "run"), json={})
+        out = _click(client, case, "remove", "right", case.vessel["right"], stereo=True)
+        assert out["corrections"][0]["stereo"] is True
+        assert out["state"]["status"] == "ok", out["state"]["error"]
+        for view in ("left", "right"):
+            x, y = case.vessel[view]
+            assert not _mask(client, case, view)[y - 3 : y + 4, x - 3 : x + 4].any()
+        r = client.post(
+            _url(case), json={"op": "add", "view": "left", "points": [[5, 5]], "stereo": True}
+        )
+        assert r.status_code == 422 and "remove only" in r.text
+
+
 @pytest.mark.parametrize(
     ("body", "status", "message"),
     [

@@ -73,6 +73,36 @@ def test_remove_drops_exactly_the_clicked_piece() -> None:
     assert np.all(fixed.I_L[y - 1 : y + 2, x] == 255.0)
 
 
+def test_stereo_remove_takes_the_partner_on_the_same_rows_and_never_the_thread() -> None:
+    pair, f, (x, y) = _distracted_case()
+    lifted = segment(pair, SegmentationParams())
+    fixed = apply_corrections(lifted, (Correction("remove", "left", ((x, y),), stereo=True),))
+    assert np.array_equal(fixed.P_L, f.mask_left)
+    assert np.array_equal(fixed.P_R, f.mask_right)  # the thread of the right view stays
+    assert fixed.changed_px[0] == int(
+        (lifted.P_L ^ f.mask_left).sum() + (lifted.P_R ^ f.mask_right).sum()
+    )
+    # from the right view: the partner lies to the right in the left view
+    back = apply_corrections(lifted, (Correction("remove", "right", ((x - 20, y),), stereo=True),))
+    assert np.array_equal(back.P_L, f.mask_left) and np.array_equal(back.P_R, f.mask_right)
+
+
+def test_stereo_remove_leaves_a_piece_at_a_negative_disparity() -> None:
+    f = synthetic_frame(0)
+    mL, mR = f.mask_left.copy(), f.mask_right.copy()
+    x, y = _far_spot(mL | np.roll(mR, -20, axis=1), 60)
+    for m, shift in ((mL, 0), (mR, 20)):  # in the right view 20 px to the right: d = -20
+        stripe = np.zeros(m.shape, np.uint8)
+        cv2.line(stripe, (x + shift, y), (x + shift + 60, y + 8), 1, 2)
+        m |= stripe.astype(bool)
+    lifted = segment(StereoPair(f.left, f.right, mL, mR))
+    fixed = apply_corrections(
+        lifted, (Correction("remove", "left", ((x + 30, y + 4),), stereo=True),)
+    )
+    assert np.array_equal(fixed.P_L, f.mask_left)
+    assert np.array_equal(fixed.P_R, mR)
+
+
 def test_remove_far_from_every_piece_changes_nothing() -> None:
     pair, f, _ = _distracted_case()
     lifted = segment(pair, SegmentationParams())
@@ -171,6 +201,7 @@ def test_corrections_that_empty_a_view_are_refused_with_advice() -> None:
         ({"op": "remove", "view": "left", "points": ((1, 1), (2, 2))}, "one click"),
         ({"op": "add", "view": "left", "points": ((1.5, 1),)}, "integer"),
         ({"op": "clear", "view": "left", "points": ((1, 1),)}, "no points"),
+        ({"op": "add", "view": "left", "points": ((1, 1),), "stereo": True}, "remove only"),
     ],
 )
 def test_bad_corrections_are_refused_by_name(kwargs: dict, message: str) -> None:
