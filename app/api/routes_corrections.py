@@ -79,7 +79,7 @@ async def add_correction(state: State, frame_id: str, body: CorrectionBody) -> J
         raise Invalid(str(exc)) from None
     s = state.session(body.session)
     await run_in_threadpool(_check, state, s, frame_id, c)
-    stored = state.corrections.add(frame_id, c)
+    stored = await run_in_threadpool(state.corrections.add, frame_id, c)
     out = await _rerun(state, s, frame_id, body.wait)
     return answer({"correction": stored.to_dict(), **out})
 
@@ -92,7 +92,7 @@ async def undo(
     state.frame(frame_id)
     body = body or ActionBody()
     s = state.session(body.session)
-    undone = state.corrections.undo(frame_id)
+    undone = await run_in_threadpool(state.corrections.undo, frame_id)
     return answer({"undone": undone.to_dict(), **await _rerun(state, s, frame_id, body.wait)})
 
 
@@ -104,7 +104,7 @@ async def redo(
     state.frame(frame_id)
     body = body or ActionBody()
     s = state.session(body.session)
-    redone = state.corrections.redo(frame_id)
+    redone = await run_in_threadpool(state.corrections.redo, frame_id)
     return answer({"redone": redone.to_dict(), **await _rerun(state, s, frame_id, body.wait)})
 
 
@@ -115,10 +115,10 @@ async def clear(
     """Back to the segmenter's masks in both views; undoable like any correction."""
     state.frame(frame_id)
     body = body or ActionBody()
-    if not state.corrections.active(frame_id):
+    if not await run_in_threadpool(state.corrections.active, frame_id):
         raise Conflict(f"frame {frame_id} has no corrections to clear")
     s = state.session(body.session)
-    stored = state.corrections.add(frame_id, Correction("clear", "both"))
+    stored = await run_in_threadpool(state.corrections.add, frame_id, Correction("clear", "both"))
     out = await _rerun(state, s, frame_id, body.wait)
     return answer({"correction": stored.to_dict(), **out})
 
@@ -187,7 +187,7 @@ async def _rerun(state: AppState, s: Session, frame_id: str, wait: bool) -> dict
     for other in state.sessions.all():
         if other is not s and other.frame_id == frame_id:
             other.submit()
-    out = state.corrections.summary(frame_id)
+    out = await run_in_threadpool(state.corrections.summary, frame_id)
     if wait:
         if not await s.finished(seq, state.config.run_timeout_s):
             raise TimedOut("the run did not finish in time (the correction is stored)")
@@ -198,7 +198,7 @@ async def _rerun(state: AppState, s: Session, frame_id: str, wait: bool) -> dict
 async def _segment_of(state: AppState, s: Session, frame_id: str) -> CorrectedPair:
     """The segment stage's result of the frame with its current corrections."""
     rec = s.rec
-    current = state.corrections.active(frame_id)
+    current = await run_in_threadpool(state.corrections.active, frame_id)
     fresh = rec is not None and s.shows(frame_id) and not s.busy and "segment" in rec.runs
     if fresh:
         seg = rec["segment"]  # type: ignore[index]

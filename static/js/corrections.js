@@ -4,6 +4,7 @@
 // the page follows its session's state as for any run (the overlays "added by you" and
 // "removed by you" show what changed).
 import { $, S, api, enc, fill, h, onState } from "./core.js";
+import { drawImages } from "./images.js";
 
 const TOOLS = [
   ["inspect", "Inspect", "click a pixel of the left image to inspect it"],
@@ -76,6 +77,7 @@ async function send(method, path, body) {
     message(`${n} correction${n === 1 ? "" : "s"} applied`);
   } catch (e) { message(`not applied: ${e.message}`); }
   busy = false; showSummary();
+  drawImages();  // the stroke's preview gives way to the overlays
 }
 
 function action(kind) { return send("POST", `corrections/${kind}`); }

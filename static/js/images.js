@@ -87,7 +87,7 @@ const DRAW = {
 
 const countOf = (o, payload) => (o.kind === "pixels" ? payload.length / 2 : o.kind === "polyline" ? payload.points.length : payload.length);
 
-function drawImages() {
+export function drawImages() {
   const ov = S.overlay && S.overlay.frame_id === S.frameId ? S.overlay : {};
   const overlays = S.info ? S.info.overlays : [];
   for (const o of overlays) {

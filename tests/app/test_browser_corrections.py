@@ -115,4 +115,26 @@ def test_clicks_remove_a_vessel_add_a_missed_piece_and_survive_a_restart(tmp_pat
                 f"window.threadrecon.state.metrics.length_mm < {fixed['metrics']['length_mm']} - 1",
                 timeout=30_000,
             )
+            # an erase stroke dragged across the added piece of the left view
+            page.locator('#correct-tools [data-tool="erase"]').click()
+            page.fill("#brush-radius", "4")
+            x, y = case.missed["left"]
+            box = page.evaluate(
+                """() => { const c = document.querySelector('#img-left');
+                    const r = c.getBoundingClientRect(); return [r.left, r.top, r.width / c.width]; }"""
+            )
+            page.mouse.move(box[0] + (x - 6) * box[2], box[1] + (y - 6) * box[2])
+            page.mouse.down()
+            for t in range(1, 7):
+                page.mouse.move(
+                    box[0] + (x - 6 + 2 * t) * box[2], box[1] + (y - 6 + 2 * t) * box[2]
+                )
+            page.mouse.up()
+            page.wait_for_selector(
+                '#correct-tools[data-count="3"]:not([data-busy="1"])', state="attached",
+                timeout=90_000,
+            )  # fmt: skip
+            listed = page.evaluate("window.threadrecon.corrections.corrections")
+            assert listed[-1]["op"] == "erase" and listed[-1]["radius"] == 4
+            assert len(listed[-1]["points"]) >= 2
             assert page.errors == []
