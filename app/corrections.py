@@ -21,7 +21,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 from threadrecon.app.errors import Conflict, Invalid
-from threadrecon.app.ratings import MAX_ID_CHARS, RatingStore
+from threadrecon.app.ratings import MAX_ID_CHARS, RatingStore, StoreError
 from threadrecon.core.corrections import Correction
 
 _TABLE = (
@@ -38,6 +38,7 @@ _TABLE = (
 )
 _INDEX = "CREATE INDEX IF NOT EXISTS corrections_by_frame ON corrections (frame_id, state, id)"
 _COLUMNS = "id, op, view, points, radius, stereo, state, created_at"
+_ADDED_COLUMNS = {"stereo": "INTEGER NOT NULL DEFAULT 0"}  # since the table's first version
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,17 @@ class CorrectionStore:
         self.store = store
         with store._write() as cur:
             cur.execute(_TABLE)
+            columns = {r[1] for r in cur.execute("PRAGMA table_info(corrections)")}
+            for name, sql in _ADDED_COLUMNS.items():  # a table of an earlier version
+                if name not in columns:
+                    cur.execute(f"ALTER TABLE corrections ADD COLUMN {name} {sql}")
+                    columns.add(name)
+            missing = set(_COLUMNS.split(", ")) - columns
+            if missing:
+                raise StoreError(
+                    store.path,
+                    f"has a corrections table without the column(s) {', '.join(sorted(missing))}",
+                )
             cur.execute(_INDEX)
 
     def active(self, frame_id: str) -> tuple[Correction, ...]:

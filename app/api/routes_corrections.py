@@ -10,6 +10,7 @@ before the frame is run again, so that no error of the run can lose it.
 
 from __future__ import annotations
 
+import contextlib
 from typing import Annotated, Literal
 
 import cv2
@@ -186,7 +187,8 @@ async def _rerun(state: AppState, s: Session, frame_id: str, wait: bool) -> dict
     seq = s.submit(frame_id=frame_id)
     for other in state.sessions.all():
         if other is not s and other.frame_id == frame_id:
-            other.submit()
+            with contextlib.suppress(Conflict):  # closed meanwhile
+                other.submit()
     out = await run_in_threadpool(state.corrections.summary, frame_id)
     if wait:
         if not await s.finished(seq, state.config.run_timeout_s):

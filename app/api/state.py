@@ -135,13 +135,6 @@ class AppState:
     def frame(self, frame_id: str) -> None:
         self.library.get(frame_id)
 
-    def rerun(self, frame_id: str) -> None:
-        """Run again every session that shows ``frame_id`` (its corrections changed)."""
-        for s in self.sessions.all():
-            if s.frame_id == frame_id:
-                with contextlib.suppress(Conflict):  # closed meanwhile
-                    s.submit()
-
     def start_job(self, params: ReconParams, preset: str) -> EvaluationJob:
         with self._job_lock:
             if self.job is not None and self.job.state in ("pending", "running"):

@@ -17,7 +17,7 @@ from fastapi.testclient import TestClient
 
 from threadrecon.app.corrections import CorrectionStore
 from threadrecon.app.errors import Conflict
-from threadrecon.app.ratings import RatingStore
+from threadrecon.app.ratings import RatingStore, StoreError
 from threadrecon.app.server import ServerConfig, create_app
 from threadrecon.core.corrections import Correction
 
@@ -219,3 +219,37 @@ def test_store_keeps_every_row_and_shares_the_rating_file(tmp_path: Path) -> Non
         assert CorrectionStore(ratings).active("f") == (a, Correction("clear", "both"))
     tables = {r[0] for r in sqlite3.connect(path).execute("SELECT name FROM sqlite_master")}
     assert {"ratings", "corrections", "meta"} <= tables
+
+
+def test_a_corrections_table_of_an_earlier_version_gains_its_columns(tmp_path: Path) -> None:
+    path = tmp_path / "old.sqlite3"
+    RatingStore(path).close()
+    with sqlite3.connect(path) as conn:  # the first version had no stereo column
+        conn.execute(
+            "CREATE TABLE corrections (id INTEGER PRIMARY KEY AUTOINCREMENT, frame_id TEXT NOT"
+            " NULL, op TEXT NOT NULL, view TEXT NOT NULL, points TEXT NOT NULL, radius REAL NOT"
+            " NULL, state TEXT NOT NULL, created_at TEXT NOT NULL)"
+        )
+        conn.execute(
+            "INSERT INTO corrections (frame_id, op, view, points, radius, state, created_at)"
+            " VALUES ('f', 'remove', 'left', '[[3,4]]', 8.0, 'active', 'then')"
+        )
+    with RatingStore(path) as ratings:
+        store = CorrectionStore(ratings)
+        assert store.active("f") == (Correction("remove", "left", ((3, 4),)),)
+        store.add("f", Correction("remove", "right", ((5, 6),), stereo=True))
+        assert store.active("f")[-1].stereo
+
+
+def test_a_foreign_corrections_table_stops_the_start_and_is_left_untouched(tmp_path: Path) -> None:
+    path = tmp_path / "other.sqlite3"
+    RatingStore(path).close()
+    with sqlite3.connect(path) as conn:
+        conn.execute("CREATE TABLE corrections (id INTEGER PRIMARY KEY, what TEXT)")
+        conn.execute("INSERT INTO corrections (what) VALUES ('theirs')")
+    with RatingStore(path) as ratings, pytest.raises(StoreError, match="corrections table"):
+        CorrectionStore(ratings)
+    conn = sqlite3.connect(path)
+    assert conn.execute("SELECT * FROM corrections").fetchall() == [
+        (1, "theirs")
+    ]  # no column added
