@@ -66,13 +66,24 @@ def load_pair(
         raise ValueError("need --left and --right, or --stereo")
     mL = mR = None
     if mask is not None:
-        mL, mR = split_side_by_side(read_mask(mask).astype(np.uint8), "mask")
-        mL, mR = mL.astype(bool), mR.astype(bool)
+        whole = read_mask(mask)
+        _same_size(mask, whole, (L.shape[0], 2 * L.shape[1]), "side-by-side image")
+        mL, mR = whole[:, : L.shape[1]], whole[:, L.shape[1] :]
     elif mask_left is not None or mask_right is not None:
         if mask_left is None or mask_right is None:
             raise ValueError("give both masks or neither")
         mL, mR = read_mask(mask_left), read_mask(mask_right)
+        _same_size(mask_left, mL, L.shape[:2], "left image")
+        _same_size(mask_right, mR, R.shape[:2], "right image")
     return StereoPair(L, R, mL, mR)
+
+
+def _same_size(path: str | Path, mask: np.ndarray, shape: tuple[int, ...], what: str) -> None:
+    if mask.shape[:2] != tuple(shape[:2]):
+        h, w = mask.shape[:2]
+        raise ValueError(
+            f"{path}: the mask is {w}x{h} px but the {what} is {shape[1]}x{shape[0]} px"
+        )
 
 
 def load_calibration(

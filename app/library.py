@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,7 @@ from threadrecon.app.dataset import Frame, discover, load_frame
 from threadrecon.app.errors import Invalid, NotFound
 from threadrecon.app.presets import validate
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.corrections import Correction
 from threadrecon.core.pipeline import STAGES, ReconParams
 from threadrecon.core.segmentation import StereoPair
 
@@ -35,11 +37,20 @@ class LoadedFrame:
 class FrameLibrary:
     """The frames of a data folder, decoded on demand and kept in a small LRU cache."""
 
-    def __init__(self, root: str | Path) -> None:
+    def __init__(
+        self,
+        root: str | Path,
+        corrections: Callable[[str], tuple[Correction, ...]] | None = None,
+    ) -> None:
         self.root = Path(root)
         self.frames: dict[str, Frame] = {f.id: f for f in discover(self.root)}
         self._cache: OrderedDict[str, LoadedFrame] = OrderedDict()
         self._lock = threading.Lock()
+        self._corrections = corrections
+
+    def corrections(self, frame_id: str) -> tuple[Correction, ...]:
+        """The user's mask corrections of the frame, in order (every run applies them)."""
+        return () if self._corrections is None else self._corrections(frame_id)
 
     def get(self, frame_id: str) -> Frame:
         """The frame ``frame_id``; :class:`NotFound` (a KeyError too) for an unknown id."""

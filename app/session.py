@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from threadrecon.app.dataset import evaluate_reconstruction
-from threadrecon.app.errors import Conflict, Invalid
+from threadrecon.app.errors import Conflict, DomainError, Invalid
 from threadrecon.app.library import FrameLibrary, LoadedFrame, merge_params
 from threadrecon.app.notify import Changes
 from threadrecon.app.session_state import describe
@@ -293,7 +293,8 @@ class Session:
         try:
             loaded = self.library.load(req.frame_id)
             pipe = self._pipeline(req.frame_id, loaded)
-        except (ValueError, OSError) as exc:
+            pipe.corrections = self.library.corrections(req.frame_id)  # the worker's alone
+        except (ValueError, OSError, DomainError) as exc:  # DomainError: the correction store
             with self.draw_lock:
                 self.loaded, self.rec, self.metrics = None, None, {}
                 self.load_error = f"cannot load frame {req.frame_id}: {exc}"

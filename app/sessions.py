@@ -62,6 +62,11 @@ class SessionManager:
         session.touch()
         return session
 
+    def all(self) -> list[Session]:
+        """The open sessions."""
+        with self._lock:
+            return list(self._sessions.values())
+
     def find(self, sid: str) -> Session | None:
         with self._lock:
             return self._sessions.get(sid)

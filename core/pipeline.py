@@ -17,6 +17,7 @@ from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraParams, to_camera
 from threadrecon.core.check import CheckParams, check_curve
 from threadrecon.core.clustering import ClusterParams, cluster_keypoints
+from threadrecon.core.corrections import Correction, apply_corrections, unsegmented
 from threadrecon.core.ordering import OrderingParams, order_keypoints
 from threadrecon.core.params import Params
 from threadrecon.core.refine import RefineParams, refine_depth
@@ -145,7 +146,9 @@ class StageRun:
 class Pipeline:
     """Runs the stages on one stereo pair; results are cached per stage."""
 
-    def __init__(self, pair: StereoPair, calib: StereoCalibration) -> None:
+    def __init__(
+        self, pair: StereoPair, calib: StereoCalibration, corrections: tuple[Correction, ...] = ()
+    ) -> None:
         if pair.shape != calib.image_size:
             raise ValueError(
                 f"images are {pair.shape} px but the calibration is for {calib.image_size}"
@@ -153,16 +156,42 @@ class Pipeline:
         self.pair = pair
         self.calib = calib
         self._cache: dict[str, tuple[tuple, Any]] = {}
+        self.corrections = tuple(corrections)
+        """The user's mask corrections that runs apply unless they name their own."""
+        self._segmented: tuple[Any, Any] | None = None  # (segment params, uncorrected result)
         self.last_ms: dict[str, float] = {}
 
-    def _compute(self, stage: Stage, results: dict[str, Any], params: Any) -> Any:
+    def _compute(
+        self, stage: Stage, results: dict[str, Any], params: Any, corrections: tuple = ()
+    ) -> Any:
         sources = {"pair": self.pair, "calib": self.calib, **results}
-        return stage.run(*(sources[i] for i in stage.inputs), getattr(params, stage.name))
+        p = getattr(params, stage.name)
+        if stage.name != "segment" or not corrections:
+            return stage.run(*(sources[i] for i in stage.inputs), p)
+        # The user's corrections apply right after the segment stage function; its own result
+        # is kept, so that a new correction does not segment again.
+        if self._segmented is None or self._segmented[0] != p:
+            try:
+                base = stage.run(*(sources[i] for i in stage.inputs), p)
+            except ValueError as exc:  # e.g. no thread found: the user may add it by hand
+                base = unsegmented(self.pair, str(exc))
+            self._segmented = (p, base)
+        return apply_corrections(
+            self._segmented[1], corrections, p.lift_dilate_px, (self.pair.left, self.pair.right)
+        )
 
-    def stages(self, params: Any = None, until: str | None = None) -> Iterator[StageRun]:
+    def stages(
+        self,
+        params: Any = None,
+        until: str | None = None,
+        corrections: tuple[Correction, ...] | None = None,
+    ) -> Iterator[StageRun]:
         """Yield each stage's run in order up to ``until`` (default: the last stage); any error
-        of a stage is raised as :class:`StageError` naming it."""
+        of a stage is raised as :class:`StageError` naming it. ``corrections`` (the user's, in
+        order; default :attr:`corrections`) change the masks P_L, P_R right after the segment
+        stage (:func:`core.corrections.apply_corrections`)."""
         params = ReconParams() if params is None else params
+        corrections = self.corrections if corrections is None else tuple(corrections)
         until = STAGES[-1] if until is None else until
         if until not in STAGES:
             raise ValueError(f"unknown stage {until!r}")
@@ -172,6 +201,8 @@ class Pipeline:
             stage = st.name
             # a result depends on its own params and on the results it reads
             key = (getattr(params, stage), *(keys[i] for i in st.inputs if i in keys))
+            if stage == "segment":
+                key = (*key, corrections)
             keys[stage] = key
             hit = self._cache.get(stage)
             if hit is not None and hit[0] == key:
@@ -181,7 +212,7 @@ class Pipeline:
                 t0 = time.perf_counter()
                 try:
                     with _BLAS.limit(limits=1, user_api="blas"):
-                        out = self._compute(st, results, params)
+                        out = self._compute(st, results, params, corrections)
                 except StageError:
                     raise
                 except Exception as exc:  # a failing stage never takes its caller down
@@ -195,12 +226,17 @@ class Pipeline:
             if stage == until:
                 return
 
-    def run(self, params: Any = None, until: str | None = None) -> Reconstruction:
+    def run(
+        self,
+        params: Any = None,
+        until: str | None = None,
+        corrections: tuple[Correction, ...] | None = None,
+    ) -> Reconstruction:
         """Run every stage up to ``until``; a failing stage is reported, not raised."""
         params = ReconParams() if params is None else params
         runs: dict[str, StageRun] = {}
         try:
-            for run in self.stages(params, until):
+            for run in self.stages(params, until, corrections):
                 runs[run.stage] = run
         except StageError as exc:
             return Reconstruction(runs, exc.stage, exc.reason, params)
@@ -257,6 +293,11 @@ class Reconstruction:
         return {name: run.ms for name, run in self.runs.items()}
 
 
-def reconstruct(pair: StereoPair, calib: StereoCalibration, params: Any = None) -> Reconstruction:
-    """One-shot run of the whole pipeline."""
-    return Pipeline(pair, calib).run(params)
+def reconstruct(
+    pair: StereoPair,
+    calib: StereoCalibration,
+    params: Any = None,
+    corrections: tuple[Correction, ...] = (),
+) -> Reconstruction:
+    """One-shot run of the whole pipeline (with the user's mask corrections, if any)."""
+    return Pipeline(pair, calib, corrections).run(params)

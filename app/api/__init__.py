@@ -19,6 +19,7 @@ from fastapi_offline import FastAPIOffline
 from threadrecon.app.api import errors
 from threadrecon.app.api.config import ServerConfig
 from threadrecon.app.api.guard import Guard
+from threadrecon.app.api.routes_corrections import router as corrections
 from threadrecon.app.api.routes_evaluations import router as evaluations
 from threadrecon.app.api.routes_exports import router as exports
 from threadrecon.app.api.routes_frames import router as frames
@@ -58,7 +59,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     )
     app.state.core = state
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
-    for router in (page, frames, sessions, ratings, presets, evaluations, exports):
+    for router in (page, frames, sessions, ratings, corrections, presets, evaluations, exports):
         app.include_router(router)
     errors.install(app)
     app.add_middleware(Guard, policy=state.policy, max_body=config.max_body_bytes)

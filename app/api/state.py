@@ -13,6 +13,7 @@ import viser
 
 from threadrecon.app.api.config import ServerConfig
 from threadrecon.app.api.guard import Policy, guard_viser
+from threadrecon.app.corrections import CorrectionStore
 from threadrecon.app.errors import Conflict, Invalid, NotFound
 from threadrecon.app.jobs import EvaluationJob
 from threadrecon.app.library import FrameLibrary
@@ -31,8 +32,9 @@ class AppState:
     def __init__(self, config: ServerConfig) -> None:
         self.config = config
         self.policy = Policy(config.allow_origins, config.host)
-        self.library = FrameLibrary(config.data_dir)
         self.store = RatingStore(config.db)  # StoreError now, not at the first rating
+        self.corrections = CorrectionStore(self.store)  # the same file, its own table
+        self.library = FrameLibrary(config.data_dir, corrections=self.corrections.active)
         self.job: EvaluationJob | None = None
         self.job_saved: int | None = None
         self._job_lock = threading.Lock()

@@ -87,7 +87,7 @@ const DRAW = {
 
 const countOf = (o, payload) => (o.kind === "pixels" ? payload.length / 2 : o.kind === "polyline" ? payload.points.length : payload.length);
 
-function drawImages() {
+export function drawImages() {
   const ov = S.overlay && S.overlay.frame_id === S.frameId ? S.overlay : {};
   const overlays = S.info ? S.info.overlays : [];
   for (const o of overlays) {
@@ -173,6 +173,7 @@ onState((st) => {
 });
 
 $("#img-left").addEventListener("click", (ev) => {
+  if (S.tool && S.tool !== "inspect") return;  // a correction tool (corrections.js) has the click
   const c = ev.currentTarget, r = c.getBoundingClientRect();
   const x = Math.floor((ev.clientX - r.left) * c.width / r.width);
   const y = Math.floor((ev.clientY - r.top) * c.height / r.height);

@@ -5,6 +5,7 @@ import { loadFrames, renderFrames } from "./frames.js";
 import "./stages.js";
 import { buildOverlayToggles, loadImages } from "./images.js";
 import "./rating.js";
+import "./corrections.js";
 import { loadPresetList } from "./presets.js";
 import "./exports.js";
 import { startEvaluationPanel } from "./evaluation.js";
