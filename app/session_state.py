@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from threadrecon.app.presets import diff, params_hash
+from threadrecon.app.views.check import check_json
 from threadrecon.core.pipeline import STAGES
 
 if TYPE_CHECKING:
@@ -51,6 +52,7 @@ def describe(s: Session) -> dict[str, Any]:
         "status": status,
         "failed_stage": failed,
         "error": error or s.metrics_error,
+        "check": check_json(rec),
         "metrics": dict(s.metrics),
         "latency_ms": dict(s.latency_ms),
         "inspect": s.inspect,
