@@ -101,6 +101,31 @@ def _flat(ev: dict) -> dict:
     return out
 
 
+REASON_KINDS = {  # a keyword of each kind of reason (core/check.py) -> a short name
+    "not finite": "non-finite",
+    "behind a": "behind camera",
+    "disparity search allows": "depth range",
+    "projection lies": "reprojection",
+    "the curve lies outside the": "off image",
+    "depth is not observed": "one view",
+    "covers": "coverage",
+    "image border": "border",
+    "is implausible": "length",
+    "depth bounds": "bounds",
+    "solver": "solver",
+    "run over another": "overlap",
+    "off the thread pixels": "overshoot",
+    "bridges": "bridge",
+    "no reliable match": "unsupported depth",
+    "expected error above": "crossing ambiguity",
+}
+
+
+def _reason_kinds(reasons: str) -> list[str]:
+    kinds = [k for key, k in REASON_KINDS.items() if key in reasons]
+    return kinds or ["other"]
+
+
 def report(rows: list[dict], point_sets: list, label: str) -> None:
     gt_rows = [r for r in rows if r.get("wrong") in (True, False)]
     n = len(rows)
@@ -118,6 +143,13 @@ def report(rows: list[dict], point_sets: list, label: str) -> None:
         f"  flagged (suspect/failed) with ground truth: {len(flagged)}, really wrong "
         f"{len(flagged_wrong)} ({100 * prec:.0f} %)"
     )
+    tally = {}
+    for r in flagged:
+        for kind in _reason_kinds(r["reasons"]):
+            right_wrong = tally.setdefault(kind, [0, 0])
+            right_wrong[bool(r["wrong"])] += 1
+    for kind, (right, wrong_n) in sorted(tally.items(), key=lambda kv: -sum(kv[1])):
+        print(f"    reason {kind!r}: on {wrong_n} wrong and {right} right frames")
     for r in flagged:
         if not r["wrong"]:
             print(
