@@ -20,12 +20,20 @@ FLAT = "simulated/flat/flat_1"
 
 
 def _wait_check(page: Any, frame_id: str) -> dict:
-    page.wait_for_function(
+    """The check of ``frame_id`` once the session is idle (the state the page shows)."""
+    handle = page.wait_for_function(
         """(fid) => { const st = window.threadrecon && window.threadrecon.state;
             return st && st.shown_frame === fid && !st.busy && st.check; }""",
         arg=frame_id, timeout=120_000,
     )  # fmt: skip
-    return page.evaluate("window.threadrecon.state.check")
+    return handle.json_value()
+
+
+def _wait_text(page: Any, selector: str, text: str) -> None:
+    page.wait_for_function(
+        "([sel, text]) => document.querySelector(sel).textContent === text",
+        arg=[selector, text], timeout=60_000,
+    )  # fmt: skip
 
 
 def test_status_panel_overlays_and_agreement_render(tmp_path):
@@ -38,15 +46,19 @@ def test_status_panel_overlays_and_agreement_render(tmp_path):
         page.goto(server.url + "/")
         page.wait_for_function("window.threadrecon && window.threadrecon.state", timeout=60_000)
         page.locator(f'#frames tr[data-id="{FLAT}"]').click()
+        page.wait_for_function(
+            """(fid) => { const st = window.threadrecon.state;
+                return st && st.frame_id === fid && st.shown_frame === fid && !st.busy; }""",
+            arg=FLAT, timeout=120_000,
+        )  # fmt: skip
         sid = page.evaluate("window.threadrecon.session")
-        send_json("POST", f"{server.url}/api/sessions/{sid}/step", {"action": "all"})
+        send_json("POST", f"{server.url}/api/sessions/{sid}/step?wait=true", {"action": "all"})
         check = _wait_check(page, FLAT)
         page.wait_for_selector(f'#check-status[data-status="{check["status"]}"]', state="attached")
-        assert page.locator("#check-status").text_content() == check["status"]
-        assert page.locator("#check-score").text_content() == f"automatic score {check['score']}/5"
+        _wait_text(page, "#check-status", check["status"])
+        _wait_text(page, "#check-score", f"automatic score {check['score']}/5")
         assert "grasp point: confidence" in page.locator("#check-grasp").text_content()
-        shown = page.locator("#check-reasons li").all_text_contents()
-        assert shown == check["reasons"]
+        assert page.locator("#check-reasons li").all_text_contents() == check["reasons"]
         for key in ("confidence", "grasp", "grasp_tangent"):
             assert page.locator(f'[data-ov="{key}"]').count() == 1, key
 
@@ -55,7 +67,7 @@ def test_status_panel_overlays_and_agreement_render(tmp_path):
         send_json("PATCH", f"{server.url}/api/sessions/{sid}/params?wait=true", patch)
         page.wait_for_selector('#check-status[data-status="suspect"]', state="attached",
                                timeout=120_000)  # fmt: skip
-        check = page.evaluate("window.threadrecon.state.check")
+        check = _wait_check(page, FLAT)
         assert len(check["reasons"]) >= 2
         page.wait_for_function(
             "(n) => document.querySelectorAll('#check-reasons li').length === n",
