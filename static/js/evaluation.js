@@ -66,10 +66,11 @@ async function compareEvaluations() {
   const a = $("#cmp-a").value, b = $("#cmp-b").value;
   if (!a || !b) return;
   const cmp = await api("GET", `/api/evaluations/compare?a=${encodeURIComponent(a)}&b=${encodeURIComponent(b)}`);
-  fill("#cmp-table thead", h("tr", {}, h("th", {}, "frame"),
+  fill("#cmp-table thead", h("tr", {}, h("th", {}, "frame"), h("th", {}, "status A"), h("th", {}, "B"),
     COMPARE_COLUMNS.map((c) => [h("th", {}, `${metricLabel(c)} A`), h("th", {}, "B"), h("th", {}, "B−A")])));
   const higherIsBetter = (c) => c.startsWith("coverage");
-  fill("#cmp-table tbody", cmp.rows.map((r) => h("tr", {}, h("td", {}, r.frame), COMPARE_COLUMNS.map((c) => {
+  fill("#cmp-table tbody", cmp.rows.map((r) => h("tr", {}, h("td", {}, r.frame),
+    h("td", { class: `st-${r.status_a}` }, r.status_a), h("td", { class: `st-${r.status_b}` }, r.status_b), COMPARE_COLUMNS.map((c) => {
     const d = r[`${c}_diff`];
     const cls = d === null || Math.abs(d) < 1e-9 ? "" : ((d < 0) !== higherIsBetter(c) ? "better" : "worse");
     return [h("td", {}, cell(r[`${c}_a`])), h("td", {}, cell(r[`${c}_b`])), h("td", { class: cls }, cell(d))];
