@@ -5,7 +5,18 @@
 For every frame: the check's status against the truth ("wrong": |length error| > 20 mm or
 max curve error > 20 mm), the rank correlation of per-point confidence with the true 3D error
 of each point, the grasp point's true error, the score against e_S, and the check's time.
-Frames without ground truth (real) only count towards the status table.
+Frames without ground truth (real) only count towards the status table. Each flagged frame's
+reasons are tallied by kind, on wrong and on right frames.
+
+The suites of issue 11's figures (seed S, 6 frames per group; add --no-mask for raw frames):
+
+    G="python -m threadrecon.app.cli generate DIR --count 6"
+    T="--background tissue --noise 2 --blur 0.5"
+    $G --seed S --group flat
+    $G --seed S+1 $T --group tissue;          $G --seed S+2 $T --crossing --group crossing
+    $G --seed S+3 $T --occlusion --group occlusion
+    $G --seed S+4 $T --leaves-image --group leaving
+    $G --seed S+5 $T --hairpin --group hairpin; $G --seed S+6 $T --instrument --group instrument
 """
 
 from __future__ import annotations
