@@ -29,8 +29,11 @@ def evaluate_frame(
         rec = Pipeline(pair, calib).run(params)
     except Exception as exc:  # any frame's error is that frame's failed row, never the run's
         row.update(status="failed", error=_describe(exc), **{c: math.nan for c in METRIC_COLUMNS})
+        row.update(check="failed", reasons=row["error"], auto_score=math.nan)
+        row["grasp_confidence"] = math.nan
         return row, None
     row.update(status=rec.status, error=rec.message or "")
+    row.update(_check_columns(rec))
     try:
         row.update(evaluate_reconstruction(rec, calib, gt))
     except Exception as exc:  # e.g. a non-finite curve or ground truth: the row says so
@@ -51,6 +54,24 @@ def evaluate_frame(
     return row, rec
 
 
+CHECK_COLUMNS = ("check", "reasons", "auto_score", "grasp_confidence")
+"""The check stage's verdict in every row: its status (before the ground-truth length test),
+every reason (joined by "; "), the automatic 1-5 score and the grasp point's confidence."""
+
+
+def _check_columns(rec: Reconstruction) -> dict[str, Any]:
+    if "check" not in rec.runs:  # a stage before the check failed: that stage's reason
+        return {"check": rec.status, "reasons": rec.message or "", "auto_score": math.nan,
+                "grasp_confidence": math.nan}  # fmt: skip
+    chk = rec["check"]
+    return {
+        "check": chk.status,
+        "reasons": "; ".join(chk.reasons),
+        "auto_score": chk.score,
+        "grasp_confidence": chk.grasp.confidence if chk.grasp is not None else math.nan,
+    }
+
+
 def _describe(exc: BaseException) -> str:
     text = str(exc)
     return (
@@ -58,23 +79,35 @@ def _describe(exc: BaseException) -> str:
     )
 
 
+STATUSES = ("ok", "suspect", "failed")
+
+
+def status_counts(rows: list[dict[str, Any]]) -> dict[str, int]:
+    """Frames per status ("ok", "suspect", "failed")."""
+    return {s: sum(r.get("status") == s for r in rows) for s in STATUSES}
+
+
 def summarise(rows: list[dict[str, Any]]) -> list[str]:
-    """Mean and standard deviation per metric and kind, then the failures."""
+    """Frames per status, mean and standard deviation per metric over the ok frames, per
+    kind; then every frame that is not ok with its reasons."""
     lines = []
     for kind, cols in (("simulated", METRIC_COLUMNS[:3]), ("real", METRIC_COLUMNS[5:])):
         sel = [r for r in rows if r["kind"] == kind]
         if not sel:
             continue
+        n = status_counts(sel)
+        lines.append(
+            f"{kind}: {len(sel)} frames: {n['ok']} ok, {n['suspect']} suspect, {n['failed']} failed"
+        )
         good = [r for r in sel if r["status"] == "ok"]
-        lines.append(f"{kind}: {len(sel)} frames, {len(sel) - len(good)} failed")
         for c in cols:
             v = np.array([r[c] for r in good], dtype=float)
             v = v[np.isfinite(v)]
             if v.size:
                 lines.append(f"  {c:<16} mean {v.mean():8.3f}  sd {v.std():8.3f}")
-    failed = [r for r in rows if r["status"] != "ok"]
-    for r in failed:
-        lines.append(f"FAILED {r['frame']}: {r['error']}")
+    for r in rows:
+        if r["status"] != "ok":
+            lines.append(f"{r['status'].upper()} {r['frame']}: {r['error']}")
     return lines
 
 

@@ -239,14 +239,16 @@ def _keypoints(rec: Reconstruction) -> dict[str, Any]:
 
 def spline_csv(rec: Reconstruction) -> str:
     """The dense centerline as CSV: ``i,x_<unit>,y_<unit>,z_<unit>``, one row per point,
-    floats written to round-trip exactly."""
+    floats written to round-trip exactly; with a check run, a last column ``confidence``
+    (the check's per-point confidence in [0, 1])."""
     _require(rec, "camera", "no final spline")
     cam = rec["camera"]
+    conf = rec["check"].confidence.tolist() if "check" in rec.runs else None
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["i", *(f"{a}_{cam.unit}" for a in "xyz")])
+    w.writerow(["i", *(f"{a}_{cam.unit}" for a in "xyz"), *(["confidence"] if conf else [])])
     for i, (x, y, z) in enumerate(cam.points.tolist()):
-        w.writerow([i, repr(x), repr(y), repr(z)])
+        w.writerow([i, repr(x), repr(y), repr(z), *([repr(conf[i])] if conf else [])])
     return buf.getvalue()
 
 

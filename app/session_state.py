@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from threadrecon.app.presets import diff, params_hash
+from threadrecon.app.views.check import check_json
 from threadrecon.core.pipeline import STAGES
 
 if TYPE_CHECKING:
@@ -52,6 +53,7 @@ def describe(s: Session) -> dict[str, Any]:
         "failed_stage": failed,
         "error": error or s.metrics_error,
         "reasons": list(rec.reasons) if rec is not None and not s.load_error else [],
+        "check": check_json(rec),
         "metrics": dict(s.metrics),
         "latency_ms": dict(s.latency_ms),
         "inspect": s.inspect,

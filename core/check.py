@@ -117,9 +117,27 @@ class CheckParams(Params):
         doc="A curve sample farther than this from the left thread pixels is off the thread.",
     )  # fmt: skip
     max_jump_px: float = param(
-        60.0, lo=0.0, unit="px", slider=(0.0, 200.0, 1.0), label="longest jump",
-        doc="Suspect when the curve crosses more than this length of unsegmented image "
-        "(left view) in one run.",
+        60.0, lo=0.0, unit="px", slider=(0.0, 200.0, 1.0), label="longest overshoot",
+        doc="Suspect when an end of the curve runs more than this 2D length off the thread "
+        "pixels (either view). A run between two thread parts is a bridge (max_unobserved_mm).",
+    )  # fmt: skip
+    max_unobserved_mm: float = param(
+        20.0, lo=0.0, unit="mm", slider=(0.0, 100.0, 1.0), label="longest unobserved stretch",
+        doc="Suspect when a stretch of the curve no view observes is longer than this in 3D: a "
+        "bridge across unsegmented (e.g. occluded) pixels between two thread parts, or a part "
+        "outside the right image. Its shape is interpolated, not measured; the default is the "
+        "length error at which a curve counts as wrong (issue 11).",
+    )  # fmt: skip
+    support_tol_px: float = param(
+        1.0, lo=0.0, unit="px", slider=(0.0, 10.0, 0.1), label="supported residual",
+        doc="A curve point is supported by a reliable match when its disparity residual r_i "
+        "(module docstring) is at most this.",
+    )  # fmt: skip
+    max_unsupported_mm: float = param(
+        20.0, lo=0.0, unit="mm", slider=(0.0, 100.0, 1.0), label="unsupported depth travel",
+        doc="Suspect when the curve's depth travels back and forth by more than this where no "
+        "reliable match supports it (beyond the straight depth change between supported "
+        "points): length the evidence does not show. Default: the wrong-length limit.",
     )  # fmt: skip
     loop_px: float = param(
         1.5, lo=0.0, unit="px", slider=(0.0, 10.0, 0.5), label="loop distance",
@@ -167,15 +185,11 @@ class CheckParams(Params):
         5.0, lo=0.0, unit="px", slider=(0.0, 50.0, 1.0), label="border",
         doc="An end closer than this to the image border (either view) is not the free end.",
     )  # fmt: skip
-    max_unseen_px: float = param(
-        10.0, lo=0.0, unit="px", slider=(0.0, 200.0, 1.0), label="one-view stretch",
-        doc="Suspect when more than this 2D length (left view) of the curve projects outside "
-        "the right image: the depth there is not observed by the stereo pair.",
-    )  # fmt: skip
     border_suspect: bool = param(
-        False, label="end at border is suspect",
-        doc="An end at the image border makes the curve suspect (the thread's length outside "
-        "the view is unknown). Off by default: threads in surgical views usually leave them.",
+        True, label="end at border is suspect",
+        doc="An end at the image border makes the curve suspect: the thread continues outside "
+        "the view and its full length is unknown (the curve is the visible part only; the "
+        "grasp point avoids that end). Turn off when only the visible part matters.",
     )  # fmt: skip
     crossing_degree: int = param(
         4, lo=3, slider=(3, 10, 1), label="crossing degree",
@@ -188,8 +202,9 @@ class CheckParams(Params):
     )  # fmt: skip
     max_ambiguous_mm: float = param(
         20.0, lo=0.0, unit="mm", slider=(0.0, 200.0, 1.0), label="ambiguous length",
-        doc="With a crossing of the thread pixels, suspect when more than this length of the "
-        "curve is ambiguous (the strands' depths were mixed up near the crossing).",
+        doc="With a crossing (of the thread pixels, or of the curve's left projection with "
+        "itself), suspect when more than this length of the curve is ambiguous (the "
+        "strands' depths were mixed up near the crossing).",
     )  # fmt: skip
 
 
@@ -248,6 +263,9 @@ class CheckResult:
     overlap_px: float
     crossings: int = 0
     unseen_px: float = 0.0
+    unseen_mm: float = 0.0
+    longest_bridge_mm: float = 0.0
+    unsupported_mm: float = 0.0
     ambiguous_mm: float = 0.0
     ends_at_border: tuple[str, ...] = ()
 
@@ -279,6 +297,9 @@ class CheckResult:
             "overlap_px": self.overlap_px,
             "crossings": self.crossings,
             "unseen_px": self.unseen_px,
+            "unseen_mm": self.unseen_mm,
+            "longest_bridge_mm": self.longest_bridge_mm,
+            "unsupported_mm": self.unsupported_mm,
             "ambiguous_mm": self.ambiguous_mm,
             "ends_at_border": list(self.ends_at_border),
         }
@@ -362,17 +383,29 @@ def _check(
     # Ordering anomalies (1): runs of the left projection across unsegmented pixels. A short
     # run between two thread parts is a bridge (an occluded or unsegmented stretch) and is
     # left out of the reprojection figures; a long one is a jump.
+    # The distances of a bridge's points measure the occluder's width, not an error: a bridge
+    # is left out of the reprojection figures and judged by its unobserved 3D length instead.
+    mm = calib.mm_per_unit
+    step3 = np.linalg.norm(np.diff(pts, axis=0), axis=1) * mm
     step = np.linalg.norm(np.diff(uv_l, axis=0), axis=1)
     run_l, bridge_l = _off_thread_runs(in_l & (rho_l > p.jump_px), step)
+    run3_l, _ = _off_thread_runs(in_l & (rho_l > p.jump_px), step3)
     step_r = np.linalg.norm(np.diff(uv_r, axis=0), axis=1)
     run_r, bridge_r = _off_thread_runs(in_r & (rho_r > p.jump_px), step_r)
-    bridge_l &= run_l <= p.max_jump_px
-    bridge_r &= run_r <= p.max_jump_px
+    run3_r, _ = _off_thread_runs(in_r & (rho_r > p.jump_px), step3)
     longest_jump = float(max(run_l.max(), run_r.max()))
-    if longest_jump > p.max_jump_px:
+    overshoot = float(max(np.max(run_l * ~bridge_l), np.max(run_r * ~bridge_r)))
+    longest_bridge = float(max(np.max(run3_l * bridge_l), np.max(run3_r * bridge_r)))
+    if overshoot > p.max_jump_px:
         findings.append(
-            ("suspect", f"the curve runs {longest_jump:.0f} px across unsegmented pixels in "
-             f"one stretch (limit {p.max_jump_px:g} px)")
+            ("suspect", f"an end of the curve runs {overshoot:.0f} px off the thread pixels "
+             f"(limit {p.max_jump_px:g} px)")
+        )  # fmt: skip
+    if longest_bridge > p.max_unobserved_mm:
+        findings.append(
+            ("suspect", f"the curve bridges {longest_bridge:.1f} mm across unsegmented pixels "
+             f"in one stretch: its shape there is interpolated, not observed (limit "
+             f"{p.max_unobserved_mm:g} mm)")
         )  # fmt: skip
     rep = []
     views = (("left", rho_l, in_l & ~bridge_l), ("right", rho_r, in_r & ~bridge_r))
@@ -403,11 +436,13 @@ def _check(
                 ("suspect", f"the curve covers {100 * cov:.0f} % of the {side} thread pixels "
                  f"(at least {100 * p.coverage_min:.0f} % expected)")
             )  # fmt: skip
-    unseen_px = float(np.sum(np.where(in_l & ~in_r, np.r_[step, 0.0], 0.0)))
-    if unseen_px > p.max_unseen_px:
+    one_view = in_l & ~in_r
+    unseen_px = float(np.sum(np.where(one_view, np.r_[step, 0.0], 0.0)))
+    unseen_mm = float(np.sum(np.where(one_view, np.r_[step3, 0.0], 0.0)))
+    if unseen_mm > p.max_unobserved_mm:
         findings.append(
-            ("suspect", f"{unseen_px:.0f} px of the curve lie outside the right image: their "
-             f"depth is not observed (limit {p.max_unseen_px:g} px)")
+            ("suspect", f"{unseen_mm:.1f} mm ({unseen_px:.0f} px) of the curve lie outside the "
+             f"right image: their depth is not observed (limit {p.max_unobserved_mm:g} mm)")
         )  # fmt: skip
     at_border = tuple(
         end for end, i in (("start", 0), ("end", -1))
@@ -416,7 +451,7 @@ def _check(
     for end in at_border if p.border_suspect else ():
         findings.append(
             ("suspect", f"the curve's {end} is at the image border: the thread may continue "
-             "outside the view, its length there is unknown")
+             "outside the view, its full length is unknown")
         )  # fmt: skip
 
     # Length against the 2D path length and the depth span of the bounds.
@@ -458,9 +493,15 @@ def _check(
         )  # fmt: skip
 
     # Per-point expected error and confidence.
-    mm = calib.mm_per_unit
     z_pos = np.maximum(z, 1e-12)
     r = _disparity_residual(stereo, rel, uv_l, f * B / z_pos, p.support_px)
+    unsupported = _unsupported_travel(z, r <= p.support_tol_px) * mm
+    if unsupported > p.max_unsupported_mm:
+        findings.append(
+            ("suspect", f"the curve's depth travels {unsupported:.1f} mm back and forth where "
+             f"no reliable match supports it (limit {p.max_unsupported_mm:g} mm): length the "
+             "images do not show")
+        )  # fmt: skip
     h = _bound_halfwidth_px(spline, bounds, n, f * B)
     rho = np.maximum(np.where(bridge_l, 0.0, rho_l), np.where(in_r & ~bridge_r, rho_r, 0.0))
     e = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h**2) + z_pos / f * rho
@@ -470,9 +511,15 @@ def _check(
 
     seg_mm = np.linalg.norm(np.diff(pts, axis=0), axis=1) * mm
     ambiguous = float(np.sum(seg_mm * ((e_mm[1:] > p.ambiguous_mm) | (e_mm[:-1] > p.ambiguous_mm))))
-    if crossings and ambiguous > p.max_ambiguous_mm:
+    # A crossing: a keypoint of high degree in A, or the curve's own left projection running
+    # over itself (the segmentation may merge the strands so that no keypoint shows it).
+    if (crossings or overlap > 0) and ambiguous > p.max_ambiguous_mm:
+        where = (
+            f"the thread pixels cross or branch at {crossings} keypoint(s)" if crossings
+            else f"the curve crosses itself in the left image ({overlap:.0f} px overlap)"
+        )  # fmt: skip
         findings.append(
-            ("suspect", f"the thread pixels cross or branch at {crossings} keypoint(s) and "
+            ("suspect", f"{where} and "
              f"{ambiguous:.0f} mm of the curve have an expected error above "
              f"{p.ambiguous_mm:g} mm (limit {p.max_ambiguous_mm:g} mm): the strands' order or "
              "depth may be mixed up")
@@ -504,6 +551,9 @@ def _check(
         overlap_px=overlap,
         crossings=crossings,
         unseen_px=unseen_px,
+        unseen_mm=unseen_mm,
+        longest_bridge_mm=longest_bridge,
+        unsupported_mm=unsupported,
         ambiguous_mm=ambiguous,
         ends_at_border=at_border,
     )
@@ -656,6 +706,22 @@ def _off_thread_runs(off: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.
     at_end = np.zeros(k, dtype=bool)
     at_end[run[[0, -1]][run[[0, -1]] >= 0]] = True
     return np.where(off, length[run], 0.0), off & ~at_end[run]
+
+
+def _unsupported_travel(z: np.ndarray, supported: np.ndarray) -> float:
+    """Depth travelled back and forth between supported points: over each stretch of
+    unsupported points (and each unsupported end), the total variation of z minus the net
+    depth change across it. The whole total variation when no point is supported."""
+    tv = np.abs(np.diff(z))
+    idx = np.flatnonzero(supported)
+    if idx.size == 0:
+        return float(tv.sum())
+    # stretch k: steps idx[k] .. idx[k+1]-1; the ends: steps before idx[0] and from idx[-1]
+    edges = np.concatenate([[0], idx, [len(z) - 1]])
+    csum = np.concatenate([[0.0], np.cumsum(tv)])
+    travel = csum[edges[1:]] - csum[edges[:-1]]
+    net = np.abs(z[edges[1:]] - z[edges[:-1]])
+    return float(np.sum(travel - net))
 
 
 def _overlap(uv: np.ndarray, step: np.ndarray, loop_px: float) -> float:

@@ -5,7 +5,18 @@
 For every frame: the check's status against the truth ("wrong": |length error| > 20 mm or
 max curve error > 20 mm), the rank correlation of per-point confidence with the true 3D error
 of each point, the grasp point's true error, the score against e_S, and the check's time.
-Frames without ground truth (real) only count towards the status table.
+Frames without ground truth (real) only count towards the status table. Each flagged frame's
+reasons are tallied by kind, on wrong and on right frames.
+
+The suites of issue 11's figures (seed S, 6 frames per group; add --no-mask for raw frames):
+
+    G="python -m threadrecon.app.cli generate DIR --count 6"
+    T="--background tissue --noise 2 --blur 0.5"
+    $G --seed S --group flat
+    $G --seed S+1 $T --group tissue;          $G --seed S+2 $T --crossing --group crossing
+    $G --seed S+3 $T --occlusion --group occlusion
+    $G --seed S+4 $T --leaves-image --group leaving
+    $G --seed S+5 $T --hairpin --group hairpin; $G --seed S+6 $T --instrument --group instrument
 """
 
 from __future__ import annotations
@@ -101,6 +112,31 @@ def _flat(ev: dict) -> dict:
     return out
 
 
+REASON_KINDS = {  # a keyword of each kind of reason (core/check.py) -> a short name
+    "not finite": "non-finite",
+    "behind a": "behind camera",
+    "disparity search allows": "depth range",
+    "projection lies": "reprojection",
+    "the curve lies outside the": "off image",
+    "depth is not observed": "one view",
+    "covers": "coverage",
+    "image border": "border",
+    "is implausible": "length",
+    "depth bounds": "bounds",
+    "solver": "solver",
+    "run over another": "overlap",
+    "off the thread pixels": "overshoot",
+    "bridges": "bridge",
+    "no reliable match": "unsupported depth",
+    "expected error above": "crossing ambiguity",
+}
+
+
+def _reason_kinds(reasons: str) -> list[str]:
+    kinds = [k for key, k in REASON_KINDS.items() if key in reasons]
+    return kinds or ["other"]
+
+
 def report(rows: list[dict], point_sets: list, label: str) -> None:
     gt_rows = [r for r in rows if r.get("wrong") in (True, False)]
     n = len(rows)
@@ -118,6 +154,13 @@ def report(rows: list[dict], point_sets: list, label: str) -> None:
         f"  flagged (suspect/failed) with ground truth: {len(flagged)}, really wrong "
         f"{len(flagged_wrong)} ({100 * prec:.0f} %)"
     )
+    tally = {}
+    for r in flagged:
+        for kind in _reason_kinds(r["reasons"]):
+            right_wrong = tally.setdefault(kind, [0, 0])
+            right_wrong[bool(r["wrong"])] += 1
+    for kind, (right, wrong_n) in sorted(tally.items(), key=lambda kv: -sum(kv[1])):
+        print(f"    reason {kind!r}: on {wrong_n} wrong and {right} right frames")
     for r in flagged:
         if not r["wrong"]:
             print(

@@ -8,6 +8,7 @@ import numpy as np
 from fastapi import APIRouter
 from fastapi.responses import JSONResponse, Response
 
+from threadrecon.app.agreement import agreement, rated_pairs
 from threadrecon.app.api import schemas
 from threadrecon.app.api.deps import State, answer
 from threadrecon.app.dataset import METRIC_COLUMNS
@@ -103,3 +104,26 @@ def ratings_summary(state: State, session: str | None = None) -> JSONResponse:
         source = {k: ev[k] for k in ("id", "preset", "params_hash", "created_at")}
         source["same_params"] = ev["params_hash"] == current
     return answer({"rows": rows, "summary": summary, "params_hash": current, "evaluation": source})
+
+
+@router.get("/api/ratings/agreement")
+def ratings_agreement(state: State, session: str | None = None) -> JSONResponse:
+    """The automatic 1-5 score against the person's latest rating of each rated frame: a 5x5
+    confusion table (rows: rating, columns: automatic score) and the Spearman rank
+    correlation. The automatic scores are those stored by the saved evaluation that
+    ``/api/ratings/summary`` uses (current parameters, else the newest); ``missing`` lists
+    the rated frames that evaluation has no score for."""
+    s = state.session(session)
+    current = params_hash(s.params)
+    ev = state.store.last_evaluation(params_hash=current) or state.store.last_evaluation()
+    ratings = {f: r.score for f, r in state.store.latest_all().items() if f in state.library.frames}
+    frames, missing = rated_pairs(ratings, ev["rows"] if ev is not None else [])
+    agree = agreement((f["auto"], f["human"]) for f in frames)
+    source = None
+    if ev is not None:
+        source = {k: ev[k] for k in ("id", "preset", "params_hash", "created_at")}
+        source["same_params"] = ev["params_hash"] == current
+    return answer(
+        {**agree.to_dict(), "rated": len(ratings), "frames": frames, "missing": missing,
+         "evaluation": source}
+    )  # fmt: skip

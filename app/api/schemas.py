@@ -68,6 +68,25 @@ class ParamChange(BaseModel):
     base: Any
 
 
+class GraspState(BaseModel):
+    confidence: float
+    from_end: str
+    distance: float
+    """Arc length from the free end, calibration units."""
+    index: int
+    """Index of the grasp point in the curve's points."""
+
+
+class CheckState(BaseModel):
+    status: Literal["ok", "suspect", "failed"]
+    reasons: list[str]
+    score: int
+    """The automatic quality score, 1-5 (the paper's rating scale)."""
+    confidence_min: float | None
+    confidence_mean: float | None
+    grasp: GraspState | None
+
+
 class SessionState(BaseModel):
     """What a session shows: its frame, parameters, stepper, status and metrics. Answers every
     session call and frame run (NaN and infinities become null)."""
@@ -93,6 +112,8 @@ class SessionState(BaseModel):
     error: str | None
     reasons: list[str]
     """Every reason for a status other than "ok", in words (the check stage's findings)."""
+    check: CheckState | None
+    """The check stage's verdict (None before it has run)."""
     metrics: dict[str, float | int | str | None]
     latency_ms: dict[str, float]
     inspect: dict[str, Any] | None

@@ -2,8 +2,9 @@
 // of rated frames (its figures are the stored ones of a saved evaluation).
 import { $, S, api, cell, fill, h, metricLabel } from "./core.js";
 
-const EVAL_COLUMNS = ["status", "e_S_mm", "e_S_max_mm", "e_length_mm", "left_mean_px", "right_mean_px",
-  "coverage_left", "coverage_right", "n_keypoints", "ms_total"];
+const EVAL_COLUMNS = ["status", "auto_score", "e_S_mm", "e_S_max_mm", "e_length_mm", "left_mean_px", "right_mean_px",
+  "coverage_left", "coverage_right", "n_keypoints", "ms_total", "error"];
+const STATUSES = ["ok", "suspect", "failed"];
 const COMPARE_COLUMNS = ["e_S_mm", "e_S_max_mm", "e_length_mm", "left_mean_px", "right_mean_px", "coverage_left", "coverage_right"];
 const RATING_COLUMNS = ["score", "left_mean_px", "left_max_px", "right_mean_px", "right_max_px", "coverage_left", "coverage_right", "same_params", "note"];
 
@@ -12,7 +13,11 @@ const head = (cols) => h("tr", {}, h("th", {}, "frame"), cols.map((c) => h("th",
 function renderEvaluation(ev, label) {
   fill("#eval-table thead", head(EVAL_COLUMNS));
   fill("#eval-table tbody", (ev.rows || []).map((r) => h("tr", { dataset: { frame: r.frame } },
-    h("td", {}, r.frame), EVAL_COLUMNS.map((k) => h("td", { class: k === "status" ? `st-${r.status}` : "" }, cell(r[k]))))));
+    h("td", {}, r.frame), EVAL_COLUMNS.map((k) => h("td", { class: k === "status" ? `st-${r.status}` : `col-${k}` }, cell(r[k]))))));
+  // counts per status of the rows so far (the summary lines come when the run is done)
+  const rows = ev.rows || [];
+  fill("#eval-counts", STATUSES.map((s) => h("span", { class: `st-${s}`, dataset: { status: s } },
+    `${s} ${rows.filter((r) => r.status === s).length}`)));
   $("#eval-summary").textContent = (ev.summary || []).join("\n");
   $("#eval-brief").textContent = label;
 }
@@ -61,10 +66,11 @@ async function compareEvaluations() {
   const a = $("#cmp-a").value, b = $("#cmp-b").value;
   if (!a || !b) return;
   const cmp = await api("GET", `/api/evaluations/compare?a=${encodeURIComponent(a)}&b=${encodeURIComponent(b)}`);
-  fill("#cmp-table thead", h("tr", {}, h("th", {}, "frame"),
+  fill("#cmp-table thead", h("tr", {}, h("th", {}, "frame"), h("th", {}, "status A"), h("th", {}, "B"),
     COMPARE_COLUMNS.map((c) => [h("th", {}, `${metricLabel(c)} A`), h("th", {}, "B"), h("th", {}, "B−A")])));
   const higherIsBetter = (c) => c.startsWith("coverage");
-  fill("#cmp-table tbody", cmp.rows.map((r) => h("tr", {}, h("td", {}, r.frame), COMPARE_COLUMNS.map((c) => {
+  fill("#cmp-table tbody", cmp.rows.map((r) => h("tr", {}, h("td", {}, r.frame),
+    h("td", { class: `st-${r.status_a}` }, r.status_a), h("td", { class: `st-${r.status_b}` }, r.status_b), COMPARE_COLUMNS.map((c) => {
     const d = r[`${c}_diff`];
     const cls = d === null || Math.abs(d) < 1e-9 ? "" : ((d < 0) !== higherIsBetter(c) ? "better" : "worse");
     return [h("td", {}, cell(r[`${c}_a`])), h("td", {}, cell(r[`${c}_b`])), h("td", { class: cls }, cell(d))];

@@ -3,12 +3,14 @@
 import { $, S, api, showError } from "./core.js";
 import { loadFrames, renderFrames } from "./frames.js";
 import "./stages.js";
+import "./check.js";
 import { buildOverlayToggles, loadImages } from "./images.js";
 import "./rating.js";
 import "./corrections.js";
 import { loadPresetList } from "./presets.js";
 import "./exports.js";
 import { startEvaluationPanel } from "./evaluation.js";
+import "./agreement.js";
 
 S.frameHooks = (S.frameHooks || []).concat([loadImages]);
 

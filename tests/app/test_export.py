@@ -131,10 +131,11 @@ def test_spline_json_keypoints_lie_on_the_curve_with_cluster_reliability(
 
 def test_spline_csv_parses_back_to_the_camera_points(rec: Reconstruction) -> None:
     rows = list(csv.reader(io.StringIO(spline_csv(rec))))
-    assert rows[0] == ["i", "x_mm", "y_mm", "z_mm"]
+    assert rows[0] == ["i", "x_mm", "y_mm", "z_mm", "confidence"]
     body = np.array(rows[1:], dtype=float)
     np.testing.assert_array_equal(body[:, 0], np.arange(len(rec["camera"].points)))
-    np.testing.assert_array_equal(body[:, 1:], rec["camera"].points)  # exact round trip
+    np.testing.assert_array_equal(body[:, 1:4], rec["camera"].points)  # exact round trip
+    np.testing.assert_array_equal(body[:, 4], rec["check"].confidence)
 
 
 def test_cloud_layers_read_back_their_points(rec: Reconstruction) -> None:

@@ -14,8 +14,8 @@ from threadpoolctl import threadpool_limits
 from threadrecon.app.dataset import discover, load_frame
 from threadrecon.app.io import load_calibration, load_ground_truth, load_pair
 from threadrecon.core.camera import CameraCurve
-from threadrecon.core.check import CheckParams, CheckResult, check_curve
-from threadrecon.core.metrics import curve_errors
+from threadrecon.core.check import CheckParams, CheckResult, _unsupported_travel, check_curve
+from threadrecon.core.metrics import curve_errors, project
 from threadrecon.core.params import specs
 from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
 
@@ -194,11 +194,80 @@ def test_paper_n_ctrl_40_same_with_one_and_several_blas_threads() -> None:
 
 
 @needs_paper
-def test_paper_dataset_default_curves_are_all_ok_and_right() -> None:
+def test_paper_dataset_default_curves_are_ok_and_right_or_say_what_is_unknown() -> None:
+    """Frames with ground truth: ok and right. Real frames: ok, or suspect for what the
+    images cannot show: a thread leaving the view (full length unknown; all 5 real frames) or
+    depth travel no reliable match supports (thread1_119: about 30 mm where the nearest
+    reliable matches disagree by 3-8 px of disparity)."""
+    suspect = []
     for frame in discover(PAPER):
         pair, calib, gt = load_frame(frame)
         rec = Pipeline(pair, calib).run()
+        if gt is None and rec.status == "suspect":
+            suspect.append(frame.id.rsplit("/", 1)[-1])
+            for reason in rec.reasons:
+                assert "image border" in reason or "no reliable match" in reason, reason
+            continue
         assert rec.status == "ok", (frame.id, rec.message)
         if gt is not None:
             e = curve_errors(rec["camera"].points * calib.mm_per_unit, gt * calib.mm_per_unit)
             assert e.e_length < 20 and e.e_S_max < 20, frame.id
+    assert "thread1_119_final" in suspect  # the unsupported depth travel is found
+
+
+def test_unsupported_travel_is_the_back_and_forth_between_supported_points() -> None:
+    z = np.array([0.0, 1.0, 0.0, 1.0, 0.0, 0.5])
+    assert _unsupported_travel(z, np.ones(6, bool)) == 0.0  # every point seen: nothing
+    sup = np.array([True, False, False, False, True, True])
+    assert _unsupported_travel(z, sup) == pytest.approx(4.0)  # 0 -> 1 -> 0 -> 1 -> 0, net 0
+    ramp = np.linspace(0.0, 5.0, 6)
+    assert _unsupported_travel(ramp, sup) == pytest.approx(0.0)  # a straight change: none
+    assert _unsupported_travel(z, np.zeros(6, bool)) == pytest.approx(4.5)  # all of it
+    tail = np.array([True, True, True, False, False, False])
+    assert _unsupported_travel(z, tail) == pytest.approx(2.5 - 0.5)  # an unsupported end
+
+
+def _wiggle_in_depth(points: np.ndarray, amp_mm: float) -> np.ndarray:
+    """The same image projection, depth raised and lowered by ``amp_mm`` along the middle
+    third (x and y scale with z, so both views' pixels hardly move)."""
+    n = len(points)
+    bump = np.zeros(n)
+    mid = slice(n // 3, 2 * n // 3)
+    bump[mid] = amp_mm * np.sin(np.linspace(0, 4 * np.pi, mid.stop - mid.start))
+    scale = (points[:, 2] + bump) / points[:, 2]
+    return points * scale[:, None]
+
+
+def test_depth_wiggle_no_match_supports_makes_the_curve_suspect() -> None:
+    chk = _recheck(0, lambda p: _wiggle_in_depth(p, 8.0))
+    assert chk.status != "ok"
+    assert chk.unsupported_mm > CheckParams().max_unsupported_mm
+    assert any("no reliable match supports" in r for r in chk.reasons), chk.reasons
+    assert _recheck(0, lambda p: p).unsupported_mm < 2.0  # the curve as reconstructed
+
+
+def test_a_long_bridge_under_an_occluder_is_judged_by_its_3d_length_not_its_pixels() -> None:
+    pair, calib, _ = synthetic_case(0)
+    rec = Pipeline(pair, calib).run()
+    seg = rec["segment"]
+    assert rec["check"].status == "ok"
+    pts = rec["camera"].points
+    # hide a stretch of the thread (both views) as an occluder would: ~70 px of the curve
+    n = len(pts)
+    i0, i1 = n // 2 - 20, n // 2 + 20
+    hidden = [project(pts[i0:i1], P) for P in (calib.P1, calib.P2)]
+    masks = []
+    for mask, q in zip((seg.P_L, seg.P_R), hidden, strict=True):
+        m = mask.copy()
+        for x, y in np.rint(q).astype(int):
+            m[max(0, y - 8) : y + 9, max(0, x - 8) : x + 9] = False
+        masks.append(m)
+    lifted = replace(seg, P_L=masks[0], P_R=masks[1])
+    args = [rec[s] for s in ("stereo", "reliability", "ordering", "bounds", "spline", "camera")]
+    chk = check_curve(lifted, *args, calib, CheckParams())
+    assert chk.longest_jump_px > 40  # a long run across unsegmented pixels
+    assert 0 < chk.longest_bridge_mm < CheckParams().max_unobserved_mm
+    assert chk.status == "ok", chk.reasons  # the bridge's points are not reprojection errors
+    strict = check_curve(lifted, *args, calib, CheckParams(max_unobserved_mm=1.0))
+    assert strict.status == "suspect"
+    assert any("bridges" in r and "interpolated" in r for r in strict.reasons), strict.reasons
