@@ -121,7 +121,7 @@ def pixel_info(rec: Reconstruction, x: int, y: int, snap_px: int = 3) -> dict[st
         "clicked": [x, y],
         "segmented": True,
         "index": i,
-        "energy": st.energy[i],
+        "energy": st.energy_row(i),
         "d_min": int(st.d_min[i]),
         "d_next": int(st.d_next[i]),
         "E_min": float(st.E_min[i]),
