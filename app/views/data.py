@@ -17,6 +17,8 @@ from threadrecon.core.pipeline import STAGES, Reconstruction
 HEAVY_VALUES = 20_000  # arrays larger than this (per-pixel images, the energy volume) are
 # left out of a stage's JSON: megabytes on the wire; the inspector serves one pixel instead
 SPLINE_SAMPLES = 300  # points per drawn curve: smooth on screen, small on the wire
+OVERLAY_PIXELS = 16_000  # display budget of a pixel list: a 640x480 thread (3-10k px) is sent
+# whole; a 1920x1080 one (20-40k px, shown at about half size) as blocks of 2x2 px
 
 
 def stage_json(rec: Reconstruction, stage: str) -> dict[str, Any]:
@@ -57,13 +59,21 @@ def _missing(rec: Reconstruction, stage: str) -> str:
 def overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
     """What is drawn over the stereo images: segmented, reliable and keypoint pixels of the
     left image, the ordered path, and the final (and initial) spline projected into both images
-    with its reprojection errors. Pixel lists are flat [x0, y0, x1, y1, ...] integer lists."""
+    with its reprojection errors. Pixel lists are flat [x0, y0, x1, y1, ...] integer lists of
+    the top-left corners of ``<name>_step`` px square blocks (1: the pixels themselves; more
+    when the list exceeds the display budget, see :func:`decimate_pixels`), and
+    ``<name>_count`` is the number of pixels. For display only: the computation is untouched."""
     out: dict[str, Any] = {"shape": list(calib.image_size)}
     if "stereo" in rec.runs:
         st = rec["stereo"]
-        out["segmented"] = st.pixels.ravel().tolist()
+        lists = {"segmented": st.pixels}
         if "reliability" in rec.runs:
-            out["reliable"] = st.pixels[rec["reliability"].reliable].ravel().tolist()
+            lists["reliable"] = st.pixels[rec["reliability"].reliable]
+        for name, pixels in lists.items():
+            blocks, step = decimate_pixels(pixels, OVERLAY_PIXELS)
+            out[name] = blocks.ravel().tolist()
+            out[f"{name}_step"] = step
+            out[f"{name}_count"] = len(pixels)
     if "clustering" in rec.runs:
         out["keypoints"] = np.round(rec["clustering"].keypoints_px[:, :2], 2).tolist()
     if "ordering" in rec.runs:
@@ -96,6 +106,24 @@ def overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
                 sides[side] = entry
             out[name] = sides
     return json_safe(out)
+
+
+def decimate_pixels(pixels: np.ndarray, budget: int) -> tuple[np.ndarray, int]:
+    """A pixel list for display: the (M, 2) int top-left corners (x, y) of the step x step blocks
+    that hold at least one of ``pixels`` ((N, 2) int, x, y), with the smallest step for which
+    M <= ``budget`` (step 1: the pixels unchanged, in their order). Drawn as squares, the blocks
+    cover every pixel: a thin thread stays connected."""
+    pixels = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+    if budget < 1:
+        raise ValueError(f"budget must be >= 1, got {budget}")
+    step, blocks = 1, pixels
+    while len(blocks) > budget:
+        step += 1
+        cells = pixels // step
+        width = int(cells[:, 0].max()) + 1
+        keys = np.unique(cells[:, 1] * width + cells[:, 0])  # one per occupied block
+        blocks = np.column_stack([keys % width, keys // width]) * step
+    return blocks, step
 
 
 # --- pixel inspector -----------------------------------------------------------------------

@@ -43,7 +43,7 @@ function overlayOn(name) {
 
 function drawImages() {
   const ov = S.overlay && S.overlay.frame_id === S.frameId ? S.overlay : {};
-  $("#reliable-count").textContent = ov.reliable ? `(${ov.reliable.length / 2})` : "";
+  $("#reliable-count").textContent = ov.reliable ? `(${ov.reliable_count ?? ov.reliable.length / 2})` : "";
   $("#keypoint-count").textContent = ov.keypoints ? `(${ov.keypoints.length})` : "";
   for (const side of ["left", "right"]) {
     const canvas = $(`#img-${side}`);
@@ -52,9 +52,10 @@ function drawImages() {
     if (!img) { ctx.clearRect(0, 0, canvas.width, canvas.height); continue; }
     if (canvas.width !== img.width) { canvas.width = img.width; canvas.height = img.height; }
     ctx.drawImage(img, 0, 0);
-    const px = (flat, color) => {
+    const px = (flat, color, step) => {  // step x step px blocks (the server's display budget)
+      const s = step || 1;
       ctx.fillStyle = color;
-      for (let i = 0; i < flat.length; i += 2) ctx.fillRect(flat[i], flat[i + 1], 1, 1);
+      for (let i = 0; i < flat.length; i += 2) ctx.fillRect(flat[i], flat[i + 1], s, s);
     };
     const line = (pts, color, width, dash) => {
       if (!pts || pts.length < 2) return;
@@ -65,8 +66,8 @@ function drawImages() {
     };
     if (side === "left") {
       const onlySegment = S.state && S.state.reveal === 1;  // stage 1 shows the segmentation
-      if (ov.segmented && (overlayOn("segmented") || onlySegment)) px(ov.segmented, "rgba(90,160,255,0.75)");
-      if (ov.reliable && overlayOn("reliable")) px(ov.reliable, "#00e5ff");
+      if (ov.segmented && (overlayOn("segmented") || onlySegment)) px(ov.segmented, "rgba(90,160,255,0.75)", ov.segmented_step);
+      if (ov.reliable && overlayOn("reliable")) px(ov.reliable, "#00e5ff", ov.reliable_step);
       if (ov.path && overlayOn("path")) line(ov.path, "#ff8c00", 1.5);
       if (ov.keypoints && overlayOn("keypoints")) {
         ctx.strokeStyle = "#ffe14d"; ctx.lineWidth = 1.5;
