@@ -64,6 +64,7 @@ def overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
     when the list exceeds the display budget, see :func:`decimate_pixels`), and
     ``<name>_count`` is the number of pixels. For display only: the computation is untouched."""
     out: dict[str, Any] = {"shape": list(calib.image_size)}
+    plain: dict[str, Any] = {}  # long lists already JSON-safe: kept out of json_safe's walk
     if "stereo" in rec.runs:
         st = rec["stereo"]
         lists = {"segmented": st.pixels}
@@ -71,13 +72,13 @@ def overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
             lists["reliable"] = st.pixels[rec["reliability"].reliable]
         for name, pixels in lists.items():
             blocks, step = decimate_pixels(pixels, OVERLAY_PIXELS)
-            out[name] = blocks.ravel().tolist()
+            plain[name] = blocks.ravel().tolist()  # Python ints: JSON as they are
             out[f"{name}_step"] = step
             out[f"{name}_count"] = len(pixels)
     if "clustering" in rec.runs:
-        out["keypoints"] = np.round(rec["clustering"].keypoints_px[:, :2], 2).tolist()
+        plain["keypoints"] = _rounded(rec["clustering"].keypoints_px[:, :2])
     if "ordering" in rec.runs:
-        out["path"] = np.round(rec["ordering"].path_px[:, :2], 2).tolist()
+        plain["path"] = _rounded(rec["ordering"].path_px[:, :2])
     if "bounds" in rec.runs:
         b = rec["bounds"]
         out["H"] = [
@@ -100,12 +101,20 @@ def overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
         ):
             sides = {}
             for side, (uv, r) in reprojections(pts, calib, rec["segment"], errors).items():
-                entry: dict[str, Any] = {"points": np.round(uv, 2).tolist()}
+                entry: dict[str, Any] = {"points": _rounded(uv)}
                 if r is not None:
-                    entry.update(mean_px=r.mean, max_px=r.max, coverage=r.coverage)
+                    entry.update(
+                        json_safe({"mean_px": r.mean, "max_px": r.max, "coverage": r.coverage})
+                    )
                 sides[side] = entry
-            out[name] = sides
-    return json_safe(out)
+            plain[name] = sides
+    return {**json_safe(out), **plain}
+
+
+def _rounded(a: np.ndarray) -> list:
+    """(N, 2) floats as nested lists rounded to 0.01 px; NaN/inf become None."""
+    a = np.round(np.asarray(a, dtype=np.float64), 2)
+    return a.tolist() if np.isfinite(a).all() else json_safe(a)
 
 
 def decimate_pixels(pixels: np.ndarray, budget: int) -> tuple[np.ndarray, int]:
