@@ -37,6 +37,8 @@ from threadrecon.core.pipeline import STAGES, ReconParams, Reconstruction
 
 POINT_SIZE_FRAC = 0.0025  # base point size as a fraction of the median thread depth
 STREAM_PAUSE_S = 0.35  # pause between stages of a streamed run, so each layer can be seen
+CLOUD_POINTS = 12_000  # display budget of one point cloud: a 640x480 thread is drawn whole; a
+# 1920x1080 one (20-40k points a layer, 15 bytes each, resent on every slider move) every k-th
 
 
 class SceneView:
@@ -207,8 +209,9 @@ class SceneView:
             for sub, node in nodes.items():
                 path = f"{root}/{sub}"
                 if isinstance(node, Points):
+                    points, colors = decimate_cloud(node.points, node.colors, CLOUD_POINTS)
                     self.scene.add_point_cloud(
-                        path, node.points, node.colors, point_size=self._base * node.size,
+                        path, points, colors, point_size=self._base * node.size,
                         precision="float32", point_shape="circle", point_shading="flat",
                     )  # fmt: skip
                 elif isinstance(node, Segments):
@@ -264,6 +267,23 @@ class SceneView:
             + (f"R {rel:.3f} ({'reliable' if info.get('reliable') else 'not reliable'})  \n" if rel is not None else "")
             + (f"depth {info['depth']:.4g}" if info.get("depth") is not None else "depth: none")
         )  # fmt: skip
+
+
+def decimate_cloud(
+    points: np.ndarray, colors: np.ndarray, budget: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``budget`` of the (N, 3) points, for display: every k-th (the points of a layer
+    follow the pixels of P_L in row-major order, so a stride thins them evenly along the
+    thread), with their colours ((N, 3) per point, or one (3,) colour). The pixel inspector
+    still picks among all points of the stage result."""
+    if budget < 1:
+        raise ValueError(f"budget must be >= 1, got {budget}")
+    n = len(points)
+    if n <= budget:
+        return points, colors
+    k = -(-n // budget)  # ceil
+    per_point = colors.ndim == 2 and len(colors) == n
+    return points[::k], colors[::k] if per_point else colors
 
 
 def _status_line(session: Session, rec: Reconstruction | None) -> str:

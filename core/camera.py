@@ -13,11 +13,14 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+import scipy.linalg
 from scipy.interpolate import BSpline
 
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.params import Params, param
 from threadrecon.core.spline import SplineResult, basis_matrix
+
+COND_FLOOR = 1e-6  # Cholesky diagonal ratio below which the refit falls back to SVD
 
 
 @dataclass(frozen=True)
@@ -71,7 +74,7 @@ def to_camera(
         u = np.linspace(0.0, 1.0, n_fit)
         dense = image_to_camera(BSpline(knots, spline.ctrl, k)(u), calib.G)
         B = basis_matrix(u, knots, k)
-        ctrl = np.linalg.lstsq(B, dense, rcond=None)[0]
+        ctrl = _least_squares(B, dense)
         if n_fit == p.n_points:  # the same samples
             points = dense
         else:
@@ -84,3 +87,19 @@ def to_camera(
     return CameraCurve(
         ctrl=ctrl, knots=knots, degree=k, points=points, length=length, unit=calib.unit
     )
+
+
+def _least_squares(B: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """argmin |B c - y| for a B-spline collocation matrix B (n >> m, full column rank): the
+    normal equations by Cholesky (0.2 ms against SVD's 1.5-2.3 ms for m' = 60-80 at 1920x1080;
+    B^T B is banded and well conditioned, >= 8 samples per control point); SVD when the
+    factorisation fails or the system is ill-conditioned."""
+    G = B.T @ B
+    try:
+        c, low = scipy.linalg.cho_factor(G, check_finite=False)
+        d = np.diag(c)
+        if d.min() > COND_FLOOR * d.max():  # a rough condition estimate: sqrt of cond(G)
+            return scipy.linalg.cho_solve((c, low), B.T @ y, check_finite=False)
+    except np.linalg.LinAlgError:
+        pass
+    return np.linalg.lstsq(B, y, rcond=None)[0]

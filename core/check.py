@@ -337,7 +337,7 @@ def _check(
         raise ValueError(f"curve points must be (N >= 2, 3), got {pts.shape}")
     n = len(pts)
     f, B = calib.focal, calib.baseline
-    alpha = stereo.energy.shape[1] - 1
+    alpha = stereo.d_range[1]
     d_lo = p.min_disparity_px
     z_allowed = (f * B / alpha, f * B / d_lo if d_lo > 0 else np.inf)
     findings: list[tuple[Status, str]] = []

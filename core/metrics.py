@@ -13,6 +13,7 @@ and Table II (2D reprojection errors), plus coverage.
 from __future__ import annotations
 
 import hashlib
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -104,14 +105,15 @@ def project(points: np.ndarray, P: np.ndarray) -> np.ndarray:
 
 def reprojection_errors(pixels: np.ndarray, mask: np.ndarray) -> ReprojectionErrors:
     """e_2D (mean, max) of projected curve points (N, 2) against a thread mask, and coverage."""
-    if mask.ndim != 2 or not mask.any():
+    if mask.ndim != 2:
+        raise ValueError(f"reprojection needs an (H, W) thread mask, got {mask.shape}")
+    index = _mask_index(mask)
+    if index is None:
         raise ValueError("reprojection needs a non-empty (H, W) thread mask")
-    ys, xs = np.nonzero(mask)
-    d = cKDTree(np.column_stack([xs, ys]).astype(float)).query(pixels)[0]
-    skel = skeleton(mask)
-    sy, sx = np.nonzero(skel)
+    tree, skel_xy = index
+    d = tree.query(pixels)[0]
     dense = resample(np.asarray(pixels, dtype=float), max(RESAMPLE_N, 4 * len(pixels)))
-    dc = cKDTree(dense).query(np.column_stack([sx, sy]).astype(float))[0]
+    dc = cKDTree(dense).query(skel_xy)[0]
     return ReprojectionErrors(
         mean=float(d.mean()), max=float(d.max()), coverage=float(np.mean(dc <= COVERAGE_PX))
     )
@@ -124,25 +126,60 @@ def skeleton(mask: np.ndarray) -> np.ndarray:
     mask = np.asarray(mask, dtype=bool)
     if mask.ndim != 2:
         raise ValueError(f"expected an (H, W) mask, got {mask.shape}")
-    key = (mask.shape, hashlib.blake2b(np.packbits(mask).tobytes(), digest_size=16).digest())
-    hit = _SKELETONS.get(key)
-    if hit is not None:
-        _SKELETONS.move_to_end(key)
-        return hit
+    key = _mask_key(mask)
+    with _CACHE_LOCK:
+        hit = _SKELETONS.get(key)
+        if hit is not None:
+            _SKELETONS.move_to_end(key)
+            return hit
     out = np.zeros(mask.shape, dtype=bool)
     rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
     if rows.size:
         box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
         out[box] = _zhang_suen(mask[box])
     out.setflags(write=False)
-    _SKELETONS[key] = out
-    if len(_SKELETONS) > SKELETON_CACHE:
-        _SKELETONS.popitem(last=False)
+    with _CACHE_LOCK:
+        _SKELETONS[key] = out
+        if len(_SKELETONS) > SKELETON_CACHE:
+            _SKELETONS.popitem(last=False)
     return out
+
+
+def _mask_key(mask: np.ndarray) -> tuple:
+    return (mask.shape, hashlib.blake2b(np.packbits(mask).tobytes(), digest_size=16).digest())
+
+
+def _mask_index(mask: np.ndarray) -> tuple[cKDTree, np.ndarray] | None:
+    """A k-d tree of the mask's pixels (x, y) and the (M, 2) pixels of its skeleton, cached
+    with the skeleton by the mask's content: each run's reprojection errors (the debugger's
+    overlay after every slider move) query them without rebuilding; None for an empty mask."""
+    mask = np.asarray(mask, dtype=bool)
+    key = _mask_key(mask)
+    with _CACHE_LOCK:
+        hit = _MASK_INDEX.get(key)
+        if hit is not None:
+            _MASK_INDEX.move_to_end(key)
+            return hit[0]
+    ys, xs = np.nonzero(mask)
+    if ys.size == 0:
+        index = None
+    else:
+        sy, sx = np.nonzero(skeleton(mask))
+        index = (
+            cKDTree(np.column_stack([xs, ys]).astype(float)),
+            np.column_stack([sx, sy]).astype(float),
+        )
+    with _CACHE_LOCK:
+        _MASK_INDEX[key] = (index,)
+        if len(_MASK_INDEX) > SKELETON_CACHE:
+            _MASK_INDEX.popitem(last=False)
+    return index
 
 
 SKELETON_CACHE = 8  # masks kept: both views of a few frames, the debugger's working set
 _SKELETONS: OrderedDict[tuple, np.ndarray] = OrderedDict()
+_CACHE_LOCK = threading.Lock()  # the server's sessions evaluate in several threads
+_MASK_INDEX: OrderedDict[tuple, tuple[tuple[cKDTree, np.ndarray] | None]] = OrderedDict()
 
 
 def _zhang_suen(mask: np.ndarray) -> np.ndarray:

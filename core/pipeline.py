@@ -5,6 +5,7 @@ re-runs only the stages after it.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, fields, make_dataclass
@@ -30,6 +31,16 @@ from threadrecon.core.stereo import StereoParams, match_stereo
 # path through Eq. (8) amplified that into a different curve ("n_ctrl = 40" on blend3_1 failed
 # with one thread and gave 552 km with several). Created once: creation scans loaded libraries.
 _BLAS = ThreadpoolController()
+_BLAS_LIBS = _BLAS.select(user_api="blas").lib_controllers
+
+
+def _blas_guard() -> Callable[[], contextlib.AbstractContextManager[Any]]:
+    """What to wrap each stage's computation in: nothing when every BLAS already runs one
+    thread (the CLI and the server set that once; a check costs ~15 us), else a one-thread
+    limit (~100 us a stage: it queries and sets every library twice)."""
+    if all(lib.num_threads == 1 for lib in _BLAS_LIBS):
+        return contextlib.nullcontext
+    return lambda: _BLAS.limit(limits=1, user_api="blas")
 
 
 @dataclass(frozen=True)
@@ -197,6 +208,7 @@ class Pipeline:
             raise ValueError(f"unknown stage {until!r}")
         results: dict[str, Any] = {}
         keys: dict[str, tuple] = {}
+        guard = None
         for st in STAGE_TABLE:
             stage = st.name
             # a result depends on its own params and on the results it reads
@@ -209,9 +221,10 @@ class Pipeline:
                 results[stage] = hit[1]
                 yield StageRun(stage, hit[1], 0.0, True)
             else:
+                guard = guard or _blas_guard()
                 t0 = time.perf_counter()
                 try:
-                    with _BLAS.limit(limits=1, user_api="blas"):
+                    with guard():
                         out = self._compute(st, results, params, corrections)
                 except StageError:
                     raise

@@ -269,6 +269,7 @@ def _refine_xy(
     xy: np.ndarray, u: np.ndarray, t: np.ndarray, k: int, tol: float
 ) -> tuple[np.ndarray, np.ndarray | None]:
     t_xy = t
+    fitted = None  # the fit on the current t_xy, when the loop ended without a split
     for _ in range(XY_ROUNDS):
         c, B = _penalised_fit(xy, u, t_xy, k)
         miss = np.linalg.norm(B @ c - xy, axis=1)
@@ -279,11 +280,12 @@ def _refine_xy(
         count = np.bincount(span, minlength=len(edges) - 1)
         split = (worst > tol) & (count >= XY_MIN_POINTS)
         if not split.any():
+            fitted = c
             break
         t_xy = np.sort(np.concatenate([t_xy, 0.5 * (edges[:-1] + edges[1:])[split]]))
     if len(t_xy) == len(t):
         return t, None
-    c, _ = _penalised_fit(xy, u, t_xy, k)
+    c = fitted if fitted is not None else _penalised_fit(xy, u, t_xy, k)[0]
     return (t_xy, c) if np.all(np.isfinite(c)) else (t, None)
 
 

@@ -8,8 +8,9 @@ Computation (a compiled kernel, ``_energy_kernel``, that scales with the thread,
 I_R^lift is the lift value off P_R (dilated by the lift), so (I_L(p') - I_R(p' - d))^2 is a constant c_0(p') except
 where p' - d falls on a segmented right pixel of the same row. E(., p) is therefore the window
 sum of c_0, plus, for each p' in g_p and each segmented right pixel q of its row within the
-search range, the change at d = x' - q_x. Work: N * |g_p| * (right pixels per row), memory:
-the (N, alpha+1) float32 energy itself; no image-sized or (N, alpha+1) int64 temporary.
+search range, the change at d = x' - q_x. Work: N * |g_p| * (right pixels per row). Eq. (3)
+reads each pixel's curve while it is in cache, so the (N, alpha+1) energy volume is never
+stored (``StereoResult.energy`` recomputes it on demand); no image-sized temporary either.
 
 Search range: ``alpha`` px (the paper's), or, with ``z_near_mm`` / ``z_far_mm`` set, the
 disparities f B / z of that working depth range (docs/method.md, "Disparity range from depth"),
@@ -24,6 +25,7 @@ accuracy. ``subpixel=False`` gives the paper's integer disparities.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -103,17 +105,20 @@ class StereoResult:
     """Per segmented left pixel (N of them, in row-major order of P_L).
 
     ``pixels``: (N, 2) int, (x, y) = (col, row) of p.
-    ``energy``: (N, alpha+1) float32, E(d, p) of Eq. (2).
     ``d_min``, ``d_next``: (N,) int, best and second-best disparity (|d_next - d_min| > 2).
     ``E_min``, ``E_next``: (N,) float, their energies.
     ``disparity``: (N,) float, d_min refined to sub-pixel precision (or d_min), px.
     ``points``: (N, 3) float, Eq. (4)-(5) reprojection (X, Y, Z) in the left camera frame,
     calibration units; NaN where the disparity is not positive.
     ``depth``: (N,) float, D(p) = Z, Eq. (5).
+    ``d_range``: (d_lo, d_hi), px, the disparities searched (d_hi = alpha without a depth range).
+
+    The energy volume E(d, p) of Eq. (2), (N, d_hi + 1) float32, is not kept (39 MB on a
+    1920x1080 thread): :attr:`energy` recomputes it on first use, bit-identical to the values
+    d_min and d_next were taken from, and :meth:`energy_row` one pixel's curve.
     """
 
     pixels: np.ndarray
-    energy: np.ndarray
     d_min: np.ndarray
     d_next: np.ndarray
     E_min: np.ndarray
@@ -122,6 +127,7 @@ class StereoResult:
     points: np.ndarray
     depth: np.ndarray
     shape: tuple[int, int]
+    d_range: tuple[int, int]
 
     @property
     def index_image(self) -> np.ndarray:
@@ -129,6 +135,100 @@ class StereoResult:
         idx = np.full(self.shape, -1, dtype=np.int64)
         idx[self.pixels[:, 1], self.pixels[:, 0]] = np.arange(len(self.pixels))
         return idx
+
+    @functools.cached_property
+    def energy(self) -> np.ndarray:
+        """(N, d_hi + 1) float32 E(d, p) of Eq. (2), computed once on first use."""
+        return self._energy(None)
+
+    def energy_row(self, i: int) -> np.ndarray:
+        """(d_hi + 1,) float32 E(., p) of the i-th pixel alone (the pixel inspector's curve)."""
+        if not 0 <= i < len(self.pixels):
+            raise IndexError(f"pixel index {i} out of range for {len(self.pixels)} pixels")
+        if "energy" in self.__dict__:
+            return self.__dict__["energy"][i]
+        return self._energy(np.array([i]))[0]
+
+    def _energy(self, which: np.ndarray | None) -> np.ndarray:
+        source = self.__dict__.get("_source")
+        if source is None:
+            raise ValueError("this stereo result has no energy source (built by hand or copied)")
+        return source.energy(which)
+
+    def _with_source(self, source: _EnergySource) -> StereoResult:
+        # not a field: JSON views and exports walk the fields, and the source holds the images
+        object.__setattr__(self, "_source", source)
+        return self
+
+
+@dataclass(frozen=True)
+class _EnergySource:
+    """The inputs of Eq. (2) kept by a :class:`StereoResult` to recompute its energy volume."""
+
+    lifted: LiftedPair
+    window: int
+    d_lo: int
+    d_hi: int
+
+    def energy(self, which: np.ndarray | None) -> np.ndarray:
+        box = _Box.of(self.lifted, self.d_hi)
+        ty, tx = (box.ry, box.rx) if which is None else (box.ry[which], box.rx[which])
+        out, *_ = _energy_kernel(
+            ty, tx, box.I_L_p, box.index, self.window // 2, box.q_ptr, box.q_col, box.q_val,
+            box.x0, self.d_lo, self.d_hi, LIFT_VALUE, True,
+        )  # fmt: skip
+        return out
+
+
+@dataclass(frozen=True)
+class _Box:
+    """The bounding box of P_L (rows y0.., columns x0..): everything Eq. (2) reads."""
+
+    y0: int
+    x0: int
+    ry: np.ndarray
+    """(N,) int64 rows of P_L in the box, row-major order."""
+    rx: np.ndarray
+    """(N,) int64 columns of P_L in the box."""
+    index: np.ndarray
+    """(h, w) int32 box image of pixel indices, -1 off P_L."""
+    I_L_p: np.ndarray
+    """(N,) float64 I_L^lift at the pixels of P_L."""
+    q_ptr: np.ndarray
+    q_col: np.ndarray
+    q_val: np.ndarray
+    """Right pixels off the lift value, per box row (CSR by row: pointers, absolute columns
+    ascending, I_R), in the columns a left pixel reaches with d in 0..d_hi."""
+
+    @staticmethod
+    def of(lifted: LiftedPair, d_hi: int) -> _Box:
+        rows_any = np.flatnonzero(lifted.P_L.any(axis=1))
+        if rows_any.size == 0:
+            raise ValueError("empty segmentation: no thread pixel in the left image")
+        y0, y1 = int(rows_any[0]), int(rows_any[-1]) + 1
+        band_L = lifted.P_L[y0:y1]
+        cols_any = np.flatnonzero(band_L.any(axis=0))
+        x0, x1 = int(cols_any[0]), int(cols_any[-1]) + 1
+        ry, rx = _nonzero(band_L[:, x0:x1])  # row-major order of P_L
+        n = ry.size
+        index = np.full((y1 - y0, x1 - x0), -1, dtype=np.int32)
+        index[ry, rx] = np.arange(n, dtype=np.int32)
+        I_L_p = lifted.I_L[ry + y0, rx + x0].astype(np.float64)
+        xr0 = max(0, x0 - d_hi)
+        qy, qx = _nonzero(lifted.I_R[y0:y1, xr0:x1] != np.float32(LIFT_VALUE))
+        q_val = lifted.I_R[qy + y0, qx + xr0].astype(np.float64)
+        q_ptr = np.searchsorted(qy, np.arange(y1 - y0 + 1)).astype(np.int64)
+        q_col = (qx + xr0).astype(np.int64)
+        return _Box(
+            y0, x0, ry.astype(np.int64), rx.astype(np.int64), index, I_L_p, q_ptr, q_col, q_val
+        )
+
+
+def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.nonzero`` of a 2D bool array (rows, cols, row-major), through the 1D search: 3-4x
+    faster on a 1920x1080 box."""
+    flat = np.flatnonzero(mask)
+    return np.divmod(flat, mask.shape[1])
 
 
 def match_stereo(
@@ -148,63 +248,23 @@ def match_stereo(
     r = p.window // 2
 
     # Everything below works on the bounding box of P_L: the thread, not the image.
-    rows_any = np.flatnonzero(lifted.P_L.any(axis=1))
-    if rows_any.size == 0:
-        raise ValueError("empty segmentation: no thread pixel in the left image")
-    y0, y1 = int(rows_any[0]), int(rows_any[-1]) + 1
-    band_L = lifted.P_L[y0:y1]
-    cols_any = np.flatnonzero(band_L.any(axis=0))
-    x0, x1 = int(cols_any[0]), int(cols_any[-1]) + 1
-    ry, rx = np.nonzero(band_L[:, x0:x1])  # row-major order of P_L
-    rows, cols = ry + y0, rx + x0
-    n = rows.size
-    index = np.full((y1 - y0, x1 - x0), -1, dtype=np.int32)
-    index[ry, rx] = np.arange(n, dtype=np.int32)
-    I_L_p = lifted.I_L[rows, cols].astype(np.float64)
-
-    # Right pixels off the lift value (P_R, dilated by the lift) in the rows of the box that
-    # some left pixel can reach (d in 0..d_hi).
-    xr0 = max(0, x0 - d_hi)
-    qy, qx = np.nonzero(lifted.I_R[y0:y1, xr0:x1] != np.float32(LIFT_VALUE))
-    q_val = lifted.I_R[qy + y0, qx + xr0].astype(np.float64)
-    q_ptr = np.searchsorted(qy, np.arange(y1 - y0 + 1)).astype(np.int64)
-    q_col = (qx + xr0).astype(np.int64)
-
-    energy = _energy_kernel(
-        ry.astype(np.int64),
-        rx.astype(np.int64),
-        I_L_p,
-        index,
-        r,
-        q_ptr,
-        q_col,
-        q_val,
-        x0,
-        d_hi,
-        LIFT_VALUE,
-    )  # Eq. (2)
-    d_min, d_next, E_min, E_next = _best_two(energy, d_lo, NEXT_GAP)  # Eq. (3)
+    box = _Box.of(lifted, d_hi)
+    rows, cols = box.ry + box.y0, box.rx + box.x0
+    _, d_min, d_next, E_min, E_next = _energy_kernel(
+        box.ry, box.rx, box.I_L_p, box.index, r, box.q_ptr, box.q_col, box.q_val, box.x0,
+        d_lo, d_hi, LIFT_VALUE, False,
+    )  # Eqs. (2)-(3), fused: the energy volume is never stored  # fmt: skip
 
     disparity = d_min.astype(np.float64)
     if p.subpixel:
         disparity = disparity + _subpixel_kernel(
-            ry.astype(np.int64),
-            rx.astype(np.int64),
-            I_L_p,
-            index,
-            r,
-            lifted.I_R,
-            y0,
-            x0,
-            d_min,
-            d_hi,
+            box.ry, box.rx, box.I_L_p, box.index, r, lifted.I_R, box.y0, box.x0, d_min, d_hi,
             LIFT_VALUE,
-        )
+        )  # fmt: skip
 
     points = _reproject(cols, rows, disparity, calib.Q)
     return StereoResult(
         pixels=np.stack([cols, rows], axis=1),
-        energy=energy,
         d_min=d_min,
         d_next=d_next,
         E_min=E_min,
@@ -213,7 +273,8 @@ def match_stereo(
         points=points,
         depth=points[:, 2],
         shape=(H, W),
-    )
+        d_range=(d_lo, d_hi),
+    )._with_source(_EnergySource(lifted, p.window, d_lo, d_hi))
 
 
 def reproject(x: np.ndarray, y: np.ndarray, disparity: np.ndarray, Q: np.ndarray) -> np.ndarray:
@@ -235,42 +296,57 @@ def _reproject(x: np.ndarray, y: np.ndarray, disparity: np.ndarray, Q: np.ndarra
 
 
 @numba.njit(cache=True, nogil=True)
-def _energy_kernel(ry, rx, I_L_p, index, r, q_ptr, q_col, q_val, x0, d_hi, lift):  # noqa: ANN001
-    """(N, d_hi+1) float32 E(d, p) of Eq. (2), accumulated in float64 (see module docstring).
+def _energy_kernel(ty, tx, I_L_p, index, r, q_ptr, q_col, q_val, x0, d_lo, d_hi, lift, store):  # noqa: ANN001
+    """Eqs. (2)-(3) at the pixels (ty, tx) of P_L: d_min, d_next, E_min, E_next, and with
+    ``store`` the (T, d_hi+1) float32 energy E(d, p) (else a (0, d_hi+1) array, and only
+    d >= d_lo is accumulated). Sums in float64, rounded to float32 per d as stored.
 
-    ``ry``, ``rx``: rows and columns of P_L in the bounding box (origin row 0, column ``x0``),
-    row-major; ``index``: box image of pixel indices, -1 off P_L; ``q_ptr``, ``q_col``,
-    ``q_val``: the right pixels off the lift value in each box row (CSR by row, columns
-    ascending, absolute), and their I_R. The window slides along a row: moving p one pixel
-    right removes the window's left column and adds a new right column."""
-    n = ry.size
+    ``ty``, ``tx``: rows and columns in the bounding box (origin row 0, column ``x0``), in
+    row-major order; ``I_L_p``: I_L at every pixel of P_L; ``index``: box image of indices into
+    ``I_L_p``, -1 off P_L; ``q_ptr``, ``q_col``, ``q_val``: the right pixels off the lift value
+    in each box row (CSR by row, columns ascending, absolute), and their I_R. The window slides
+    along a row: moving p one pixel right removes the window's left column and adds a new
+    right column. Each pixel's curve lives in a (d_hi+1) buffer while Eq. (3) reads it."""
+    n = I_L_p.size
+    t = ty.size
     h, w = index.shape
     c0 = np.empty(n)  # (I_L(p') - lift)^2: the cost against the lifted background
     for j in range(n):
         c0[j] = (I_L_p[j] - lift) ** 2
-    out = np.empty((n, d_hi + 1), dtype=np.float32)
+    d_from = 0 if store else d_lo
+    out = np.empty((t if store else 0, d_hi + 1), dtype=np.float32)
+    row = np.empty(d_hi + 1, dtype=np.float32)
+    d_min = np.empty(t, dtype=np.int64)
+    d_next = np.empty(t, dtype=np.int64)
+    E_min = np.empty(t)
+    E_next = np.empty(t)
     acc = np.zeros(d_hi + 1)
     base = np.zeros(1)
     prev_y, prev_x = -1, -1
-    for i in range(n):
-        yi, xi = ry[i], rx[i]
+    for i in range(t):
+        yi, xi = ty[i], tx[i]
         if yi == prev_y and xi - prev_x <= 2 * r:
             for x in range(prev_x + 1, xi + 1):  # slide the window one column at a time
-                _add_column(x - 1 - r, yi, -1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_hi, acc, base)  # fmt: skip
-                _add_column(x + r, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_hi, acc, base)  # fmt: skip
+                _add_column(x - 1 - r, yi, -1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_from, d_hi, acc, base)  # fmt: skip
+                _add_column(x + r, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_from, d_hi, acc, base)  # fmt: skip
         else:
             acc[:] = 0.0
             base[0] = 0.0
             for xx in range(xi - r, xi + r + 1):
-                _add_column(xx, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_hi, acc, base)  # fmt: skip
-        for d in range(d_hi + 1):
-            out[i, d] = base[0] + acc[d]
+                _add_column(xx, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_from, d_hi, acc, base)  # fmt: skip
+        for d in range(d_from, d_hi + 1):
+            row[d] = base[0] + acc[d]
+        if store:
+            out[i, :] = row
+        d_min[i], d_next[i], E_min[i], E_next[i] = _best_two(row, d_lo, NEXT_GAP)
         prev_y, prev_x = yi, xi
-    return out
+    return out, d_min, d_next, E_min, E_next
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _add_column(xx, yi, sign, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_hi, acc, base):  # noqa: ANN001
+def _add_column(
+    xx, yi, sign, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_from, d_hi, acc, base
+):  # noqa: ANN001
     """Add (sign 1) or remove (-1) the window column xx of the pixel in row yi."""
     if xx < 0 or xx >= w:
         return
@@ -283,42 +359,31 @@ def _add_column(xx, yi, sign, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0
         vl, cj = I_L_p[j], c0[j]
         q_a, q_b = q_ptr[yy], q_ptr[yy + 1]
         k = q_a + np.searchsorted(q_col[q_a:q_b], xa - d_hi)  # first q with d <= d_hi
-        while k < q_b and q_col[k] <= xa:
+        while k < q_b and q_col[k] <= xa - d_from:
             acc[xa - q_col[k]] += sign * ((vl - q_val[k]) ** 2 - cj)
             k += 1
 
 
-@numba.njit(cache=True, nogil=True)
-def _best_two(energy, d_lo, gap):  # noqa: ANN001
-    """Eq. (3): d_min = argmin E over [d_lo, d_hi]; d_next = argmin over |d - d_min| > gap
-    (first index on ties, as np.argmin); E_next = inf when no such d exists."""
-    n, m = energy.shape
-    d_min = np.empty(n, dtype=np.int64)
-    d_next = np.empty(n, dtype=np.int64)
-    E_min = np.empty(n)
-    E_next = np.empty(n)
-    for i in range(n):
-        e = energy[i]
-        best, vb = d_lo, e[d_lo]
-        for d in range(d_lo + 1, m):
-            if e[d] < vb:
-                best, vb = d, e[d]
-        nxt, vn = -1, np.float32(np.inf)
-        for d in range(d_lo, max(d_lo, best - gap)):
-            if e[d] < vn:
-                nxt, vn = d, e[d]
-        for d in range(best + gap + 1, m):
-            if e[d] < vn:
-                nxt, vn = d, e[d]
-        d_min[i] = best
-        E_min[i] = vb
-        if nxt < 0:
-            d_next[i] = d_lo if best - d_lo > gap else m - 1
-            E_next[i] = np.inf
-        else:
-            d_next[i] = nxt
-            E_next[i] = vn
-    return d_min, d_next, E_min, E_next
+@numba.njit(cache=True, nogil=True, inline="always")
+def _best_two(e, d_lo, gap):  # noqa: ANN001
+    """Eq. (3) on one curve e (float32, d = 0..d_hi): d_min = argmin over [d_lo, d_hi];
+    d_next = argmin over |d - d_min| > gap (first index on ties, as np.argmin); E_next = inf
+    when no such d exists."""
+    m = e.size
+    best, vb = d_lo, e[d_lo]
+    for d in range(d_lo + 1, m):
+        if e[d] < vb:
+            best, vb = d, e[d]
+    nxt, vn = -1, np.float32(np.inf)
+    for d in range(d_lo, max(d_lo, best - gap)):
+        if e[d] < vn:
+            nxt, vn = d, e[d]
+    for d in range(best + gap + 1, m):
+        if e[d] < vn:
+            nxt, vn = d, e[d]
+    if nxt < 0:
+        return best, (d_lo if best - d_lo > gap else m - 1), float(vb), np.inf
+    return best, nxt, float(vb), float(vn)
 
 
 @numba.njit(cache=True, nogil=True)

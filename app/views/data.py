@@ -16,6 +16,8 @@ from threadrecon.core.pipeline import STAGES, Reconstruction
 HEAVY_VALUES = 20_000  # arrays larger than this (per-pixel images, the energy volume) are
 # left out of a stage's JSON: megabytes on the wire; the inspector serves one pixel instead
 SPLINE_SAMPLES = 300  # points per drawn curve: smooth on screen, small on the wire
+OVERLAY_PIXELS = 16_000  # display budget of a pixel list: a 640x480 thread (3-10k px) is sent
+# whole; a 1920x1080 one (20-40k px, shown at about half size) as blocks of 2x2 px
 
 
 def stage_json(rec: Reconstruction, stage: str) -> dict[str, Any]:
@@ -55,12 +57,49 @@ def _missing(rec: Reconstruction, stage: str) -> str:
 
 def overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
     """What is drawn over the stereo images: every registered overlay whose stages have run,
-    as ``{key: {side: payload}}`` (see ``registry.OverlayKind``), plus the image shape."""
+    as ``{key: {side: payload}}`` (see ``registry.OverlayKind``), plus the image shape.
+
+    For display only (the computation is untouched), a ``pixels`` payload longer than
+    ``OVERLAY_PIXELS`` is decimated to the top-left corners of ``step`` x ``step`` blocks that
+    cover every pixel (:func:`decimate_pixels`); ``"_pixels": {key: {side: {"step", "count"}}}``
+    says so, with the full pixel count. Pixel lists are plain ints and skip ``json_safe``'s
+    walk (100 ms at 1920x1080)."""
     out: dict[str, Any] = {"shape": list(calib.image_size)}
+    plain: dict[str, Any] = {}
+    meta: dict[str, dict[str, dict[str, int]]] = {}
     for view in OVERLAY_VIEWS.values():
-        if all(stage in rec.runs for stage in view.needs):
-            out[view.key] = view.make(rec, calib)
-    return json_safe(out)
+        if not all(stage in rec.runs for stage in view.needs):
+            continue
+        payload = view.make(rec, calib)
+        if view.kind != "pixels":
+            out[view.key] = payload
+            continue
+        sides = {}
+        for side, flat in payload.items():
+            pixels = np.asarray(flat, dtype=np.int64).reshape(-1, 2)
+            blocks, step = decimate_pixels(pixels, OVERLAY_PIXELS)
+            sides[side] = blocks.ravel().tolist()
+            meta.setdefault(view.key, {})[side] = {"step": step, "count": len(pixels)}
+        plain[view.key] = sides
+    return {**json_safe(out), **plain, "_pixels": meta}
+
+
+def decimate_pixels(pixels: np.ndarray, budget: int) -> tuple[np.ndarray, int]:
+    """A pixel list for display: the (M, 2) int top-left corners (x, y) of the step x step blocks
+    that hold at least one of ``pixels`` ((N, 2) int, x, y), with the smallest step for which
+    M <= ``budget`` (step 1: the pixels unchanged, in their order). Drawn as squares, the blocks
+    cover every pixel: a thin thread stays connected."""
+    pixels = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+    if budget < 1:
+        raise ValueError(f"budget must be >= 1, got {budget}")
+    step, blocks = 1, pixels
+    while len(blocks) > budget:
+        step += 1
+        cells = pixels // step
+        width = int(cells[:, 0].max()) + 1
+        keys = np.unique(cells[:, 1] * width + cells[:, 0])  # one per occupied block
+        blocks = np.column_stack([keys % width, keys // width]) * step
+    return blocks, step
 
 
 # --- pixel inspector -----------------------------------------------------------------------
@@ -86,7 +125,7 @@ def pixel_info(rec: Reconstruction, x: int, y: int, snap_px: int = 3) -> dict[st
         "clicked": [x, y],
         "segmented": True,
         "index": i,
-        "energy": st.energy[i],
+        "energy": st.energy_row(i),
         "d_min": int(st.d_min[i]),
         "d_next": int(st.d_next[i]),
         "E_min": float(st.E_min[i]),

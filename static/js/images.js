@@ -53,9 +53,10 @@ function overlayOn(o) {
 
 // One drawing routine per overlay kind (app/views/registry.OverlayKind).
 const DRAW = {
-  pixels(ctx, o, flat) {
+  pixels(ctx, o, flat, meta) {  // step x step blocks when the server decimated the list
+    const s = (meta && meta.step) || 1;
     ctx.fillStyle = o.color;
-    for (let i = 0; i < flat.length; i += 2) ctx.fillRect(flat[i], flat[i + 1], 1, 1);
+    for (let i = 0; i < flat.length; i += 2) ctx.fillRect(flat[i], flat[i + 1], s, s);
   },
   circles(ctx, o, pts) {
     ctx.strokeStyle = o.color; ctx.lineWidth = 1.5;
@@ -85,14 +86,15 @@ const DRAW = {
   },
 };
 
-const countOf = (o, payload) => (o.kind === "pixels" ? payload.length / 2 : o.kind === "polyline" ? payload.points.length : payload.length);
+const pixelMeta = (ov, key, side) => ov._pixels && ov._pixels[key] && ov._pixels[key][side];
+const countOf = (o, payload, meta) => (o.kind === "pixels" ? (meta ? meta.count : payload.length / 2) : o.kind === "polyline" ? payload.points.length : payload.length);
 
 export function drawImages() {
   const ov = S.overlay && S.overlay.frame_id === S.frameId ? S.overlay : {};
   const overlays = S.info ? S.info.overlays : [];
   for (const o of overlays) {
     const badge = document.querySelector(`[data-count="${CSS.escape(o.key)}"]`);
-    if (badge) badge.textContent = ov[o.key] && ov[o.key].left ? `(${countOf(o, ov[o.key].left)})` : "";
+    if (badge) badge.textContent = ov[o.key] && ov[o.key].left ? `(${countOf(o, ov[o.key].left, pixelMeta(ov, o.key, "left"))})` : "";
   }
   for (const side of ["left", "right"]) {
     const canvas = $(`#img-${side}`);
@@ -103,7 +105,7 @@ export function drawImages() {
     ctx.drawImage(img, 0, 0);
     for (const o of overlays) {
       const payload = ov[o.key] && ov[o.key][side];
-      if (payload && overlayOn(o)) DRAW[o.kind](ctx, o, payload);
+      if (payload && overlayOn(o)) DRAW[o.kind](ctx, o, payload, pixelMeta(ov, o.key, side));
     }
     if (side === "left" && S.pixel && S.pixel.segmented) {  // crosshair on the inspected pixel
       const { x, y } = S.pixel;

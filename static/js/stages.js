@@ -3,7 +3,7 @@ import { $, S, api, fill, fmt, h, metricLabel, onState, showError } from "./core
 
 function renderStepper(st) {
   fill("#stepper", st.stages.map((s, i) => {
-    const ms = s.ms === undefined ? "" : (s.status === "cached" ? "cached" : `${s.ms.toFixed(1)} ms`);
+    const ms = s.ms === undefined || s.ms === null ? "" : (s.status === "cached" ? "cached" : `${s.ms.toFixed(1)} ms`);
     return h("li", { dataset: { stage: s.stage, status: s.status }, class: `${s.status} ${s.revealed ? "" : "hidden"}` },
       h("span", {}, i + 1), h("span", {}, s.stage), h("span", { class: "ms" }, s.revealed ? ms : "hidden"));
   }));

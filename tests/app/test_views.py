@@ -159,6 +159,7 @@ def test_every_registered_overlay_has_the_payload_of_its_kind(case):
     rec, calib, _ = case
     ov = overlay(rec, calib)
     assert set(OVERLAY_VIEWS) <= set(ov)  # every stage ran: every overlay is there
+    assert set(ov["_pixels"]) == {k for k, v in OVERLAY_VIEWS.items() if v.kind == "pixels"}
     for key, view in OVERLAY_VIEWS.items():
         assert ov[key], key
         for side, payload in ov[key].items():
@@ -177,3 +178,68 @@ def test_an_overlay_on_an_unknown_stage_is_refused():
     with pytest.raises(ValueError, match="unknown stages"):
         overlay_view("x", "x", "pixels", ("nope",), "#fff")(lambda rec, calib: {})
     assert "x" not in OVERLAY_VIEWS
+
+
+# --- display decimation (HD frames): the overlays and clouds, never the computation ----------
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_decimated_pixel_blocks_cover_every_pixel_within_the_budget(seed):
+    from threadrecon.app.views.data import decimate_pixels
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(50, 4000))
+    pixels = np.unique(rng.integers(0, 400, size=(n, 2)), axis=0)
+    budget = int(rng.integers(10, len(pixels) + 1))
+    blocks, step = decimate_pixels(pixels, budget)
+    assert len(blocks) <= budget
+    if step > 1:  # the smallest such step: one less would exceed the budget
+        assert len(np.unique(pixels // (step - 1), axis=0)) > budget
+    # every pixel lies in exactly one block (top-left corners on the step grid, no duplicates)
+    assert np.all(blocks % step == 0)
+    assert len(np.unique(blocks, axis=0)) == len(blocks)
+    corners = {tuple(b) for b in blocks.tolist()}
+    assert all(((x // step) * step, (y // step) * step) in corners for x, y in pixels.tolist())
+    # and every block holds a pixel
+    assert len(corners) == len(
+        {((x // step) * step, (y // step) * step) for x, y in pixels.tolist()}
+    )
+
+
+def test_pixels_within_the_budget_are_sent_unchanged():
+    from threadrecon.app.views.data import decimate_pixels
+
+    pixels = np.array([[5, 1], [3, 2], [9, 9]])
+    blocks, step = decimate_pixels(pixels, 3)
+    assert step == 1 and blocks.tolist() == pixels.tolist()
+    with pytest.raises(ValueError, match="budget"):
+        decimate_pixels(pixels, 0)
+
+
+def test_overlay_reports_the_full_counts_when_it_decimates(case, monkeypatch):
+    from threadrecon.app.views import data
+
+    rec, calib, _ = case
+    n_seg = len(rec["stereo"].pixels)
+    monkeypatch.setattr(data, "OVERLAY_PIXELS", n_seg // 3)
+    ov = overlay(rec, calib)
+    meta = ov["_pixels"]
+    assert meta["segmented"]["left"]["count"] == n_seg
+    assert meta["reliable"]["left"]["count"] == rec["reliability"].count
+    assert meta["segmented"]["left"]["step"] >= 2
+    assert len(ov["segmented"]["left"]) // 2 <= n_seg // 3
+
+
+def test_decimated_cloud_keeps_per_point_colours_aligned():
+    from threadrecon.app.scene import decimate_cloud
+
+    pts = np.arange(30_000, dtype=np.float32)[:, None] * np.ones(3, np.float32)
+    cols = (np.arange(30_000) % 256).astype(np.uint8)[:, None] * np.ones(3, np.uint8)
+    p, c = decimate_cloud(pts, cols, 10_000)
+    assert len(p) <= 10_000 and len(p) == len(c)
+    assert np.array_equal(c[:, 0], (p[:, 0].astype(int) % 256).astype(np.uint8))
+    single = np.array((1, 2, 3), np.uint8)
+    p, c = decimate_cloud(pts, single, 7)
+    assert len(p) <= 7 and c is single
+    p, c = decimate_cloud(pts[:5], cols[:5], 7)
+    assert len(p) == 5

@@ -64,7 +64,6 @@ def _stereo(E_min: np.ndarray, E_next: np.ndarray, depth: np.ndarray) -> StereoR
     pts = np.column_stack([np.zeros(n), np.zeros(n), depth])
     return StereoResult(
         pixels=np.column_stack([np.arange(n), np.zeros(n, int)]),
-        energy=np.zeros((n, 5), np.float32),
         d_min=np.zeros(n, int),
         d_next=np.full(n, 4),
         E_min=E_min,
@@ -73,6 +72,7 @@ def _stereo(E_min: np.ndarray, E_next: np.ndarray, depth: np.ndarray) -> StereoR
         points=pts,
         depth=depth,
         shape=(1, max(n, 1)),
+        d_range=(0, 4),
     )
 
 
