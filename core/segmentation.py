@@ -286,8 +286,13 @@ _MAX_HALF_WIDTH_PX: Final = (
     6.0  # a piece wider than 12 px (a 6 px thread's response ~8 px) is not thread
 )
 _RED_THREAD_GAIN: Final = 3.0  # blood-like pieces win when 3x as salient as the rest
+_VESSEL_HUE_COS: Final = 0.99  # chroma contrasts within 8 degrees: one absorber (vessels)
 _GREY_TOOL: Final = 0.12  # |log R/G|, |log B/G| below this: unsaturated, e.g. steel
 _LOG_SCALE: Final = 32.0  # channels are 32 log(.), so 1 unit ~ 3 % of contrast
+_BLOOD_RATIO: Final = 0.25  # haemoglobin absorbs G, B far more than R: a vessel reddens by
+# >= 1/4 of its darkening (log units) at any strength; dyes other than red redden less or not
+_MIN_SNR: Final = 5.0  # a thread piece's mean contrast to its background: >= 5 noise sigmas
+_QUANT_SIGMA: Final = _LOG_SCALE / (255.0 * 12**0.5)  # uint8 quantisation noise, log units
 
 
 def segment_raw(
@@ -316,13 +321,18 @@ def segment_raw(
     Raises ``ValueError("no thread found ...")`` when no piece survives in a view.
     """
     views = [_View.build(img, p) for img in (left, right)]
-    found, salience = _select(views, p)
+    found, salience, _, _ = _select(views, p)
     if any(v.blood.any() for v in views):
         # A red thread is blood-like too: it wins back when it stands out far more than
-        # anything left without the blood-like pixels.
+        # anything left without the blood-like pixels, and when its hue differs from the
+        # frame's next blood-like line (a frame's vessels share one hue, haemoglobin's).
         red_views = [v.with_blood(p) for v in views]
-        red, red_salience = _select(red_views, p)
-        if red is not None and (found is None or red_salience >= _RED_THREAD_GAIN * salience):
+        red, red_salience, _, red_cos = _select(red_views, p, nearest_hue=True)
+        if (
+            red is not None
+            and red_salience >= _RED_THREAD_GAIN * salience
+            and red_cos < _VESSEL_HUE_COS
+        ):
             views, found = red_views, red
     if found is None:
         raise ValueError(
@@ -350,6 +360,7 @@ class _View:
     cols: np.ndarray
     delta: np.ndarray  # (M, C) log-channel contrast of the lo pixels to the local background
     blood: np.ndarray  # (M,) bool, darker and redder than the tissue around
+    sigma: np.ndarray  # (C,) pixel noise of each log channel (robust), log units
     pieces: tuple = ()
 
     @classmethod
@@ -363,10 +374,13 @@ class _View:
         rows, cols = np.nonzero(lo)
         delta = _contrast(f, lo, rows, cols)
         if f.shape[2] > 1:
-            blood = (delta[:, 1] > p.blood_rg * _LOG_SCALE) & (delta[:, 0] < 0)
+            redder = (delta[:, 1] > p.blood_rg * _LOG_SCALE) | (
+                delta[:, 1] >= -_BLOOD_RATIO * delta[:, 0]
+            )
+            blood = redder & (delta[:, 0] < 0)
         else:
             blood = np.zeros(len(rows), bool)
-        v = cls(img, S, level, lo, rows, cols, delta, blood)
+        v = cls(img, S, level, lo, rows, cols, delta, blood, _noise_sigma(f))
         mask = lo.copy()
         mask[rows[blood], cols[blood]] = False
         v.pieces = _pieces(S, mask, level, p)
@@ -374,25 +388,39 @@ class _View:
 
     def with_blood(self, p: SegmentationParams) -> _View:
         v = _View(
-            self.img, self.S, self.level, self.lo, self.rows, self.cols, self.delta, self.blood
+            self.img,
+            self.S,
+            self.level,
+            self.lo,
+            self.rows,
+            self.cols,
+            self.delta,
+            self.blood,
+            self.sigma,
         )
         v.pieces = _pieces(self.S, self.lo, self.level, p)
         return v
 
 
-def _select(views: list[_View], p: SegmentationParams) -> tuple[list[np.ndarray] | None, float]:
-    """Core thread pixels (H, W) bool of both views (None when a view has no piece) and the
-    salience (mean S x sqrt(length), summed over the views) of the chosen pieces."""
+def _select(
+    views: list[_View], p: SegmentationParams, nearest_hue: bool = False
+) -> tuple[list[np.ndarray] | None, float, float, float]:
+    """Core thread pixels (H, W) bool of both views (None when a view has no piece), the
+    salience (mean S x sqrt(length), summed over the views) of the chosen pieces, that of the
+    runner-up piece of each view (summed; the frame's next strongest line) and the largest
+    cosine between the chroma contrast of the chosen piece and of a runner-up (-1: none).
+
+    ``nearest_hue`` (a blood-like thread among vessels): pieces and pixels join the thread only
+    when their hue is nearer the thread's than the runner-up's (a vessel's)."""
     D = int(p.max_disparity_px)
     cands = [v.pieces[1] for v in views]
     partners = (_reach(cands[1], D, look_left=True), _reach(cands[0], D, look_left=False))
     out = []
-    salience = 0.0
+    salience = runner_up = 0.0
+    cos_runner_up = -1.0  # no runner-up: nothing shares the hue
     for v, partner in zip(views, partners, strict=True):
         labels, cand, means, length, ok = v.pieces
         k = _consistent(labels, partner, ok)
-        if not k.any():
-            return None, 0.0
         lab = labels[v.rows, v.cols]  # piece of each lo pixel (0: none)
         use = lab > 0
         n = len(k)
@@ -402,23 +430,51 @@ def _select(views: list[_View], p: SegmentationParams) -> tuple[list[np.ndarray]
              for j in range(v.delta.shape[1])],
             1,
         )  # fmt: skip
+        # Is it there at all: its mean contrast to the background stands out of the pixel noise.
+        k &= np.linalg.norm(delta / v.sigma, axis=1) >= _MIN_SNR
+        if not k.any():
+            return None, 0.0, 0.0, -1.0
         rank = np.where(k, means * np.sqrt(length), -1.0)
         best = int(np.argmax(rank))
         salience += float(rank[best])
+        second = int(np.argsort(rank)[-2]) if n > 2 else 0
+        if rank[second] > 0:
+            runner_up += float(rank[second])
+            cos_runner_up = max(cos_runner_up, _cosine(delta[second, 1:], delta[best, 1:]))
         d_best = delta[best]
         # Other pieces of the same thread (split by an occluder or a crossing) share its dye.
         k = k & (means >= p.keep_ratio * means[best]) & (_same_dye(delta, d_best) >= _SAME_DYE_COS)
+        if nearest_hue and rank[second] > 0:
+            k &= _same_dye(delta, d_best) > _same_dye(delta, delta[second])
         k[best] = True
         k[0] = False
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
         core = k[labels] & (v.S >= _CORE_FRACTION * means[labels])  # noqa: SIM300
-        other = use & (_same_dye(v.delta, d_best) < _SAME_DYE_COS_PX)
+        hue = _same_dye(v.delta, d_best)
+        other = use & (hue < _SAME_DYE_COS_PX)
+        if nearest_hue and rank[second] > 0:
+            other |= use & (hue <= _same_dye(v.delta, delta[second]))
         core[v.rows[other], v.cols[other]] = False
         if not core.any():
             core = labels == best
         out.append(core)
-    return out, salience
+    return out, salience, runner_up, cos_runner_up
+
+
+def _cosine(a: np.ndarray, b: np.ndarray) -> float:
+    """Cosine of the angle between two contrast vectors (C,)."""
+    return float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-9)
+
+
+def _noise_sigma(f: np.ndarray) -> np.ndarray:
+    """(C,) robust pixel-noise sigma of each channel of ``f`` (H, W, C): the MAD of differences
+    of horizontal neighbours on every 4th row (texture and edges are sparse there), divided by
+    sqrt(2); at least the uint8 quantisation noise."""
+    d = f[::4, 1:] - f[::4, :-1]
+    d = d.reshape(-1, f.shape[2])
+    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+    return np.maximum(1.4826 * mad / np.sqrt(2.0), _QUANT_SIGMA)
 
 
 def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
