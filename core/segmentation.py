@@ -306,11 +306,17 @@ def segment_raw(
     2. Hysteresis: pieces of S >= ridge_lo * level holding a pixel of S >= ridge_hi * level,
        ``level`` being the image's typical response (90th percentile): no absolute contrast.
        Before the pieces are formed, pixels darker and redder than the tissue around them
-       (blood: vessels, ``blood_rg``) are set aside; they come back only if nothing else is
-       left (a red thread).
+       (blood: vessels; redder by more than ``blood_rg`` or by >= _BLOOD_RATIO of their
+       darkening, which holds for a vessel of any strength) are set aside; they come back
+       when they stand out _RED_THREAD_GAIN times more than anything else and their hue
+       differs from the frame's next blood-like line by more than ~8 degrees (a red thread;
+       the vessels of a frame share one hue), keeping only pixels nearer the thread's hue.
     3. Shape: a piece's length >= min_length_px and mean width <= 8 px.
     4. Stereo: a piece keeps >= half of its pixels with a candidate pixel on the same row of the
        other view within [0, max_disparity_px] of disparity.
+       Presence: the piece's mean contrast to its local background is >= _MIN_SNR times the
+       frame's own pixel noise (per channel, robust): on a thread-free frame nothing passes
+       and the answer is "no thread found", not a vessel or a texture line.
     5. Selection: the most salient piece (mean S x sqrt(length)) is the thread; other pieces
        and pixels join it when they share its dye (direction of the colour contrast) and their
        mean S is >= keep_ratio of its.
