@@ -13,6 +13,7 @@ from threadrecon.core.segmentation import (
     LIFT_VALUE,
     SegmentationParams,
     StereoPair,
+    _noise_sigma,
     segment,
     split_side_by_side,
 )
@@ -299,3 +300,20 @@ def test_raw_method_finds_the_thread_on_a_noisy_flat_background() -> None:
     assert lifted.method == "raw"  # noise: the background is not flat to 1 grey level
     assert _iou(lifted.P_L, frame.mask_left) >= 0.8
     assert _iou(lifted.P_R, frame.mask_right) >= 0.8
+
+
+@pytest.mark.parametrize("sigma", [0.5, 2.0, 8.0])
+def test_noise_sigma_recovers_the_pixel_noise_of_a_textured_image(sigma: float) -> None:
+    rng = np.random.default_rng(7)
+    yy, xx = np.mgrid[:240, :320].astype(np.float32)
+    smooth = 4 * np.sin(xx / 40) + 10 * np.cos(yy / 17)  # row-wise steps << the noise
+    f = (smooth[:, :, None] + rng.normal(0, sigma, (240, 320, 3))).astype(np.float32)
+    assert_close(_noise_sigma(f), np.full(3, sigma), rtol=0.1)
+
+
+def test_a_thread_fainter_than_the_noise_is_no_thread_found() -> None:
+    # Contrast 3 grey levels under noise of 6: nothing stands 5 noise sigmas out.
+    render = RenderParams(noise_sigma=6.0, thread_rgb=(202.0, 202.0, 202.0), specular=0.0)
+    pair, _ = _raw(render, 62)
+    with pytest.raises(ValueError, match="no thread found"):
+        segment(pair, SegmentationParams(method="raw"))
