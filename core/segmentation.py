@@ -287,6 +287,7 @@ _MAX_HALF_WIDTH_PX: Final = (
 )
 _RED_THREAD_GAIN: Final = 3.0  # blood-like pieces win when 3x as salient as the rest
 _VESSEL_HUE_COS: Final = 0.99  # chroma contrasts within 8 degrees: one absorber (vessels)
+_MIN_VESSEL_PX: Final = 50  # blood-like pixels needed to tell the frame's vessel hue
 _GREY_TOOL: Final = 0.12  # |log R/G|, |log B/G| below this: unsaturated, e.g. steel
 _LOG_SCALE: Final = 32.0  # channels are 32 log(.), so 1 unit ~ 3 % of contrast
 _BLOOD_RATIO: Final = 0.25  # haemoglobin absorbs G, B far more than R: a vessel reddens by
@@ -309,8 +310,9 @@ def segment_raw(
        (blood: vessels; redder by more than ``blood_rg`` or by >= _BLOOD_RATIO of their
        darkening, which holds for a vessel of any strength) are set aside; they come back
        when they stand out _RED_THREAD_GAIN times more than anything else and their hue
-       differs from the frame's next blood-like line by more than ~8 degrees (a red thread;
-       the vessels of a frame share one hue), keeping only pixels nearer the thread's hue.
+       differs from the mean of the frame's other blood-like pixels by more than ~8 degrees (a
+       red thread; the vessels of a frame share one hue), keeping only pixels nearer the
+       thread's hue. A lone blood-like line (too few other blood-like pixels) is a vessel.
     3. Shape: a piece's length >= min_length_px and mean width <= 8 px.
     4. Stereo: a piece keeps >= half of its pixels with a candidate pixel on the same row of the
        other view within [0, max_disparity_px] of disparity.
@@ -327,13 +329,13 @@ def segment_raw(
     Raises ``ValueError("no thread found ...")`` when no piece survives in a view.
     """
     views = [_View.build(img, p) for img in (left, right)]
-    found, salience, _, _ = _select(views, p)
+    found, salience, _ = _select(views, p)
     if any(v.blood.any() for v in views):
         # A red thread is blood-like too: it wins back when it stands out far more than
         # anything left without the blood-like pixels, and when its hue differs from the
-        # frame's next blood-like line (a frame's vessels share one hue, haemoglobin's).
+        # frame's other blood-like pixels (a frame's vessels share one hue, haemoglobin's).
         red_views = [v.with_blood(p) for v in views]
-        red, red_salience, _, red_cos = _select(red_views, p, nearest_hue=True)
+        red, red_salience, red_cos = _select(red_views, p, nearest_hue=True)
         if (
             red is not None
             and red_salience >= _RED_THREAD_GAIN * salience
@@ -410,20 +412,21 @@ class _View:
 
 def _select(
     views: list[_View], p: SegmentationParams, nearest_hue: bool = False
-) -> tuple[list[np.ndarray] | None, float, float, float]:
+) -> tuple[list[np.ndarray] | None, float, float]:
     """Core thread pixels (H, W) bool of both views (None when a view has no piece), the
-    salience (mean S x sqrt(length), summed over the views) of the chosen pieces, that of the
-    runner-up piece of each view (summed; the frame's next strongest line) and the largest
-    cosine between the chroma contrast of the chosen piece and of a runner-up (-1: none).
+    salience (mean S x sqrt(length), summed over the views) of the chosen pieces, and the
+    largest (over the views) cosine between the chroma contrast of the chosen piece and the
+    mean one of the view's other blood-like pixels (its vessels; 1 when there are too few to
+    tell: a lone blood-like line is taken for a vessel).
 
     ``nearest_hue`` (a blood-like thread among vessels): pieces and pixels join the thread only
-    when their hue is nearer the thread's than the runner-up's (a vessel's)."""
+    when their hue is nearer the thread's than the vessels'."""
     D = int(p.max_disparity_px)
     cands = [v.pieces[1] for v in views]
     partners = (_reach(cands[1], D, look_left=True), _reach(cands[0], D, look_left=False))
     out = []
-    salience = runner_up = 0.0
-    cos_runner_up = -1.0  # no runner-up: nothing shares the hue
+    salience = 0.0
+    cos_vessels = -1.0
     for v, partner in zip(views, partners, strict=True):
         labels, cand, means, length, ok = v.pieces
         k = _consistent(labels, partner, ok)
@@ -439,19 +442,21 @@ def _select(
         # Is it there at all: its mean contrast to the background stands out of the pixel noise.
         k &= np.linalg.norm(delta / v.sigma, axis=1) >= _MIN_SNR
         if not k.any():
-            return None, 0.0, 0.0, -1.0
+            return None, 0.0, 1.0
         rank = np.where(k, means * np.sqrt(length), -1.0)
         best = int(np.argmax(rank))
         salience += float(rank[best])
-        second = int(np.argsort(rank)[-2]) if n > 2 else 0
-        if rank[second] > 0:
-            runner_up += float(rank[second])
-            cos_runner_up = max(cos_runner_up, _cosine(delta[second, 1:], delta[best, 1:]))
+        # The frame's vessel hue: mean contrast of its blood-like pixels off the chosen piece.
+        vessel = v.blood & (lab != best)
+        d_vessel = v.delta[vessel].mean(axis=0) if vessel.sum() >= _MIN_VESSEL_PX else None
+        cos_vessels = max(
+            cos_vessels, 1.0 if d_vessel is None else _cosine(d_vessel[1:], delta[best, 1:])
+        )
         d_best = delta[best]
         # Other pieces of the same thread (split by an occluder or a crossing) share its dye.
         k = k & (means >= p.keep_ratio * means[best]) & (_same_dye(delta, d_best) >= _SAME_DYE_COS)
-        if nearest_hue and rank[second] > 0:
-            k &= _same_dye(delta, d_best) > _same_dye(delta, delta[second])
+        if nearest_hue and d_vessel is not None:
+            k &= _same_dye(delta, d_best) > _same_dye(delta, d_vessel)
         k[best] = True
         k[0] = False
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
@@ -459,13 +464,13 @@ def _select(
         core = k[labels] & (v.S >= _CORE_FRACTION * means[labels])  # noqa: SIM300
         hue = _same_dye(v.delta, d_best)
         other = use & (hue < _SAME_DYE_COS_PX)
-        if nearest_hue and rank[second] > 0:
-            other |= use & (hue <= _same_dye(v.delta, delta[second]))
+        if nearest_hue and d_vessel is not None:
+            other |= use & (hue <= _same_dye(v.delta, d_vessel))
         core[v.rows[other], v.cols[other]] = False
         if not core.any():
             core = labels == best
         out.append(core)
-    return out, salience, runner_up, cos_runner_up
+    return out, salience, cos_vessels
 
 
 def _cosine(a: np.ndarray, b: np.ndarray) -> float:
