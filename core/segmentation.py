@@ -429,9 +429,9 @@ def _select(
     cos_vessels = -1.0
     for v, partner in zip(views, partners, strict=True):
         labels, cand, means, length, ok = v.pieces
-        k = _consistent(labels, partner, ok)
-        lab = labels[v.rows, v.cols]  # piece of each lo pixel (0: none)
+        lab = labels[v.rows, v.cols]  # piece of each lo pixel (0: none); sparse from here on
         use = lab > 0
+        k = _consistent(lab[use], partner[v.rows[use], v.cols[use]], ok)
         n = len(k)
         area = np.maximum(np.bincount(lab[use], minlength=n), 1).astype(np.float64)
         delta = np.stack(
@@ -461,13 +461,15 @@ def _select(
         k[0] = False
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
-        core = k[labels] & (v.S >= _CORE_FRACTION * means[labels])  # noqa: SIM300
         hue = _same_dye(v.delta, d_best)
-        other = use & (hue < _SAME_DYE_COS_PX)
+        other = hue < _SAME_DYE_COS_PX
         if nearest_hue and d_vessel is not None:
-            other |= use & (hue <= _same_dye(v.delta, d_vessel))
-        core[v.rows[other], v.cols[other]] = False
-        if not core.any():
+            other |= hue <= _same_dye(v.delta, d_vessel)
+        sel = use & k[lab] & ~other
+        sel &= v.S[v.rows, v.cols] >= _CORE_FRACTION * means[lab]
+        core = np.zeros(labels.shape, bool)
+        core[v.rows[sel], v.cols[sel]] = True
+        if not sel.any():
             core = labels == best
         out.append(core)
     return out, salience, cos_vessels
@@ -510,7 +512,7 @@ def _instrument_mask(f: np.ndarray) -> np.ndarray:
     view it is the scene itself (a flat grey background), and nothing is masked."""
     h, w = f.shape[:2]
     small = (max(w // 4, 1), max(h // 4, 1))
-    chroma = cv2.resize(np.ascontiguousarray(f[:, :, 1:]), small, interpolation=cv2.INTER_AREA)
+    chroma = cv2.resize(f, small, interpolation=cv2.INTER_AREA)[:, :, 1:]
     grey = (np.abs(chroma).max(axis=2) < _GREY_TOOL * _LOG_SCALE).astype(np.uint8)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
     tool = cv2.dilate(cv2.morphologyEx(grey, cv2.MORPH_OPEN, disc), disc)
@@ -632,7 +634,8 @@ def _pieces(s: np.ndarray, lo: np.ndarray, level: float, p: SegmentationParams) 
     ok = seeded & (length >= p.min_length_px) & (half <= _MAX_HALF_WIDTH_PX)
     ok[0] = False
     means[0] = 0.0
-    cand = ok[labels]
+    cand = np.zeros(lo.shape, bool)
+    cand.ravel()[idx[ok[lab]]] = True
     return labels, cand, means, length, ok
 
 
@@ -660,11 +663,12 @@ def _reach(mask: np.ndarray, d: int, look_left: bool) -> np.ndarray:
     return cv2.dilate(mask.view(np.uint8), k).astype(bool)
 
 
-def _consistent(labels: np.ndarray, partner: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """Shape-ok pieces with a stereo partner for at least half of their pixels."""
+def _consistent(lab: np.ndarray, partner: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Shape-ok pieces with a stereo partner for at least half of their pixels; ``lab`` (M,)
+    the piece of each labelled pixel, ``partner`` (M,) bool whether it has a partner."""
     n = len(ok)
-    cand = ok[labels]
-    lab = labels[cand]
+    cand = ok[lab]
+    lab = lab[cand]
     hits = np.bincount(lab, weights=partner[cand], minlength=n)
     area = np.bincount(lab, minlength=n).astype(np.float64)
     return ok & (hits >= 0.5 * np.maximum(area, 1.0))
