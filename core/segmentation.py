@@ -286,8 +286,14 @@ _MAX_HALF_WIDTH_PX: Final = (
     6.0  # a piece wider than 12 px (a 6 px thread's response ~8 px) is not thread
 )
 _RED_THREAD_GAIN: Final = 3.0  # blood-like pieces win when 3x as salient as the rest
+_VESSEL_HUE_COS: Final = 0.99  # chroma contrasts within 8 degrees: one absorber (vessels)
+_MIN_VESSEL_PX: Final = 50  # blood-like pixels needed to tell the frame's vessel hue
 _GREY_TOOL: Final = 0.12  # |log R/G|, |log B/G| below this: unsaturated, e.g. steel
 _LOG_SCALE: Final = 32.0  # channels are 32 log(.), so 1 unit ~ 3 % of contrast
+_BLOOD_RATIO: Final = 0.25  # haemoglobin absorbs G, B far more than R: a vessel reddens by
+# >= 1/4 of its darkening (log units) at any strength; dyes other than red redden less or not
+_MIN_SNR: Final = 5.0  # a thread piece's mean contrast to its background: >= 5 noise sigmas
+_QUANT_SIGMA: Final = _LOG_SCALE / (255.0 * 12**0.5)  # uint8 quantisation noise, log units
 
 
 def segment_raw(
@@ -301,11 +307,18 @@ def segment_raw(
     2. Hysteresis: pieces of S >= ridge_lo * level holding a pixel of S >= ridge_hi * level,
        ``level`` being the image's typical response (90th percentile): no absolute contrast.
        Before the pieces are formed, pixels darker and redder than the tissue around them
-       (blood: vessels, ``blood_rg``) are set aside; they come back only if nothing else is
-       left (a red thread).
+       (blood: vessels; redder by more than ``blood_rg`` or by >= _BLOOD_RATIO of their
+       darkening, which holds for a vessel of any strength) are set aside; they come back
+       when they stand out _RED_THREAD_GAIN times more than anything else and their hue
+       differs from the mean of the frame's other blood-like pixels by more than ~8 degrees (a
+       red thread; the vessels of a frame share one hue), keeping only pixels nearer the
+       thread's hue. A lone blood-like line (too few other blood-like pixels) is a vessel.
     3. Shape: a piece's length >= min_length_px and mean width <= 8 px.
     4. Stereo: a piece keeps >= half of its pixels with a candidate pixel on the same row of the
        other view within [0, max_disparity_px] of disparity.
+       Presence: the piece's mean contrast to its local background is >= _MIN_SNR times the
+       frame's own pixel noise (per channel, robust): on a thread-free frame nothing passes
+       and the answer is "no thread found", not a vessel or a texture line.
     5. Selection: the most salient piece (mean S x sqrt(length)) is the thread; other pieces
        and pixels join it when they share its dye (direction of the colour contrast) and their
        mean S is >= keep_ratio of its.
@@ -316,13 +329,18 @@ def segment_raw(
     Raises ``ValueError("no thread found ...")`` when no piece survives in a view.
     """
     views = [_View.build(img, p) for img in (left, right)]
-    found, salience = _select(views, p)
+    found, salience, _ = _select(views, p)
     if any(v.blood.any() for v in views):
         # A red thread is blood-like too: it wins back when it stands out far more than
-        # anything left without the blood-like pixels.
+        # anything left without the blood-like pixels, and when its hue differs from the
+        # frame's other blood-like pixels (a frame's vessels share one hue, haemoglobin's).
         red_views = [v.with_blood(p) for v in views]
-        red, red_salience = _select(red_views, p)
-        if red is not None and (found is None or red_salience >= _RED_THREAD_GAIN * salience):
+        red, red_salience, red_cos = _select(red_views, p, nearest_hue=True)
+        if (
+            red is not None
+            and red_salience >= _RED_THREAD_GAIN * salience
+            and red_cos < _VESSEL_HUE_COS
+        ):
             views, found = red_views, red
     if found is None:
         raise ValueError(
@@ -350,6 +368,7 @@ class _View:
     cols: np.ndarray
     delta: np.ndarray  # (M, C) log-channel contrast of the lo pixels to the local background
     blood: np.ndarray  # (M,) bool, darker and redder than the tissue around
+    sigma: np.ndarray  # (C,) pixel noise of each log channel (robust), log units
     pieces: tuple = ()
 
     @classmethod
@@ -363,10 +382,13 @@ class _View:
         rows, cols = np.nonzero(lo)
         delta = _contrast(f, lo, rows, cols)
         if f.shape[2] > 1:
-            blood = (delta[:, 1] > p.blood_rg * _LOG_SCALE) & (delta[:, 0] < 0)
+            redder = (delta[:, 1] > p.blood_rg * _LOG_SCALE) | (
+                delta[:, 1] >= -_BLOOD_RATIO * delta[:, 0]
+            )
+            blood = redder & (delta[:, 0] < 0)
         else:
             blood = np.zeros(len(rows), bool)
-        v = cls(img, S, level, lo, rows, cols, delta, blood)
+        v = cls(img, S, level, lo, rows, cols, delta, blood, _noise_sigma(f))
         mask = lo.copy()
         mask[rows[blood], cols[blood]] = False
         v.pieces = _pieces(S, mask, level, p)
@@ -374,27 +396,42 @@ class _View:
 
     def with_blood(self, p: SegmentationParams) -> _View:
         v = _View(
-            self.img, self.S, self.level, self.lo, self.rows, self.cols, self.delta, self.blood
+            self.img,
+            self.S,
+            self.level,
+            self.lo,
+            self.rows,
+            self.cols,
+            self.delta,
+            self.blood,
+            self.sigma,
         )
         v.pieces = _pieces(self.S, self.lo, self.level, p)
         return v
 
 
-def _select(views: list[_View], p: SegmentationParams) -> tuple[list[np.ndarray] | None, float]:
-    """Core thread pixels (H, W) bool of both views (None when a view has no piece) and the
-    salience (mean S x sqrt(length), summed over the views) of the chosen pieces."""
+def _select(
+    views: list[_View], p: SegmentationParams, nearest_hue: bool = False
+) -> tuple[list[np.ndarray] | None, float, float]:
+    """Core thread pixels (H, W) bool of both views (None when a view has no piece), the
+    salience (mean S x sqrt(length), summed over the views) of the chosen pieces, and the
+    largest (over the views) cosine between the chroma contrast of the chosen piece and the
+    mean one of the view's other blood-like pixels (its vessels; 1 when there are too few to
+    tell: a lone blood-like line is taken for a vessel).
+
+    ``nearest_hue`` (a blood-like thread among vessels): pieces and pixels join the thread only
+    when their hue is nearer the thread's than the vessels'."""
     D = int(p.max_disparity_px)
     cands = [v.pieces[1] for v in views]
     partners = (_reach(cands[1], D, look_left=True), _reach(cands[0], D, look_left=False))
     out = []
     salience = 0.0
+    cos_vessels = -1.0
     for v, partner in zip(views, partners, strict=True):
         labels, cand, means, length, ok = v.pieces
-        k = _consistent(labels, partner, ok)
-        if not k.any():
-            return None, 0.0
-        lab = labels[v.rows, v.cols]  # piece of each lo pixel (0: none)
+        lab = labels[v.rows, v.cols]  # piece of each lo pixel (0: none); sparse from here on
         use = lab > 0
+        k = _consistent(lab[use], partner[v.rows[use], v.cols[use]], ok)
         n = len(k)
         area = np.maximum(np.bincount(lab[use], minlength=n), 1).astype(np.float64)
         delta = np.stack(
@@ -402,23 +439,55 @@ def _select(views: list[_View], p: SegmentationParams) -> tuple[list[np.ndarray]
              for j in range(v.delta.shape[1])],
             1,
         )  # fmt: skip
+        # Is it there at all: its mean contrast to the background stands out of the pixel noise.
+        k &= np.linalg.norm(delta / v.sigma, axis=1) >= _MIN_SNR
+        if not k.any():
+            return None, 0.0, 1.0
         rank = np.where(k, means * np.sqrt(length), -1.0)
         best = int(np.argmax(rank))
         salience += float(rank[best])
+        # The frame's vessel hue: mean contrast of its blood-like pixels off the chosen piece.
+        vessel = v.blood & (lab != best)
+        d_vessel = v.delta[vessel].mean(axis=0) if vessel.sum() >= _MIN_VESSEL_PX else None
+        cos_vessels = max(
+            cos_vessels, 1.0 if d_vessel is None else _cosine(d_vessel[1:], delta[best, 1:])
+        )
         d_best = delta[best]
         # Other pieces of the same thread (split by an occluder or a crossing) share its dye.
         k = k & (means >= p.keep_ratio * means[best]) & (_same_dye(delta, d_best) >= _SAME_DYE_COS)
+        if nearest_hue and d_vessel is not None:
+            k &= _same_dye(delta, d_best) > _same_dye(delta, d_vessel)
         k[best] = True
         k[0] = False
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
-        core = k[labels] & (v.S >= _CORE_FRACTION * means[labels])  # noqa: SIM300
-        other = use & (_same_dye(v.delta, d_best) < _SAME_DYE_COS_PX)
-        core[v.rows[other], v.cols[other]] = False
-        if not core.any():
+        hue = _same_dye(v.delta, d_best)
+        other = hue < _SAME_DYE_COS_PX
+        if nearest_hue and d_vessel is not None:
+            other |= hue <= _same_dye(v.delta, d_vessel)
+        sel = use & k[lab] & ~other
+        sel &= v.S[v.rows, v.cols] >= _CORE_FRACTION * means[lab]
+        core = np.zeros(labels.shape, bool)
+        core[v.rows[sel], v.cols[sel]] = True
+        if not sel.any():
             core = labels == best
         out.append(core)
-    return out, salience
+    return out, salience, cos_vessels
+
+
+def _cosine(a: np.ndarray, b: np.ndarray) -> float:
+    """Cosine of the angle between two contrast vectors (C,)."""
+    return float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-9)
+
+
+def _noise_sigma(f: np.ndarray) -> np.ndarray:
+    """(C,) robust pixel-noise sigma of each channel of ``f`` (H, W, C): the median absolute
+    difference of horizontal neighbours on every 8th row (texture and edges are sparse there;
+    the differences are symmetric about 0), as a Gaussian sigma; at least the uint8
+    quantisation noise."""
+    d = cv2.absdiff(f[::8, 1:], f[::8, :-1]).reshape(-1, f.shape[2])
+    mad = np.median(d, axis=0)
+    return np.maximum(1.4826 * mad / np.sqrt(2.0), _QUANT_SIGMA)
 
 
 def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
@@ -443,7 +512,7 @@ def _instrument_mask(f: np.ndarray) -> np.ndarray:
     view it is the scene itself (a flat grey background), and nothing is masked."""
     h, w = f.shape[:2]
     small = (max(w // 4, 1), max(h // 4, 1))
-    chroma = cv2.resize(np.ascontiguousarray(f[:, :, 1:]), small, interpolation=cv2.INTER_AREA)
+    chroma = cv2.resize(f, small, interpolation=cv2.INTER_AREA)[:, :, 1:]
     grey = (np.abs(chroma).max(axis=2) < _GREY_TOOL * _LOG_SCALE).astype(np.uint8)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
     tool = cv2.dilate(cv2.morphologyEx(grey, cv2.MORPH_OPEN, disc), disc)
@@ -565,7 +634,8 @@ def _pieces(s: np.ndarray, lo: np.ndarray, level: float, p: SegmentationParams) 
     ok = seeded & (length >= p.min_length_px) & (half <= _MAX_HALF_WIDTH_PX)
     ok[0] = False
     means[0] = 0.0
-    cand = ok[labels]
+    cand = np.zeros(lo.shape, bool)
+    cand.ravel()[idx[ok[lab]]] = True
     return labels, cand, means, length, ok
 
 
@@ -593,11 +663,12 @@ def _reach(mask: np.ndarray, d: int, look_left: bool) -> np.ndarray:
     return cv2.dilate(mask.view(np.uint8), k).astype(bool)
 
 
-def _consistent(labels: np.ndarray, partner: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """Shape-ok pieces with a stereo partner for at least half of their pixels."""
+def _consistent(lab: np.ndarray, partner: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Shape-ok pieces with a stereo partner for at least half of their pixels; ``lab`` (M,)
+    the piece of each labelled pixel, ``partner`` (M,) bool whether it has a partner."""
     n = len(ok)
-    cand = ok[labels]
-    lab = labels[cand]
+    cand = ok[lab]
+    lab = lab[cand]
     hits = np.bincount(lab, weights=partner[cand], minlength=n)
     area = np.bincount(lab, minlength=n).astype(np.float64)
     return ok & (hits >= 0.5 * np.maximum(area, 1.0))

@@ -843,6 +843,8 @@ def _add_distractors(
     two views' backgrounds."""
     h, wt = tex.shape[:2]
     w_lo, w_hi = float(cam.fx * diameter / z.max()), float(cam.fx * diameter / z.min())
+    if w_hi < 1.0:  # a thread-free frame (sub-pixel thread): distractors of a usual thread width
+        w_lo, w_hi = 1.5, 5.0
     for _ in range(count):
         n = 40
         heading = rng.uniform(0, 2 * math.pi) + np.cumsum(rng.normal(0, 0.12, n))

@@ -5,7 +5,8 @@ withheld (the segmentation finds the thread), in memory, from the generator.
 
 Per suite: % good frames (status ok, |length error| <= 20 mm, max error <= 20 mm) without
 masks, mean e_S without / with masks over the frames good in both, mask IoU against the exact
-mask (thread pixels, both views), median segmentation time and median pipeline time. Frame k of
+mask (thread pixels, both views), median segmentation time and median pipeline time. The
+``empty-*`` suites hold no thread (a sub-pixel one): good there is "no thread found". Frame k of
 a suite is drawn with ``default_rng([seed, suite_index, k])``: use seeds you did not tune on.
 The same frames on disk: ``threadrecon generate`` with the flags in SUITES, then
 ``threadrecon evaluate DIR --no-masks``.
@@ -68,6 +69,14 @@ SUITES: dict[str, tuple[ThreadParams, RenderParams]] = {
         ),
     ),
 }
+NO_THREAD = ThreadParams(diameter_mm=1e-6)  # covers no pixel: a thread-free frame
+SUITES |= {
+    "empty-tissue": (NO_THREAD, TISSUE),
+    "empty-lighting": (NO_THREAD, replace(TISSUE, lighting=0.6)),
+    "empty-jpeg": (NO_THREAD, replace(TISSUE, noise_sigma=3.0, jpeg_quality=60)),
+    "empty-distractors": (NO_THREAD, replace(TISSUE, distractors=8)),
+    "empty-instrument": (NO_THREAD, replace(TISSUE, instrument=True)),
+}
 
 
 def calibration_for(camera: StereoCamera) -> StereoCalibration:
@@ -93,7 +102,9 @@ def run_frame(frame, params: ReconParams, masks: bool) -> dict:
         for P, M in ((lifted.P_L, frame.mask_left), (lifted.P_R, frame.mask_right)):
             ious.append(float((P & M).sum()) / max(float((P | M).sum()), 1.0))
         row["iou"] = float(np.mean(ious))
-    if "camera" in rec.runs:
+    if not frame.mask_left.any():  # a thread-free frame: the right answer is no curve
+        row["good"] = rec.status == "failed" and "no thread found" in (rec.message or "")
+    elif "camera" in rec.runs:
         e = curve_errors(rec["camera"].points, frame.truth.centerline)
         row.update(e_S=e.e_S, e_S_max=e.e_S_max, e_length=e.e_length)
         row["good"] = bool(rec.status == "ok" and e.e_length <= GOOD_MM and e.e_S_max <= GOOD_MM)
@@ -142,7 +153,8 @@ def main(argv: list[str] | None = None) -> int:
             )
             raw = run_frame(frame, params, masks=False)
             raw["ms_seg_best"], raw["ms_seg_cpu"] = seg_time_ms(frame, params)
-            ref = run_frame(frame, params, masks=True) if not args.no_masked else {}
+            masked = not args.no_masked and frame.mask_left.any()
+            ref = run_frame(frame, params, masks=True) if masked else {}
             res.append((raw, ref))
             rows.append(
                 {"suite": name, "k": k}
