@@ -69,6 +69,16 @@ class Sequence(abc.ABC):
     def __iter__(self) -> Iterator[SequenceFrame]:
         """Frames in order, decoded one at a time."""
 
+    def frame(self, k: int) -> SequenceFrame:
+        """Frame ``k`` (from 0). This default decodes the frames before it one at a time (a
+        video or a bag has no cheap random access); an image folder reads the one frame."""
+        if k < 0 or (self.count is not None and k >= self.count):
+            raise SequenceError(f"{self.source}: no frame {k} (frames 0..{(self.count or 0) - 1})")
+        for f in self:
+            if f.index == k:
+                return f
+        raise SequenceError(f"{self.source}: no frame {k} (the source ended before it)")
+
 
 def open_sequence(
     source: str | Path,
@@ -208,19 +218,26 @@ class ImageFolderSequence(Sequence):
         self.calibration = load_calibration(calib) if calib.is_file() else None
 
     def __iter__(self) -> Iterator[SequenceFrame]:
-        for k, left_path in enumerate(self.lefts):
-            if self.rights:
-                pair = StereoPair(read_image(left_path), read_image(self.rights[k]))
-            else:
-                L, R = split_side_by_side(read_image(left_path))
-                mask = left_path.with_name(f"{left_path.stem}_mask.png")
-                mL = mR = None
-                if mask.is_file():
-                    mL, mR = (m.astype(bool) for m in split_side_by_side(read_mask(mask)))
-                pair = StereoPair(L, R, mL, mR)
-            gt_path = left_path.with_suffix(".npy")
-            truth = load_ground_truth(gt_path) if gt_path.is_file() else None
-            yield SequenceFrame(k, left_path.stem, pair, None, truth)
+        for k in range(len(self.lefts)):
+            yield self.frame(k)
+
+    def frame(self, k: int) -> SequenceFrame:
+        """Frame ``k`` (from 0), read from its own files."""
+        if not 0 <= k < len(self.lefts):
+            raise SequenceError(f"{self.source}: no frame {k} (frames 0..{len(self.lefts) - 1})")
+        left_path = self.lefts[k]
+        if self.rights:
+            pair = StereoPair(read_image(left_path), read_image(self.rights[k]))
+        else:
+            L, R = split_side_by_side(read_image(left_path))
+            mask = left_path.with_name(f"{left_path.stem}_mask.png")
+            mL = mR = None
+            if mask.is_file():
+                mL, mR = (m.astype(bool) for m in split_side_by_side(read_mask(mask)))
+            pair = StereoPair(L, R, mL, mR)
+        gt_path = left_path.with_suffix(".npy")
+        truth = load_ground_truth(gt_path) if gt_path.is_file() else None
+        return SequenceFrame(k, left_path.stem, pair, None, truth)
 
 
 # --- ROS bags ----------------------------------------------------------------------------
