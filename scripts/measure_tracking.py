@@ -41,7 +41,7 @@ def main() -> int:
     ap.add_argument("--motions", nargs="+", default=list(MOTIONS))
     args = ap.parse_args()
     py = [sys.executable, "-m", "threadrecon.app.cli"]
-    total = {"single": [0, 0], "tracked": [0, 0]}
+    total = {"single": [0, 0], "single_within": [0, 0], "tracked": [0, 0]}
     jit_all: dict[str, list[float]] = {"single": [], "tracked": []}
     rates: dict[str, list[float]] = {"single": [], "tracked": []}
     for seed in args.seeds:
@@ -73,6 +73,9 @@ def main() -> int:
                 res[mode] = rows
             s, t = res["single"], res["tracked"]
             gs = [r["good"] == "True" for r in s]
+            ws = [r.get("within") == "True" for r in s]  # close enough, "suspect" or not
+            total["single_within"][0] += sum(ws)
+            total["single_within"][1] += len(ws)
             gt = [r["track_good"] == "True" for r in t]
             total["single"][0] += sum(gs)
             total["single"][1] += len(gs)
@@ -85,11 +88,14 @@ def main() -> int:
             jit_all["tracked"] += jt
             flagged = sum(r["flagged"] == "True" for r in t)
             print(
-                f"{group:>16}: good single {sum(gs)}/{len(gs)}, tracked {sum(gt)}/{len(gt)}; "
+                f"{group:>16}: good single {sum(gs)}/{len(gs)} (within {sum(ws)}), "
+                f"tracked {sum(gt)}/{len(gt)}; "
                 f"jitter (both good, {len(both)} steps) single {np.mean(js):.3f} mm, "
                 f"tracked {np.mean(jt):.3f} mm; flagged {flagged}",
                 flush=True,
             )
+    g, n = total["single_within"]
+    print(f"single-frame curves within the limits whatever their status: {g}/{n}")
     for mode in ("single", "tracked"):
         g, n = total[mode]
         j = np.array(jit_all[mode])
