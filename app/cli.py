@@ -246,6 +246,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--config", help="preset name (configs/NAME.toml) or path")
     t.add_argument("--out", required=True, help="folder: frames/<frame>.json and summary.csv")
     t.add_argument("--no-tracking", action="store_true", help="single-frame reconstructions only")
+    t.add_argument(
+        "--no-masks",
+        action="store_true",
+        help="withhold an image folder's *_mask.png files: segment every frame from its images",
+    )
     t.add_argument("--left-topic", help="left image topic of a bag (default: the one named left)")
     t.add_argument("--right-topic", help="right image topic of a bag")
     t.add_argument("--limit", type=int, help="stop after this many frames")

@@ -200,9 +200,11 @@ def _images(folder: Path) -> list[Path]:
 class ImageFolderSequence(Sequence):
     """Side-by-side images of a folder (natural order), or its ``left/`` and ``right/``."""
 
-    def __init__(self, folder: Path) -> None:
+    def __init__(self, folder: Path, masks: bool = True) -> None:
         self.source = str(folder)
         self.folder = folder
+        self.masks = masks
+        """Use the ``<stem>_mask.png`` files (False: raw frames, segmented from the images)."""
         if (folder / "left").is_dir() and (folder / "right").is_dir():
             self.lefts, self.rights = _images(folder / "left"), _images(folder / "right")
             if len(self.lefts) != len(self.rights):
@@ -232,7 +234,7 @@ class ImageFolderSequence(Sequence):
             L, R = split_side_by_side(read_image(left_path))
             mask = left_path.with_name(f"{left_path.stem}_mask.png")
             mL = mR = None
-            if mask.is_file():
+            if self.masks and mask.is_file():
                 mL, mR = (m.astype(bool) for m in split_side_by_side(read_mask(mask)))
             pair = StereoPair(L, R, mL, mR)
         gt_path = left_path.with_suffix(".npy")

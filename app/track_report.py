@@ -212,7 +212,7 @@ def recorded_frame(tf: TrackedFrame) -> RecordedFrame:
 
 
 def cmd_track(args: argparse.Namespace) -> int:
-    from threadrecon.app.sequence import SequenceError, open_sequence
+    from threadrecon.app.sequence import ImageFolderSequence, SequenceError, open_sequence
     from threadrecon.app.track_report import frame_row, recorded_frame, summary_lines, tracked_json
 
     params = resolve_preset(args.config)
@@ -222,6 +222,10 @@ def cmd_track(args: argparse.Namespace) -> int:
         seq = open_sequence(args.source, args.right, args.left_topic, args.right_topic)
     except SequenceError as exc:
         raise UserError(str(exc)) from None
+    if getattr(args, "no_masks", False):
+        if not isinstance(seq, ImageFolderSequence):
+            raise UserError("--no-masks applies to an image folder (videos and bags have no masks)")
+        seq.masks = False
     if args.calib is not None:
         calib = load_calibration(args.calib, unit=args.units)
     elif seq.calibration is not None:

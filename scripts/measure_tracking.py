@@ -3,7 +3,8 @@
     python scripts/measure_tracking.py OUT_DIR --seeds 101 102 103 --frames 60
 
 For every seed and motion (drag, pull, instrument) it writes a sequence with
-``generate --sequence``, runs ``track`` with and without tracking (masks given) and prints the
+``generate --sequence``, runs ``track`` with and without tracking (masks given,
+or withheld with ``--no-masks``) and prints the
 share of good frames and the jitter of each, the jitter over the frame steps where both runs are
 good on both frames, and the throughput (frames/s) of each run.
 """
@@ -39,7 +40,9 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[101])
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--motions", nargs="+", default=list(MOTIONS))
+    ap.add_argument("--no-masks", action="store_true", help="raw frames: masks withheld")
     args = ap.parse_args()
+    raw = ["--no-masks"] if args.no_masks else []
     py = [sys.executable, "-m", "threadrecon.app.cli"]
     total = {"single": [0, 0], "single_within": [0, 0], "tracked": [0, 0]}
     jit_all: dict[str, list[float]] = {"single": [], "tracked": []}
@@ -66,8 +69,8 @@ def main() -> int:
                 )
             res = {}
             for mode, extra in (("single", ["--no-tracking"]), ("tracked", [])):
-                out = args.out / "runs" / f"{group}_{mode}"
-                dt = _run([*py, "track", str(folder), "--out", str(out), *extra])
+                out = args.out / "runs" / f"{group}_{mode}{'_raw' if raw else ''}"
+                dt = _run([*py, "track", str(folder), "--out", str(out), *extra, *raw])
                 rows = _rows(out / "summary.csv")
                 rates[mode].append(len(rows) / dt)
                 res[mode] = rows
