@@ -78,10 +78,14 @@ def track_sequence(
             # A "suspect" curve is an observation (e.g. bridged across an instrument): the
             # tracker keeps its supported part and takes what no stereo point shows from the prior.
             single = _single_points(TrackedFrame(frame, rec, None, 0, 0.0))
+            rejected = single is None and rec.status == "failed" and "camera" in rec.runs
+            if rejected:  # its stereo-supported part may still serve (core.tracking.track_step)
+                single = rec["camera"].points
             cloud = None
             if "reliability" in rec.runs:
                 cloud = rec["stereo"].points[rec["reliability"].reliable]
-            result, state = track_step(single, state, track, cloud)
+            check = "failed" if rejected else ("suspect" if rec.status == "suspect" else "ok")
+            result, state = track_step(single, state, track, cloud, check)
         ms = 1000.0 * (time.perf_counter() - t0)
         yield TrackedFrame(frame, rec, result, p.stereo.alpha, ms)
 
