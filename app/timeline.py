@@ -22,6 +22,7 @@ import numpy as np
 
 from threadrecon.app.library import FrameLibrary
 from threadrecon.app.presets import params_hash
+from threadrecon.app.recording import RecordedFrame
 from threadrecon.app.track_report import TrackedFrame, frame_row, track_sequence
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.metrics import project
@@ -29,7 +30,7 @@ from threadrecon.core.pipeline import ReconParams
 from threadrecon.core.tracking import TrackParams, resample
 
 log = logging.getLogger("threadrecon.timeline")
-CURVE_FRAMES: Final = 2000  # frames whose curves a timeline keeps (about 5 kB a frame)
+CURVE_FRAMES: Final = 2000  # frames whose curves a timeline keeps (about 6 kB a frame)
 CURVE_SAMPLES: Final = 100  # points per curve sent to the page (a 2D polyline)
 TIMELINES: Final = 3  # timelines kept at once (sequence x parameters x tracking)
 ROW_KEYS: Final = (
@@ -59,6 +60,8 @@ class Timeline:
         self.error: str | None = None
         self.done = False
         self._curves: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
+        self._curves3d: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
+        self.baseline: float | None = None
         self._lock = threading.Lock()
         self._cancel = threading.Event()
         self._thread = threading.Thread(
@@ -97,23 +100,39 @@ class Timeline:
             return None
         return {name: np.round(uv, 2).tolist() for name, uv in c.items()}
 
+    def recorded(self, k: int | None = None) -> list[RecordedFrame]:
+        """The computed frames still kept (or frame ``k`` alone) as a recording's frames: the
+        tracked, single-frame and true curves in the left camera frame."""
+        with self._lock:
+            keys = list(self._curves3d) if k is None else [k] if k in self._curves3d else []
+            found = [(i, self._curves3d[i]) for i in keys]
+        names = {r["frame"]: r["name"] for r in self.rows}
+        return [RecordedFrame(dict(c), names.get(i, str(i))) for i, c in found]
+
     # --- the worker -----------------------------------------------------------------------
 
     def _run(self) -> None:
         try:
             calib = self.entry.calib(self.seq)
+            self.baseline = calib.baseline
             track = TrackParams(enabled=self.tracking)
             previous: TrackedFrame | None = None
             for tf in track_sequence(self.seq, calib, self.params, track):
                 row = _row(tf, calib, previous)
                 row["frame_id"] = self.entry.frame_id(tf.frame.index)
-                curves = _curves(tf, calib)
+                curves3d = _curves3d(tf)
                 previous = tf
                 with self._lock:
                     self.rows.append(row)
-                    self._curves[tf.frame.index] = curves
+                    k = tf.frame.index
+                    self._curves3d[k] = curves3d
+                    self._curves[k] = {
+                        name: project(x, calib.P1).astype(np.float32)
+                        for name, x in curves3d.items()
+                    }
                     while len(self._curves) > CURVE_FRAMES:
                         self._curves.popitem(last=False)
+                        self._curves3d.popitem(last=False)
                 if self._cancel.is_set():
                     return
             with self._lock:
@@ -136,7 +155,8 @@ def _row(tf: TrackedFrame, calib: StereoCalibration, previous: TrackedFrame | No
     return row
 
 
-def _curves(tf: TrackedFrame, calib: StereoCalibration) -> dict[str, np.ndarray]:
+def _curves3d(tf: TrackedFrame) -> dict[str, np.ndarray]:
+    """The frame's curves, ``CURVE_SAMPLES`` points each (left camera frame, float32)."""
     rec, tr = tf.single, tf.tracked
     found = {
         "single": rec["camera"].points if "camera" in rec.runs else None,
@@ -147,7 +167,7 @@ def _curves(tf: TrackedFrame, calib: StereoCalibration) -> dict[str, np.ndarray]
     for name, pts in found.items():
         if pts is None or len(pts) < 2 or not np.all(np.isfinite(pts)):
             continue
-        out[name] = project(resample(pts, CURVE_SAMPLES), calib.P1).astype(np.float32)
+        out[name] = resample(pts, CURVE_SAMPLES).astype(np.float32)
     return out
 
 

@@ -10,10 +10,13 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Request
+from fastapi.responses import Response
 
 from threadrecon.app.api import schemas
 from threadrecon.app.api.deps import State, answer
-from threadrecon.app.errors import Invalid, NotFound
+from threadrecon.app.api.routes_exports import content_disposition
+from threadrecon.app.errors import Conflict, Invalid, NotFound
+from threadrecon.app.recording import recording_html
 from threadrecon.app.timeline import Timeline, Timelines
 
 router = APIRouter(prefix="/api/sequences", tags=["sequences"])
@@ -94,3 +97,27 @@ def curves(
     if found is None:
         raise NotFound(f"frame {k} of {sequence_id} is not computed yet ({len(tl.rows)} are)")
     return answer({"frame": k, "curves": found})
+
+
+@router.get("/{sequence_id:path}/recording.html")
+def recording(
+    state: State,
+    request: Request,
+    sequence_id: str,
+    session: str | None = None,
+    tracking: bool = True,
+    frame: Annotated[int | None, Query(ge=0)] = None,
+) -> Response:
+    """The 3D curves (tracked, single-frame, truth) of every computed frame, or of ``frame``,
+    as one self-contained HTML file that opens in a browser with no server."""
+    tl = _timeline(state, request, sequence_id, session, tracking)
+    frames = tl.recorded(frame)
+    if not frames:
+        what = "no frame" if frame is None else f"frame {frame} is not"
+        raise Conflict(f"nothing to record yet: {what} computed ({len(tl.rows)} are)")
+    html, _ = recording_html(frames, baseline=tl.baseline)
+    part = "sequence" if frame is None else f"frame{frame}"
+    return Response(
+        html, media_type="text/html",
+        headers={"Content-Disposition": content_disposition(f"{tl.entry.name}_{part}.html")},
+    )  # fmt: skip

@@ -139,10 +139,17 @@ function drawPlot() {
   ctx.fillStyle = "#8d94a3"; ctx.textBaseline = "alphabetic";
   ctx.fillText("1", PAD.l, hgt - 2); ctx.fillText(String(T.count), w - PAD.r - 16, hgt - 2);
   const row = T.rows[T.k];
+  setLink("#tl-rec-frame", row ? `${timelineUrl("recording.html")}&frame=${T.k}` : null);
+  setLink("#tl-rec-seq", T.rows.length ? timelineUrl("recording.html") : null);
   $("#tl-info").textContent = row
     ? `single ${row.status}, tracked ${row.track_status}${row.flagged ? " (flagged)" : ""}; length ${fmt(row.curve_length, 1)}; ${fmt(row.ms, 0)} ms`
       + (row.track_reason ? `; ${row.track_reason}` : "")
     : "not computed yet";
+}
+
+function setLink(sel, url) {
+  const a = $(sel);
+  if (url) a.setAttribute("href", url); else a.removeAttribute("href");
 }
 
 export function frameAt(clientX) {

@@ -145,6 +145,10 @@ def test_sequences_api(data):
         assert got["frame"] == 2 and len(got["curves"]["tracked"]) > 10
         assert c.get(f"{url}/curves/{N_FRAMES}").status_code == 404
         assert c.get("/api/sequences/nope/timeline").status_code == 404
+        rec = c.get(f"{url}/recording.html", params={"frame": 1})
+        assert rec.status_code == 200 and "__VISER_EMBED_DATA__" in rec.text
+        assert "drag_frame1.html" in rec.headers["content-disposition"]
+        assert c.get(f"{url}/recording.html", params={"frame": 99}).status_code == 409
 
 
 class _Rec(SimpleNamespace):
