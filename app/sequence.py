@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import abc
 import re
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,14 +70,25 @@ class Sequence(abc.ABC):
     def __iter__(self) -> Iterator[SequenceFrame]:
         """Frames in order, decoded one at a time."""
 
+    _cursor_lock = threading.Lock()  # guards every sequence's cursor (a short critical section)
+
     def frame(self, k: int) -> SequenceFrame:
-        """Frame ``k`` (from 0). This default decodes the frames before it one at a time (a
-        video or a bag has no cheap random access); an image folder reads the one frame."""
+        """Frame ``k`` (from 0). This default decodes forward from a kept cursor (a video or a
+        bag has no cheap random access): the next frames cost one decode each, a frame before
+        the cursor restarts from the first; an image folder reads the one frame."""
         if k < 0 or (self.count is not None and k >= self.count):
             raise SequenceError(f"{self.source}: no frame {k} (frames 0..{(self.count or 0) - 1})")
-        for f in self:
-            if f.index == k:
-                return f
+        with self._cursor_lock:
+            cursor = self.__dict__.pop("_cursor", None)
+            if cursor is None or cursor[1] > k:
+                if cursor is not None:
+                    cursor[0].close()
+                cursor = (iter(self), 0)
+            frames = cursor[0]
+            for f in frames:
+                if f.index == k:
+                    self.__dict__["_cursor"] = (frames, k + 1)
+                    return f
         raise SequenceError(f"{self.source}: no frame {k} (the source ended before it)")
 
 

@@ -180,3 +180,11 @@ def test_a_suspect_curve_is_an_observation_and_is_not_rerun(monkeypatch):
     out = list(track_report.track_sequence(frames, calib, ReconParams(), TrackParams()))
     assert [tf.tracked.status for tf in out] == ["ok", "ok", "ok"]
     assert _FakePipeline.runs == 3  # no second run with the configured search range
+
+
+def test_a_video_frame_is_reached_forward_from_a_cursor_and_backward_from_the_start(data):
+    seq = FrameLibrary(data).sequence("clips/take.mp4")
+    means = [float(seq.frame(k).pair.left.mean()) for k in (1, 2, 0, 2)]
+    assert means == pytest.approx([40, 80, 0, 80], abs=3)  # frame k is grey 40 * k
+    with pytest.raises(ValueError, match="no frame 3"):
+        seq.frame(3)
