@@ -203,7 +203,10 @@ def track_step(
     if rejected and single is not None and not _usable_rejected(single, state, cloud, p):
         single = None
     if not p.enabled or state is None:
-        return _restart(single, n, restarted=state is None and p.enabled)
+        start = single
+        if p.enabled and check != "ok" and single is not None:
+            start = _trim_unsupported(single, cloud, p)  # a doubted start: its supported part
+        return _restart(start, n, restarted=state is None and p.enabled, single=single)
     if len(state.points) != n:
         raise ValueError(f"state has {len(state.points)} samples, params say {n}")
     pred = state.predicted
@@ -290,8 +293,7 @@ def _usable_rejected(
         return False
     if not np.all(np.isfinite(single)):
         return False
-    x = resample(single, p.n_samples)
-    return bool(np.mean(cKDTree(cloud).query(x)[0] <= p.support_mm) >= _MIN_SUPPORTED_REJECTED)
+    return bool(np.mean(cKDTree(cloud).query(single)[0] <= p.support_mm) >= _MIN_SUPPORTED_REJECTED)
 
 
 def _supported(
@@ -314,19 +316,23 @@ def _trim_unsupported(
     doubted curve, the prediction ``pred``); kept whole when almost nothing would remain."""
     if (cloud is None or len(cloud) == 0) and pred is None:
         return single
-    x = resample(single, p.n_samples)
-    supported = np.flatnonzero(_supported(x, cloud, pred, p))
-    if supported.size < _MIN_SUPPORTED * len(x):
+    # Judged on the curve's own samples (even along the image): resampled in arc length, a run
+    # off in depth would outweigh the observed part.
+    supported = np.flatnonzero(_supported(single, cloud, pred, p))
+    if supported.size < _MIN_SUPPORTED * len(single) or supported[-1] == supported[0]:
         return single
-    return x[supported[0] : supported[-1] + 1]
+    return single[supported[0] : supported[-1] + 1]
 
 
 def _restart(
-    single: np.ndarray | None, n: int, restarted: bool
+    start: np.ndarray | None, n: int, restarted: bool, single: np.ndarray | None = None
 ) -> tuple[TrackResult, TrackState | None]:
-    if single is None:
+    """A new track from the curve ``start`` (``single``: the single-frame curve it came from,
+    when not ``start`` itself)."""
+    if start is None:
         return TrackResult(None, None, "lost", False, "no observation", *_NO_FIT), None
-    x = resample(single, n)
+    x = resample(start, n)
+    single = start if single is None else single
     res = TrackResult(x, single, "ok", False, "", 0.0, 0.0, False, restarted)
     return res, TrackState(x, np.zeros_like(x), 0, polyline_length(x))
 

@@ -267,3 +267,14 @@ def test_a_failed_curve_never_starts_a_track_but_serves_with_a_prior():
     assert np.abs(resample(res.points, 400) - moved).max() < 1.0
     res, _ = track_step(moved, state, p, cloud=None, check="failed")  # nothing supports it
     assert res.status == "predicted"
+
+
+def test_a_doubted_first_curve_starts_from_its_supported_part():
+    p = TrackParams()
+    full = _arc(400)
+    wild = np.vstack([full, full[-1] + np.linspace(0, 1, 40)[1:, None] * [0.0, 0.0, 4000.0]])
+    res, _ = track_step(wild, None, p, cloud=full, check="suspect")  # the end runs off 4 m deep
+    assert res.points[:, 2].max() < full[:, 2].max() + p.support_mm
+    assert res.length == pytest.approx(polyline_length(full), abs=1.0)
+    trusted, _ = track_step(wild, None, p, cloud=full)  # an "ok" curve is taken as it is
+    assert trusted.points[:, 2].max() > 1000
