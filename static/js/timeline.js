@@ -34,7 +34,7 @@ function show(found) {
   $("#tl-slider").value = String(k);
   $("#tl-frame").textContent = `${k + 1} / ${T.count || "?"}`;
   ensurePolling();
-  loadCurves();
+  if (T.curvesFor !== k) loadCurves();
   drawPlot();
 }
 
