@@ -22,15 +22,10 @@ from threadrecon.app.python_api import reconstruct
 from threadrecon.app.resources import sample_data_dir
 
 
-def limit_blas_threads() -> None:
-    """One BLAS thread: the core's matrices are small (tens of control points), and OpenBLAS's
-    spinning worker threads, sharing two cores with a browser or another job, made a 10 ms
-    spline re-run take 300 ms (scripts/bench_latency.py with Chromium on the same machine)."""
-    threadpool_limits(limits=1, user_api="blas")
-
-
 def main(argv: list[str] | None = None) -> int:
-    limit_blas_threads()
+    # One BLAS thread for the whole process (each stage also limits itself): the matrices are
+    # small, and OpenBLAS's spinning threads beside a browser made a 10 ms re-run take 300 ms.
+    threadpool_limits(limits=1, user_api="blas")
     parser = build_parser()
     args = parser.parse_args(argv)
     if not hasattr(args, "func"):
@@ -101,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument(
         "dataset",
         nargs="?",
-        default=str(_sample_data()),
+        default=str(sample_data_dir()),
         help="data folder, any layout (default: the bundled sample)",
     )
     e.add_argument("--config", help="preset name or path")
@@ -123,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument(
         "dataset",
         nargs="?",
-        default=str(_sample_data()),
+        default=str(sample_data_dir()),
         help="dataset folder, or a folder of side-by-side pairs with a calibration.yaml "
         "(default: sample_data)",
     )
@@ -195,7 +190,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     v = sub.add_parser("serve", help="start the browser debugger on a data folder")
     v.add_argument(
-        "dataset", nargs="?", default=str(_sample_data()), help="data folder (default: sample_data)"
+        "dataset",
+        nargs="?",
+        default=str(sample_data_dir()),
+        help="data folder (default: sample_data)",
     )
     v.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
     v.add_argument("--port", type=int, default=8000, help="port of the page and API (default 8000)")
@@ -259,6 +257,11 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--config", help="preset name (configs/NAME.toml) or path")
     t.add_argument("--out", required=True, help="folder: frames/<frame>.json and summary.csv")
     t.add_argument("--no-tracking", action="store_true", help="single-frame reconstructions only")
+    t.add_argument(
+        "--no-masks",
+        action="store_true",
+        help="withhold an image folder's *_mask.png files: segment every frame from its images",
+    )
     t.add_argument("--left-topic", help="left image topic of a bag (default: the one named left)")
     t.add_argument("--right-topic", help="right image topic of a bag")
     t.add_argument("--limit", type=int, help="stop after this many frames")
@@ -276,10 +279,6 @@ def build_parser() -> argparse.ArgumentParser:
     if generate is not None:
         generate.add_parser(sub)
     return parser
-
-
-def _sample_data() -> Path:
-    return sample_data_dir()
 
 
 # --- reconstruct -------------------------------------------------------------------------

@@ -30,6 +30,7 @@ and ROS files metres.
 from __future__ import annotations
 
 import re
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -84,13 +85,18 @@ class Frame:
         return self.id.rsplit("/", 1)[-1]
 
 
-def discover(root: str | Path) -> list[Frame]:
-    """All frames under a dataset root, sorted by id; a clear error for a wrong folder."""
+def discover(root: str | Path, skip: Collection[Path] = ()) -> list[Frame]:
+    """All frames under a dataset root, sorted by id; a clear error for a wrong folder.
+    Folders in ``skip`` (and below them) are left out: the debugger shows a sequence's
+    folder as one entry (:mod:`app.sequence_library`)."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: dataset folder not found")
     found: dict[str, tuple[Frame, Path]] = {}
+    skipped = {Path(p) for p in skip}
     for folder in _folders(root):
+        if folder in skipped or skipped.intersection(folder.parents):
+            continue
         for frame in _frames_in(root, folder):
             first = frame.left or frame.stereo
             assert first is not None

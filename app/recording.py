@@ -43,6 +43,18 @@ def save_recording(
 
     ``baseline`` (calibration units) draws the two cameras, as in the debugger.
     """
+    html, n = recording_html(frames, fps, baseline)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(html, encoding="utf-8")
+    return n
+
+
+def recording_html(
+    frames: Iterable[RecordedFrame], fps: float = 15.0, baseline: float | None = None
+) -> tuple[str, int]:
+    """The frames as one self-contained HTML page (see :func:`save_recording`), and their
+    number; ValueError for no frames or a curve that is not (N >= 2, 3)."""
     import viser
 
     if not fps > 0:
@@ -86,10 +98,7 @@ def save_recording(
     finally:
         with contextlib.redirect_stdout(io.StringIO()):
             server.stop()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(html, encoding="utf-8")
-    return n
+    return html, n
 
 
 def _place_camera(server, pts_all: list[np.ndarray], baseline: float | None) -> None:

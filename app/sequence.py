@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import abc
 import re
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -68,6 +69,27 @@ class Sequence(abc.ABC):
     @abc.abstractmethod
     def __iter__(self) -> Iterator[SequenceFrame]:
         """Frames in order, decoded one at a time."""
+
+    _cursor_lock = threading.Lock()  # guards every sequence's cursor (a short critical section)
+
+    def frame(self, k: int) -> SequenceFrame:
+        """Frame ``k`` (from 0). This default decodes forward from a kept cursor (a video or a
+        bag has no cheap random access): the next frames cost one decode each, a frame before
+        the cursor restarts from the first; an image folder reads the one frame."""
+        if k < 0 or (self.count is not None and k >= self.count):
+            raise SequenceError(f"{self.source}: no frame {k} (frames 0..{(self.count or 0) - 1})")
+        with self._cursor_lock:
+            cursor = self.__dict__.pop("_cursor", None)
+            if cursor is None or cursor[1] > k:
+                if cursor is not None:
+                    cursor[0].close()
+                cursor = (iter(self), 0)
+            frames = cursor[0]
+            for f in frames:
+                if f.index == k:
+                    self.__dict__["_cursor"] = (frames, k + 1)
+                    return f
+        raise SequenceError(f"{self.source}: no frame {k} (the source ended before it)")
 
 
 def open_sequence(
@@ -190,9 +212,11 @@ def _images(folder: Path) -> list[Path]:
 class ImageFolderSequence(Sequence):
     """Side-by-side images of a folder (natural order), or its ``left/`` and ``right/``."""
 
-    def __init__(self, folder: Path) -> None:
+    def __init__(self, folder: Path, masks: bool = True) -> None:
         self.source = str(folder)
         self.folder = folder
+        self.masks = masks
+        """Use the ``<stem>_mask.png`` files (False: raw frames, segmented from the images)."""
         if (folder / "left").is_dir() and (folder / "right").is_dir():
             self.lefts, self.rights = _images(folder / "left"), _images(folder / "right")
             if len(self.lefts) != len(self.rights):
@@ -208,19 +232,26 @@ class ImageFolderSequence(Sequence):
         self.calibration = load_calibration(calib) if calib.is_file() else None
 
     def __iter__(self) -> Iterator[SequenceFrame]:
-        for k, left_path in enumerate(self.lefts):
-            if self.rights:
-                pair = StereoPair(read_image(left_path), read_image(self.rights[k]))
-            else:
-                L, R = split_side_by_side(read_image(left_path))
-                mask = left_path.with_name(f"{left_path.stem}_mask.png")
-                mL = mR = None
-                if mask.is_file():
-                    mL, mR = (m.astype(bool) for m in split_side_by_side(read_mask(mask)))
-                pair = StereoPair(L, R, mL, mR)
-            gt_path = left_path.with_suffix(".npy")
-            truth = load_ground_truth(gt_path) if gt_path.is_file() else None
-            yield SequenceFrame(k, left_path.stem, pair, None, truth)
+        for k in range(len(self.lefts)):
+            yield self.frame(k)
+
+    def frame(self, k: int) -> SequenceFrame:
+        """Frame ``k`` (from 0), read from its own files."""
+        if not 0 <= k < len(self.lefts):
+            raise SequenceError(f"{self.source}: no frame {k} (frames 0..{len(self.lefts) - 1})")
+        left_path = self.lefts[k]
+        if self.rights:
+            pair = StereoPair(read_image(left_path), read_image(self.rights[k]))
+        else:
+            L, R = split_side_by_side(read_image(left_path))
+            mask = left_path.with_name(f"{left_path.stem}_mask.png")
+            mL = mR = None
+            if self.masks and mask.is_file():
+                mL, mR = (m.astype(bool) for m in split_side_by_side(read_mask(mask)))
+            pair = StereoPair(L, R, mL, mR)
+        gt_path = left_path.with_suffix(".npy")
+        truth = load_ground_truth(gt_path) if gt_path.is_file() else None
+        return SequenceFrame(k, left_path.stem, pair, None, truth)
 
 
 # --- ROS bags ----------------------------------------------------------------------------

@@ -108,7 +108,7 @@ class Session:
             raise Invalid(f"reveal must be in [1, {len(STAGES)}], got {reveal}")
         if not 0.0 <= pause_s <= MAX_PAUSE_S:  # NaN fails too
             raise Invalid(f"pause must be in [0, {MAX_PAUSE_S:g}] s, got {pause_s!r}")
-        if not self.library.frames:
+        if self.library.first_id() is None:
             raise Conflict(f"no frames in {self.library.root}")
         changed = False
         with self._cond:
@@ -118,7 +118,7 @@ class Session:
                 self.frame_id = frame_id
                 self.inspect = None
             if self.frame_id is None:
-                self.frame_id = next(iter(self.library.frames))
+                self.frame_id = self.library.first_id()
             if params is not None:
                 changed = params != self.params
                 self.params = params

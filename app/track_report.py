@@ -70,22 +70,30 @@ def track_sequence(
         p = params if alpha is None else replace(params, stereo=replace(params.stereo, alpha=alpha))
         pipeline = Pipeline(frame.pair, calib)
         rec = pipeline.run(p)
-        if rec.status != "ok" and alpha is not None and alpha < params.stereo.alpha:
+        if rec.status == "failed" and alpha is not None and alpha < params.stereo.alpha:
             p = params  # the prior's search range may be what failed: the configured one
             rec = pipeline.run(p)
         result = None
         if track.enabled:
-            single = rec["camera"].points if rec.status == "ok" else None
+            # A "suspect" curve is an observation (e.g. bridged across an instrument): the
+            # tracker keeps its supported part and takes what no stereo point shows from the prior.
+            single = _single_points(TrackedFrame(frame, rec, None, 0, 0.0))
+            rejected = single is None and rec.status == "failed" and "camera" in rec.runs
+            if rejected:  # its stereo-supported part may still serve (core.tracking.track_step)
+                single = rec["camera"].points
             cloud = None
             if "reliability" in rec.runs:
                 cloud = rec["stereo"].points[rec["reliability"].reliable]
-            result, state = track_step(single, state, track, cloud)
+            check = "failed" if rejected else ("suspect" if rec.status == "suspect" else "ok")
+            result, state = track_step(single, state, track, cloud, check)
         ms = 1000.0 * (time.perf_counter() - t0)
         yield TrackedFrame(frame, rec, result, p.stereo.alpha, ms)
 
 
 def _single_points(tf: TrackedFrame) -> np.ndarray | None:
-    return tf.single["camera"].points if tf.single.status == "ok" else None
+    """The single-frame curve when the pipeline gave one ("ok" or "suspect"), else None."""
+    rec = tf.single
+    return rec["camera"].points if rec.status != "failed" and "camera" in rec.runs else None
 
 
 def _tracked_points(tf: TrackedFrame) -> np.ndarray | None:
@@ -129,12 +137,15 @@ def frame_row(
         if pts is None:
             row.update({f"{prefix}e_S_mm": math.nan, f"{prefix}e_S_max_mm": math.nan})
             row.update({f"{prefix}e_length_mm": math.nan, f"{prefix}good": False})
+            row[f"{prefix}within"] = False
         else:
             e = curve_errors(pts * mm, f.truth * mm)
             row[f"{prefix}e_S_mm"] = e.e_S
             row[f"{prefix}e_S_max_mm"] = e.e_S_max
             row[f"{prefix}e_length_mm"] = e.e_length
-            row[f"{prefix}good"] = bool(ok and e.e_length <= GOOD_MM and e.e_S_max <= GOOD_MM)
+            within = bool(e.e_length <= GOOD_MM and e.e_S_max <= GOOD_MM)
+            row[f"{prefix}within"] = within  # the curve is close enough, whatever its status
+            row[f"{prefix}good"] = bool(ok and within)
         row[f"{prefix}jitter_mm"] = math.nan
         if previous is not None and previous.frame.truth is not None and pts is not None:
             before = _tracked_points(previous) if prefix else _single_points(previous)
@@ -205,7 +216,7 @@ def recorded_frame(tf: TrackedFrame) -> RecordedFrame:
 
 
 def cmd_track(args: argparse.Namespace) -> int:
-    from threadrecon.app.sequence import SequenceError, open_sequence
+    from threadrecon.app.sequence import ImageFolderSequence, SequenceError, open_sequence
     from threadrecon.app.track_report import frame_row, recorded_frame, summary_lines, tracked_json
 
     params = resolve_preset(args.config)
@@ -215,6 +226,10 @@ def cmd_track(args: argparse.Namespace) -> int:
         seq = open_sequence(args.source, args.right, args.left_topic, args.right_topic)
     except SequenceError as exc:
         raise UserError(str(exc)) from None
+    if getattr(args, "no_masks", False):
+        if not isinstance(seq, ImageFolderSequence):
+            raise UserError("--no-masks applies to an image folder (videos and bags have no masks)")
+        seq.masks = False
     if args.calib is not None:
         calib = load_calibration(args.calib, unit=args.units)
     elif seq.calibration is not None:

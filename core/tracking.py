@@ -44,6 +44,7 @@ MIN_ALPHA: Final = 8  # the smallest stereo search range tracking sets, px (Eq. 
 MAX_ALPHA: Final = 512  # the largest the stereo stage accepts, px
 _EPS: Final = 1e-9
 _MIN_SUPPORTED: Final = 0.2  # share of a curve that must be supported before trimming its ends
+_MIN_SUPPORTED_REJECTED: Final = 0.5  # share of a rejected curve that stereo must support
 _SNAP_NEIGHBOURS: Final = 8  # stereo points averaged per sample when snapping a filled piece
 _SNAP_SMOOTH: Final = 3.0  # std of the smoothing of snap offsets along a piece, samples
 
@@ -176,11 +177,19 @@ def track_step(
     state: TrackState | None,
     p: TrackParams,
     cloud: np.ndarray | None = None,
+    check: Literal["ok", "suspect", "failed"] = "ok",
 ) -> tuple[TrackResult, TrackState | None]:
     """One frame of tracking: the single-frame curve ``single`` (M, 3) (None when the
-    single-frame pipeline failed), this frame's reliable stereo points ``cloud`` (K, 3)
+    single-frame pipeline gave none), this frame's reliable stereo points ``cloud`` (K, 3)
     (optional: pieces filled from the prior are pulled onto them) and the previous state
-    -> this frame's result and state."""
+    -> this frame's result and state.
+
+    ``check``: the single-frame check's verdict on the curve. A doubted curve ("suspect" or
+    "failed") is believed only where it also lies within ``disagree_mm`` of the prediction
+    (the rest is trimmed at the ends or taken from the prior inside). A "failed" curve is used
+    only with a prior and a ``cloud``, when at least half of it is supported and it explains the
+    prediction; it never (re)starts a track and does not teach the thread's length."""
+    rejected = check == "failed"
     if cloud is not None:
         cloud = np.asarray(cloud, dtype=np.float64)
         if cloud.ndim != 2 or cloud.shape[1] != 3:
@@ -191,8 +200,13 @@ def track_step(
         if not np.all(np.isfinite(single)):
             single = None  # a non-finite curve is no observation
     n = p.n_samples
+    if rejected and single is not None and not _usable_rejected(single, state, cloud, p):
+        single = None
     if not p.enabled or state is None:
-        return _restart(single, n, restarted=state is None and p.enabled)
+        start = single
+        if p.enabled and check != "ok" and single is not None:
+            start = _trim_unsupported(single, cloud, p)  # a doubted start: its supported part
+        return _restart(start, n, restarted=state is None and p.enabled, single=single)
     if len(state.points) != n:
         raise ValueError(f"state has {len(state.points)} samples, params say {n}")
     pred = state.predicted
@@ -205,25 +219,36 @@ def track_step(
         )
         return res, TrackState(pred, state.velocity, state.coasted + 1, state.length_ref)
 
-    obs = resample(_trim_unsupported(single, cloud, p), n)
+    doubted = pred if check != "ok" else None  # a doubted curve must agree with the prior too
+    obs = resample(_trim_unsupported(single, cloud, p, doubted), n)
     reversed_ = _closer_reversed(obs, pred)
     if reversed_:
         obs = obs[::-1]
     d_pred = cKDTree(obs).query(pred)[0]  # how well the observation explains each prediction
     explained = d_pred <= p.cover_mm
     if explained.mean() < p.min_overlap:
+        if rejected:  # a rejected curve that disagrees with the prior is no observation
+            return track_step(None, state, p, cloud)
         res, new = _restart(single, n, restarted=True)
         reason = f"observation explains {100 * explained.mean():.0f}% of the prediction; restarted"
         return _replace_flag(res, reason, reversed_), new
 
+    # The known length learns from what was seen: no gap filled from the prior, no rejected curve.
+    length_seen = math.nan if rejected else polyline_length(obs)
+    obs, gap_filled = _fill_hidden_gaps(obs, pred, cloud, p, doubted is not None)
     length_obs = polyline_length(obs)
     # A shorter observation than the thread's known length has a hidden piece: keep any predicted
     # end beyond it; otherwise only ends longer than min_hidden_mm (noise at the ends is no piece).
     hidden = length_obs < state.length_ref - p.cover_mm
     min_piece = 0.5 * p.cover_mm if hidden else p.min_hidden_mm
+    # A thread does not stretch either: the ends filled in may add what the observation misses
+    # of the known length, no more (a wrong piece of the prior is not carried on for ever).
+    budget = state.length_ref - length_obs + p.cover_mm
+    budget = math.inf if not math.isfinite(budget) else max(budget, 0.0)
     if cloud is not None and len(cloud):  # stereo points of the observed curve are not for snapping
         cloud = cloud[cKDTree(obs).query(cloud)[0] > p.cover_mm]
-    curve, filled = _fill_hidden_ends(obs, pred, min_piece, cloud, p)
+    curve, filled = _fill_hidden_ends(obs, pred, min_piece, cloud, p, budget)
+    filled += gap_filled
     curve = resample(curve, n)
     # Temporal smoothness: pull towards the prediction where the two agree.
     pred_c = _match(curve, pred)
@@ -245,7 +270,7 @@ def track_step(
     step = np.mean(obs - state.points[cKDTree(state.points).query(obs)[1]], axis=0)
     velocity = p.velocity_gain * step + (1 - p.velocity_gain) * state.velocity
     res = TrackResult(curve, single, "ok", flagged, reason, disagreement, filled, reversed_, False)
-    return res, TrackState(curve, velocity, 0, float(np.fmax(state.length_ref, length_obs)))
+    return res, TrackState(curve, velocity, 0, float(np.fmax(state.length_ref, length_seen)))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -260,24 +285,54 @@ def _check_curve(points: np.ndarray, name: str) -> np.ndarray:
     return points
 
 
-def _trim_unsupported(single: np.ndarray, cloud: np.ndarray | None, p: TrackParams) -> np.ndarray:
-    """``single`` without the end runs that no stereo point of the frame supports (kept whole
-    when nothing or almost nothing would remain)."""
-    if cloud is None or len(cloud) == 0:
+def _usable_rejected(
+    single: np.ndarray, state: TrackState | None, cloud: np.ndarray | None, p: TrackParams
+) -> bool:
+    """A curve the single-frame check rejected may serve as an observation (see track_step)."""
+    if state is None or not p.enabled or cloud is None or len(cloud) == 0:
+        return False
+    if not np.all(np.isfinite(single)):
+        return False
+    return bool(np.mean(cKDTree(cloud).query(single)[0] <= p.support_mm) >= _MIN_SUPPORTED_REJECTED)
+
+
+def _supported(
+    x: np.ndarray, cloud: np.ndarray | None, pred: np.ndarray | None, p: TrackParams
+) -> np.ndarray:
+    """(N,) bool: the samples of ``x`` with a stereo point within ``support_mm`` (all when there
+    is no cloud) and, when ``pred`` is given (a doubted curve), within ``disagree_mm`` of it."""
+    ok = np.ones(len(x), dtype=bool)
+    if cloud is not None and len(cloud):
+        ok &= cKDTree(cloud).query(x)[0] <= p.support_mm
+    if pred is not None:
+        ok &= cKDTree(pred).query(x)[0] <= p.disagree_mm
+    return ok
+
+
+def _trim_unsupported(
+    single: np.ndarray, cloud: np.ndarray | None, p: TrackParams, pred: np.ndarray | None = None
+) -> np.ndarray:
+    """``single`` without the end runs that no stereo point of the frame supports (nor, for a
+    doubted curve, the prediction ``pred``); kept whole when almost nothing would remain."""
+    if (cloud is None or len(cloud) == 0) and pred is None:
         return single
-    x = resample(single, p.n_samples)
-    supported = np.flatnonzero(cKDTree(cloud).query(x)[0] <= p.support_mm)
-    if supported.size < _MIN_SUPPORTED * len(x):
+    # Judged on the curve's own samples (even along the image): resampled in arc length, a run
+    # off in depth would outweigh the observed part.
+    supported = np.flatnonzero(_supported(single, cloud, pred, p))
+    if supported.size < _MIN_SUPPORTED * len(single) or supported[-1] == supported[0]:
         return single
-    return x[supported[0] : supported[-1] + 1]
+    return single[supported[0] : supported[-1] + 1]
 
 
 def _restart(
-    single: np.ndarray | None, n: int, restarted: bool
+    start: np.ndarray | None, n: int, restarted: bool, single: np.ndarray | None = None
 ) -> tuple[TrackResult, TrackState | None]:
-    if single is None:
+    """A new track from the curve ``start`` (``single``: the single-frame curve it came from,
+    when not ``start`` itself)."""
+    if start is None:
         return TrackResult(None, None, "lost", False, "no observation", *_NO_FIT), None
-    x = resample(single, n)
+    x = resample(start, n)
+    single = start if single is None else single
     res = TrackResult(x, single, "ok", False, "", 0.0, 0.0, False, restarted)
     return res, TrackState(x, np.zeros_like(x), 0, polyline_length(x))
 
@@ -310,25 +365,63 @@ def _fill_hidden_ends(
     min_piece: float,
     cloud: np.ndarray | None,
     p: TrackParams,
+    budget: float = math.inf,
 ) -> tuple[np.ndarray, float]:
     """Prepend/append the predicted ends the observation does not explain: each is cut from the
     prediction where the observed end meets it, moved rigidly onto that end, then pulled onto
-    this frame's stereo points ``cloud`` where it has some (hidden stretches keep the prior)."""
+    this frame's stereo points ``cloud`` where it has some (hidden stretches keep the prior).
+    Together the two ends add at most ``budget`` of length (each shortened in proportion)."""
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pred, axis=0), axis=1))])
     s_ends = _arc_position(pred, s, obs[[0, -1]])
+    head_len, tail_len = s_ends[0], s[-1] - s_ends[1]
+    scale = min(1.0, budget / max(head_len + tail_len, _EPS))
+    head_len, tail_len = scale * head_len, scale * tail_len
     parts = [obs]
     filled = 0.0
-    if s_ends[0] > min_piece:
-        keep = s < s_ends[0]
+    if head_len > min_piece:
+        keep = (s < s_ends[0]) & (s >= s_ends[0] - head_len)
         head = pred[keep] + (obs[0] - _at(pred, s, s_ends[0]))
         parts.insert(0, _snap(head, cloud, p, anchor_last=True))
-        filled += s_ends[0]
-    if s[-1] - s_ends[1] > min_piece:
-        keep = s > s_ends[1]
+        filled += head_len
+    if tail_len > min_piece:
+        keep = (s > s_ends[1]) & (s <= s_ends[1] + tail_len)
         tail = pred[keep] + (obs[-1] - _at(pred, s, s_ends[1]))
         parts.append(_snap(tail, cloud, p, anchor_last=False))
-        filled += s[-1] - s_ends[1]
+        filled += tail_len
     return np.vstack(parts), float(filled)
+
+
+def _fill_hidden_gaps(
+    obs: np.ndarray, pred: np.ndarray, cloud: np.ndarray | None, p: TrackParams, doubted: bool
+) -> tuple[np.ndarray, float]:
+    """Interior runs of the observation (N, 3) that no stereo point of the frame supports
+    (farther than ``support_mm``: the spline bridged a piece hidden by an instrument) are taken
+    from the prediction between the arc positions where the run's two supported neighbours meet
+    it, moved to join both (offset blended linearly along the run); returns the curve and the
+    length taken from the prior. A ``doubted`` curve's runs far from the prediction are too."""
+    if (cloud is None or len(cloud) == 0) and not doubted:
+        return obs, 0.0
+    unsupported = ~_supported(obs, cloud, pred if doubted else None, p)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], unsupported.astype(np.int8), [0]])))
+    runs = [(a, b) for a, b in zip(edges[0::2], edges[1::2], strict=True) if a > 0 and b < len(obs)]
+    if not runs:
+        return obs, 0.0
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pred, axis=0), axis=1))])
+    out = obs.copy()
+    filled = 0.0
+    for a, b in runs:  # a handful of runs [a, b)
+        if polyline_length(obs[a - 1 : b + 1]) <= p.min_hidden_mm:
+            continue  # a short stretch without stereo points is no hidden piece
+        sa, sb = _arc_position(pred, s, obs[[a - 1, b]])
+        if sb <= sa:
+            continue  # the prediction runs the other way here: no consistent prior
+        t = np.linspace(0.0, 1.0, b - a + 2)[1:-1]
+        piece = np.column_stack([np.interp(sa + t * (sb - sa), s, pred[:, k]) for k in range(3)])
+        o0 = obs[a - 1] - _at(pred, s, sa)
+        o1 = obs[b] - _at(pred, s, sb)
+        out[a:b] = piece + (1 - t)[:, None] * o0 + t[:, None] * o1
+        filled += polyline_length(out[a - 1 : b + 1])
+    return out, float(filled)
 
 
 def _arc_position(pred: np.ndarray, s: np.ndarray, q: np.ndarray) -> np.ndarray:

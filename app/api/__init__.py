@@ -27,8 +27,10 @@ from threadrecon.app.api.routes_page import STATIC
 from threadrecon.app.api.routes_page import router as page
 from threadrecon.app.api.routes_presets import router as presets
 from threadrecon.app.api.routes_ratings import router as ratings
+from threadrecon.app.api.routes_sequences import router as sequences
 from threadrecon.app.api.routes_sessions import router as sessions
 from threadrecon.app.api.state import AppState
+from threadrecon.app.timeline import Timelines
 
 __all__ = ["AppState", "ServerConfig", "create_app"]
 log = logging.getLogger("threadrecon.server")
@@ -36,18 +38,21 @@ log = logging.getLogger("threadrecon.server")
 
 def create_app(config: ServerConfig) -> FastAPI:
     state = AppState(config)
+    timelines = Timelines(state.library)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         state.start_viser()
-        if config.open_first and state.library.frames:
-            state.session(None).submit(frame_id=next(iter(state.library.frames)))
+        first = state.library.first_id()
+        if config.open_first and first is not None:
+            state.session(None).submit(frame_id=first)
         log.info("viser on port %d", state.viser_port)
         reaper = asyncio.create_task(state.expire_sessions())
         try:
             yield
         finally:
             reaper.cancel()
+            timelines.close()
             state.stop()
 
     app = FastAPIOffline(
@@ -58,8 +63,19 @@ def create_app(config: ServerConfig) -> FastAPI:
         swagger_ui_parameters={"validatorUrl": None},  # no badge fetched from swagger.io
     )
     app.state.core = state
+    app.state.timelines = timelines
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
-    for router in (page, frames, sessions, ratings, corrections, presets, evaluations, exports):
+    for router in (
+        page,
+        frames,
+        sequences,
+        sessions,
+        ratings,
+        corrections,
+        presets,
+        evaluations,
+        exports,
+    ):
         app.include_router(router)
     errors.install(app)
     app.add_middleware(Guard, policy=state.policy, max_body=config.max_body_bytes)

@@ -12,6 +12,7 @@ from fastapi.responses import Response
 
 from threadrecon.app.api import schemas
 from threadrecon.app.api.deps import State, session_answer, stage_answer
+from threadrecon.app.api.routes_sequences import sequence_entries
 from threadrecon.app.errors import Conflict, Invalid, NotFound, TimedOut
 from threadrecon.app.library import merge_params
 from threadrecon.app.views import stage_json
@@ -25,7 +26,7 @@ def frames(state: State) -> list[schemas.Frame]:
     """Every frame of the data folder, with the status of its last run and its rating."""
     status = state.sessions.frame_status
     ratings = state.store.latest_all()
-    return [
+    stills = [
         schemas.Frame(
             id=f.id,
             name=f.name,
@@ -36,6 +37,7 @@ def frames(state: State) -> list[schemas.Frame]:
         )  # fmt: skip
         for f in state.library.frames.values()
     ]
+    return sorted(stills + sequence_entries(state), key=lambda f: f.id)
 
 
 @router.get("/{frame_id:path}/images/{side}")

@@ -143,6 +143,10 @@ class Frame(BaseModel):
     has_ground_truth: bool
     status: str | None
     rating: int | None
+    count: int | None = None
+    """Frames of a sequence entry (``kind`` "sequence"; its frame k has the id ``<id>@k``)."""
+    source: str | None = None
+    """A sequence's source: "images", "video" or "bag"."""
 
 
 class OverlaySpec(BaseModel):

@@ -6,11 +6,19 @@ export async function loadFrames() {
   renderFrames();
 }
 
+// The entry of a frame id: a still frame, or the sequence whose frame "<sequence id>@k" it is.
+export function entryOf(id) {
+  return S.frames.find((f) => f.id === id || (f.kind === "sequence" && id && id.startsWith(`${f.id}@`)));
+}
+
 export function renderFrames() {
+  const current = entryOf(S.frameId);
   fill("#frames tbody", S.frames.map((f) => h("tr",
-    { dataset: { id: f.id }, class: f.id === S.frameId ? "selected" : "", onclick: () => selectFrame(f.id) },
+    { dataset: { id: f.id }, class: f === current ? "selected" : "",
+      onclick: () => selectFrame(f.kind === "sequence" ? (f === current ? S.frameId : `${f.id}@0`) : f.id) },
     h("td", { title: f.id }, f.name),
-    h("td", {}, f.kind === "simulated" ? "sim" : "real"),
+    h("td", { title: f.kind === "sequence" ? `${f.source} sequence` : "" },
+      f.kind === "sequence" ? `seq ${f.count ?? "?"}` : (f.kind === "simulated" ? "sim" : "real")),
     h("td", { class: `st-${f.status ? f.status : "none"}` }, f.status || "–"),
     h("td", { class: "rating" }, f.rating ? "★".repeat(f.rating) : ""),
   )));
@@ -27,9 +35,9 @@ export async function selectFrame(id) {
 }
 
 export function stepFrame(delta) {
-  const i = S.frames.findIndex((f) => f.id === S.frameId);
+  const i = S.frames.indexOf(entryOf(S.frameId));
   const j = Math.min(S.frames.length - 1, Math.max(0, i + delta));
-  if (j !== i) selectFrame(S.frames[j].id);
+  if (j !== i) selectFrame(S.frames[j].kind === "sequence" ? `${S.frames[j].id}@0` : S.frames[j].id);
 }
 
 export function setFrameField(frameId, key, value) {

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from threadrecon.core.sequence_synth import (
     MotionParams,
@@ -206,3 +207,74 @@ def test_an_end_without_stereo_support_is_trimmed_and_taken_from_the_prior():
     assert np.abs(resample(res.points, 400) - full).max() < 1.5
     res_no_cloud, _ = track_step(wild, state, p)
     assert np.abs(resample(res_no_cloud.points, 400) - full).max() > 10.0
+
+
+def _farthest(curve: np.ndarray, truth: np.ndarray) -> float:
+    """Largest distance of a point of ``curve`` to the (dense) polyline ``truth``."""
+    return float(cKDTree(resample(truth, 4000)).query(curve)[0].max())
+
+
+def test_a_piece_hidden_in_the_middle_is_taken_from_the_prior():
+    p = TrackParams()
+    full = _arc(400)
+    full[:, 1] += 10.0 * np.exp(-(((np.arange(400) - 200) / 30.0) ** 2))  # a bump under it
+    _, state = track_step(full, None, p, cloud=full)
+    bridged = full.copy()
+    bridged[150:250] = np.linspace(full[150], full[249], 100)  # the spline cut across the gap
+    cloud = np.vstack([full[:150], full[250:]])  # no stereo point where the instrument is
+    res, _ = track_step(bridged, state, p, cloud=cloud)
+    assert res.filled > 10.0
+    assert _farthest(res.points, full) < 0.5 * p.support_mm  # what remains is the supported part
+    res_plain, _ = track_step(bridged, state, p)  # without stereo points: nothing is hidden
+    assert _farthest(res_plain.points, full) > 4.0
+
+
+def test_filled_ends_add_no_more_than_the_known_length_misses():
+    p = TrackParams()
+    full = _arc(400)
+    _, state = track_step(full, None, p)
+    # A prior that grew a spurious 50 mm tail (a wrong earlier frame) beyond the known length.
+    tail = full[-1] + np.linspace(0, 50, 100)[:, None] * np.array([1.0, 0.0, 0.0])
+    grown = resample(np.vstack([full, tail[1:]]), p.n_samples)
+    state = TrackState(grown, np.zeros_like(grown), 0, polyline_length(full))
+    res, new = track_step(full, state, p)
+    assert res.length < polyline_length(full) + p.cover_mm + 0.5
+    assert new.length_ref == pytest.approx(polyline_length(full), rel=1e-3)
+
+
+def test_a_doubted_curve_is_believed_only_where_it_agrees_with_the_prior():
+    p = TrackParams()
+    full = _arc(400)
+    _, state = track_step(full, None, p, cloud=full)
+    wrong = full.copy()
+    wrong[180:260, 1] += 25.0 * np.sin(np.linspace(0, np.pi, 80))  # on another strand's pixels
+    cloud = np.vstack([full, wrong[180:260]])  # ... which stereo supports
+    trusted, _ = track_step(wrong, state, p, cloud=cloud)
+    doubted, _ = track_step(wrong, state, p, cloud=cloud, check="suspect")
+    assert _farthest(trusted.points, full) > 20.0
+    assert _farthest(doubted.points, full) < p.disagree_mm  # only what agrees with the prior
+
+
+def test_a_failed_curve_never_starts_a_track_but_serves_with_a_prior():
+    p = TrackParams()
+    full = _arc(400)
+    res, state = track_step(full, None, p, cloud=full, check="failed")
+    assert res.status == "lost" and state is None
+    _, state = track_step(full, None, p, cloud=full)
+    moved = full + np.array([0.5, 0.0, 0.0])
+    res, new = track_step(moved, state, p, cloud=moved, check="failed")
+    assert res.status == "ok" and new is not None
+    assert np.abs(resample(res.points, 400) - moved).max() < 1.0
+    res, _ = track_step(moved, state, p, cloud=None, check="failed")  # nothing supports it
+    assert res.status == "predicted"
+
+
+def test_a_doubted_first_curve_starts_from_its_supported_part():
+    p = TrackParams()
+    full = _arc(400)
+    wild = np.vstack([full, full[-1] + np.linspace(0, 1, 40)[1:, None] * [0.0, 0.0, 4000.0]])
+    res, _ = track_step(wild, None, p, cloud=full, check="suspect")  # the end runs off 4 m deep
+    assert res.points[:, 2].max() < full[:, 2].max() + p.support_mm
+    assert res.length == pytest.approx(polyline_length(full), abs=1.0)
+    trusted, _ = track_step(wild, None, p, cloud=full)  # an "ok" curve is taken as it is
+    assert trusted.points[:, 2].max() > 1000
