@@ -27,7 +27,9 @@ from threadrecon.app.api.routes_page import router as page
 from threadrecon.app.api.routes_presets import router as presets
 from threadrecon.app.api.routes_ratings import router as ratings
 from threadrecon.app.api.routes_sessions import router as sessions
+from threadrecon.app.api.routes_tune import router as tune
 from threadrecon.app.api.state import AppState
+from threadrecon.app.tune.job import Tuner
 
 __all__ = ["AppState", "ServerConfig", "create_app"]
 log = logging.getLogger("threadrecon.server")
@@ -35,6 +37,8 @@ log = logging.getLogger("threadrecon.server")
 
 def create_app(config: ServerConfig) -> FastAPI:
     state = AppState(config)
+    # tunes from the page: their stores next to the ratings database (the user's, never the package)
+    tuner = Tuner(config.data_dir, config.db.parent / "tunes", config.configs)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -47,6 +51,7 @@ def create_app(config: ServerConfig) -> FastAPI:
             yield
         finally:
             reaper.cancel()
+            tuner.stop()
             state.stop()
 
     app = FastAPIOffline(
@@ -57,8 +62,9 @@ def create_app(config: ServerConfig) -> FastAPI:
         swagger_ui_parameters={"validatorUrl": None},  # no badge fetched from swagger.io
     )
     app.state.core = state
+    app.state.tuner = tuner
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
-    for router in (page, frames, sessions, ratings, presets, evaluations, exports):
+    for router in (page, frames, sessions, ratings, presets, evaluations, exports, tune):
         app.include_router(router)
     errors.install(app)
     app.add_middleware(Guard, policy=state.policy, max_body=config.max_body_bytes)
