@@ -20,12 +20,13 @@ LENGTH_FAILURE_MM = 20.0  # a simulated frame whose length is off by more than 2
 
 
 def evaluate_frame(
-    frame: Frame, params: ReconParams
+    frame: Frame, params: ReconParams, loaded: tuple[Any, Any, Any] | None = None
 ) -> tuple[dict[str, Any], Reconstruction | None]:
-    """One CSV row for a frame (never raises for a bad frame: the row says what failed)."""
+    """One CSV row for a frame (never raises for a bad frame: the row says what failed).
+    ``loaded``: the frame's ``load_frame(frame)`` when the caller already has it (a cache)."""
     row: dict[str, Any] = {"frame": frame.id, "kind": frame.kind}
     try:
-        pair, calib, gt = load_frame(frame)
+        pair, calib, gt = loaded if loaded is not None else load_frame(frame)
         rec = Pipeline(pair, calib).run(params)
     except Exception as exc:  # any frame's error is that frame's failed row, never the run's
         row.update(status="failed", error=_describe(exc), **{c: math.nan for c in METRIC_COLUMNS})

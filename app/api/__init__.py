@@ -29,8 +29,10 @@ from threadrecon.app.api.routes_presets import router as presets
 from threadrecon.app.api.routes_ratings import router as ratings
 from threadrecon.app.api.routes_sequences import router as sequences
 from threadrecon.app.api.routes_sessions import router as sessions
+from threadrecon.app.api.routes_tune import router as tune
 from threadrecon.app.api.state import AppState
 from threadrecon.app.timeline import Timelines
+from threadrecon.app.tune.job import Tuner
 
 __all__ = ["AppState", "ServerConfig", "create_app"]
 log = logging.getLogger("threadrecon.server")
@@ -39,6 +41,8 @@ log = logging.getLogger("threadrecon.server")
 def create_app(config: ServerConfig) -> FastAPI:
     state = AppState(config)
     timelines = Timelines(state.library)
+    # tunes from the page: their stores next to the ratings database (the user's, never the package)
+    tuner = Tuner(config.data_dir, config.db.parent / "tunes", config.configs)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -53,6 +57,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         finally:
             reaper.cancel()
             timelines.close()
+            tuner.stop()
             state.stop()
 
     app = FastAPIOffline(
@@ -64,6 +69,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     )
     app.state.core = state
     app.state.timelines = timelines
+    app.state.tuner = tuner
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     for router in (
         page,
@@ -75,6 +81,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         presets,
         evaluations,
         exports,
+        tune,
     ):
         app.include_router(router)
     errors.install(app)

@@ -36,7 +36,14 @@ from threadrecon.app.tune.config import (
     split_frames,
 )
 from threadrecon.app.tune.report import compare_on, pick_best, save_best
-from threadrecon.app.tune.run import INTERRUPTED, STUDY_NAME, open_study, tune
+from threadrecon.app.tune.run import (
+    INTERRUPTED,
+    STUDY_NAME,
+    Stopped,
+    open_study,
+    target_trials,
+    tune,
+)
 from threadrecon.app.tune.space import (
     DEFAULT_CONSTRAINTS,
     GRID_DIGITS,
@@ -62,6 +69,7 @@ __all__ = [
     "RANGE_KEYS",
     "STUDY_NAME",
     "Space",
+    "Stopped",
     "TrialResult",
     "TuneConfig",
     "TuneResult",
@@ -74,5 +82,6 @@ __all__ = [
     "pick_best",
     "save_best",
     "split_frames",
+    "target_trials",
     "tune",
 ]

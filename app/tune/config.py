@@ -34,6 +34,8 @@ class TuneConfig:
     prune: bool = True
     base: ReconParams = field(default_factory=ReconParams)
     """The setting the space's parameters vary on (default: the defaults)."""
+    max_frames: int | None = None
+    """Tune on at most this many of the tuning frames (a quick look; default: all of them)."""
 
     def identity(self) -> dict[str, Any]:
         """What a resume must match (the number of trials may grow)."""
@@ -48,6 +50,7 @@ class TuneConfig:
             "rungs": self.rungs,
             "prune": self.prune,
             "base": params_hash(self.base),
+            "max_frames": self.max_frames,
         }
 
 
@@ -69,6 +72,8 @@ def check_config(cfg: TuneConfig, frames: Sequence[Frame]) -> None:
         raise ValueError(f"--holdout must be in [0, 1), got {cfg.holdout}")
     if cfg.trials is not None and cfg.trials < 1:
         raise ValueError(f"--trials must be >= 1, got {cfg.trials}")
+    if cfg.max_frames is not None and cfg.max_frames < 1:
+        raise ValueError(f"max_frames must be >= 1, got {cfg.max_frames}")
     if cfg.rungs < 1:
         raise ValueError(f"--rungs must be >= 1, got {cfg.rungs}")
     if cfg.mode == "grid":
@@ -112,3 +117,5 @@ class TuneResult:
     best: TrialResult | None
     best_params: ReconParams | None
     store: Path
+    stopped: bool = False
+    """The caller's ``stop()`` ended the run before its target number of trials."""

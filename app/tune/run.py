@@ -62,7 +62,8 @@ def _check_identity(store: Path, cfg: TuneConfig) -> None:
     ident = json.loads(json.dumps(cfg.identity()))  # tuples as the lists read back
     if path.exists():
         old = json.loads(path.read_text())
-        diffs = [k for k in ident if old.get(k) != ident[k]]
+        # a key missing on one side reads as None (a store written before the key existed)
+        diffs = [k for k in sorted(set(ident) | set(old)) if old.get(k) != ident.get(k)]
         if diffs:
             raise ValueError(
                 f"{store} holds a different tune ({', '.join(diffs)} differ): give a new --store to start another"
@@ -117,23 +118,30 @@ def tune(
     log: Callable[[str], None] = print,
     progress: Progress | None = None,
     on_trial: Callable[[TrialResult], None] | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> TuneResult:
     """Run (or resume) the tune described by ``cfg`` in ``store`` on ``client`` (a Dask client;
-    None runs frames in this process)."""
+    None runs frames in this process).
+
+    ``stop()`` is asked before each trial and each frame: once it answers True the trial under
+    way is left as interrupted (a resume runs it again), the finished ones are reported and
+    ``TuneResult.stopped`` is True."""
     from optuna.trial import TrialState
 
     store = Path(store)
     frames = discover(cfg.dataset)
     check_config(cfg, frames)
     tune_frames, _ = split_frames(frames, cfg.holdout)
-    ordered = _rung_order(tune_frames, cfg.seed)
+    ordered = _rung_order(tune_frames, cfg.seed)[: cfg.max_frames]
+    progress = _stoppable(progress, stop)
+    stopped = False
     parts = (
         min(cfg.rungs, len(ordered)) if cfg.prune else 1
     )  # one map per part: no parts to wait for
     bounds = np.linspace(0, len(ordered), parts + 1).round().astype(int)
     dists = {d.key: d.distribution() for d in cfg.space.dims}
     grid = cfg.space.grid() if cfg.mode == "grid" else []
-    target = cfg.trials or (len(grid) if grid else 50)
+    target = target_trials(cfg)
     single = len(cfg.objectives) == 1
 
     with _locked(store):
@@ -153,6 +161,9 @@ def tune(
             done = [t for t in _finished(study) if not _interrupted(t)]
             if len(done) >= target:
                 break
+            if stop is not None and stop():
+                stopped = True
+                break
             if grid:
                 seen = [t.params for t in done]
                 todo = [p for p in grid if p not in seen]
@@ -162,7 +173,12 @@ def tune(
                     study.enqueue_trial(todo[0])
             study.sampler = _sampler(cfg, len(done))
             trial = study.ask(dists)
-            result = _run_trial(trial, cfg, ordered, bounds, client, single, progress)
+            try:
+                result = _run_trial(trial, cfg, ordered, bounds, client, single, progress)
+            except Stopped:
+                _interrupt(study, trial, cfg)
+                stopped = True
+                break
             state = {
                 "COMPLETE": TrialState.COMPLETE,
                 "PRUNED": TrialState.PRUNED,
@@ -197,9 +213,51 @@ def tune(
 
         trials = [_result_of(t) for t in _finished(study) if not _interrupted(t)]
         best = pick_best(trials, cfg)
-        out = TuneResult(trials, best, params_of(best.values, cfg.base) if best else None, store)
+        out = TuneResult(
+            trials, best, params_of(best.values, cfg.base) if best else None, store, stopped
+        )
         _write_reports(store, trials, cfg)
     return out
+
+
+class Stopped(Exception):
+    """Raised between frames when the caller's ``stop()`` answers True."""
+
+
+def _stoppable(progress: Progress | None, stop: Callable[[], bool] | None) -> Progress | None:
+    if stop is None:
+        return progress
+
+    def check(done: int, total: int, frame: str) -> None:
+        if stop():
+            raise Stopped
+        if progress is not None:
+            progress(done, total, frame)
+
+    return check
+
+
+def _interrupt(study: Any, trial: Any, cfg: TuneConfig) -> None:
+    """A trial stopped midway: failed as interrupted (out of every report), and a search queues
+    its setting again, as after a kill (see :func:`_recover`)."""
+    from optuna.trial import TrialState
+
+    trial.set_user_attr("error", INTERRUPTED)
+    study.tell(trial, state=TrialState.FAIL)
+    if cfg.mode == "search":
+        study.enqueue_trial(dict(trial.params), user_attrs={"requeued_from": trial.number})
+
+
+def _offset(progress: Progress | None, start: int, total: int) -> Progress | None:
+    """A part's progress (frames ``start`` on) as progress through all ``total`` frames."""
+    if progress is None:
+        return None
+    return lambda done, _n, frame: progress(start + done, total, frame)
+
+
+def target_trials(cfg: TuneConfig) -> int:
+    """Trials in the store when the tune is done: ``cfg.trials``, else a grid's size, else 50."""
+    return cfg.trials or (len(cfg.space.grid()) if cfg.mode == "grid" else 50)
 
 
 def _interrupted(t: Any) -> bool:
@@ -244,7 +302,7 @@ def _run_trial(
     n = len(frames)
     state = "COMPLETE"
     for step, (a, b) in enumerate(itertools.pairwise(bounds)):
-        rows += evaluate_rows(client, frames[a:b], params, progress)
+        rows += evaluate_rows(client, frames[a:b], params, _offset(progress, a, n))
         if b == n or not cfg.prune:
             continue
         failed = sum(r["status"] != "ok" for r in rows)
