@@ -10,7 +10,7 @@ layer list and its overlay toggles from these registries (``/api/info``).
 
 from __future__ import annotations
 
-from threadrecon.app.views import stages
+from threadrecon.app.views import ordering_graph, stages
 from threadrecon.app.views.data import (
     HEAVY_VALUES,
     SPLINE_SAMPLES,
@@ -36,7 +36,7 @@ from threadrecon.app.views.registry import (
     polyline,
 )
 
-_VIEW_MODULES = (stages,)
+_VIEW_MODULES = (stages, ordering_graph)
 """The modules whose ``@layer_view`` and ``@overlay_view`` functions make the scene's 3D layers
 and the 2D overlays, in stage order."""
 
