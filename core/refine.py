@@ -2,7 +2,8 @@
 
 The MVS spline of Eq. (8) takes its depth from the keypoints' stereo depths and the bounds of
 Eq. (7) only; nothing checks that its projection into the right image lies on the thread. This
-stage (a deviation, ``mode="two_view"``; ``mode="off"`` is the paper) refits S_z with S_x, S_y
+stage (a deviation, ``mode="two_view"``; ``mode="repair"`` only on frames where stereo matched
+a strand to its neighbour, the default; ``mode="off"`` is the paper) refits S_z with S_x, S_y
 fixed so that, row by row along the epipolar lines, the curve's disparity d(u) = f B / S_z(u)
 matches the disparity of the thread itself:
 
@@ -47,11 +48,13 @@ MIN_DISPARITY_PX = 0.5  # the solve linear in depth needs a positive target disp
 
 @dataclass(frozen=True)
 class RefineParams(Params):
-    mode: Literal["two_view", "off"] = param(
-        "off",  # default off: it did not carry over to fresh generated or re-imaged frames
-        # (docs/method.md, "Two-view refinement: default off"); the paper presets turn it on
+    mode: Literal["repair", "two_view", "off"] = param(
+        "repair",  # two_view everywhere did not carry over to fresh generated or re-imaged
+        # frames (docs/method.md, "Two-view refinement"); the paper presets turn it on
         label="two-view refinement",
         doc='"two_view": refit S_z so that the curve lies on the thread in both views; '
+        '"repair": the same, only on a frame where stereo matched a section of one strand to '
+        "its neighbour (a hairpin), the MVS spline unchanged on every other frame; "
         '"off": the MVS spline as it is (paper).',
     )
     smooth_px: float = param(
@@ -107,6 +110,8 @@ def refine_depth(
     # hold two runs, and start with one solve linear in depth (Gauss-Newton in disparity
     # cannot cross from one strand's depth to the other's).
     remedy = bool(mismatched.any())
+    if p.mode == "repair" and not remedy:
+        return spline
     iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1))
     if not remedy:
         iR_rank[:] = -1
@@ -160,7 +165,7 @@ def _mismatched(bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float) -> np.n
     cR, _ = runs_R.at(iR)
     with np.errstate(divide="ignore", invalid="ignore"):
         d_H = fB / bounds.centre
-    bad = (iR >= 0) & (np.abs(cL - cR - d_H) > MISMATCH_PX)
+        bad = (iR >= 0) & (np.abs(cL - cR - d_H) > MISMATCH_PX)  # NaN (no depth): not bad
     # A strand matched to its neighbour is a section of consecutive points, not one point.
     edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(np.int8), [0]])))
     out = np.zeros_like(bad)
