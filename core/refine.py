@@ -79,7 +79,7 @@ def refine_depth(
     p: RefineParams = RefineParams(),
 ) -> SplineResult:
     """S with S_z refitted to the disparity of the thread along the epipolar lines."""
-    if p.mode == "off" or not spline.ok:
+    if p.mode == "off":
         return spline
     t, k, c0 = spline.knots, spline.degree, spline.ctrl
     fB = calib.focal * calib.baseline
@@ -110,8 +110,8 @@ def refine_depth(
     # hold two runs, and start with one solve linear in depth (Gauss-Newton in disparity
     # cannot cross from one strand's depth to the other's).
     remedy = bool(mismatched.any())
-    if p.mode == "repair" and not remedy:
-        return spline
+    if (p.mode == "repair" or not spline.ok) and not remedy:
+        return spline  # a failed MVS is repaired only where its bounds matched the wrong strand
     iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1))
     if not remedy:
         iR_rank[:] = -1
@@ -121,9 +121,10 @@ def refine_depth(
     b = c0[:, 2].copy()
     for it in range(int(not remedy), p.iterations + 1):
         z = Bm @ b
-        if np.any(z <= 0):
+        if np.any(z <= 0) and it > 0:
             return spline
-        d = fB / z
+        with np.errstate(divide="ignore", invalid="ignore"):  # the linear start needs no d
+            d = np.where(z > 0, fB / z, np.nan)  # there: rows paired by rank only
         iR = np.where(iR_rank >= 0, iR_rank, runs_R.nearest_index(rows, xy[:, 0] - d))
         cR, lR = runs_R.at(iR)
         gate = np.abs(cR - (xy[:, 0] - d)) <= 0.5 * lR + GATE_PX
@@ -148,6 +149,12 @@ def refine_depth(
         b = b_new
     ctrl = c0.copy()
     ctrl[:, 2] = b
+    if not spline.ok:  # the MVS failed on bounds built on the wrong strand's depth
+        message = (
+            f"the MVS result was rejected ({spline.status}: {spline.message}); the two-view "
+            "repair met the bounds of Eq. (7) outside the strand matched to its neighbour"
+        )
+        return replace(spline, ctrl=ctrl, status="ok", message=message)
     return replace(spline, ctrl=ctrl)
 
 

@@ -135,3 +135,22 @@ def test_repair_fixes_a_hairpin_strand_matched_to_its_neighbour() -> None:
         ctrl[mode] = rec["refine"].ctrl
     assert err["off"] > 20.0 and err["repair"] < 2.0
     assert_close(ctrl["repair"], ctrl["two_view"])
+
+
+def test_repair_rescues_a_hairpin_whose_mvs_failed_on_the_wrong_strand() -> None:
+    # Generated hairpin (seed 6601 frame 7): a section matched at 3 px of disparity instead of
+    # 38 px; the MVS of Eq. (8) is infeasible on bounds built on it and its fallback curve goes
+    # behind the camera. The repair starts linear in depth from the runs paired by rank.
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import SyntheticParams, ThreadParams, generate_frame
+
+    syn = SyntheticParams(thread=ThreadParams(hairpin=True))
+    frame = generate_frame(syn, np.random.default_rng([6601, 7]))
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    pipe = Pipeline(pair, syn.camera.calibration())
+    off = pipe.run(replace(ReconParams(), refine=RefineParams(mode="off")))
+    rec = pipe.run(replace(ReconParams(), refine=RefineParams(mode="repair")))
+    assert not rec["spline"].ok and off.status == "failed"
+    assert rec["refine"].ok and "repair" in rec["refine"].message
+    assert rec.status != "failed"
+    assert curve_errors(rec["camera"].points, frame.truth.centerline).e_S_max < 2.0
