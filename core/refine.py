@@ -43,6 +43,7 @@ RIDGE = 1e-9  # relative ridge that keeps the least-squares matrix of full colum
 GATE_PX = 2.0  # a run is associated when the prediction lies within its half-length + 2 px
 MISMATCH_PX = 4.0  # stereo off by more than this from the same-rank runs: another strand
 MISMATCH_RUN = 3  # consecutive points of H that make a mismatched section
+OFF_THREAD_PX = 10  # samples (~px of image arc) off the right thread that make a section
 MIN_DISPARITY_PX = 0.5  # the solve linear in depth needs a positive target disparity
 
 
@@ -110,8 +111,14 @@ def refine_depth(
     # hold two runs, and start with one solve linear in depth (Gauss-Newton in disparity
     # cannot cross from one strand's depth to the other's).
     remedy = bool(mismatched.any())
-    if (p.mode == "repair" or not spline.ok) and not remedy:
+    if not spline.ok and not remedy:
         return spline  # a failed MVS is repaired only where its bounds matched the wrong strand
+    if (
+        p.mode == "repair"
+        and not remedy
+        and not _off_thread(xy, Bm @ c0[:, 2], rows, okL, runs_R, fB)
+    ):
+        return spline  # the MVS curve lies on the thread in both views: nothing to repair
     iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1))
     if not remedy:
         iR_rank[:] = -1
@@ -156,6 +163,22 @@ def refine_depth(
         )
         return replace(spline, ctrl=ctrl, status="ok", message=message)
     return replace(spline, ctrl=ctrl)
+
+
+def _off_thread(
+    xy: np.ndarray, z: np.ndarray, rows: np.ndarray, okL: np.ndarray, runs_R: _Runs, fB: float
+) -> bool:
+    """Whether the curve (samples ``xy``, depth ``z``, about one per px), on the thread in the
+    left view (``okL``), misses the thread in the right view by more than ``MISMATCH_PX`` beyond
+    the nearest run's half-length over a stretch of at least ``OFF_THREAD_PX`` samples (its
+    depth there belongs to no strand the right view shows)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_R = xy[:, 0] - np.where(z > 0, fB / z, np.nan)
+    cR, lR = runs_R.at(runs_R.nearest_index(rows, np.nan_to_num(x_R, nan=-1e9)))
+    with np.errstate(invalid="ignore"):
+        miss = okL & np.isfinite(cR) & ~(np.abs(cR - x_R) <= 0.5 * lR + MISMATCH_PX)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], miss.astype(np.int8), [0]])))
+    return bool(np.any(edges[1::2] - edges[::2] >= OFF_THREAD_PX))
 
 
 def _mismatched(bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float) -> np.ndarray:
