@@ -96,15 +96,6 @@ def refine_depth(
     cL, lL = runs_L.at(iL)
     okL = np.isfinite(cL) & (np.abs(cL - xy[:, 0]) <= 0.5 * lL + GATE_PX)
 
-    # Smoothness: third derivative over image arc length s = u * xy_len / length.
-    uq, wq = _gauss_nodes(t, k, QUAD_PER_SPAN)
-    D3 = BSpline(t, np.eye(len(c0)), k).derivative(3)(uq)  # d^3 S_z / du^3 per control value
-    ds_du = xy_len / spline.length
-    z_mean = float(np.mean(Bm @ c0[:, 2]))
-    to_px = fB / z_mean**2  # depth -> disparity px at the mean depth
-    S = D3 * (to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))[:, None]
-
-    BH = BSpline.design_matrix(np.clip(spline.u_H, 0, spline.length), t, k).toarray()
     mismatched = _mismatched(bounds, runs_L, runs_R, fB)
     keep = ~mismatched
     # Stereo matched another strand somewhere: pair runs by rank on rows where the two views
@@ -119,6 +110,15 @@ def refine_depth(
         and not _off_thread(xy, Bm @ c0[:, 2], rows, okL, runs_R, fB)
     ):
         return spline  # the MVS curve lies on the thread in both views: nothing to repair
+    # Smoothness: third derivative over image arc length s = u * xy_len / length.
+    uq, wq = _gauss_nodes(t, k, QUAD_PER_SPAN)
+    D3 = BSpline(t, np.eye(len(c0)), k).derivative(3)(uq)  # d^3 S_z / du^3 per control value
+    ds_du = xy_len / spline.length
+    z_mean = float(np.mean(Bm @ c0[:, 2]))
+    to_px = fB / z_mean**2  # depth -> disparity px at the mean depth
+    S = D3 * (to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))[:, None]
+
+    BH = BSpline.design_matrix(np.clip(spline.u_H, 0, spline.length), t, k).toarray()
     iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1))
     if not remedy:
         iR_rank[:] = -1
