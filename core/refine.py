@@ -44,6 +44,7 @@ GATE_PX = 2.0  # a run is associated when the prediction lies within its half-le
 MISMATCH_PX = 4.0  # stereo off by more than this from the same-rank runs: another strand
 MISMATCH_RUN = 3  # consecutive points of H that make a mismatched section
 OFF_THREAD_PX = 10  # samples (~px of image arc) off the right thread that make a section
+BACKGROUND_TOL = 12.0  # grey levels from B that look like bare background (2 x seg_delta)
 MIN_DISPARITY_PX = 0.5  # the solve linear in depth needs a positive target disparity
 
 
@@ -107,7 +108,7 @@ def refine_depth(
     if (
         p.mode == "repair"
         and not remedy
-        and not _off_thread(xy, Bm @ c0[:, 2], rows, okL, runs_R, fB)
+        and not _off_thread(xy, Bm @ c0[:, 2], rows, okL, runs_R, lifted, fB)
     ):
         return spline  # the MVS curve lies on the thread in both views: nothing to repair
     # Smoothness: third derivative over image arc length s = u * xy_len / length.
@@ -166,17 +167,36 @@ def refine_depth(
 
 
 def _off_thread(
-    xy: np.ndarray, z: np.ndarray, rows: np.ndarray, okL: np.ndarray, runs_R: _Runs, fB: float
+    xy: np.ndarray,
+    z: np.ndarray,
+    rows: np.ndarray,
+    okL: np.ndarray,
+    runs_R: _Runs,
+    lifted: LiftedPair,
+    fB: float,
 ) -> bool:
     """Whether the curve (samples ``xy``, depth ``z``, about one per px), on the thread in the
     left view (``okL``), misses the thread in the right view by more than ``MISMATCH_PX`` beyond
-    the nearest run's half-length over a stretch of at least ``OFF_THREAD_PX`` samples (its
-    depth there belongs to no strand the right view shows)."""
+    the nearest run's half-length over a stretch of at least ``OFF_THREAD_PX`` samples, where
+    the right image shows bare background (within ``BACKGROUND_TOL`` of its level B, or 3 robust
+    standard deviations of the image's grey levels on a textured background): its depth
+    there belongs to no strand the right view shows. Where the prediction falls outside the
+    right image or on something else (an occluder hiding the thread from the right camera
+    only), a miss proves nothing."""
+    H, W = lifted.grey_R.shape
     with np.errstate(divide="ignore", invalid="ignore"):
         x_R = xy[:, 0] - np.where(z > 0, fB / z, np.nan)
-    cR, lR = runs_R.at(runs_R.nearest_index(rows, np.nan_to_num(x_R, nan=-1e9)))
+    inside = np.isfinite(x_R) & (x_R >= 0) & (x_R <= W - 1) & (rows >= 0) & (rows < H)
+    xi = np.clip(np.nan_to_num(np.rint(x_R), nan=0.0), 0, W - 1).astype(np.int64)
+    sample = lifted.grey_R[::4, ::4].astype(np.float64)  # the background's own spread
+    spread = 1.4826 * float(np.median(np.abs(sample - np.median(sample))))
+    tol = max(BACKGROUND_TOL, 3.0 * spread)
+    bare = inside & (
+        np.abs(lifted.grey_R[np.clip(rows, 0, H - 1), xi] - lifted.background[1]) <= tol
+    )
+    cR, lR = runs_R.at(runs_R.nearest_index(rows, np.where(inside, x_R, -1e9)))
     with np.errstate(invalid="ignore"):
-        miss = okL & np.isfinite(cR) & ~(np.abs(cR - x_R) <= 0.5 * lR + MISMATCH_PX)
+        miss = okL & bare & np.isfinite(cR) & ~(np.abs(cR - x_R) <= 0.5 * lR + MISMATCH_PX)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], miss.astype(np.int8), [0]])))
     return bool(np.any(edges[1::2] - edges[::2] >= OFF_THREAD_PX))
 
