@@ -646,6 +646,9 @@ def _explain(
     out: list[Decision] = []
     for i, at in enumerate(walk):
         visited[at] = True
+        free = [v for v in adj[at] if not visited[v]]
+        if len(free) == 1 and i + 1 < len(walk) and walk[i + 1] == free[0]:
+            continue  # the only neighbour (most steps): no decision, no cost to replay
         cand, cost, tier, why = _continuations(walk[: i + 1], visited, adj, pos, disp, p)
         if not cand:
             continue

@@ -138,7 +138,8 @@ def refine_depth(
         gate = np.abs(cR - (xy[:, 0] - d)) <= 0.5 * lR + GATE_PX
         ok = okL & np.isfinite(cR) & ((iR_rank >= 0) | gate)
         if it == 0:
-            ok &= cL - cR > MIN_DISPARITY_PX
+            with np.errstate(invalid="ignore"):  # no run (inf - inf): not ok
+                ok &= cL - cR > MIN_DISPARITY_PX
         if ok.sum() < 10:
             return spline
         w = 1.0 / np.sqrt((lL[ok] ** 2 + lR[ok] ** 2) / 12.0)  # 1 / sigma, px
