@@ -237,12 +237,16 @@ def _extra_points(
 
 def _border_depths(path: np.ndarray, fB: float) -> np.ndarray:
     """Keypoints whose match would lie left of the right image take the depth of the nearest
-    keypoint along the path that lies safely inside it (x >= 2 d + ``BORDER_PX``): the search
-    was cut at the border there, and its depth is meaningless (metres on generated frames)."""
+    keypoint along the path that lies safely inside it (x >= 2 d + ``BORDER_PX``, and x >= the
+    median disparity of such keypoints + ``BORDER_PX``): the search was cut at the border
+    there, and its depth is meaningless (metres on generated frames). The second test catches
+    a keypoint whose cut search found a tiny disparity (x = 3 px, d = 0.002 px: 2.9 km deep)."""
     x, z = path[:, 0], path[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         d = np.where(z > 0, fB / z, np.inf)
-    safe = np.flatnonzero(x >= 2 * d + BORDER_PX)
+    first = x >= 2 * d + BORDER_PX
+    d_ref = float(np.median(d[first])) if first.any() else 0.0
+    safe = np.flatnonzero(first & (x >= d_ref + BORDER_PX))
     if safe.size == 0 or safe.size == len(path):
         return path
     i = np.arange(len(path))

@@ -35,6 +35,7 @@ from threadrecon.core.stereo import StereoResult
 _HALF_8 = ((0, 1), (1, -1), (1, 0), (1, 1))  # half of the 8-neighbourhood: each pair seen once
 OUTLIER_PX = 2.0  # a pixel > 2 px of disparity from its cluster's median is another match
 MAX_WALKS = 24  # walks tried per frame (ends, then runner-up turns of the best): bounded time
+MAX_REJECTED = 4  # rejected continuations kept per decision: a jump may see dozens, few matter
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,52 @@ class OrderingParams(Params):
 
 
 @dataclass(frozen=True)
+class Continuation:
+    """One candidate next keypoint at a decision of the walk."""
+
+    keypoint: int
+    cost: float
+    """Step cost of :func:`_walk_from` (px); inf when a rule excluded it (see ``reason``)."""
+    reason: str
+    """"chosen", "costlier", "turn > max_turn_deg" (through a crossing), "turn across the gap"
+    (a jump whose piece does not continue the way the path goes), or "cheaper, but its walk
+    kept fewer keypoints" (the chosen walk is a runner-up walk)."""
+
+
+@dataclass(frozen=True)
+class Decision:
+    """A step of the chosen walk where the walk had a choice or had to leave A.
+
+    ``step``: index in ``Ordering.order`` of the keypoint ``at`` the walk stood on.
+    ``kind``: "neighbour" (adjacent in A), "crossing" (two steps through a keypoint already on
+    the path), "jump" (across a gap, within ``bridge_px``), "end" (every continuation excluded).
+    ``chosen``: the keypoint the walk went to (-1 at an "end"), ``cost`` its step cost.
+    ``rejected``: the other continuations, cheapest first (at most ``MAX_REJECTED``)."""
+
+    step: int
+    at: int
+    kind: Literal["neighbour", "crossing", "jump", "end"]
+    chosen: int
+    cost: float
+    rejected: tuple[Continuation, ...]
+
+
+@dataclass(frozen=True)
+class OrderingGraph:
+    """Why the order came out as it did (the debugger's ordering-graph view).
+
+    ``pieces``: the chains of keypoints of A between junctions and ends (each a tuple of
+    keypoint ids in chain order; a keypoint with no neighbour is a piece of its own).
+    ``junctions``: (J,) int, keypoints of degree >= 3 in A (crossings, touching turns, side
+    branches). ``decisions``: the chosen walk's decisions (walk = "bending"; empty for the
+    paper's greedy walk, whose only rule is the nearest neighbour)."""
+
+    pieces: tuple[tuple[int, ...], ...]
+    junctions: np.ndarray
+    decisions: tuple[Decision, ...]
+
+
+@dataclass(frozen=True)
 class Ordering:
     """``node_image``: (H, W) int, cluster id (0..K-1) of solidified cluster pixels, K + gap id
     for unclustered segmented pixels, -1 off P_L.
@@ -102,6 +149,8 @@ class Ordering:
     ``pixel_t``: (N,) position in [0, 1] of each gap pixel along the link it lies in, from the
     geodesic distances d_a, d_b to the link's two clusters (t = d_a / (d_a + d_b)); NaN elsewhere.
     ``pixel_link``: (N,) index of that link, -1 elsewhere.
+    ``graph``: the pieces, junctions and the walk's decisions with their rejected
+    continuations and costs (:class:`OrderingGraph`).
     """
 
     node_image: np.ndarray
@@ -114,6 +163,7 @@ class Ordering:
     pixel_node: np.ndarray
     pixel_t: np.ndarray
     pixel_link: np.ndarray
+    graph: OrderingGraph
 
 
 def order_keypoints(
@@ -152,11 +202,12 @@ def order_keypoints(
     edges = np.array(sorted(edge_set), dtype=np.int64).reshape(-1, 2)
 
     pos = clusters.keypoints_px[:, :2] if p.metric == "image" else clusters.keypoints
+    adj = _adjacency(K, edges)
+    disp = _cluster_median(clusters.labels, stereo.disparity, K)
     if p.walk == "greedy":
         walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
     else:
-        disp = _cluster_median(clusters.labels, stereo.disparity, K)
-        walk = _bending_walk(K, edges, clusters.keypoints_px[:, :2], disp, p)
+        walk = _bending_walk(adj, clusters.keypoints_px[:, :2], disp, p)
 
     cluster_gaps: dict[int, set[int]] = {}
     for c, g in np.unique(cg, axis=0):
@@ -167,7 +218,7 @@ def order_keypoints(
     ]
     key_px = clusters.keypoints_px
     if p.walk == "bending":  # keypoint depth without pixels matched far from the cluster's
-        d_med = _cluster_median(clusters.labels, stereo.disparity, K)
+        d_med = disp
         lab = clusters.labels
         inlier = (lab >= 0) & np.isfinite(stereo.depth)
         inlier[inlier] &= np.abs(stereo.disparity[inlier] - d_med[lab[inlier]]) <= OUTLIER_PX
@@ -212,6 +263,13 @@ def order_keypoints(
 
     kept = set(walk)
     dropped = np.array([k for k in range(K) if k not in kept], dtype=np.int64)
+    degree = np.array([len(a) for a in adj], dtype=np.int64)
+    decisions = (
+        _explain(walk, adj, clusters.keypoints_px[:, :2], disp, p, offset=int(order[0] < 0))
+        if p.walk == "bending" and walk
+        else ()
+    )
+    graph = OrderingGraph(_pieces(adj), np.flatnonzero(degree >= 3), decisions)
     return Ordering(
         node_image=node_image,
         n_clusters=K,
@@ -223,6 +281,7 @@ def order_keypoints(
         pixel_node=pixel_node,
         pixel_t=pixel_t,
         pixel_link=pixel_link,
+        graph=graph,
     )
 
 
@@ -432,16 +491,21 @@ def _components(K: int, adj: list[list[int]]) -> np.ndarray:
     return comp
 
 
-def _bending_walk(
-    K: int, edges: np.ndarray, pos: np.ndarray, disp: np.ndarray, p: OrderingParams
-) -> list[int]:
-    """Best of the walks from every end keypoint (degree 1 in A), see :func:`_walk_from`; when
-    the best walk leaves keypoints out, the runner-up continuation at each junction it passed
-    is tried too (a wrong turn at a crossing strands the rest of the thread)."""
+def _adjacency(K: int, edges: np.ndarray) -> list[list[int]]:
     adj: list[list[int]] = [[] for _ in range(K)]
     for a, b in edges:
         adj[a].append(int(b))
         adj[b].append(int(a))
+    return adj
+
+
+def _bending_walk(
+    adj: list[list[int]], pos: np.ndarray, disp: np.ndarray, p: OrderingParams
+) -> list[int]:
+    """Best of the walks from every end keypoint (degree 1 in A), see :func:`_walk_from`; when
+    the best walk leaves keypoints out, the runner-up continuation at each junction it passed
+    is tried too (a wrong turn at a crossing strands the rest of the thread)."""
+    K = len(adj)
     degree = np.array([len(a) for a in adj])
     starts = [int(k) for k in np.flatnonzero(degree <= 1)]
     if not starts:  # a closed loop: start from the lowest degree
@@ -474,66 +538,20 @@ def _walk_from(
     pos: np.ndarray,
     disp: np.ndarray,
     p: OrderingParams,
-) -> tuple[list[int], float, list[tuple[int, int]]]:
+) -> tuple[list[int], list[float], list[tuple[int, int]]]:
     """Walk A on from ``prefix`` (its first step ``forced`` when given), each step to the
-    continuation of least cost
-
-        distance * (1 + bend_weight * (1 - cos turn)) + disparity_weight * |disparity change|,
-
-    among, in this order of preference: unvisited neighbours in A; unvisited keypoints two steps
-    away through a keypoint already on the path (the other strand of a crossing; a turn of more
-    than ``max_turn_deg`` only when nothing else is left: a touching turn); unvisited keypoints
-    within ``bridge_px`` whose disparity agrees and whose piece continues the same way (across
-    an occlusion or a break in the segmentation): the turn into the jump and the turn out of
-    it at most 90 deg each and ``2 max_turn_deg`` together. Returns the walk, the cost of each step and the runner-up at each step
-    that had one (as (index in the walk, keypoint)).
-    """
+    continuation of least cost of :func:`_continuations`. Returns the walk, the cost of each
+    step and the runner-up at each step that had one (as (index in the walk, keypoint))."""
     K = len(adj)
     visited = np.zeros(K, dtype=bool)
     visited[prefix] = True
     walk = list(prefix)
     steps = list(prefix_steps)
     alts: list[tuple[int, int]] = []
-    cos_max = float(np.cos(np.radians(p.max_turn_deg)))
     while True:
-        cur = walk[-1]
-        back = walk[-3] if len(walk) >= 3 else walk[0]
-        heading = pos[cur] - pos[back]
-        hn = float(np.hypot(*heading))
-        heading = heading / hn if hn > 0 else None
-        ref = float(np.mean(disp[walk[-3:]]))
-        tier = 0
-        cand = [v for v in adj[cur] if not visited[v]]
-        if not cand:
-            cand = sorted({w for u in adj[cur] if visited[u] for w in adj[u] if not visited[w]})
-            tier = 1
-        if not cand and p.bridge_px > 0 and heading is not None:
-            free = np.flatnonzero(~visited)
-            d = np.linalg.norm(pos[free] - pos[cur], axis=1)
-            near = d <= p.bridge_px
-            near &= np.abs(disp[free] - ref) <= 1.0 + 0.1 * d  # depth agrees (slope <= B/Z)
-            cand = [int(v) for v in free[near]]
-            tier = 2
+        cand, cost, _, _ = _continuations(walk, visited, adj, pos, disp, p)
         if not cand:
             break
-        c = np.array(cand)
-        chord = pos[c] - pos[cur]
-        dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
-        cos_t = chord @ heading / dist if heading is not None else np.ones(len(c))
-        cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(
-            disp[c] - ref
-        )
-        if tier == 1:
-            ok = cos_t >= cos_max
-            if ok.any():  # else a touching turn: the sharpest continuation is all that is left
-                cost = np.where(ok, cost, np.inf)
-        elif tier == 2:  # across a gap: turn in + turn out <= 2 max_turn_deg, each <= 90 deg
-            turn_in = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
-            turn_out = np.array(
-                [_turn_out(v, chord[i], adj, visited, pos) for i, v in enumerate(cand)]
-            )
-            ok = (turn_in <= 90.0) & (turn_out <= 90.0) & (turn_in + turn_out <= 2 * p.max_turn_deg)
-            cost = np.where(ok, cost, np.inf)
         rank = np.argsort(cost, kind="stable")
         j = int(rank[0])
         if forced is not None and len(walk) == len(prefix):
@@ -549,6 +567,157 @@ def _walk_from(
         walk.append(nxt)
         steps.append(float(cost[j]))
     return walk, steps, alts
+
+
+_TIERS = ("neighbour", "crossing", "jump")
+
+
+def _continuations(
+    walk: list[int],
+    visited: np.ndarray,
+    adj: list[list[int]],
+    pos: np.ndarray,
+    disp: np.ndarray,
+    p: OrderingParams,
+) -> tuple[list[int], np.ndarray, int, list[str]]:
+    """The candidates for the walk's next step, their costs
+
+        distance * (1 + bend_weight * (1 - cos turn)) + disparity_weight * |disparity change|,
+
+    the tier they come from and, per candidate, why it is excluded ("" if it is not; its cost
+    is then inf). Tiers, in this order of preference: 0, unvisited neighbours in A; 1, unvisited
+    keypoints two steps away through a keypoint already on the path (the other strand of a
+    crossing; a turn of more than ``max_turn_deg`` only when nothing else is left: a touching
+    turn); 2, unvisited keypoints within ``bridge_px`` whose disparity agrees and whose piece
+    continues the same way (across an occlusion or a break in the segmentation): the turn into
+    the jump and the turn out of it at most 90 deg each and ``2 max_turn_deg`` together."""
+    cur = walk[-1]
+    back = walk[-3] if len(walk) >= 3 else walk[0]
+    heading = pos[cur] - pos[back]
+    hn = float(np.hypot(*heading))
+    heading = heading / hn if hn > 0 else None
+    ref = float(np.mean(disp[walk[-3:]]))
+    tier = 0
+    cand = [v for v in adj[cur] if not visited[v]]
+    if not cand:
+        cand = sorted({w for u in adj[cur] if visited[u] for w in adj[u] if not visited[w]})
+        tier = 1
+    if not cand and p.bridge_px > 0 and heading is not None:
+        free = np.flatnonzero(~visited)
+        d = np.linalg.norm(pos[free] - pos[cur], axis=1)
+        near = d <= p.bridge_px
+        near &= np.abs(disp[free] - ref) <= 1.0 + 0.1 * d  # depth agrees (slope <= B/Z)
+        cand = [int(v) for v in free[near]]
+        tier = 2
+    if not cand:
+        return [], np.zeros(0), tier, []
+    c = np.array(cand)
+    chord = pos[c] - pos[cur]
+    dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
+    cos_t = chord @ heading / dist if heading is not None else np.ones(len(c))
+    cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(disp[c] - ref)
+    why = [""] * len(cand)
+    if tier == 1:
+        ok = cos_t >= float(np.cos(np.radians(p.max_turn_deg)))
+        if ok.any():  # else a touching turn: the sharpest continuation is all that is left
+            cost = np.where(ok, cost, np.inf)
+            why = ["" if k else "turn > max_turn_deg" for k in ok]
+    elif tier == 2:  # across a gap: turn in + turn out <= 2 max_turn_deg, each <= 90 deg
+        turn_in = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
+        turn_out = np.array([_turn_out(v, chord[i], adj, visited, pos) for i, v in enumerate(cand)])
+        ok = (turn_in <= 90.0) & (turn_out <= 90.0) & (turn_in + turn_out <= 2 * p.max_turn_deg)
+        cost = np.where(ok, cost, np.inf)
+        why = ["" if k else "turn across the gap" for k in ok]
+    return cand, cost, tier, why
+
+
+def _explain(
+    walk: list[int],
+    adj: list[list[int]],
+    pos: np.ndarray,
+    disp: np.ndarray,
+    p: OrderingParams,
+    offset: int,
+) -> tuple[Decision, ...]:
+    """The decisions of ``walk``, replayed: every step with more than one continuation or
+    outside A, and the end when continuations were left but all excluded. ``offset``: index in
+    ``order`` of ``walk[0]`` (1 after an extension at the start)."""
+    visited = np.zeros(len(adj), dtype=bool)
+    out: list[Decision] = []
+    for i, at in enumerate(walk):
+        visited[at] = True
+        free = [v for v in adj[at] if not visited[v]]
+        if len(free) == 1 and i + 1 < len(walk) and walk[i + 1] == free[0]:
+            continue  # the only neighbour (most steps): no decision, no cost to replay
+        cand, cost, tier, why = _continuations(walk[: i + 1], visited, adj, pos, disp, p)
+        if not cand:
+            continue
+        nxt = walk[i + 1] if i + 1 < len(walk) else -1
+        if nxt < 0 and np.isfinite(cost).any():
+            continue  # cannot happen for a walk of _walk_from; kept honest for other callers
+        if nxt >= 0 and len(cand) == 1 and tier == 0:
+            continue  # the only neighbour: no decision
+        j = cand.index(nxt) if nxt >= 0 else -1
+        best = float(np.min(cost))
+        rejected = []
+        for r in np.argsort(cost, kind="stable"):
+            if int(r) == j:
+                continue
+            reason = why[r] or "costlier"
+            if j >= 0 and cost[r] < cost[j]:
+                reason = "cheaper, but its walk kept fewer keypoints"
+            rejected.append(Continuation(int(cand[r]), float(cost[r]), reason))
+        out.append(
+            Decision(
+                step=offset + i,
+                at=int(at),
+                kind="end" if j < 0 else _TIERS[tier],  # type: ignore[arg-type]
+                chosen=int(nxt),
+                cost=float(cost[j]) if j >= 0 else best,
+                rejected=tuple(rejected[:MAX_REJECTED]),
+            )
+        )
+    return tuple(out)
+
+
+def _pieces(adj: list[list[int]]) -> tuple[tuple[int, ...], ...]:
+    """The chains of A: maximal paths whose inner keypoints have degree 2, from one keypoint of
+    degree != 2 to another; a cycle of degree-2 keypoints is one piece (closed on itself)."""
+    K = len(adj)
+    degree = np.array([len(a) for a in adj])
+    used: set[tuple[int, int]] = set()
+    pieces: list[tuple[int, ...]] = []
+    seen = np.zeros(K, dtype=bool)
+
+    def follow(a: int, b: int) -> tuple[int, ...]:
+        chain = [a, b]
+        used.add((a, b))
+        used.add((b, a))
+        while degree[chain[-1]] == 2 and chain[-1] != a:
+            u, v = chain[-2], chain[-1]
+            w = adj[v][0] if adj[v][0] != u else adj[v][1]
+            used.add((v, w))
+            used.add((w, v))
+            chain.append(w)
+        return tuple(chain)
+
+    for k in range(K):
+        if degree[k] == 2:
+            continue
+        seen[k] = True
+        if degree[k] == 0:
+            pieces.append((k,))
+        for v in adj[k]:
+            if (k, v) not in used:
+                chain = follow(k, v)
+                seen[list(chain)] = True
+                pieces.append(chain)
+    for k in range(K):  # closed loops of degree-2 keypoints only
+        if not seen[k]:
+            chain = follow(k, adj[k][0])
+            seen[list(chain)] = True
+            pieces.append(chain)
+    return tuple(pieces)
 
 
 def _turn_out(

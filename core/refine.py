@@ -2,7 +2,8 @@
 
 The MVS spline of Eq. (8) takes its depth from the keypoints' stereo depths and the bounds of
 Eq. (7) only; nothing checks that its projection into the right image lies on the thread. This
-stage (a deviation, ``mode="two_view"``; ``mode="off"`` is the paper) refits S_z with S_x, S_y
+stage (a deviation, ``mode="two_view"``; ``mode="repair"`` only on frames where stereo matched
+a strand to its neighbour, the default; ``mode="off"`` is the paper) refits S_z with S_x, S_y
 fixed so that, row by row along the epipolar lines, the curve's disparity d(u) = f B / S_z(u)
 matches the disparity of the thread itself:
 
@@ -42,16 +43,20 @@ RIDGE = 1e-9  # relative ridge that keeps the least-squares matrix of full colum
 GATE_PX = 2.0  # a run is associated when the prediction lies within its half-length + 2 px
 MISMATCH_PX = 4.0  # stereo off by more than this from the same-rank runs: another strand
 MISMATCH_RUN = 3  # consecutive points of H that make a mismatched section
+OFF_THREAD_PX = 10  # samples (~px of image arc) off the right thread that make a section
+BACKGROUND_TOL = 12.0  # grey levels from B that look like bare background (2 x seg_delta)
 MIN_DISPARITY_PX = 0.5  # the solve linear in depth needs a positive target disparity
 
 
 @dataclass(frozen=True)
 class RefineParams(Params):
-    mode: Literal["two_view", "off"] = param(
-        "off",  # default off: it did not carry over to fresh generated or re-imaged frames
-        # (docs/method.md, "Two-view refinement: default off"); the paper presets turn it on
+    mode: Literal["repair", "two_view", "off"] = param(
+        "repair",  # two_view everywhere did not carry over to fresh generated or re-imaged
+        # frames (docs/method.md, "Two-view refinement"); the paper presets turn it on
         label="two-view refinement",
         doc='"two_view": refit S_z so that the curve lies on the thread in both views; '
+        '"repair": the same, only on a frame where stereo matched a section of one strand to '
+        "its neighbour (a hairpin), the MVS spline unchanged on every other frame; "
         '"off": the MVS spline as it is (paper).',
     )
     smooth_px: float = param(
@@ -76,7 +81,7 @@ def refine_depth(
     p: RefineParams = RefineParams(),
 ) -> SplineResult:
     """S with S_z refitted to the disparity of the thread along the epipolar lines."""
-    if p.mode == "off" or not spline.ok:
+    if p.mode == "off":
         return spline
     t, k, c0 = spline.knots, spline.degree, spline.ctrl
     fB = calib.focal * calib.baseline
@@ -92,6 +97,20 @@ def refine_depth(
     cL, lL = runs_L.at(iL)
     okL = np.isfinite(cL) & (np.abs(cL - xy[:, 0]) <= 0.5 * lL + GATE_PX)
 
+    mismatched = _mismatched(bounds, runs_L, runs_R, fB)
+    keep = ~mismatched
+    # Stereo matched another strand somewhere: pair runs by rank on rows where the two views
+    # hold two runs, and start with one solve linear in depth (Gauss-Newton in disparity
+    # cannot cross from one strand's depth to the other's).
+    remedy = bool(mismatched.any())
+    if not spline.ok and not remedy:
+        return spline  # a failed MVS is repaired only where its bounds matched the wrong strand
+    if (
+        p.mode == "repair"
+        and not remedy
+        and not _off_thread(xy, Bm @ c0[:, 2], rows, okL, runs_R, lifted, fB)
+    ):
+        return spline  # the MVS curve lies on the thread in both views: nothing to repair
     # Smoothness: third derivative over image arc length s = u * xy_len / length.
     uq, wq = _gauss_nodes(t, k, QUAD_PER_SPAN)
     D3 = BSpline(t, np.eye(len(c0)), k).derivative(3)(uq)  # d^3 S_z / du^3 per control value
@@ -101,12 +120,6 @@ def refine_depth(
     S = D3 * (to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))[:, None]
 
     BH = BSpline.design_matrix(np.clip(spline.u_H, 0, spline.length), t, k).toarray()
-    mismatched = _mismatched(bounds, runs_L, runs_R, fB)
-    keep = ~mismatched
-    # Stereo matched another strand somewhere: pair runs by rank on rows where the two views
-    # hold two runs, and start with one solve linear in depth (Gauss-Newton in disparity
-    # cannot cross from one strand's depth to the other's).
-    remedy = bool(mismatched.any())
     iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1))
     if not remedy:
         iR_rank[:] = -1
@@ -116,15 +129,17 @@ def refine_depth(
     b = c0[:, 2].copy()
     for it in range(int(not remedy), p.iterations + 1):
         z = Bm @ b
-        if np.any(z <= 0):
+        if np.any(z <= 0) and it > 0:
             return spline
-        d = fB / z
+        with np.errstate(divide="ignore", invalid="ignore"):  # the linear start needs no d
+            d = np.where(z > 0, fB / z, np.nan)  # there: rows paired by rank only
         iR = np.where(iR_rank >= 0, iR_rank, runs_R.nearest_index(rows, xy[:, 0] - d))
         cR, lR = runs_R.at(iR)
         gate = np.abs(cR - (xy[:, 0] - d)) <= 0.5 * lR + GATE_PX
         ok = okL & np.isfinite(cR) & ((iR_rank >= 0) | gate)
         if it == 0:
-            ok &= cL - cR > MIN_DISPARITY_PX
+            with np.errstate(invalid="ignore"):  # no run (inf - inf): not ok
+                ok &= cL - cR > MIN_DISPARITY_PX
         if ok.sum() < 10:
             return spline
         w = 1.0 / np.sqrt((lL[ok] ** 2 + lR[ok] ** 2) / 12.0)  # 1 / sigma, px
@@ -143,7 +158,48 @@ def refine_depth(
         b = b_new
     ctrl = c0.copy()
     ctrl[:, 2] = b
+    if not spline.ok:  # the MVS failed on bounds built on the wrong strand's depth
+        message = (
+            f"the MVS result was rejected ({spline.status}: {spline.message}); the two-view "
+            "repair met the bounds of Eq. (7) outside the strand matched to its neighbour"
+        )
+        return replace(spline, ctrl=ctrl, status="ok", message=message)
     return replace(spline, ctrl=ctrl)
+
+
+def _off_thread(
+    xy: np.ndarray,
+    z: np.ndarray,
+    rows: np.ndarray,
+    okL: np.ndarray,
+    runs_R: _Runs,
+    lifted: LiftedPair,
+    fB: float,
+) -> bool:
+    """Whether the curve (samples ``xy``, depth ``z``, about one per px), on the thread in the
+    left view (``okL``), misses the thread in the right view by more than ``MISMATCH_PX`` beyond
+    the nearest run's half-length over a stretch of at least ``OFF_THREAD_PX`` samples, where
+    the right image shows bare background (within ``BACKGROUND_TOL`` of its level B, or 3 robust
+    standard deviations of the image's grey levels on a textured background): its depth
+    there belongs to no strand the right view shows. Where the prediction falls outside the
+    right image or on something else (an occluder hiding the thread from the right camera
+    only), a miss proves nothing."""
+    H, W = lifted.grey_R.shape
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_R = xy[:, 0] - np.where(z > 0, fB / z, np.nan)
+    inside = np.isfinite(x_R) & (x_R >= 0) & (x_R <= W - 1) & (rows >= 0) & (rows < H)
+    xi = np.clip(np.nan_to_num(np.rint(x_R), nan=0.0), 0, W - 1).astype(np.int64)
+    sample = lifted.grey_R[::4, ::4].astype(np.float64)  # the background's own spread
+    spread = 1.4826 * float(np.median(np.abs(sample - np.median(sample))))
+    tol = max(BACKGROUND_TOL, 3.0 * spread)
+    bare = inside & (
+        np.abs(lifted.grey_R[np.clip(rows, 0, H - 1), xi] - lifted.background[1]) <= tol
+    )
+    cR, lR = runs_R.at(runs_R.nearest_index(rows, np.where(inside, x_R, -1e9)))
+    with np.errstate(invalid="ignore"):
+        miss = okL & bare & np.isfinite(cR) & ~(np.abs(cR - x_R) <= 0.5 * lR + MISMATCH_PX)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], miss.astype(np.int8), [0]])))
+    return bool(np.any(edges[1::2] - edges[::2] >= OFF_THREAD_PX))
 
 
 def _mismatched(bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float) -> np.ndarray:
@@ -160,7 +216,7 @@ def _mismatched(bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float) -> np.n
     cR, _ = runs_R.at(iR)
     with np.errstate(divide="ignore", invalid="ignore"):
         d_H = fB / bounds.centre
-    bad = (iR >= 0) & (np.abs(cL - cR - d_H) > MISMATCH_PX)
+        bad = (iR >= 0) & (np.abs(cL - cR - d_H) > MISMATCH_PX)  # NaN (no depth): not bad
     # A strand matched to its neighbour is a section of consecutive points, not one point.
     edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(np.int8), [0]])))
     out = np.zeros_like(bad)

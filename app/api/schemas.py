@@ -7,6 +7,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from threadrecon.app.session import MAX_PAUSE_S
+from threadrecon.app.views.registry import OverlayKind
 
 PauseMs = Field(0.0, ge=0.0, le=1000.0 * MAX_PAUSE_S, allow_inf_nan=False)
 
@@ -152,7 +153,7 @@ class Frame(BaseModel):
 class OverlaySpec(BaseModel):
     key: str
     label: str
-    kind: Literal["pixels", "circles", "squares", "polyline"]
+    kind: OverlayKind
     color: str
     color2: str | None
     on: bool

@@ -10,7 +10,7 @@ layer list and its overlay toggles from these registries (``/api/info``).
 
 from __future__ import annotations
 
-from threadrecon.app.views import check, corrections, stages
+from threadrecon.app.views import check, corrections, ordering_graph, stages
 from threadrecon.app.views.data import (
     HEAVY_VALUES,
     SPLINE_SAMPLES,
@@ -35,10 +35,17 @@ from threadrecon.app.views.registry import (
     palette,
     polyline,
 )
+from threadrecon.core.pipeline import STAGES
 
-_VIEW_MODULES = (stages, check, corrections)
+_VIEW_MODULES = (stages, ordering_graph, check, corrections)
 """The modules whose ``@layer_view`` and ``@overlay_view`` functions make the scene's 3D layers
 and the 2D overlays, in stage order."""
+
+# The scene's layers in stage order (of the stage that first shows each), whatever the order
+# in which their modules were imported.
+_ordered = sorted(LAYER_VIEWS.values(), key=lambda v: STAGES.index(v.shows_at))
+LAYER_VIEWS.clear()
+LAYER_VIEWS.update((v.name, v) for v in _ordered)
 
 # Derived views of the registry, for the scene and the API.
 LAYERS: dict[str, tuple[str, ...]] = {v.name: v.needs for v in LAYER_VIEWS.values()}

@@ -101,7 +101,7 @@ def layer(
 
 # --- 2D overlays ---------------------------------------------------------------------------
 
-OverlayKind = Literal["pixels", "circles", "squares", "polyline"]
+OverlayKind = Literal["pixels", "circles", "squares", "polyline", "segments"]
 """How the page draws an overlay's payload (per side):
 
 - ``pixels``: a flat ``[x0, y0, x1, y1, ...]`` list of integer pixels, one dot each;
@@ -109,7 +109,10 @@ OverlayKind = Literal["pixels", "circles", "squares", "polyline"]
 - ``squares``: ``[[x, y, flag], ...]``, a small square each, ``color`` if flag else ``color2``;
 - ``polyline``: ``{"points": [[x, y], ...]}``, a line through them; optional ``"colors"``
   (one CSS colour per point, for the segment that starts there) and any statistics
-  (``mean_px``, ``max_px``, ``coverage``) the page shows beside the image.
+  (``mean_px``, ``max_px``, ``coverage``) the page shows beside the image;
+- ``segments``: ``{"segments": [[x0, y0, x1, y1], ...]}``, separate line segments; optional
+  ``"colors"`` (one CSS colour per segment) and ``"labels"`` (``[[x, y, text, css], ...]``,
+  short texts drawn at those pixels, e.g. the costs of the ordering's continuations).
 """
 
 

@@ -84,10 +84,23 @@ const DRAW = {
     }
     ctx.setLineDash([]);
   },
+  segments(ctx, o, seg) {  // separate segments, optional colour per segment and text labels
+    ctx.lineWidth = 1.5; ctx.setLineDash(o.dash ? [4, 3] : []);
+    (seg.segments || []).forEach((q, i) => {
+      ctx.strokeStyle = (seg.colors && seg.colors[i]) || o.color;
+      ctx.beginPath(); ctx.moveTo(q[0], q[1]); ctx.lineTo(q[2], q[3]); ctx.stroke();
+    });
+    ctx.setLineDash([]);
+    ctx.font = "10px sans-serif"; ctx.lineWidth = 3; ctx.strokeStyle = "rgba(0,0,0,0.7)";
+    for (const [x, y, text, color] of seg.labels || []) {  // canvas text: never parsed as HTML
+      ctx.strokeText(String(text), x + 2, y - 2);
+      ctx.fillStyle = color || o.color; ctx.fillText(String(text), x + 2, y - 2);
+    }
+  },
 };
 
 const pixelMeta = (ov, key, side) => ov._pixels && ov._pixels[key] && ov._pixels[key][side];
-const countOf = (o, payload, meta) => (o.kind === "pixels" ? (meta ? meta.count : payload.length / 2) : o.kind === "polyline" ? payload.points.length : payload.length);
+const countOf = (o, payload, meta) => (o.kind === "pixels" ? (meta ? meta.count : payload.length / 2) : o.kind === "polyline" ? payload.points.length : o.kind === "segments" ? (payload.labels || []).length : payload.length);
 
 export function drawImages() {
   const ov = S.overlay && S.overlay.frame_id === S.frameId ? S.overlay : {};

@@ -369,3 +369,22 @@ def test_second_tab_does_not_disturb_the_first(tab, context, server):
     assert tab.api_count() == first_count
     assert tab.page_count() == first_count
     assert first_slider.get_attribute("aria-valuenow") == first_value
+
+
+def test_ordering_graph_overlay_draws_its_costs_when_toggled(tab):
+    # A generic overlay of kind "segments": its toggle draws the pieces and the labelled
+    # continuations on the left image; the badge counts the cost labels the server sent.
+    page = tab.page
+    tab.select(TISSUE)
+    payload = page.evaluate("window.threadrecon.overlay.ordering_graph.left")
+    assert len(payload["segments"]) == len(payload["colors"]) > 0
+    badge = page.locator('[data-count="ordering_graph"]').inner_text().strip()
+    assert badge == f"({len(payload['labels'])})"
+    box = page.locator('[data-ov="ordering_graph"]')
+    assert not box.is_checked()  # off when the page opens
+    before = page.evaluate("document.querySelector('#img-left').toDataURL()")
+    box.check()
+    after = page.evaluate("document.querySelector('#img-left').toDataURL()")
+    assert after != before
+    box.uncheck()
+    assert page.evaluate("document.querySelector('#img-left').toDataURL()") == before

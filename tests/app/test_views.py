@@ -152,6 +152,11 @@ PAYLOAD_CHECKS = {
         all(len(q) == 2 for q in p["points"])
         and ("colors" not in p or len(p["colors"]) == len(p["points"]))
     ),
+    "segments": lambda p: (
+        all(len(q) == 4 for q in p["segments"])
+        and ("colors" not in p or len(p["colors"]) == len(p["segments"]))
+        and all(len(q) == 4 and isinstance(q[2], str) for q in p.get("labels", []))
+    ),
 }
 
 

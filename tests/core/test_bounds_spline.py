@@ -9,7 +9,7 @@ from scipy.interpolate import BSpline
 from support import assert_close, synthetic_case
 from threadpoolctl import threadpool_limits
 
-from threadrecon.core.bounds import Bounds, BoundsParams, _window_line_fits
+from threadrecon.core.bounds import Bounds, BoundsParams, _border_depths, _window_line_fits
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import to_camera
 from threadrecon.core.pipeline import Pipeline, ReconParams
@@ -323,3 +323,16 @@ def test_contradictory_endpoint_slopes_are_relaxed_or_reported_infeasible() -> N
     assert relaxed.status == "ok", relaxed.message
     assert "relaxed" in relaxed.message
     assert relaxed.max_violation <= SplineParams().bound_tol
+
+
+def test_a_border_keypoint_with_a_cut_search_takes_its_neighbours_depth() -> None:
+    # fB = 4450 px mm; the thread lies at 120 mm (d = 37 px). Its last keypoints are 3 px and
+    # 30 px from the left border: their matches lie left of the right image, and the cut search
+    # found d = 0.002 px (2.2 km) and 28 px. Both take the depth of the nearest safe keypoint.
+    fB = 4450.0
+    x = np.array([300.0, 250.0, 200.0, 150.0, 100.0, 30.0, 3.0])
+    z = np.array([120.0, 121.0, 122.0, 123.0, 124.0, fB / 28.0, fB / 0.002])
+    path = np.column_stack([x, np.full(7, 200.0), z])
+    out = _border_depths(path, fB)
+    assert_close(out[:5], path[:5])
+    assert_close(out[5:, 2], np.array([124.0, 124.0]))

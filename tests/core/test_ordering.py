@@ -12,6 +12,9 @@ from threadrecon.core.metrics import curve_errors, polyline_length, resample
 from threadrecon.core.ordering import (
     Ordering,
     OrderingParams,
+    _adjacency,
+    _bending_walk,
+    _explain,
     _GapGeodesics,
     _normalised,
 )
@@ -153,3 +156,48 @@ def test_paper_walk_stays_reachable() -> None:
     a = _ordering(0, replace(ReconParams(), ordering=OrderingParams(walk="greedy")))
     b = _ordering(0)
     assert np.array_equal(np.sort(a.order[a.order >= 0]), np.sort(b.order[b.order >= 0]))
+
+
+def test_decision_costs_are_bending_and_disparity_exactly() -> None:
+    # A T: 0-1-2 along x, then 4 straight on and 3 at a right angle (both 10 px from 2); the
+    # walk goes straight on at cost 10, the turn costs 10 * (1 + bend_weight * (1 - cos 90)).
+    pos = np.array([[0, 0], [10, 0], [20, 0], [20, 10], [30, 0]], dtype=float)
+    disp = np.array([5.0, 5.0, 5.0, 5.0, 6.0])
+    adj = _adjacency(5, np.array([[0, 1], [1, 2], [2, 3], [2, 4]]))
+    p = OrderingParams(bend_weight=2.0, disparity_weight=10.0)
+    walk = _bending_walk(adj, pos, disp, p)
+    assert walk == [0, 1, 2, 4, 3]  # back through the junction to the side branch at the end
+    d, back = _explain(walk, adj, pos, disp, p, offset=0)
+    assert (back.step, back.at, back.kind, back.chosen, back.rejected) == (3, 4, "crossing", 3, ())
+    assert (d.step, d.at, d.kind, d.chosen) == (2, 2, "neighbour", 4)
+    assert d.cost == pytest.approx(10.0 + 10.0 * 1.0)  # straight, disparity 5 -> 6
+    (rej,) = d.rejected
+    assert rej.keypoint == 3 and rej.cost == pytest.approx(10.0 * 3.0)
+    assert rej.reason == "costlier"
+    # forced the other way (a runner-up walk): the cheaper continuation is named as such
+    d = _explain([0, 1, 2, 3, 4], adj, pos, disp, p, offset=1)[0]
+    assert d.step == 3 and d.chosen == 3 and d.rejected[0].reason.startswith("cheaper")
+
+
+def test_pieces_cover_every_edge_of_a_once_and_end_at_junctions() -> None:
+    for seed in TRIALS[:3]:
+        pair, calib, _ = synthetic_case(seed, crossing=True)
+        o = Pipeline(pair, calib).run(ReconParams(), until="ordering")["ordering"]
+        degree = np.bincount(o.edges.ravel(), minlength=o.n_clusters)
+        np.testing.assert_array_equal(o.graph.junctions, np.flatnonzero(degree >= 3))
+        steps = sorted(
+            (min(a, b), max(a, b))
+            for piece in o.graph.pieces
+            for a, b in zip(piece[:-1], piece[1:], strict=True)
+        )
+        assert steps == sorted(map(tuple, o.edges.tolist()))
+        for piece in o.graph.pieces:
+            assert all(degree[k] == 2 for k in piece[1:-1])
+        order = o.order.tolist()
+        for d in o.graph.decisions:
+            assert order[d.step] == d.at
+            if d.chosen >= 0:
+                assert order[d.step + 1] == d.chosen
+                finite = [c.cost for c in d.rejected if np.isfinite(c.cost)]
+                cheaper = [c for c in d.rejected if c.reason.startswith("cheaper")]
+                assert cheaper or all(d.cost <= c for c in finite)

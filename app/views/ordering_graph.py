@@ -1,0 +1,127 @@
+"""Why the order came out as it did: the ordering's pieces, junctions, chosen path and, at each
+decision of the walk, the continuations it rejected with their costs (``Ordering.graph``), as a
+3D layer and as a 2D overlay over the left image."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from threadrecon.app.views.registry import (
+    Label,
+    Layer,
+    Points,
+    Segments,
+    layer_view,
+    overlay_view,
+    palette,
+)
+from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.ordering import Decision, Ordering
+from threadrecon.core.pipeline import Reconstruction
+
+CHOSEN = (40, 220, 90)
+REJECTED = (235, 60, 60)
+JUNCTION = (255, 255, 255)
+CHOSEN_CSS = "#28dc5a"
+REJECTED_CSS = "#eb3c3c"
+PIECE_ALPHA = 0.55  # pieces drawn faint on the image: the chosen path and decisions stand out
+
+
+def cost_text(cost: float, reason: str = "") -> str:
+    """A step cost as shown beside its continuation: the number, or the rule that excluded it."""
+    if np.isfinite(cost):
+        return f"{cost:.1f}"
+    return {"turn > max_turn_deg": "x turn", "turn across the gap": "x gap turn"}.get(reason, "x")
+
+
+def _steps(od: Ordering) -> list[tuple[Decision, int, float, str, bool]]:
+    """(decision, to, cost, text, chosen) for every continuation of every decision (not the
+    excluded-at-the-end ones' missing 'chosen')."""
+    out = []
+    for d in od.graph.decisions:
+        if d.chosen >= 0:
+            out.append((d, d.chosen, d.cost, cost_text(d.cost), True))
+        for c in d.rejected:
+            out.append((d, c.keypoint, c.cost, cost_text(c.cost, c.reason), False))
+    return out
+
+
+# --- 2D overlay ----------------------------------------------------------------------------
+
+
+@overlay_view(
+    "ordering_graph",
+    "ordering graph",
+    "segments",
+    ("clustering", "ordering"),
+    REJECTED_CSS,
+    on=False,
+    count=True,
+    reveal="ordering",
+)
+def _ordering_graph_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
+    """Pieces (one faint colour each), then every decision's continuations: the chosen one
+    green, the rejected ones red, each labelled with its cost at its middle."""
+    kp = rec["clustering"].keypoints_px[:, :2]
+    od: Ordering = rec["ordering"]
+    segments: list[list[float]] = []
+    colors: list[str] = []
+    pal = palette(max(len(od.graph.pieces), 1))
+    for i, piece in enumerate(od.graph.pieces):
+        r, g, b = (int(v) for v in pal[i])
+        for a, c in zip(piece[:-1], piece[1:], strict=True):
+            segments.append([*kp[a], *kp[c]])
+            colors.append(f"rgba({r},{g},{b},{PIECE_ALPHA})")
+    labels: list[list[Any]] = []
+    for d, to, _, text, chosen in _steps(od):
+        css = CHOSEN_CSS if chosen else REJECTED_CSS
+        segments.append([*kp[d.at], *kp[to]])
+        colors.append(css)
+        mid = 0.5 * (kp[d.at] + kp[to])
+        labels.append([round(float(mid[0]), 1), round(float(mid[1]), 1), text, css])
+    return {
+        "left": {
+            "segments": np.round(np.array(segments, dtype=float).reshape(-1, 4), 2).tolist(),
+            "colors": colors,
+            "labels": labels,
+        }
+    }
+
+
+# --- 3D layer ------------------------------------------------------------------------------
+
+
+@layer_view("ordering_graph", needs=("clustering", "ordering"), shows_at="ordering")
+def _ordering_graph_layer(
+    rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None
+) -> Layer:
+    """``pieces/i`` (one colour each), ``junctions``, ``chosen`` and ``rejected`` continuations
+    at the walk's decisions, and ``costs/j`` labels at their middles."""
+    kp = rec["clustering"].keypoints.astype(np.float32)
+    od: Ordering = rec["ordering"]
+    finite = np.isfinite(kp).all(axis=1)
+    nodes: Layer = {}
+    pal = palette(max(len(od.graph.pieces), 1))
+    for i, piece in enumerate(od.graph.pieces):
+        pairs = np.array([(a, b) for a, b in zip(piece[:-1], piece[1:], strict=True)])
+        if len(pairs) and (pairs := pairs[finite[pairs].all(axis=1)]).size:
+            nodes[f"pieces/{i}"] = Segments(kp[pairs], tuple(int(v) for v in pal[i]), 2.0)
+    junctions = od.graph.junctions[finite[od.graph.junctions]]
+    if junctions.size:
+        nodes["junctions"] = Points(kp[junctions], np.array(JUNCTION, np.uint8), 5.0)
+    chosen: list[tuple[int, int]] = []
+    rejected: list[tuple[int, int]] = []
+    for j, (d, to, _, text, is_chosen) in enumerate(_steps(od)):
+        if not (finite[d.at] and finite[to]):
+            continue
+        (chosen if is_chosen else rejected).append((d.at, to))
+        nodes[f"costs/{j}"] = Label(text, 0.5 * (kp[d.at] + kp[to]))
+    for name, pairs, color, width in (
+        ("chosen", chosen, CHOSEN, 4.0),
+        ("rejected", rejected, REJECTED, 2.0),
+    ):
+        if pairs:
+            nodes[name] = Segments(kp[np.array(pairs)], color, width)
+    return nodes
