@@ -32,8 +32,8 @@ sys.path.insert(0, str(ROOT))
 
 import httpx  # noqa: E402
 import uvicorn  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
 
-from threadrecon.app.cli import limit_blas_threads  # noqa: E402
 from threadrecon.app.library import merge_params  # noqa: E402
 from threadrecon.app.server import ServerConfig, create_app  # noqa: E402
 
@@ -134,7 +134,7 @@ def socket_viewer(viser_port: int, sid: str):
 
 
 def main() -> int:
-    limit_blas_threads()  # as `threadrecon serve` does
+    threadpool_limits(limits=1, user_api="blas")  # as `threadrecon serve` does
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("data", nargs="?", default=str(ROOT / "sample_data"))
     ap.add_argument("--repeat", type=int, default=3, help="changes per parameter and frame")
