@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 
+import cv2
 import numpy as np
 
 from threadrecon.core.calibration import StereoCalibration
@@ -73,3 +75,42 @@ def synthetic_case(
     frame = synthetic_frame(seed, **thread_kwargs)
     pair = StereoPair(frame.left, frame.right)
     return pair, calibration_for(frame.camera), frame.truth.centerline
+
+
+def write_png(path: Path, img: np.ndarray) -> Path:
+    """``img`` (RGB uint8, grey, or a bool mask) as a PNG at ``path`` (folders made)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if img.dtype == bool:
+        img = img.astype(np.uint8) * 255
+    elif img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+    assert cv2.imwrite(str(path), img)
+    return path
+
+
+def write_calibration(folder: Path, name: str = "calibration.yaml") -> Path:
+    """The generator's rig as an OpenCV calibration file ``folder/name``."""
+    from rig_support import opencv_yaml
+
+    folder.mkdir(parents=True, exist_ok=True)
+    p = folder / name
+    p.write_text(opencv_yaml(calibration_for(synthetic_frame(0).camera)))
+    return p
+
+
+def far_spot(mask: np.ndarray, length: int, margin: int) -> tuple[int, int]:
+    """(x, y) of the left end of a horizontal run of ``length`` px at least ``margin`` px
+    from every mask pixel and from the border (where a test draws a distractor)."""
+    dist = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 3)
+    ok = dist > margin
+    ok[:margin], ok[-margin:], ok[:, :margin], ok[:, -margin - length :] = (
+        False,
+        False,
+        False,
+        False,
+    )
+    run = cv2.erode(ok.astype(np.uint8), np.ones((1, length), np.uint8), anchor=(0, 0))
+    ys, xs = np.nonzero(run)
+    assert len(ys), "no free spot for a distractor"
+    i = len(ys) // 2
+    return int(xs[i]), int(ys[i])

@@ -85,16 +85,24 @@ async def add_correction(state: State, frame_id: str, body: CorrectionBody) -> J
     return answer({"correction": stored.to_dict(), **out})
 
 
+async def _history(
+    state: AppState, frame_id: str, body: ActionBody | None, op: str
+) -> JSONResponse:
+    """Undo or redo one correction of the frame, then run it again."""
+    state.frame(frame_id)
+    body = body or ActionBody()
+    s = state.session(body.session)
+    changed = await run_in_threadpool(getattr(state.corrections, op), frame_id)
+    key = {"undo": "undone", "redo": "redone"}[op]
+    return answer({key: changed.to_dict(), **await _rerun(state, s, frame_id, body.wait)})
+
+
 @router.post("/{frame_id:path}/corrections/undo")
 async def undo(
     state: State, frame_id: str, body: Annotated[ActionBody | None, Body()] = None
 ) -> JSONResponse:
     """Undo the frame's newest correction (409 when there is none)."""
-    state.frame(frame_id)
-    body = body or ActionBody()
-    s = state.session(body.session)
-    undone = await run_in_threadpool(state.corrections.undo, frame_id)
-    return answer({"undone": undone.to_dict(), **await _rerun(state, s, frame_id, body.wait)})
+    return await _history(state, frame_id, body, "undo")
 
 
 @router.post("/{frame_id:path}/corrections/redo")
@@ -102,11 +110,7 @@ async def redo(
     state: State, frame_id: str, body: Annotated[ActionBody | None, Body()] = None
 ) -> JSONResponse:
     """Apply again the correction undone last (409 when there is none)."""
-    state.frame(frame_id)
-    body = body or ActionBody()
-    s = state.session(body.session)
-    redone = await run_in_threadpool(state.corrections.redo, frame_id)
-    return answer({"redone": redone.to_dict(), **await _rerun(state, s, frame_id, body.wait)})
+    return await _history(state, frame_id, body, "redo")
 
 
 @router.post("/{frame_id:path}/corrections/clear")

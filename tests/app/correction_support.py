@@ -11,6 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from rig_support import opencv_yaml
+from support import far_spot
 
 from threadrecon.core.synthetic import RenderParams, SyntheticParams, generate_frame
 
@@ -32,22 +33,6 @@ class Case:
     length_mm: float
 
 
-def _far_spot(mask: np.ndarray, length: int, margin: int = 30) -> tuple[int, int]:
-    dist = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 3)
-    ok = dist > margin
-    ok[:margin], ok[-margin:], ok[:, :margin], ok[:, -margin - length :] = (
-        False,
-        False,
-        False,
-        False,
-    )
-    run = cv2.erode(ok.astype(np.uint8), np.ones((1, length), np.uint8), anchor=(0, 0))
-    ys, xs = np.nonzero(run)
-    assert len(ys), "no free spot for the vessel"
-    i = len(ys) // 2
-    return int(xs[i]), int(ys[i])
-
-
 def write_case(root: Path, seed: int = 11) -> Case:
     """Write the frame (side-by-side PNG, its mask, ground truth, calibration) under ``root``."""
     frame = generate_frame(
@@ -59,7 +44,7 @@ def write_case(root: Path, seed: int = 11) -> Case:
     masks = {"left": frame.mask_left.copy(), "right": frame.mask_right.copy()}
     # the vessel: a stripe 2 px wide and 120 px long, away from the thread in both views
     both = masks["left"] | np.roll(masks["right"], VESSEL_DISPARITY, axis=1)
-    x, y = _far_spot(both, 140)
+    x, y = far_spot(both, 140, margin=30)
     vessel = {}
     for view, img, shift in (("left", left, 0), ("right", right, -VESSEL_DISPARITY)):
         a, b = (x + shift, y), (x + shift + 120, y + 25)

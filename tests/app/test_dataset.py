@@ -5,40 +5,22 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 import yaml
 from rig_support import opencv_yaml, raw_rig, ros_camera_info
-from support import assert_close, calibration_for, synthetic_frame
+from support import assert_close, calibration_for, synthetic_frame, write_calibration, write_png
 
 from threadrecon.app.dataset import discover, load_frame
 from threadrecon.core.rectify import rectification, rectify_pair
 
 
-def _png(path: Path, img: np.ndarray) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if img.dtype == bool:
-        img = img.astype(np.uint8) * 255
-    elif img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
-    assert cv2.imwrite(str(path), img)
-    return path
-
-
-def _calib(folder: Path, name: str = "calibration.yaml") -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    p = folder / name
-    p.write_text(opencv_yaml(calibration_for(synthetic_frame(0).camera)))
-    return p
-
-
 def _write_pair(folder: Path, left: str, right: str, masks: bool = True, seed: int = 0) -> None:
     f = synthetic_frame(seed)
-    lp, rp = _png(folder / left, f.left), _png(folder / right, f.right)
+    lp, rp = write_png(folder / left, f.left), write_png(folder / right, f.right)
     if masks:
-        _png(lp.with_name(lp.stem + "_mask.png"), f.mask_left)
-        _png(rp.with_name(rp.stem + "_mask.png"), f.mask_right)
+        write_png(lp.with_name(lp.stem + "_mask.png"), f.mask_left)
+        write_png(rp.with_name(rp.stem + "_mask.png"), f.mask_right)
 
 
 def _check_loaded(frame, with_masks: bool = True) -> None:  # type: ignore[no-untyped-def]
@@ -57,10 +39,10 @@ def _check_loaded(frame, with_masks: bool = True) -> None:  # type: ignore[no-un
 
 def test_side_by_side_with_mask_ground_truth_and_folder_calibration(tmp_path: Path) -> None:
     f = synthetic_frame(0)
-    _png(tmp_path / "run1" / "a.png", np.hstack([f.left, f.right]))
-    _png(tmp_path / "run1" / "a_mask.png", np.hstack([f.mask_left, f.mask_right]))
+    write_png(tmp_path / "run1" / "a.png", np.hstack([f.left, f.right]))
+    write_png(tmp_path / "run1" / "a_mask.png", np.hstack([f.mask_left, f.mask_right]))
     np.save(tmp_path / "run1" / "a.npy", f.truth.control_points)
-    _calib(tmp_path)  # in the root: found from run1/ by walking up
+    write_calibration(tmp_path)  # in the root: found from run1/ by walking up
     (frame,) = discover(tmp_path)
     assert frame.id == "run1/a" and frame.kind == "simulated"
     assert frame.calibration == tmp_path / "calibration.yaml"
@@ -71,13 +53,13 @@ def test_left_right_folders_pair_by_name(tmp_path: Path) -> None:
     d = tmp_path / "seq"
     for name in ("0001.png", "0002.png"):
         f = synthetic_frame(0)
-        _png(d / "left" / name, f.left)
-        _png(d / "right" / name, f.right)
-        _png(d / "left" / name.replace(".png", "_mask.png"), f.mask_left)
-        _png(d / "right" / name.replace(".png", "_mask.png"), f.mask_right)
-    _png(d / "left" / "0003.png", synthetic_frame(0).left)  # no right view: not a frame
+        write_png(d / "left" / name, f.left)
+        write_png(d / "right" / name, f.right)
+        write_png(d / "left" / name.replace(".png", "_mask.png"), f.mask_left)
+        write_png(d / "right" / name.replace(".png", "_mask.png"), f.mask_right)
+    write_png(d / "left" / "0003.png", synthetic_frame(0).left)  # no right view: not a frame
     np.save(d / "0001.npy", synthetic_frame(0).truth.control_points)
-    _calib(d)
+    write_calibration(d)
     frames = discover(tmp_path)
     assert [fr.id for fr in frames] == ["seq/0001", "seq/0002"]
     assert frames[0].kind == "simulated" and frames[1].kind == "real"
@@ -97,7 +79,7 @@ def test_left_right_names_in_a_flat_folder_with_masks(
     tmp_path: Path, left: str, right: str, fid: str
 ) -> None:
     _write_pair(tmp_path, left, right)
-    _calib(tmp_path)
+    write_calibration(tmp_path)
     (frame,) = discover(tmp_path)
     assert frame.id == fid and frame.left is not None and frame.left.name == left
     assert frame.mask_left is not None and frame.mask_right is not None
@@ -108,7 +90,7 @@ def test_left_right_names_in_a_flat_folder_with_masks(
 def test_paper_style_real_folder_reads_masks_beside_each_view(tmp_path: Path) -> None:
     sub = tmp_path / "real" / "thread_1_seg"
     _write_pair(sub, "thread1_left_99_final.png", "thread1_right_99_final.png")
-    _calib(tmp_path / "real", "camera_calibration.yaml")
+    write_calibration(tmp_path / "real", "camera_calibration.yaml")
     (frame,) = discover(tmp_path)
     assert frame.id == "real/thread_1_seg/thread1_99_final"  # the id the old reader gave
     _check_loaded(frame)
@@ -116,8 +98,8 @@ def test_paper_style_real_folder_reads_masks_beside_each_view(tmp_path: Path) ->
 
 def test_mask_of_one_view_only_is_ignored(tmp_path: Path) -> None:
     _write_pair(tmp_path, "a_L.png", "a_R.png", masks=False)
-    _png(tmp_path / "a_L_mask.png", synthetic_frame(0).mask_left)
-    _calib(tmp_path)
+    write_png(tmp_path / "a_L_mask.png", synthetic_frame(0).mask_left)
+    write_calibration(tmp_path)
     (frame,) = discover(tmp_path)
     assert frame.mask_left is None and frame.mask_right is None
     _check_loaded(frame, with_masks=False)
@@ -126,8 +108,8 @@ def test_mask_of_one_view_only_is_ignored(tmp_path: Path) -> None:
 def test_calibration_per_frame_wins_over_the_folder(tmp_path: Path) -> None:
     _write_pair(tmp_path, "a_L.png", "a_R.png")
     _write_pair(tmp_path, "b_L.png", "b_R.png")
-    _calib(tmp_path)
-    own = _calib(tmp_path, "b.calib.yaml")
+    write_calibration(tmp_path)
+    own = write_calibration(tmp_path, "b.calib.yaml")
     a, b = discover(tmp_path)
     assert a.calibration == tmp_path / "calibration.yaml" and b.calibration == own
 
@@ -147,9 +129,9 @@ def test_ros_camera_info_pair_as_folder_calibration(tmp_path: Path) -> None:
 
 def test_frame_ids_are_unique_or_an_error_names_both_files(tmp_path: Path) -> None:
     f = synthetic_frame(0)
-    _png(tmp_path / "a.png", np.hstack([f.left, f.right]))
+    write_png(tmp_path / "a.png", np.hstack([f.left, f.right]))
     _write_pair(tmp_path, "a_L.png", "a_R.png", masks=False)  # id "a" again
-    _calib(tmp_path)
+    write_calibration(tmp_path)
     with pytest.raises(ValueError, match=r"two frames have the id 'a': .*a_L\.png and .*a\.png"):
         discover(tmp_path)
 
@@ -157,7 +139,7 @@ def test_frame_ids_are_unique_or_an_error_names_both_files(tmp_path: Path) -> No
 def test_ids_are_stable_and_sorted(tmp_path: Path) -> None:
     for name in ("z", "b", "m"):
         _write_pair(tmp_path / name, "x_L.png", "x_R.png", masks=False)
-    _calib(tmp_path)
+    write_calibration(tmp_path)
     first = [fr.id for fr in discover(tmp_path)]
     assert first == ["b/x", "m/x", "z/x"] == [fr.id for fr in discover(tmp_path)]
 
@@ -181,8 +163,8 @@ def test_raw_frame_is_rectified_on_load_with_ground_truth_in_the_rectified_frame
     tmp_path: Path,
 ) -> None:
     rig = raw_rig(0)
-    _png(tmp_path / "a_L.png", rig.pair.left)
-    _png(tmp_path / "a_R.png", rig.pair.right)
+    write_png(tmp_path / "a_L.png", rig.pair.left)
+    write_png(tmp_path / "a_R.png", rig.pair.right)
     np.save(tmp_path / "a.npy", rig.frame.truth.control_points @ rig.Ra1.T)  # left frame
     (tmp_path / "calibration.yaml").write_text(opencv_yaml(rig.calib))
     (frame,) = discover(tmp_path)
@@ -200,8 +182,8 @@ def test_debugger_library_holds_the_rectified_pair_of_a_raw_frame(tmp_path: Path
     from threadrecon.app.session import FrameLibrary
 
     rig = raw_rig(0)
-    _png(tmp_path / "a_L.png", rig.pair.left)
-    _png(tmp_path / "a_R.png", rig.pair.right)
+    write_png(tmp_path / "a_L.png", rig.pair.left)
+    write_png(tmp_path / "a_R.png", rig.pair.right)
     (tmp_path / "calibration.yaml").write_text(opencv_yaml(rig.calib))
     loaded = FrameLibrary(tmp_path).load("a")
     expected = rectify_pair(rig.pair, rectification(rig.calib))

@@ -7,42 +7,25 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
-from rig_support import opencv_yaml
-from support import calibration_for, synthetic_frame
+from support import synthetic_frame, write_calibration, write_png
 
 from threadrecon.app.dataset import discover, load_frame
 from threadrecon.core.pipeline import reconstruct
 
 
-def _png(path: Path, img: np.ndarray) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if img.dtype == bool:
-        img = img.astype(np.uint8) * 255
-    elif img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
-    assert cv2.imwrite(str(path), img)
-    return path
-
-
-def _calib(folder: Path, name: str = "calibration.yaml") -> None:
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / name).write_text(opencv_yaml(calibration_for(synthetic_frame(0).camera)))
-
-
 def test_masks_of_a_real_folder_are_the_segmentation(tmp_path: Path) -> None:
     f = synthetic_frame(1)
     sub = tmp_path / "real" / "thread_2_seg"
-    _png(sub / "thread2_left_7_final.png", f.left)
-    _png(sub / "thread2_right_7_final.png", f.right)
+    write_png(sub / "thread2_left_7_final.png", f.left)
+    write_png(sub / "thread2_right_7_final.png", f.right)
     # a partial mask: the run must use it as given, not segment the image again
     half = f.mask_left.copy()
     half[:, : half.shape[1] // 2] = False
-    _png(sub / "thread2_left_7_final_mask.png", half)
-    _png(sub / "thread2_right_7_final_mask.png", f.mask_right)
-    _calib(tmp_path / "real", "camera_calibration.yaml")
+    write_png(sub / "thread2_left_7_final_mask.png", half)
+    write_png(sub / "thread2_right_7_final_mask.png", f.mask_right)
+    write_calibration(tmp_path / "real", "camera_calibration.yaml")
     (frame,) = discover(tmp_path)
     assert frame.kind == "real" and frame.mask_left is not None
     pair, calib, _ = load_frame(frame)
@@ -56,16 +39,16 @@ def test_masks_of_a_real_folder_are_the_segmentation(tmp_path: Path) -> None:
 def test_a_mask_of_the_wrong_size_names_the_file(tmp_path: Path, layout: str) -> None:
     f = synthetic_frame(0)
     if layout == "composite":
-        _png(tmp_path / "a.png", np.hstack([f.left, f.right]))
-        bad = _png(tmp_path / "a_mask.png", np.zeros((480, 1278), bool))
+        write_png(tmp_path / "a.png", np.hstack([f.left, f.right]))
+        bad = write_png(tmp_path / "a_mask.png", np.zeros((480, 1278), bool))
         size = "1278x480"
     else:
-        _png(tmp_path / "a_L.png", f.left)
-        _png(tmp_path / "a_R.png", f.right)
-        _png(tmp_path / "a_L_mask.png", f.mask_left)
-        bad = _png(tmp_path / "a_R_mask.png", np.zeros((240, 320), bool))
+        write_png(tmp_path / "a_L.png", f.left)
+        write_png(tmp_path / "a_R.png", f.right)
+        write_png(tmp_path / "a_L_mask.png", f.mask_left)
+        bad = write_png(tmp_path / "a_R_mask.png", np.zeros((240, 320), bool))
         size = "320x240"
-    _calib(tmp_path)
+    write_calibration(tmp_path)
     (frame,) = discover(tmp_path)
     with pytest.raises(ValueError, match=rf"{bad.name}: the mask is {size} px but the .* is"):
         load_frame(frame)
@@ -73,9 +56,9 @@ def test_a_mask_of_the_wrong_size_names_the_file(tmp_path: Path, layout: str) ->
 
 def test_a_mask_that_is_not_an_image_names_the_file(tmp_path: Path) -> None:
     f = synthetic_frame(0)
-    _png(tmp_path / "a.png", np.hstack([f.left, f.right]))
+    write_png(tmp_path / "a.png", np.hstack([f.left, f.right]))
     (tmp_path / "a_mask.png").write_bytes(b"not a png")
-    _calib(tmp_path)
+    write_calibration(tmp_path)
     (frame,) = discover(tmp_path)
     with pytest.raises(ValueError, match="a_mask.png: not a readable image"):
         load_frame(frame)

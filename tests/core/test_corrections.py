@@ -7,7 +7,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from support import calibration_for, synthetic_frame
+from support import calibration_for, far_spot, synthetic_frame
 
 from threadrecon.core.corrections import (
     MAX_RADIUS_PX,
@@ -19,31 +19,13 @@ from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams
 from threadrecon.core.segmentation import SegmentationParams, StereoPair, segment
 
 
-def _far_spot(mask: np.ndarray, length: int, margin: int = 25) -> tuple[int, int]:
-    """(x, y) of the left end of a horizontal run of ``length`` px at least ``margin`` px
-    from every mask pixel and from the border."""
-    dist = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 3)
-    ok = dist > margin
-    ok[:margin], ok[-margin:], ok[:, :margin], ok[:, -margin - length :] = (
-        False,
-        False,
-        False,
-        False,
-    )
-    run = cv2.erode(ok.astype(np.uint8), np.ones((1, length), np.uint8), anchor=(0, 0))
-    ys, xs = np.nonzero(run)
-    assert len(ys), "no free spot for a distractor"
-    i = len(ys) // 2
-    return int(xs[i]), int(ys[i])
-
-
 def _distracted_case(seed: int = 0):
     """A flat frame whose images and given masks hold the thread and a thread-like dark
     stripe away from it (same rows in both views); the exact thread masks."""
     f = synthetic_frame(seed)
     left, right = f.left.copy(), f.right.copy()
     mL, mR = f.mask_left.copy(), f.mask_right.copy()
-    x, y = _far_spot(mL | np.roll(mR, 20, axis=1), 60)
+    x, y = far_spot(mL | np.roll(mR, 20, axis=1), 60, margin=25)
     for img, m, shift in ((left, mL, 0), (right, mR, -20)):
         cv2.line(img, (x + shift, y), (x + shift + 60, y + 8), (40, 40, 40), 2)
         stripe = np.zeros(m.shape, np.uint8)
@@ -90,7 +72,7 @@ def test_stereo_remove_takes_the_partner_on_the_same_rows_and_never_the_thread()
 def test_stereo_remove_leaves_a_piece_at_a_negative_disparity() -> None:
     f = synthetic_frame(0)
     mL, mR = f.mask_left.copy(), f.mask_right.copy()
-    x, y = _far_spot(mL | np.roll(mR, -20, axis=1), 60)
+    x, y = far_spot(mL | np.roll(mR, -20, axis=1), 60, margin=25)
     for m, shift in ((mL, 0), (mR, 20)):  # in the right view 20 px to the right: d = -20
         stripe = np.zeros(m.shape, np.uint8)
         cv2.line(stripe, (x + shift, y), (x + shift + 60, y + 8), 1, 2)
@@ -106,7 +88,7 @@ def test_stereo_remove_leaves_a_piece_at_a_negative_disparity() -> None:
 def test_remove_far_from_every_piece_changes_nothing() -> None:
     pair, f, _ = _distracted_case()
     lifted = segment(pair, SegmentationParams())
-    x, y = _far_spot(lifted.P_L, 5, margin=30)
+    x, y = far_spot(lifted.P_L, 5, margin=30)
     fixed = apply_corrections(lifted, (Correction("remove", "left", ((x, y),), radius=8),))
     assert fixed.changed_px == (0,)
     assert np.array_equal(fixed.P_L, lifted.P_L)
@@ -135,7 +117,7 @@ def test_add_restores_the_cut_thread_and_nothing_else(seed: int) -> None:
 def test_add_on_plain_background_adds_nothing() -> None:
     f = synthetic_frame(0)
     lifted = segment(StereoPair(f.left, f.right, f.mask_left, f.mask_right))
-    x, y = _far_spot(f.mask_left, 5, margin=40)
+    x, y = far_spot(f.mask_left, 5, margin=40)
     fixed = apply_corrections(
         lifted, (Correction("add", "left", ((x, y),)),), images=(f.left, f.right)
     )
@@ -145,7 +127,7 @@ def test_add_on_plain_background_adds_nothing() -> None:
 def test_brushes_erase_and_paint_a_stroke_of_their_radius() -> None:
     f = synthetic_frame(0)
     lifted = segment(StereoPair(f.left, f.right, f.mask_left, f.mask_right))
-    x, y = _far_spot(f.mask_left, 40)
+    x, y = far_spot(f.mask_left, 40, margin=25)
     painted = apply_corrections(lifted, (Correction("paint", "left", ((x, y), (x + 40, y)), 3),))
     new = painted.P_L & ~f.mask_left
     assert new[y - 3 : y + 4, x : x + 41].all() and new.sum() <= 7 * 48
