@@ -89,8 +89,9 @@ def status_counts(rows: list[dict[str, Any]]) -> dict[str, int]:
 
 
 def summarise(rows: list[dict[str, Any]]) -> list[str]:
-    """Frames per status, mean and standard deviation per metric over the ok frames, per
-    kind; then every frame that is not ok with its reasons."""
+    """Frames per status, mean and standard deviation per metric over the frames with a curve
+    (ok and suspect: the paper's figures count every frame that did not fail), per kind; then
+    every frame that is not ok with its reasons."""
     lines = []
     for kind, cols in (("simulated", METRIC_COLUMNS[:3]), ("real", METRIC_COLUMNS[5:])):
         sel = [r for r in rows if r["kind"] == kind]
@@ -100,9 +101,9 @@ def summarise(rows: list[dict[str, Any]]) -> list[str]:
         lines.append(
             f"{kind}: {len(sel)} frames: {n['ok']} ok, {n['suspect']} suspect, {n['failed']} failed"
         )
-        good = [r for r in sel if r["status"] == "ok"]
+        good = [r for r in sel if r["status"] != "failed"]
         for c in cols:
-            v = np.array([r[c] for r in good], dtype=float)
+            v = np.array([r.get(c, np.nan) for r in good], dtype=float)
             v = v[np.isfinite(v)]
             if v.size:
                 lines.append(f"  {c:<16} mean {v.mean():8.3f}  sd {v.std():8.3f}")
