@@ -128,6 +128,43 @@ class CheckParams(Params):
         "outside the right image. Its shape is interpolated, not measured; the default is the "
         "length error at which a curve counts as wrong (issue 11).",
     )  # fmt: skip
+    max_bridge_mm: float = param(
+        80.0, lo=0.0, unit="mm", slider=(0.0, 300.0, 1.0), label="longest evidenced bridge",
+        doc="Suspect when a bridge the evidence supports (it continues the thread at both ends, "
+        "is no loop, and crosses occluder or unsegmented thread, not bare background) is longer "
+        "than this in 3D. A bridge without that evidence is held to max_unobserved_mm.",
+    )  # fmt: skip
+    bridge_turn_deg: float = param(
+        60.0, lo=0.0, hi=180.0, unit="deg", slider=(0.0, 180.0, 5.0), label="bridge turn",
+        doc="A bridge continues the thread when the curve's 3D direction over bridge_mm on each "
+        "observed side turns by at most this onto the bridge's chord.",
+    )  # fmt: skip
+    bridge_mm: float = param(
+        3.0, lo=0.0, unit="mm", slider=(0.5, 20.0, 0.5), label="bridge side length",
+        doc="Length of observed curve on each side of a bridge whose direction is compared "
+        "with the bridge's chord.",
+    )  # fmt: skip
+    bridge_stretch: float = param(
+        1.6, lo=1.0, slider=(1.0, 5.0, 0.05), label="bridge stretch",
+        doc="A bridge longer than this many times its chord (3D, and 2D in the left image) is "
+        "a loop, not a plausible continuation.",
+    )  # fmt: skip
+    bare_share: float = param(
+        0.5, lo=0.0, hi=1.0, slider=(0.0, 1.0, 0.05), label="bare background share",
+        doc="A bridge is contradicted when more than this share of its samples lie over pixels "
+        "that look like the bare background next to the thread in both views (the thread "
+        "would be seen there).",
+    )  # fmt: skip
+    bare_sigma: float = param(
+        2.5, lo=0.0, slider=(0.5, 10.0, 0.1), label="bare background tolerance",
+        doc="A pixel looks like bare background when its grey level is within this many robust "
+        "standard deviations (at least 4 grey levels) of the background ring around the thread.",
+    )  # fmt: skip
+    bridge_error: float = param(
+        0.05, lo=0.0, slider=(0.0, 1.0, 0.01), label="bridge error rate",
+        doc="Expected error added on an evidenced bridge per mm of distance to its nearest "
+        "observed end (the interpolated shape drifts away from the observed ends).",
+    )  # fmt: skip
     support_tol_px: float = param(
         1.0, lo=0.0, unit="px", slider=(0.0, 10.0, 0.1), label="supported residual",
         doc="A curve point is supported by a reliable match when its disparity residual r_i "
@@ -401,11 +438,30 @@ def _check(
             ("suspect", f"an end of the curve runs {overshoot:.0f} px off the thread pixels "
              f"(limit {p.max_jump_px:g} px)")
         )  # fmt: skip
-    if longest_bridge > p.max_unobserved_mm:
+    # Each bridge is judged by what can be checked (continuation, no loop, not over bare
+    # background); an evidenced one is allowed up to max_bridge_mm, any other one up to
+    # max_unobserved_mm. Its points get a growing expected error (below) instead.
+    s3 = np.concatenate([[0.0], np.cumsum(step3)])
+    bridge_gap = np.zeros(n)  # mm along the curve to the nearest observed end of a bridge
+    bare = _BareBackground(lifted, view_l, view_r, p) if (bridge_l | bridge_r).any() else None
+    worst: tuple[float, str] | None = None
+    for i0, i1 in _runs(bridge_l) + _runs(bridge_r):
+        a, b = i0 - 1, i1  # the observed samples on either side
+        len3 = float(s3[b] - s3[a])
+        bridge_gap[i0:i1] = np.maximum(
+            bridge_gap[i0:i1], np.minimum(s3[i0:i1] - s3[a], s3[b] - s3[i0:i1])
+        )
+        why = _bridge_evidence(pts, uv_l, uv_r, s3, step, a, b, mm, bare, p)
+        limit = p.max_bridge_mm if why is None else p.max_unobserved_mm
+        if len3 > limit and (worst is None or len3 > worst[0]):
+            worst = (len3, why or "")
+    if worst is not None:
+        len3, why = worst
         findings.append(
-            ("suspect", f"the curve bridges {longest_bridge:.1f} mm across unsegmented pixels "
-             f"in one stretch: its shape there is interpolated, not observed (limit "
-             f"{p.max_unobserved_mm:g} mm)")
+            ("suspect", f"the curve bridges {len3:.1f} mm across unsegmented pixels in one "
+             f"stretch: its shape there is interpolated, not observed (limit "
+             f"{p.max_unobserved_mm if why else p.max_bridge_mm:g} mm"
+             + (f"; {why})" if why else ")"))
         )  # fmt: skip
     rep = []
     views = (("left", rho_l, in_l & ~bridge_l), ("right", rho_r, in_r & ~bridge_r))
@@ -506,6 +562,7 @@ def _check(
     rho = np.maximum(np.where(bridge_l, 0.0, rho_l), np.where(in_r & ~bridge_r, rho_r, 0.0))
     e = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h**2) + z_pos / f * rho
     e_mm = e * mm
+    e_mm = e_mm + p.bridge_error * bridge_gap  # interpolated, not observed
     e_mm[(z <= 0) | (z_right <= 0)] = np.inf
     conf = np.exp(-e_mm / p.conf_mm)
 
@@ -742,6 +799,96 @@ def _overlap(uv: np.ndarray, step: np.ndarray, loop_px: float) -> float:
     hit[b[far]] = True
     seg = np.where(np.isfinite(step), step, 0.0)
     return float(0.5 * np.sum(seg * (hit[1:] & hit[:-1])))
+
+
+def _runs(flag: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) index ranges of the runs of True in ``flag``."""
+    d = np.diff(np.concatenate([[0], flag.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
+
+
+class _BareBackground:
+    """Per view, whether a pixel looks like the bare background next to the thread: its grey
+    level within ``bare_sigma`` robust standard deviations (at least 4 levels) of the median
+    of a ring 3..9 px around the thread pixels (the tissue the thread lies on)."""
+
+    def __init__(self, lifted: LiftedPair, view_l: _View, view_r: _View, p: CheckParams):
+        self.views = []
+        for grey, v in ((lifted.grey_L, view_l), (lifted.grey_R, view_r)):
+            h, w = v.mask.shape
+            g = np.asarray(grey, np.float32)[v.y0 : v.y0 + h, v.x0 : v.x0 + w]
+            m8 = np.ascontiguousarray(v.mask).view(np.uint8)
+            outer = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (19, 19)))
+            inner = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7)))
+            ring = g[(outer > 0) & (inner == 0)] if v.total else np.zeros(0, np.float32)
+            if ring.size < 10:
+                self.views.append(None)
+                continue
+            med = float(np.median(ring))
+            tol = p.bare_sigma * max(1.4826 * float(np.median(np.abs(ring - med))), 4.0)
+            self.views.append((g, v, med, tol))
+
+    def __call__(self, side: int, uv: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(uv), dtype=bool)
+        entry = self.views[side]
+        ok = np.all(np.isfinite(uv), axis=1)
+        if entry is None or not ok.any():
+            return out
+        g, v, med, tol = entry
+        h, w = g.shape
+        q = np.rint(uv[ok]).astype(np.intp) - [v.x0, v.y0]
+        inside = (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
+        res = np.zeros(len(q), dtype=bool)
+        qi = q[inside]
+        res[inside] = ~v.mask[qi[:, 1], qi[:, 0]] & (np.abs(g[qi[:, 1], qi[:, 0]] - med) <= tol)
+        out[ok] = res
+        return out
+
+
+def _bridge_evidence(
+    pts: np.ndarray,
+    uv_l: np.ndarray,
+    uv_r: np.ndarray,
+    s3: np.ndarray,
+    step: np.ndarray,
+    a: int,
+    b: int,
+    mm: float,
+    bare: _BareBackground | None,
+    p: CheckParams,
+) -> str | None:
+    """None when the bridge from observed sample ``a`` to ``b`` is supported by the evidence,
+    else why not: it turns away from the thread it joins, it is a loop, or it crosses bare
+    background in both views."""
+    chord = pts[b] - pts[a]
+    chord_mm = float(np.linalg.norm(chord)) * mm
+    len3 = float(s3[b] - s3[a])
+    chord_px = float(np.linalg.norm(uv_l[b] - uv_l[a]))
+    path_px = float(np.sum(step[a:b]))
+    if not (len3 <= p.bridge_stretch * chord_mm and path_px <= p.bridge_stretch * chord_px):
+        return (f"{len3:.0f} mm / {path_px:.0f} px for a chord of {chord_mm:.0f} mm / "
+                f"{chord_px:.0f} px: a loop, not a continuation")  # fmt: skip
+    side_u = p.bridge_mm / mm
+    back = int(np.searchsorted(s3, s3[a] - side_u))  # observed side before the bridge
+    fwd = int(np.searchsorted(s3, s3[b] + side_u, side="right")) - 1
+    cos_max = np.cos(np.radians(p.bridge_turn_deg))
+    for end, (i, j) in (("entry", (back, a)), ("exit", (b, fwd))):
+        d = pts[j] - pts[i]
+        nd = float(np.linalg.norm(d))
+        if j <= i or nd == 0.0 or chord_mm == 0.0:
+            continue  # no observed curve on that side to compare with
+        cos = float(d @ chord) / (nd * chord_mm / mm)
+        if cos < cos_max:
+            ang = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+            return f"it turns {ang:.0f} deg at its {end} (limit {p.bridge_turn_deg:g} deg)"
+    if bare is not None and b - a > 1:
+        hidden = slice(a + 1, b)
+        both = bare(0, uv_l[hidden]) & bare(1, uv_r[hidden])
+        share = float(both.mean())
+        if share > p.bare_share:
+            return (f"{100 * share:.0f} % of it lies over bare background in both views, where "
+                    "the thread would be seen")  # fmt: skip
+    return None
 
 
 def _disparity_residual(
