@@ -158,7 +158,8 @@ class CheckParams(Params):
     bare_sigma: float = param(
         2.5, lo=0.0, slider=(0.5, 10.0, 0.1), label="bare background tolerance",
         doc="A pixel looks like bare background when its grey level is within this many robust "
-        "standard deviations (at least 4 grey levels) of the background ring around the thread.",
+        "standard deviations (at least 4 grey levels) of the ring around the thread near the "
+        "bridge's ends (interpolated between them).",
     )  # fmt: skip
     bridge_error: float = param(
         0.05, lo=0.0, slider=(0.0, 1.0, 0.01), label="bridge error rate",
@@ -808,11 +809,16 @@ def _runs(flag: np.ndarray) -> list[tuple[int, int]]:
 
 
 class _BareBackground:
-    """Per view, whether a pixel looks like the bare background next to the thread: its grey
-    level within ``bare_sigma`` robust standard deviations (at least 4 levels) of the median
-    of a ring 3..9 px around the thread pixels (the tissue the thread lies on)."""
+    """Per view, whether a bridge's pixels look like the bare background next to the thread
+    at the bridge's two ends: the ring 3..9 px around the thread pixels within ``REACH_PX`` of
+    each end gives a local grey level (median) and spread (1.4826 MAD, at least 4 levels); a
+    pixel off the thread is bare when its grey level is within ``bare_sigma`` spreads of the
+    level interpolated between the two ends along the bridge."""
+
+    REACH_PX = 25
 
     def __init__(self, lifted: LiftedPair, view_l: _View, view_r: _View, p: CheckParams):
+        self.p = p
         self.views = []
         for grey, v in ((lifted.grey_L, view_l), (lifted.grey_R, view_r)):
             h, w = v.mask.shape
@@ -820,27 +826,39 @@ class _BareBackground:
             m8 = np.ascontiguousarray(v.mask).view(np.uint8)
             outer = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (19, 19)))
             inner = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7)))
-            ring = g[(outer > 0) & (inner == 0)] if v.total else np.zeros(0, np.float32)
-            if ring.size < 10:
-                self.views.append(None)
-                continue
-            med = float(np.median(ring))
-            tol = p.bare_sigma * max(1.4826 * float(np.median(np.abs(ring - med))), 4.0)
-            self.views.append((g, v, med, tol))
+            self.views.append((g, v, (outer > 0) & (inner == 0)))
 
-    def __call__(self, side: int, uv: np.ndarray) -> np.ndarray:
+    def _level(self, side: int, xy: np.ndarray) -> tuple[float, float] | None:
+        g, v, ring = self.views[side]
+        if not np.all(np.isfinite(xy)):
+            return None
+        x, y = int(round(xy[0])) - v.x0, int(round(xy[1])) - v.y0
+        r = self.REACH_PX
+        ys, xs = slice(max(0, y - r), max(0, y + r + 1)), slice(max(0, x - r), max(0, x + r + 1))
+        vals = g[ys, xs][ring[ys, xs]]
+        if vals.size < 10:
+            return None
+        med = float(np.median(vals))
+        return med, max(1.4826 * float(np.median(np.abs(vals - med))), 4.0)
+
+    def __call__(self, side: int, uv: np.ndarray, end_a: np.ndarray, end_b: np.ndarray):
+        """(len(uv),) bool: sample k of the bridge (uv in order from end a to end b) is bare."""
         out = np.zeros(len(uv), dtype=bool)
-        entry = self.views[side]
+        la, lb = self._level(side, end_a), self._level(side, end_b)
         ok = np.all(np.isfinite(uv), axis=1)
-        if entry is None or not ok.any():
-            return out
-        g, v, med, tol = entry
+        if la is None or lb is None or not ok.any():
+            return out  # no background next to the thread to compare with: not known bare
+        g, v, _ = self.views[side]
         h, w = g.shape
+        t = np.linspace(0.0, 1.0, len(uv) + 2)[1:-1][ok]
+        level = (1 - t) * la[0] + t * lb[0]
+        tol = self.p.bare_sigma * max(la[1], lb[1])
         q = np.rint(uv[ok]).astype(np.intp) - [v.x0, v.y0]
         inside = (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
         res = np.zeros(len(q), dtype=bool)
         qi = q[inside]
-        res[inside] = ~v.mask[qi[:, 1], qi[:, 0]] & (np.abs(g[qi[:, 1], qi[:, 0]] - med) <= tol)
+        grey = g[qi[:, 1], qi[:, 0]]
+        res[inside] = ~v.mask[qi[:, 1], qi[:, 0]] & (np.abs(grey - level[inside]) <= tol)
         out[ok] = res
         return out
 
@@ -883,7 +901,7 @@ def _bridge_evidence(
             return f"it turns {ang:.0f} deg at its {end} (limit {p.bridge_turn_deg:g} deg)"
     if bare is not None and b - a > 1:
         hidden = slice(a + 1, b)
-        both = bare(0, uv_l[hidden]) & bare(1, uv_r[hidden])
+        both = bare(0, uv_l[hidden], uv_l[a], uv_l[b]) & bare(1, uv_r[hidden], uv_r[a], uv_r[b])
         share = float(both.mean())
         if share > p.bare_share:
             return (f"{100 * share:.0f} % of it lies over bare background in both views, where "
