@@ -224,10 +224,12 @@ class CheckParams(Params):
         doc="An end closer than this to the image border (either view) is not the free end.",
     )  # fmt: skip
     border_suspect: bool = param(
-        True, label="end at border is suspect",
-        doc="An end at the image border makes the curve suspect: the thread continues outside "
-        "the view and its full length is unknown (the curve is the visible part only; the "
-        "grasp point avoids that end). Turn off when only the visible part matters.",
+        True, label="any end at border is suspect",
+        doc="On: an end at the image border makes the curve suspect (the thread continues "
+        "outside the view and its full length is unknown). Off: only a curve without a free "
+        "end is suspect for it: both ends at the border (the visible part may be any piece "
+        "of the thread), or one end at the border and the curve shorter than grasp_mm + "
+        "grasp_window_mm (the grasp window would reach the border end).",
     )  # fmt: skip
     crossing_degree: int = param(
         4, lo=3, slider=(3, 10, 1), label="crossing degree",
@@ -505,10 +507,22 @@ def _check(
         end for end, i in (("start", 0), ("end", -1))
         if _border_distance(uv_l[i], uv_r[i], (H, W)) < p.border_px
     )  # fmt: skip
-    for end in at_border if p.border_suspect else ():
+    if p.border_suspect:
+        for end in at_border:
+            findings.append(
+                ("suspect", f"the curve's {end} is at the image border: the thread may "
+                 "continue outside the view, its full length is unknown")
+            )  # fmt: skip
+    elif len(at_border) == 2:
         findings.append(
-            ("suspect", f"the curve's {end} is at the image border: the thread may continue "
-             "outside the view, its full length is unknown")
+            ("suspect", "both ends of the curve are at the image border: no free end is seen, "
+             "the visible part may be any piece of the thread")
+        )  # fmt: skip
+    elif at_border and curve.length * mm < p.grasp_mm + p.grasp_window_mm:
+        findings.append(
+            ("suspect", f"the curve's {at_border[0]} is at the image border and the curve is "
+             f"{curve.length * mm:.1f} mm long, shorter than the grasp reach "
+             f"({p.grasp_mm + p.grasp_window_mm:g} mm): no free end to grasp from")
         )  # fmt: skip
 
     # Length against the 2D path length and the depth span of the bounds.

@@ -318,3 +318,29 @@ def test_a_bridge_that_turns_back_is_a_loop_not_a_continuation() -> None:
     chk = check_curve(lifted, *args, curve, calib, CheckParams(max_unobserved_mm=1.0))
     assert chk.status == "suspect"
     assert any("a loop, not a continuation" in r or "turns" in r for r in chk.reasons), chk.reasons
+
+
+def test_border_rule_without_border_suspect_asks_for_a_free_end() -> None:
+    """A thread leaving the view: suspect for its unknown length with border_suspect (the
+    default), not without it while a free end is seen; a curve ending at the border that is
+    shorter than the grasp reach stays suspect either way."""
+    pair, calib, _ = synthetic_case(3, leaves_image=True)
+    rec = Pipeline(pair, calib).run()
+    chk = rec["check"]
+    assert len(chk.ends_at_border) == 1, chk.ends_at_border
+    assert any("image border" in r for r in chk.reasons), chk.reasons
+    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    loose = CheckParams(border_suspect=False)
+    off = check_curve(*args, rec["camera"], calib, loose)
+    assert not any("border" in r for r in off.reasons), off.reasons
+    assert off.grasp is not None and off.grasp.from_end not in chk.ends_at_border
+    # the 10 mm of the curve next to the border end: no free end to grasp from
+    cam, mm = rec["camera"], calib.mm_per_unit
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(cam.points, axis=0), axis=1))])
+    keep = s * mm <= 10.0 if chk.ends_at_border[0] == "start" else (s[-1] - s) * mm <= 10.0
+    pts = cam.points[keep]
+    length = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    short = CameraCurve(cam.ctrl, cam.knots, cam.degree, pts, length, cam.unit)
+    chk_short = check_curve(*args, short, calib, loose)
+    assert chk_short.status == "suspect"
+    assert any("shorter than the grasp reach" in r for r in chk_short.reasons), chk_short.reasons
