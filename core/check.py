@@ -434,7 +434,19 @@ def _check(
     run_r, bridge_r = _off_thread_runs(in_r & (rho_r > p.jump_px), step_r)
     run3_r, _ = _off_thread_runs(in_r & (rho_r > p.jump_px), step3)
     longest_jump = float(max(run_l.max(), run_r.max()))
-    overshoot = float(max(np.max(run_l * ~bridge_l), np.max(run_r * ~bridge_r)))
+    off_l, off_r = in_l & (rho_l > p.jump_px), in_r & (rho_r > p.jump_px)
+    ends = (off_l & ~bridge_l) | (off_r & ~bridge_r)
+    bare = (
+        _BareBackground(lifted, view_l, view_r, p) if (bridge_l | bridge_r | ends).any() else None
+    )
+    # An end of the curve off the thread in one view only, over pixels that are not bare
+    # background there (an occluder), while the other view sees the thread: hidden in that
+    # view, like a part outside the right image (not observed there, not an error).
+    hidden_l = _hidden_end(off_l & ~bridge_l, ~off_l & in_l, off_r, uv_l, 0, bare, p)
+    hidden_r = _hidden_end(off_r & ~bridge_r, ~off_r & in_r, off_l, uv_r, 1, bare, p)
+    overshoot = float(
+        max(np.max(run_l * ~(bridge_l | hidden_l)), np.max(run_r * ~(bridge_r | hidden_r)))
+    )
     longest_bridge = float(max(np.max(run3_l * bridge_l), np.max(run3_r * bridge_r)))
     if overshoot > p.max_jump_px:
         findings.append(
@@ -446,7 +458,6 @@ def _check(
     # max_unobserved_mm. Its points get a growing expected error (below) instead.
     s3 = np.concatenate([[0.0], np.cumsum(step3)])
     bridge_gap = np.zeros(n)  # mm along the curve to the nearest observed end of a bridge
-    bare = _BareBackground(lifted, view_l, view_r, p) if (bridge_l | bridge_r).any() else None
     worst: tuple[float, str] | None = None
     for i0, i1 in _runs(bridge_l) + _runs(bridge_r):
         a, b = i0 - 1, i1  # the observed samples on either side
@@ -467,7 +478,10 @@ def _check(
              + (f"; {why})" if why else ")"))
         )  # fmt: skip
     rep = []
-    views = (("left", rho_l, in_l & ~bridge_l), ("right", rho_r, in_r & ~bridge_r))
+    views = (
+        ("left", rho_l, in_l & ~bridge_l & ~hidden_l),
+        ("right", rho_r, in_r & ~bridge_r & ~hidden_r),
+    )
     for side, rho, inside in views:
         if inside.sum() < 2:
             findings.append(("failed", f"the curve lies outside the {side} image"))
@@ -495,13 +509,13 @@ def _check(
                 ("suspect", f"the curve covers {100 * cov:.0f} % of the {side} thread pixels "
                  f"(at least {100 * p.coverage_min:.0f} % expected)")
             )  # fmt: skip
-    one_view = in_l & ~in_r
+    one_view = (in_l & ~in_r) | hidden_l | hidden_r
     unseen_px = float(np.sum(np.where(one_view, np.r_[step, 0.0], 0.0)))
     unseen_mm = float(np.sum(np.where(one_view, np.r_[step3, 0.0], 0.0)))
     if unseen_mm > p.max_unobserved_mm:
         findings.append(
             ("suspect", f"{unseen_mm:.1f} mm ({unseen_px:.0f} px) of the curve lie outside the "
-             f"right image: their depth is not observed (limit {p.max_unobserved_mm:g} mm)")
+             f"right image or hidden in one view: their depth is not observed (limit {p.max_unobserved_mm:g} mm)")
         )  # fmt: skip
     at_border = tuple(
         end for end, i in (("start", 0), ("end", -1))
@@ -574,7 +588,10 @@ def _check(
              "images do not show")
         )  # fmt: skip
     h = _bound_halfwidth_px(spline, bounds, n, f * B)
-    rho = np.maximum(np.where(bridge_l, 0.0, rho_l), np.where(in_r & ~bridge_r, rho_r, 0.0))
+    rho = np.maximum(
+        np.where(bridge_l | hidden_l, 0.0, rho_l),
+        np.where(in_r & ~bridge_r & ~hidden_r, rho_r, 0.0),
+    )
     e = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h**2) + z_pos / f * rho
     e_mm = e * mm
     e_mm = e_mm + p.bridge_error * bridge_gap  # interpolated, not observed
@@ -875,6 +892,32 @@ class _BareBackground:
         res[inside] = ~v.mask[qi[:, 1], qi[:, 0]] & (np.abs(grey - level[inside]) <= tol)
         out[ok] = res
         return out
+
+
+def _hidden_end(
+    end_off: np.ndarray,
+    on: np.ndarray,
+    other_off: np.ndarray,
+    uv: np.ndarray,
+    side: int,
+    bare: _BareBackground | None,
+    p: CheckParams,
+) -> np.ndarray:
+    """Samples of an end run off the thread in view ``side`` (``end_off``) that the other
+    view sees on its thread (at least half of the run) and that do not lie over bare
+    background in this view (compared with the tissue next to the thread where the run
+    leaves it): hidden by an occluder in this view."""
+    out = np.zeros(len(uv), dtype=bool)
+    if bare is None:
+        return out
+    for i0, i1 in _runs(end_off):
+        obs = i1 if i0 == 0 else i0 - 1  # the observed sample the run leaves from
+        if obs >= len(uv) or not on[obs] or np.mean(other_off[i0:i1]) > 0.5:
+            continue
+        share = float(bare(side, uv[i0:i1], uv[obs], uv[obs]).mean())
+        if share <= p.bare_share:
+            out[i0:i1] = True
+    return out
 
 
 def _bridge_evidence(
