@@ -872,6 +872,22 @@ class _BareBackground:
         med = float(np.median(vals))
         return med, max(1.4826 * float(np.median(np.abs(vals - med))), 4.0)
 
+    def grey(self, side: int, uv: np.ndarray) -> np.ndarray:
+        """Grey level at each (x, y) of view ``side``; NaN outside the crop."""
+        g, v, _ = self.views[side]
+        h, w = g.shape
+        out = np.full(len(uv), np.nan)
+        ok = np.all(np.isfinite(uv), axis=1)
+        q = np.rint(np.where(ok[:, None], uv, -1.0)).astype(np.intp) - [v.x0, v.y0]
+        ok &= (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
+        out[ok] = g[q[ok, 1], q[ok, 0]]
+        return out
+
+    def spread(self, side: int, *ends: np.ndarray) -> float:
+        """Largest local spread of the background next to the thread at ``ends``."""
+        levels = [self._level(side, e) for e in ends]
+        return max((lv[1] for lv in levels if lv is not None), default=4.0)
+
     def __call__(self, side: int, uv: np.ndarray, end_a: np.ndarray, end_b: np.ndarray):
         """(len(uv),) bool: sample k of the bridge (uv in order from end a to end b) is bare."""
         out = np.zeros(len(uv), dtype=bool)
@@ -959,10 +975,17 @@ def _bridge_evidence(
     if bare is not None and b - a > 1:
         hidden = slice(a + 1, b)
         both = bare(0, uv_l[hidden], uv_l[a], uv_l[b]) & bare(1, uv_r[hidden], uv_r[a], uv_r[b])
+        # bare tissue lies at about the thread's depth: both views see the same grey there at
+        # the curve's disparity (an occluder in front of the thread is seen shifted)
+        spread = max(bare.spread(0, uv_l[a], uv_l[b]), bare.spread(1, uv_r[a], uv_r[b]))
+        with np.errstate(invalid="ignore"):
+            same = np.abs(bare.grey(0, uv_l[hidden]) - bare.grey(1, uv_r[hidden]))
+            both &= same <= p.bare_sigma * spread
         share = float(both.mean())
         if share > p.bare_share:
-            return (f"{100 * share:.0f} % of it lies over bare background in both views, where "
-                    "the thread would be seen")  # fmt: skip
+            return (f"{100 * share:.0f} % of it lies over bare background in both views (the "
+                    "grey of the tissue next to the thread, the same in both), where the thread "
+                    "would be seen")  # fmt: skip
     return None
 
 

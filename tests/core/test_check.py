@@ -344,3 +344,29 @@ def test_border_rule_without_border_suspect_asks_for_a_free_end() -> None:
     chk_short = check_curve(*args, short, calib, loose)
     assert chk_short.status == "suspect"
     assert any("shorter than the grasp reach" in r for r in chk_short.reasons), chk_short.reasons
+
+
+def test_an_end_hidden_in_one_view_is_unobserved_not_off_the_thread() -> None:
+    """The last stretch of the thread unsegmented in the right view only (an occluder there),
+    the left view seeing it: not a reprojection error but unobserved length; the same stretch
+    over bare background in the right view (nothing hides it there) stays an error."""
+    pair, calib, _ = synthetic_case(0)
+    rec = Pipeline(pair, calib).run()
+    seg, pts = rec["segment"], rec["camera"].points
+    tail = project(pts[-25:], calib.P2)
+    args = [rec[s] for s in ("stereo", "reliability", "ordering", "bounds", "spline", "camera")]
+    out = {}
+    for bare in (False, True):
+        m, g = seg.P_R.copy(), seg.grey_R.copy()
+        for x, y in np.rint(tail).astype(int):
+            box = (slice(max(0, y - 8), y + 9), slice(max(0, x - 8), x + 9))
+            if bare:
+                g[box][m[box]] = seg.background[1]
+            m[box] = False
+        lifted = replace(seg, P_R=m, grey_R=g)
+        out[bare] = check_curve(lifted, *args, calib, CheckParams())
+    hidden, bare = out[False], out[True]
+    assert hidden.reproj_right_max < CheckParams().reproj_max_px, hidden.reasons
+    assert hidden.unseen_mm > rec["check"].unseen_mm + 1.0  # counted as not observed
+    assert bare.reproj_right_max > CheckParams().reproj_max_px
+    assert bare.status != "ok" and hidden.unseen_mm > bare.unseen_mm
