@@ -854,19 +854,36 @@ class _BareBackground:
         for grey, v in ((lifted.grey_L, view_l), (lifted.grey_R, view_r)):
             h, w = v.mask.shape
             g = np.asarray(grey, np.float32)[v.y0 : v.y0 + h, v.x0 : v.x0 + w]
-            m8 = np.ascontiguousarray(v.mask).view(np.uint8)
-            outer = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (19, 19)))
-            inner = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7)))
-            self.views.append((g, v, (outer > 0) & (inner == 0)))
+            self.views.append((g, v, None))
+        self._cache: dict[tuple[int, int, int], tuple[float, float] | None] = {}
 
     def _level(self, side: int, xy: np.ndarray) -> tuple[float, float] | None:
-        g, v, ring = self.views[side]
+        """Median and spread of the ring around the thread within REACH_PX of ``xy``."""
+        g, v, _ = self.views[side]
         if not np.all(np.isfinite(xy)):
             return None
         x, y = int(round(xy[0])) - v.x0, int(round(xy[1])) - v.y0
-        r = self.REACH_PX
-        ys, xs = slice(max(0, y - r), max(0, y + r + 1)), slice(max(0, x - r), max(0, x + r + 1))
-        vals = g[ys, xs][ring[ys, xs]]
+        if (side, x, y) not in self._cache:
+            self._cache[side, x, y] = self._ring_level(g, v.mask, x, y)
+        return self._cache[side, x, y]
+
+    def _ring_level(self, g: np.ndarray, mask: np.ndarray, x: int, y: int):
+        r, m = self.REACH_PX, 9  # the ring's outer radius is 9 px
+        ys, xs = (
+            slice(max(0, y - r - m), max(0, y + r + m + 1)),
+            slice(max(0, x - r - m), max(0, x + r + m + 1)),
+        )
+        m8 = np.ascontiguousarray(mask[ys, xs]).view(np.uint8)
+        if m8.size == 0:
+            return None
+        outer = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (19, 19)))
+        inner = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7)))
+        ring = (outer > 0) & (inner == 0)
+        ring[: max(0, y - r - ys.start)] = False  # keep the square within REACH_PX of xy
+        ring[y + r + 1 - ys.start :] = False
+        ring[:, : max(0, x - r - xs.start)] = False
+        ring[:, x + r + 1 - xs.start :] = False
+        vals = g[ys, xs][ring]
         if vals.size < 10:
             return None
         med = float(np.median(vals))
