@@ -224,7 +224,7 @@ class CheckParams(Params):
         doc="An end closer than this to the image border (either view) is not the free end.",
     )  # fmt: skip
     border_suspect: bool = param(
-        True, label="any end at border is suspect",
+        False, label="any end at border is suspect",
         doc="On: an end at the image border makes the curve suspect (the thread continues "
         "outside the view and its full length is unknown). Off: only a curve without a free "
         "end is suspect for it: both ends at the border (the visible part may be any piece "

@@ -196,9 +196,10 @@ def test_paper_n_ctrl_40_same_with_one_and_several_blas_threads() -> None:
 @needs_paper
 def test_paper_dataset_default_curves_are_ok_and_right_or_say_what_is_unknown() -> None:
     """Frames with ground truth: ok and right. Real frames: ok, or suspect for what the
-    images cannot show: a thread leaving the view (full length unknown; all 5 real frames) or
-    depth travel no reliable match supports (thread1_119: about 30 mm where the nearest
-    reliable matches disagree by 3-8 px of disparity)."""
+    images cannot show: a thread leaving the view (with border_suspect; all 5 real frames
+    have one end at the border and a free end) or depth travel no reliable match supports
+    (thread1_119: about 30 mm where the nearest reliable matches disagree by 3-8 px of
+    disparity)."""
     suspect = []
     for frame in discover(PAPER):
         pair, calib, gt = load_frame(frame)
@@ -321,17 +322,19 @@ def test_a_bridge_that_turns_back_is_a_loop_not_a_continuation() -> None:
 
 
 def test_border_rule_without_border_suspect_asks_for_a_free_end() -> None:
-    """A thread leaving the view: suspect for its unknown length with border_suspect (the
-    default), not without it while a free end is seen; a curve ending at the border that is
+    """A thread leaving the view: suspect for its unknown length with border_suspect, not
+    without it (the default) while a free end is seen; a curve ending at the border that is
     shorter than the grasp reach stays suspect either way."""
     pair, calib, _ = synthetic_case(3, leaves_image=True)
     rec = Pipeline(pair, calib).run()
-    chk = rec["check"]
+    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    chk = check_curve(*args, rec["camera"], calib, CheckParams(border_suspect=True))
     assert len(chk.ends_at_border) == 1, chk.ends_at_border
     assert any("image border" in r for r in chk.reasons), chk.reasons
-    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
-    loose = CheckParams(border_suspect=False)
+    loose = CheckParams()
+    assert not loose.border_suspect
     off = check_curve(*args, rec["camera"], calib, loose)
+    assert rec["check"].reasons == off.reasons
     assert not any("border" in r for r in off.reasons), off.reasons
     assert off.grasp is not None and off.grasp.from_end not in chk.ends_at_border
     # the 10 mm of the curve next to the border end: no free end to grasp from
