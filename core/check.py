@@ -129,10 +129,12 @@ class CheckParams(Params):
         "length error at which a curve counts as wrong (issue 11).",
     )  # fmt: skip
     max_bridge_mm: float = param(
-        80.0, lo=0.0, unit="mm", slider=(0.0, 300.0, 1.0), label="longest evidenced bridge",
+        40.0, lo=0.0, unit="mm", slider=(0.0, 300.0, 1.0), label="longest evidenced bridge",
         doc="Suspect when a bridge the evidence supports (it continues the thread at both ends, "
         "is no loop, and crosses occluder or unsegmented thread, not bare background) is longer "
-        "than this in 3D. A bridge without that evidence is held to max_unobserved_mm.",
+        "than this in 3D. A thread as long as the bridge strays at most half its length from "
+        "it: the default is twice the wrong-curve error (issue 11). A bridge without that "
+        "evidence is held to max_unobserved_mm.",
     )  # fmt: skip
     bridge_turn_deg: float = param(
         60.0, lo=0.0, hi=180.0, unit="deg", slider=(0.0, 180.0, 5.0), label="bridge turn",
