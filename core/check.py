@@ -128,6 +128,46 @@ class CheckParams(Params):
         "outside the right image. Its shape is interpolated, not measured; the default is the "
         "length error at which a curve counts as wrong (issue 11).",
     )  # fmt: skip
+    max_bridge_mm: float = param(
+        40.0, lo=0.0, unit="mm", slider=(0.0, 300.0, 1.0), label="longest evidenced bridge",
+        doc="Suspect when a bridge the evidence supports (it continues the thread at both ends, "
+        "is no loop, and crosses occluder or unsegmented thread, not bare background) is longer "
+        "than this in 3D. A thread as long as the bridge strays at most half its length from "
+        "it: the default is twice the wrong-curve error (issue 11). A bridge without that "
+        "evidence is held to max_unobserved_mm.",
+    )  # fmt: skip
+    bridge_turn_deg: float = param(
+        60.0, lo=0.0, hi=180.0, unit="deg", slider=(0.0, 180.0, 5.0), label="bridge turn",
+        doc="A bridge continues the thread when the curve's 3D direction over bridge_mm on each "
+        "observed side turns by at most this onto the bridge's chord.",
+    )  # fmt: skip
+    bridge_mm: float = param(
+        3.0, lo=0.0, unit="mm", slider=(0.5, 20.0, 0.5), label="bridge side length",
+        doc="Length of observed curve on each side of a bridge whose direction is compared "
+        "with the bridge's chord.",
+    )  # fmt: skip
+    bridge_stretch: float = param(
+        1.6, lo=1.0, slider=(1.0, 5.0, 0.05), label="bridge stretch",
+        doc="A bridge longer than this many times its chord (3D, and 2D in the left image) is "
+        "a loop, not a plausible continuation.",
+    )  # fmt: skip
+    bare_share: float = param(
+        0.5, lo=0.0, hi=1.0, slider=(0.0, 1.0, 0.05), label="bare background share",
+        doc="A bridge is contradicted when more than this share of its samples lie over pixels "
+        "that look like the bare background next to the thread in both views (the thread "
+        "would be seen there).",
+    )  # fmt: skip
+    bare_sigma: float = param(
+        2.5, lo=0.0, slider=(0.5, 10.0, 0.1), label="bare background tolerance",
+        doc="A pixel looks like bare background when its grey level is within this many robust "
+        "standard deviations (at least 4 grey levels) of the ring around the thread near the "
+        "bridge's ends (interpolated between them).",
+    )  # fmt: skip
+    bridge_error: float = param(
+        0.05, lo=0.0, slider=(0.0, 1.0, 0.01), label="bridge error rate",
+        doc="Expected error added on an evidenced bridge per mm of distance to its nearest "
+        "observed end (the interpolated shape drifts away from the observed ends).",
+    )  # fmt: skip
     support_tol_px: float = param(
         1.0, lo=0.0, unit="px", slider=(0.0, 10.0, 0.1), label="supported residual",
         doc="A curve point is supported by a reliable match when its disparity residual r_i "
@@ -186,10 +226,12 @@ class CheckParams(Params):
         doc="An end closer than this to the image border (either view) is not the free end.",
     )  # fmt: skip
     border_suspect: bool = param(
-        True, label="end at border is suspect",
-        doc="An end at the image border makes the curve suspect: the thread continues outside "
-        "the view and its full length is unknown (the curve is the visible part only; the "
-        "grasp point avoids that end). Turn off when only the visible part matters.",
+        False, label="any end at border is suspect",
+        doc="On: an end at the image border makes the curve suspect (the thread continues "
+        "outside the view and its full length is unknown). Off: only a curve without a free "
+        "end is suspect for it: both ends at the border (the visible part may be any piece "
+        "of the thread), or one end at the border and the curve shorter than grasp_mm + "
+        "grasp_window_mm (the grasp window would reach the border end).",
     )  # fmt: skip
     crossing_degree: int = param(
         4, lo=3, slider=(3, 10, 1), label="crossing degree",
@@ -394,21 +436,54 @@ def _check(
     run_r, bridge_r = _off_thread_runs(in_r & (rho_r > p.jump_px), step_r)
     run3_r, _ = _off_thread_runs(in_r & (rho_r > p.jump_px), step3)
     longest_jump = float(max(run_l.max(), run_r.max()))
-    overshoot = float(max(np.max(run_l * ~bridge_l), np.max(run_r * ~bridge_r)))
+    off_l, off_r = in_l & (rho_l > p.jump_px), in_r & (rho_r > p.jump_px)
+    ends = (off_l & ~bridge_l) | (off_r & ~bridge_r)
+    bare = (
+        _BareBackground(lifted, view_l, view_r, p) if (bridge_l | bridge_r | ends).any() else None
+    )
+    # An end of the curve off the thread in one view only, over pixels that are not bare
+    # background there (an occluder), while the other view sees the thread: hidden in that
+    # view, like a part outside the right image (not observed there, not an error).
+    hidden_l = _hidden_end(off_l & ~bridge_l, ~off_l & in_l, off_r, uv_l, 0, bare, p)
+    hidden_r = _hidden_end(off_r & ~bridge_r, ~off_r & in_r, off_l, uv_r, 1, bare, p)
+    overshoot = float(
+        max(np.max(run_l * ~(bridge_l | hidden_l)), np.max(run_r * ~(bridge_r | hidden_r)))
+    )
     longest_bridge = float(max(np.max(run3_l * bridge_l), np.max(run3_r * bridge_r)))
     if overshoot > p.max_jump_px:
         findings.append(
             ("suspect", f"an end of the curve runs {overshoot:.0f} px off the thread pixels "
              f"(limit {p.max_jump_px:g} px)")
         )  # fmt: skip
-    if longest_bridge > p.max_unobserved_mm:
+    # Each bridge is judged by what can be checked (continuation, no loop, not over bare
+    # background); an evidenced one is allowed up to max_bridge_mm, any other one up to
+    # max_unobserved_mm. Its points get a growing expected error (below) instead.
+    s3 = np.concatenate([[0.0], np.cumsum(step3)])
+    bridge_gap = np.zeros(n)  # mm along the curve to the nearest observed end of a bridge
+    worst: tuple[float, str] | None = None
+    for i0, i1 in _runs(bridge_l) + _runs(bridge_r):
+        a, b = i0 - 1, i1  # the observed samples on either side
+        len3 = float(s3[b] - s3[a])
+        bridge_gap[i0:i1] = np.maximum(
+            bridge_gap[i0:i1], np.minimum(s3[i0:i1] - s3[a], s3[b] - s3[i0:i1])
+        )
+        why = _bridge_evidence(pts, uv_l, uv_r, s3, step, a, b, mm, bare, p)
+        limit = p.max_bridge_mm if why is None else p.max_unobserved_mm
+        if len3 > limit and (worst is None or len3 > worst[0]):
+            worst = (len3, why or "")
+    if worst is not None:
+        len3, why = worst
         findings.append(
-            ("suspect", f"the curve bridges {longest_bridge:.1f} mm across unsegmented pixels "
-             f"in one stretch: its shape there is interpolated, not observed (limit "
-             f"{p.max_unobserved_mm:g} mm)")
+            ("suspect", f"the curve bridges {len3:.1f} mm across unsegmented pixels in one "
+             f"stretch: its shape there is interpolated, not observed (limit "
+             f"{p.max_unobserved_mm if why else p.max_bridge_mm:g} mm"
+             + (f"; {why})" if why else ")"))
         )  # fmt: skip
     rep = []
-    views = (("left", rho_l, in_l & ~bridge_l), ("right", rho_r, in_r & ~bridge_r))
+    views = (
+        ("left", rho_l, in_l & ~bridge_l & ~hidden_l),
+        ("right", rho_r, in_r & ~bridge_r & ~hidden_r),
+    )
     for side, rho, inside in views:
         if inside.sum() < 2:
             findings.append(("failed", f"the curve lies outside the {side} image"))
@@ -436,22 +511,34 @@ def _check(
                 ("suspect", f"the curve covers {100 * cov:.0f} % of the {side} thread pixels "
                  f"(at least {100 * p.coverage_min:.0f} % expected)")
             )  # fmt: skip
-    one_view = in_l & ~in_r
+    one_view = (in_l & ~in_r) | hidden_l | hidden_r
     unseen_px = float(np.sum(np.where(one_view, np.r_[step, 0.0], 0.0)))
     unseen_mm = float(np.sum(np.where(one_view, np.r_[step3, 0.0], 0.0)))
     if unseen_mm > p.max_unobserved_mm:
         findings.append(
             ("suspect", f"{unseen_mm:.1f} mm ({unseen_px:.0f} px) of the curve lie outside the "
-             f"right image: their depth is not observed (limit {p.max_unobserved_mm:g} mm)")
+             f"right image or hidden in one view: their depth is not observed (limit {p.max_unobserved_mm:g} mm)")
         )  # fmt: skip
     at_border = tuple(
         end for end, i in (("start", 0), ("end", -1))
         if _border_distance(uv_l[i], uv_r[i], (H, W)) < p.border_px
     )  # fmt: skip
-    for end in at_border if p.border_suspect else ():
+    if p.border_suspect:
+        for end in at_border:
+            findings.append(
+                ("suspect", f"the curve's {end} is at the image border: the thread may "
+                 "continue outside the view, its full length is unknown")
+            )  # fmt: skip
+    elif len(at_border) == 2:
         findings.append(
-            ("suspect", f"the curve's {end} is at the image border: the thread may continue "
-             "outside the view, its full length is unknown")
+            ("suspect", "both ends of the curve are at the image border: no free end is seen, "
+             "the visible part may be any piece of the thread")
+        )  # fmt: skip
+    elif at_border and curve.length * mm < p.grasp_mm + p.grasp_window_mm:
+        findings.append(
+            ("suspect", f"the curve's {at_border[0]} is at the image border and the curve is "
+             f"{curve.length * mm:.1f} mm long, shorter than the grasp reach "
+             f"({p.grasp_mm + p.grasp_window_mm:g} mm): no free end to grasp from")
         )  # fmt: skip
 
     # Length against the 2D path length and the depth span of the bounds.
@@ -503,9 +590,13 @@ def _check(
              "images do not show")
         )  # fmt: skip
     h = _bound_halfwidth_px(spline, bounds, n, f * B)
-    rho = np.maximum(np.where(bridge_l, 0.0, rho_l), np.where(in_r & ~bridge_r, rho_r, 0.0))
+    rho = np.maximum(
+        np.where(bridge_l | hidden_l, 0.0, rho_l),
+        np.where(in_r & ~bridge_r & ~hidden_r, rho_r, 0.0),
+    )
     e = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h**2) + z_pos / f * rho
     e_mm = e * mm
+    e_mm = e_mm + p.bridge_error * bridge_gap  # interpolated, not observed
     e_mm[(z <= 0) | (z_right <= 0)] = np.inf
     conf = np.exp(-e_mm / p.conf_mm)
 
@@ -742,6 +833,179 @@ def _overlap(uv: np.ndarray, step: np.ndarray, loop_px: float) -> float:
     hit[b[far]] = True
     seg = np.where(np.isfinite(step), step, 0.0)
     return float(0.5 * np.sum(seg * (hit[1:] & hit[:-1])))
+
+
+def _runs(flag: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) index ranges of the runs of True in ``flag``."""
+    d = np.diff(np.concatenate([[0], flag.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
+
+
+class _BareBackground:
+    """Per view, whether a bridge's pixels look like the bare background next to the thread
+    at the bridge's two ends: the ring 3..9 px around the thread pixels within ``REACH_PX`` of
+    each end gives a local grey level (median) and spread (1.4826 MAD, at least 4 levels); a
+    pixel off the thread is bare when its grey level is within ``bare_sigma`` spreads of the
+    level interpolated between the two ends along the bridge."""
+
+    REACH_PX = 25
+
+    def __init__(self, lifted: LiftedPair, view_l: _View, view_r: _View, p: CheckParams):
+        self.p = p
+        self.views = []
+        for grey, v in ((lifted.grey_L, view_l), (lifted.grey_R, view_r)):
+            h, w = v.mask.shape
+            g = np.asarray(grey, np.float32)[v.y0 : v.y0 + h, v.x0 : v.x0 + w]
+            self.views.append((g, v, None))
+        self._cache: dict[tuple[int, int, int], tuple[float, float] | None] = {}
+
+    def _level(self, side: int, xy: np.ndarray) -> tuple[float, float] | None:
+        """Median and spread of the ring around the thread within REACH_PX of ``xy``."""
+        g, v, _ = self.views[side]
+        if not np.all(np.isfinite(xy)):
+            return None
+        x, y = int(round(xy[0])) - v.x0, int(round(xy[1])) - v.y0
+        if (side, x, y) not in self._cache:
+            self._cache[side, x, y] = self._ring_level(g, v.mask, x, y)
+        return self._cache[side, x, y]
+
+    def _ring_level(self, g: np.ndarray, mask: np.ndarray, x: int, y: int):
+        r, m = self.REACH_PX, 9  # the ring's outer radius is 9 px
+        ys, xs = (
+            slice(max(0, y - r - m), max(0, y + r + m + 1)),
+            slice(max(0, x - r - m), max(0, x + r + m + 1)),
+        )
+        m8 = np.ascontiguousarray(mask[ys, xs]).view(np.uint8)
+        if m8.size == 0:
+            return None
+        outer = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (19, 19)))
+        inner = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7)))
+        ring = (outer > 0) & (inner == 0)
+        ring[: max(0, y - r - ys.start)] = False  # keep the square within REACH_PX of xy
+        ring[y + r + 1 - ys.start :] = False
+        ring[:, : max(0, x - r - xs.start)] = False
+        ring[:, x + r + 1 - xs.start :] = False
+        vals = g[ys, xs][ring]
+        if vals.size < 10:
+            return None
+        med = float(np.median(vals))
+        return med, max(1.4826 * float(np.median(np.abs(vals - med))), 4.0)
+
+    def grey(self, side: int, uv: np.ndarray) -> np.ndarray:
+        """Grey level at each (x, y) of view ``side``; NaN outside the crop."""
+        g, v, _ = self.views[side]
+        h, w = g.shape
+        out = np.full(len(uv), np.nan)
+        ok = np.all(np.isfinite(uv), axis=1)
+        q = np.rint(np.where(ok[:, None], uv, -1.0)).astype(np.intp) - [v.x0, v.y0]
+        ok &= (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
+        out[ok] = g[q[ok, 1], q[ok, 0]]
+        return out
+
+    def spread(self, side: int, *ends: np.ndarray) -> float:
+        """Largest local spread of the background next to the thread at ``ends``."""
+        levels = [self._level(side, e) for e in ends]
+        return max((lv[1] for lv in levels if lv is not None), default=4.0)
+
+    def __call__(self, side: int, uv: np.ndarray, end_a: np.ndarray, end_b: np.ndarray):
+        """(len(uv),) bool: sample k of the bridge (uv in order from end a to end b) is bare."""
+        out = np.zeros(len(uv), dtype=bool)
+        la, lb = self._level(side, end_a), self._level(side, end_b)
+        ok = np.all(np.isfinite(uv), axis=1)
+        if la is None or lb is None or not ok.any():
+            return out  # no background next to the thread to compare with: not known bare
+        g, v, _ = self.views[side]
+        h, w = g.shape
+        t = np.linspace(0.0, 1.0, len(uv) + 2)[1:-1][ok]
+        level = (1 - t) * la[0] + t * lb[0]
+        tol = self.p.bare_sigma * max(la[1], lb[1])
+        q = np.rint(uv[ok]).astype(np.intp) - [v.x0, v.y0]
+        inside = (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
+        res = np.zeros(len(q), dtype=bool)
+        qi = q[inside]
+        grey = g[qi[:, 1], qi[:, 0]]
+        res[inside] = ~v.mask[qi[:, 1], qi[:, 0]] & (np.abs(grey - level[inside]) <= tol)
+        out[ok] = res
+        return out
+
+
+def _hidden_end(
+    end_off: np.ndarray,
+    on: np.ndarray,
+    other_off: np.ndarray,
+    uv: np.ndarray,
+    side: int,
+    bare: _BareBackground | None,
+    p: CheckParams,
+) -> np.ndarray:
+    """Samples of an end run off the thread in view ``side`` (``end_off``) that the other
+    view sees on its thread (at least half of the run) and that do not lie over bare
+    background in this view (compared with the tissue next to the thread where the run
+    leaves it): hidden by an occluder in this view."""
+    out = np.zeros(len(uv), dtype=bool)
+    if bare is None:
+        return out
+    for i0, i1 in _runs(end_off):
+        obs = i1 if i0 == 0 else i0 - 1  # the observed sample the run leaves from
+        if obs >= len(uv) or not on[obs] or np.mean(other_off[i0:i1]) > 0.5:
+            continue
+        share = float(bare(side, uv[i0:i1], uv[obs], uv[obs]).mean())
+        if share <= p.bare_share:
+            out[i0:i1] = True
+    return out
+
+
+def _bridge_evidence(
+    pts: np.ndarray,
+    uv_l: np.ndarray,
+    uv_r: np.ndarray,
+    s3: np.ndarray,
+    step: np.ndarray,
+    a: int,
+    b: int,
+    mm: float,
+    bare: _BareBackground | None,
+    p: CheckParams,
+) -> str | None:
+    """None when the bridge from observed sample ``a`` to ``b`` is supported by the evidence,
+    else why not: it turns away from the thread it joins, it is a loop, or it crosses bare
+    background in both views."""
+    chord = pts[b] - pts[a]
+    chord_mm = float(np.linalg.norm(chord)) * mm
+    len3 = float(s3[b] - s3[a])
+    chord_px = float(np.linalg.norm(uv_l[b] - uv_l[a]))
+    path_px = float(np.sum(step[a:b]))
+    if not (len3 <= p.bridge_stretch * chord_mm and path_px <= p.bridge_stretch * chord_px):
+        return (f"{len3:.0f} mm / {path_px:.0f} px for a chord of {chord_mm:.0f} mm / "
+                f"{chord_px:.0f} px: a loop, not a continuation")  # fmt: skip
+    side_u = p.bridge_mm / mm
+    back = int(np.searchsorted(s3, s3[a] - side_u))  # observed side before the bridge
+    fwd = int(np.searchsorted(s3, s3[b] + side_u, side="right")) - 1
+    cos_max = np.cos(np.radians(p.bridge_turn_deg))
+    for end, (i, j) in (("entry", (back, a)), ("exit", (b, fwd))):
+        d = pts[j] - pts[i]
+        nd = float(np.linalg.norm(d))
+        if j <= i or nd == 0.0 or chord_mm == 0.0:
+            continue  # no observed curve on that side to compare with
+        cos = float(d @ chord) / (nd * chord_mm / mm)
+        if cos < cos_max:
+            ang = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+            return f"it turns {ang:.0f} deg at its {end} (limit {p.bridge_turn_deg:g} deg)"
+    if bare is not None and b - a > 1:
+        hidden = slice(a + 1, b)
+        both = bare(0, uv_l[hidden], uv_l[a], uv_l[b]) & bare(1, uv_r[hidden], uv_r[a], uv_r[b])
+        # bare tissue lies at about the thread's depth: both views see the same grey there at
+        # the curve's disparity (an occluder in front of the thread is seen shifted)
+        spread = max(bare.spread(0, uv_l[a], uv_l[b]), bare.spread(1, uv_r[a], uv_r[b]))
+        with np.errstate(invalid="ignore"):
+            same = np.abs(bare.grey(0, uv_l[hidden]) - bare.grey(1, uv_r[hidden]))
+            both &= same <= p.bare_sigma * spread
+        share = float(both.mean())
+        if share > p.bare_share:
+            return (f"{100 * share:.0f} % of it lies over bare background in both views (the "
+                    "grey of the tissue next to the thread, the same in both), where the thread "
+                    "would be seen")  # fmt: skip
+    return None
 
 
 def _disparity_residual(

@@ -127,6 +127,9 @@ REASON_KINDS = {  # a keyword of each kind of reason (core/check.py) -> a short 
     "run over another": "overlap",
     "off the thread pixels": "overshoot",
     "bridges": "bridge",
+    "bare background in both views": "bridge over background",
+    "a loop, not a continuation": "bridge loop",
+    "deg at its": "bridge turn",
     "no reliable match": "unsupported depth",
     "expected error above": "crossing ambiguity",
 }

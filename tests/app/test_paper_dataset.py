@@ -35,7 +35,7 @@ def test_simulated_frame_is_accurate(name: str) -> None:
 def test_real_frame_reprojects_onto_the_thread() -> None:
     frame = next(f for f in discover(PAPER) if f.kind == "real" and "72" in f.id)
     row, _ = evaluate_frame(frame, ReconParams())
-    # the thread leaves the view: suspect for its full length only (check.border_suspect)
-    assert row["status"] == "suspect" and row["reasons"].count(";") == 0
-    assert "image border" in row["reasons"]
+    # the thread leaves the view at one end, the other end is free: ok (with
+    # check.border_suspect on it would be suspect for its unknown full length)
+    assert row["status"] == "ok", row["reasons"]
     assert row["left_mean_px"] < 0.6 and row["coverage_left"] > 0.9

@@ -196,9 +196,10 @@ def test_paper_n_ctrl_40_same_with_one_and_several_blas_threads() -> None:
 @needs_paper
 def test_paper_dataset_default_curves_are_ok_and_right_or_say_what_is_unknown() -> None:
     """Frames with ground truth: ok and right. Real frames: ok, or suspect for what the
-    images cannot show: a thread leaving the view (full length unknown; all 5 real frames) or
-    depth travel no reliable match supports (thread1_119: about 30 mm where the nearest
-    reliable matches disagree by 3-8 px of disparity)."""
+    images cannot show: a thread leaving the view (with border_suspect; all 5 real frames
+    have one end at the border and a free end) or depth travel no reliable match supports
+    (thread1_119: about 30 mm where the nearest reliable matches disagree by 3-8 px of
+    disparity)."""
     suspect = []
     for frame in discover(PAPER):
         pair, calib, gt = load_frame(frame)
@@ -246,28 +247,129 @@ def test_depth_wiggle_no_match_supports_makes_the_curve_suspect() -> None:
     assert _recheck(0, lambda p: p).unsupported_mm < 2.0  # the curve as reconstructed
 
 
+def _hide_middle(rec, calib, bare: bool):
+    """The segmentation of ``rec`` with ~70 px of the thread's middle unsegmented in both views
+    (as under an occluder); ``bare``: the thread's pixels there painted over with the
+    background level too (the thread would be seen there: nothing hides it)."""
+    seg, pts = rec["segment"], rec["camera"].points
+    n = len(pts)
+    hidden = [project(pts[n // 2 - 20 : n // 2 + 20], P) for P in (calib.P1, calib.P2)]
+    out = []
+    for mask, grey, level, q in zip(
+        (seg.P_L, seg.P_R), (seg.grey_L, seg.grey_R), seg.background, hidden, strict=True
+    ):
+        m, g = mask.copy(), grey.copy()
+        for x, y in np.rint(q).astype(int):
+            box = (slice(max(0, y - 8), y + 9), slice(max(0, x - 8), x + 9))
+            if bare:
+                g[box][m[box]] = level
+            m[box] = False
+        out += [m, g]
+    return replace(seg, P_L=out[0], grey_L=out[1], P_R=out[2], grey_R=out[3])
+
+
 def test_a_long_bridge_under_an_occluder_is_judged_by_its_3d_length_not_its_pixels() -> None:
     pair, calib, _ = synthetic_case(0)
     rec = Pipeline(pair, calib).run()
-    seg = rec["segment"]
     assert rec["check"].status == "ok"
-    pts = rec["camera"].points
-    # hide a stretch of the thread (both views) as an occluder would: ~70 px of the curve
-    n = len(pts)
-    i0, i1 = n // 2 - 20, n // 2 + 20
-    hidden = [project(pts[i0:i1], P) for P in (calib.P1, calib.P2)]
-    masks = []
-    for mask, q in zip((seg.P_L, seg.P_R), hidden, strict=True):
-        m = mask.copy()
-        for x, y in np.rint(q).astype(int):
-            m[max(0, y - 8) : y + 9, max(0, x - 8) : x + 9] = False
-        masks.append(m)
-    lifted = replace(seg, P_L=masks[0], P_R=masks[1])
+    n = len(rec["camera"].points)
+    lifted = _hide_middle(rec, calib, bare=False)
     args = [rec[s] for s in ("stereo", "reliability", "ordering", "bounds", "spline", "camera")]
     chk = check_curve(lifted, *args, calib, CheckParams())
     assert chk.longest_jump_px > 40  # a long run across unsegmented pixels
     assert 0 < chk.longest_bridge_mm < CheckParams().max_unobserved_mm
     assert chk.status == "ok", chk.reasons  # the bridge's points are not reprojection errors
-    strict = check_curve(lifted, *args, calib, CheckParams(max_unobserved_mm=1.0))
+    # the hidden pixels still show the thread (not bare background): an evidenced bridge,
+    # held to max_bridge_mm, not max_unobserved_mm; its points' confidence lowered
+    assert chk.expected_error_mm[n // 2] > rec["check"].expected_error_mm[n // 2]
+    tight = CheckParams(max_unobserved_mm=1.0)
+    assert check_curve(lifted, *args, calib, tight).status == "ok"
+    strict = check_curve(lifted, *args, calib, CheckParams(max_bridge_mm=1.0))
     assert strict.status == "suspect"
     assert any("bridges" in r and "interpolated" in r for r in strict.reasons), strict.reasons
+
+
+def test_a_bridge_over_bare_background_is_not_evidenced() -> None:
+    """The same stretch unsegmented, but its pixels show bare background in both views where
+    the thread would be seen: the bridge is contradicted and held to max_unobserved_mm."""
+    pair, calib, _ = synthetic_case(0)
+    rec = Pipeline(pair, calib).run()
+    lifted = _hide_middle(rec, calib, bare=True)
+    args = [rec[s] for s in ("stereo", "reliability", "ordering", "bounds", "spline", "camera")]
+    chk = check_curve(lifted, *args, calib, CheckParams(max_unobserved_mm=1.0))
+    assert chk.status == "suspect"
+    assert any("bare background" in r for r in chk.reasons), chk.reasons
+    assert check_curve(lifted, *args, calib, CheckParams()).status == "ok"  # short enough
+
+
+def test_a_bridge_that_turns_back_is_a_loop_not_a_continuation() -> None:
+    """A curve bent out of the image plane over a hidden stretch: the bridge is far longer
+    than its chord (a loop the pixels do not show) and is not evidenced."""
+    pair, calib, _ = synthetic_case(0)
+    rec = Pipeline(pair, calib).run()
+    lifted = _hide_middle(rec, calib, bare=False)
+    cam = rec["camera"]
+    pts = cam.points.copy()
+    n = len(pts)
+    mid = slice(n // 2 - 18, n // 2 + 18)
+    pts[mid] *= (1.0 + 0.5 * np.sin(np.linspace(0, np.pi, 36)))[:, None]  # out and back in depth
+    length = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    curve = CameraCurve(cam.ctrl, cam.knots, cam.degree, pts, length, cam.unit)
+    args = [rec[s] for s in ("stereo", "reliability", "ordering", "bounds", "spline")]
+    chk = check_curve(lifted, *args, curve, calib, CheckParams(max_unobserved_mm=1.0))
+    assert chk.status == "suspect"
+    assert any("a loop, not a continuation" in r or "turns" in r for r in chk.reasons), chk.reasons
+
+
+def test_border_rule_without_border_suspect_asks_for_a_free_end() -> None:
+    """A thread leaving the view: suspect for its unknown length with border_suspect, not
+    without it (the default) while a free end is seen; a curve ending at the border that is
+    shorter than the grasp reach stays suspect either way."""
+    pair, calib, _ = synthetic_case(3, leaves_image=True)
+    rec = Pipeline(pair, calib).run()
+    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    chk = check_curve(*args, rec["camera"], calib, CheckParams(border_suspect=True))
+    assert len(chk.ends_at_border) == 1, chk.ends_at_border
+    assert any("image border" in r for r in chk.reasons), chk.reasons
+    loose = CheckParams()
+    assert not loose.border_suspect
+    off = check_curve(*args, rec["camera"], calib, loose)
+    assert rec["check"].reasons == off.reasons
+    assert not any("border" in r for r in off.reasons), off.reasons
+    assert off.grasp is not None and off.grasp.from_end not in chk.ends_at_border
+    # the 10 mm of the curve next to the border end: no free end to grasp from
+    cam, mm = rec["camera"], calib.mm_per_unit
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(cam.points, axis=0), axis=1))])
+    keep = s * mm <= 10.0 if chk.ends_at_border[0] == "start" else (s[-1] - s) * mm <= 10.0
+    pts = cam.points[keep]
+    length = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    short = CameraCurve(cam.ctrl, cam.knots, cam.degree, pts, length, cam.unit)
+    chk_short = check_curve(*args, short, calib, loose)
+    assert chk_short.status == "suspect"
+    assert any("shorter than the grasp reach" in r for r in chk_short.reasons), chk_short.reasons
+
+
+def test_an_end_hidden_in_one_view_is_unobserved_not_off_the_thread() -> None:
+    """The last stretch of the thread unsegmented in the right view only (an occluder there),
+    the left view seeing it: not a reprojection error but unobserved length; the same stretch
+    over bare background in the right view (nothing hides it there) stays an error."""
+    pair, calib, _ = synthetic_case(0)
+    rec = Pipeline(pair, calib).run()
+    seg, pts = rec["segment"], rec["camera"].points
+    tail = project(pts[-25:], calib.P2)
+    args = [rec[s] for s in ("stereo", "reliability", "ordering", "bounds", "spline", "camera")]
+    out = {}
+    for bare in (False, True):
+        m, g = seg.P_R.copy(), seg.grey_R.copy()
+        for x, y in np.rint(tail).astype(int):
+            box = (slice(max(0, y - 8), y + 9), slice(max(0, x - 8), x + 9))
+            if bare:
+                g[box][m[box]] = seg.background[1]
+            m[box] = False
+        lifted = replace(seg, P_R=m, grey_R=g)
+        out[bare] = check_curve(lifted, *args, calib, CheckParams())
+    hidden, bare = out[False], out[True]
+    assert hidden.reproj_right_max < CheckParams().reproj_max_px, hidden.reasons
+    assert hidden.unseen_mm > rec["check"].unseen_mm + 1.0  # counted as not observed
+    assert bare.reproj_right_max > CheckParams().reproj_max_px
+    assert bare.status != "ok" and hidden.unseen_mm > bare.unseen_mm
