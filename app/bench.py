@@ -98,19 +98,28 @@ def _timed_run(
     return pipe.run(params), timings
 
 
-def _with_overrides(params: ReconParams, items: list[str]) -> ReconParams:
-    """``STAGE.NAME=VALUE`` overrides on top of a preset, checked like a preset."""
-    if not items:
-        return params
-    data = params.to_dict()
+def parse_overrides(items: list[str]) -> dict[str, dict[str, Any]]:
+    """``STAGE.NAME=VALUE`` items (``--set``) as ``{stage: {name: value}}``; a malformed item
+    or an unknown stage is a UserError naming it (the values are checked where they are used)."""
+    out: dict[str, dict[str, Any]] = {}
     for item in items:
         key, sep, text = item.partition("=")
         stage, dot, name = key.strip().partition(".")
         if not (sep and dot and name):
             raise UserError(f"--set expects STAGE.NAME=VALUE, got {item!r}")
-        if stage not in data:
+        if stage not in STAGES:
             raise UserError(f"--set {item!r}: unknown stage {stage!r}")
-        data[stage][name] = _parse_value(text.strip())
+        out.setdefault(stage, {})[name] = _parse_value(text.strip())
+    return out
+
+
+def _with_overrides(params: ReconParams, items: list[str]) -> ReconParams:
+    """``STAGE.NAME=VALUE`` overrides on top of a preset, checked like a preset."""
+    if not items:
+        return params
+    data = params.to_dict()
+    for stage, values in parse_overrides(items).items():
+        data[stage].update(values)
     return validate(data)
 
 

@@ -34,6 +34,8 @@ import httpx  # noqa: E402
 import uvicorn  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
+from threadrecon.app.bench import parse_overrides  # noqa: E402
+from threadrecon.app.errors import UserError  # noqa: E402
 from threadrecon.app.library import merge_params  # noqa: E402
 from threadrecon.app.server import ServerConfig, create_app  # noqa: E402
 
@@ -154,13 +156,10 @@ def main() -> int:
         "stereo.z_near_mm=40 (repeatable)",
     )
     args = ap.parse_args()
-    overrides: dict[str, dict[str, object]] = {}
-    for item in args.set:
-        key, sep, text = item.partition("=")
-        stage, dot, name = key.partition(".")
-        if not (sep and dot and name):
-            ap.error(f"--set expects STAGE.NAME=VALUE, got {item!r}")
-        overrides.setdefault(stage, {})[name] = _parse_value(text)
+    try:
+        overrides = parse_overrides(args.set)
+    except UserError as exc:
+        ap.error(str(exc))
     db = Path("/tmp") / f"threadrecon-bench-{time.time_ns()}.sqlite3"
     changes = {  # (label, stage, name, values): each value is one slider move
         "spline.n_ctrl": ("spline", "n_ctrl", [14, 16, 15]),
@@ -254,18 +253,6 @@ def main() -> int:
             f"{statistics.median(overlay_kb):.0f} kB"
         )
     return 0 if ok else 1
-
-
-def _parse_value(text: str) -> object:
-    text = text.strip()
-    if text.lower() in ("true", "false"):
-        return text.lower() == "true"
-    for cast in (int, float):
-        try:
-            return cast(text)
-        except ValueError:
-            pass
-    return text
 
 
 if __name__ == "__main__":
