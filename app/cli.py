@@ -6,18 +6,13 @@ import argparse
 import importlib
 import sys
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 from threadpoolctl import threadpool_limits
 
 from threadrecon.app.bench import cmd_bench
-from threadrecon.app.dataset import discover, frame_inputs, frame_rectification
 from threadrecon.app.errors import UserError
-from threadrecon.app.evaluation import summarise, write_csv
-from threadrecon.app.export import result_json, software_version, write_json
-from threadrecon.app.presets import resolve_preset
+from threadrecon.app.export import software_version, write_json
 from threadrecon.app.python_api import reconstruct
 from threadrecon.app.resources import sample_data_dir
 
@@ -110,7 +105,15 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="withhold the *_mask.png files: segment every frame from its raw images",
     )
-    e.set_defaults(func=cmd_evaluate)
+    e.add_argument(
+        "--db",
+        help="apply the user's mask corrections stored in this database (default: the one "
+        "`serve` uses for DATASET, if it exists)",
+    )
+    e.add_argument(
+        "--no-corrections", action="store_true", help="ignore the stored mask corrections"
+    )
+    e.set_defaults(func=_lazy("threadrecon.app.evaluate_command", "cmd_evaluate"))
 
     b = sub.add_parser(
         "bench", help="per-stage timings (median, p90) and peak memory over any data folder"
@@ -334,20 +337,6 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-# --- evaluate ----------------------------------------------------------------------------
-
-
-def _progress(i: int, n: int, label: str) -> None:
-    if not sys.stderr.isatty():  # logs get no carriage-return bar
-        return
-    width = 30
-    done = int(width * i / max(n, 1))
-    sys.stderr.write(f"\r[{'#' * done}{'.' * (width - done)}] {i}/{n} {label[:40]:<40}")
-    if i == n:
-        sys.stderr.write("\n")
-    sys.stderr.flush()
-
-
 def _add_dask_arguments(p: argparse.ArgumentParser, default_help: str) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument(
@@ -361,38 +350,6 @@ def _add_dask_arguments(p: argparse.ArgumentParser, default_help: str) -> None:
         metavar="N",
         help=f"run frames on a local Dask cluster of N processes (0: in this process; {default_help})",
     )
-
-
-def cmd_evaluate(args: argparse.Namespace) -> int:
-    params = resolve_preset(args.config)
-    frames = discover(args.dataset)
-    if args.no_masks:  # raw frames: every mask withheld, segmentation from the images
-        frames = [replace(f, mask=None, mask_left=None, mask_right=None) for f in frames]
-    workers = 0 if args.workers is None and args.scheduler is None else args.workers
-    rows: list[dict[str, Any] | None] = [None] * len(frames)
-    keep = bool(args.save_predictions)
-    from threadrecon.app.distributed import connect, evaluate_frames
-
-    with connect(args.scheduler, workers) as client:
-        for i, row, rec in evaluate_frames(client, frames, params, keep, _progress):
-            rows[i] = row
-            if keep and rec is not None:
-                path = Path(args.save_predictions) / f"{frames[i].id}.json"
-                pred = result_json(
-                    rec, frame_rectification(frames[i]), "left", args.config or "default",
-                    frame_inputs(frames[i]),
-                )  # fmt: skip
-                write_json(path, pred)
-    rows = [r for r in rows if r is not None]
-    if args.out:
-        write_csv(Path(args.out), rows)
-    for line in summarise(rows):
-        print(line)
-    failed = sum(r["status"] == "failed" for r in rows)  # suspect frames are listed, not failed
-    if failed:
-        print(f"threadrecon: {failed} of {len(rows)} frames failed", file=sys.stderr)
-        return 1
-    return 0
 
 
 if __name__ == "__main__":

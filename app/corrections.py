@@ -16,10 +16,14 @@ Every write is one transaction of the rating store's connection (its lock and it
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+import sqlite3
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
+from threadrecon.app.dataset import Frame
 from threadrecon.app.errors import Conflict, Invalid
 from threadrecon.app.ratings import MAX_ID_CHARS, RatingStore, StoreError
 from threadrecon.core.corrections import Correction
@@ -180,3 +184,36 @@ def _check_frame_id(frame_id: object) -> None:
 
 def _now() -> str:
     return datetime.now(UTC).isoformat(timespec="microseconds")
+
+
+def with_corrections(
+    frames: Iterable[Frame], active: Callable[[str], tuple[Correction, ...]]
+) -> list[Frame]:
+    """``frames``, each carrying its active corrections (``active(frame_id)``, e.g.
+    :meth:`CorrectionStore.active`): an evaluation then judges the masks the user made, as the
+    debugger's runs do."""
+    return [replace(f, corrections=active(f.id)) for f in frames]
+
+
+def read_active(path: Path) -> dict[str, tuple[Correction, ...]]:
+    """Every frame's active corrections in the database file ``path``, opened read-only (an
+    evaluation never writes the user's file); none when it has no corrections table."""
+    try:
+        conn = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
+    except sqlite3.Error as exc:
+        raise StoreError(path, f"cannot be opened: {exc}") from None
+    try:
+        tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        if "corrections" not in tables:
+            return {}
+        rows = conn.execute(
+            f"SELECT frame_id, {_COLUMNS} FROM corrections WHERE state = 'active' ORDER BY id"
+        ).fetchall()
+    except sqlite3.Error as exc:
+        raise StoreError(path, f"cannot be read: {exc}") from None
+    finally:
+        conn.close()
+    out: dict[str, list[Correction]] = {}
+    for frame_id, *row in rows:
+        out.setdefault(frame_id, []).append(_from_row(tuple(row)).correction)
+    return {k: tuple(v) for k, v in out.items()}

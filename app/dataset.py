@@ -39,6 +39,7 @@ import numpy as np
 from threadrecon.app.export import InputFile
 from threadrecon.app.io import load_calibration, load_ground_truth, load_pair, prepare_pair
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.corrections import Correction
 from threadrecon.core.metrics import (
     ReprojectionErrors,
     curve_errors,
@@ -75,6 +76,9 @@ class Frame:
     mask_right: Path | None = None
     calibration_right: Path | None = None
     """The right camera's ROS camera_info when ``calibration`` is the left one's."""
+    corrections: tuple[Correction, ...] = ()
+    """The user's mask corrections that every run of this frame applies (from the rating
+    store, :func:`app.corrections.with_corrections`); none on disk."""
 
     @property
     def has_ground_truth(self) -> bool:

@@ -25,9 +25,10 @@ def evaluate_frame(
     """One CSV row for a frame (never raises for a bad frame: the row says what failed).
     ``loaded``: the frame's ``load_frame(frame)`` when the caller already has it (a cache)."""
     row: dict[str, Any] = {"frame": frame.id, "kind": frame.kind}
+    row["corrections"] = len(frame.corrections)  # the user's mask corrections applied
     try:
         pair, calib, gt = loaded if loaded is not None else load_frame(frame)
-        rec = Pipeline(pair, calib).run(params)
+        rec = Pipeline(pair, calib, frame.corrections).run(params)
     except Exception as exc:  # any frame's error is that frame's failed row, never the run's
         row.update(status="failed", error=_describe(exc), **{c: math.nan for c in METRIC_COLUMNS})
         row.update(check="failed", reasons=row["error"], auto_score=math.nan)

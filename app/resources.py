@@ -31,3 +31,15 @@ def user_data_dir() -> Path:
     import platformdirs
 
     return Path(platformdirs.user_data_dir("threadrecon", appauthor=False))
+
+
+DB_NAME = "threadrecon.sqlite3"
+
+
+def default_db(data_dir: Path) -> Path:
+    """Where ratings, evaluations and corrections of ``data_dir`` are kept unless ``--db`` says:
+    ``<data_dir>/threadrecon.sqlite3``, or ``sample_data.sqlite3`` in the user data folder for
+    the bundled sample (never inside the package). The folder may not exist yet."""
+    if Path(data_dir).resolve() == sample_data_dir().resolve():
+        return user_data_dir() / "sample_data.sqlite3"
+    return Path(data_dir) / DB_NAME

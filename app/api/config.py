@@ -6,10 +6,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from threadrecon.app.presets import user_configs_dir
-from threadrecon.app.resources import sample_data_dir, user_data_dir
+from threadrecon.app.resources import default_db
 from threadrecon.app.sessions import IDLE_TIMEOUT_S
 
-DB_NAME = "threadrecon.sqlite3"
 MAX_BODY_BYTES = 4 * 1024 * 1024  # a request body is a few parameters or a note, never more
 
 
@@ -40,11 +39,9 @@ class ServerConfig:
     def db(self) -> Path:
         if self.db_path is not None:
             return self.db_path
-        if self.data_dir.resolve() == sample_data_dir().resolve():
-            folder = user_data_dir()
-            folder.mkdir(parents=True, exist_ok=True)
-            return folder / "sample_data.sqlite3"
-        return self.data_dir / DB_NAME
+        path = default_db(self.data_dir)
+        path.parent.mkdir(parents=True, exist_ok=True)  # the user data folder on first use
+        return path
 
     @property
     def configs(self) -> Path:

@@ -13,7 +13,7 @@ import viser
 
 from threadrecon.app.api.config import ServerConfig
 from threadrecon.app.api.guard import Policy, guard_viser
-from threadrecon.app.corrections import CorrectionStore
+from threadrecon.app.corrections import CorrectionStore, with_corrections
 from threadrecon.app.errors import Conflict, Invalid, NotFound
 from threadrecon.app.jobs import EvaluationJob
 from threadrecon.app.library import FrameLibrary
@@ -139,7 +139,8 @@ class AppState:
         with self._job_lock:
             if self.job is not None and self.job.state in ("pending", "running"):
                 raise Conflict("an evaluation is already running: cancel it first")
-            frames = list(self.library.frames.values())
+            # every frame with the user's corrections, as the debugger runs it
+            frames = with_corrections(self.library.frames.values(), self.corrections.active)
             self.job = EvaluationJob(frames, params, preset, on_done=self._job_done)
             self.job_saved = None
             return self.job.start()
