@@ -12,7 +12,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
-from typing import Any
+from typing import Any, Self
 
 from threadrecon.app.dataset import METRIC_COLUMNS, Frame
 from threadrecon.app.evaluation import evaluate_frame, summarise
@@ -27,7 +27,98 @@ FINAL_STATES = ("done", "cancelled", "failed")
 COMPARE_COLUMNS = (*METRIC_COLUMNS, "n_reliable", "n_keypoints", "ms_total")
 
 
-class EvaluationJob:
+class BackgroundJob:
+    """Work in a daemon thread, followed by polling: the common life of the page's dataset
+    evaluation (:class:`EvaluationJob`) and its tunes (:class:`app.tune.job.TuneJob`).
+
+    ``state`` is "pending" until :meth:`start`, then "running", then what :meth:`_work`
+    returns ("done" or "cancelled": :meth:`cancel` sets an event the work reads between its
+    steps), or "failed" when it raised (``error`` says why, :meth:`_error_text`). The
+    subclass's :meth:`_finish` runs once at the end, in the job's thread with the lock held,
+    before :meth:`wait` returns: a poll that sees a final state sees what it stored.
+    """
+
+    def __init__(self, name: str) -> None:
+        self._name = name
+        self._lock = threading.RLock()
+        self._cancel = threading.Event()
+        self._finished = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._state = "pending"
+        self._error: str | None = None
+        self._started_at: str | None = None
+        self._t0 = 0.0
+        self._t1: float | None = None
+
+    def start(self) -> Self:
+        """Start the job's thread (once); returns the job."""
+        with self._lock:
+            if self._thread is not None:
+                raise RuntimeError(f"job {self._name} was already started")
+            self._state = "running"
+            self._started_at = _now()
+            self._t0 = time.monotonic()
+            self._thread = threading.Thread(target=self._run, name=self._name, daemon=True)
+        self._thread.start()
+        return self
+
+    def cancel(self) -> None:
+        """Ask the job to stop at its next step."""
+        self._cancel.set()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Block until the job has finished (and :meth:`_finish` returned); False on timeout."""
+        return self._finished.wait(timeout)
+
+    def _run(self) -> None:
+        final = "failed"
+        try:
+            final = self._work()
+        except Exception as exc:
+            with self._lock:
+                self._error = self._error_text(exc)
+            log.exception("job %s failed", self._name)
+        finally:
+            with self._lock:
+                self._state = final
+                self._t1 = time.monotonic()
+                self._finish()
+            self._finished.set()
+
+    def _work(self) -> str:
+        """The job's work; returns its final state, "done" or "cancelled"."""
+        raise NotImplementedError
+
+    def _error_text(self, exc: BaseException) -> str:
+        return f"{type(exc).__name__}: {exc}"
+
+    def _finish(self) -> None:
+        """Called once at the end with the lock held (the state is final)."""
+
+    def _elapsed(self) -> float:
+        """Seconds since :meth:`start` (to the end once finished; 0 while pending)."""
+        if self._state == "pending":
+            return 0.0
+        return (self._t1 if self._t1 is not None else time.monotonic()) - self._t0
+
+    @property
+    def state(self) -> str:
+        with self._lock:
+            return self._state
+
+    @property
+    def error(self) -> str | None:
+        with self._lock:
+            return self._error
+
+    @property
+    def started_at(self) -> str | None:
+        """ISO-8601 UTC time of :meth:`start`."""
+        with self._lock:
+            return self._started_at
+
+
+class EvaluationJob(BackgroundJob):
     """Evaluates ``frames`` with ``params`` one after the other in a daemon thread.
 
     ``state`` is "pending" until :meth:`start`, then "running", then "done" (every frame),
@@ -48,6 +139,7 @@ class EvaluationJob:
         on_done: Callable[[EvaluationJob], None] | None = None,
         on_frame: Callable[[EvaluationJob, dict[str, Any]], None] | None = None,
     ) -> None:
+        super().__init__(f"evaluate-{preset}")
         self.frames: tuple[Frame, ...] = tuple(frames)
         self.params = params
         self.preset = preset
@@ -55,85 +147,38 @@ class EvaluationJob:
         self.total = len(self.frames)
         self._on_done = on_done
         self._on_frame = on_frame
-        self._lock = threading.RLock()
-        self._cancel = threading.Event()
-        self._finished = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._state = "pending"
         self._rows: list[dict[str, Any]] = []
         self._current: str | None = None
         self._summary: list[str] = []
-        self._error: str | None = None
         self._on_done_error: str | None = None
-        self._started_at: str | None = None
         self._finished_at: str | None = None
-        self._t0 = 0.0
-        self._t1: float | None = None
 
-    # --- control -------------------------------------------------------------------------
-
-    def start(self) -> EvaluationJob:
-        """Start the evaluation thread (once); returns the job."""
-        with self._lock:
-            if self._thread is not None:
-                raise RuntimeError("this evaluation job was already started")
-            self._state = "running"
-            self._started_at = _now()
-            self._t0 = time.monotonic()
-            self._thread = threading.Thread(
-                target=self._run, name=f"evaluate-{self.preset}", daemon=True
-            )
-        self._thread.start()
-        return self
-
-    def cancel(self) -> None:
-        """Ask the job to stop after the frame it is evaluating."""
-        self._cancel.set()
-
-    def wait(self, timeout: float | None = None) -> bool:
-        """Block until the job has finished and ``on_done`` returned; False on timeout."""
-        return self._finished.wait(timeout)
-
-    def _run(self) -> None:
-        final = "done"
-        try:
-            for frame in self.frames:
-                if self._cancel.is_set():
-                    final = "cancelled"
-                    break
-                with self._lock:
-                    self._current = frame.id
-                row, _ = evaluate_frame(frame, self.params)
-                with self._lock:
-                    self._rows.append(row)
-                if self._on_frame is not None:
-                    self._on_frame(self, row)
-        except Exception as exc:
-            final = "failed"
+    def _work(self) -> str:
+        for frame in self.frames:
+            if self._cancel.is_set():
+                return "cancelled"
             with self._lock:
-                self._error = f"{self._current}: {type(exc).__name__}: {exc}"
-            log.exception("evaluation job %s failed at frame %s", self.preset, self._current)
-        finally:
+                self._current = frame.id
+            row, _ = evaluate_frame(frame, self.params)
             with self._lock:
-                self._summary = summarise(self._rows)
-                self._state = final
-                self._current = None
-                self._finished_at = _now()
-                self._t1 = time.monotonic()
-                if self._on_done is not None:
-                    try:
-                        self._on_done(self)
-                    except Exception as exc:
-                        self._on_done_error = f"{type(exc).__name__}: {exc}"
-                        log.exception("on_done of evaluation job %s failed", self.preset)
-            self._finished.set()
+                self._rows.append(row)
+            if self._on_frame is not None:
+                self._on_frame(self, row)
+        return "done"
 
-    # --- state ---------------------------------------------------------------------------
+    def _error_text(self, exc: BaseException) -> str:
+        return f"{self._current}: {type(exc).__name__}: {exc}"
 
-    @property
-    def state(self) -> str:
-        with self._lock:
-            return self._state
+    def _finish(self) -> None:
+        self._summary = summarise(self._rows)
+        self._current = None
+        self._finished_at = _now()
+        if self._on_done is not None:
+            try:
+                self._on_done(self)
+            except Exception as exc:
+                self._on_done_error = f"{type(exc).__name__}: {exc}"
+                log.exception("on_done of evaluation job %s failed", self.preset)
 
     @property
     def done(self) -> int:
@@ -160,20 +205,9 @@ class EvaluationJob:
             return list(self._summary)
 
     @property
-    def error(self) -> str | None:
-        with self._lock:
-            return self._error
-
-    @property
     def on_done_error(self) -> str | None:
         with self._lock:
             return self._on_done_error
-
-    @property
-    def started_at(self) -> str | None:
-        """ISO-8601 UTC time of :meth:`start`."""
-        with self._lock:
-            return self._started_at
 
     @property
     def finished_at(self) -> str | None:
@@ -187,10 +221,7 @@ class EvaluationJob:
         if since < 0:
             raise ValueError(f"since must be >= 0, got {since}")
         with self._lock:
-            if self._state == "pending":
-                elapsed = 0.0
-            else:
-                elapsed = (self._t1 if self._t1 is not None else time.monotonic()) - self._t0
+            elapsed = self._elapsed()
             return json_safe(
                 {
                     "state": self._state,

@@ -8,7 +8,6 @@ at a time, stores in one folder, requests checked before anything runs.
 
 from __future__ import annotations
 
-import logging
 import threading
 import time
 from collections.abc import Sequence
@@ -19,6 +18,7 @@ from typing import Any
 from threadrecon.app.dataset import discover
 from threadrecon.app.errors import Conflict, Invalid, NotFound
 from threadrecon.app.export import json_safe
+from threadrecon.app.jobs import FINAL_STATES, BackgroundJob
 from threadrecon.app.presets import params_hash, save_preset
 from threadrecon.app.tune.config import TrialResult, TuneConfig, check_config
 from threadrecon.app.tune.results import results, trial_summary
@@ -26,76 +26,42 @@ from threadrecon.app.tune.run import target_trials, tune
 from threadrecon.app.tune.space import Constraint, params_of, parse_space
 from threadrecon.core.pipeline import ReconParams
 
-log = logging.getLogger(__name__)
-
 MAX_TRIALS = 500  # a page tune is a look at a few settings; bigger ones belong to the CLI
 MAX_DIMENSIONS = 8  # parameters varied at once: more than the page's plots can show
 MAX_CONSTRAINTS = 8
-FINAL_STATES = ("done", "cancelled", "failed")
 
 
-class TuneJob:
+class TuneJob(BackgroundJob):
     """``tune(cfg, store)`` in a daemon thread, frames in this process.
 
-    ``state``: "running", then "done" (target reached), "cancelled" (:meth:`cancel`, which
-    takes effect before the next frame; the trial under way is dropped, the finished ones are
-    kept) or "failed" (``error`` says why).
+    ``state``: "running" once started, then "done" (target reached), "cancelled"
+    (:meth:`cancel`, which takes effect before the next frame; the trial under way is
+    dropped, the finished ones are kept) or "failed" (``error`` says why).
     """
 
     def __init__(self, cfg: TuneConfig, store: Path, job_id: str) -> None:
+        super().__init__(f"tune-{job_id}")
         self.cfg = cfg
         self.store = store
         self.id = job_id
         self.target = target_trials(cfg)
-        self._lock = threading.Lock()
-        self._cancel = threading.Event()
-        self._finished = threading.Event()
-        self._state = "running"
         self._trials: list[TrialResult] = []
         self._frames = (0, 0, "")
         self._log: list[str] = []
-        self._error: str | None = None
-        self._started_at = datetime.now(UTC).isoformat(timespec="seconds")
-        self._t0 = time.monotonic()
-        self._t1: float | None = None
-        self._thread = threading.Thread(target=self._run, name=f"tune-{job_id}", daemon=True)
 
-    def start(self) -> TuneJob:
-        self._thread.start()
-        return self
-
-    def cancel(self) -> None:
-        self._cancel.set()
-
-    def wait(self, timeout: float | None = None) -> bool:
-        return self._finished.wait(timeout)
-
-    def _run(self) -> None:
-        final = "done"
-        try:
-            got = tune(
-                self.cfg,
-                self.store,
-                None,
-                log=self._say,
-                progress=self._progress,
-                on_trial=self._on_trial,
-                stop=self._cancel.is_set,
-            )
-            with self._lock:  # resumed trials too, in the store's order
-                self._trials = list(got.trials)
-            if got.stopped:
-                final = "cancelled"
-        except Exception as exc:
-            final = "failed"
-            with self._lock:
-                self._error = f"{type(exc).__name__}: {exc}"
-            log.exception("tune %s failed", self.id)
-        finally:
-            with self._lock:
-                self._state = final
-                self._t1 = time.monotonic()
-            self._finished.set()
+    def _work(self) -> str:
+        got = tune(
+            self.cfg,
+            self.store,
+            None,
+            log=self._say,
+            progress=self._progress,
+            on_trial=self._on_trial,
+            stop=self._cancel.is_set,
+        )
+        with self._lock:  # resumed trials too, in the store's order
+            self._trials = list(got.trials)
+        return "cancelled" if got.stopped else "done"
 
     def _say(self, line: str) -> None:
         with self._lock:
@@ -108,11 +74,6 @@ class TuneJob:
     def _on_trial(self, t: TrialResult) -> None:
         with self._lock:
             self._trials.append(t)
-
-    @property
-    def state(self) -> str:
-        with self._lock:
-            return self._state
 
     def trials(self) -> list[TrialResult]:
         with self._lock:
@@ -133,7 +94,6 @@ class TuneJob:
         if since < 0:
             raise Invalid(f"since must be >= 0, got {since}")
         with self._lock:
-            end = self._t1 if self._t1 is not None else time.monotonic()
             done, total, frame = self._frames
             return json_safe(
                 {
@@ -151,7 +111,7 @@ class TuneJob:
                     "log": self._log[-20:],
                     "error": self._error,
                     "started_at": self._started_at,
-                    "elapsed_s": round(end - self._t0, 3),
+                    "elapsed_s": round(self._elapsed(), 3),
                 }
             )
 
