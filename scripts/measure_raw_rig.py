@@ -1,8 +1,9 @@
 """Raw calibrated pairs vs rectified input: e_S of each, per generated frame.
 
-    python scripts/measure_raw_rig.py [FIRST_SEED LAST_SEED] [--no-masks]
+    python scripts/measure_raw_rig.py [FIRST_SEED LAST_SEED] [--no-masks] [--views resample]
 
-Each seed's frame is re-imaged by rotated, distorting cameras (tests/rig_support.py); the raw
+Each seed's frame is re-imaged by rotated, distorting cameras (tests/rig_support.py: rendered
+directly in the raw cameras, or resampled from the rectified pair with ``--views resample``); the raw
 pair is rectified in the load step (core/rectify.py) and the curve mapped back to the left
 camera's frame; the rectified-input result of the same frame is the reference.
 """
@@ -31,10 +32,19 @@ def main() -> None:
     parser.add_argument("first", type=int, nargs="?", default=10)
     parser.add_argument("last", type=int, nargs="?", default=21)
     parser.add_argument("--no-masks", action="store_true", help="segment the images instead")
+    parser.add_argument(
+        "--views",
+        choices=("render", "resample"),
+        default="render",
+        help="raw views rendered in the raw cameras (default) or resampled from the rectified pair",
+    )
+    parser.add_argument(
+        "--blur", type=float, default=0.0, help="the optics' blur of both rigs, px (generator)"
+    )
     args = parser.parse_args()
     diffs = []
     for seed in range(args.first, args.last + 1):
-        rig = raw_rig(seed)
+        rig = raw_rig(seed, views=args.views, blur_sigma=args.blur)
         reference, raw = rig.reference, rig.pair
         if args.no_masks:
             reference, raw = (
