@@ -41,7 +41,7 @@ from threadrecon.core.synthetic import (
 
 # the generator's tube renderer, reused so that the raw and the rectified views of a thread are
 # drawn alike (the same coverage profile, shading and highlight)
-from threadrecon.core.synthetic import _render_tube as render_tube  # noqa: PLC2701
+from threadrecon.core.synthetic import _render_tube as render_tube
 
 RAW_MARGIN_PX = 40.0  # px: the thread's distance to the rendered view's border
 RENDER_STEP_PX = 0.4  # px: max image step of the rendered polyline (the generator's own)
