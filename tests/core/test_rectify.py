@@ -116,12 +116,14 @@ def test_raw_rig_curve_in_left_frame_matches_rectified_input(masks: bool) -> Non
 
     Held out (``scripts/measure_raw_rig.py A B --blur 0.7 [--no-masks]``): with masks 33 of 36
     frames of seeds 50-61, 70-81, 90-101 (11, 12, 10), images only 32 of 36 (10, 12, 10). The
-    misses (seeds 54, 61, 91, 98: long, far, near-horizontal thread sections) are at the
-    pipeline's own floor: i.i.d. noise of 1 grey level on the rectified input itself
-    (``--control-noise 1``) moves e_S by 0.13 and 0.14 mm on seeds 54 and 98. Without blur a
-    rendered thread (box-filtered coverage, 1 px edges) is not band-limited and no
-    interpolation reproduces it at another sub-pixel position (Lanczos: 5.5 grey levels RMS
-    near the thread, against 1.6 with the blur): 16 of 24 frames (seeds 50-61, 70-81)."""
+    misses (seeds 54, 61, 91, 98) have long, far, near-horizontal thread sections, where stereo
+    moves under any small change of the rectified input itself: i.i.d. noise of 1 grey level
+    on it, no rectification (``--control-noise 1``), moves e_S by more than 0.1 mm on 54, 61,
+    98 with masks and on 98 images only; the remap's error (1.6 grey levels RMS near the thread,
+    correlated along it) moves more. Without blur a rendered thread (box-filtered coverage,
+    1 px edges) is not band-limited and no interpolation reproduces it at another sub-pixel
+    position (Lanczos: 5.5 grey levels RMS near the thread): 16 of 24 frames (seeds 50-61,
+    70-81)."""
     diffs, gaps = [], []
     for seed in SEEDS:
         rig = raw_rig(seed, blur_sigma=OPTICS_BLUR_PX)
