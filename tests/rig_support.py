@@ -83,6 +83,8 @@ def _rendered_views(
     cam = frame.camera
     if render != RenderParams(blur_sigma=render.blur_sigma):
         raise ValueError("the raw rig renders the default flat-background frame (and blur) only")
+    if not np.isclose(K[0, 0], cam.fx) or not np.isclose(K[1, 1], cam.fx):
+        raise ValueError(f"the tube renderer's widths assume fx = fy = {cam.fx}, got K = {K}")
     truth = frame.truth
     spl = BSpline(truth.knots, truth.control_points, truth.degree)
     m = 2000
