@@ -1,24 +1,37 @@
-"""A raw (unrectified, distorted) stereo rig made from a generated rectified frame.
+"""A raw (unrectified, distorted) stereo rig looking at a generated frame's thread.
 
 The generator renders a rectified pair (camera matrix K, baseline B). A raw rig looks at the
-same scene with its cameras rotated (p_raw_i = Ra_i p_rect_i) and with lens distortion D_i:
-each raw pixel is undistorted and rotated into the rectified view (``cv2.undistortPoints``
-with R and P), and the rectified image is sampled there (Lanczos; beyond the rendered view:
-the background colour). The rig's OpenCV calibration is R = Ra_2 Ra_1^T, T = Ra_2 (-B, 0, 0);
-the true curve in the raw left frame is Ra_1 p_rect.
+same scene with its cameras rotated (p_raw_i = Ra_i p_rect_i) and with lens distortion D_i.
+Its views are made in one of two ways:
+
+- ``"render"`` (default): the thread is rendered directly in each raw camera: the 3D
+  centreline projected with K, D (``cv2.projectPoints``) and drawn by the generator's own tube
+  renderer, so the raw pair is as crisp as the rectified one and the load step's remap is the
+  only resampling, as with a real rig;
+- ``"resample"``: each raw pixel is undistorted and rotated into the rectified view
+  (``cv2.undistortPoints`` with R and P), and the rendered rectified image is sampled there
+  (Lanczos; beyond the rendered view: the background colour). The raw pair is then resampled
+  twice before the pipeline sees it (here and in the load step).
+
+The rig's OpenCV calibration is R = Ra_2 Ra_1^T, T = Ra_2 (-B, 0, 0); the true curve in the
+raw left frame is Ra_1 p_rect.
 """
 
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
+from typing import Literal
 
 import cv2
 import numpy as np
+from scipy.interpolate import BSpline
 
 from threadrecon.core.calibration import StereoCalibration, make_calibration
 from threadrecon.core.segmentation import StereoPair
 from threadrecon.core.synthetic import (
+    RenderParams,
     StereoCamera,
     SyntheticFrame,
     SyntheticParams,
@@ -26,7 +39,14 @@ from threadrecon.core.synthetic import (
     generate_frame,
 )
 
+# the generator's tube renderer, reused so that the raw and the rectified views of a thread are
+# drawn alike (the same coverage profile, shading and highlight)
+from threadrecon.core.synthetic import _render_tube as render_tube
+
 RAW_MARGIN_PX = 40.0  # px: the thread's distance to the rendered view's border
+RENDER_STEP_PX = 0.4  # px: max image step of the rendered polyline (the generator's own)
+THREAD_GREY = (120.0, 120.0, 120.0)  # the generator's thread colour on a flat background
+Views = Literal["render", "resample"]
 
 
 @dataclass(frozen=True)
@@ -49,7 +69,65 @@ def rotation(rx_deg: float, ry_deg: float, rz_deg: float) -> np.ndarray:
     return cv2.Rodrigues(rvec)[0]
 
 
-def _raw_views(
+def _rendered_views(
+    frame: SyntheticFrame,
+    diameter: float,
+    render: RenderParams,
+    K: np.ndarray,
+    D: np.ndarray,
+    Ra: np.ndarray,
+    centre: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The raw camera's image and mask, rendered directly: the thread seen by a camera at
+    ``centre`` (rectified left frame, mm), rotated by ``Ra`` and distorting by ``D``."""
+    cam = frame.camera
+    if render != RenderParams(blur_sigma=render.blur_sigma):
+        raise ValueError("the raw rig renders the default flat-background frame (and blur) only")
+    if not np.isclose(K[0, 0], cam.fx) or not np.isclose(K[1, 1], cam.fx):
+        raise ValueError(f"the tube renderer's widths assume fx = fy = {cam.fx}, got K = {K}")
+    truth = frame.truth
+    spl = BSpline(truth.knots, truth.control_points, truth.degree)
+    m = 2000
+    for _ in range(4):  # refine until the image step is below RENDER_STEP_PX
+        p_raw = (spl(np.linspace(0.0, 1.0, m)) - centre) @ Ra.T
+        uv = _project(p_raw, K, D)
+        step = float(np.linalg.norm(np.diff(uv, axis=0), axis=1).max())
+        if step <= RENDER_STEP_PX:
+            break
+        m = int(math.ceil(m * step / RENDER_STEP_PX * 1.05))
+    # the renderer draws a tube fx d / z px wide: the lens magnifies it locally by
+    # sqrt|det J| (J: the distortion's Jacobian), i.e. it looks as wide as at depth z / that
+    z_eff = p_raw[:, 2] / np.sqrt(np.abs(_distortion_det(p_raw, D)))
+    background = np.full((cam.height, cam.width, 3), render.background_level, np.float32)
+    grey = np.asarray(THREAD_GREY, np.float32)
+    img, cov = render_tube(uv, z_eff, cam, diameter, grey, render.specular, background)
+    if render.blur_sigma > 0:  # the optics' blur, in the raw camera's pixels, as the generator
+        img = cv2.GaussianBlur(img, (0, 0), render.blur_sigma)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8), cov >= 0.5
+
+
+def _project(p: np.ndarray, K: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """(N, 3) points of a camera's frame -> (N, 2) distorted pixels (x, y)."""
+    zero = np.zeros(3)
+    uv, _ = cv2.projectPoints(p.reshape(-1, 1, 3), zero, zero, K, D)
+    return uv.reshape(-1, 2)
+
+
+def _distortion_det(p: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """(N,) det of the Jacobian of the distortion at the normalised image points of ``p``."""
+    xn = p[:, :2] / p[:, 2:3]
+    h = 1e-6  # normalised units: central differences exact to ~1e-10 for a polynomial model
+    one = np.eye(3)
+
+    def dist(q: np.ndarray) -> np.ndarray:
+        return _project(np.column_stack([q, np.ones(len(q))]), one, D)
+
+    jx = (dist(xn + [h, 0.0]) - dist(xn - [h, 0.0])) / (2 * h)
+    jy = (dist(xn + [0.0, h]) - dist(xn - [0.0, h])) / (2 * h)
+    return jx[:, 0] * jy[:, 1] - jx[:, 1] * jy[:, 0]
+
+
+def _resampled_views(
     img: np.ndarray, mask: np.ndarray, K: np.ndarray, D: np.ndarray, Ra: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """The raw camera's image and mask of what the rectified camera ``K`` sees."""
@@ -91,22 +169,33 @@ def raw_rig(
     angles1: tuple[float, float, float] = (1.5, -2.0, 1.0),
     angles2: tuple[float, float, float] = (-1.0, 1.5, -0.5),
     distortion: bool = True,
+    views: Views = "render",
+    blur_sigma: float = 0.0,
 ) -> RawRig:
-    """A raw pair of the generated frame ``seed`` seen by rotated, distorting cameras."""
+    """A raw pair of the generated frame ``seed`` seen by rotated, distorting cameras, its
+    views rendered directly or resampled from the rectified pair (``views``, module doc)."""
     cam = StereoCamera()
     # the raw cameras' views are rotated by ~2 deg (up to ~25 px at the borders): a wider margin
     # keeps the whole thread in both raw views, so both inputs see the same thread
     thread = ThreadParams(margin_px=RAW_MARGIN_PX)
-    frame = generate_frame(SyntheticParams(camera=cam, thread=thread), rng=seed)
+    params = SyntheticParams(camera=cam, thread=thread, render=RenderParams(blur_sigma=blur_sigma))
+    frame = generate_frame(params, rng=seed)
     K = np.asarray(cam.K, dtype=np.float64)
     size = (cam.height, cam.width)
     D1 = np.array([-0.08, 0.02, 0.0005, -0.0003, 0.0]) if distortion else np.zeros(5)
     D2 = np.array([-0.06, 0.015, -0.0004, 0.0002, 0.0]) if distortion else np.zeros(5)
     Ra1, Ra2 = rotation(*angles1), rotation(*angles2)
-    left, mask_left = _raw_views(frame.left, frame.mask_left, K, D1, Ra1)
-    right, mask_right = _raw_views(frame.right, frame.mask_right, K, D2, Ra2)
-    raw = StereoPair(left, right, mask_left, mask_right)
     t = np.array([-cam.baseline, 0.0, 0.0])
+    if views == "render":
+        d = thread.diameter_mm
+        left, mask_left = _rendered_views(frame, d, params.render, K, D1, Ra1, np.zeros(3))
+        right, mask_right = _rendered_views(frame, d, params.render, K, D2, Ra2, -t)
+    elif views == "resample":
+        left, mask_left = _resampled_views(frame.left, frame.mask_left, K, D1, Ra1)
+        right, mask_right = _resampled_views(frame.right, frame.mask_right, K, D2, Ra2)
+    else:
+        raise ValueError(f"views must be 'render' or 'resample', got {views!r}")
+    raw = StereoPair(left, right, mask_left, mask_right)
     zero = np.zeros(5)
     return RawRig(
         frame=frame,

@@ -22,7 +22,8 @@ from threadrecon.core.rectify import (
 )
 from threadrecon.core.segmentation import StereoPair
 
-SEEDS = tuple(range(8))  # generator seeds; 10-21 were held out to check the figures
+SEEDS = tuple(range(8))  # generator seeds; 50-61, 70-81, 90-101 were held out for the figures
+OPTICS_BLUR_PX = 0.7  # px: a camera's optics band-limit its image (the generator's blur_sigma)
 
 
 def test_rectified_calibration_needs_no_remap_and_returns_the_same_pair() -> None:
@@ -91,19 +92,41 @@ def test_wrong_size_pair_is_refused() -> None:
         rectify_pair(small, rectification(rig.calib))
 
 
+def test_raw_rig_without_rotation_or_distortion_renders_the_generated_pair() -> None:
+    """The test-side renderer of the raw views is the generator's: an identity rig (no
+    rotation, no distortion) gives the generated frame to one grey level of rounding, and its
+    masks exactly, with and without the optics' blur."""
+    for blur in (0.0, OPTICS_BLUR_PX):
+        rig = raw_rig(3, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), distortion=False, blur_sigma=blur)
+        for raw, ref in (
+            (rig.pair.left, rig.reference.left),
+            (rig.pair.right, rig.reference.right),
+        ):
+            assert np.abs(raw.astype(int) - ref.astype(int)).max() <= 1
+        assert np.array_equal(rig.pair.mask_left, rig.reference.mask_left)
+        assert np.array_equal(rig.pair.mask_right, rig.reference.mask_right)
+
+
 @pytest.mark.parametrize("masks", [False, True], ids=["images", "images+masks"])
 def test_raw_rig_curve_in_left_frame_matches_rectified_input(masks: bool) -> None:
-    """Rotated (~2 deg) and distorting cameras: the curve, rectified in the load step and
-    mapped back to the left camera's frame, is as close to the truth as the rectified-input
-    curve of the same frame. Held out (``scripts/measure_raw_rig.py``), with masks: e_S within
-    0.1 mm on 10 of 12 frames of seeds 10-21 (median difference 0.028 mm) and 9 of 12 of seeds
-    30-41; images only, seeds 30-41: 8 of 12 (median 0.052 mm). Where it differs, stereo on
-    the resampled pair is the cause: sub-pixel disparities move by ~0.1 px (0.2 mm of depth at
-    100 mm) and fewer pixels pass the reliability test (seed 19: 849 of 1632 against 1651 of
-    1651 on the rendered pair)."""
+    """Rotated (~2 deg) and distorting cameras, the thread rendered in each raw camera through
+    optics of OPTICS_BLUR_PX blur (as the rectified reference): the curve, rectified in the load
+    step and mapped back to the left camera's frame, has the e_S of the rectified-input curve
+    of the same frame within 0.1 mm on every frame.
+
+    Held out (``scripts/measure_raw_rig.py A B --blur 0.7 [--no-masks]``): with masks 33 of 36
+    frames of seeds 50-61, 70-81, 90-101 (11, 12, 10), images only 32 of 36 (10, 12, 10). The
+    misses (seeds 54, 61, 91, 98) have long, far, near-horizontal thread sections, where stereo
+    moves under any small change of the rectified input itself: i.i.d. noise of 1 grey level
+    on it, no rectification (``--control-noise 1``), moves e_S by more than 0.1 mm on 54, 61,
+    98 with masks and on 98 images only; the remap's error (1.6 grey levels RMS near the thread,
+    correlated along it) moves more. Without blur a rendered thread (box-filtered coverage,
+    1 px edges) is not band-limited and no interpolation reproduces it at another sub-pixel
+    position (Lanczos: 5.5 grey levels RMS near the thread): 16 of 24 frames (seeds 50-61,
+    70-81)."""
     diffs, gaps = [], []
     for seed in SEEDS:
-        rig = raw_rig(seed)
+        rig = raw_rig(seed, blur_sigma=OPTICS_BLUR_PX)
         reference, raw = rig.reference, rig.pair
         if not masks:
             reference = StereoPair(reference.left, reference.right)
@@ -121,10 +144,8 @@ def test_raw_rig_curve_in_left_frame_matches_rectified_input(masks: bool) -> Non
         # the wrong frame (no R1^T) is measurably worse: the frame matters
         wrong = curve_errors(rec["camera"].points, rig.truth_left).e_S
         assert wrong > e_raw + 0.5, (seed, wrong, e_raw)
-    within = sum(d < 0.1 for d in diffs)
-    assert np.median(diffs) < 0.1 and max(diffs) < 0.3, diffs
-    assert within >= (6 if masks else 7), diffs
-    assert np.median(gaps) < 0.2, gaps
+    assert max(diffs) < 0.1, diffs  # every frame, not a median
+    assert max(gaps) < 0.2, gaps
 
 
 def test_thread_cut_by_the_raw_border_is_not_smeared_into_the_rectified_image() -> None:
