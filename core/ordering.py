@@ -19,6 +19,8 @@
 
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -32,7 +34,6 @@ from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.stereo import StereoResult
 
-_HALF_8 = ((0, 1), (1, -1), (1, 0), (1, 1))  # half of the 8-neighbourhood: each pair seen once
 OUTLIER_PX = 2.0  # a pixel > 2 px of disparity from its cluster's median is another match
 MAX_WALKS = 24  # walks tried per frame (ends, then runner-up turns of the best): bounded time
 MAX_REJECTED = 4  # rejected continuations kept per decision: a jump may see dozens, few matter
@@ -138,8 +139,7 @@ class OrderingGraph:
 
 @dataclass(frozen=True)
 class Ordering:
-    """``node_image``: (H, W) int, cluster id (0..K-1) of solidified cluster pixels, K + gap id
-    for unclustered segmented pixels, -1 off P_L.
+    """``pixels``: (N, 2) int (x, y) of P_L (``StereoResult.pixels``), ``image_shape``: (H, W).
     ``edges``: (E, 2) int, the adjacency graph A over keypoint ids.
     ``order``: (M,) int, ordered keypoint ids (phi); -1 marks an extension keypoint.
     ``path_px``: (M, 3) ordered keypoints in (x px, y px, z depth).
@@ -153,7 +153,8 @@ class Ordering:
     continuations and costs (:class:`OrderingGraph`).
     """
 
-    node_image: np.ndarray
+    pixels: np.ndarray
+    image_shape: tuple[int, int]
     n_clusters: int
     edges: np.ndarray
     order: np.ndarray
@@ -164,6 +165,14 @@ class Ordering:
     pixel_t: np.ndarray
     pixel_link: np.ndarray
     graph: OrderingGraph
+
+    @functools.cached_property
+    def node_image(self) -> np.ndarray:
+        """(H, W) int, cluster id (0..K-1) of solidified cluster pixels, K + gap id for
+        unclustered segmented pixels, -1 off P_L (built on first use: 16 MB at 1920x1080)."""
+        out = np.full(self.image_shape, -1, dtype=np.int64)
+        out[self.pixels[:, 1], self.pixels[:, 0]] = self.pixel_node
+        return out
 
 
 def order_keypoints(
@@ -176,25 +185,29 @@ def order_keypoints(
     if p.solidify_radius < 0:
         raise ValueError(f"solidify_radius must be >= 0, got {p.solidify_radius}")
     K = clusters.count
-    P_L = lifted.P_L
-    cluster_img = np.full(P_L.shape, -1, dtype=np.int64)
-    sel = clusters.labels >= 0
-    px = stereo.pixels[sel]
-    cluster_img[px[:, 1], px[:, 0]] = clusters.labels[sel]
-    cluster_img = _solidify(cluster_img, P_L, p.solidify_radius)
+    H, W = lifted.P_L.shape
+    if stereo.shape != (H, W) or len(clusters.labels) != len(stereo.pixels):
+        raise ValueError(
+            f"stereo result ({stereo.shape}, {len(stereo.pixels)} px) and clusters "
+            f"({len(clusters.labels)} labels) do not belong to this {(H, W)} pair"
+        )
+    # Everything works on the pixel list of P_L and its bounding box: the thread, not the image.
+    grid = _PixelGrid(stereo.pixels, max(1, p.solidify_radius))
+    cluster_of = _solidify(grid, clusters.labels, p.solidify_radius)
+    gaps = cluster_of < 0
+    n_gaps, gap_of = grid.components(gaps)
+    pixel_node = np.where(gaps, K + gap_of - 1, cluster_of)
+    geo = _GapGeodesics(stereo, pixel_node, K, nb=grid.neighbours())
 
-    gaps = P_L & (cluster_img < 0)
-    n_gaps, gap_img = cv2.connectedComponents(gaps.astype(np.uint8), connectivity=8)
-    node_image = np.where(cluster_img >= 0, cluster_img, np.where(gaps, K + gap_img - 1, -1))
-
-    pairs = _touching_pairs(node_image)
-    cc = pairs[(pairs[:, 0] < K) & (pairs[:, 1] < K)]
-    cg = pairs[(pairs[:, 0] < K) != (pairs[:, 1] < K)]
-    cg = np.sort(cg, axis=1)  # (cluster, gap)
+    pairs = _touching_pairs(pixel_node, geo.nb_node)
+    cc = pairs[pairs[:, 1] < K]  # pairs are sorted: (a < b)
+    cg = pairs[(pairs[:, 0] < K) & (pairs[:, 1] >= K)]  # (cluster, gap), unique, sorted
     gap_members: dict[int, list[int]] = {}
-    for c, g in np.unique(cg, axis=0):
-        gap_members.setdefault(int(g), []).append(int(c))
-    edge_set = {(int(a), int(b)) for a, b in cc}
+    cluster_gaps: dict[int, set[int]] = {}
+    for c, g in cg.tolist():
+        gap_members.setdefault(g, []).append(c)
+        cluster_gaps.setdefault(c, set()).add(g)
+    edge_set = set(map(tuple, cc.tolist()))
     for members in gap_members.values():
         for i, a in enumerate(members):
             for b in members[i + 1 :]:
@@ -209,9 +222,6 @@ def order_keypoints(
     else:
         walk = _bending_walk(adj, clusters.keypoints_px[:, :2], disp, p)
 
-    cluster_gaps: dict[int, set[int]] = {}
-    for c, g in np.unique(cg, axis=0):
-        cluster_gaps.setdefault(int(c), set()).add(int(g))
     links = [
         tuple(sorted(cluster_gaps.get(a, set()) & cluster_gaps.get(b, set())))
         for a, b in zip(walk[:-1], walk[1:], strict=True)
@@ -230,9 +240,7 @@ def order_keypoints(
     order = list(walk)
 
     # Endpoint extension at both ends, then the geodesic position of every gap pixel.
-    pixel_node = node_image[stereo.pixels[:, 1], stereo.pixels[:, 0]]
-    geo = _GapGeodesics(stereo, pixel_node, K)
-    gap_size = np.bincount(gap_img[gaps], minlength=n_gaps)
+    gap_size = np.bincount(gap_of[gaps], minlength=n_gaps)
     for end in (0, -1):
         k = order[end]
         dead = [g for g in sorted(cluster_gaps.get(k, ())) if gap_members.get(g) == [k]]
@@ -271,7 +279,8 @@ def order_keypoints(
     )
     graph = OrderingGraph(_pieces(adj), np.flatnonzero(degree >= 3), decisions)
     return Ordering(
-        node_image=node_image,
+        pixels=stereo.pixels,
+        image_shape=(H, W),
         n_clusters=K,
         edges=edges,
         order=np.array(order, dtype=np.int64),
@@ -288,14 +297,18 @@ def order_keypoints(
 class _GapGeodesics:
     """Geodesic (8-connected, unit/sqrt2 steps) distances inside gaps from a cluster's border."""
 
-    def __init__(self, stereo: StereoResult, pixel_node: np.ndarray, K: int) -> None:
-        H, W = stereo.shape
+    def __init__(
+        self,
+        stereo: StereoResult,
+        pixel_node: np.ndarray,
+        K: int,
+        nb: np.ndarray | None = None,
+    ) -> None:
+        """``nb``: (N, 8) neighbour pixel indices of :meth:`_PixelGrid.neighbours`, if known."""
         n = len(pixel_node)
-        idx = np.full((H + 2, W + 2), -1, dtype=np.int64)
-        x, y = stereo.pixels[:, 0] + 1, stereo.pixels[:, 1] + 1
-        idx[y, x] = np.arange(n)
-        offs = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
-        nb = np.stack([idx[y + dy, x + dx] for dy, dx in offs], axis=1)  # (N, 8)
+        if nb is None:
+            nb = _PixelGrid(stereo.pixels, 1).neighbours()
+        offs = _OFFSETS_8
         step = np.array([np.hypot(dy, dx) for dy, dx in offs])
         self.nb_node = np.where(nb >= 0, pixel_node[np.maximum(nb, 0)], -1)
         is_gap = pixel_node >= K
@@ -385,32 +398,75 @@ def _normalised(d: np.ndarray) -> np.ndarray:
     return d / top if top and np.isfinite(top) else np.full_like(d, np.nan)
 
 
-def _solidify(cluster_img: np.ndarray, P_L: np.ndarray, radius: int) -> np.ndarray:
-    """Segmented pixels within ``radius`` px (8-neighbourhood steps) of a cluster join it.
+class _PixelGrid:
+    """The pixels of P_L in an index image over their bounding box, padded by ``pad`` px."""
 
-    Where two clusters are in reach the higher id wins (grey dilation of the label image)."""
-    if radius == 0 or not (cluster_img >= 0).any():
-        return cluster_img
-    kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
-    grown = cv2.dilate((cluster_img + 1).astype(np.float32), kernel).astype(np.int64) - 1
-    join = P_L & (cluster_img < 0) & (grown >= 0)
-    out = cluster_img.copy()
-    out[join] = grown[join]
+    def __init__(self, pixels: np.ndarray, pad: int) -> None:
+        n = len(pixels)
+        self.n = n
+        self.pad = pad
+        self.x0, self.y0 = (int(v) for v in pixels.min(axis=0)) if n else (0, 0)
+        x1, y1 = (int(v) for v in pixels.max(axis=0)) if n else (0, 0)
+        self.x = pixels[:, 0] - self.x0 + pad
+        self.y = pixels[:, 1] - self.y0 + pad
+        shape = (y1 - self.y0 + 1 + 2 * pad, x1 - self.x0 + 1 + 2 * pad)
+        self.index = np.full(shape, -1, dtype=np.int64)
+        self.index[self.y, self.x] = np.arange(n)
+
+    def neighbours(self) -> np.ndarray:
+        """(N, 8) index of each pixel's 8-neighbours in P_L (order ``_OFFSETS_8``), -1 if none."""
+        return np.stack([self.index[self.y + dy, self.x + dx] for dy, dx in _OFFSETS_8], axis=1)
+
+    def components(self, member: np.ndarray) -> tuple[int, np.ndarray]:
+        """8-connected components of the pixels where ``member``: their count + 1 (cv2's, with
+        the background) and (N,) label 1.. in the order of each component's first pixel in the
+        pixel list (0 where not ``member``). cv2's own numbering follows its 2x2 blocks and its
+        threads' stripes: it changes with the box and with cv2.setNumThreads."""
+        h, w = self.index.shape
+        img = np.zeros((h, w), np.uint8)
+        img[self.y[member], self.x[member]] = 1
+        n, lab = cv2.connectedComponents(img, connectivity=8)
+        lab = lab[self.y, self.x]
+        first = np.full(n, self.n, dtype=np.int64)  # first pixel (row-major) of each label
+        np.minimum.at(first, lab[member], np.flatnonzero(member))
+        rank = np.zeros(n, dtype=np.int64)
+        rank[np.argsort(first[1:], kind="stable") + 1] = np.arange(1, n)
+        return n, np.where(member, rank[lab], 0)
+
+
+_OFFSETS_8 = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
+
+
+def _solidify(grid: _PixelGrid, labels: np.ndarray, radius: int) -> np.ndarray:
+    """(N,) cluster of each pixel of P_L after solidification: an unclustered pixel within
+    ``radius`` px (8-neighbourhood steps) of a cluster joins it; where two clusters are in reach
+    the higher id wins (the grey dilation of the label image, on the pixel list)."""
+    out = labels.copy()
+    if radius == 0 or not (labels >= 0).any():
+        return out
+    if radius > grid.pad:
+        raise ValueError(f"the pixel grid is padded by {grid.pad} px, not {radius}")
+    img = np.zeros(grid.index.shape, dtype=np.int64)
+    img[grid.y, grid.x] = labels + 1
+    free = np.flatnonzero(labels < 0)
+    y, x = grid.y[free], grid.x[free]
+    grown = np.zeros(free.size, dtype=np.int64)
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            np.maximum(grown, img[y + dy, x + dx], out=grown)
+    out[free] = grown - 1
     return out
 
 
-def _touching_pairs(node_image: np.ndarray) -> np.ndarray:
-    """(P, 2) unique unordered pairs of different nodes that are 8-neighbours somewhere."""
-    H, W = node_image.shape
-    found = []
-    for dy, dx in _HALF_8:  # dy >= 0
-        a = node_image[: H - dy, max(0, -dx) : W - max(0, dx)]
-        b = node_image[dy:, max(0, dx) : W + min(0, dx)]
-        ok = (a >= 0) & (b >= 0) & (a != b)
-        found.append(np.stack([a[ok], b[ok]], axis=1))
-    pairs = np.concatenate(found) if found else np.zeros((0, 2), np.int64)
-    pairs = np.sort(pairs, axis=1)
-    return np.unique(pairs, axis=0) if len(pairs) else pairs.reshape(0, 2)
+def _touching_pairs(pixel_node: np.ndarray, nb_node: np.ndarray) -> np.ndarray:
+    """(P, 2) unique pairs (a < b, sorted) of different nodes that are 8-neighbours somewhere."""
+    a = np.broadcast_to(pixel_node[:, None], nb_node.shape)
+    ok = (nb_node >= 0) & (a >= 0) & (nb_node != a)
+    lo = np.minimum(a[ok], nb_node[ok])
+    hi = np.maximum(a[ok], nb_node[ok])
+    m = int(hi.max()) + 1 if hi.size else 1
+    key = np.unique(lo * m + hi)
+    return np.stack([key // m, key % m], axis=1)
 
 
 def _best_walk(
@@ -549,6 +605,16 @@ def _walk_from(
     steps = list(prefix_steps)
     alts: list[tuple[int, int]] = []
     while True:
+        if forced is None or len(walk) > len(prefix):
+            free = [v for v in adj[walk[-1]] if not visited[v]]
+            if len(free) == 1:  # the only neighbour (most steps): no choice, only its cost
+                c = _single_cost(walk, free[0], pos, disp, p)
+                if not math.isfinite(c):
+                    break
+                visited[free[0]] = True
+                walk.append(free[0])
+                steps.append(c)
+                continue
         cand, cost, _, _ = _continuations(walk, visited, adj, pos, disp, p)
         if not cand:
             break
@@ -570,6 +636,35 @@ def _walk_from(
 
 
 _TIERS = ("neighbour", "crossing", "jump")
+
+
+def _single_cost(
+    walk: list[int], v: int, pos: np.ndarray, disp: np.ndarray, p: OrderingParams
+) -> float:
+    """The cost of :func:`_continuations` for a single tier-0 candidate ``v``, in scalars: the
+    same operations in the same order (bit-identical), without a dozen small arrays per step.
+    The dot product stays a (1, 2) @ (2,) product: BLAS may fuse its multiply-add."""
+    cur = walk[-1]
+    back = walk[-3] if len(walk) >= 3 else walk[0]
+    hx = float(pos[cur, 0]) - float(pos[back, 0])
+    hy = float(pos[cur, 1]) - float(pos[back, 1])
+    hn = float(np.hypot(hx, hy))
+    recent = walk[-3:]
+    ref = 0.0
+    for k in recent:  # np.mean of <= 3 values: a sequential sum, then the division
+        ref += float(disp[k])
+    ref /= len(recent)
+    cx = float(pos[v, 0]) - float(pos[cur, 0])
+    cy = float(pos[v, 1]) - float(pos[cur, 1])
+    dist = max(math.sqrt(cx * cx + cy * cy), 1e-9)
+    if hn > 0:
+        dot = float((np.array([[cx, cy]]) @ np.array([hx / hn, hy / hn]))[0])
+        cos_t = dot / dist
+    else:
+        cos_t = 1.0
+    return dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * abs(
+        float(disp[v]) - ref
+    )
 
 
 def _continuations(
