@@ -20,7 +20,6 @@
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -29,6 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
+from threadrecon.core import walk_kernel
 from threadrecon.core.clustering import Clusters
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LiftedPair
@@ -572,9 +572,10 @@ def _bending_walk(
     best_key = (-1, 0.0)
     tried = 0
     queue: list[tuple[list[int], list[float], int | None]] = [([s], [], None) for s in starts]
+    graph = _WalkGraph.of(adj, pos, disp)
     while queue and tried < MAX_WALKS:
         prefix, prefix_steps, forced = queue.pop(0)
-        walk, steps, alts = _walk_from(prefix, prefix_steps, forced, adj, pos, disp, p)
+        walk, steps, alts = _walk_from(prefix, prefix_steps, forced, graph, p)
         tried += 1
         key = (len(walk), -sum(steps))
         if key > best_key:
@@ -586,85 +587,84 @@ def _bending_walk(
     return best_walk
 
 
+@dataclass(frozen=True)
+class _WalkGraph:
+    """A, positions and disparities as the walk kernel takes them (built once per frame)."""
+
+    adj: list[list[int]]
+    indptr: np.ndarray  # (K + 1,) int64, CSR of A in the order of ``adj``
+    indices: np.ndarray
+    pos: np.ndarray  # (K, 2) float64, contiguous
+    disp: np.ndarray  # (K,) float64
+
+    @classmethod
+    def of(cls, adj: list[list[int]], pos: np.ndarray, disp: np.ndarray) -> _WalkGraph:
+        indptr = np.zeros(len(adj) + 1, dtype=np.int64)
+        indptr[1:] = np.cumsum([len(a) for a in adj])
+        indices = np.array([v for a in adj for v in a], dtype=np.int64)
+        return cls(
+            adj,
+            indptr,
+            indices,
+            np.ascontiguousarray(pos, dtype=np.float64),
+            np.ascontiguousarray(disp, dtype=np.float64),
+        )
+
+
 def _walk_from(
     prefix: list[int],
     prefix_steps: list[float],
     forced: int | None,
-    adj: list[list[int]],
-    pos: np.ndarray,
-    disp: np.ndarray,
+    g: _WalkGraph,
     p: OrderingParams,
 ) -> tuple[list[int], list[float], list[tuple[int, int]]]:
     """Walk A on from ``prefix`` (its first step ``forced`` when given), each step to the
     continuation of least cost of :func:`_continuations`. Returns the walk, the cost of each
-    step and the runner-up at each step that had one (as (index in the walk, keypoint))."""
-    K = len(adj)
+    step and the runner-up at each step that had one (as (index in the walk, keypoint)).
+    Steps to neighbours and through crossings run in :func:`walk_kernel.walk_on`; a jump across
+    a gap (a few per walk) here."""
+    K = len(g.adj)
+    cos_max = float(np.cos(np.radians(p.max_turn_deg)))
     visited = np.zeros(K, dtype=bool)
     visited[prefix] = True
-    walk = list(prefix)
-    steps = list(prefix_steps)
-    alts: list[tuple[int, int]] = []
+    walk = np.zeros(K, dtype=np.int64)
+    walk[: len(prefix)] = prefix
+    steps = np.zeros(K)
+    steps[: len(prefix_steps)] = prefix_steps
+    alt_at = np.zeros(K, dtype=np.int64)
+    alt_kp = np.zeros(K, dtype=np.int64)
+    n, n_alt = len(prefix), 0
+    pending = -1 if forced is None else forced
     while True:
-        if forced is None or len(walk) > len(prefix):
-            free = [v for v in adj[walk[-1]] if not visited[v]]
-            if len(free) == 1:  # the only neighbour (most steps): no choice, only its cost
-                c = _single_cost(walk, free[0], pos, disp, p)
-                if not math.isfinite(c):
-                    break
-                visited[free[0]] = True
-                walk.append(free[0])
-                steps.append(c)
-                continue
-        cand, cost, _, _ = _continuations(walk, visited, adj, pos, disp, p)
-        if not cand:
+        n, n_alt, state = walk_kernel.walk_on(
+            walk, n, len(prefix), steps, pending, visited, g.indptr, g.indices, g.pos, g.disp,
+            float(p.bend_weight), float(p.disparity_weight), cos_max, alt_at, alt_kp, n_alt,
+        )  # fmt: skip
+        if state == walk_kernel.WALK_END:
+            break
+        cand, cost, _, _ = _continuations(walk[:n].tolist(), visited, g.adj, g.pos, g.disp, p)
+        if not cand:  # no jump either
             break
         rank = np.argsort(cost, kind="stable")
         j = int(rank[0])
-        if forced is not None and len(walk) == len(prefix):
-            if forced not in cand:
+        if pending >= 0 and n == len(prefix):
+            if pending not in cand:
                 break
-            j = cand.index(forced)
+            j = cand.index(pending)
         elif len(rank) > 1 and np.isfinite(cost[rank[1]]):
-            alts.append((len(walk) - 1, int(cand[rank[1]])))
+            alt_at[n_alt], alt_kp[n_alt] = n - 1, cand[rank[1]]
+            n_alt += 1
         if not np.isfinite(cost[j]):
             break
-        nxt = cand[j]
-        visited[nxt] = True
-        walk.append(nxt)
-        steps.append(float(cost[j]))
-    return walk, steps, alts
+        visited[cand[j]] = True
+        walk[n] = cand[j]
+        steps[n - 1] = cost[j]
+        n += 1
+    alts = list(zip(alt_at[:n_alt].tolist(), alt_kp[:n_alt].tolist(), strict=True))
+    return walk[:n].tolist(), steps[: n - 1].tolist(), alts
 
 
 _TIERS = ("neighbour", "crossing", "jump")
-
-
-def _single_cost(
-    walk: list[int], v: int, pos: np.ndarray, disp: np.ndarray, p: OrderingParams
-) -> float:
-    """The cost of :func:`_continuations` for a single tier-0 candidate ``v``, in scalars: the
-    same operations in the same order (bit-identical), without a dozen small arrays per step.
-    The dot product stays a (1, 2) @ (2,) product: BLAS may fuse its multiply-add."""
-    cur = walk[-1]
-    back = walk[-3] if len(walk) >= 3 else walk[0]
-    hx = float(pos[cur, 0]) - float(pos[back, 0])
-    hy = float(pos[cur, 1]) - float(pos[back, 1])
-    hn = float(np.hypot(hx, hy))
-    recent = walk[-3:]
-    ref = 0.0
-    for k in recent:  # np.mean of <= 3 values: a sequential sum, then the division
-        ref += float(disp[k])
-    ref /= len(recent)
-    cx = float(pos[v, 0]) - float(pos[cur, 0])
-    cy = float(pos[v, 1]) - float(pos[cur, 1])
-    dist = max(math.sqrt(cx * cx + cy * cy), 1e-9)
-    if hn > 0:
-        dot = float((np.array([[cx, cy]]) @ np.array([hx / hn, hy / hn]))[0])
-        cos_t = dot / dist
-    else:
-        cos_t = 1.0
-    return dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * abs(
-        float(disp[v]) - ref
-    )
 
 
 def _continuations(
@@ -709,7 +709,13 @@ def _continuations(
     c = np.array(cand)
     chord = pos[c] - pos[cur]
     dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
-    cos_t = chord @ heading / dist if heading is not None else np.ones(len(c))
+    # chord . heading as two products and a sum (not BLAS, which may fuse them: one rounding
+    # less), the operations of walk_kernel.step_costs: the walk and its replay agree exactly
+    cos_t = (
+        (chord[:, 0] * heading[0] + chord[:, 1] * heading[1]) / dist
+        if heading is not None
+        else np.ones(len(c))
+    )
     cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(disp[c] - ref)
     why = [""] * len(cand)
     if tier == 1:

@@ -14,9 +14,12 @@ from threadrecon.core.ordering import (
     OrderingParams,
     _adjacency,
     _bending_walk,
+    _continuations,
     _explain,
     _GapGeodesics,
     _normalised,
+    _walk_from,
+    _WalkGraph,
 )
 from threadrecon.core.pipeline import Pipeline, ReconParams
 from threadrecon.core.reliability import ReliabilityParams
@@ -201,3 +204,75 @@ def test_pieces_cover_every_edge_of_a_once_and_end_at_junctions() -> None:
                 finite = [c.cost for c in d.rejected if np.isfinite(c.cost)]
                 cheaper = [c for c in d.rejected if c.reason.startswith("cheaper")]
                 assert cheaper or all(d.cost <= c for c in finite)
+
+
+def _reference_walk(
+    prefix: list[int],
+    prefix_steps: list[float],
+    forced: int | None,
+    adj: list[list[int]],
+    pos: np.ndarray,
+    disp: np.ndarray,
+    p: OrderingParams,
+) -> tuple[list[int], list[float], list[tuple[int, int]]]:
+    """The walk of _walk_from, every step through _continuations (numpy, no kernel)."""
+    visited = np.zeros(len(adj), dtype=bool)
+    visited[prefix] = True
+    walk, steps, alts = list(prefix), list(prefix_steps), []
+    while True:
+        cand, cost, _, _ = _continuations(walk, visited, adj, pos, disp, p)
+        if not cand:
+            break
+        rank = np.argsort(cost, kind="stable")
+        j = int(rank[0])
+        if forced is not None and len(walk) == len(prefix):
+            if forced not in cand:
+                break
+            j = cand.index(forced)
+        elif len(rank) > 1 and np.isfinite(cost[rank[1]]):
+            alts.append((len(walk) - 1, int(cand[rank[1]])))
+        if not np.isfinite(cost[j]):
+            break
+        visited[cand[j]] = True
+        walk.append(cand[j])
+        steps.append(float(cost[j]))
+    return walk, steps, alts
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_compiled_walk_takes_the_steps_of_the_numpy_rule_exactly(seed: int) -> None:
+    # Random graphs with junctions, crossings, gaps, ties, NaN disparities and forced steps:
+    # walk_kernel must choose, cost and record runner-ups bit for bit as _continuations does.
+    rng = np.random.default_rng(seed)
+    strands = []  # 1-4 wavy strands of keypoints ~5 px apart, crossing and touching each other
+    for _ in range(int(rng.integers(1, 5))):
+        t = np.linspace(0.0, 1.0, int(rng.integers(3, 25)))[:, None]
+        a, b = rng.uniform(0, 60, 2), rng.uniform(0, 60, 2)
+        bend = rng.normal(0, 10, 2) * np.sin(np.pi * t)
+        strands.append(a + (b - a) * t + bend)
+    pos = np.round(np.concatenate(strands), int(rng.integers(0, 3)))  # rounded: ties happen
+    K = len(pos)
+    disp = rng.uniform(10, 14, K)
+    disp[rng.random(K) < 0.05] = np.nan
+    start_of = np.cumsum([0] + [len(s) for s in strands])
+    edges = {
+        (int(i), int(i) + 1)
+        for i in range(K - 1)
+        if i + 1 not in start_of and rng.random() < 0.95  # gaps: a broken strand
+    }
+    near = cKDTree(pos).query_pairs(float(rng.uniform(2.0, 6.0)))  # crossings and touches
+    edges |= {(int(i), int(j)) for i, j in near}
+    adj = _adjacency(K, np.array(sorted(edges), dtype=np.int64).reshape(-1, 2))
+    p = OrderingParams(
+        bend_weight=float(rng.uniform(0, 4)),
+        max_turn_deg=float(rng.uniform(20, 120)),
+        bridge_px=float(rng.choice([0.0, 40.0])),
+    )
+    graph = _WalkGraph.of(adj, pos, disp)
+    for start in rng.choice(K, size=min(K, 4), replace=False).tolist():
+        ref = _reference_walk([start], [], None, adj, pos, disp, p)
+        assert _walk_from([start], [], None, graph, p) == ref
+        for i, alt in ref[2][:3]:  # runner-up walks: a forced first step after a prefix
+            prefix, steps = ref[0][: i + 1], ref[1][:i]
+            forced = _reference_walk(prefix, steps, alt, adj, pos, disp, p)
+            assert _walk_from(prefix, steps, alt, graph, p) == forced
