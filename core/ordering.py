@@ -220,7 +220,8 @@ def order_keypoints(
     if p.walk == "greedy":
         walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
     else:
-        walk = _bending_walk(adj, clusters.keypoints_px[:, :2], disp, p)
+        wg = _WalkGraph.of(adj, clusters.keypoints_px[:, :2], disp)
+        walk = _bending_walk(wg, p)
 
     links = [
         tuple(sorted(cluster_gaps.get(a, set()) & cluster_gaps.get(b, set())))
@@ -273,9 +274,7 @@ def order_keypoints(
     dropped = np.array([k for k in range(K) if k not in kept], dtype=np.int64)
     degree = np.array([len(a) for a in adj], dtype=np.int64)
     decisions = (
-        _explain(walk, adj, clusters.keypoints_px[:, :2], disp, p, offset=int(order[0] < 0))
-        if p.walk == "bending" and walk
-        else ()
+        _explain(walk, wg, p, offset=int(order[0] < 0)) if p.walk == "bending" and walk else ()
     )
     graph = OrderingGraph(_pieces(adj), np.flatnonzero(degree >= 3), decisions)
     return Ordering(
@@ -311,12 +310,13 @@ class _GapGeodesics:
         offs = _OFFSETS_8
         step = np.array([np.hypot(dy, dx) for dy, dx in offs])
         self.nb_node = np.where(nb >= 0, pixel_node[np.maximum(nb, 0)], -1)
-        is_gap = pixel_node >= K
-        i = np.repeat(np.arange(n), 8)
-        j = nb.ravel()
-        ok = (j >= 0) & is_gap[i] & is_gap[np.maximum(j, 0)]
-        ok &= pixel_node[i] == pixel_node[np.maximum(j, 0)]
-        self.graph = sp.csr_matrix((np.tile(step, n)[ok], (i[ok], j[ok])), shape=(n, n))
+        # Edges between pixels of the same gap. CSR built directly: the pixels are in row-major
+        # order, so each row's neighbours (in _OFFSETS_8 order) are already sorted.
+        ok = (self.nb_node == pixel_node[:, None]) & (pixel_node >= K)[:, None]
+        indptr = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(ok.sum(axis=1), out=indptr[1:])
+        data = np.broadcast_to(step, ok.shape)[ok]
+        self.graph = sp.csr_matrix((data, nb[ok], indptr), shape=(n, n))
 
     def distance_from(self, cluster: int, sel: np.ndarray) -> np.ndarray:
         """Distances of pixels ``sel`` (one gap set) from the border of ``cluster``, px."""
@@ -549,20 +549,18 @@ def _components(K: int, adj: list[list[int]]) -> np.ndarray:
 
 def _adjacency(K: int, edges: np.ndarray) -> list[list[int]]:
     adj: list[list[int]] = [[] for _ in range(K)]
-    for a, b in edges:
-        adj[a].append(int(b))
-        adj[b].append(int(a))
+    for a, b in edges.tolist():
+        adj[a].append(b)
+        adj[b].append(a)
     return adj
 
 
-def _bending_walk(
-    adj: list[list[int]], pos: np.ndarray, disp: np.ndarray, p: OrderingParams
-) -> list[int]:
+def _bending_walk(g: _WalkGraph, p: OrderingParams) -> list[int]:
     """Best of the walks from every end keypoint (degree 1 in A), see :func:`_walk_from`; when
     the best walk leaves keypoints out, the runner-up continuation at each junction it passed
     is tried too (a wrong turn at a crossing strands the rest of the thread)."""
-    K = len(adj)
-    degree = np.array([len(a) for a in adj])
+    K = len(g.adj)
+    degree = np.diff(g.indptr)
     starts = [int(k) for k in np.flatnonzero(degree <= 1)]
     if not starts:  # a closed loop: start from the lowest degree
         starts = [int(np.argmin(degree))]
@@ -572,10 +570,9 @@ def _bending_walk(
     best_key = (-1, 0.0)
     tried = 0
     queue: list[tuple[list[int], list[float], int | None]] = [([s], [], None) for s in starts]
-    graph = _WalkGraph.of(adj, pos, disp)
     while queue and tried < MAX_WALKS:
         prefix, prefix_steps, forced = queue.pop(0)
-        walk, steps, alts = _walk_from(prefix, prefix_steps, forced, graph, p)
+        walk, steps, alts = _walk_from(prefix, prefix_steps, forced, g, p)
         tried += 1
         key = (len(walk), -sum(steps))
         if key > best_key:
@@ -642,7 +639,7 @@ def _walk_from(
         )  # fmt: skip
         if state == walk_kernel.WALK_END:
             break
-        cand, cost, _, _ = _continuations(walk[:n].tolist(), visited, g.adj, g.pos, g.disp, p)
+        cand, cost, _, _ = _continuations(walk, n, visited, g, p)
         if not cand:  # no jump either
             break
         rank = np.argsort(cost, kind="stable")
@@ -668,12 +665,7 @@ _TIERS = ("neighbour", "crossing", "jump")
 
 
 def _continuations(
-    walk: list[int],
-    visited: np.ndarray,
-    adj: list[list[int]],
-    pos: np.ndarray,
-    disp: np.ndarray,
-    p: OrderingParams,
+    walk: np.ndarray, n: int, visited: np.ndarray, g: _WalkGraph, p: OrderingParams
 ) -> tuple[list[int], np.ndarray, int, list[str]]:
     """The candidates for the walk's next step, their costs
 
@@ -685,72 +677,74 @@ def _continuations(
     crossing; a turn of more than ``max_turn_deg`` only when nothing else is left: a touching
     turn); 2, unvisited keypoints within ``bridge_px`` whose disparity agrees and whose piece
     continues the same way (across an occlusion or a break in the segmentation): the turn into
-    the jump and the turn out of it at most 90 deg each and ``2 max_turn_deg`` together."""
-    cur = walk[-1]
-    back = walk[-3] if len(walk) >= 3 else walk[0]
+    the jump and the turn out of it at most 90 deg each and ``2 max_turn_deg`` together.
+
+    ``walk[:n]``: the path so far ((K,) int64 buffer). Tiers 0 and 1 are computed by
+    :func:`walk_kernel.step_costs` (the walk's own kernel), tier 2 here."""
+    cand_buf = np.empty(len(g.adj), dtype=np.int64)
+    cost_buf, cos_buf = np.empty(len(g.adj)), np.empty(len(g.adj))
+    cos_max = float(np.cos(np.radians(p.max_turn_deg)))
+    m, tier = walk_kernel.step_costs(
+        walk, n, visited, g.indptr, g.indices, g.pos, g.disp,
+        float(p.bend_weight), float(p.disparity_weight), cos_max, cand_buf, cost_buf, cos_buf,
+    )  # fmt: skip
+    if m:
+        cost = cost_buf[:m].copy()
+        why = [""] * m
+        if tier == 1 and np.isinf(cost).any():
+            why = ["" if c >= cos_max else "turn > max_turn_deg" for c in cos_buf[:m]]
+        return cand_buf[:m].tolist(), cost, tier, why
+    if p.bridge_px <= 0:
+        return [], np.zeros(0), tier, []
+    pos, disp, adj = g.pos, g.disp, g.adj
+    cur = int(walk[n - 1])
+    back = int(walk[n - 3] if n >= 3 else walk[0])
     heading = pos[cur] - pos[back]
     hn = float(np.hypot(*heading))
     heading = heading / hn if hn > 0 else None
-    ref = float(np.mean(disp[walk[-3:]]))
-    tier = 0
-    cand = [v for v in adj[cur] if not visited[v]]
-    if not cand:
-        cand = sorted({w for u in adj[cur] if visited[u] for w in adj[u] if not visited[w]})
-        tier = 1
-    if not cand and p.bridge_px > 0 and heading is not None:
+    ref = float(np.mean(disp[walk[max(0, n - 3) : n]]))
+    cand: list[int] = []
+    if heading is not None:
         free = np.flatnonzero(~visited)
         d = np.linalg.norm(pos[free] - pos[cur], axis=1)
         near = d <= p.bridge_px
         near &= np.abs(disp[free] - ref) <= 1.0 + 0.1 * d  # depth agrees (slope <= B/Z)
         cand = [int(v) for v in free[near]]
-        tier = 2
     if not cand:
         return [], np.zeros(0), tier, []
     c = np.array(cand)
     chord = pos[c] - pos[cur]
     dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
     # chord . heading as two products and a sum (not BLAS, which may fuse them: one rounding
-    # less), the operations of walk_kernel.step_costs: the walk and its replay agree exactly
-    cos_t = (
-        (chord[:, 0] * heading[0] + chord[:, 1] * heading[1]) / dist
-        if heading is not None
-        else np.ones(len(c))
-    )
+    # less), the operations of walk_kernel.step_costs
+    cos_t = (chord[:, 0] * heading[0] + chord[:, 1] * heading[1]) / dist
     cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(disp[c] - ref)
-    why = [""] * len(cand)
-    if tier == 1:
-        ok = cos_t >= float(np.cos(np.radians(p.max_turn_deg)))
-        if ok.any():  # else a touching turn: the sharpest continuation is all that is left
-            cost = np.where(ok, cost, np.inf)
-            why = ["" if k else "turn > max_turn_deg" for k in ok]
-    elif tier == 2:  # across a gap: turn in + turn out <= 2 max_turn_deg, each <= 90 deg
-        turn_in = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
-        turn_out = np.array([_turn_out(v, chord[i], adj, visited, pos) for i, v in enumerate(cand)])
-        ok = (turn_in <= 90.0) & (turn_out <= 90.0) & (turn_in + turn_out <= 2 * p.max_turn_deg)
-        cost = np.where(ok, cost, np.inf)
-        why = ["" if k else "turn across the gap" for k in ok]
-    return cand, cost, tier, why
+    # across a gap: turn in + turn out <= 2 max_turn_deg, each <= 90 deg
+    turn_in = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
+    turn_out = np.array([_turn_out(v, chord[i], adj, visited, pos) for i, v in enumerate(cand)])
+    ok = (turn_in <= 90.0) & (turn_out <= 90.0) & (turn_in + turn_out <= 2 * p.max_turn_deg)
+    cost = np.where(ok, cost, np.inf)
+    why = ["" if k else "turn across the gap" for k in ok]
+    return cand, cost, 2, why
 
 
 def _explain(
-    walk: list[int],
-    adj: list[list[int]],
-    pos: np.ndarray,
-    disp: np.ndarray,
-    p: OrderingParams,
-    offset: int,
+    walk: list[int], g: _WalkGraph, p: OrderingParams, offset: int
 ) -> tuple[Decision, ...]:
     """The decisions of ``walk``, replayed: every step with more than one continuation or
     outside A, and the end when continuations were left but all excluded. ``offset``: index in
     ``order`` of ``walk[0]`` (1 after an extension at the start)."""
+    adj = g.adj
     visited = np.zeros(len(adj), dtype=bool)
+    on_path = [False] * len(adj)  # visited, as a list: fast to read one at a time
+    path = np.array(walk, dtype=np.int64)
     out: list[Decision] = []
     for i, at in enumerate(walk):
-        visited[at] = True
-        free = [v for v in adj[at] if not visited[v]]
+        visited[at] = on_path[at] = True
+        free = [v for v in adj[at] if not on_path[v]]
         if len(free) == 1 and i + 1 < len(walk) and walk[i + 1] == free[0]:
             continue  # the only neighbour (most steps): no decision, no cost to replay
-        cand, cost, tier, why = _continuations(walk[: i + 1], visited, adj, pos, disp, p)
+        cand, cost, tier, why = _continuations(path, i + 1, visited, g, p)
         if not cand:
             continue
         nxt = walk[i + 1] if i + 1 < len(walk) else -1
@@ -785,7 +779,7 @@ def _pieces(adj: list[list[int]]) -> tuple[tuple[int, ...], ...]:
     """The chains of A: maximal paths whose inner keypoints have degree 2, from one keypoint of
     degree != 2 to another; a cycle of degree-2 keypoints is one piece (closed on itself)."""
     K = len(adj)
-    degree = np.array([len(a) for a in adj])
+    degree = [len(a) for a in adj]
     used: set[tuple[int, int]] = set()
     pieces: list[tuple[int, ...]] = []
     seen = np.zeros(K, dtype=bool)

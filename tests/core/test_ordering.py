@@ -168,9 +168,10 @@ def test_decision_costs_are_bending_and_disparity_exactly() -> None:
     disp = np.array([5.0, 5.0, 5.0, 5.0, 6.0])
     adj = _adjacency(5, np.array([[0, 1], [1, 2], [2, 3], [2, 4]]))
     p = OrderingParams(bend_weight=2.0, disparity_weight=10.0)
-    walk = _bending_walk(adj, pos, disp, p)
+    g = _WalkGraph.of(adj, pos, disp)
+    walk = _bending_walk(g, p)
     assert walk == [0, 1, 2, 4, 3]  # back through the junction to the side branch at the end
-    d, back = _explain(walk, adj, pos, disp, p, offset=0)
+    d, back = _explain(walk, g, p, offset=0)
     assert (back.step, back.at, back.kind, back.chosen, back.rejected) == (3, 4, "crossing", 3, ())
     assert (d.step, d.at, d.kind, d.chosen) == (2, 2, "neighbour", 4)
     assert d.cost == pytest.approx(10.0 + 10.0 * 1.0)  # straight, disparity 5 -> 6
@@ -178,7 +179,7 @@ def test_decision_costs_are_bending_and_disparity_exactly() -> None:
     assert rej.keypoint == 3 and rej.cost == pytest.approx(10.0 * 3.0)
     assert rej.reason == "costlier"
     # forced the other way (a runner-up walk): the cheaper continuation is named as such
-    d = _explain([0, 1, 2, 3, 4], adj, pos, disp, p, offset=1)[0]
+    d = _explain([0, 1, 2, 3, 4], g, p, offset=1)[0]
     assert d.step == 3 and d.chosen == 3 and d.rejected[0].reason.startswith("cheaper")
 
 
@@ -206,21 +207,53 @@ def test_pieces_cover_every_edge_of_a_once_and_end_at_junctions() -> None:
                 assert cheaper or all(d.cost <= c for c in finite)
 
 
+def _reference_step(
+    walk: list[int], visited: np.ndarray, g: _WalkGraph, p: OrderingParams
+) -> tuple[list[int], np.ndarray]:
+    """Tiers 0 and 1 of the walk's step rule in numpy (the kernel's specification), tier 2
+    through _continuations."""
+    adj, pos, disp = g.adj, g.pos, g.disp
+    cur, back = walk[-1], walk[-3] if len(walk) >= 3 else walk[0]
+    heading = pos[cur] - pos[back]
+    hn = float(np.hypot(*heading))
+    ref = float(np.mean(disp[walk[-3:]]))
+    cand = [v for v in adj[cur] if not visited[v]]
+    tier = 0
+    if not cand:
+        cand = sorted({w for u in adj[cur] if visited[u] for w in adj[u] if not visited[w]})
+        tier = 1
+    if not cand:
+        cand, cost, tier, _ = _continuations(np.array(walk), len(walk), visited, g, p)
+        assert tier == 2 or not cand
+        return cand, cost
+    chord = pos[cand] - pos[cur]
+    dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
+    h = heading / hn if hn > 0 else None
+    cos_t = (
+        (chord[:, 0] * h[0] + chord[:, 1] * h[1]) / dist if h is not None else np.ones(len(cand))
+    )
+    cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(
+        disp[cand] - ref
+    )
+    ok = cos_t >= float(np.cos(np.radians(p.max_turn_deg)))
+    if tier == 1 and ok.any():
+        cost = np.where(ok, cost, np.inf)
+    return cand, cost
+
+
 def _reference_walk(
     prefix: list[int],
     prefix_steps: list[float],
     forced: int | None,
-    adj: list[list[int]],
-    pos: np.ndarray,
-    disp: np.ndarray,
+    g: _WalkGraph,
     p: OrderingParams,
 ) -> tuple[list[int], list[float], list[tuple[int, int]]]:
-    """The walk of _walk_from, every step through _continuations (numpy, no kernel)."""
-    visited = np.zeros(len(adj), dtype=bool)
+    """The walk of _walk_from, one step at a time in numpy."""
+    visited = np.zeros(len(g.adj), dtype=bool)
     visited[prefix] = True
     walk, steps, alts = list(prefix), list(prefix_steps), []
     while True:
-        cand, cost, _, _ = _continuations(walk, visited, adj, pos, disp, p)
+        cand, cost = _reference_step(walk, visited, g, p)
         if not cand:
             break
         rank = np.argsort(cost, kind="stable")
@@ -234,7 +267,7 @@ def _reference_walk(
         if not np.isfinite(cost[j]):
             break
         visited[cand[j]] = True
-        walk.append(cand[j])
+        walk.append(int(cand[j]))
         steps.append(float(cost[j]))
     return walk, steps, alts
 
@@ -270,9 +303,9 @@ def test_compiled_walk_takes_the_steps_of_the_numpy_rule_exactly(seed: int) -> N
     )
     graph = _WalkGraph.of(adj, pos, disp)
     for start in rng.choice(K, size=min(K, 4), replace=False).tolist():
-        ref = _reference_walk([start], [], None, adj, pos, disp, p)
+        ref = _reference_walk([start], [], None, graph, p)
         assert _walk_from([start], [], None, graph, p) == ref
         for i, alt in ref[2][:3]:  # runner-up walks: a forced first step after a prefix
             prefix, steps = ref[0][: i + 1], ref[1][:i]
-            forced = _reference_walk(prefix, steps, alt, adj, pos, disp, p)
+            forced = _reference_walk(prefix, steps, alt, graph, p)
             assert _walk_from(prefix, steps, alt, graph, p) == forced
