@@ -579,7 +579,10 @@ def _bending_walk(g: _WalkGraph, p: OrderingParams) -> list[int]:
             best_walk, best_steps, best_alts, best_key = walk, steps, alts, key
         if not queue and len(best_walk) < K and best_alts:
             # Branch at each decision of the best walk so far, in path order.
-            queue = [(best_walk[: i + 1], best_steps[:i], alt) for i, alt in best_alts]
+            queue = [
+                (best_walk[: i + 1], best_steps[:i], alt)
+                for i, alt in best_alts[: MAX_WALKS - tried]  # the rest would never be tried
+            ]
             best_alts = []
     return best_walk
 
@@ -786,14 +789,13 @@ def _pieces(adj: list[list[int]]) -> tuple[tuple[int, ...], ...]:
 
     def follow(a: int, b: int) -> tuple[int, ...]:
         chain = [a, b]
-        used.add((a, b))
-        used.add((b, a))
         while degree[chain[-1]] == 2 and chain[-1] != a:
             u, v = chain[-2], chain[-1]
-            w = adj[v][0] if adj[v][0] != u else adj[v][1]
-            used.add((v, w))
-            used.add((w, v))
-            chain.append(w)
+            chain.append(adj[v][0] if adj[v][0] != u else adj[v][1])
+        # a chain starts only at a keypoint of degree != 2: its two end steps are all that a
+        # later start could take again (from the other end)
+        used.add((a, b))
+        used.add((chain[-1], chain[-2]))
         return tuple(chain)
 
     for k in range(K):
