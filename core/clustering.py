@@ -73,11 +73,11 @@ def cluster_keypoints(
     labels = np.full(len(stereo.pixels), -1, dtype=np.int64)
     if rel_idx.size == 0:
         raise ValueError("no reliable pixels: lower the reliability threshold or check the pair")
-    graph = _neighbour_graph(stereo.pixels[rel_idx], stereo.shape, p.radius)
+    px = stereo.pixels[rel_idx]
     if p.mode == "wavefront":
-        local = _wavefront_clusters(graph, p.min_size, p.max_size)
+        local = _wavefront_kernel(*_neighbour_lists(px, p.radius), p.min_size, p.max_size)
     elif p.mode == "restart":
-        local = _restart_clusters(graph, p.min_size, p.max_size)
+        local = _restart_clusters(_neighbour_graph(px, p.radius), p.min_size, p.max_size)
     else:
         raise ValueError(f"mode must be 'wavefront' or 'restart', got {p.mode!r}")
     labels[rel_idx] = local
@@ -99,36 +99,52 @@ def cluster_keypoints(
     return Clusters(labels=labels, keypoints=keypoints, keypoints_px=keypoints_px, sizes=sizes)
 
 
-def _neighbour_graph(pixels: np.ndarray, shape: tuple[int, int], radius: int) -> sp.csr_matrix:
-    """Symmetric adjacency of pixels within Manhattan distance ``radius`` (excluding self).
-    The index image covers the pixels' bounding box only (the thread, not the image)."""
+def _neighbour_graph(pixels: np.ndarray, radius: int) -> sp.csr_matrix:
+    """Symmetric adjacency of pixels within Manhattan distance ``radius`` (excluding self), as
+    CSR with each row's neighbours in ascending order (:func:`_neighbour_lists`)."""
+    indptr, indices = _neighbour_lists(pixels, radius)
     n = len(pixels)
-    x0, y0 = pixels.min(axis=0) if n else (0, 0)
-    x1, y1 = pixels.max(axis=0) if n else (0, 0)
+    return sp.csr_matrix((np.ones(indices.size, dtype=np.int8), indices, indptr), shape=(n, n))
+
+
+def _neighbour_lists(pixels: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """(indptr, indices) of the neighbour graph of ``pixels`` ((N, 2) int (x, y), row-major
+    order). The index image covers the pixels' bounding box only (the thread, not the image)."""
+    n = len(pixels)
+    if n == 0:
+        return np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    x0, y0 = pixels.min(axis=0)
+    x1, y1 = pixels.max(axis=0)
     idx = np.full((y1 - y0 + 1 + 2 * radius, x1 - x0 + 1 + 2 * radius), -1, dtype=np.int32)
     x, y = pixels[:, 0] - x0 + radius, pixels[:, 1] - y0 + radius
     idx[y, x] = np.arange(n, dtype=np.int32)
     offsets = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
     offsets = [o for o in offsets if 0 < abs(o[0]) + abs(o[1]) <= radius]
-    dy = np.array([o[0] for o in offsets])
-    dx = np.array([o[1] for o in offsets])
-    nb = idx[y[:, None] + dy[None, :], x[:, None] + dx[None, :]]  # (n, offsets), row = i
-    ok = nb >= 0
-    indptr = np.concatenate([[0], np.cumsum(ok.sum(axis=1))])
-    data = np.ones(int(indptr[-1]), dtype=np.int8)
-    return sp.csr_matrix((data, nb[ok], indptr), shape=(n, n))
-
-
-def _wavefront_clusters(graph: sp.csr_matrix, min_size: int, max_size: int) -> np.ndarray:
-    """Wavefront BFS clusters (module docstring), then each split into its connected parts
-    (:func:`_wavefront_kernel`)."""
-    indptr = graph.indptr.astype(np.int64, copy=False)
-    indices = graph.indices.astype(np.int64, copy=False)
-    return _wavefront_kernel(indptr, indices, min_size, max_size)
+    dy = np.array([o[0] for o in offsets], dtype=np.int64)
+    dx = np.array([o[1] for o in offsets], dtype=np.int64)
+    return _gather_kernel(idx, y.astype(np.int64), x.astype(np.int64), dy, dx)
 
 
 # --- compiled kernels ------------------------------------------------------------------------
 # cache=True: compiled once per machine (numba's cache beside this file), not once per process.
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_kernel(idx, y, x, dy, dx):  # noqa: ANN001
+    """CSR of the pixels at offsets (dy, dx) from each pixel (y, x) in the index image ``idx``
+    (-1 where none), in offset order: the order of a (n, offsets) gather and a row-wise mask."""
+    n = y.size
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    indices = np.empty(n * dy.size, dtype=np.int64)
+    k = 0
+    for i in range(n):
+        for o in range(dy.size):
+            j = idx[y[i] + dy[o], x[i] + dx[o]]
+            if j >= 0:
+                indices[k] = j
+                k += 1
+        indptr[i + 1] = k
+    return indptr, indices[:k].copy()
 
 
 @numba.njit(cache=True, nogil=True)

@@ -6,12 +6,14 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
 from support import assert_close, synthetic_case
 
 from threadrecon.core.clustering import (
     ClusterParams,
     _neighbour_graph,
-    _wavefront_clusters,
+    _neighbour_lists,
+    _wavefront_kernel,
     cluster_keypoints,
 )
 from threadrecon.core.pipeline import Pipeline
@@ -130,6 +132,21 @@ def test_compiled_wavefront_equals_the_csgraph_procedure(seed: int) -> None:
     radius = int(rng.integers(1, 4))
     min_size = int(rng.integers(1, 10))
     max_size = int(rng.integers(min_size, 40))
-    graph = _neighbour_graph(pixels, (0, 0), radius)
+    graph = _neighbour_graph(pixels, radius)
     expected = _reference_wavefront(graph, min_size, max_size)
-    np.testing.assert_array_equal(_wavefront_clusters(graph, min_size, max_size), expected)
+    labels = _wavefront_kernel(*_neighbour_lists(pixels, radius), min_size, max_size)
+    np.testing.assert_array_equal(labels, expected)
+
+
+@pytest.mark.parametrize("radius", [1, 2, 3])
+def test_neighbour_graph_links_pixels_within_manhattan_radius(radius: int) -> None:
+    rng = np.random.default_rng(radius)
+    ys, xs = np.nonzero(rng.random((40, 50)) < 0.3)
+    pixels = np.stack([xs, ys], axis=1) + [7, 3]  # row-major, off the origin
+    graph = _neighbour_graph(pixels, radius)
+    pairs = cKDTree(pixels).query_pairs(radius + 1e-9, p=1, output_type="ndarray")
+    expected = sp.coo_matrix(
+        (np.ones(2 * len(pairs)), (pairs.ravel(), pairs[:, ::-1].ravel())), shape=graph.shape
+    ).tocsr()
+    assert (graph != expected).nnz == 0
+    assert np.all(np.diff(graph.indices[graph.indptr[0] : graph.indptr[1]]) > 0)  # sorted
