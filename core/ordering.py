@@ -15,6 +15,10 @@
    (geodesically, so that a curled tail ends at its tip) becomes a new keypoint with the end
    keypoint's depth. Deviation: otherwise, when the end cluster's own farthest pixel from the
    inward neighbour lies ``tip_px`` or more beyond the end keypoint, that pixel becomes the end.
+
+Cost scales with the thread, not the image: steps 1-2 and the geodesics work on the pixel list
+of P_L and index images over its bounding box; the walk's steps to neighbours and through
+crossings run in a compiled kernel (core/walk_kernel.py), jumps across gaps in numpy.
 """
 
 from __future__ import annotations
