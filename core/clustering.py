@@ -7,8 +7,8 @@ sets of at least ``min_size`` pixels become clusters; each cluster's centroid is
 ``mode="restart"`` is the paper's procedure: every BFS starts at the first unexplored pixel in
 scan order. ``mode="wavefront"`` (default) starts each connected component's BFS at one of its
 extremities and cuts the BFS order into consecutive runs of ``max_size`` pixels: the clusters are
-then slices across the thread, in order along it, independent of the image scan order, and the
-whole stage is vectorised (scipy.sparse.csgraph) instead of a Python loop over pixels.
+then slices across the thread, in order along it, independent of the image scan order; its
+BFS passes run in one compiled kernel (numba) over the neighbour graph (CSR), built vectorised.
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Literal
 
+import numba
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse import csgraph
 
 from threadrecon.core.params import Params, param
 from threadrecon.core.reliability import ReliabilityResult
@@ -73,11 +73,11 @@ def cluster_keypoints(
     labels = np.full(len(stereo.pixels), -1, dtype=np.int64)
     if rel_idx.size == 0:
         raise ValueError("no reliable pixels: lower the reliability threshold or check the pair")
-    graph = _neighbour_graph(stereo.pixels[rel_idx], stereo.shape, p.radius)
+    px = stereo.pixels[rel_idx]
     if p.mode == "wavefront":
-        local = _wavefront_clusters(graph, p.min_size, p.max_size)
+        local = _wavefront_kernel(*_neighbour_lists(px, p.radius), p.min_size, p.max_size)
     elif p.mode == "restart":
-        local = _restart_clusters(graph, p.min_size, p.max_size)
+        local = _restart_clusters(_neighbour_graph(px, p.radius), p.min_size, p.max_size)
     else:
         raise ValueError(f"mode must be 'wavefront' or 'restart', got {p.mode!r}")
     labels[rel_idx] = local
@@ -99,69 +99,135 @@ def cluster_keypoints(
     return Clusters(labels=labels, keypoints=keypoints, keypoints_px=keypoints_px, sizes=sizes)
 
 
-def _neighbour_graph(pixels: np.ndarray, shape: tuple[int, int], radius: int) -> sp.csr_matrix:
-    """Symmetric adjacency of pixels within Manhattan distance ``radius`` (excluding self).
-    The index image covers the pixels' bounding box only (the thread, not the image)."""
+def _neighbour_graph(pixels: np.ndarray, radius: int) -> sp.csr_matrix:
+    """Symmetric adjacency of pixels within Manhattan distance ``radius`` (excluding self), as
+    CSR with each row's neighbours in ascending order (:func:`_neighbour_lists`)."""
+    indptr, indices = _neighbour_lists(pixels, radius)
     n = len(pixels)
-    x0, y0 = pixels.min(axis=0) if n else (0, 0)
-    x1, y1 = pixels.max(axis=0) if n else (0, 0)
+    return sp.csr_matrix((np.ones(indices.size, dtype=np.int8), indices, indptr), shape=(n, n))
+
+
+def _neighbour_lists(pixels: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """(indptr, indices) of the neighbour graph of ``pixels`` ((N, 2) int (x, y), row-major
+    order). The index image covers the pixels' bounding box only (the thread, not the image)."""
+    n = len(pixels)
+    if n == 0:
+        return np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    x0, y0 = pixels.min(axis=0)
+    x1, y1 = pixels.max(axis=0)
     idx = np.full((y1 - y0 + 1 + 2 * radius, x1 - x0 + 1 + 2 * radius), -1, dtype=np.int32)
     x, y = pixels[:, 0] - x0 + radius, pixels[:, 1] - y0 + radius
     idx[y, x] = np.arange(n, dtype=np.int32)
     offsets = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
     offsets = [o for o in offsets if 0 < abs(o[0]) + abs(o[1]) <= radius]
-    dy = np.array([o[0] for o in offsets])
-    dx = np.array([o[1] for o in offsets])
-    nb = idx[y[:, None] + dy[None, :], x[:, None] + dx[None, :]]  # (n, offsets), row = i
-    ok = nb >= 0
-    indptr = np.concatenate([[0], np.cumsum(ok.sum(axis=1))])
-    data = np.ones(int(indptr[-1]), dtype=np.int8)
-    return sp.csr_matrix((data, nb[ok], indptr), shape=(n, n))
+    dy = np.array([o[0] for o in offsets], dtype=np.int64)
+    dx = np.array([o[1] for o in offsets], dtype=np.int64)
+    return _gather_kernel(idx, y.astype(np.int64), x.astype(np.int64), dy, dx)
 
 
-def _wavefront_clusters(graph: sp.csr_matrix, min_size: int, max_size: int) -> np.ndarray:
-    n = graph.shape[0]
+# --- compiled kernels ------------------------------------------------------------------------
+# cache=True: compiled once per machine (numba's cache beside this file), not once per process.
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_kernel(idx, y, x, dy, dx):  # noqa: ANN001
+    """CSR of the pixels at offsets (dy, dx) from each pixel (y, x) in the index image ``idx``
+    (-1 where none), in offset order: the order of a (n, offsets) gather and a row-wise mask."""
+    n = y.size
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    indices = np.empty(n * dy.size, dtype=np.int64)
+    k = 0
+    for i in range(n):
+        for o in range(dy.size):
+            j = idx[y[i] + dy[o], x[i] + dx[o]]
+            if j >= 0:
+                indices[k] = j
+                k += 1
+        indptr[i + 1] = k
+    return indptr, indices[:k].copy()
+
+
+@numba.njit(cache=True, nogil=True)
+def _bfs(indptr, indices, start, seen, mark, order):  # noqa: ANN001
+    """BFS from ``start`` over nodes whose ``seen`` differs from ``mark`` (sets it to ``mark``),
+    neighbours in CSR order (as csgraph.breadth_first_order): the visit order in ``order``;
+    returns how many were visited."""
+    order[0] = start
+    seen[start] = mark
+    head, tail = 0, 1
+    while head < tail:
+        u = order[head]
+        head += 1
+        for e in range(indptr[u], indptr[u + 1]):
+            v = indices[e]
+            if seen[v] != mark:
+                seen[v] = mark
+                order[tail] = v
+                tail += 1
+    return tail
+
+
+@numba.njit(cache=True, nogil=True)
+def _wavefront_kernel(indptr, indices, min_size, max_size):  # noqa: ANN001
+    """Per connected component of >= ``min_size`` px (in the order of their lowest pixel): a BFS
+    from its lowest pixel finds an extremity (the last pixel reached), a BFS from there orders
+    the component, consecutive runs of ``max_size`` px of that order are clusters (a run under
+    ``min_size`` is not). Then every cluster becomes its connected parts (graph restricted to the
+    cluster; parts under ``min_size`` px are unclustered): where the thread crosses itself a
+    run holds both fronts that leave the crossing, and its centroid would lie between them.
+    Labels: by cluster, then by the part's lowest pixel."""
+    n = indptr.size - 1
     labels = np.full(n, -1, dtype=np.int64)
-    # The graph is symmetric: directed traversals visit exactly what undirected ones do, in
-    # the same order, without scipy building the transpose (graph + graph.T) on every call.
-    n_comp, comp = csgraph.connected_components(graph, directed=True, connection="weak")
-    sizes = np.bincount(comp, minlength=n_comp)
-    first = np.full(n_comp, -1)
-    first[comp[::-1]] = np.arange(n)[::-1]  # lowest pixel index of each component
+    seen = np.zeros(n, dtype=np.int64)  # BFS marks: 1 component search, 2 ordering BFS
+    order = np.empty(n, dtype=np.int64)
+    comp = np.empty(n, dtype=np.int64)
     next_label = 0
-    for c in np.flatnonzero(sizes >= min_size):
-        # Two BFS: the last pixel reached from any pixel is an extremity of the component.
-        far = csgraph.breadth_first_order(
-            graph, first[c], directed=True, return_predecessors=False
-        )[-1]
-        order = csgraph.breadth_first_order(graph, far, directed=True, return_predecessors=False)
-        for start in range(0, order.size, max_size):
-            chunk = order[start : start + max_size]
-            if chunk.size >= min_size:
-                labels[chunk] = next_label
+    for s in range(n):
+        if seen[s] != 0:
+            continue
+        m = _bfs(indptr, indices, s, seen, 1, comp)  # from the component's lowest pixel
+        if m < min_size:
+            continue
+        _bfs(indptr, indices, comp[m - 1], seen, 2, order)  # from the last pixel it reached
+        for start in range(0, m, max_size):
+            stop = min(start + max_size, m)
+            if stop - start >= min_size:
+                for i in range(start, stop):
+                    labels[order[i]] = next_label
                 next_label += 1
-    return _split_disconnected(graph, labels, min_size)
-
-
-def _split_disconnected(graph: sp.csr_matrix, labels: np.ndarray, min_size: int) -> np.ndarray:
-    """Each cluster becomes its connected parts (parts < ``min_size`` px are unclustered).
-
-    Where the thread crosses itself a BFS slice holds both fronts that leave the crossing; its
-    centroid would lie between the strands."""
-    coo = graph.tocoo()
-    same = (labels[coo.row] == labels[coo.col]) & (labels[coo.row] >= 0)
-    n = graph.shape[0]
-    sub = sp.csr_matrix((np.ones(int(same.sum()), np.int8), (coo.row[same], coo.col[same])), (n, n))
-    _, part = csgraph.connected_components(sub, directed=False)
-    part = np.where(labels >= 0, part, -1)
-    sizes = np.bincount(part[part >= 0], minlength=n)
-    part = np.where((part >= 0) & (sizes[np.maximum(part, 0)] >= min_size), part, -1)
-    # Renumber in the order of the original labels (slices along the thread stay in order).
-    keep = part >= 0
-    key = labels[keep].astype(np.int64) * (n + 1) + part[keep]
-    _, new = np.unique(key, return_inverse=True)
+    # Connected parts of each cluster: BFS inside the cluster from its parts' lowest pixels.
+    part = np.full(n, -1, dtype=np.int64)  # lowest pixel of the part
+    size = np.zeros(n, dtype=np.int64)
+    for s in range(n):
+        if labels[s] < 0 or part[s] >= 0:
+            continue
+        part[s] = s
+        order[0] = s
+        head, tail = 0, 1
+        while head < tail:
+            u = order[head]
+            head += 1
+            for e in range(indptr[u], indptr[u + 1]):
+                v = indices[e]
+                if part[v] < 0 and labels[v] == labels[s]:
+                    part[v] = s
+                    order[tail] = v
+                    tail += 1
+        size[s] = tail
+    keys = np.empty(n, dtype=np.int64)
+    k = 0
+    for s in range(n):
+        if part[s] == s and size[s] >= min_size:
+            keys[k] = labels[s] * (n + 1) + s
+            k += 1
+    rank = np.full(n, -1, dtype=np.int64)
+    srt = np.sort(keys[:k])
+    for i in range(k):
+        rank[srt[i] % (n + 1)] = i
     out = np.full(n, -1, dtype=np.int64)
-    out[keep] = new
+    for v in range(n):
+        if part[v] >= 0:
+            out[v] = rank[part[v]]
     return out
 
 

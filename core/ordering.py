@@ -15,10 +15,15 @@
    (geodesically, so that a curled tail ends at its tip) becomes a new keypoint with the end
    keypoint's depth. Deviation: otherwise, when the end cluster's own farthest pixel from the
    inward neighbour lies ``tip_px`` or more beyond the end keypoint, that pixel becomes the end.
+
+Cost scales with the thread, not the image: steps 1-2 and the geodesics work on the pixel list
+of P_L and index images over its bounding box; the walk's steps to neighbours and through
+crossings run in a compiled kernel (core/walk_kernel.py), jumps across gaps in numpy.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Literal
 
@@ -27,12 +32,12 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
+from threadrecon.core import walk_kernel
 from threadrecon.core.clustering import Clusters
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.stereo import StereoResult
 
-_HALF_8 = ((0, 1), (1, -1), (1, 0), (1, 1))  # half of the 8-neighbourhood: each pair seen once
 OUTLIER_PX = 2.0  # a pixel > 2 px of disparity from its cluster's median is another match
 MAX_WALKS = 24  # walks tried per frame (ends, then runner-up turns of the best): bounded time
 MAX_REJECTED = 4  # rejected continuations kept per decision: a jump may see dozens, few matter
@@ -138,8 +143,7 @@ class OrderingGraph:
 
 @dataclass(frozen=True)
 class Ordering:
-    """``node_image``: (H, W) int, cluster id (0..K-1) of solidified cluster pixels, K + gap id
-    for unclustered segmented pixels, -1 off P_L.
+    """``pixels``: (N, 2) int (x, y) of P_L (``StereoResult.pixels``), ``image_shape``: (H, W).
     ``edges``: (E, 2) int, the adjacency graph A over keypoint ids.
     ``order``: (M,) int, ordered keypoint ids (phi); -1 marks an extension keypoint.
     ``path_px``: (M, 3) ordered keypoints in (x px, y px, z depth).
@@ -153,7 +157,8 @@ class Ordering:
     continuations and costs (:class:`OrderingGraph`).
     """
 
-    node_image: np.ndarray
+    pixels: np.ndarray
+    image_shape: tuple[int, int]
     n_clusters: int
     edges: np.ndarray
     order: np.ndarray
@@ -164,6 +169,14 @@ class Ordering:
     pixel_t: np.ndarray
     pixel_link: np.ndarray
     graph: OrderingGraph
+
+    @functools.cached_property
+    def node_image(self) -> np.ndarray:
+        """(H, W) int, cluster id (0..K-1) of solidified cluster pixels, K + gap id for
+        unclustered segmented pixels, -1 off P_L (built on first use: 16 MB at 1920x1080)."""
+        out = np.full(self.image_shape, -1, dtype=np.int64)
+        out[self.pixels[:, 1], self.pixels[:, 0]] = self.pixel_node
+        return out
 
 
 def order_keypoints(
@@ -176,25 +189,29 @@ def order_keypoints(
     if p.solidify_radius < 0:
         raise ValueError(f"solidify_radius must be >= 0, got {p.solidify_radius}")
     K = clusters.count
-    P_L = lifted.P_L
-    cluster_img = np.full(P_L.shape, -1, dtype=np.int64)
-    sel = clusters.labels >= 0
-    px = stereo.pixels[sel]
-    cluster_img[px[:, 1], px[:, 0]] = clusters.labels[sel]
-    cluster_img = _solidify(cluster_img, P_L, p.solidify_radius)
+    H, W = lifted.P_L.shape
+    if stereo.shape != (H, W) or len(clusters.labels) != len(stereo.pixels):
+        raise ValueError(
+            f"stereo result ({stereo.shape}, {len(stereo.pixels)} px) and clusters "
+            f"({len(clusters.labels)} labels) do not belong to this {(H, W)} pair"
+        )
+    # Everything works on the pixel list of P_L and its bounding box: the thread, not the image.
+    grid = _PixelGrid(stereo.pixels, max(1, p.solidify_radius))
+    cluster_of = _solidify(grid, clusters.labels, p.solidify_radius)
+    gaps = cluster_of < 0
+    n_gaps, gap_of = grid.components(gaps)
+    pixel_node = np.where(gaps, K + gap_of - 1, cluster_of)
+    geo = _GapGeodesics(stereo, pixel_node, K, nb=grid.neighbours())
 
-    gaps = P_L & (cluster_img < 0)
-    n_gaps, gap_img = cv2.connectedComponents(gaps.astype(np.uint8), connectivity=8)
-    node_image = np.where(cluster_img >= 0, cluster_img, np.where(gaps, K + gap_img - 1, -1))
-
-    pairs = _touching_pairs(node_image)
-    cc = pairs[(pairs[:, 0] < K) & (pairs[:, 1] < K)]
-    cg = pairs[(pairs[:, 0] < K) != (pairs[:, 1] < K)]
-    cg = np.sort(cg, axis=1)  # (cluster, gap)
+    pairs = _touching_pairs(pixel_node, geo.nb_node)
+    cc = pairs[pairs[:, 1] < K]  # pairs are sorted: (a < b)
+    cg = pairs[(pairs[:, 0] < K) & (pairs[:, 1] >= K)]  # (cluster, gap), unique, sorted
     gap_members: dict[int, list[int]] = {}
-    for c, g in np.unique(cg, axis=0):
-        gap_members.setdefault(int(g), []).append(int(c))
-    edge_set = {(int(a), int(b)) for a, b in cc}
+    cluster_gaps: dict[int, set[int]] = {}
+    for c, g in cg.tolist():
+        gap_members.setdefault(g, []).append(c)
+        cluster_gaps.setdefault(c, set()).add(g)
+    edge_set = set(map(tuple, cc.tolist()))
     for members in gap_members.values():
         for i, a in enumerate(members):
             for b in members[i + 1 :]:
@@ -207,11 +224,9 @@ def order_keypoints(
     if p.walk == "greedy":
         walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
     else:
-        walk = _bending_walk(adj, clusters.keypoints_px[:, :2], disp, p)
+        wg = _WalkGraph.of(adj, clusters.keypoints_px[:, :2], disp)
+        walk = _bending_walk(wg, p)
 
-    cluster_gaps: dict[int, set[int]] = {}
-    for c, g in np.unique(cg, axis=0):
-        cluster_gaps.setdefault(int(c), set()).add(int(g))
     links = [
         tuple(sorted(cluster_gaps.get(a, set()) & cluster_gaps.get(b, set())))
         for a, b in zip(walk[:-1], walk[1:], strict=True)
@@ -230,9 +245,7 @@ def order_keypoints(
     order = list(walk)
 
     # Endpoint extension at both ends, then the geodesic position of every gap pixel.
-    pixel_node = node_image[stereo.pixels[:, 1], stereo.pixels[:, 0]]
-    geo = _GapGeodesics(stereo, pixel_node, K)
-    gap_size = np.bincount(gap_img[gaps], minlength=n_gaps)
+    gap_size = np.bincount(gap_of[gaps], minlength=n_gaps)
     for end in (0, -1):
         k = order[end]
         dead = [g for g in sorted(cluster_gaps.get(k, ())) if gap_members.get(g) == [k]]
@@ -265,13 +278,12 @@ def order_keypoints(
     dropped = np.array([k for k in range(K) if k not in kept], dtype=np.int64)
     degree = np.array([len(a) for a in adj], dtype=np.int64)
     decisions = (
-        _explain(walk, adj, clusters.keypoints_px[:, :2], disp, p, offset=int(order[0] < 0))
-        if p.walk == "bending" and walk
-        else ()
+        _explain(walk, wg, p, offset=int(order[0] < 0)) if p.walk == "bending" and walk else ()
     )
     graph = OrderingGraph(_pieces(adj), np.flatnonzero(degree >= 3), decisions)
     return Ordering(
-        node_image=node_image,
+        pixels=stereo.pixels,
+        image_shape=(H, W),
         n_clusters=K,
         edges=edges,
         order=np.array(order, dtype=np.int64),
@@ -288,22 +300,27 @@ def order_keypoints(
 class _GapGeodesics:
     """Geodesic (8-connected, unit/sqrt2 steps) distances inside gaps from a cluster's border."""
 
-    def __init__(self, stereo: StereoResult, pixel_node: np.ndarray, K: int) -> None:
-        H, W = stereo.shape
+    def __init__(
+        self,
+        stereo: StereoResult,
+        pixel_node: np.ndarray,
+        K: int,
+        nb: np.ndarray | None = None,
+    ) -> None:
+        """``nb``: (N, 8) neighbour pixel indices of :meth:`_PixelGrid.neighbours`, if known."""
         n = len(pixel_node)
-        idx = np.full((H + 2, W + 2), -1, dtype=np.int64)
-        x, y = stereo.pixels[:, 0] + 1, stereo.pixels[:, 1] + 1
-        idx[y, x] = np.arange(n)
-        offs = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
-        nb = np.stack([idx[y + dy, x + dx] for dy, dx in offs], axis=1)  # (N, 8)
+        if nb is None:
+            nb = _PixelGrid(stereo.pixels, 1).neighbours()
+        offs = _OFFSETS_8
         step = np.array([np.hypot(dy, dx) for dy, dx in offs])
         self.nb_node = np.where(nb >= 0, pixel_node[np.maximum(nb, 0)], -1)
-        is_gap = pixel_node >= K
-        i = np.repeat(np.arange(n), 8)
-        j = nb.ravel()
-        ok = (j >= 0) & is_gap[i] & is_gap[np.maximum(j, 0)]
-        ok &= pixel_node[i] == pixel_node[np.maximum(j, 0)]
-        self.graph = sp.csr_matrix((np.tile(step, n)[ok], (i[ok], j[ok])), shape=(n, n))
+        # Edges between pixels of the same gap. CSR built directly: the pixels are in row-major
+        # order, so each row's neighbours (in _OFFSETS_8 order) are already sorted.
+        ok = (self.nb_node == pixel_node[:, None]) & (pixel_node >= K)[:, None]
+        indptr = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(ok.sum(axis=1), out=indptr[1:])
+        data = np.broadcast_to(step, ok.shape)[ok]
+        self.graph = sp.csr_matrix((data, nb[ok], indptr), shape=(n, n))
 
     def distance_from(self, cluster: int, sel: np.ndarray) -> np.ndarray:
         """Distances of pixels ``sel`` (one gap set) from the border of ``cluster``, px."""
@@ -385,32 +402,75 @@ def _normalised(d: np.ndarray) -> np.ndarray:
     return d / top if top and np.isfinite(top) else np.full_like(d, np.nan)
 
 
-def _solidify(cluster_img: np.ndarray, P_L: np.ndarray, radius: int) -> np.ndarray:
-    """Segmented pixels within ``radius`` px (8-neighbourhood steps) of a cluster join it.
+class _PixelGrid:
+    """The pixels of P_L in an index image over their bounding box, padded by ``pad`` px."""
 
-    Where two clusters are in reach the higher id wins (grey dilation of the label image)."""
-    if radius == 0 or not (cluster_img >= 0).any():
-        return cluster_img
-    kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
-    grown = cv2.dilate((cluster_img + 1).astype(np.float32), kernel).astype(np.int64) - 1
-    join = P_L & (cluster_img < 0) & (grown >= 0)
-    out = cluster_img.copy()
-    out[join] = grown[join]
+    def __init__(self, pixels: np.ndarray, pad: int) -> None:
+        n = len(pixels)
+        self.n = n
+        self.pad = pad
+        self.x0, self.y0 = (int(v) for v in pixels.min(axis=0)) if n else (0, 0)
+        x1, y1 = (int(v) for v in pixels.max(axis=0)) if n else (0, 0)
+        self.x = pixels[:, 0] - self.x0 + pad
+        self.y = pixels[:, 1] - self.y0 + pad
+        shape = (y1 - self.y0 + 1 + 2 * pad, x1 - self.x0 + 1 + 2 * pad)
+        self.index = np.full(shape, -1, dtype=np.int32)  # int32: 8 MB for a whole 1920x1080 box
+        self.index[self.y, self.x] = np.arange(n)
+
+    def neighbours(self) -> np.ndarray:
+        """(N, 8) index of each pixel's 8-neighbours in P_L (order ``_OFFSETS_8``), -1 if none."""
+        return np.stack([self.index[self.y + dy, self.x + dx] for dy, dx in _OFFSETS_8], axis=1)
+
+    def components(self, member: np.ndarray) -> tuple[int, np.ndarray]:
+        """8-connected components of the pixels where ``member``: their count + 1 (cv2's, with
+        the background) and (N,) label 1.. in the order of each component's first pixel in the
+        pixel list (0 where not ``member``). cv2's own numbering follows its 2x2 blocks and its
+        threads' stripes: it changes with the box and with cv2.setNumThreads."""
+        h, w = self.index.shape
+        img = np.zeros((h, w), np.uint8)
+        img[self.y[member], self.x[member]] = 1
+        n, lab = cv2.connectedComponents(img, connectivity=8)
+        lab = lab[self.y, self.x]
+        first = np.full(n, self.n, dtype=np.int64)  # first pixel (row-major) of each label
+        np.minimum.at(first, lab[member], np.flatnonzero(member))
+        rank = np.zeros(n, dtype=np.int64)
+        rank[np.argsort(first[1:], kind="stable") + 1] = np.arange(1, n)
+        return n, np.where(member, rank[lab], 0)
+
+
+_OFFSETS_8 = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
+
+
+def _solidify(grid: _PixelGrid, labels: np.ndarray, radius: int) -> np.ndarray:
+    """(N,) cluster of each pixel of P_L after solidification: an unclustered pixel within
+    ``radius`` px (8-neighbourhood steps) of a cluster joins it; where two clusters are in reach
+    the higher id wins (the grey dilation of the label image, on the pixel list)."""
+    out = labels.copy()
+    if radius == 0 or not (labels >= 0).any():
+        return out
+    if radius > grid.pad:
+        raise ValueError(f"the pixel grid is padded by {grid.pad} px, not {radius}")
+    img = np.zeros(grid.index.shape, dtype=np.int32)
+    img[grid.y, grid.x] = labels + 1
+    free = np.flatnonzero(labels < 0)
+    y, x = grid.y[free], grid.x[free]
+    grown = np.zeros(free.size, dtype=np.int32)
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            np.maximum(grown, img[y + dy, x + dx], out=grown)
+    out[free] = grown - 1
     return out
 
 
-def _touching_pairs(node_image: np.ndarray) -> np.ndarray:
-    """(P, 2) unique unordered pairs of different nodes that are 8-neighbours somewhere."""
-    H, W = node_image.shape
-    found = []
-    for dy, dx in _HALF_8:  # dy >= 0
-        a = node_image[: H - dy, max(0, -dx) : W - max(0, dx)]
-        b = node_image[dy:, max(0, dx) : W + min(0, dx)]
-        ok = (a >= 0) & (b >= 0) & (a != b)
-        found.append(np.stack([a[ok], b[ok]], axis=1))
-    pairs = np.concatenate(found) if found else np.zeros((0, 2), np.int64)
-    pairs = np.sort(pairs, axis=1)
-    return np.unique(pairs, axis=0) if len(pairs) else pairs.reshape(0, 2)
+def _touching_pairs(pixel_node: np.ndarray, nb_node: np.ndarray) -> np.ndarray:
+    """(P, 2) unique pairs (a < b, sorted) of different nodes that are 8-neighbours somewhere."""
+    a = np.broadcast_to(pixel_node[:, None], nb_node.shape)
+    ok = (nb_node >= 0) & (a >= 0) & (nb_node != a)
+    lo = np.minimum(a[ok], nb_node[ok])
+    hi = np.maximum(a[ok], nb_node[ok])
+    m = int(hi.max()) + 1 if hi.size else 1
+    key = np.unique(lo * m + hi)
+    return np.stack([key // m, key % m], axis=1)
 
 
 def _best_walk(
@@ -493,20 +553,18 @@ def _components(K: int, adj: list[list[int]]) -> np.ndarray:
 
 def _adjacency(K: int, edges: np.ndarray) -> list[list[int]]:
     adj: list[list[int]] = [[] for _ in range(K)]
-    for a, b in edges:
-        adj[a].append(int(b))
-        adj[b].append(int(a))
+    for a, b in edges.tolist():
+        adj[a].append(b)
+        adj[b].append(a)
     return adj
 
 
-def _bending_walk(
-    adj: list[list[int]], pos: np.ndarray, disp: np.ndarray, p: OrderingParams
-) -> list[int]:
+def _bending_walk(g: _WalkGraph, p: OrderingParams) -> list[int]:
     """Best of the walks from every end keypoint (degree 1 in A), see :func:`_walk_from`; when
     the best walk leaves keypoints out, the runner-up continuation at each junction it passed
     is tried too (a wrong turn at a crossing strands the rest of the thread)."""
-    K = len(adj)
-    degree = np.array([len(a) for a in adj])
+    K = len(g.adj)
+    degree = np.diff(g.indptr)
     starts = [int(k) for k in np.flatnonzero(degree <= 1)]
     if not starts:  # a closed loop: start from the lowest degree
         starts = [int(np.argmin(degree))]
@@ -518,67 +576,103 @@ def _bending_walk(
     queue: list[tuple[list[int], list[float], int | None]] = [([s], [], None) for s in starts]
     while queue and tried < MAX_WALKS:
         prefix, prefix_steps, forced = queue.pop(0)
-        walk, steps, alts = _walk_from(prefix, prefix_steps, forced, adj, pos, disp, p)
+        walk, steps, alts = _walk_from(prefix, prefix_steps, forced, g, p)
         tried += 1
         key = (len(walk), -sum(steps))
         if key > best_key:
             best_walk, best_steps, best_alts, best_key = walk, steps, alts, key
         if not queue and len(best_walk) < K and best_alts:
             # Branch at each decision of the best walk so far, in path order.
-            queue = [(best_walk[: i + 1], best_steps[:i], alt) for i, alt in best_alts]
+            queue = [
+                (best_walk[: i + 1], best_steps[:i], alt)
+                for i, alt in best_alts[: MAX_WALKS - tried]  # the rest would never be tried
+            ]
             best_alts = []
     return best_walk
+
+
+@dataclass(frozen=True)
+class _WalkGraph:
+    """A, positions and disparities as the walk kernel takes them (built once per frame)."""
+
+    adj: list[list[int]]
+    indptr: np.ndarray  # (K + 1,) int64, CSR of A in the order of ``adj``
+    indices: np.ndarray
+    pos: np.ndarray  # (K, 2) float64, contiguous
+    disp: np.ndarray  # (K,) float64
+
+    @classmethod
+    def of(cls, adj: list[list[int]], pos: np.ndarray, disp: np.ndarray) -> _WalkGraph:
+        indptr = np.zeros(len(adj) + 1, dtype=np.int64)
+        indptr[1:] = np.cumsum([len(a) for a in adj])
+        indices = np.array([v for a in adj for v in a], dtype=np.int64)
+        return cls(
+            adj,
+            indptr,
+            indices,
+            np.ascontiguousarray(pos, dtype=np.float64),
+            np.ascontiguousarray(disp, dtype=np.float64),
+        )
 
 
 def _walk_from(
     prefix: list[int],
     prefix_steps: list[float],
     forced: int | None,
-    adj: list[list[int]],
-    pos: np.ndarray,
-    disp: np.ndarray,
+    g: _WalkGraph,
     p: OrderingParams,
 ) -> tuple[list[int], list[float], list[tuple[int, int]]]:
     """Walk A on from ``prefix`` (its first step ``forced`` when given), each step to the
     continuation of least cost of :func:`_continuations`. Returns the walk, the cost of each
-    step and the runner-up at each step that had one (as (index in the walk, keypoint))."""
-    K = len(adj)
+    step and the runner-up at each step that had one (as (index in the walk, keypoint)).
+    Steps to neighbours and through crossings run in :func:`walk_kernel.walk_on`; a jump across
+    a gap (a few per walk) here."""
+    K = len(g.adj)
+    cos_max = float(np.cos(np.radians(p.max_turn_deg)))
     visited = np.zeros(K, dtype=bool)
     visited[prefix] = True
-    walk = list(prefix)
-    steps = list(prefix_steps)
-    alts: list[tuple[int, int]] = []
+    walk = np.zeros(K, dtype=np.int64)
+    walk[: len(prefix)] = prefix
+    steps = np.zeros(K)
+    steps[: len(prefix_steps)] = prefix_steps
+    alt_at = np.zeros(K, dtype=np.int64)
+    alt_kp = np.zeros(K, dtype=np.int64)
+    n, n_alt = len(prefix), 0
+    pending = -1 if forced is None else forced
     while True:
-        cand, cost, _, _ = _continuations(walk, visited, adj, pos, disp, p)
-        if not cand:
+        n, n_alt, state = walk_kernel.walk_on(
+            walk, n, len(prefix), steps, pending, visited, g.indptr, g.indices, g.pos, g.disp,
+            float(p.bend_weight), float(p.disparity_weight), cos_max, alt_at, alt_kp, n_alt,
+        )  # fmt: skip
+        if state == walk_kernel.WALK_END:
+            break
+        cand, cost, _, _ = _continuations(walk, n, visited, g, p)
+        if not cand:  # no jump either
             break
         rank = np.argsort(cost, kind="stable")
         j = int(rank[0])
-        if forced is not None and len(walk) == len(prefix):
-            if forced not in cand:
+        if pending >= 0 and n == len(prefix):
+            if pending not in cand:
                 break
-            j = cand.index(forced)
+            j = cand.index(pending)
         elif len(rank) > 1 and np.isfinite(cost[rank[1]]):
-            alts.append((len(walk) - 1, int(cand[rank[1]])))
+            alt_at[n_alt], alt_kp[n_alt] = n - 1, cand[rank[1]]
+            n_alt += 1
         if not np.isfinite(cost[j]):
             break
-        nxt = cand[j]
-        visited[nxt] = True
-        walk.append(nxt)
-        steps.append(float(cost[j]))
-    return walk, steps, alts
+        visited[cand[j]] = True
+        walk[n] = cand[j]
+        steps[n - 1] = cost[j]
+        n += 1
+    alts = list(zip(alt_at[:n_alt].tolist(), alt_kp[:n_alt].tolist(), strict=True))
+    return walk[:n].tolist(), steps[: n - 1].tolist(), alts
 
 
 _TIERS = ("neighbour", "crossing", "jump")
 
 
 def _continuations(
-    walk: list[int],
-    visited: np.ndarray,
-    adj: list[list[int]],
-    pos: np.ndarray,
-    disp: np.ndarray,
-    p: OrderingParams,
+    walk: np.ndarray, n: int, visited: np.ndarray, g: _WalkGraph, p: OrderingParams
 ) -> tuple[list[int], np.ndarray, int, list[str]]:
     """The candidates for the walk's next step, their costs
 
@@ -590,66 +684,74 @@ def _continuations(
     crossing; a turn of more than ``max_turn_deg`` only when nothing else is left: a touching
     turn); 2, unvisited keypoints within ``bridge_px`` whose disparity agrees and whose piece
     continues the same way (across an occlusion or a break in the segmentation): the turn into
-    the jump and the turn out of it at most 90 deg each and ``2 max_turn_deg`` together."""
-    cur = walk[-1]
-    back = walk[-3] if len(walk) >= 3 else walk[0]
+    the jump and the turn out of it at most 90 deg each and ``2 max_turn_deg`` together.
+
+    ``walk[:n]``: the path so far ((K,) int64 buffer). Tiers 0 and 1 are computed by
+    :func:`walk_kernel.step_costs` (the walk's own kernel), tier 2 here."""
+    cand_buf = np.empty(len(g.adj), dtype=np.int64)
+    cost_buf, cos_buf = np.empty(len(g.adj)), np.empty(len(g.adj))
+    cos_max = float(np.cos(np.radians(p.max_turn_deg)))
+    m, tier = walk_kernel.step_costs(
+        walk, n, visited, g.indptr, g.indices, g.pos, g.disp,
+        float(p.bend_weight), float(p.disparity_weight), cos_max, cand_buf, cost_buf, cos_buf,
+    )  # fmt: skip
+    if m:
+        cost = cost_buf[:m].copy()
+        why = [""] * m
+        if tier == 1 and np.isinf(cost).any():
+            why = ["" if c >= cos_max else "turn > max_turn_deg" for c in cos_buf[:m]]
+        return cand_buf[:m].tolist(), cost, tier, why
+    if p.bridge_px <= 0:
+        return [], np.zeros(0), tier, []
+    pos, disp, adj = g.pos, g.disp, g.adj
+    cur = int(walk[n - 1])
+    back = int(walk[n - 3] if n >= 3 else walk[0])
     heading = pos[cur] - pos[back]
     hn = float(np.hypot(*heading))
     heading = heading / hn if hn > 0 else None
-    ref = float(np.mean(disp[walk[-3:]]))
-    tier = 0
-    cand = [v for v in adj[cur] if not visited[v]]
-    if not cand:
-        cand = sorted({w for u in adj[cur] if visited[u] for w in adj[u] if not visited[w]})
-        tier = 1
-    if not cand and p.bridge_px > 0 and heading is not None:
+    ref = float(np.mean(disp[walk[max(0, n - 3) : n]]))
+    cand: list[int] = []
+    if heading is not None:
         free = np.flatnonzero(~visited)
         d = np.linalg.norm(pos[free] - pos[cur], axis=1)
         near = d <= p.bridge_px
         near &= np.abs(disp[free] - ref) <= 1.0 + 0.1 * d  # depth agrees (slope <= B/Z)
         cand = [int(v) for v in free[near]]
-        tier = 2
     if not cand:
         return [], np.zeros(0), tier, []
     c = np.array(cand)
     chord = pos[c] - pos[cur]
     dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
-    cos_t = chord @ heading / dist if heading is not None else np.ones(len(c))
+    # chord . heading as two products and a sum (not BLAS, which may fuse them: one rounding
+    # less), the operations of walk_kernel.step_costs
+    cos_t = (chord[:, 0] * heading[0] + chord[:, 1] * heading[1]) / dist
     cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(disp[c] - ref)
-    why = [""] * len(cand)
-    if tier == 1:
-        ok = cos_t >= float(np.cos(np.radians(p.max_turn_deg)))
-        if ok.any():  # else a touching turn: the sharpest continuation is all that is left
-            cost = np.where(ok, cost, np.inf)
-            why = ["" if k else "turn > max_turn_deg" for k in ok]
-    elif tier == 2:  # across a gap: turn in + turn out <= 2 max_turn_deg, each <= 90 deg
-        turn_in = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
-        turn_out = np.array([_turn_out(v, chord[i], adj, visited, pos) for i, v in enumerate(cand)])
-        ok = (turn_in <= 90.0) & (turn_out <= 90.0) & (turn_in + turn_out <= 2 * p.max_turn_deg)
-        cost = np.where(ok, cost, np.inf)
-        why = ["" if k else "turn across the gap" for k in ok]
-    return cand, cost, tier, why
+    # across a gap: turn in + turn out <= 2 max_turn_deg, each <= 90 deg
+    turn_in = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
+    turn_out = np.array([_turn_out(v, chord[i], adj, visited, pos) for i, v in enumerate(cand)])
+    ok = (turn_in <= 90.0) & (turn_out <= 90.0) & (turn_in + turn_out <= 2 * p.max_turn_deg)
+    cost = np.where(ok, cost, np.inf)
+    why = ["" if k else "turn across the gap" for k in ok]
+    return cand, cost, 2, why
 
 
 def _explain(
-    walk: list[int],
-    adj: list[list[int]],
-    pos: np.ndarray,
-    disp: np.ndarray,
-    p: OrderingParams,
-    offset: int,
+    walk: list[int], g: _WalkGraph, p: OrderingParams, offset: int
 ) -> tuple[Decision, ...]:
     """The decisions of ``walk``, replayed: every step with more than one continuation or
     outside A, and the end when continuations were left but all excluded. ``offset``: index in
     ``order`` of ``walk[0]`` (1 after an extension at the start)."""
+    adj = g.adj
     visited = np.zeros(len(adj), dtype=bool)
+    on_path = [False] * len(adj)  # visited, as a list: fast to read one at a time
+    path = np.array(walk, dtype=np.int64)
     out: list[Decision] = []
     for i, at in enumerate(walk):
-        visited[at] = True
-        free = [v for v in adj[at] if not visited[v]]
+        visited[at] = on_path[at] = True
+        free = [v for v in adj[at] if not on_path[v]]
         if len(free) == 1 and i + 1 < len(walk) and walk[i + 1] == free[0]:
             continue  # the only neighbour (most steps): no decision, no cost to replay
-        cand, cost, tier, why = _continuations(walk[: i + 1], visited, adj, pos, disp, p)
+        cand, cost, tier, why = _continuations(path, i + 1, visited, g, p)
         if not cand:
             continue
         nxt = walk[i + 1] if i + 1 < len(walk) else -1
@@ -684,21 +786,20 @@ def _pieces(adj: list[list[int]]) -> tuple[tuple[int, ...], ...]:
     """The chains of A: maximal paths whose inner keypoints have degree 2, from one keypoint of
     degree != 2 to another; a cycle of degree-2 keypoints is one piece (closed on itself)."""
     K = len(adj)
-    degree = np.array([len(a) for a in adj])
+    degree = [len(a) for a in adj]
     used: set[tuple[int, int]] = set()
     pieces: list[tuple[int, ...]] = []
     seen = np.zeros(K, dtype=bool)
 
     def follow(a: int, b: int) -> tuple[int, ...]:
         chain = [a, b]
-        used.add((a, b))
-        used.add((b, a))
         while degree[chain[-1]] == 2 and chain[-1] != a:
             u, v = chain[-2], chain[-1]
-            w = adj[v][0] if adj[v][0] != u else adj[v][1]
-            used.add((v, w))
-            used.add((w, v))
-            chain.append(w)
+            chain.append(adj[v][0] if adj[v][0] != u else adj[v][1])
+        # a chain starts only at a keypoint of degree != 2: its two end steps are all that a
+        # later start could take again (from the other end)
+        used.add((a, b))
+        used.add((chain[-1], chain[-2]))
         return tuple(chain)
 
     for k in range(K):

@@ -14,9 +14,12 @@ from threadrecon.core.ordering import (
     OrderingParams,
     _adjacency,
     _bending_walk,
+    _continuations,
     _explain,
     _GapGeodesics,
     _normalised,
+    _walk_from,
+    _WalkGraph,
 )
 from threadrecon.core.pipeline import Pipeline, ReconParams
 from threadrecon.core.reliability import ReliabilityParams
@@ -165,9 +168,10 @@ def test_decision_costs_are_bending_and_disparity_exactly() -> None:
     disp = np.array([5.0, 5.0, 5.0, 5.0, 6.0])
     adj = _adjacency(5, np.array([[0, 1], [1, 2], [2, 3], [2, 4]]))
     p = OrderingParams(bend_weight=2.0, disparity_weight=10.0)
-    walk = _bending_walk(adj, pos, disp, p)
+    g = _WalkGraph.of(adj, pos, disp)
+    walk = _bending_walk(g, p)
     assert walk == [0, 1, 2, 4, 3]  # back through the junction to the side branch at the end
-    d, back = _explain(walk, adj, pos, disp, p, offset=0)
+    d, back = _explain(walk, g, p, offset=0)
     assert (back.step, back.at, back.kind, back.chosen, back.rejected) == (3, 4, "crossing", 3, ())
     assert (d.step, d.at, d.kind, d.chosen) == (2, 2, "neighbour", 4)
     assert d.cost == pytest.approx(10.0 + 10.0 * 1.0)  # straight, disparity 5 -> 6
@@ -175,7 +179,7 @@ def test_decision_costs_are_bending_and_disparity_exactly() -> None:
     assert rej.keypoint == 3 and rej.cost == pytest.approx(10.0 * 3.0)
     assert rej.reason == "costlier"
     # forced the other way (a runner-up walk): the cheaper continuation is named as such
-    d = _explain([0, 1, 2, 3, 4], adj, pos, disp, p, offset=1)[0]
+    d = _explain([0, 1, 2, 3, 4], g, p, offset=1)[0]
     assert d.step == 3 and d.chosen == 3 and d.rejected[0].reason.startswith("cheaper")
 
 
@@ -201,3 +205,107 @@ def test_pieces_cover_every_edge_of_a_once_and_end_at_junctions() -> None:
                 finite = [c.cost for c in d.rejected if np.isfinite(c.cost)]
                 cheaper = [c for c in d.rejected if c.reason.startswith("cheaper")]
                 assert cheaper or all(d.cost <= c for c in finite)
+
+
+def _reference_step(
+    walk: list[int], visited: np.ndarray, g: _WalkGraph, p: OrderingParams
+) -> tuple[list[int], np.ndarray]:
+    """Tiers 0 and 1 of the walk's step rule in numpy (the kernel's specification), tier 2
+    through _continuations."""
+    adj, pos, disp = g.adj, g.pos, g.disp
+    cur, back = walk[-1], walk[-3] if len(walk) >= 3 else walk[0]
+    heading = pos[cur] - pos[back]
+    hn = float(np.hypot(*heading))
+    ref = float(np.mean(disp[walk[-3:]]))
+    cand = [v for v in adj[cur] if not visited[v]]
+    tier = 0
+    if not cand:
+        cand = sorted({w for u in adj[cur] if visited[u] for w in adj[u] if not visited[w]})
+        tier = 1
+    if not cand:
+        cand, cost, tier, _ = _continuations(np.array(walk), len(walk), visited, g, p)
+        assert tier == 2 or not cand
+        return cand, cost
+    chord = pos[cand] - pos[cur]
+    dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
+    h = heading / hn if hn > 0 else None
+    cos_t = (
+        (chord[:, 0] * h[0] + chord[:, 1] * h[1]) / dist if h is not None else np.ones(len(cand))
+    )
+    cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(
+        disp[cand] - ref
+    )
+    ok = cos_t >= float(np.cos(np.radians(p.max_turn_deg)))
+    if tier == 1 and ok.any():
+        cost = np.where(ok, cost, np.inf)
+    return cand, cost
+
+
+def _reference_walk(
+    prefix: list[int],
+    prefix_steps: list[float],
+    forced: int | None,
+    g: _WalkGraph,
+    p: OrderingParams,
+) -> tuple[list[int], list[float], list[tuple[int, int]]]:
+    """The walk of _walk_from, one step at a time in numpy."""
+    visited = np.zeros(len(g.adj), dtype=bool)
+    visited[prefix] = True
+    walk, steps, alts = list(prefix), list(prefix_steps), []
+    while True:
+        cand, cost = _reference_step(walk, visited, g, p)
+        if not cand:
+            break
+        rank = np.argsort(cost, kind="stable")
+        j = int(rank[0])
+        if forced is not None and len(walk) == len(prefix):
+            if forced not in cand:
+                break
+            j = cand.index(forced)
+        elif len(rank) > 1 and np.isfinite(cost[rank[1]]):
+            alts.append((len(walk) - 1, int(cand[rank[1]])))
+        if not np.isfinite(cost[j]):
+            break
+        visited[cand[j]] = True
+        walk.append(int(cand[j]))
+        steps.append(float(cost[j]))
+    return walk, steps, alts
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_compiled_walk_takes_the_steps_of_the_numpy_rule_exactly(seed: int) -> None:
+    # Random graphs with junctions, crossings, gaps, ties, NaN disparities and forced steps:
+    # walk_kernel must choose, cost and record runner-ups bit for bit as _continuations does.
+    rng = np.random.default_rng(seed)
+    strands = []  # 1-4 wavy strands of keypoints ~5 px apart, crossing and touching each other
+    for _ in range(int(rng.integers(1, 5))):
+        t = np.linspace(0.0, 1.0, int(rng.integers(3, 25)))[:, None]
+        a, b = rng.uniform(0, 60, 2), rng.uniform(0, 60, 2)
+        bend = rng.normal(0, 10, 2) * np.sin(np.pi * t)
+        strands.append(a + (b - a) * t + bend)
+    pos = np.round(np.concatenate(strands), int(rng.integers(0, 3)))  # rounded: ties happen
+    K = len(pos)
+    disp = rng.uniform(10, 14, K)
+    disp[rng.random(K) < 0.05] = np.nan
+    start_of = np.cumsum([0] + [len(s) for s in strands])
+    edges = {
+        (int(i), int(i) + 1)
+        for i in range(K - 1)
+        if i + 1 not in start_of and rng.random() < 0.95  # gaps: a broken strand
+    }
+    near = cKDTree(pos).query_pairs(float(rng.uniform(2.0, 6.0)))  # crossings and touches
+    edges |= {(int(i), int(j)) for i, j in near}
+    adj = _adjacency(K, np.array(sorted(edges), dtype=np.int64).reshape(-1, 2))
+    p = OrderingParams(
+        bend_weight=float(rng.uniform(0, 4)),
+        max_turn_deg=float(rng.uniform(20, 120)),
+        bridge_px=float(rng.choice([0.0, 40.0])),
+    )
+    graph = _WalkGraph.of(adj, pos, disp)
+    for start in rng.choice(K, size=min(K, 4), replace=False).tolist():
+        ref = _reference_walk([start], [], None, graph, p)
+        assert _walk_from([start], [], None, graph, p) == ref
+        for i, alt in ref[2][:3]:  # runner-up walks: a forced first step after a prefix
+            prefix, steps = ref[0][: i + 1], ref[1][:i]
+            forced = _reference_walk(prefix, steps, alt, graph, p)
+            assert _walk_from(prefix, steps, alt, graph, p) == forced

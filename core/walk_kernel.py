@@ -1,0 +1,157 @@
+"""Compiled kernel of the ordering walk (core/ordering.py, walk = "bending").
+
+A walk step looks at a handful of keypoints, and a 1920x1080 frame tries up to ``MAX_WALKS``
+walks of 500-800 steps: as numpy calls on arrays of one or two elements that is 10-60 us a
+step, 100-300 ms a frame. This kernel takes the steps of tiers 0 and 1 of
+:func:`threadrecon.core.ordering._continuations` (neighbours in A; the other strand of a
+crossing) with the same cost, in the same floating-point operations, and hands the walk back
+to Python when only a jump across a gap (tier 2, a few per walk) is left.
+
+The graph A is CSR: ``indptr``, ``indices``, each keypoint's neighbours in the order of
+``ordering._adjacency`` (the candidates' order breaks ties, as a stable sort does).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+WALK_END = 0  # the walk ends: no continuation, every one excluded, or the forced one missing
+WALK_JUMP = 1  # tiers 0 and 1 are empty: the caller looks for a jump (tier 2)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _before(a: float, b: float) -> bool:
+    """a sorts before b (np.argsort: NaN last)."""
+    return a < b or (math.isnan(b) and not math.isnan(a))
+
+
+@numba.njit(cache=True, nogil=True)
+def step_costs(
+    walk, n, visited, indptr, indices, pos, disp, bend_w, disp_w, cos_max, cand, cost, cos_t
+):  # noqa: ANN001
+    """Candidates of tiers 0 and 1 of ``_continuations`` for the walk ``walk[:n]``, their
+    costs and the cosines of their turns, written to ``cand``, ``cost``, ``cos_t``; returns
+    (count, tier). Count 0: neither tier has one (tier 2 is the caller's). Cost = dist (1 + bend_w (1 - cos turn)) + disp_w |disparity
+    change from the mean of the last three keypoints|; at tier 1 a turn with cos < ``cos_max``
+    is inf unless every candidate turns that much."""
+    cur = walk[n - 1]
+    back = walk[n - 3] if n >= 3 else walk[0]
+    hx = pos[cur, 0] - pos[back, 0]
+    hy = pos[cur, 1] - pos[back, 1]
+    hn = math.hypot(hx, hy)
+    ref = 0.0
+    lo = n - 3 if n >= 3 else 0
+    for i in range(lo, n):
+        ref += disp[walk[i]]
+    ref /= n - lo
+    m = 0
+    for e in range(indptr[cur], indptr[cur + 1]):
+        v = indices[e]
+        if not visited[v]:
+            cand[m] = v
+            m += 1
+    tier = 0
+    if m == 0:
+        tier = 1
+        for e in range(indptr[cur], indptr[cur + 1]):
+            u = indices[e]
+            if not visited[u]:
+                continue
+            for f in range(indptr[u], indptr[u + 1]):
+                w = indices[f]
+                if visited[w]:
+                    continue
+                seen = False
+                for i in range(m):
+                    if cand[i] == w:
+                        seen = True
+                        break
+                if not seen:
+                    cand[m] = w
+                    m += 1
+        cand[:m].sort()
+    if m == 0:
+        return 0, 2
+    any_ok = False
+    for i in range(m):
+        v = cand[i]
+        cx = pos[v, 0] - pos[cur, 0]
+        cy = pos[v, 1] - pos[cur, 1]
+        dist = math.sqrt(cx * cx + cy * cy)
+        if dist < 1e-9:
+            dist = 1e-9
+        cos_t[i] = (cx * (hx / hn) + cy * (hy / hn)) / dist if hn > 0 else 1.0
+        cost[i] = dist * (1.0 + bend_w * (1.0 - cos_t[i])) + disp_w * abs(disp[v] - ref)
+        any_ok |= cos_t[i] >= cos_max
+    if tier == 1 and any_ok:  # else a touching turn: the sharpest continuation is all that is left
+        for i in range(m):
+            if not cos_t[i] >= cos_max:
+                cost[i] = np.inf
+    return m, tier
+
+
+@numba.njit(cache=True, nogil=True)
+def walk_on(
+    walk,
+    n,
+    n_prefix,
+    steps,
+    forced,
+    visited,
+    indptr,
+    indices,
+    pos,
+    disp,
+    bend_w,
+    disp_w,
+    cos_max,
+    alt_at,
+    alt_kp,
+    n_alt,
+):  # noqa: ANN001
+    """Extend ``walk[:n]`` (``steps[:n-1]`` the cost of each step so far) by the cheapest
+    continuation of tier 0 or 1 until none is left; at the first step after the prefix
+    (``n == n_prefix``) the step goes to ``forced`` when it is >= 0. The runner-up of each
+    step with a finite one is appended to ``alt_at`` (walk index) / ``alt_kp``.
+    Returns (n, n_alt, WALK_END or WALK_JUMP)."""
+    K = visited.size
+    cand = np.empty(K, dtype=np.int64)
+    cost = np.empty(K)
+    cos_t = np.empty(K)
+    while True:
+        m, _ = step_costs(
+            walk, n, visited, indptr, indices, pos, disp, bend_w, disp_w, cos_max, cand, cost, cos_t
+        )
+        if m == 0:
+            return n, n_alt, WALK_JUMP
+        j = 0
+        for i in range(1, m):
+            if _before(cost[i], cost[j]):
+                j = i
+        if forced >= 0 and n == n_prefix:
+            j = -1
+            for i in range(m):
+                if cand[i] == forced:
+                    j = i
+                    break
+            if j < 0:
+                return n, n_alt, WALK_END
+        elif m > 1:
+            r = 0 if j != 0 else 1
+            for i in range(r + 1, m):
+                if i != j and _before(cost[i], cost[r]):
+                    r = i
+            if math.isfinite(cost[r]):
+                alt_at[n_alt] = n - 1
+                alt_kp[n_alt] = cand[r]
+                n_alt += 1
+        if not math.isfinite(cost[j]):
+            return n, n_alt, WALK_END
+        v = cand[j]
+        visited[v] = True
+        walk[n] = v
+        steps[n - 1] = cost[j]
+        n += 1
