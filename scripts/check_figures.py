@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from threadrecon.app.dataset import discover, load_frame  # noqa: E402
 from threadrecon.app.presets import resolve_preset  # noqa: E402
 from threadrecon.core.check import check_curve  # noqa: E402
-from threadrecon.core.metrics import curve_errors, resample  # noqa: E402
+from threadrecon.core.metrics import frame_errors, resample, visible_part  # noqa: E402
 from threadrecon.core.pipeline import Pipeline  # noqa: E402
 
 WRONG_MM = 20.0  # the "wrong": length or max curve error above 2 cm
@@ -73,10 +73,11 @@ def frame_rows(root: str, params, point_sets: list) -> list[dict]:
             continue
         mm = calib.mm_per_unit
         pts = rec["camera"].points * mm
-        e = curve_errors(pts, gt * mm)
+        e = frame_errors(rec["camera"].points, gt, calib)  # on the part both views see
         row.update(e_S=e.e_S, e_S_max=e.e_S_max, e_length=e.e_length)
         row["wrong"] = bool(e.e_length > WRONG_MM or e.e_S_max > WRONG_MM)
-        tree = cKDTree(resample(gt * mm, 20000))
+        seen = visible_part(gt, calib.P1, calib.P2, calib.image_size) * mm
+        tree = cKDTree(resample(seen, 20000))
         err_pts = tree.query(pts)[0]
         chk = rec["check"]
         point_sets.append((frame.id, chk.confidence, err_pts, root))
