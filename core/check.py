@@ -22,11 +22,12 @@ from the evidence near it, in mm:
 with Z_i / f and Z_i^2 / (f B) the lateral and depth size of a pixel and of a pixel of
 disparity at the point's depth, r_i the disparity residual against the nearest reliable pixel
 of P_L^R (stretched when that pixel is far away), h_i the bound half-width of Eq. (7) in px of
-disparity, rho_i the larger of the two reprojection distances to the thread pixels, and sigma_d
+disparity where no reliable match supports the point (r_i > ``support_tol_px``; 0 where one
+does: a nearby match that agrees measures the depth, however wide the bounds), rho_i the larger of the two reprojection distances to the thread pixels, and sigma_d
 the matching precision (``sigma_disparity_px``). The confidence is exp(-e_i / ``conf_mm``).
 
-All image measurements use one distance transform per view of the thread masks (computed once
-per frame), so the stage costs a few milliseconds.
+All image measurements use one distance field per view of the thread masks (``check_field``:
+computed once per segmentation and cached with it), so the stage costs a few milliseconds.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from scipy.spatial import cKDTree
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
+from threadrecon.core.check_field import MaskField, mask_field
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.reliability import ReliabilityResult
@@ -420,8 +422,8 @@ def _check(
     margin = p.reproj_fail_px + 2.0
     view_l = _view(lifted.P_L, uv_l, in_l, margin)
     view_r = _view(lifted.P_R, uv_r, in_r, margin)
-    rho_l = _distance_to_mask(view_l, uv_l, margin)
-    rho_r = _distance_to_mask(view_r, uv_r, margin)
+    field_l, field_r = mask_field(lifted.P_L, margin), mask_field(lifted.P_R, margin)
+    rho_l, rho_r = field_l.at(uv_l), field_r.at(uv_r)
     # Ordering anomalies (1): runs of the left projection across unsegmented pixels. A short
     # run between two thread parts is a bridge (an occluded or unsegmented stretch) and is
     # left out of the reprojection figures; a long one is a jump.
@@ -439,7 +441,9 @@ def _check(
     off_l, off_r = in_l & (rho_l > p.jump_px), in_r & (rho_r > p.jump_px)
     ends = (off_l & ~bridge_l) | (off_r & ~bridge_r)
     bare = (
-        _BareBackground(lifted, view_l, view_r, p) if (bridge_l | bridge_r | ends).any() else None
+        _BareBackground(lifted, (field_l, field_r), p)
+        if (bridge_l | bridge_r | ends).any()
+        else None
     )
     # An end of the curve off the thread in one view only, over pixels that are not bare
     # background there (an occluder), while the other view sees the thread: hidden in that
@@ -582,14 +586,16 @@ def _check(
     # Per-point expected error and confidence.
     z_pos = np.maximum(z, 1e-12)
     r = _disparity_residual(stereo, rel, uv_l, f * B / z_pos, p.support_px)
-    unsupported = _unsupported_travel(z, r <= p.support_tol_px) * mm
+    supported = r <= p.support_tol_px
+    unsupported = _unsupported_travel(z, supported) * mm
     if unsupported > p.max_unsupported_mm:
         findings.append(
             ("suspect", f"the curve's depth travels {unsupported:.1f} mm back and forth where "
              f"no reliable match supports it (limit {p.max_unsupported_mm:g} mm): length the "
              "images do not show")
         )  # fmt: skip
-    h = _bound_halfwidth_px(spline, bounds, n, f * B)
+    # the bounds' width is the depth's freedom only where no agreeing reliable match is near
+    h = np.where(supported, 0.0, _bound_halfwidth_px(spline, bounds, n, f * B))
     rho = np.maximum(
         np.where(bridge_l | hidden_l, 0.0, rho_l),
         np.where(in_r & ~bridge_r & ~hidden_r, rho_r, 0.0),
@@ -730,27 +736,6 @@ def _view(mask: np.ndarray, uv: np.ndarray, inside: np.ndarray, margin: float) -
     return _View(mask[y0:y1, x0:x1], x0, y0, int(total))
 
 
-def _distance_to_mask(v: _View, uv: np.ndarray, margin: float) -> np.ndarray:
-    """Distance (px) of each (x, y) to the nearest thread pixel, saturated at ``margin``.
-
-    One distance transform (3x3 L2 mask, error < 3 %) of the crop: as the crop holds every
-    in-image point grown by ``margin``, distances below ``margin`` are those of the full image;
-    an off-image point adds its distance to the nearest in-image pixel."""
-    out = np.full(len(uv), margin)
-    ok = np.all(np.isfinite(uv), axis=1)
-    if v.total == 0 or not ok.any():
-        return out
-    h, w = v.mask.shape
-    q = np.rint(uv[ok]) - [v.x0, v.y0]
-    qc = np.clip(q, 0, [w - 1, h - 1])
-    background = cv2.compare(np.ascontiguousarray(v.mask).view(np.uint8), 0, cv2.CMP_EQ)
-    dt = cv2.distanceTransform(background, cv2.DIST_L2, cv2.DIST_MASK_3)
-    qi = qc.astype(np.intp)
-    off = np.hypot(*(uv[ok] - [v.x0, v.y0] - qc).T)  # beyond the crop (off the image), px
-    out[ok] = np.minimum(dt[qi[:, 1], qi[:, 0]] + off, margin)
-    return out
-
-
 def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> float:
     """Share of thread pixels within ``cover_px`` + the thread's half-width of the curve.
 
@@ -800,9 +785,11 @@ def _off_thread_runs(off: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def _unsupported_travel(z: np.ndarray, supported: np.ndarray) -> float:
-    """Depth travelled back and forth between supported points: over each stretch of
-    unsupported points (and each unsupported end), the total variation of z minus the net
-    depth change across it. The whole total variation when no point is supported."""
+    """Depth travel no reliable match shows: over each stretch of unsupported points between
+    two supported ones, the total variation of z minus the net depth change across it (the
+    net change is measured at both ends); over an unsupported end, the whole total variation
+    (its depth is extrapolated from one side: none of its change is measured). The whole total
+    variation when no point is supported."""
     tv = np.abs(np.diff(z))
     idx = np.flatnonzero(supported)
     if idx.size == 0:
@@ -812,6 +799,7 @@ def _unsupported_travel(z: np.ndarray, supported: np.ndarray) -> float:
     csum = np.concatenate([[0.0], np.cumsum(tv)])
     travel = csum[edges[1:]] - csum[edges[:-1]]
     net = np.abs(z[edges[1:]] - z[edges[:-1]])
+    net[[0, -1]] = 0.0  # the ends (empty when the curve's first or last point is supported)
     return float(np.sum(travel - net))
 
 
@@ -843,61 +831,47 @@ def _runs(flag: np.ndarray) -> list[tuple[int, int]]:
 
 class _BareBackground:
     """Per view, whether a bridge's pixels look like the bare background next to the thread
-    at the bridge's two ends: the ring 3..9 px around the thread pixels within ``REACH_PX`` of
-    each end gives a local grey level (median) and spread (1.4826 MAD, at least 4 levels); a
-    pixel off the thread is bare when its grey level is within ``bare_sigma`` spreads of the
-    level interpolated between the two ends along the bridge."""
+    at the bridge's two ends: the ring 3..9 px around the thread pixels (read off the view's
+    distance field) within ``REACH_PX`` of each end gives a local grey level (median) and
+    spread (1.4826 MAD, at least 4 levels); a pixel off the thread is bare when its grey level
+    is within ``bare_sigma`` spreads of the level interpolated between the two ends along the
+    bridge."""
 
     REACH_PX = 25
+    RING_PX = (3.0, 9.0)  # the ring's inner and outer distance to the thread pixels
 
-    def __init__(self, lifted: LiftedPair, view_l: _View, view_r: _View, p: CheckParams):
+    def __init__(self, lifted: LiftedPair, fields: tuple[MaskField, MaskField], p: CheckParams):
         self.p = p
-        self.views = []
-        for grey, v in ((lifted.grey_L, view_l), (lifted.grey_R, view_r)):
-            h, w = v.mask.shape
-            g = np.asarray(grey, np.float32)[v.y0 : v.y0 + h, v.x0 : v.x0 + w]
-            self.views.append((g, v, None))
+        self.views = [
+            (np.asarray(lifted.grey_L), lifted.P_L, fields[0]),
+            (np.asarray(lifted.grey_R), lifted.P_R, fields[1]),
+        ]
         self._cache: dict[tuple[int, int, int], tuple[float, float] | None] = {}
 
     def _level(self, side: int, xy: np.ndarray) -> tuple[float, float] | None:
         """Median and spread of the ring around the thread within REACH_PX of ``xy``."""
-        g, v, _ = self.views[side]
         if not np.all(np.isfinite(xy)):
             return None
-        x, y = int(round(xy[0])) - v.x0, int(round(xy[1])) - v.y0
+        x, y = int(round(xy[0])), int(round(xy[1]))
         if (side, x, y) not in self._cache:
-            self._cache[side, x, y] = self._ring_level(g, v.mask, x, y)
+            g, _, field = self.views[side]
+            d, rows, cols = field.window(x, y, self.REACH_PX)
+            ring = (d > self.RING_PX[0]) & (d <= self.RING_PX[1])
+            vals = g[rows, cols][ring].astype(np.float64)
+            level = None
+            if vals.size >= 10:
+                med = float(np.median(vals))
+                level = med, max(1.4826 * float(np.median(np.abs(vals - med))), 4.0)
+            self._cache[side, x, y] = level
         return self._cache[side, x, y]
 
-    def _ring_level(self, g: np.ndarray, mask: np.ndarray, x: int, y: int):
-        r, m = self.REACH_PX, 9  # the ring's outer radius is 9 px
-        ys, xs = (
-            slice(max(0, y - r - m), max(0, y + r + m + 1)),
-            slice(max(0, x - r - m), max(0, x + r + m + 1)),
-        )
-        m8 = np.ascontiguousarray(mask[ys, xs]).view(np.uint8)
-        if m8.size == 0:
-            return None
-        outer = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (19, 19)))
-        inner = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7)))
-        ring = (outer > 0) & (inner == 0)
-        ring[: max(0, y - r - ys.start)] = False  # keep the square within REACH_PX of xy
-        ring[y + r + 1 - ys.start :] = False
-        ring[:, : max(0, x - r - xs.start)] = False
-        ring[:, x + r + 1 - xs.start :] = False
-        vals = g[ys, xs][ring]
-        if vals.size < 10:
-            return None
-        med = float(np.median(vals))
-        return med, max(1.4826 * float(np.median(np.abs(vals - med))), 4.0)
-
     def grey(self, side: int, uv: np.ndarray) -> np.ndarray:
-        """Grey level at each (x, y) of view ``side``; NaN outside the crop."""
-        g, v, _ = self.views[side]
+        """Grey level at each (x, y) of view ``side``; NaN off the image."""
+        g, _, _ = self.views[side]
         h, w = g.shape
         out = np.full(len(uv), np.nan)
         ok = np.all(np.isfinite(uv), axis=1)
-        q = np.rint(np.where(ok[:, None], uv, -1.0)).astype(np.intp) - [v.x0, v.y0]
+        q = np.rint(np.where(ok[:, None], uv, -1.0)).astype(np.intp)
         ok &= (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
         out[ok] = g[q[ok, 1], q[ok, 0]]
         return out
@@ -914,17 +888,17 @@ class _BareBackground:
         ok = np.all(np.isfinite(uv), axis=1)
         if la is None or lb is None or not ok.any():
             return out  # no background next to the thread to compare with: not known bare
-        g, v, _ = self.views[side]
+        g, mask, _ = self.views[side]
         h, w = g.shape
         t = np.linspace(0.0, 1.0, len(uv) + 2)[1:-1][ok]
         level = (1 - t) * la[0] + t * lb[0]
         tol = self.p.bare_sigma * max(la[1], lb[1])
-        q = np.rint(uv[ok]).astype(np.intp) - [v.x0, v.y0]
+        q = np.rint(uv[ok]).astype(np.intp)
         inside = (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
         res = np.zeros(len(q), dtype=bool)
         qi = q[inside]
         grey = g[qi[:, 1], qi[:, 0]]
-        res[inside] = ~v.mask[qi[:, 1], qi[:, 0]] & (np.abs(grey - level[inside]) <= tol)
+        res[inside] = ~mask[qi[:, 1], qi[:, 0]] & (np.abs(grey - level[inside]) <= tol)
         out[ok] = res
         return out
 

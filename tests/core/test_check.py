@@ -225,7 +225,8 @@ def test_unsupported_travel_is_the_back_and_forth_between_supported_points() -> 
     assert _unsupported_travel(ramp, sup) == pytest.approx(0.0)  # a straight change: none
     assert _unsupported_travel(z, np.zeros(6, bool)) == pytest.approx(4.5)  # all of it
     tail = np.array([True, True, True, False, False, False])
-    assert _unsupported_travel(z, tail) == pytest.approx(2.5 - 0.5)  # an unsupported end
+    assert _unsupported_travel(z, tail) == pytest.approx(2.5)  # an unsupported end: all of it
+    assert _unsupported_travel(ramp, tail) == pytest.approx(3.0)  # even a straight change
 
 
 def _wiggle_in_depth(points: np.ndarray, amp_mm: float) -> np.ndarray:
