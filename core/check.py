@@ -867,19 +867,17 @@ class _BareBackground:
 
     def grey(self, side: int, uv: np.ndarray) -> np.ndarray:
         """Grey level at each (x, y) of view ``side``; NaN off the image."""
-        g, _, _ = self.views[side]
-        h, w = g.shape
-        out = np.full(len(uv), np.nan)
-        ok = np.all(np.isfinite(uv), axis=1)
-        q = np.rint(np.where(ok[:, None], uv, -1.0)).astype(np.intp)
-        ok &= (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
-        out[ok] = g[q[ok, 1], q[ok, 0]]
-        return out
+        return _sample(self.views[side][0], uv)
 
     def spread(self, side: int, *ends: np.ndarray) -> float:
         """Largest local spread of the background next to the thread at ``ends``."""
         levels = [self._level(side, e) for e in ends]
         return max((lv[1] for lv in levels if lv is not None), default=4.0)
+
+    def at_depth(self, uv_l: np.ndarray, uv_r: np.ndarray) -> bool:
+        """Whether the stereo pair shows the surface under a run of samples at the curve's
+        depth, or cannot tell (``_surface_at_depth``)."""
+        return _surface_at_depth(self.views[0][0], self.views[1][0], uv_l, uv_r)
 
     def __call__(self, side: int, uv: np.ndarray, end_a: np.ndarray, end_b: np.ndarray):
         """(len(uv),) bool: sample k of the bridge (uv in order from end a to end b) is bare."""
@@ -901,6 +899,57 @@ class _BareBackground:
         res[inside] = ~mask[qi[:, 1], qi[:, 0]] & (np.abs(grey - level[inside]) <= tol)
         out[ok] = res
         return out
+
+
+SHIFT_PX = 12  # px of disparity searched by _surface_at_depth on either side of the curve's
+NEAR_PX = 2  # the best shift within this of the curve's disparity: a surface at its depth
+FAR_PX = 6  # shifts this far off compare the match at the curve's disparity with others
+TEXTURE_LEVELS = 4.0  # grey levels: the spread floor of the ring (sensor noise and JPEG)
+
+
+def _surface_at_depth(
+    grey_l: np.ndarray, grey_r: np.ndarray, uv_l: np.ndarray, uv_r: np.ndarray
+) -> bool:
+    """Whether the stereo pair shows the surface under a run of samples at the curve's
+    depth, or cannot tell. Mean |left - right grey| along the run is taken at the curve's
+    disparity and at the right view shifted by up to SHIFT_PX along the epipolar line.
+    Where the run's grey varies (a texture beyond TEXTURE_LEVELS, robust spread), surface
+    at the curve's depth matches best within NEAR_PX of the curve's disparity and clearly
+    better (by TEXTURE_LEVELS) than at FAR_PX or more; otherwise the surface is elsewhere
+    (an occluder in front) or the match says nothing about depth (a uniform or
+    epipolar-aligned occluder such as a shaft along the rows): not bare tissue where the
+    thread would be seen. An untextured run (a flat background) cannot be told by stereo
+    and is left to the grey levels."""
+    gl = _sample(grey_l, uv_l)
+    ok = np.isfinite(gl)
+    if ok.sum() < 3:
+        return True
+    spread = 1.4826 * float(np.median(np.abs(gl[ok] - np.median(gl[ok]))))
+    if spread <= TEXTURE_LEVELS:
+        return True
+    shifts = np.arange(-SHIFT_PX, SHIFT_PX + 1)
+    cost = np.full(len(shifts), np.inf)
+    for k, dx in enumerate(shifts):
+        d = np.abs(gl - _sample(grey_r, uv_r + [float(dx), 0.0]))
+        if np.isfinite(d).sum() >= max(3, ok.sum() // 2):
+            cost[k] = float(np.nanmean(d))
+    if not np.isfinite(cost[SHIFT_PX]):
+        return True
+    best = int(shifts[np.argmin(cost)])
+    far = cost[(np.abs(shifts) >= FAR_PX) & np.isfinite(cost)]
+    distinct = far.size > 0 and float(np.median(far)) >= cost[SHIFT_PX] + TEXTURE_LEVELS
+    return abs(best) <= NEAR_PX and distinct
+
+
+def _sample(grey: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Grey level of an (H, W) image at each (x, y) (nearest pixel); NaN off the image."""
+    h, w = grey.shape
+    out = np.full(len(uv), np.nan)
+    ok = np.all(np.isfinite(uv), axis=1)
+    q = np.rint(np.where(ok[:, None], uv, -1.0)).astype(np.intp)
+    ok &= (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
+    out[ok] = grey[q[ok, 1], q[ok, 0]]
+    return out
 
 
 def _hidden_end(
@@ -975,7 +1024,7 @@ def _bridge_evidence(
             same = np.abs(bare.grey(0, uv_l[hidden]) - bare.grey(1, uv_r[hidden]))
             both &= same <= p.bare_sigma * spread
         share = float(both.mean())
-        if share > p.bare_share:
+        if share > p.bare_share and bare.at_depth(uv_l[hidden], uv_r[hidden]):
             return (f"{100 * share:.0f} % of it lies over bare background in both views (the "
                     "grey of the tissue next to the thread, the same in both), where the thread "
                     "would be seen")  # fmt: skip

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from support import synthetic_case
@@ -14,7 +15,13 @@ from threadpoolctl import threadpool_limits
 from threadrecon.app.dataset import discover, load_frame
 from threadrecon.app.io import load_calibration, load_ground_truth, load_pair
 from threadrecon.core.camera import CameraCurve
-from threadrecon.core.check import CheckParams, CheckResult, _unsupported_travel, check_curve
+from threadrecon.core.check import (
+    CheckParams,
+    CheckResult,
+    _surface_at_depth,
+    _unsupported_travel,
+    check_curve,
+)
 from threadrecon.core.metrics import curve_errors, project
 from threadrecon.core.params import specs
 from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
@@ -374,3 +381,28 @@ def test_an_end_hidden_in_one_view_is_unobserved_not_off_the_thread() -> None:
     assert hidden.unseen_mm > rec["check"].unseen_mm + 1.0  # counted as not observed
     assert bare.reproj_right_max > CheckParams().reproj_max_px
     assert bare.status != "ok" and hidden.unseen_mm > bare.unseen_mm
+
+
+def _texture(rng: np.random.Generator, shape=(80, 200)) -> np.ndarray:
+    """Smooth random tissue-like grey texture, about 100 +- 30 grey levels."""
+    g = cv2.GaussianBlur(rng.normal(0.0, 1.0, shape).astype(np.float32), (0, 0), 2.0)
+    return (100.0 + 30.0 * g / g.std()).astype(np.float32)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_surface_at_depth_tells_tissue_at_the_curve_from_an_occluder(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    tex = _texture(rng)
+    d = 20  # the curve's disparity, px
+    x = np.arange(60.0, 120.0)
+    uv_l = np.column_stack([x, 0.3 * x])  # a run of curve samples in the left view
+    uv_r = uv_l - [d, 0.0]
+    left = tex[:, 30:190]
+    at_curve = tex[:, 30 + d : 190 + d]  # right view of tissue at the curve's disparity
+    assert _surface_at_depth(left, at_curve, uv_l, uv_r)
+    in_front = tex[:, 30 + d - 9 : 190 + d - 9]  # the surface seen 9 px more disparity
+    assert not _surface_at_depth(left, in_front, uv_l, uv_r)
+    shaft = np.tile(np.linspace(60.0, 200.0, 80, dtype=np.float32)[:, None], (1, 160))
+    assert not _surface_at_depth(shaft, shaft, uv_l, uv_r)  # along the rows: depth unknown
+    flat = np.full((80, 160), 120.0, np.float32) + rng.normal(0, 1.0, (80, 160)).astype(np.float32)
+    assert _surface_at_depth(flat, flat, uv_l, uv_r)  # untextured: left to the grey levels
