@@ -420,9 +420,8 @@ def _check(
     uv_r = _project(pts, calib.P2)
     in_l, in_r = _in_image(uv_l, (H, W)), _in_image(uv_r, (H, W))
     margin = p.reproj_fail_px + 2.0
-    view_l = _view(lifted.P_L, uv_l, in_l, margin)
-    view_r = _view(lifted.P_R, uv_r, in_r, margin)
     field_l, field_r = mask_field(lifted.P_L, margin), mask_field(lifted.P_R, margin)
+    view_l, view_r = _view(lifted.P_L, field_l), _view(lifted.P_R, field_r)
     rho_l, rho_r = field_l.at(uv_l), field_r.at(uv_r)
     # Ordering anomalies (1): runs of the left projection across unsegmented pixels. A short
     # run between two thread parts is a bridge (an occluded or unsegmented stretch) and is
@@ -711,8 +710,8 @@ def _border_distance(a: np.ndarray, b: np.ndarray, shape: tuple[int, int]) -> fl
 
 @dataclass(frozen=True)
 class _View:
-    """One view's thread mask cropped to the box of the mask and the curve, grown by a
-    margin: every image measurement of the stage works on this crop."""
+    """One view's thread mask cropped to a box holding every thread pixel: the coverage is
+    measured on this crop (the curve's band outside it holds no thread pixel)."""
 
     mask: np.ndarray
     x0: int
@@ -720,20 +719,11 @@ class _View:
     total: int
 
 
-def _view(mask: np.ndarray, uv: np.ndarray, inside: np.ndarray, margin: float) -> _View:
-    H, W = mask.shape
-    m8 = np.ascontiguousarray(mask).view(np.uint8)
-    total = cv2.countNonZero(m8)
-    bx, by, bw, bh = cv2.boundingRect(m8)  # box of the thread pixels
-    q = np.rint(uv[inside]) if inside.any() else np.zeros((0, 2))
-    xa = np.concatenate([[bx, bx + bw - 1] if total else [], q[:, 0]])
-    ya = np.concatenate([[by, by + bh - 1] if total else [], q[:, 1]])
-    if xa.size == 0:
-        return _View(mask[:0, :0], 0, 0, 0)
-    m = int(np.ceil(margin))
-    x0, x1 = max(0, int(xa.min()) - m), min(W, int(xa.max()) + m + 1)
-    y0, y1 = max(0, int(ya.min()) - m), min(H, int(ya.max()) + m + 1)
-    return _View(mask[y0:y1, x0:x1], x0, y0, int(total))
+def _view(mask: np.ndarray, field: MaskField) -> _View:
+    """The thread mask on its field's box (every thread pixel, grown by the field's reach)."""
+    h, w = field.dist.shape
+    return _View(mask[field.y0 : field.y0 + h, field.x0 : field.x0 + w], field.x0, field.y0,
+                 field.total)  # fmt: skip
 
 
 def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> float:
