@@ -102,7 +102,7 @@ def _cpu_ms(rec, calib, params) -> tuple[float, float]:
             if k == 0:
                 clear_fields()
             t0 = time.thread_time()
-            check_curve(*args, rec["spline"], rec["camera"], calib, params.check)
+            check_curve(*args, rec["refine"], rec["camera"], calib, params.check)
             best[k] = min(best[k], time.thread_time() - t0)
     return 1000.0 * best[0], 1000.0 * best[1]
 
