@@ -875,10 +875,10 @@ class _BareBackground:
         levels = [self._level(side, e) for e in ends]
         return max((lv[1] for lv in levels if lv is not None), default=4.0)
 
-    def at_depth(self, uv_l: np.ndarray, uv_r: np.ndarray) -> bool:
-        """Whether the stereo pair shows the surface under a run of samples at the curve's
-        depth, or cannot tell (``_surface_at_depth``)."""
-        return _surface_at_depth(self.views[0][0], self.views[1][0], uv_l, uv_r)
+    def behind(self, uv_l: np.ndarray, uv_r: np.ndarray) -> bool:
+        """Whether the stereo pair shows the surface under a run of curve samples at or
+        behind the curve's depth, or cannot tell (``_surface_behind``)."""
+        return _surface_behind(self.views[0][0], self.views[1][0], uv_l, uv_r)
 
     def __call__(self, side: int, uv: np.ndarray, end_a: np.ndarray, end_b: np.ndarray):
         """(len(uv),) bool: sample k of the bridge (uv in order from end a to end b) is bare."""
@@ -902,25 +902,28 @@ class _BareBackground:
         return out
 
 
-SHIFT_PX = 12  # px of disparity searched by _surface_at_depth on either side of the curve's
-NEAR_PX = 2  # the best shift within this of the curve's disparity: a surface at its depth
-FAR_PX = 6  # shifts this far off compare the match at the curve's disparity with others
+FRONT_PX = 12  # px of disparity searched in front of the curve by _surface_behind
+BEHIND_PX = 48  # px of disparity searched behind it (a background well behind the thread)
+NEAR_PX = 2  # a best match within this of the curve's disparity: a surface at its depth
+FAR_PX = 6  # shifts this far from the best match tell whether it is distinct
 TEXTURE_LEVELS = 4.0  # grey levels: the spread floor of the ring (sensor noise and JPEG)
 
 
-def _surface_at_depth(
+def _surface_behind(
     grey_l: np.ndarray, grey_r: np.ndarray, uv_l: np.ndarray, uv_r: np.ndarray
 ) -> bool:
-    """Whether the stereo pair shows the surface under a run of samples at the curve's
-    depth, or cannot tell. Mean |left - right grey| along the run is taken at the curve's
-    disparity and at the right view shifted by up to SHIFT_PX along the epipolar line.
-    Where the run's grey varies (a texture beyond TEXTURE_LEVELS, robust spread), surface
-    at the curve's depth matches best within NEAR_PX of the curve's disparity and clearly
-    better (by TEXTURE_LEVELS) than at FAR_PX or more; otherwise the surface is elsewhere
-    (an occluder in front) or the match says nothing about depth (a uniform or
-    epipolar-aligned occluder such as a shaft along the rows): not bare tissue where the
-    thread would be seen. An untextured run (a flat background) cannot be told by stereo
-    and is left to the grey levels."""
+    """Whether the stereo pair shows the surface under a run of curve samples at or behind
+    the curve's depth (so that a thread there would be seen in front of it), or cannot tell.
+
+    The mean |left - right grey| along the run is taken with the right view shifted along
+    the epipolar line, from FRONT_PX px of disparity more than the curve's (in front) to
+    BEHIND_PX less (behind). Where the run's grey varies (texture beyond TEXTURE_LEVELS,
+    robust spread) and the best shift is distinct (the median cost FAR_PX or more away from
+    it is TEXTURE_LEVELS higher), the surface's disparity is measured: behind or at the
+    curve's (within NEAR_PX) is True; in front (an occluder) is False. A match that says
+    nothing about depth (a uniform or row-aligned occluder such as a shaft along the rows)
+    is False: nothing shows the thread would be seen. An untextured run (a flat background)
+    cannot be told by stereo and is True: left to the grey levels."""
     gl = _sample(grey_l, uv_l)
     ok = np.isfinite(gl)
     if ok.sum() < 3:
@@ -928,18 +931,19 @@ def _surface_at_depth(
     spread = 1.4826 * float(np.median(np.abs(gl[ok] - np.median(gl[ok]))))
     if spread <= TEXTURE_LEVELS:
         return True
-    shifts = np.arange(-SHIFT_PX, SHIFT_PX + 1)
-    cost = np.full(len(shifts), np.inf)
-    for k, dx in enumerate(shifts):
-        d = np.abs(gl - _sample(grey_r, uv_r + [float(dx), 0.0]))
+    # a surface delta px of disparity in front of the curve is seen delta px left of uv_r
+    delta = np.arange(-BEHIND_PX, FRONT_PX + 1)
+    cost = np.full(len(delta), np.inf)
+    for k, dd in enumerate(delta):
+        d = np.abs(gl - _sample(grey_r, uv_r - [float(dd), 0.0]))
         if np.isfinite(d).sum() >= max(3, ok.sum() // 2):
             cost[k] = float(np.nanmean(d))
-    if not np.isfinite(cost[SHIFT_PX]):
+    if not np.isfinite(cost).any():
         return True
-    best = int(shifts[np.argmin(cost)])
-    far = cost[(np.abs(shifts) >= FAR_PX) & np.isfinite(cost)]
-    distinct = far.size > 0 and float(np.median(far)) >= cost[SHIFT_PX] + TEXTURE_LEVELS
-    return abs(best) <= NEAR_PX and distinct
+    k = int(np.argmin(cost))
+    far = cost[(np.abs(delta - delta[k]) >= FAR_PX) & np.isfinite(cost)]
+    distinct = far.size > 0 and float(np.median(far)) >= cost[k] + TEXTURE_LEVELS
+    return distinct and delta[k] <= NEAR_PX
 
 
 def _sample(grey: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -1025,7 +1029,7 @@ def _bridge_evidence(
             same = np.abs(bare.grey(0, uv_l[hidden]) - bare.grey(1, uv_r[hidden]))
             both &= same <= p.bare_sigma * spread
         share = float(both.mean())
-        if share > p.bare_share and bare.at_depth(uv_l[hidden], uv_r[hidden]):
+        if share > p.bare_share and bare.behind(uv_l[hidden], uv_r[hidden]):
             return (f"{100 * share:.0f} % of it lies over bare background in both views (the "
                     "grey of the tissue next to the thread, the same in both), where the thread "
                     "would be seen")  # fmt: skip

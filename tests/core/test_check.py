@@ -18,7 +18,7 @@ from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check import (
     CheckParams,
     CheckResult,
-    _surface_at_depth,
+    _surface_behind,
     _unsupported_travel,
     check_curve,
 )
@@ -383,26 +383,29 @@ def test_an_end_hidden_in_one_view_is_unobserved_not_off_the_thread() -> None:
     assert bare.status != "ok" and hidden.unseen_mm > bare.unseen_mm
 
 
-def _texture(rng: np.random.Generator, shape=(80, 200)) -> np.ndarray:
+def _texture(rng: np.random.Generator, shape=(80, 260)) -> np.ndarray:
     """Smooth random tissue-like grey texture, about 100 +- 30 grey levels."""
     g = cv2.GaussianBlur(rng.normal(0.0, 1.0, shape).astype(np.float32), (0, 0), 2.0)
     return (100.0 + 30.0 * g / g.std()).astype(np.float32)
 
 
 @pytest.mark.parametrize("seed", range(5))
-def test_surface_at_depth_tells_tissue_at_the_curve_from_an_occluder(seed: int) -> None:
+def test_surface_behind_tells_background_from_an_occluder_in_front(seed: int) -> None:
     rng = np.random.default_rng(seed)
     tex = _texture(rng)
-    d = 20  # the curve's disparity, px
+    d = 30  # the curve's disparity, px
     x = np.arange(60.0, 120.0)
     uv_l = np.column_stack([x, 0.3 * x])  # a run of curve samples in the left view
     uv_r = uv_l - [d, 0.0]
-    left = tex[:, 30:190]
-    at_curve = tex[:, 30 + d : 190 + d]  # right view of tissue at the curve's disparity
-    assert _surface_at_depth(left, at_curve, uv_l, uv_r)
-    in_front = tex[:, 30 + d - 9 : 190 + d - 9]  # the surface seen 9 px more disparity
-    assert not _surface_at_depth(left, in_front, uv_l, uv_r)
-    shaft = np.tile(np.linspace(60.0, 200.0, 80, dtype=np.float32)[:, None], (1, 160))
-    assert not _surface_at_depth(shaft, shaft, uv_l, uv_r)  # along the rows: depth unknown
-    flat = np.full((80, 160), 120.0, np.float32) + rng.normal(0, 1.0, (80, 160)).astype(np.float32)
-    assert _surface_at_depth(flat, flat, uv_l, uv_r)  # untextured: left to the grey levels
+    left = tex[:, 60:180]
+
+    def right(disparity: int) -> np.ndarray:  # the textured surface seen at this disparity
+        return tex[:, 60 + disparity : 180 + disparity]
+
+    assert _surface_behind(left, right(d), uv_l, uv_r)  # at the curve's depth
+    assert _surface_behind(left, right(d - 20), uv_l, uv_r)  # tissue well behind the thread
+    assert not _surface_behind(left, right(d + 9), uv_l, uv_r)  # an occluder in front
+    shaft = np.tile(np.linspace(60.0, 200.0, 80, dtype=np.float32)[:, None], (1, 120))
+    assert not _surface_behind(shaft, shaft, uv_l, uv_r)  # along the rows: depth unknown
+    flat = np.full((80, 120), 120.0, np.float32) + rng.normal(0, 1.0, (80, 120)).astype(np.float32)
+    assert _surface_behind(flat, flat, uv_l, uv_r)  # untextured: left to the grey levels
