@@ -933,11 +933,12 @@ def _surface_behind(
         return True
     # a surface delta px of disparity in front of the curve is seen delta px left of uv_r
     delta = np.arange(-BEHIND_PX, FRONT_PX + 1)
-    cost = np.full(len(delta), np.inf)
-    for k, dd in enumerate(delta):
-        d = np.abs(gl - _sample(grey_r, uv_r - [float(dd), 0.0]))
-        if np.isfinite(d).sum() >= max(3, ok.sum() // 2):
-            cost[k] = float(np.nanmean(d))
+    shifted = uv_r[None, :, :] - np.stack([delta, np.zeros_like(delta)], axis=1)[:, None, :]
+    gr = _sample(grey_r, shifted.reshape(-1, 2)).reshape(len(delta), len(uv_r))
+    d = np.abs(gl[None, :] - gr)
+    seen = np.isfinite(d).sum(axis=1)
+    with np.errstate(invalid="ignore"):
+        cost = np.where(seen >= max(3, ok.sum() // 2), np.nansum(d, axis=1) / seen, np.inf)
     if not np.isfinite(cost).any():
         return True
     k = int(np.argmin(cost))
