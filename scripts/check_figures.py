@@ -6,7 +6,10 @@ For every frame: the check's status against the truth ("wrong": |length error| >
 max curve error > 20 mm), the rank correlation of per-point confidence with the true 3D error
 of each point, the grasp point's true error, the score against e_S, and the check's time.
 Frames without ground truth (real) only count towards the status table. Each flagged frame's
-reasons are tallied by kind, on wrong and on right frames.
+reasons are tallied by kind, on wrong and on right frames. Errors are ``metrics.frame_errors``
+(the one metric of ``evaluate``: a thread leaving the view is judged on the part both views
+see). The check's CPU time is given on a new segmentation (its distance fields computed, as
+for every new frame) and with the segmentation cached (a slider move of a later stage).
 
 The suites of issue 11's figures (seed S, 6 frames per group; add --no-mask for raw frames):
 
@@ -17,6 +20,7 @@ The suites of issue 11's figures (seed S, 6 frames per group; add --no-mask for 
     $G --seed S+3 $T --occlusion --group occlusion
     $G --seed S+4 $T --leaves-image --group leaving
     $G --seed S+5 $T --hairpin --group hairpin; $G --seed S+6 $T --instrument --group instrument
+    $G --seed S+7 --crossing --group crossing-flat; $G --seed S+8 $T --distractors 6 --group distractors
 """
 
 from __future__ import annotations
