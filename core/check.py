@@ -22,8 +22,7 @@ from the evidence near it, in mm:
 with Z_i / f and Z_i^2 / (f B) the lateral and depth size of a pixel and of a pixel of
 disparity at the point's depth, r_i the disparity residual against the nearest reliable pixel
 of P_L^R (stretched when that pixel is far away), h_i the bound half-width of Eq. (7) in px of
-disparity where no reliable match supports the point (r_i > ``support_tol_px``; 0 where one
-does: a nearby match that agrees measures the depth, however wide the bounds), rho_i the larger of the two reprojection distances to the thread pixels, and sigma_d
+disparity, rho_i the larger of the two reprojection distances to the thread pixels, and sigma_d
 the matching precision (``sigma_disparity_px``). The confidence is exp(-e_i / ``conf_mm``).
 
 All image measurements use one distance field per view of the thread masks (``check_field``:
@@ -243,7 +242,9 @@ class CheckParams(Params):
     )  # fmt: skip
     ambiguous_mm: float = param(
         10.0, lo=0.0, unit="mm", slider=(0.0, 50.0, 0.5), label="ambiguous error",
-        doc="A curve point whose expected error e_i exceeds this is ambiguous.",
+        doc="A curve point whose expected error e_i exceeds this, its bound half-width h_i "
+        "left out where an agreeing reliable match supports it (r_i <= support_tol_px), is "
+        "ambiguous.",
     )  # fmt: skip
     max_ambiguous_mm: float = param(
         20.0, lo=0.0, unit="mm", slider=(0.0, 200.0, 1.0), label="ambiguous length",
@@ -595,20 +596,24 @@ def _check(
             ("suspect", f"the curve leaves its depth bounds by {unsupported_exc:.2f} of the "
              f"bound half-width where no reliable match supports it (limit {p.bound_tol:g})")
         )  # fmt: skip
-    # the bounds' width is the depth's freedom only where no agreeing reliable match is near
-    h = np.where(supported, 0.0, _bound_halfwidth_px(spline, bounds, n, f * B))
+    h = _bound_halfwidth_px(spline, bounds, n, f * B)
     rho = np.maximum(
         np.where(bridge_l | hidden_l, 0.0, rho_l),
         np.where(in_r & ~bridge_r & ~hidden_r, rho_r, 0.0),
     )
-    e = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h**2) + z_pos / f * rho
-    e_mm = e * mm
-    e_mm = e_mm + p.bridge_error * bridge_gap  # interpolated, not observed
+    lateral = z_pos / f * rho * mm + p.bridge_error * bridge_gap  # bridges: interpolated
+    e_mm = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h**2) * mm + lateral
     e_mm[(z <= 0) | (z_right <= 0)] = np.inf
     conf = np.exp(-e_mm / p.conf_mm)
 
+    # Ambiguous depth: a wide bound where no agreeing reliable match pins the depth (where one
+    # does, the strands' depths are measured there, however wide the bounds).
+    h_free = np.where(supported, 0.0, h)
+    e_free = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h_free**2) * mm
+    e_free = np.where(np.isfinite(e_mm), e_free + lateral, np.inf)
     seg_mm = np.linalg.norm(np.diff(pts, axis=0), axis=1) * mm
-    ambiguous = float(np.sum(seg_mm * ((e_mm[1:] > p.ambiguous_mm) | (e_mm[:-1] > p.ambiguous_mm))))
+    amb = e_free > p.ambiguous_mm
+    ambiguous = float(np.sum(seg_mm * (amb[1:] | amb[:-1])))
     # A crossing: a keypoint of high degree in A, or the curve's own left projection running
     # over itself (the segmentation may merge the strands so that no keypoint shows it).
     if (crossings or overlap > 0) and ambiguous > p.max_ambiguous_mm:
