@@ -42,10 +42,9 @@ from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.corrections import Correction
 from threadrecon.core.metrics import (
     ReprojectionErrors,
-    curve_errors,
+    frame_errors,
     project,
     reprojection_errors,
-    visible_part,
 )
 from threadrecon.core.pipeline import Reconstruction
 from threadrecon.core.rectify import Rectification, from_left_frame, rectification
@@ -305,9 +304,7 @@ def evaluate_reconstruction(
         return out
     pts = rec["camera"].points
     if gt is not None:
-        s = calib.mm_per_unit
-        gt = visible_part(gt, calib.P1, calib.P2, calib.image_size)  # a thread may leave the view
-        e = curve_errors(pts * s, gt * s)
+        e = frame_errors(pts, gt, calib)  # on the visible part: a thread may leave the view
         out.update(
             e_S_mm=e.e_S,
             e_S_max_mm=e.e_S_max,

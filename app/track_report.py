@@ -27,7 +27,7 @@ from threadrecon.app.presets import resolve_preset
 from threadrecon.app.recording import RecordedFrame
 from threadrecon.app.sequence import Sequence, SequenceFrame
 from threadrecon.core.calibration import StereoCalibration
-from threadrecon.core.metrics import curve_errors
+from threadrecon.core.metrics import frame_errors
 from threadrecon.core.pipeline import Pipeline, ReconParams, Reconstruction
 from threadrecon.core.tracking import (
     TrackParams,
@@ -139,7 +139,7 @@ def frame_row(
             row.update({f"{prefix}e_length_mm": math.nan, f"{prefix}good": False})
             row[f"{prefix}within"] = False
         else:
-            e = curve_errors(pts * mm, f.truth * mm)
+            e = frame_errors(pts, f.truth, calib)  # on the part both views see
             row[f"{prefix}e_S_mm"] = e.e_S
             row[f"{prefix}e_S_max_mm"] = e.e_S_max
             row[f"{prefix}e_length_mm"] = e.e_length

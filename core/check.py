@@ -25,8 +25,8 @@ of P_L^R (stretched when that pixel is far away), h_i the bound half-width of Eq
 disparity, rho_i the larger of the two reprojection distances to the thread pixels, and sigma_d
 the matching precision (``sigma_disparity_px``). The confidence is exp(-e_i / ``conf_mm``).
 
-All image measurements use one distance transform per view of the thread masks (computed once
-per frame), so the stage costs a few milliseconds.
+All image measurements use one distance field per view of the thread masks (``check_field``:
+computed once per segmentation and cached with it), so the stage costs a few milliseconds.
 """
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ from scipy.spatial import cKDTree
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
+from threadrecon.core.check_field import MaskField, mask_field
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.reliability import ReliabilityResult
@@ -106,7 +107,8 @@ class CheckParams(Params):
     bound_tol: float = param(
         0.25, lo=0.0, slider=(0.0, 5.0, 0.05), label="bound excursion",
         doc="Suspect when the curve leaves its depth bounds (Eq. (7)) by more than this "
-        "fraction of the local half-width.",
+        "fraction of the local half-width where no reliable match supports it (a curve that "
+        "leaves them along agreeing matches shows the bounds too narrow, not itself wrong).",
     )  # fmt: skip
     solver_suspect: bool = param(
         True, label="solver failure is suspect",
@@ -240,7 +242,9 @@ class CheckParams(Params):
     )  # fmt: skip
     ambiguous_mm: float = param(
         10.0, lo=0.0, unit="mm", slider=(0.0, 50.0, 0.5), label="ambiguous error",
-        doc="A curve point whose expected error e_i exceeds this is ambiguous.",
+        doc="A curve point whose expected error e_i exceeds this, its bound half-width h_i "
+        "left out where an agreeing reliable match supports it (r_i <= support_tol_px), is "
+        "ambiguous.",
     )  # fmt: skip
     max_ambiguous_mm: float = param(
         20.0, lo=0.0, unit="mm", slider=(0.0, 200.0, 1.0), label="ambiguous length",
@@ -418,10 +422,9 @@ def _check(
     uv_r = _project(pts, calib.P2)
     in_l, in_r = _in_image(uv_l, (H, W)), _in_image(uv_r, (H, W))
     margin = p.reproj_fail_px + 2.0
-    view_l = _view(lifted.P_L, uv_l, in_l, margin)
-    view_r = _view(lifted.P_R, uv_r, in_r, margin)
-    rho_l = _distance_to_mask(view_l, uv_l, margin)
-    rho_r = _distance_to_mask(view_r, uv_r, margin)
+    field_l, field_r = mask_field(lifted.P_L, margin), mask_field(lifted.P_R, margin)
+    view_l, view_r = _view(lifted.P_L, field_l), _view(lifted.P_R, field_r)
+    rho_l, rho_r = field_l.at(uv_l), field_r.at(uv_r)
     # Ordering anomalies (1): runs of the left projection across unsegmented pixels. A short
     # run between two thread parts is a bridge (an occluded or unsegmented stretch) and is
     # left out of the reprojection figures; a long one is a jump.
@@ -439,7 +442,9 @@ def _check(
     off_l, off_r = in_l & (rho_l > p.jump_px), in_r & (rho_r > p.jump_px)
     ends = (off_l & ~bridge_l) | (off_r & ~bridge_r)
     bare = (
-        _BareBackground(lifted, view_l, view_r, p) if (bridge_l | bridge_r | ends).any() else None
+        _BareBackground(lifted, (field_l, field_r), p)
+        if (bridge_l | bridge_r | ends).any()
+        else None
     )
     # An end of the curve off the thread in one view only, over pixels that are not bare
     # background there (an occluder), while the other view sees the thread: hidden in that
@@ -557,11 +562,6 @@ def _check(
 
     # Bound excursions of the returned spline and the solver's status.
     excursion = _excursion(spline, bounds)
-    if excursion > p.bound_tol:
-        findings.append(
-            ("suspect", f"the curve leaves its depth bounds by {excursion:.2f} of the bound "
-             f"half-width (limit {p.bound_tol:g})")
-        )  # fmt: skip
     if not spline.ok and p.solver_suspect:
         findings.append(
             ("suspect", f"the MVS solver's result was rejected ({spline.status}: "
@@ -582,26 +582,38 @@ def _check(
     # Per-point expected error and confidence.
     z_pos = np.maximum(z, 1e-12)
     r = _disparity_residual(stereo, rel, uv_l, f * B / z_pos, p.support_px)
-    unsupported = _unsupported_travel(z, r <= p.support_tol_px) * mm
+    supported = r <= p.support_tol_px
+    unsupported = _unsupported_travel(z, supported) * mm
     if unsupported > p.max_unsupported_mm:
         findings.append(
             ("suspect", f"the curve's depth travels {unsupported:.1f} mm back and forth where "
              f"no reliable match supports it (limit {p.max_unsupported_mm:g} mm): length the "
              "images do not show")
         )  # fmt: skip
+    unsupported_exc = _excursion(spline, bounds, ~supported)
+    if unsupported_exc > p.bound_tol:
+        findings.append(
+            ("suspect", f"the curve leaves its depth bounds by {unsupported_exc:.2f} of the "
+             f"bound half-width where no reliable match supports it (limit {p.bound_tol:g})")
+        )  # fmt: skip
     h = _bound_halfwidth_px(spline, bounds, n, f * B)
     rho = np.maximum(
         np.where(bridge_l | hidden_l, 0.0, rho_l),
         np.where(in_r & ~bridge_r & ~hidden_r, rho_r, 0.0),
     )
-    e = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h**2) + z_pos / f * rho
-    e_mm = e * mm
-    e_mm = e_mm + p.bridge_error * bridge_gap  # interpolated, not observed
+    lateral = z_pos / f * rho * mm + p.bridge_error * bridge_gap  # bridges: interpolated
+    e_mm = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h**2) * mm + lateral
     e_mm[(z <= 0) | (z_right <= 0)] = np.inf
     conf = np.exp(-e_mm / p.conf_mm)
 
+    # Ambiguous depth: a wide bound where no agreeing reliable match pins the depth (where one
+    # does, the strands' depths are measured there, however wide the bounds).
+    h_free = np.where(supported, 0.0, h)
+    e_free = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h_free**2) * mm
+    e_free = np.where(np.isfinite(e_mm), e_free + lateral, np.inf)
     seg_mm = np.linalg.norm(np.diff(pts, axis=0), axis=1) * mm
-    ambiguous = float(np.sum(seg_mm * ((e_mm[1:] > p.ambiguous_mm) | (e_mm[:-1] > p.ambiguous_mm))))
+    amb = e_free > p.ambiguous_mm
+    ambiguous = float(np.sum(seg_mm * (amb[1:] | amb[:-1])))
     # A crossing: a keypoint of high degree in A, or the curve's own left projection running
     # over itself (the segmentation may merge the strands so that no keypoint shows it).
     if (crossings or overlap > 0) and ambiguous > p.max_ambiguous_mm:
@@ -705,8 +717,8 @@ def _border_distance(a: np.ndarray, b: np.ndarray, shape: tuple[int, int]) -> fl
 
 @dataclass(frozen=True)
 class _View:
-    """One view's thread mask cropped to the box of the mask and the curve, grown by a
-    margin: every image measurement of the stage works on this crop."""
+    """One view's thread mask cropped to a box holding every thread pixel: the coverage is
+    measured on this crop (the curve's band outside it holds no thread pixel)."""
 
     mask: np.ndarray
     x0: int
@@ -714,41 +726,11 @@ class _View:
     total: int
 
 
-def _view(mask: np.ndarray, uv: np.ndarray, inside: np.ndarray, margin: float) -> _View:
-    H, W = mask.shape
-    m8 = np.ascontiguousarray(mask).view(np.uint8)
-    total = cv2.countNonZero(m8)
-    bx, by, bw, bh = cv2.boundingRect(m8)  # box of the thread pixels
-    q = np.rint(uv[inside]) if inside.any() else np.zeros((0, 2))
-    xa = np.concatenate([[bx, bx + bw - 1] if total else [], q[:, 0]])
-    ya = np.concatenate([[by, by + bh - 1] if total else [], q[:, 1]])
-    if xa.size == 0:
-        return _View(mask[:0, :0], 0, 0, 0)
-    m = int(np.ceil(margin))
-    x0, x1 = max(0, int(xa.min()) - m), min(W, int(xa.max()) + m + 1)
-    y0, y1 = max(0, int(ya.min()) - m), min(H, int(ya.max()) + m + 1)
-    return _View(mask[y0:y1, x0:x1], x0, y0, int(total))
-
-
-def _distance_to_mask(v: _View, uv: np.ndarray, margin: float) -> np.ndarray:
-    """Distance (px) of each (x, y) to the nearest thread pixel, saturated at ``margin``.
-
-    One distance transform (3x3 L2 mask, error < 3 %) of the crop: as the crop holds every
-    in-image point grown by ``margin``, distances below ``margin`` are those of the full image;
-    an off-image point adds its distance to the nearest in-image pixel."""
-    out = np.full(len(uv), margin)
-    ok = np.all(np.isfinite(uv), axis=1)
-    if v.total == 0 or not ok.any():
-        return out
-    h, w = v.mask.shape
-    q = np.rint(uv[ok]) - [v.x0, v.y0]
-    qc = np.clip(q, 0, [w - 1, h - 1])
-    background = cv2.compare(np.ascontiguousarray(v.mask).view(np.uint8), 0, cv2.CMP_EQ)
-    dt = cv2.distanceTransform(background, cv2.DIST_L2, cv2.DIST_MASK_3)
-    qi = qc.astype(np.intp)
-    off = np.hypot(*(uv[ok] - [v.x0, v.y0] - qc).T)  # beyond the crop (off the image), px
-    out[ok] = np.minimum(dt[qi[:, 1], qi[:, 0]] + off, margin)
-    return out
+def _view(mask: np.ndarray, field: MaskField) -> _View:
+    """The thread mask on its field's box (every thread pixel, grown by the field's reach)."""
+    h, w = field.dist.shape
+    return _View(mask[field.y0 : field.y0 + h, field.x0 : field.x0 + w], field.x0, field.y0,
+                 field.total)  # fmt: skip
 
 
 def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> float:
@@ -771,11 +753,20 @@ def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> 
     return float(np.count_nonzero(band & mask)) / v.total
 
 
-def _excursion(spline: SplineResult, bounds: Bounds) -> float:
-    """Largest excursion of S_z outside [lower, upper] at the points of H, in half-widths."""
+def _excursion(spline: SplineResult, bounds: Bounds, where: np.ndarray | None = None) -> float:
+    """Largest excursion of S_z outside [lower, upper] at the points of H, in half-widths;
+    with ``where`` (one flag per dense curve point, evenly spaced in the spline's parameter),
+    only at the points of H whose nearest curve point is flagged."""
     zs = BSpline(spline.knots, spline.ctrl[:, 2], spline.degree)(spline.u_H)
     half = np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12)
     out = np.maximum(bounds.lower - zs, zs - bounds.upper) / half
+    if where is not None:
+        n = len(where)
+        u = spline.u_H / spline.length if spline.length > 0 else np.zeros(len(out))
+        i = np.clip(np.rint(np.nan_to_num(u) * (n - 1)), 0, n - 1).astype(np.intp)
+        out = out[where[i]]
+    if out.size == 0:
+        return 0.0
     if not np.all(np.isfinite(out)):
         return float("inf")
     return float(max(0.0, out.max()))
@@ -800,9 +791,11 @@ def _off_thread_runs(off: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def _unsupported_travel(z: np.ndarray, supported: np.ndarray) -> float:
-    """Depth travelled back and forth between supported points: over each stretch of
-    unsupported points (and each unsupported end), the total variation of z minus the net
-    depth change across it. The whole total variation when no point is supported."""
+    """Depth travel no reliable match shows: over each stretch of unsupported points between
+    two supported ones, the total variation of z minus the net depth change across it (the
+    net change is measured at both ends); over an unsupported end, the whole total variation
+    (its depth is extrapolated from one side: none of its change is measured). The whole total
+    variation when no point is supported."""
     tv = np.abs(np.diff(z))
     idx = np.flatnonzero(supported)
     if idx.size == 0:
@@ -812,6 +805,7 @@ def _unsupported_travel(z: np.ndarray, supported: np.ndarray) -> float:
     csum = np.concatenate([[0.0], np.cumsum(tv)])
     travel = csum[edges[1:]] - csum[edges[:-1]]
     net = np.abs(z[edges[1:]] - z[edges[:-1]])
+    net[[0, -1]] = 0.0  # the ends (empty when the curve's first or last point is supported)
     return float(np.sum(travel - net))
 
 
@@ -843,69 +837,53 @@ def _runs(flag: np.ndarray) -> list[tuple[int, int]]:
 
 class _BareBackground:
     """Per view, whether a bridge's pixels look like the bare background next to the thread
-    at the bridge's two ends: the ring 3..9 px around the thread pixels within ``REACH_PX`` of
-    each end gives a local grey level (median) and spread (1.4826 MAD, at least 4 levels); a
-    pixel off the thread is bare when its grey level is within ``bare_sigma`` spreads of the
-    level interpolated between the two ends along the bridge."""
+    at the bridge's two ends: the ring 3..9 px around the thread pixels (read off the view's
+    distance field) within ``REACH_PX`` of each end gives a local grey level (median) and
+    spread (1.4826 MAD, at least 4 levels); a pixel off the thread is bare when its grey level
+    is within ``bare_sigma`` spreads of the level interpolated between the two ends along the
+    bridge."""
 
     REACH_PX = 25
+    RING_PX = (3.0, 9.0)  # the ring's inner and outer distance to the thread pixels
 
-    def __init__(self, lifted: LiftedPair, view_l: _View, view_r: _View, p: CheckParams):
+    def __init__(self, lifted: LiftedPair, fields: tuple[MaskField, MaskField], p: CheckParams):
         self.p = p
-        self.views = []
-        for grey, v in ((lifted.grey_L, view_l), (lifted.grey_R, view_r)):
-            h, w = v.mask.shape
-            g = np.asarray(grey, np.float32)[v.y0 : v.y0 + h, v.x0 : v.x0 + w]
-            self.views.append((g, v, None))
+        self.views = [
+            (np.asarray(lifted.grey_L), lifted.P_L, fields[0]),
+            (np.asarray(lifted.grey_R), lifted.P_R, fields[1]),
+        ]
         self._cache: dict[tuple[int, int, int], tuple[float, float] | None] = {}
 
     def _level(self, side: int, xy: np.ndarray) -> tuple[float, float] | None:
         """Median and spread of the ring around the thread within REACH_PX of ``xy``."""
-        g, v, _ = self.views[side]
         if not np.all(np.isfinite(xy)):
             return None
-        x, y = int(round(xy[0])) - v.x0, int(round(xy[1])) - v.y0
+        x, y = int(round(xy[0])), int(round(xy[1]))
         if (side, x, y) not in self._cache:
-            self._cache[side, x, y] = self._ring_level(g, v.mask, x, y)
+            g, _, field = self.views[side]
+            d, rows, cols = field.window(x, y, self.REACH_PX)
+            ring = (d > self.RING_PX[0]) & (d <= self.RING_PX[1])
+            vals = g[rows, cols][ring].astype(np.float64)
+            level = None
+            if vals.size >= 10:
+                med = float(np.median(vals))
+                level = med, max(1.4826 * float(np.median(np.abs(vals - med))), 4.0)
+            self._cache[side, x, y] = level
         return self._cache[side, x, y]
 
-    def _ring_level(self, g: np.ndarray, mask: np.ndarray, x: int, y: int):
-        r, m = self.REACH_PX, 9  # the ring's outer radius is 9 px
-        ys, xs = (
-            slice(max(0, y - r - m), max(0, y + r + m + 1)),
-            slice(max(0, x - r - m), max(0, x + r + m + 1)),
-        )
-        m8 = np.ascontiguousarray(mask[ys, xs]).view(np.uint8)
-        if m8.size == 0:
-            return None
-        outer = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (19, 19)))
-        inner = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7)))
-        ring = (outer > 0) & (inner == 0)
-        ring[: max(0, y - r - ys.start)] = False  # keep the square within REACH_PX of xy
-        ring[y + r + 1 - ys.start :] = False
-        ring[:, : max(0, x - r - xs.start)] = False
-        ring[:, x + r + 1 - xs.start :] = False
-        vals = g[ys, xs][ring]
-        if vals.size < 10:
-            return None
-        med = float(np.median(vals))
-        return med, max(1.4826 * float(np.median(np.abs(vals - med))), 4.0)
-
     def grey(self, side: int, uv: np.ndarray) -> np.ndarray:
-        """Grey level at each (x, y) of view ``side``; NaN outside the crop."""
-        g, v, _ = self.views[side]
-        h, w = g.shape
-        out = np.full(len(uv), np.nan)
-        ok = np.all(np.isfinite(uv), axis=1)
-        q = np.rint(np.where(ok[:, None], uv, -1.0)).astype(np.intp) - [v.x0, v.y0]
-        ok &= (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
-        out[ok] = g[q[ok, 1], q[ok, 0]]
-        return out
+        """Grey level at each (x, y) of view ``side``; NaN off the image."""
+        return _sample(self.views[side][0], uv)
 
     def spread(self, side: int, *ends: np.ndarray) -> float:
         """Largest local spread of the background next to the thread at ``ends``."""
         levels = [self._level(side, e) for e in ends]
         return max((lv[1] for lv in levels if lv is not None), default=4.0)
+
+    def behind(self, uv_l: np.ndarray, uv_r: np.ndarray) -> bool:
+        """Whether the stereo pair shows the surface under a run of curve samples at or
+        behind the curve's depth, or cannot tell (``_surface_behind``)."""
+        return _surface_behind(self.views[0][0], self.views[1][0], uv_l, uv_r)
 
     def __call__(self, side: int, uv: np.ndarray, end_a: np.ndarray, end_b: np.ndarray):
         """(len(uv),) bool: sample k of the bridge (uv in order from end a to end b) is bare."""
@@ -914,19 +892,75 @@ class _BareBackground:
         ok = np.all(np.isfinite(uv), axis=1)
         if la is None or lb is None or not ok.any():
             return out  # no background next to the thread to compare with: not known bare
-        g, v, _ = self.views[side]
+        g, mask, _ = self.views[side]
         h, w = g.shape
         t = np.linspace(0.0, 1.0, len(uv) + 2)[1:-1][ok]
         level = (1 - t) * la[0] + t * lb[0]
         tol = self.p.bare_sigma * max(la[1], lb[1])
-        q = np.rint(uv[ok]).astype(np.intp) - [v.x0, v.y0]
+        q = np.rint(uv[ok]).astype(np.intp)
         inside = (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
         res = np.zeros(len(q), dtype=bool)
         qi = q[inside]
         grey = g[qi[:, 1], qi[:, 0]]
-        res[inside] = ~v.mask[qi[:, 1], qi[:, 0]] & (np.abs(grey - level[inside]) <= tol)
+        res[inside] = ~mask[qi[:, 1], qi[:, 0]] & (np.abs(grey - level[inside]) <= tol)
         out[ok] = res
         return out
+
+
+FRONT_PX = 12  # px of disparity searched in front of the curve by _surface_behind
+BEHIND_PX = 48  # px of disparity searched behind it (a background well behind the thread)
+NEAR_PX = 2  # a best match within this of the curve's disparity: a surface at its depth
+FAR_PX = 6  # shifts this far from the best match tell whether it is distinct
+TEXTURE_LEVELS = 4.0  # grey levels: the spread floor of the ring (sensor noise and JPEG)
+
+
+def _surface_behind(
+    grey_l: np.ndarray, grey_r: np.ndarray, uv_l: np.ndarray, uv_r: np.ndarray
+) -> bool:
+    """Whether the stereo pair shows the surface under a run of curve samples at or behind
+    the curve's depth (so that a thread there would be seen in front of it), or cannot tell.
+
+    The mean |left - right grey| along the run is taken with the right view shifted along
+    the epipolar line, from FRONT_PX px of disparity more than the curve's (in front) to
+    BEHIND_PX less (behind). Where the run's grey varies (texture beyond TEXTURE_LEVELS,
+    robust spread) and the best shift is distinct (the median cost FAR_PX or more away from
+    it is TEXTURE_LEVELS higher), the surface's disparity is measured: behind or at the
+    curve's (within NEAR_PX) is True; in front (an occluder) is False. A match that says
+    nothing about depth (a uniform or row-aligned occluder such as a shaft along the rows)
+    is False: nothing shows the thread would be seen. An untextured run (a flat background)
+    cannot be told by stereo and is True: left to the grey levels."""
+    gl = _sample(grey_l, uv_l)
+    ok = np.isfinite(gl)
+    if ok.sum() < 3:
+        return True
+    spread = 1.4826 * float(np.median(np.abs(gl[ok] - np.median(gl[ok]))))
+    if spread <= TEXTURE_LEVELS:
+        return True
+    # a surface delta px of disparity in front of the curve is seen delta px left of uv_r
+    delta = np.arange(-BEHIND_PX, FRONT_PX + 1)
+    shifted = uv_r[None, :, :] - np.stack([delta, np.zeros_like(delta)], axis=1)[:, None, :]
+    gr = _sample(grey_r, shifted.reshape(-1, 2)).reshape(len(delta), len(uv_r))
+    d = np.abs(gl[None, :] - gr)
+    seen = np.isfinite(d).sum(axis=1)
+    with np.errstate(invalid="ignore"):
+        cost = np.where(seen >= max(3, ok.sum() // 2), np.nansum(d, axis=1) / seen, np.inf)
+    if not np.isfinite(cost).any():
+        return True
+    k = int(np.argmin(cost))
+    far = cost[(np.abs(delta - delta[k]) >= FAR_PX) & np.isfinite(cost)]
+    distinct = far.size > 0 and float(np.median(far)) >= cost[k] + TEXTURE_LEVELS
+    return distinct and delta[k] <= NEAR_PX
+
+
+def _sample(grey: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Grey level of an (H, W) image at each (x, y) (nearest pixel); NaN off the image."""
+    h, w = grey.shape
+    out = np.full(len(uv), np.nan)
+    ok = np.all(np.isfinite(uv), axis=1)
+    q = np.rint(np.where(ok[:, None], uv, -1.0)).astype(np.intp)
+    ok &= (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
+    out[ok] = grey[q[ok, 1], q[ok, 0]]
+    return out
 
 
 def _hidden_end(
@@ -1001,7 +1035,7 @@ def _bridge_evidence(
             same = np.abs(bare.grey(0, uv_l[hidden]) - bare.grey(1, uv_r[hidden]))
             both &= same <= p.bare_sigma * spread
         share = float(both.mean())
-        if share > p.bare_share:
+        if share > p.bare_share and bare.behind(uv_l[hidden], uv_r[hidden]):
             return (f"{100 * share:.0f} % of it lies over bare background in both views (the "
                     "grey of the tissue next to the thread, the same in both), where the thread "
                     "would be seen")  # fmt: skip

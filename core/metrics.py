@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from threadrecon.core.calibration import StereoCalibration
+
 COVERAGE_PX = 3.0  # skeleton pixels within 3 px of the projected curve count as covered
 RESAMPLE_N = 2000  # points per curve for closest-point distances
 
@@ -72,6 +74,18 @@ def curve_errors(points: np.ndarray, points_gt: np.ndarray) -> CurveErrors:
         length=la,
         length_gt=lb,
     )
+
+
+def frame_errors(
+    points: np.ndarray, truth_points: np.ndarray, calib: StereoCalibration
+) -> CurveErrors:
+    """Table I of one frame in mm: the reconstructed curve (N, 3) against the part of the true
+    centerline (M, 3) that both rectified views see (``visible_part``), both in the camera frame
+    in ``calib``'s unit. The one metric of every evaluation (``evaluate``, the scripts): a thread
+    that leaves the image is judged on what the cameras can show."""
+    truth = visible_part(truth_points, calib.P1, calib.P2, calib.image_size)
+    mm = calib.mm_per_unit
+    return curve_errors(_check_points(points) * mm, truth * mm)
 
 
 def visible_part(

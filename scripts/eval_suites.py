@@ -28,7 +28,7 @@ from threadpoolctl import threadpool_limits
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from threadrecon.core.calibration import StereoCalibration  # noqa: E402
-from threadrecon.core.metrics import curve_errors  # noqa: E402
+from threadrecon.core.metrics import frame_errors  # noqa: E402
 from threadrecon.core.pipeline import Pipeline, ReconParams  # noqa: E402
 from threadrecon.core.segmentation import StereoPair, segment  # noqa: E402
 from threadrecon.core.synthetic import (  # noqa: E402
@@ -105,7 +105,7 @@ def run_frame(frame, params: ReconParams, masks: bool) -> dict:
     if not frame.mask_left.any():  # a thread-free frame: the right answer is no curve
         row["good"] = rec.status == "failed" and "no thread found" in (rec.message or "")
     elif "camera" in rec.runs:
-        e = curve_errors(rec["camera"].points, frame.truth.centerline)
+        e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
         row.update(e_S=e.e_S, e_S_max=e.e_S_max, e_length=e.e_length)
         row["good"] = bool(rec.status == "ok" and e.e_length <= GOOD_MM and e.e_S_max <= GOOD_MM)
     else:

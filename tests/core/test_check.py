@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from support import synthetic_case
@@ -14,7 +15,13 @@ from threadpoolctl import threadpool_limits
 from threadrecon.app.dataset import discover, load_frame
 from threadrecon.app.io import load_calibration, load_ground_truth, load_pair
 from threadrecon.core.camera import CameraCurve
-from threadrecon.core.check import CheckParams, CheckResult, _unsupported_travel, check_curve
+from threadrecon.core.check import (
+    CheckParams,
+    CheckResult,
+    _surface_behind,
+    _unsupported_travel,
+    check_curve,
+)
 from threadrecon.core.metrics import curve_errors, project
 from threadrecon.core.params import specs
 from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
@@ -225,7 +232,8 @@ def test_unsupported_travel_is_the_back_and_forth_between_supported_points() -> 
     assert _unsupported_travel(ramp, sup) == pytest.approx(0.0)  # a straight change: none
     assert _unsupported_travel(z, np.zeros(6, bool)) == pytest.approx(4.5)  # all of it
     tail = np.array([True, True, True, False, False, False])
-    assert _unsupported_travel(z, tail) == pytest.approx(2.5 - 0.5)  # an unsupported end
+    assert _unsupported_travel(z, tail) == pytest.approx(2.5)  # an unsupported end: all of it
+    assert _unsupported_travel(ramp, tail) == pytest.approx(3.0)  # even a straight change
 
 
 def _wiggle_in_depth(points: np.ndarray, amp_mm: float) -> np.ndarray:
@@ -373,3 +381,31 @@ def test_an_end_hidden_in_one_view_is_unobserved_not_off_the_thread() -> None:
     assert hidden.unseen_mm > rec["check"].unseen_mm + 1.0  # counted as not observed
     assert bare.reproj_right_max > CheckParams().reproj_max_px
     assert bare.status != "ok" and hidden.unseen_mm > bare.unseen_mm
+
+
+def _texture(rng: np.random.Generator, shape=(80, 260)) -> np.ndarray:
+    """Smooth random tissue-like grey texture, about 100 +- 30 grey levels."""
+    g = cv2.GaussianBlur(rng.normal(0.0, 1.0, shape).astype(np.float32), (0, 0), 2.0)
+    return (100.0 + 30.0 * g / g.std()).astype(np.float32)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_surface_behind_tells_background_from_an_occluder_in_front(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    tex = _texture(rng)
+    d = 30  # the curve's disparity, px
+    x = np.arange(60.0, 120.0)
+    uv_l = np.column_stack([x, 0.3 * x])  # a run of curve samples in the left view
+    uv_r = uv_l - [d, 0.0]
+    left = tex[:, 60:180]
+
+    def right(disparity: int) -> np.ndarray:  # the textured surface seen at this disparity
+        return tex[:, 60 + disparity : 180 + disparity]
+
+    assert _surface_behind(left, right(d), uv_l, uv_r)  # at the curve's depth
+    assert _surface_behind(left, right(d - 20), uv_l, uv_r)  # tissue well behind the thread
+    assert not _surface_behind(left, right(d + 9), uv_l, uv_r)  # an occluder in front
+    shaft = np.tile(np.linspace(60.0, 200.0, 80, dtype=np.float32)[:, None], (1, 120))
+    assert not _surface_behind(shaft, shaft, uv_l, uv_r)  # along the rows: depth unknown
+    flat = np.full((80, 120), 120.0, np.float32) + rng.normal(0, 1.0, (80, 120)).astype(np.float32)
+    assert _surface_behind(flat, flat, uv_l, uv_r)  # untextured: left to the grey levels

@@ -4,9 +4,11 @@ import numpy as np
 import pytest
 from support import assert_close
 
+from threadrecon.core.calibration import make_calibration
 from threadrecon.core.metrics import (
     _zhang_suen,
     curve_errors,
+    frame_errors,
     polyline_length,
     project,
     reprojection_errors,
@@ -151,3 +153,20 @@ def test_visible_part_keeps_the_run_inside_both_images() -> None:
     assert len(seen) < len(pts) and seen[0, 0] == pts[np.flatnonzero(x + 45 >= -0.5)[0], 0]
     inside = pts[(x > 0) & (x < 40)]
     assert np.array_equal(visible_part(inside, P1, P2, (80, 100)), inside)  # seen whole
+
+
+def test_frame_errors_judge_a_thread_leaving_the_view_on_its_visible_part() -> None:
+    K = np.array([[100.0, 0, 50], [0, 100.0, 40], [0, 0, 1]])
+    calib = make_calibration(K, np.zeros(5), K, np.zeros(5), np.eye(3), [-0.5, 0, 0], (80, 100),
+                             unit="cm")  # fmt: skip
+    x = np.linspace(-1.0, 6.0, 141)  # cm at z = 10 cm: the first part is left of both images
+    truth = np.column_stack([x, np.zeros_like(x), np.full_like(x, 10.0)])
+    seen = visible_part(truth, calib.P1, calib.P2, calib.image_size)
+    assert len(seen) < len(truth)
+    e = frame_errors(seen, truth, calib)  # the curve of what both views see is right
+    assert e.e_S_max < 0.1 and e.e_length < 0.5  # mm
+    whole = curve_errors(seen * 10, truth * 10)  # the whole truth would call it wrong
+    assert whole.e_length > 5.0 and whole.e_S_max > 5.0
+    assert_close(frame_errors(truth, truth, calib).length_gt, e.length_gt)
+    with pytest.raises(ValueError, match="N >= 2"):
+        frame_errors(np.zeros((1, 3)), truth, calib)

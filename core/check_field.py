@@ -1,0 +1,112 @@
+"""The check stage's distance field of a thread mask: what depends only on the segmentation.
+
+For one (H, W) thread mask P (P_L or P_R of Eq. (1)) the field holds the distance (px) of each
+pixel of the mask's bounding box grown by ``reach`` px to the nearest thread pixel (one
+distance transform, 3x3 L2 mask, error < 3 %). A pixel outside that box is farther than
+``reach`` from every thread pixel. The check reads the reprojection distances of the curve
+and the background ring around the thread from it.
+
+Fields are cached by the mask object (a weak reference, so that a freed mask whose id is reused
+never hits): the debugger re-runs the check after every slider move of a later stage while the
+segmentation, and so the mask object, is unchanged.
+"""
+
+from __future__ import annotations
+
+import threading
+import weakref
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+FIELD_CACHE = 8  # fields kept: both views of a few frames, the debugger's working set
+
+
+@dataclass(frozen=True)
+class MaskField:
+    """Distance to the nearest thread pixel on the box [y0, y0 + h) x [x0, x0 + w) of the
+    image: ``dist`` (h, w) float32 px (read-only); ``total`` the number of thread pixels."""
+
+    dist: np.ndarray
+    x0: int
+    y0: int
+    reach: float
+    total: int
+
+    def at(self, uv: np.ndarray) -> np.ndarray:
+        """Distance (px) of each (x, y) in ``uv`` (N, 2) to the nearest thread pixel, saturated
+        at ``reach``; a non-finite point gets ``reach``. A point off the image adds its
+        distance to the nearest image pixel of the box."""
+        out = np.full(len(uv), self.reach)
+        ok = np.all(np.isfinite(uv), axis=1)
+        if self.total == 0 or not ok.any():
+            return out
+        h, w = self.dist.shape
+        q = uv[ok] - [self.x0, self.y0]
+        qc = np.clip(np.rint(q), 0, [w - 1, h - 1])
+        qi = qc.astype(np.intp)
+        off = np.hypot(*(q - qc).T)  # beyond the box (off the image), and the rounding, px
+        out[ok] = np.minimum(self.dist[qi[:, 1], qi[:, 0]] + off, self.reach)
+        return out
+
+    def window(self, x: int, y: int, r: int) -> tuple[np.ndarray, slice, slice]:
+        """The field on the image window of half-size ``r`` around pixel (x, y), clipped to
+        the box, and the window's row and column slices in image coordinates."""
+        h, w = self.dist.shape
+        r0, r1 = max(y - r, self.y0), min(y + r + 1, self.y0 + h)
+        c0, c1 = max(x - r, self.x0), min(x + r + 1, self.x0 + w)
+        if r1 <= r0 or c1 <= c0:
+            return self.dist[:0, :0], slice(0, 0), slice(0, 0)
+        d = self.dist[r0 - self.y0 : r1 - self.y0, c0 - self.x0 : c1 - self.x0]
+        return d, slice(r0, r1), slice(c0, c1)
+
+
+def mask_field(mask: np.ndarray, reach: float) -> MaskField:
+    """The (cached) distance field of a boolean (H, W) thread mask up to ``reach`` px."""
+    if mask.ndim != 2 or mask.dtype != bool:
+        raise ValueError(f"a thread mask must be (H, W) bool, got {mask.shape} {mask.dtype}")
+    key = (id(mask), float(reach))
+    with _LOCK:
+        hit = _FIELDS.get(key)
+        if hit is not None and hit[0]() is mask:
+            _FIELDS.move_to_end(key)
+            return hit[1]
+    field = _compute(mask, float(reach))
+    try:
+        ref = weakref.ref(mask)
+    except TypeError:  # pragma: no cover - ndarrays support weak references
+        return field
+    with _LOCK:
+        _FIELDS[key] = (ref, field)
+        _FIELDS.move_to_end(key)
+        while len(_FIELDS) > FIELD_CACHE:
+            _FIELDS.popitem(last=False)
+    return field
+
+
+def clear_fields() -> None:
+    """Forget every cached field (timings of the check on a new segmentation)."""
+    with _LOCK:
+        _FIELDS.clear()
+
+
+def _compute(mask: np.ndarray, reach: float) -> MaskField:
+    H, W = mask.shape
+    m8 = np.ascontiguousarray(mask).view(np.uint8)
+    total = cv2.countNonZero(m8)
+    if total == 0:
+        return MaskField(np.zeros((0, 0), np.float32), 0, 0, reach, 0)
+    bx, by, bw, bh = cv2.boundingRect(m8)
+    m = int(np.ceil(reach))
+    x0, x1 = max(0, bx - m), min(W, bx + bw + m)
+    y0, y1 = max(0, by - m), min(H, by + bh + m)
+    background = cv2.compare(m8[y0:y1, x0:x1], 0, cv2.CMP_EQ)
+    dist = cv2.distanceTransform(background, cv2.DIST_L2, cv2.DIST_MASK_3)
+    dist.setflags(write=False)
+    return MaskField(dist, x0, y0, reach, int(total))
+
+
+_LOCK = threading.Lock()  # the server's sessions run pipelines in several threads
+_FIELDS: OrderedDict[tuple[int, float], tuple[weakref.ref, MaskField]] = OrderedDict()

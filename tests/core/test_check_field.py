@@ -1,0 +1,68 @@
+"""Tests of core/check_field.py: the check's distance field of a thread mask, cached per mask."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.ndimage import distance_transform_edt
+
+from threadrecon.core.check_field import clear_fields, mask_field
+
+TRIALS = 10
+
+
+def _mask(rng: np.random.Generator) -> np.ndarray:
+    mask = np.zeros((120, 160), dtype=bool)
+    for _ in range(3):  # thread-wide strokes
+        y, x = rng.integers(30, 90), rng.integers(40, 120)
+        mask[y - 1 : y + 2, x - 30 : x + 30] = True
+    return mask
+
+
+@pytest.mark.parametrize("seed", range(TRIALS))
+def test_field_is_the_distance_to_the_thread_saturated_at_its_reach(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    mask = _mask(rng)
+    field = mask_field(mask, 12.0)
+    exact = distance_transform_edt(~mask)  # (rows, cols)
+    xy = rng.uniform([0.0, 0.0], [159.0, 119.0], size=(300, 2))  # on the image
+    got = field.at(xy)
+    rc = np.clip(np.rint(xy[:, ::-1]), 0, [119, 159]).astype(int)
+    want = exact[rc[:, 0], rc[:, 1]]
+    near = want < 10.0
+    # 3x3 L2 mask (< 3 %) plus the rounding of the point to its pixel (< 0.71 px)
+    assert np.all(np.abs(got[near] - want[near]) <= 0.03 * want[near] + 0.71)
+    assert np.all(got <= 12.0) and np.all(got[want > 13.0] == 12.0)
+    assert np.all(field.at(np.array([[np.nan, 3.0]])) == 12.0)
+    off = field.at(np.array([[-30.0, 60.0], [200.0, 60.0]]))  # off the image: saturated
+    assert np.all(off == 12.0)
+
+
+def test_field_is_cached_by_the_mask_object_not_its_content() -> None:
+    clear_fields()
+    mask = _mask(np.random.default_rng(0))
+    a = mask_field(mask, 10.0)
+    assert mask_field(mask, 10.0) is a  # the same segmentation: computed once
+    assert mask_field(mask, 20.0) is not a  # another reach
+    copy = mask.copy()
+    assert mask_field(copy, 10.0) is not a  # another mask object
+    assert np.array_equal(mask_field(copy, 10.0).dist, a.dist)
+    assert not a.dist.flags.writeable
+
+
+def test_window_is_clipped_to_the_field_box() -> None:
+    mask = np.zeros((50, 60), dtype=bool)
+    mask[20, 10:40] = True
+    field = mask_field(mask, 5.0)
+    d, rows, cols = field.window(12, 21, 4)
+    assert d.shape == (9, 9) and (rows.start, cols.start) == (17, 8)
+    assert d[20 - 17, 12 - 8] == 0.0 and abs(d[21 - 17, 12 - 8] - 1.0) < 0.05  # 3x3 mask
+    d, rows, cols = field.window(0, 0, 3)  # outside the box (rows 15..25, cols 5..44)
+    assert d.size == 0
+    empty = mask_field(np.zeros((8, 8), dtype=bool), 5.0)
+    assert empty.total == 0 and np.all(empty.at(np.array([[1.0, 1.0]])) == 5.0)
+
+
+def test_field_rejects_a_mask_that_is_not_boolean_2d() -> None:
+    with pytest.raises(ValueError, match="bool"):
+        mask_field(np.zeros((4, 4), dtype=np.uint8), 3.0)
