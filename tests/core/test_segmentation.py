@@ -9,11 +9,11 @@ import pytest
 from support import assert_close, calibration_for
 
 from threadrecon.core.pipeline import Pipeline
+from threadrecon.core.segment_raw import noise_sigma
 from threadrecon.core.segmentation import (
     LIFT_VALUE,
     SegmentationParams,
     StereoPair,
-    _noise_sigma,
     segment,
     split_side_by_side,
 )
@@ -308,7 +308,7 @@ def test_noise_sigma_recovers_the_pixel_noise_of_a_textured_image(sigma: float) 
     yy, xx = np.mgrid[:240, :320].astype(np.float32)
     smooth = 4 * np.sin(xx / 40) + 10 * np.cos(yy / 17)  # row-wise steps << the noise
     f = (smooth[:, :, None] + rng.normal(0, sigma, (240, 320, 3))).astype(np.float32)
-    assert_close(_noise_sigma(f), np.full(3, sigma), rtol=0.1)
+    assert_close(noise_sigma(f), np.full(3, sigma), rtol=0.1)
 
 
 def test_a_thread_fainter_than_the_noise_is_no_thread_found() -> None:
