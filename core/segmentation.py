@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from threadrecon.core.params import Params, param
-from threadrecon.core.segment_raw import MAX_HALF_WIDTH_PX, drop_specks, segment_raw
+from threadrecon.core.segment_raw import drop_specks, segment_raw
 
 LIFT_VALUE = 255.0  # Eq. (1): unsegmented pixels are set to 255
 
@@ -234,7 +234,8 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
         if method == "threshold":
             P_L, P_R = grey_L < bg[0] - p.seg_delta, grey_R < bg[1] - p.seg_delta
             if p.method == "auto":  # an instrument over a flat background is no thread
-                P_L, P_R = _drop_wide(P_L), _drop_wide(P_R)
+                P_L = _drop_wide(P_L, grey_L, bg[0], p.seg_delta)
+                P_R = _drop_wide(P_R, grey_R, bg[1], p.seg_delta)
             P_L = drop_specks(P_L, p.min_component_px)
             P_R = drop_specks(P_R, p.min_component_px)
             score_L = _threshold_score(grey_L, bg[0], p.seg_delta)
@@ -266,22 +267,28 @@ def _flat_share(grey: np.ndarray, level: float) -> float:
     return float(np.count_nonzero(np.abs(grey - level) <= 1.0)) / grey.size
 
 
+_WIDE_PX: Final = 10  # half-width of an instrument, at least; the raw method's thread <= 6 px
 _WIDE_RIM_PX: Final = 2  # a wide part's anti-aliased rim (1 px) and blur, px
+_GAP_DISC: Final = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))  # gaps <= 4 px closed
 
 
-def _drop_wide(mask: np.ndarray) -> np.ndarray:
-    """``mask`` without its wide parts: those holding a disc of radius MAX_HALF_WIDTH_PX (an
-    instrument shaft, a shadow; a thread up to 12 px wide holds none), and _WIDE_RIM_PX around
-    them. A thread passing under an instrument keeps both its ends. The paper's frames (thread
-    half-widths <= 5.1 px) are unchanged."""
-    r = int(MAX_HALF_WIDTH_PX)
+def _drop_wide(mask: np.ndarray, grey: np.ndarray, level: float, delta: float) -> np.ndarray:
+    """``mask`` without the wide parts of a flat image: pixels off the background level (darker
+    or lighter by more than ``delta``, gaps up to 4 px closed) that hold a disc of radius
+    _WIDE_PX (an instrument shaft with its dark and bright bands; a thread, or two threads
+    side by side, up to 20 px wide hold none),
+    and _WIDE_RIM_PX around them. A thread passing under an instrument keeps both its ends.
+    The paper's frames (thread half-widths <= 5.1 px) are unchanged."""
+    off = cv2.compare(cv2.absdiff(grey, float(level)), float(delta), cv2.CMP_GT)
+    off = cv2.morphologyEx(off, cv2.MORPH_CLOSE, _GAP_DISC)  # a shading at the level splits none
+    r = _WIDE_PX
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    core = cv2.erode(mask.view(np.uint8), disc)
+    core = cv2.erode(off, disc)
     if not core.any():  # the usual case: a thin thread only
         return mask
     grow = 2 * (r + _WIDE_RIM_PX) + 1
     wide = cv2.dilate(core, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (grow, grow)))
-    return mask & ~wide.view(bool)
+    return mask & (wide == 0)
 
 
 def _threshold_score(grey: np.ndarray, level: float, delta: float) -> np.ndarray:

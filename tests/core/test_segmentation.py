@@ -317,3 +317,19 @@ def test_a_thread_fainter_than_the_noise_is_no_thread_found() -> None:
     pair, _ = _raw(render, 62)
     with pytest.raises(ValueError, match="no thread found"):
         segment(pair, SegmentationParams(method="raw"))
+
+
+@pytest.mark.parametrize("seed", [21, 22, 23])
+def test_auto_threshold_leaves_an_instrument_over_a_flat_background_out(seed: int) -> None:
+    pair, frame = _raw(RenderParams(occlusion=True), seed)
+    auto = segment(pair)
+    strict = segment(pair, SegmentationParams(method="threshold"))
+    assert auto.method == "threshold"
+    for P, S, M in (
+        (auto.P_L, strict.P_L, frame.mask_left),
+        (auto.P_R, strict.P_R, frame.mask_right),
+    ):
+        near = cv2.dilate(M.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+        assert (S & ~near).sum() > 1000  # the paper's threshold takes the shaft for thread
+        assert (P & ~near).sum() <= 0.02 * P.sum()  # auto drops it
+        assert (P & M).sum() >= 0.9 * M.sum()  # and keeps the thread on both sides of it
