@@ -82,7 +82,14 @@ def segment_raw(
         # anything left without the blood-like pixels, and when its hue differs from the
         # frame's other blood-like pixels (a frame's vessels share one hue, haemoglobin's).
         red_views = [v.with_blood(p) for v in views]
-        red, red_salience, red_cos = _select(red_views, p, nearest_hue=True)
+        # The most salient shape-ok piece of each view bounds what a red thread can reach.
+        bound = sum(float(np.max(v.pieces[2] * np.sqrt(v.pieces[3]), where=v.pieces[4],
+                                 initial=0.0)) for v in red_views)  # fmt: skip
+        red, red_salience, red_cos = (
+            _select(red_views, p, nearest_hue=True)
+            if bound >= _RED_THREAD_GAIN * salience
+            else (None, 0.0, 1.0)
+        )
         if (
             red is not None
             and red_salience >= _RED_THREAD_GAIN * salience
@@ -116,7 +123,7 @@ class _View:
     delta: np.ndarray  # (M, C) log-channel contrast of the lo pixels to the local background
     blood: np.ndarray  # (M,) bool, darker and redder than the tissue around
     sigma: np.ndarray  # (C,) pixel noise of each log channel (robust), log units
-    free: np.ndarray  # (h, w) float32 quarter-resolution weight of candidate-free blocks
+    bg_rgb: np.ndarray  # (h, w, C) float32 local background colour at quarter resolution
     pieces: tuple = ()
 
     @classmethod
@@ -126,15 +133,16 @@ class _View:
         level = _robust_level(S)
         lo = cv2.compare(S, float(p.ridge_lo * level), cv2.CMP_GE)
         rows, cols = _points(lo)
-        f_q = _quarter(f)
+        a_q = _quarter(img if img.ndim == 3 else img[:, :, None])[:, :, : f.shape[2]]
         if f.shape[2] > 1 and len(rows):
-            tool = _instrument_mask(f_q)
+            tool = _instrument_mask(_log_of(a_q))
             on_tool = tool[_qi(rows, tool.shape[0]), _qi(cols, tool.shape[1])]
             if on_tool.any():
                 lo[rows[on_tool], cols[on_tool]] = 0
                 rows, cols = rows[~on_tool], cols[~on_tool]
-        free = _free_blocks(rows, cols, f_q.shape[:2])
-        bg = _background(f_q, free)
+        free = _free_blocks(rows, cols, a_q.shape[:2])
+        bg_rgb = _background(a_q, free)
+        bg = _log_of(bg_rgb)
         delta = f[rows, cols] - bg[_qi(rows, bg.shape[0]), _qi(cols, bg.shape[1])]
         if f.shape[2] > 1:
             redder = (delta[:, 1] > p.blood_rg * _LOG_SCALE) | (
@@ -143,7 +151,7 @@ class _View:
             blood = redder & (delta[:, 0] < 0)
         else:
             blood = np.zeros(len(rows), bool)
-        v = cls(img, S, level, lo, rows, cols, delta, blood, noise_sigma(f), free)
+        v = cls(img, S, level, lo, rows, cols, delta, blood, noise_sigma(f), bg_rgb)
         if blood.any():
             mask = lo.copy()
             mask[rows[blood], cols[blood]] = 0
@@ -173,10 +181,20 @@ def _qi(index: np.ndarray, n: int) -> np.ndarray:
 
 
 def _quarter(a: np.ndarray) -> np.ndarray:
-    """(h, w, C) float32 block means of ``a`` (H, W, C) over _Q x _Q blocks."""
+    """(h, w, C) float32 block means of ``a`` (H, W, C) over _Q x _Q blocks (uint8 means are
+    rounded: 0.5 grey levels at most)."""
     h, w = a.shape[:2]
     small = cv2.resize(a, (max(w // _Q, 1), max(h // _Q, 1)), interpolation=cv2.INTER_AREA)
     return small.reshape(small.shape[0], small.shape[1], -1).astype(np.float32, copy=False)
+
+
+def _log_of(a: np.ndarray) -> np.ndarray:
+    """The channels of :func:`_log_channels` of a small float image (h, w, C): the log of
+    block means stands for the block mean of the logs (texture within a block is small)."""
+    logs = _LOG_SCALE * np.log(a + _LOG_OFFSET)
+    if logs.shape[2] == 1:
+        return logs
+    return cv2.transform(logs, _LOG_MIX)
 
 
 def _free_blocks(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -272,8 +290,9 @@ def noise_sigma(f: np.ndarray) -> np.ndarray:
     are sparse there; the differences are symmetric about 0), as a Gaussian sigma; at least
     the uint8 quantisation noise."""
     sub = f[::_NOISE_ROW_STEP]
-    d = cv2.absdiff(sub[:, 1:], sub[:, :-1]).reshape(-1, f.shape[2])
-    mad = np.median(d, axis=0)
+    d = cv2.absdiff(sub[:, 1:], sub[:, :-1]).reshape(-1, f.shape[2]).T.copy()  # (C, N)
+    mid = d.shape[1] // 2
+    mad = np.partition(d, mid, axis=1)[:, mid]
     return np.maximum(1.4826 * mad / np.sqrt(2.0), _QUANT_SIGMA)
 
 
@@ -298,8 +317,8 @@ def _instrument_mask(f_q: np.ndarray) -> np.ndarray:
     opening by a 5 x 5 disc there (~20 px): a white or black thread, a fibre or a glint is
     thinner and does not. When grey covers most of the view it is the scene itself (a flat
     grey background), and nothing is masked."""
-    chroma = f_q[:, :, 1:]
-    grey = (np.abs(chroma).max(axis=2) < _GREY_TOOL * _LOG_SCALE).astype(np.uint8)
+    chroma = np.maximum(np.abs(f_q[:, :, 1]), np.abs(f_q[:, :, 2]))
+    grey = (chroma < _GREY_TOOL * _LOG_SCALE).view(np.uint8)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
     tool = cv2.dilate(cv2.morphologyEx(grey, cv2.MORPH_OPEN, disc), disc)
     if np.count_nonzero(tool) > 0.5 * tool.size:  # a grey scene (flat background), not a tool
@@ -378,8 +397,11 @@ def _line_at(f: np.ndarray, sigma: float, norm: float) -> np.ndarray:
 
 
 def _robust_level(s: np.ndarray) -> float:
-    """Typical response of the background: the 90th percentile (thread px are < 5 %)."""
-    return max(float(np.percentile(s[::2, ::2], 90)), 1e-3)
+    """Typical response of the background: the 90th percentile (thread px are < 5 %) of every
+    second pixel of every second row."""
+    sample = s[::2, ::2].ravel()
+    k = int(0.9 * (sample.size - 1))
+    return max(float(np.partition(sample, k)[k]), 1e-3)
 
 
 def _pieces(
@@ -471,11 +493,11 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     the candidate-free average of the view (:func:`_background`). Sparse: band pixels only.
     """
     a = v.img if v.img.ndim == 3 else v.img[:, :, None]
-    a = a[:, :, :3]
+    a = a[:, :, : v.bg_rgb.shape[2]]
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * _BAND_PX + 1, 2 * _BAND_PX + 1))
     band = cv2.dilate(core, k)
     rows, cols = _points(band)
-    bg = _background(_quarter(a), v.free)
+    bg = v.bg_rgb
     diff = a[rows, cols].astype(np.float32) - bg[_qi(rows, bg.shape[0]), _qi(cols, bg.shape[1])]
     c2 = np.einsum("ij,ij->i", diff, diff)
     on_core = core[rows, cols] > 0
