@@ -39,6 +39,7 @@ _BLOOD_RATIO: Final = 0.25  # haemoglobin absorbs G, B far more than R: a vessel
 # >= 1/4 of its darkening (log units) at any strength; dyes other than red redden less or not
 _MIN_SNR: Final = 5.0  # a thread piece's mean contrast to its background: >= 5 noise sigmas
 _QUANT_SIGMA: Final = _LOG_SCALE / (255.0 * 12**0.5)  # uint8 quantisation noise, log units
+_SHARED_PX: Final = 1.5  # two pixels sharing less than 1.5 px of coverage: one thread pixel
 _NOISE_ROW_STEP: Final = 16  # noise estimated on every 16th row: 30 rows x 640 px at 640x480
 
 
@@ -507,6 +508,21 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     peak = cv2.dilate(dense, box)[rows, cols]
     out = np.zeros(core.shape, bool)
     keep = (c2 >= 0.25 * peak) & (peak > 0)
+    # Coverage is conserved: a cross-section of two pixels (its outer neighbours below 0.5)
+    # whose coverages sum to < _SHARED_PX holds less than that much thread (a 1-2 px thread
+    # crossing from one pixel row or column to the next); coverage 0.5 takes the larger only.
+    cov = np.zeros(core.shape, np.float32)
+    cov[rows[keep], cols[keep]] = np.sqrt(c2[keep] / peak[keep])
+    c = cov[rows, cols]
+    h, w = core.shape
+
+    def at(dr: int, dc: int) -> np.ndarray:
+        return cov[np.clip(rows + dr, 0, h - 1), np.clip(cols + dc, 0, w - 1)]
+
+    for dr, dc in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        nb = at(dr, dc)
+        alone = (at(2 * dr, 2 * dc) < 0.5) & (at(-dr, -dc) < 0.5)
+        keep &= ~((nb > c) & (nb + c < _SHARED_PX) & alone)
     out[rows[keep], cols[keep]] = True
     return out
 
