@@ -333,3 +333,17 @@ def test_auto_threshold_leaves_an_instrument_over_a_flat_background_out(seed: in
         assert (S & ~near).sum() > 1000  # the paper's threshold takes the shaft for thread
         assert (P & ~near).sum() <= 0.02 * P.sum()  # auto drops it
         assert (P & M).sum() >= 0.9 * M.sum()  # and keeps the thread on both sides of it
+
+
+def test_raw_mask_of_a_thin_thread_is_not_wider_than_its_coverage() -> None:
+    # A 1-2 px thread steps from one pixel row to the next: the two pixels sharing it hold less
+    # than 1.5 px of coverage, and the exact mask (coverage >= 0.5) takes one of them.
+    ratios, ious = [], []
+    for seed in (31, 32, 33):
+        pair, frame = _raw(TISSUE, seed, diameter_mm=0.16)
+        lifted = segment(pair)
+        for P, M in ((lifted.P_L, frame.mask_left), (lifted.P_R, frame.mask_right)):
+            ratios.append(P.sum() / M.sum())
+            ious.append(_iou(P, M))
+    assert np.mean(ratios) <= 1.3  # 1.36 before the shared-coverage rule
+    assert np.mean(ious) >= 0.76  # 0.74 before
