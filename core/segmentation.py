@@ -11,8 +11,9 @@ Raw frames (tissue, vessels, instruments, uneven light; no mask) need more: ``me
 (:func:`segment_raw`) finds the thread as the most salient long thin line of one dye with a
 partner in the other view, and gives a per-pixel thread score. ``method="auto"`` (default)
 thresholds when the background is flat (>= ``flat_share`` of the pixels within 1 grey level of
-B: the paper's Blender and hand-segmented frames) and segments raw otherwise. A raw frame in
-which no piece qualifies raises ``ValueError("no thread found ...")``: never a curve.
+B: the paper's Blender and hand-segmented frames; parts off the background level wider than
+20 px, an instrument, are dropped) and segments raw otherwise (:mod:`core.segment_raw`). A raw
+frame in which no piece qualifies raises ``ValueError("no thread found ...")``: never a curve.
 """
 
 from __future__ import annotations
@@ -110,7 +111,8 @@ class SegmentationParams(Params):
         label="segmentation method",
         doc="threshold: grey threshold B - seg_delta (paper, pre-segmented frames); raw: thread "
         "found on raw frames by a multi-scale colour ridge, hysteresis, shape and stereo "
-        "consistency; auto: threshold when the background is flat (flat_share), else raw.",
+        "consistency; auto: threshold when the background is flat (flat_share), without the "
+        "parts wider than 20 px off the background level (an instrument), else raw.",
     )
     flat_share: float = param(
         0.9,
