@@ -77,6 +77,11 @@ SUITES |= {
     "empty-distractors": (NO_THREAD, replace(TISSUE, distractors=8)),
     "empty-instrument": (NO_THREAD, replace(TISSUE, instrument=True)),
 }
+# Appended last so that the suites above keep their index (and frames) of earlier runs.
+SUITES |= {
+    "flat+occlusion": (ThreadParams(), RenderParams(occlusion=True)),
+    "flat+instrument": (ThreadParams(), RenderParams(instrument=True)),
+}
 
 
 def calibration_for(camera: StereoCamera) -> StereoCalibration:

@@ -9,11 +9,11 @@ import pytest
 from support import assert_close, calibration_for
 
 from threadrecon.core.pipeline import Pipeline
+from threadrecon.core.segment_raw import noise_sigma
 from threadrecon.core.segmentation import (
     LIFT_VALUE,
     SegmentationParams,
     StereoPair,
-    _noise_sigma,
     segment,
     split_side_by_side,
 )
@@ -308,7 +308,7 @@ def test_noise_sigma_recovers_the_pixel_noise_of_a_textured_image(sigma: float) 
     yy, xx = np.mgrid[:240, :320].astype(np.float32)
     smooth = 4 * np.sin(xx / 40) + 10 * np.cos(yy / 17)  # row-wise steps << the noise
     f = (smooth[:, :, None] + rng.normal(0, sigma, (240, 320, 3))).astype(np.float32)
-    assert_close(_noise_sigma(f), np.full(3, sigma), rtol=0.1)
+    assert_close(noise_sigma(f), np.full(3, sigma), rtol=0.1)
 
 
 def test_a_thread_fainter_than_the_noise_is_no_thread_found() -> None:
@@ -317,3 +317,33 @@ def test_a_thread_fainter_than_the_noise_is_no_thread_found() -> None:
     pair, _ = _raw(render, 62)
     with pytest.raises(ValueError, match="no thread found"):
         segment(pair, SegmentationParams(method="raw"))
+
+
+@pytest.mark.parametrize("seed", [21, 22, 23])
+def test_auto_threshold_leaves_an_instrument_over_a_flat_background_out(seed: int) -> None:
+    pair, frame = _raw(RenderParams(occlusion=True), seed)
+    auto = segment(pair)
+    strict = segment(pair, SegmentationParams(method="threshold"))
+    assert auto.method == "threshold"
+    for P, S, M in (
+        (auto.P_L, strict.P_L, frame.mask_left),
+        (auto.P_R, strict.P_R, frame.mask_right),
+    ):
+        near = cv2.dilate(M.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+        assert (S & ~near).sum() > 1000  # the paper's threshold takes the shaft for thread
+        assert (P & ~near).sum() <= 0.02 * P.sum()  # auto drops it
+        assert (P & M).sum() >= 0.9 * M.sum()  # and keeps the thread on both sides of it
+
+
+def test_raw_mask_of_a_thin_thread_is_not_wider_than_its_coverage() -> None:
+    # A 1-2 px thread steps from one pixel row to the next: the two pixels sharing it hold less
+    # than 1.5 px of coverage, and the exact mask (coverage >= 0.5) takes one of them.
+    ratios, ious = [], []
+    for seed in (31, 32, 33):
+        pair, frame = _raw(TISSUE, seed, diameter_mm=0.16)
+        lifted = segment(pair)
+        for P, M in ((lifted.P_L, frame.mask_left), (lifted.P_R, frame.mask_right)):
+            ratios.append(P.sum() / M.sum())
+            ious.append(_iou(P, M))
+    assert np.mean(ratios) <= 1.3  # 1.36 before the shared-coverage rule
+    assert np.mean(ious) >= 0.76  # 0.74 before

@@ -1,0 +1,544 @@
+"""Raw-frame segmentation (no mask given): multi-scale colour ridge, hysteresis, shape and stereo
+consistency. :func:`segment_raw` is the ``method="raw"`` of :func:`core.segmentation.segment`.
+
+Speed: every full-resolution pass costs ~0.2-0.5 ms at 640x480, so full-image work is kept to
+the line response, one threshold, one labelling and one distance transform per view; the rest
+runs on the candidate pixels (a few %, sparse) or at quarter resolution (the local background,
+the instrument mask).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Final
+
+import cv2
+import numpy as np
+
+if TYPE_CHECKING:
+    from threadrecon.core.segmentation import SegmentationParams
+
+_SCALES: Final = (1.0, 2.0)  # fine and coarse Gaussian scales of the line detector, px
+_EDGE_K: Final = 2.0  # gradient penalty; 2 cancels both lobes of a step edge beyond 1 sigma
+_LOG_OFFSET: Final = 16.0  # log(I + 16): lighting is a product, contrast a ratio; 16 tames noise
+_BAND_PX: Final = 4  # the mask is grown at most this far from a kept piece (half of 6 px + 1)
+_BG_SIGMA: Final = 8.0  # local background colour: thread-free Gaussian average, px
+_Q: Final = 4  # the local background and the instrument mask are computed at 1/4 resolution
+_CORE_FRACTION: Final = 0.4  # core pixels respond >= 40 % of their piece's mean
+_SAME_DYE_COS: Final = 0.8  # pieces of one thread: colour contrasts within ~37 degrees
+_SAME_DYE_COS_PX: Final = 0.5  # per pixel (noisier): within 60 degrees
+_GREY_CHROMA: Final = 3.0  # chroma contrast below ~10 %: a grey (black, white) dye
+MAX_HALF_WIDTH_PX: Final = 6.0  # a piece wider than 12 px (a 6 px thread's response ~8 px)
+# is not thread
+_RED_THREAD_GAIN: Final = 3.0  # blood-like pieces win when 3x as salient as the rest
+_VESSEL_HUE_COS: Final = 0.99  # chroma contrasts within 8 degrees: one absorber (vessels)
+_MIN_VESSEL_PX: Final = 50  # blood-like pixels needed to tell the frame's vessel hue
+_GREY_TOOL: Final = 0.12  # |log R/G|, |log B/G| below this: unsaturated, e.g. steel
+_LOG_SCALE: Final = 32.0  # channels are 32 log(.), so 1 unit ~ 3 % of contrast
+_BLOOD_RATIO: Final = 0.25  # haemoglobin absorbs G, B far more than R: a vessel reddens by
+# >= 1/4 of its darkening (log units) at any strength; dyes other than red redden less or not
+_MIN_SNR: Final = 5.0  # a thread piece's mean contrast to its background: >= 5 noise sigmas
+_QUANT_SIGMA: Final = _LOG_SCALE / (255.0 * 12**0.5)  # uint8 quantisation noise, log units
+_SHARED_PX: Final = 1.5  # two pixels sharing less than 1.5 px of coverage: one thread pixel
+_NOISE_ROW_STEP: Final = 16  # noise estimated on every 16th row: 30 rows x 640 px at 640x480
+
+
+def segment_raw(
+    left: np.ndarray, right: np.ndarray, p: SegmentationParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Thread masks and scores of a raw rectified pair, no mask given.
+
+    1. Line response S: on 32 log(I) (brightness, log R/G, log B/G), the scale-normalised
+       Hessian line strength 2 min(|l1 + l2| / 2, |l1 - l2| / 2) sigma^2 (zero on blobs and
+       flat parts) minus 2 sigma |gradient| (zero on step edges), max over two scales.
+    2. Hysteresis: pieces of S >= ridge_lo * level holding a pixel of S >= ridge_hi * level,
+       ``level`` being the image's typical response (90th percentile): no absolute contrast.
+       Large unsaturated regions (instruments) hold no candidate. Before the pieces are
+       formed, pixels darker and redder than the tissue around them (blood: vessels; redder by
+       more than ``blood_rg`` or by >= _BLOOD_RATIO of their darkening, which holds for a
+       vessel of any strength) are set aside; they come back when they stand out
+       _RED_THREAD_GAIN times more than anything else and their hue differs from the mean of
+       the frame's other blood-like pixels by more than ~8 degrees (a red thread; the vessels
+       of a frame share one hue), keeping only pixels nearer the thread's hue. A lone
+       blood-like line (too few other blood-like pixels) is a vessel.
+    3. Shape: a piece's length >= min_length_px and largest half-width <= MAX_HALF_WIDTH_PX.
+    4. Stereo: a piece keeps >= half of its pixels with a candidate pixel on the same row of the
+       other view within [0, max_disparity_px] of disparity.
+       Presence: the piece's mean contrast to its local background is >= _MIN_SNR times the
+       frame's own pixel noise (per channel, robust): on a thread-free frame nothing passes
+       and the answer is "no thread found", not a vessel or a texture line.
+    5. Selection: the most salient piece (mean S x sqrt(length)) is the thread; other pieces
+       and pixels join it when they share its dye (direction of the colour contrast) and their
+       mean S is >= keep_ratio of its.
+    6. Mask: within _BAND_PX of the kept pixels, those with coverage >= 0.5 of a thread colour
+       blended over the local background colour (see :func:`_grow_mask`).
+
+    Returns P_L, P_R (H, W) bool and score_L, score_R (H, W) float32 in [0, 1].
+    Raises ``ValueError("no thread found ...")`` when no piece survives in a view.
+    """
+    views = [_View.build(img, p) for img in (left, right)]
+    found, salience, _ = _select(views, p)
+    if any(v.blood.any() for v in views):
+        # A red thread is blood-like too: it wins back when it stands out far more than
+        # anything left without the blood-like pixels, and when its hue differs from the
+        # frame's other blood-like pixels (a frame's vessels share one hue, haemoglobin's).
+        red_views = [v.with_blood(p) for v in views]
+        # The most salient shape-ok piece of each view bounds what a red thread can reach.
+        bound = sum(float(np.max(v.pieces[2] * np.sqrt(v.pieces[3]), where=v.pieces[4],
+                                 initial=0.0)) for v in red_views)  # fmt: skip
+        red, red_salience, red_cos = (
+            _select(red_views, p, nearest_hue=True)
+            if bound >= _RED_THREAD_GAIN * salience
+            else (None, 0.0, 1.0)
+        )
+        if (
+            red is not None
+            and red_salience >= _RED_THREAD_GAIN * salience
+            and red_cos < _VESSEL_HUE_COS
+        ):
+            views, found = red_views, red
+    if found is None:
+        raise ValueError(
+            "no thread found: no long thin piece with a partner in the other view stands out "
+            f"of the background (raw segmentation; ridge_hi={p.ridge_hi:g}, "
+            f"min_length_px={p.min_length_px:g})"
+        )
+    out = []
+    for v, core in zip(views, found, strict=True):
+        mask = drop_specks(_grow_mask(v, core), max(int(p.min_length_px), 1))
+        score = cv2.min(v.S, 2.0 * p.ridge_hi * v.level) * (1.0 / (2.0 * p.ridge_hi * v.level))
+        out.append((mask, score))
+    return out[0][0], out[1][0], out[0][1], out[1][1]
+
+
+@dataclass
+class _View:
+    """One view's intermediate results of :func:`segment_raw`."""
+
+    img: np.ndarray
+    S: np.ndarray  # (H, W) line response
+    level: float
+    lo: np.ndarray  # (H, W) uint8, 1 where S >= ridge_lo * level (off instruments)
+    rows: np.ndarray  # (M,) of the lo pixels, row-major order
+    cols: np.ndarray
+    delta: np.ndarray  # (M, C) log-channel contrast of the lo pixels to the local background
+    blood: np.ndarray  # (M,) bool, darker and redder than the tissue around
+    sigma: np.ndarray  # (C,) pixel noise of each log channel (robust), log units
+    bg_rgb: np.ndarray  # (h, w, C) float32 local background colour at quarter resolution
+    pieces: tuple = ()
+
+    @classmethod
+    def build(cls, img: np.ndarray, p: SegmentationParams) -> _View:
+        f = _log_channels(img)
+        S = _line_response(f)
+        level = _robust_level(S)
+        lo = cv2.compare(S, float(p.ridge_lo * level), cv2.CMP_GE)
+        rows, cols = _points(lo)
+        a_q = _quarter(img if img.ndim == 3 else img[:, :, None])[:, :, : f.shape[2]]
+        if f.shape[2] > 1 and len(rows):
+            tool = _instrument_mask(_log_of(a_q))
+            on_tool = tool[_qi(rows, tool.shape[0]), _qi(cols, tool.shape[1])]
+            if on_tool.any():
+                lo[rows[on_tool], cols[on_tool]] = 0
+                rows, cols = rows[~on_tool], cols[~on_tool]
+        free = _free_blocks(rows, cols, a_q.shape[:2])
+        bg_rgb = _background(a_q, free)
+        bg = _log_of(bg_rgb)
+        delta = f[rows, cols] - bg[_qi(rows, bg.shape[0]), _qi(cols, bg.shape[1])]
+        if f.shape[2] > 1:
+            redder = (delta[:, 1] > p.blood_rg * _LOG_SCALE) | (
+                delta[:, 1] >= -_BLOOD_RATIO * delta[:, 0]
+            )
+            blood = redder & (delta[:, 0] < 0)
+        else:
+            blood = np.zeros(len(rows), bool)
+        v = cls(img, S, level, lo, rows, cols, delta, blood, noise_sigma(f), bg_rgb)
+        if blood.any():
+            mask = lo.copy()
+            mask[rows[blood], cols[blood]] = 0
+            v.pieces = _pieces(S, mask, ~blood, v, p)
+        else:
+            v.pieces = _pieces(S, lo, None, v, p)
+        return v
+
+    def with_blood(self, p: SegmentationParams) -> _View:
+        v = _View(**{k: getattr(self, k) for k in self.__dataclass_fields__ if k != "pieces"})
+        v.pieces = _pieces(self.S, self.lo, None, v, p)
+        return v
+
+
+def _points(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns (M,) int of the nonzero pixels of a uint8 mask, row-major order."""
+    pts = cv2.findNonZero(mask)
+    if pts is None:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    pts = pts.reshape(-1, 2)
+    return pts[:, 1].astype(np.intp), pts[:, 0].astype(np.intp)
+
+
+def _qi(index: np.ndarray, n: int) -> np.ndarray:
+    """Quarter-resolution index of full-resolution rows or columns, clipped to ``n``."""
+    return np.minimum(index // _Q, n - 1)
+
+
+def _quarter(a: np.ndarray) -> np.ndarray:
+    """(h, w, C) float32 block means of ``a`` (H, W, C) over _Q x _Q blocks (uint8 means are
+    rounded: 0.5 grey levels at most)."""
+    h, w = a.shape[:2]
+    small = cv2.resize(a, (max(w // _Q, 1), max(h // _Q, 1)), interpolation=cv2.INTER_AREA)
+    return small.reshape(small.shape[0], small.shape[1], -1).astype(np.float32, copy=False)
+
+
+def _log_of(a: np.ndarray) -> np.ndarray:
+    """The channels of :func:`_log_channels` of a small float image (h, w, C): the log of
+    block means stands for the block mean of the logs (texture within a block is small)."""
+    logs = _LOG_SCALE * np.log(a + _LOG_OFFSET)
+    if logs.shape[2] == 1:
+        return logs
+    return cv2.transform(logs, _LOG_MIX)
+
+
+def _free_blocks(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(h, w) float32, 1 on quarter-resolution blocks that hold no candidate pixel (a
+    candidate's colour is not the background's)."""
+    free = np.ones(shape, np.float32)
+    free[_qi(rows, shape[0]), _qi(cols, shape[1])] = 0.0
+    return free
+
+
+def _background(a_q: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """(h, w, C) local background of the quarter-resolution image ``a_q``: the Gaussian average
+    (_BG_SIGMA) of the candidate-free blocks (normalised convolution)."""
+    s = _BG_SIGMA / _Q
+    c = a_q.shape[2]
+    num = cv2.GaussianBlur(a_q * free[:, :, None], (0, 0), s).reshape(a_q.shape[0], -1, c)
+    den = cv2.GaussianBlur(free, (0, 0), s)
+    return num / np.maximum(den, 1e-3)[:, :, None]
+
+
+def _select(
+    views: list[_View], p: SegmentationParams, nearest_hue: bool = False
+) -> tuple[list[np.ndarray] | None, float, float]:
+    """Core thread pixels (H, W) bool of both views (None when a view has no piece), the
+    salience (mean S x sqrt(length), summed over the views) of the chosen pieces, and the
+    largest (over the views) cosine between the chroma contrast of the chosen piece and the
+    mean one of the view's other blood-like pixels (its vessels; 1 when there are too few to
+    tell: a lone blood-like line is taken for a vessel).
+
+    ``nearest_hue`` (a blood-like thread among vessels): pieces and pixels join the thread only
+    when their hue is nearer the thread's than the vessels'."""
+    D = int(p.max_disparity_px)
+    cands = [v.pieces[1] for v in views]
+    partners = (_reach(cands[1], D, look_left=True), _reach(cands[0], D, look_left=False))
+    out = []
+    salience = 0.0
+    cos_vessels = -1.0
+    for v, partner in zip(views, partners, strict=True):
+        lab, _, means, length, ok = v.pieces  # lab: piece of each lo pixel (0: none), sparse
+        use = lab > 0
+        k = _consistent(lab[use], partner[v.rows[use], v.cols[use]] > 0, ok)
+        n = len(k)
+        area = np.maximum(np.bincount(lab[use], minlength=n), 1).astype(np.float64)
+        delta = np.stack(
+            [np.bincount(lab[use], weights=v.delta[use, j], minlength=n) / area
+             for j in range(v.delta.shape[1])],
+            1,
+        )  # fmt: skip
+        # Is it there at all: its mean contrast to the background stands out of the pixel noise.
+        k &= np.linalg.norm(delta / v.sigma, axis=1) >= _MIN_SNR
+        if not k.any():
+            return None, 0.0, 1.0
+        rank = np.where(k, means * np.sqrt(length), -1.0)
+        best = int(np.argmax(rank))
+        salience += float(rank[best])
+        # The frame's vessel hue: mean contrast of its blood-like pixels off the chosen piece.
+        vessel = v.blood & (lab != best)
+        d_vessel = v.delta[vessel].mean(axis=0) if vessel.sum() >= _MIN_VESSEL_PX else None
+        cos_vessels = max(
+            cos_vessels, 1.0 if d_vessel is None else _cosine(d_vessel[1:], delta[best, 1:])
+        )
+        d_best = delta[best]
+        # Other pieces of the same thread (split by an occluder or a crossing) share its dye.
+        k = k & (means >= p.keep_ratio * means[best]) & (_same_dye(delta, d_best) >= _SAME_DYE_COS)
+        if nearest_hue and d_vessel is not None:
+            k &= _same_dye(delta, d_best) > _same_dye(delta, d_vessel)
+        k[best] = True
+        k[0] = False
+        # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
+        # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
+        hue = _same_dye(v.delta, d_best)
+        other = hue < _SAME_DYE_COS_PX
+        if nearest_hue and d_vessel is not None:
+            other |= hue <= _same_dye(v.delta, d_vessel)
+        sel = k[lab] & ~other
+        sel &= v.S[v.rows, v.cols] >= _CORE_FRACTION * means[lab]
+        if not sel.any():
+            sel = lab == best
+        core = np.zeros(v.lo.shape, np.uint8)
+        core[v.rows[sel], v.cols[sel]] = 1
+        out.append(core)
+    return out, salience, cos_vessels
+
+
+def _cosine(a: np.ndarray, b: np.ndarray) -> float:
+    """Cosine of the angle between two contrast vectors (C,)."""
+    return float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-9)
+
+
+def noise_sigma(f: np.ndarray) -> np.ndarray:
+    """(C,) robust pixel-noise sigma of each channel of ``f`` (H, W, C): the median absolute
+    difference of horizontal neighbours on every _NOISE_ROW_STEP-th row (texture and edges
+    are sparse there; the differences are symmetric about 0), as a Gaussian sigma; at least
+    the uint8 quantisation noise."""
+    sub = f[::_NOISE_ROW_STEP]
+    d = cv2.absdiff(sub[:, 1:], sub[:, :-1]).reshape(-1, f.shape[2]).T.copy()  # (C, N)
+    mid = d.shape[1] // 2
+    mad = np.partition(d, mid, axis=1)[:, mid]
+    return np.maximum(1.4826 * mad / np.sqrt(2.0), _QUANT_SIGMA)
+
+
+def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """Cosine between colour contrasts (M, C) and ``ref`` (C,): on the chroma channels (hue
+    of the contrast, independent of its strength and of lighting) when there is colour, with
+    -1 where the brightness contrast has the other sign; the brightness sign alone for grey."""
+    sign = np.where(delta[:, 0] * ref[0] >= 0, 1.0, -1.0)
+    if delta.shape[1] == 1:
+        return sign
+    d, r = delta[:, 1:], ref[1:]
+    nr = float(np.linalg.norm(r))
+    if nr < _GREY_CHROMA:  # a grey thread (black, white): chroma contrast must stay small too
+        return np.where(np.linalg.norm(d, axis=1) < 2 * _GREY_CHROMA, sign, -1.0)
+    cos = (d @ r) / np.maximum(np.linalg.norm(d, axis=1) * nr, 1e-9)
+    return np.minimum(cos, sign)
+
+
+def _instrument_mask(f_q: np.ndarray) -> np.ndarray:
+    """(h, w) bool at quarter resolution: large unsaturated regions (metal or plastic
+    instruments) of the quarter-resolution log channels ``f_q``. A grey region survives an
+    opening by a 5 x 5 disc there (~20 px): a white or black thread, a fibre or a glint is
+    thinner and does not. When grey covers most of the view it is the scene itself (a flat
+    grey background), and nothing is masked."""
+    chroma = np.maximum(np.abs(f_q[:, :, 1]), np.abs(f_q[:, :, 2]))
+    grey = (chroma < _GREY_TOOL * _LOG_SCALE).view(np.uint8)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    tool = cv2.dilate(cv2.morphologyEx(grey, cv2.MORPH_OPEN, disc), disc)
+    if np.count_nonzero(tool) > 0.5 * tool.size:  # a grey scene (flat background), not a tool
+        return np.zeros(tool.shape, bool)
+    return tool.view(bool)
+
+
+def _log_channels(img: np.ndarray) -> np.ndarray:
+    """(H, W, C) float32: 32 log of the brightness and, for colour, 32 log(R/G), 32 log(B/G).
+
+    Logarithms turn lighting (vignetting, shading) into an additive, smooth term that the
+    second derivatives ignore; the two ratios see a thread that differs from tissue in hue only.
+    Brightness is the luminance-weighted geometric mean of R, G, B.
+    """
+    u8 = img if img.dtype == np.uint8 else np.clip(img, 0, 255).astype(np.uint8)
+    if u8.ndim == 2 or u8.shape[2] == 1:
+        return cv2.LUT(u8.reshape(u8.shape[0], u8.shape[1]), _LOG_LUT)[:, :, None]
+    logs = cv2.LUT(np.ascontiguousarray(u8[:, :, :3]), _LOG_LUT)
+    return cv2.transform(logs, _LOG_MIX)
+
+
+_LOG_LUT: Final = (_LOG_SCALE * np.log(np.arange(256, dtype=np.float64) + _LOG_OFFSET)).astype(
+    np.float32
+)
+_LOG_MIX: Final = np.array(
+    [[0.299, 0.587, 0.114], [1.0, -1.0, 0.0], [0.0, -1.0, 1.0]], np.float32
+)  # (brightness, log R/G, log B/G) from (log R, log G, log B)
+
+
+def _line_response(f: np.ndarray) -> np.ndarray:
+    """(H, W) float32 multi-scale line strength of the (H, W, C) channels ``f``.
+
+    The fine scale sees the grey channel only (a 1-2 px thread differs from tissue mostly in
+    brightness); the coarse scale sees every channel at half resolution (pyrDown) and is
+    upsampled: the same response for a quarter of the work.
+    """
+    h, w = f.shape[:2]
+    fine = _line_at(np.ascontiguousarray(f[:, :, 0]), _SCALES[0], _SCALES[0])
+    coarse = _line_at(cv2.pyrDown(f), 0.5 * _SCALES[1], _SCALES[1])
+    return cv2.max(fine, cv2.resize(coarse, (w, h), interpolation=cv2.INTER_LINEAR), dst=fine)
+
+
+def _line_at(f: np.ndarray, sigma: float, norm: float) -> np.ndarray:
+    """Line strength at Gaussian scale ``sigma`` px of this image, normalised as scale ``norm``.
+
+    Written with cv2's in-place outputs: six buffers instead of fifteen fresh arrays (page
+    faults on fresh memory cost more than the arithmetic here).
+    """
+    h, w = f.shape[:2]
+    c = 1 if f.ndim == 2 else f.shape[2]
+    g = cv2.GaussianBlur(f, (0, 0), sigma)
+    shape = (h, w * c)
+    r = sigma / norm  # derivatives per original pixel: a half-resolution pixel is 2 px
+    bufs = [np.empty(shape, np.float32) for _ in range(5)]
+    gx, gy, hxx, hyy, hxy = bufs
+    for out, (dx, dy, scale) in zip(
+        bufs,
+        ((1, 0, 0.125 * r), (0, 1, 0.125 * r), (2, 0, 0.25 * r * r), (0, 2, 0.25 * r * r),
+         (1, 1, 0.25 * r * r)),
+        strict=True,
+    ):  # fmt: skip
+        cv2.Sobel(g, cv2.CV_32F, dx, dy, dst=out.reshape(g.shape), ksize=3, scale=scale)
+    grad = cv2.magnitude(gx, gy, gx)
+    a = cv2.addWeighted(hxx, 0.5, hyy, 0.5, 0.0, dst=gy)
+    cv2.absdiff(a, 0.0, dst=a)  # |l1 + l2| / 2
+    cv2.addWeighted(hxx, 0.5, hyy, -0.5, 0.0, dst=hxx)
+    d = cv2.magnitude(hxx, hxy, hyy)  # |l1 - l2| / 2
+    line = cv2.min(a, d, dst=a)
+    cv2.addWeighted(line, 2.0 * norm * norm, grad, -_EDGE_K * norm, 0.0, dst=line)
+    cv2.max(line, 0.0, dst=line)
+    if c == 1:  # one channel: the norm over channels is the response itself
+        return line
+    cv2.multiply(line, line, dst=line)
+    sq = cv2.transform(line.reshape(h, w, c), np.ones((1, c), np.float32))
+    return cv2.sqrt(sq.reshape(h, w))
+
+
+def _robust_level(s: np.ndarray) -> float:
+    """Typical response of the background: the 90th percentile (thread px are < 5 %) of every
+    second pixel of every second row."""
+    sample = s[::2, ::2].ravel()
+    k = int(0.9 * (sample.size - 1))
+    return max(float(np.partition(sample, k)[k]), 1e-3)
+
+
+def _pieces(
+    s: np.ndarray, mask: np.ndarray, sub: np.ndarray | None, v: _View, p: SegmentationParams
+) -> tuple:
+    """Hysteresis pieces of ``mask`` (uint8, a subset of the view's lo pixels: those where
+    ``sub`` (M,) is True, all when None): the piece of each lo pixel (M,) (0: none), candidate
+    mask (H, W) uint8, per-piece mean S, length, shape ok."""
+    n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+    rows, cols = (v.rows, v.cols) if sub is None else (v.rows[sub], v.cols[sub])
+    lab = labels[rows, cols]
+    s_px = s[rows, cols]
+    area = np.bincount(lab, minlength=n).astype(np.float64)
+    means = np.bincount(lab, weights=s_px, minlength=n) / np.maximum(area, 1.0)
+    seeded = np.zeros(n, bool)
+    seeded[lab[s_px >= p.ridge_hi * v.level]] = True
+    # Half-width of a piece: its largest distance to the outside; length: area / width (a loop
+    # or a coil is long in a small box), at least the bounding box diagonal.
+    dist = cv2.distanceTransform(mask, cv2.DIST_L2, 3)[rows, cols]
+    half, r0, r1, c0, c1 = _label_stats(lab, rows, cols, dist, n)
+    diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
+    length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
+    ok = seeded & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
+    ok[0] = False
+    means[0] = 0.0
+    cand = np.zeros(mask.shape, np.uint8)
+    on = ok[lab]
+    cand[rows[on], cols[on]] = 1
+    lab_all = lab if sub is None else _scatter(lab, sub)
+    return lab_all, cand, means, length, ok
+
+
+def _scatter(values: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """(len(where),) array holding ``values`` where ``where`` is True and 0 elsewhere."""
+    out = np.zeros(len(where), values.dtype)
+    out[where] = values
+    return out
+
+
+def _label_stats(
+    lab: np.ndarray, rows: np.ndarray, cols: np.ndarray, dist: np.ndarray, n: int
+) -> tuple[np.ndarray, ...]:
+    """Per label (n,): largest ``dist``, first and last row, first and last column of its
+    pixels (given in row-major order): one stable sort and four reduceats."""
+    out = [np.zeros(n) for _ in range(5)]
+    if lab.size == 0:
+        return tuple(out)
+    order = np.argsort(lab, kind="stable")
+    lab_s = lab[order]
+    starts = np.flatnonzero(np.concatenate([[True], lab_s[1:] != lab_s[:-1]]))
+    ends = np.append(starts[1:], len(lab_s)) - 1
+    ids = lab_s[starts]
+    r_s, c_s = rows[order], cols[order]
+    out[0][ids] = np.maximum.reduceat(dist[order], starts)
+    out[1][ids] = r_s[starts]  # row-major order: a label's rows ascend
+    out[2][ids] = r_s[ends]
+    out[3][ids] = np.minimum.reduceat(c_s, starts)
+    out[4][ids] = np.maximum.reduceat(c_s, starts)
+    return tuple(out)
+
+
+def _reach(mask: np.ndarray, d: int, look_left: bool) -> np.ndarray:
+    """(H, W) uint8, 1 at pixels (r, c) with a ``mask`` pixel at (r, c - j) (``look_left``) or
+    (r, c + j), 0 <= j <= d: one dilation by a 1 x (d + 1) box anchored at its end."""
+    if d <= 0:
+        return mask
+    k = np.ones((1, d + 1), np.uint8)  # dilate: out(c) = max_i mask(c + i - anchor)
+    return cv2.dilate(mask, k, anchor=(d if look_left else 0, 0))
+
+
+def _consistent(lab: np.ndarray, partner: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Shape-ok pieces with a stereo partner for at least half of their pixels; ``lab`` (M,)
+    the piece of each labelled pixel, ``partner`` (M,) bool whether it has a partner."""
+    n = len(ok)
+    cand = ok[lab]
+    lab = lab[cand]
+    hits = np.bincount(lab, weights=partner[cand], minlength=n)
+    area = np.bincount(lab, minlength=n).astype(np.float64)
+    return ok & (hits >= 0.5 * np.maximum(area, 1.0))
+
+
+def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
+    """Thread pixels near ``core`` (uint8): coverage >= 0.5 of a linear blend thread over
+    background.
+
+    A pixel blending thread colour T over local background B with coverage c has
+    I - B = c (T - B), so c^2 = |I - B|^2 / |T - B|^2; |T - B|^2 is the largest |I - B|^2 of a
+    core pixel within the band (a box of radius _BAND_PX; the thread's axis is there). B is
+    the candidate-free average of the view (:func:`_background`). Sparse: band pixels only.
+    """
+    a = v.img if v.img.ndim == 3 else v.img[:, :, None]
+    a = a[:, :, : v.bg_rgb.shape[2]]
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * _BAND_PX + 1, 2 * _BAND_PX + 1))
+    band = cv2.dilate(core, k)
+    rows, cols = _points(band)
+    bg = v.bg_rgb
+    diff = a[rows, cols].astype(np.float32) - bg[_qi(rows, bg.shape[0]), _qi(cols, bg.shape[1])]
+    c2 = np.einsum("ij,ij->i", diff, diff)
+    on_core = core[rows, cols] > 0
+    dense = np.zeros(core.shape, np.float32)
+    dense[rows[on_core], cols[on_core]] = c2[on_core]
+    box = np.ones((2 * _BAND_PX + 1, 2 * _BAND_PX + 1), np.uint8)
+    peak = cv2.dilate(dense, box)[rows, cols]
+    out = np.zeros(core.shape, bool)
+    keep = (c2 >= 0.25 * peak) & (peak > 0)
+    # Coverage is conserved: a cross-section of two pixels (its outer neighbours below 0.5)
+    # whose coverages sum to < _SHARED_PX holds less than that much thread (a 1-2 px thread
+    # crossing from one pixel row or column to the next); coverage 0.5 takes the larger only.
+    cov = np.zeros(core.shape, np.float32)
+    cov[rows[keep], cols[keep]] = np.sqrt(c2[keep] / peak[keep])
+    c = cov[rows, cols]
+    h, w = core.shape
+
+    def at(dr: int, dc: int) -> np.ndarray:
+        return cov[np.clip(rows + dr, 0, h - 1), np.clip(cols + dc, 0, w - 1)]
+
+    for dr, dc in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        nb = at(dr, dc)
+        alone = (at(2 * dr, 2 * dc) < 0.5) & (at(-dr, -dc) < 0.5)
+        keep &= ~((nb > c) & (nb + c < _SHARED_PX) & alone)
+    out[rows[keep], cols[keep]] = True
+    return out
+
+
+def drop_specks(mask: np.ndarray, min_px: int) -> np.ndarray:
+    """``mask`` (H, W) bool without its 8-connected components smaller than ``min_px``."""
+    if min_px <= 1:
+        return mask
+    u8 = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
+    rows, cols = _points(u8)
+    if not len(rows):
+        return mask
+    n, labels = cv2.connectedComponents(u8, connectivity=8, ltype=cv2.CV_32S)
+    lab = labels[rows, cols]
+    keep = np.bincount(lab, minlength=n) >= min_px
+    keep = keep[lab]
+    out = np.zeros(mask.shape, bool)
+    out[rows[keep], cols[keep]] = True
+    return out
