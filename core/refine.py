@@ -241,7 +241,7 @@ def _mismatched(
         bad = (iR >= 0) & (np.abs(cL - cR - d_H) > MISMATCH_PX)  # NaN (no depth): not bad
     coil = np.zeros_like(bad)
     if d_run is not None:
-        n_L, n_R = runs_L.count(rows), runs_R.count(rows)
+        n_L = runs_L.count(rows)  # same_rank requires as many in the right view
         many = np.ones(runs_R.H, dtype=bool)
         iR_n = runs_L.same_rank(runs_R, rows, iL, many)
         on = (iR_n >= 0) & (n_L >= 3)
