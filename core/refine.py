@@ -159,13 +159,14 @@ def refine_depth(
         b = b_new
     ctrl = c0.copy()
     ctrl[:, 2] = b
+    dropped = mismatched if remedy else None  # for the check: these bounds no longer hold
     if not spline.ok:  # the MVS failed on bounds built on the wrong strand's depth
         message = (
             f"the MVS result was rejected ({spline.status}: {spline.message}); the two-view "
             "repair met the bounds of Eq. (7) outside the strand matched to its neighbour"
         )
-        return replace(spline, ctrl=ctrl, status="ok", message=message)
-    return replace(spline, ctrl=ctrl)
+        return replace(spline, ctrl=ctrl, status="ok", message=message, bounds_dropped=dropped)
+    return replace(spline, ctrl=ctrl, bounds_dropped=dropped)
 
 
 def _off_thread(

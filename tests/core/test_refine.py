@@ -115,6 +115,7 @@ def test_runs_pair_by_rank_only_where_both_views_hold_equally_many() -> None:
 def test_repair_leaves_a_frame_without_a_mismatched_strand_alone() -> None:
     rec, _, _ = _run(1, "repair")
     assert rec["refine"] is rec["spline"]
+    assert rec["refine"].bounds_dropped is None
 
 
 def test_repair_fixes_a_hairpin_strand_matched_to_its_neighbour() -> None:
@@ -214,3 +215,6 @@ def test_repair_fixes_a_coil_turn_matched_to_its_neighbour(frame: int, mvs_faile
     assert before.e_S_max > 20.0
     assert after.e_S_max < 1.0 and after.e_length < 1.0
     assert rec["refine"].ok and rec.status != "failed"
+    dropped = rec["refine"].bounds_dropped  # the check is told which bounds no longer hold
+    assert dropped is not None and dropped.shape == rec["bounds"].lower.shape
+    assert 3 <= dropped.sum() < 0.5 * dropped.size
