@@ -101,8 +101,9 @@ def refine_depth(
     mismatched, shared = _mismatched(bounds, runs_L, runs_R, fB, d_run)
     keep = ~mismatched
     # Stereo matched another strand somewhere: pair runs by rank on rows where the two views
-    # hold two runs (or equally many, on the rows of a coil's mismatched turn), and start with one solve linear in depth (Gauss-Newton in disparity
-    # cannot cross from one strand's depth to the other's).
+    # hold two runs (or equally many, on the rows of a coil's mismatched turn), and start
+    # with one solve linear in depth (Gauss-Newton in disparity cannot cross from one
+    # strand's depth to the other's).
     remedy = bool(mismatched.any())
     if not spline.ok and not remedy:
         return spline  # a failed MVS is repaired only where its bounds matched the wrong strand
@@ -241,7 +242,7 @@ def _mismatched(
         d_H = fB / bounds.centre
         bad = (iR >= 0) & (np.abs(cL - cR - d_H) > MISMATCH_PX)  # NaN (no depth): not bad
     coil = np.zeros_like(bad)
-    if d_run is not None:
+    if d_run is not None and d_run.size:
         n_L = runs_L.count(rows)  # same_rank requires as many in the right view
         many = np.ones(runs_R.H, dtype=bool)
         iR_n = runs_L.same_rank(runs_R, rows, iL, many)
