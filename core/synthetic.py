@@ -148,7 +148,9 @@ class ThreadParams:
         if self.hairpin and self.crossing:
             raise ValueError("thread.hairpin and thread.crossing cannot both be set")
         if self.spiral and (self.hairpin or self.crossing):
-            raise ValueError("thread.spiral cannot be combined with thread.hairpin or crossing")
+            raise ValueError(
+                "thread.spiral cannot be combined with thread.hairpin or thread.crossing"
+            )
         if self.crossing and self.n_control[1] < 7:
             raise ValueError(
                 f"thread.n_control max must be >= 7 to make a crossing, got {self.n_control}"
