@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from threadrecon.core.calibration import StereoCalibration
-from threadrecon.core.ordering import Ordering
+from threadrecon.core.ordering import OUTLIER_PX, Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.stereo import StereoResult
 
@@ -98,7 +98,7 @@ def depth_bounds(
 
     n_kp = int(np.sum(ordering.order >= 0))
     r_k = max(p.r_k_min, int(round(p.r_k_frac * n_kp)))
-    line_at_key, slopes = _window_line_fits(s, H[:, 2], key_idx, r_k)
+    line_at_key, slopes = _window_line_fits(s, _fit_depths(H, is_key, s, key_idx, fB), key_idx, r_k)
     half = p.bound_scale * np.abs(line_at_key - z_key)  # Eq. (7)
     min_half = p.widen_px * z_key**2 / (calib.focal * calib.baseline)
     half = np.maximum(half, min_half)
@@ -115,6 +115,22 @@ def depth_bounds(
         end_slopes=(float(slopes[0]), float(slopes[-1])),
         r_k=r_k,
     )
+
+
+def _fit_depths(
+    H: np.ndarray, is_key: np.ndarray, s: np.ndarray, key_idx: np.ndarray, fB: float
+) -> np.ndarray:
+    """(P,) depths of H for the window lines of Eq. (7): an extra point whose disparity lies
+    more than ``OUTLIER_PX`` from the keypoints' disparity interpolated at it is another
+    match (as in the ordering's clusters) and is left out (NaN). A run of gap pixels matched
+    to another strand or to nothing (disparity 2 px instead of 42 px) otherwise dominates the
+    least-squares line: bounds of +-750 mm and an end value of Eq. (8) 500 mm off."""
+    z = H[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(z > 0, fB / z, np.nan)
+        d_key = np.interp(s, s[key_idx], d[key_idx])
+        other = ~is_key & ~(np.abs(d - d_key) <= OUTLIER_PX)
+    return np.where(other, np.nan, z)
 
 
 def _window_line_fits(
