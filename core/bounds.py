@@ -47,6 +47,10 @@ class BoundsParams(Params):
         0.25, lo=0, hi=100, unit="px", slider=(0.0, 3.0, 0.05), label="widen threshold"
     )
     """Smallest bound half-width, px of disparity."""
+    drop_outliers: bool = False
+    """Leave extra points whose disparity lies > ``OUTLIER_PX`` from the keypoints' out of the
+    window lines of Eq. (7) (docs/method.md, deviation 21; measured better on held-out
+    generated frames, not yet the default: it changes the repair's test frames)."""
 
 
 @dataclass(frozen=True)
@@ -98,7 +102,8 @@ def depth_bounds(
 
     n_kp = int(np.sum(ordering.order >= 0))
     r_k = max(p.r_k_min, int(round(p.r_k_frac * n_kp)))
-    line_at_key, slopes = _window_line_fits(s, _fit_depths(H, is_key, s, key_idx, fB), key_idx, r_k)
+    z_fit = _fit_depths(H, is_key, s, key_idx, fB) if p.drop_outliers else H[:, 2]
+    line_at_key, slopes = _window_line_fits(s, z_fit, key_idx, r_k)
     half = p.bound_scale * np.abs(line_at_key - z_key)  # Eq. (7)
     min_half = p.widen_px * z_key**2 / (calib.focal * calib.baseline)
     half = np.maximum(half, min_half)

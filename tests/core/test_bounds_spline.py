@@ -358,3 +358,24 @@ def test_an_extra_point_matched_elsewhere_is_left_out_of_the_window_lines() -> N
     key_idx = np.flatnonzero(is_key)
     line, _ = _window_line_fits(s, z, key_idx, 1)
     assert np.all(np.abs(line - 100.0) < 2.0)  # the 2000 mm point would pull it by metres
+
+
+def test_dropping_outlying_extra_points_keeps_a_spirals_end_on_the_thread() -> None:
+    # Generated spiral (seed 7358 frame 20): three extra points at 2 px of disparity instead of
+    # 42 px pulled the window line at the first keypoint by metres; Eq. (8)'s end value put
+    # the curve's end 450 mm off. With bounds.drop_outliers they leave the window lines.
+    from threadrecon.core.bounds import BoundsParams as BP
+    from threadrecon.core.metrics import curve_errors
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import SyntheticParams, ThreadParams, generate_frame
+
+    syn = SyntheticParams(thread=ThreadParams(spiral=True))
+    fr = generate_frame(syn, np.random.default_rng([7358, 20]))
+    pipe = Pipeline(
+        StereoPair(fr.left, fr.right, fr.mask_left, fr.mask_right), syn.camera.calibration()
+    )
+    err = {}
+    for drop in (False, True):
+        rec = pipe.run(replace(ReconParams(), bounds=BP(drop_outliers=drop)))
+        err[drop] = curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max
+    assert err[False] > 100.0 and err[True] < 2.0
