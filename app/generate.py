@@ -76,6 +76,11 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
         "--hairpin", action="store_true", help="a tight U-turn: two strands side by side"
     )
     parser.add_argument(
+        "--spiral",
+        action="store_true",
+        help="a coil of 1.5-3 turns 2-6 mm apart, axis near the view direction",
+    )
+    parser.add_argument(
         "--leaves-image", action="store_true", help="one end of the thread leaves the image"
     )
     parser.add_argument(
@@ -176,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
         if args.crossing
         else "hairpin"
         if getattr(args, "hairpin", False)
+        else "spiral"
+        if getattr(args, "spiral", False)
         else args.background
     )
     if not _GROUP_RE.match(group):
@@ -249,6 +256,7 @@ def _params(args: argparse.Namespace) -> SyntheticParams:
             crossing=bool(args.crossing),
             leaves_image=bool(getattr(args, "leaves_image", False)),
             hairpin=bool(getattr(args, "hairpin", False)),
+            spiral=bool(getattr(args, "spiral", False)),
         )
         render = RenderParams(
             background=args.background,

@@ -27,6 +27,9 @@ _FLAG_NAMES = {
     "thread.length_mm": "--length-mm",
     "thread.depth_mm": "--depth-mm",
     "thread.diameter_mm": "--diameter-mm",
+    "thread.spiral": "--spiral",
+    "thread.hairpin": "--hairpin",
+    "thread.crossing": "--crossing",
     "render.noise_sigma": "--noise",
     "render.blur_sigma": "--blur",
     "render.background": "--background",
@@ -129,6 +132,7 @@ def _command(args: argparse.Namespace, group: str) -> str:
             ("--occlusion", args.occlusion),
             ("--leaves-image", getattr(args, "leaves_image", False)),
             ("--hairpin", getattr(args, "hairpin", False)),
+            ("--spiral", getattr(args, "spiral", False)),
             ("--instrument", getattr(args, "instrument", False)),
             ("--no-mask", getattr(args, "no_mask", False)),
         )
@@ -178,7 +182,8 @@ def _section(args: argparse.Namespace, params: SyntheticParams, group: str, rows
         f"- Thread: length {tp.length_mm[0]:g}-{tp.length_mm[1]:g} mm, depth "
         f"{tp.depth_mm[0]:g}-{tp.depth_mm[1]:g} mm, {tp.n_control[0]}-{tp.n_control[1]} control "
         f"points, curliness {tp.curliness:g} rad, diameter {tp.diameter_mm:g} mm, crossing "
-        f"{tp.crossing}, leaves image {tp.leaves_image}, margin {tp.margin_px:g} px.",
+        f"{tp.crossing}, hairpin {tp.hairpin}, spiral {tp.spiral}, leaves image "
+        f"{tp.leaves_image}, margin {tp.margin_px:g} px.",
         f"- Render: background {rp.background}, noise sigma {rp.noise_sigma:g}, blur sigma "
         f"{rp.blur_sigma:g} px, specular {rp.specular:g}, occlusion {rp.occlusion}, thread "
         f"colour {rp.thread_colour or 'default'}, distractors {rp.distractors}, instrument "

@@ -97,11 +97,13 @@ def refine_depth(
     cL, lL = runs_L.at(iL)
     okL = np.isfinite(cL) & (np.abs(cL - xy[:, 0]) <= 0.5 * lL + GATE_PX)
 
-    mismatched = _mismatched(bounds, runs_L, runs_R, fB)
+    d_run = _run_disparity(Bm @ c0[:, 2], iL, okL, runs_L.centre.size, fB)
+    mismatched, shared = _mismatched(bounds, runs_L, runs_R, fB, d_run)
     keep = ~mismatched
     # Stereo matched another strand somewhere: pair runs by rank on rows where the two views
-    # hold two runs, and start with one solve linear in depth (Gauss-Newton in disparity
-    # cannot cross from one strand's depth to the other's).
+    # hold two runs (or equally many, on the rows of a coil's mismatched turn), and start
+    # with one solve linear in depth (Gauss-Newton in disparity cannot cross from one
+    # strand's depth to the other's).
     remedy = bool(mismatched.any())
     if not spline.ok and not remedy:
         return spline  # a failed MVS is repaired only where its bounds matched the wrong strand
@@ -120,7 +122,7 @@ def refine_depth(
     S = D3 * (to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))[:, None]
 
     BH = BSpline.design_matrix(np.clip(spline.u_H, 0, spline.length), t, k).toarray()
-    iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1))
+    iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1), shared)
     if not remedy:
         iR_rank[:] = -1
     lo, hi = bounds.lower[keep], bounds.upper[keep]
@@ -158,13 +160,14 @@ def refine_depth(
         b = b_new
     ctrl = c0.copy()
     ctrl[:, 2] = b
+    dropped = mismatched if remedy else None  # for the check: these bounds no longer hold
     if not spline.ok:  # the MVS failed on bounds built on the wrong strand's depth
         message = (
             f"the MVS result was rejected ({spline.status}: {spline.message}); the two-view "
             "repair met the bounds of Eq. (7) outside the strand matched to its neighbour"
         )
-        return replace(spline, ctrl=ctrl, status="ok", message=message)
-    return replace(spline, ctrl=ctrl)
+        return replace(spline, ctrl=ctrl, status="ok", message=message, bounds_dropped=dropped)
+    return replace(spline, ctrl=ctrl, bounds_dropped=dropped)
 
 
 def _off_thread(
@@ -202,12 +205,33 @@ def _off_thread(
     return bool(np.any(edges[1::2] - edges[::2] >= OFF_THREAD_PX))
 
 
-def _mismatched(bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float) -> np.ndarray:
-    """(P,) points of H whose stereo depth matched the wrong strand: on a row where both views
-    hold two runs, the run of the same rank (runs keep their left-to-right
-    order between the views) gives a disparity more than ``MISMATCH_PX`` away, over at least
-    ``MISMATCH_RUN`` consecutive points. Their bounds of Eq. (7), built on that depth, are
-    dropped."""
+def _run_disparity(
+    z: np.ndarray, iL: np.ndarray, okL: np.ndarray, n_runs: int, fB: float
+) -> np.ndarray:
+    """(n_runs,) mean disparity, px, of the curve samples (depth ``z``) on each left run
+    (``iL`` where ``okL``); NaN on runs the curve does not visit."""
+    use = okL & (z > 0)
+    n = np.bincount(iL[use], minlength=n_runs)
+    total = np.bincount(iL[use], weights=fB / z[use], minlength=n_runs)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(n > 0, total / n, np.nan)
+
+
+def _mismatched(
+    bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float, d_run: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(P,) points of H whose stereo depth matched the wrong strand, and (H,) the image rows
+    of such sections found on rows of three or more runs.
+
+    On a row where both views hold two runs, the run of the same rank (runs keep their
+    left-to-right order between the views) gives a disparity more than ``MISMATCH_PX`` away.
+    On a row where both views hold equally many runs, three or more (the turns of a coil),
+    the same, and the right run that the point's stereo depth predicts is taken: it is the
+    same-rank partner of another left run, on which the curve's own disparity ``d_run``
+    (:func:`_run_disparity`) agrees with that pairing (uniqueness: one right run cannot show
+    two strands; where strands cross and swap their order, the other strand's depth does
+    not agree with the rank pairing, and nothing is flagged). Over at least ``MISMATCH_RUN``
+    consecutive points. Their bounds of Eq. (7), built on that depth, are dropped."""
     H = bounds.H
     rows = np.rint(H[:, 1]).astype(np.int64)
     iL = runs_L.nearest_index(rows, H[:, 0])
@@ -217,13 +241,38 @@ def _mismatched(bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float) -> np.n
     with np.errstate(divide="ignore", invalid="ignore"):
         d_H = fB / bounds.centre
         bad = (iR >= 0) & (np.abs(cL - cR - d_H) > MISMATCH_PX)  # NaN (no depth): not bad
+    coil = np.zeros_like(bad)
+    if d_run is not None and d_run.size:
+        n_L = runs_L.count(rows)  # same_rank requires as many in the right view
+        many = np.ones(runs_R.H, dtype=bool)
+        iR_n = runs_L.same_rank(runs_R, rows, iL, many)
+        on = (iR_n >= 0) & (n_L >= 3)
+        cR_n, _ = runs_R.at(np.where(on, iR_n, -1))
+        with np.errstate(invalid="ignore"):
+            x_R = np.where(np.isfinite(d_H), cL - d_H, -1e9)
+            on &= np.abs(cL - cR_n - d_H) > MISMATCH_PX
+        j = runs_R.nearest_index(rows, np.where(on, x_R, -1e9))
+        r = np.clip(rows, 0, runs_R.H - 1)
+        other = np.where(on & (j >= 0), runs_L.row_start[r] + (j - runs_R.row_start[r]), -1)
+        taken = on & (j >= 0) & (other != iL) & (other >= 0)
+        o = np.clip(other, 0, max(runs_L.centre.size - 1, 0))
+        c_o, _ = runs_L.at(np.where(taken, o, -1))
+        c_j, _ = runs_R.at(np.where(taken, j, -1))
+        with np.errstate(invalid="ignore"):
+            taken &= np.abs(c_o - c_j - d_run[o]) <= MISMATCH_PX
+        coil = taken
     # A strand matched to its neighbour is a section of consecutive points, not one point.
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(np.int8), [0]])))
+    both = bad | coil
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], both.astype(np.int8), [0]])))
     out = np.zeros_like(bad)
+    shared = np.zeros(runs_R.H, dtype=bool)
     for a, b in zip(edges[::2], edges[1::2], strict=True):
         if b - a >= MISMATCH_RUN:
             out[a:b] = True
-    return out
+            if coil[a:b].any():  # the rows this section spans: rank pairing there
+                lo, hi = int(rows[a:b].min()), int(rows[a:b].max())
+                shared[max(lo - 1, 0) : min(hi + 2, runs_R.H)] = True
+    return out, shared
 
 
 def _gauss_nodes(t: np.ndarray, k: int, per_span: int) -> tuple[np.ndarray, np.ndarray]:
@@ -314,13 +363,21 @@ class _Runs:
             best_d = np.where(better, dist, best_d)
         return best
 
-    def same_rank(self, other: _Runs, rows: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    def same_rank(
+        self, other: _Runs, rows: np.ndarray, idx: np.ndarray, shared: np.ndarray | None = None
+    ) -> np.ndarray:
         """Index of ``other``'s run with the same rank on the row as run ``idx`` of this view,
         where both views hold two runs on the row (two strands side by side; with more, near
-        crossings and loops, the left-to-right order need not hold); -1 elsewhere."""
+        crossings and loops, the left-to-right order need not hold), or equally many on a row
+        flagged in ``shared`` (H,) (a coil's turn matched to its neighbour, see
+        :func:`_mismatched`); -1 elsewhere."""
         out = np.full(len(idx), -1)
         n_self, n_other = self.count(rows), other.count(rows)
         use = (idx >= 0) & (n_self == 2) & (n_other == 2)  # two strands side by side
+        if shared is not None:
+            inside = (rows >= 0) & (rows < self.H)
+            on = inside & shared[np.clip(rows, 0, self.H - 1)]
+            use |= (idx >= 0) & on & (n_self >= 2) & (n_self == n_other)
         r = rows[use]
         out[use] = other.row_start[r] + (idx[use] - self.row_start[r])
         return out

@@ -113,6 +113,9 @@ class SplineResult:
     iterations: int
     max_violation: float
     """Largest excursion outside the bounds of the returned spline, fraction of half-width."""
+    bounds_dropped: np.ndarray | None = None
+    """(P,) bool over the points of H whose bounds of Eq. (7) the refine stage dropped (stereo
+    matched a strand to its neighbour there, see core/refine.py); None: every bound holds."""
 
     @property
     def ok(self) -> bool:

@@ -43,6 +43,13 @@ _MAX_ATTEMPTS: Final = 300  # shape/placement retries before settings are declar
 _EXIT_PX: Final = 20.0  # with leaves_image, the free end lies this far beyond the border
 _EDGE_SHADE: Final = 0.75  # tube brightness at its silhouette relative to its axis (cylinder)
 _HIGHLIGHT_HALF_WIDTH: Final = 0.3  # specular stripe half-width, fraction of the tube radius
+_SPIRAL_TURNS: Final = (1.5, 3.0)  # turns of a spiral coil (issue 12)
+_SPIRAL_GAP_MM: Final = (2.0, 6.0)  # 3D distance between neighbouring turns, mm
+_SPIRAL_TILT_DEG: Final = 40.0  # max angle between the coil's axis and the view direction
+_SPIRAL_CTRL_PER_TURN: Final = 8  # control points per turn of the coil
+# A uniform cubic B-spline through 8 points per turn of a circle has (4 + 2 cos(2 pi / 8)) / 6
+# of its radius: the control radii are divided by this so that the curve's gap is the drawn one.
+_SPIRAL_SHRINK: Final = (4.0 + 2.0 * math.cos(2.0 * math.pi / _SPIRAL_CTRL_PER_TURN)) / 6.0
 _MIN_CROSSING_SIN: Final = math.sin(math.radians(25.0))  # crossings must not be grazing
 
 Background = Literal["flat", "tissue"]
@@ -126,6 +133,8 @@ class ThreadParams:
     crossing: bool = False  # the thread crosses itself in the left image at least once
     leaves_image: bool = False  # one end leaves both images; the rest keeps margin_px
     hairpin: bool = False  # a tight U-turn: two strands side by side, a few px apart, not touching
+    spiral: bool = False  # a coil of 1.5-3 turns, 2-6 mm apart, axis near the view direction;
+    # its control points are 8 per turn plus a tail (n_control does not apply)
     margin_px: float = 10.0  # min distance of the projected centreline to the image border, px
 
     def __post_init__(self) -> None:
@@ -138,6 +147,10 @@ class ThreadParams:
             )
         if self.hairpin and self.crossing:
             raise ValueError("thread.hairpin and thread.crossing cannot both be set")
+        if self.spiral and (self.hairpin or self.crossing):
+            raise ValueError(
+                "thread.spiral cannot be combined with thread.hairpin or thread.crossing"
+            )
         if self.crossing and self.n_control[1] < 7:
             raise ValueError(
                 f"thread.n_control max must be >= 7 to make a crossing, got {self.n_control}"
@@ -358,6 +371,54 @@ def _random_polygon(
     return np.vstack([np.zeros(3), np.cumsum(step * dirs, axis=0)])
 
 
+def _random_spiral(length: float, curliness: float, rng: np.random.Generator) -> np.ndarray | None:
+    """Control polygon (n, 3) of a conical coil of ``length`` mm (+- 15 %) with a short tail.
+
+    The coil winds 1.5-3 turns about an axis within ``_SPIRAL_TILT_DEG`` of the view direction
+    (+Z); neighbouring turns lie 2-6 mm apart in 3D, split between a radial step (the turns
+    nest in the image, and at the top and bottom of each turn run along the image rows, a few
+    px above each other: the epipolar lines) and an axial step (they part in depth). The inner
+    end is free inside the coil; from the outer end the thread leaves along the tangent with
+    a random walk of 1-3 legs (heading std ``curliness`` / 2). Returns None when the drawn
+    turns and gap cannot make the length with an inner radius of at least the gap.
+    """
+    turns = rng.uniform(*_SPIRAL_TURNS)
+    gap = rng.uniform(*_SPIRAL_GAP_MM)
+    axial = gap * rng.uniform(0.0, 0.6)  # share of the gap along the axis (a helix)
+    radial = math.sqrt(gap * gap - axial * axial)
+    tail_legs = int(rng.integers(1, 4))
+    coil = length * rng.uniform(0.75, 0.9)  # the rest of the length is the tail
+    # coil length ~ 2 pi T (r0 + radial T / 2) for a flat spiral (axial steps add little)
+    r0 = coil / (2.0 * math.pi * turns) - 0.5 * radial * turns
+    if r0 < gap:
+        return None
+    k = int(math.ceil(turns * _SPIRAL_CTRL_PER_TURN))
+    theta = np.linspace(0.0, 2.0 * math.pi * turns, k + 1)
+    sign = rng.choice([-1.0, 1.0])  # winding sense
+    r = (r0 + radial * theta / (2.0 * math.pi)) / _SPIRAL_SHRINK
+    coil_pts = np.stack(
+        [r * np.cos(sign * theta), r * np.sin(sign * theta), axial * theta / (2.0 * math.pi)], 1
+    )
+    # tail: continue along the last leg, legs as long as the coil's outer legs
+    step = float(np.linalg.norm(coil_pts[-1] - coil_pts[-2]))
+    heading = math.atan2(*(coil_pts[-1, 1::-1] - coil_pts[-2, 1::-1]))
+    tail = [coil_pts[-1]]
+    for _ in range(tail_legs):
+        heading += rng.normal(0.0, 0.5 * curliness)
+        tail.append(tail[-1] + step * np.array([math.cos(heading), math.sin(heading), 0.0]))
+    ctrl = np.vstack([coil_pts, np.array(tail[1:])])
+    # tilt the axis away from +Z by up to _SPIRAL_TILT_DEG about a random in-plane axis
+    tilt = math.radians(rng.uniform(0.0, _SPIRAL_TILT_DEG))
+    a = rng.uniform(0.0, 2.0 * math.pi)
+    u = np.array([math.cos(a), math.sin(a), 0.0])
+    ux = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
+    rot = np.eye(3) + math.sin(tilt) * ux + (1.0 - math.cos(tilt)) * ux @ ux  # Rodrigues
+    ctrl = ctrl @ rot.T
+    if rng.uniform() < 0.5:  # the free inner end first or last along the curve
+        ctrl = ctrl[::-1]
+    return np.ascontiguousarray(ctrl)
+
+
 def _fit_length_and_depth(ctrl: np.ndarray, length: float, span: float) -> np.ndarray | None:
     """Scale to arc length ``length`` (mm) with Z extent <= ``span`` (mm), squashing Z if needed."""
     ctrl = ctrl.copy()
@@ -512,17 +573,22 @@ def _random_thread(cam: StereoCamera, tp: ThreadParams, rng: np.random.Generator
     for _ in range(_MAX_ATTEMPTS):
         n = int(rng.integers(n_lo, tp.n_control[1] + 1))
         length = rng.uniform(*tp.length_mm)
-        poly = _random_polygon(n, tp.curliness, tp.crossing, rng, tp.hairpin)
-        ctrl = _fit_length_and_depth(poly, length, span)
-        if ctrl is None:
-            continue
+        if tp.spiral:  # the coil's gap is fixed in mm: placed as drawn, never rescaled
+            ctrl = _random_spiral(length, tp.curliness, rng)
+            if ctrl is None or np.ptp(_sample_arc(ctrl, 256)[:, 2]) > 0.95 * span:
+                continue
+        else:
+            poly = _random_polygon(n, tp.curliness, tp.crossing, rng, tp.hairpin)
+            ctrl = _fit_length_and_depth(poly, length, span)
+            if ctrl is None:
+                continue
         ctrl = _place(ctrl, cam, tp, rng)
         if ctrl is not None and _acceptable(ctrl, cam, tp):
             return ctrl
     raise ValueError(
         f"could not place a thread with thread.length_mm={tp.length_mm} in the view at "
         f"thread.depth_mm={tp.depth_mm} (margin_px={tp.margin_px}, crossing={tp.crossing}, "
-        f"leaves_image={tp.leaves_image}); try a shorter length or a deeper depth range"
+        f"leaves_image={tp.leaves_image}, spiral={tp.spiral}); try a shorter length or a deeper depth range"
     )
 
 

@@ -1,5 +1,5 @@
-"""Hard-shape benchmark (issue 12): crossing (flat, tissue), occlusion, leaving the image and
-hairpin frames from the generator, exact masks given, reconstructed in memory.
+"""Hard-shape benchmark (issue 12): crossing (flat, tissue), occlusion, leaving the image,
+hairpin and spiral frames from the generator, exact masks given, reconstructed in memory.
 
     python scripts/hard_suites.py --seed 5501 --count 20 [--config paper-simulated]
         [--set refine.mode=two_view ...] [--suite occlusion ...] [--csv out.csv]
@@ -48,6 +48,7 @@ SUITES: dict[str, tuple[str, ThreadParams, RenderParams]] = {
     "occlusion": ("--occlusion", ThreadParams(), RenderParams(occlusion=True)),
     "leaving": ("--leaves-image", ThreadParams(leaves_image=True), RenderParams()),
     "hairpin": ("--hairpin", ThreadParams(hairpin=True), RenderParams()),
+    "spiral": ("--spiral", ThreadParams(spiral=True), RenderParams()),
 }
 
 

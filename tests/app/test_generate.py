@@ -91,6 +91,14 @@ def test_default_group_follows_background_and_crossing(tmp_path: Path) -> None:
         assert (tmp_path / "simulated" / name).is_file()
 
 
+def test_spiral_flag_writes_a_spiral_group_and_records_the_flag(tmp_path: Path) -> None:
+    _run(str(tmp_path), "--count", "1", "--seed", "3", "--spiral")
+    truth = np.load(tmp_path / "simulated" / "spiral" / "spiral_1.npy")
+    assert truth.shape[1] == 3 and len(truth) >= 8 * 1.5  # 8 control points per turn
+    text = (tmp_path / "README.md").read_text(encoding="utf-8")
+    assert "--spiral" in text and "spiral True" in text
+
+
 def test_refuses_to_overwrite_existing_frames_unless_forced(tmp_path: Path) -> None:
     _run(str(tmp_path), "--count", "1")
     image = tmp_path / "simulated" / "flat" / "flat_1.png"
@@ -113,6 +121,7 @@ def test_refuses_to_overwrite_existing_frames_unless_forced(tmp_path: Path) -> N
         (("--length-mm", "80", "40"), "--length-mm"),
         (("--length-mm", "500", "600", "--depth-mm", "20", "30"), "--length-mm"),
         (("--group", "../escape"), "--group"),
+        (("--spiral", "--hairpin"), "--spiral"),
     ],
 )
 def test_bad_settings_raise_value_error_naming_the_flag(

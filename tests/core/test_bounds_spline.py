@@ -9,7 +9,13 @@ from scipy.interpolate import BSpline
 from support import assert_close, synthetic_case
 from threadpoolctl import threadpool_limits
 
-from threadrecon.core.bounds import Bounds, BoundsParams, _border_depths, _window_line_fits
+from threadrecon.core.bounds import (
+    Bounds,
+    BoundsParams,
+    _border_depths,
+    _fit_depths,
+    _window_line_fits,
+)
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import to_camera
 from threadrecon.core.pipeline import Pipeline, ReconParams
@@ -336,3 +342,40 @@ def test_a_border_keypoint_with_a_cut_search_takes_its_neighbours_depth() -> Non
     out = _border_depths(path, fB)
     assert_close(out[:5], path[:5])
     assert_close(out[5:, 2], np.array([124.0, 124.0]))
+
+
+def test_an_extra_point_matched_elsewhere_is_left_out_of_the_window_lines() -> None:
+    # Keypoints at disparity 40 px (fB = 4000 px mm -> depth 100 mm); the extra points between
+    # them at 40.5 px stay, one at 2 px (another match, 2000 mm) is left out.
+    fB = 4000.0
+    disp = np.array([40.0, 40.5, 2.0, 40.0, 41.0, 40.0])
+    is_key = np.array([True, False, False, True, False, True])
+    H = np.column_stack([np.arange(6.0), np.zeros(6), fB / disp])
+    s = np.arange(6.0)
+    z = _fit_depths(H, is_key, s, np.flatnonzero(is_key), fB)
+    assert np.isnan(z[2])
+    assert_close(np.delete(z, 2), np.delete(H[:, 2], 2))
+    key_idx = np.flatnonzero(is_key)
+    line, _ = _window_line_fits(s, z, key_idx, 1)
+    assert np.all(np.abs(line - 100.0) < 2.0)  # the 2000 mm point would pull it by metres
+
+
+def test_dropping_outlying_extra_points_keeps_a_spirals_end_on_the_thread() -> None:
+    # Generated spiral (seed 7358 frame 20): three extra points at 2 px of disparity instead of
+    # 42 px pulled the window line at the first keypoint by metres; Eq. (8)'s end value put
+    # the curve's end 450 mm off. With bounds.drop_outliers they leave the window lines.
+    from threadrecon.core.bounds import BoundsParams as BP
+    from threadrecon.core.metrics import curve_errors
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import SyntheticParams, ThreadParams, generate_frame
+
+    syn = SyntheticParams(thread=ThreadParams(spiral=True))
+    fr = generate_frame(syn, np.random.default_rng([7358, 20]))
+    pipe = Pipeline(
+        StereoPair(fr.left, fr.right, fr.mask_left, fr.mask_right), syn.camera.calibration()
+    )
+    err = {}
+    for drop in (False, True):
+        rec = pipe.run(replace(ReconParams(), bounds=BP(drop_outliers=drop)))
+        err[drop] = curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max
+    assert err[False] > 100.0 and err[True] < 2.0

@@ -306,6 +306,27 @@ def test_hairpin_strands_run_side_by_side_without_touching(seed: int) -> None:
     assert np.min(d[far]) < 30.0  # yet close in the image: side by side
 
 
+@pytest.mark.parametrize("seed", SEEDS)
+def test_spiral_winds_turns_that_stay_apart_in_3d_and_in_the_image(seed: int) -> None:
+    frame = generate_frame(SyntheticParams(thread=ThreadParams(spiral=True)), rng=seed)
+    n, _ = cv2.connectedComponents(frame.mask_left.astype(np.uint8), connectivity=8)
+    assert n == 2  # one thread, turns never merged in the image
+    c = frame.truth.centerline
+    uv, _ = frame.camera.project(c)
+    heading = np.unwrap(np.arctan2(*np.diff(uv, axis=0).T[::-1]))
+    assert np.ptp(heading) >= 2 * math.pi * 1.4  # at least ~1.5 turns in the image
+    s = np.arange(len(c)) * 0.25  # the centreline is uniform in arc, 0.25 mm
+    d = np.linalg.norm(c[:, None] - c[None, :], axis=2)
+    other_turn = np.abs(s[:, None] - s[None, :]) > 8.0
+    assert 1.5 <= np.min(d[other_turn]) <= 6.5  # neighbouring turns 2-6 mm apart
+
+
+def test_spiral_cannot_be_combined_with_hairpin_or_crossing() -> None:
+    for other in ({"hairpin": True}, {"crossing": True}):
+        with pytest.raises(ValueError, match="spiral"):
+            ThreadParams(spiral=True, **other)
+
+
 def test_hairpin_and_crossing_cannot_both_be_set() -> None:
     with pytest.raises(ValueError, match="hairpin"):
         ThreadParams(hairpin=True, crossing=True)
