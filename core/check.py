@@ -756,10 +756,15 @@ def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> 
 def _excursion(spline: SplineResult, bounds: Bounds, where: np.ndarray | None = None) -> float:
     """Largest excursion of S_z outside [lower, upper] at the points of H, in half-widths;
     with ``where`` (one flag per dense curve point, evenly spaced in the spline's parameter),
-    only at the points of H whose nearest curve point is flagged."""
+    only at the points of H whose nearest curve point is flagged. Bounds the refine stage
+    dropped (``spline.bounds_dropped``: stereo matched a strand to its neighbour there, so
+    they bound the wrong strand) are not evidence and are skipped."""
     zs = BSpline(spline.knots, spline.ctrl[:, 2], spline.degree)(spline.u_H)
     half = np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12)
     out = np.maximum(bounds.lower - zs, zs - bounds.upper) / half
+    dropped = spline.bounds_dropped
+    if dropped is not None and len(dropped) == len(out):
+        out = np.where(dropped, 0.0, out)
     if where is not None:
         n = len(where)
         u = spline.u_H / spline.length if spline.length > 0 else np.zeros(len(out))
