@@ -23,6 +23,14 @@ adds, per frame t, with the previous tracked curve ``x_{t-1}`` and its velocity 
    ``smooth * exp(-(d / cover_mm)^2)``, d the distance between the two, so noise is damped and
    real disagreements are not.
 
+6. **Gate** (:func:`gate_corrections`): when the single-frame curve of a frame is doubted, the
+   segmentation's masks are cut to a band around the prediction reprojected into both views
+   (widened by one frame's predicted motion): a piece of the masks far from where the thread
+   can be (an instrument's shaft or jaws, a vessel) is a distractor. The band is a mask
+   correction (``keep``, :mod:`core.corrections`), so the debugger shows what it removed.
+
+A track (re)starts only from a curve the single-frame check calls "ok": a doubted first curve
+(an instrument taken for thread) would otherwise be locked onto and gate the thread away.
 A frame where the tracked and the single-frame curves differ by more than ``disagree_mm``
 (Hausdorff distance) is flagged; the single-frame curve is always kept beside the tracked one.
 Everything here is a pure function of arrays and frozen dataclasses; units are those of the
@@ -35,9 +43,11 @@ import math
 from dataclasses import dataclass
 from typing import Final, Literal
 
+import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from threadrecon.core.corrections import MAX_RADIUS_PX, MAX_STROKE_POINTS, Correction
 from threadrecon.core.params import Params, param
 
 MIN_ALPHA: Final = 8  # the smallest stereo search range tracking sets, px (Eq. (3) needs > 4)
@@ -47,6 +57,7 @@ _MIN_SUPPORTED: Final = 0.2  # share of a curve that must be supported before tr
 _MIN_SUPPORTED_REJECTED: Final = 0.5  # share of a rejected curve that stereo must support
 _SNAP_NEIGHBOURS: Final = 8  # stereo points averaged per sample when snapping a filled piece
 _SNAP_SMOOTH: Final = 3.0  # std of the smoothing of snap offsets along a piece, samples
+START_PIECES: Final = 3  # pieces tried one by one to start a track: a few pipeline runs a frame
 
 Status = Literal["ok", "predicted", "lost"]
 
@@ -78,6 +89,9 @@ class TrackParams(Params):
     """Frames in a row the curve may be predicted without an observation before it is lost."""
     alpha_margin_px: float = param(10.0, lo=0, hi=512, unit="px", label="search margin")
     """Margin above the predicted largest disparity for the stereo search range, px."""
+    gate_px: float = param(12.0, lo=0, hi=MAX_RADIUS_PX, unit="px", label="gate half-width")
+    """Half-width of the band around the reprojected prediction that a doubted frame's masks
+    are cut to, px, before one frame's predicted motion is added (0: no gate)."""
 
 
 @dataclass(frozen=True)
@@ -172,6 +186,71 @@ def search_alpha(
     return int(np.clip(math.ceil(disparity.max() + p.alpha_margin_px), MIN_ALPHA, MAX_ALPHA))
 
 
+def gate_corrections(
+    state: TrackState | None,
+    P1: np.ndarray,
+    P2: np.ndarray,
+    shape: tuple[int, int],
+    p: TrackParams,
+) -> tuple[Correction, ...]:
+    """The tracker's gate on the next frame's masks P_L, P_R: one ``keep`` correction per view,
+    the band of half-width ``gate_px`` plus the predicted motion (px, the largest displacement
+    of a sample between ``state.points`` and the prediction, reprojected) around the predicted
+    curve projected with the rectified ``P1`` (left) and ``P2`` (right), (3, 4). Samples outside
+    the (H, W) ``shape`` are clamped to its border (the band follows the thread out of view).
+    Empty without a prior, with tracking off, ``gate_px`` 0, or a prediction behind a camera."""
+    if state is None or not p.enabled or p.gate_px <= 0:
+        return ()
+    h, w = shape
+    out = []
+    for view, P in (("left", P1), ("right", P2)):
+        uv_next = _project(state.predicted, P)
+        uv_now = _project(state.points, P)
+        if uv_next is None or uv_now is None:
+            return ()
+        motion = float(np.linalg.norm(uv_next - uv_now, axis=1).max())
+        radius = min(p.gate_px + motion, MAX_RADIUS_PX)
+        xy = np.rint(uv_next).astype(np.int64)
+        xy[:, 0] = np.clip(xy[:, 0], 0, w - 1)
+        xy[:, 1] = np.clip(xy[:, 1], 0, h - 1)
+        keep = np.ones(len(xy), dtype=bool)
+        keep[1:] = np.any(xy[1:] != xy[:-1], axis=1)  # no repeated pixel
+        xy = xy[keep][:MAX_STROKE_POINTS]
+        points = tuple((int(x), int(y)) for x, y in xy)
+        out.append(Correction("keep", view, points, radius))  # type: ignore[arg-type]
+    return tuple(out)
+
+
+def start_corrections(P_L: np.ndarray, pieces: int = START_PIECES) -> list[tuple[Correction, ...]]:
+    """Hypotheses for starting a track when the frame's single-frame curve is doubted: for each
+    of the ``pieces`` largest 8-connected pieces of the left mask P_L (H, W) bool, the piece's
+    removal in both views (``remove`` with its stereo partner, :mod:`core.corrections`), largest
+    first; empty when P_L has fewer than two pieces. The caller keeps the first hypothesis whose
+    curve the check calls "ok" (an instrument's shaft taken for thread is usually the largest)."""
+    P_L = np.asarray(P_L)
+    if P_L.ndim != 2:
+        raise ValueError(f"P_L must be an (H, W) mask, got {P_L.shape}")
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(P_L.astype(np.uint8), connectivity=8)
+    if n < 3:  # background and at most one piece
+        return []
+    order = 1 + np.argsort(-stats[1:, cv2.CC_STAT_AREA], kind="stable")[:pieces]
+    out = []
+    for k in order:  # a handful of pieces
+        rows, cols = np.nonzero(labels == k)
+        click = ((int(cols[0]), int(rows[0])),)  # a pixel of the piece: it alone is removed
+        out.append((Correction("remove", "left", click, 0.5, stereo=True),))
+    return out
+
+
+def _project(x: np.ndarray, P: np.ndarray) -> np.ndarray | None:
+    """(N, 2) pixels (x, y) of the points ``x`` (N, 3) by the (3, 4) ``P``; None when a point
+    is behind the camera or not finite."""
+    u = np.column_stack([x, np.ones(len(x))]) @ np.asarray(P, dtype=np.float64).T
+    if np.any(u[:, 2] <= _EPS) or not np.all(np.isfinite(u)):
+        return None
+    return u[:, :2] / u[:, 2:]
+
+
 def track_step(
     single: np.ndarray | None,
     state: TrackState | None,
@@ -184,11 +263,12 @@ def track_step(
     (optional: pieces filled from the prior are pulled onto them) and the previous state
     -> this frame's result and state.
 
-    ``check``: the single-frame check's verdict on the curve. A doubted curve ("suspect" or
-    "failed") is believed only where it also lies within ``disagree_mm`` of the prediction
-    (the rest is trimmed at the ends or taken from the prior inside). A "failed" curve is used
-    only with a prior and a ``cloud``, when at least half of it is supported and it explains the
-    prediction; it never (re)starts a track and does not teach the thread's length."""
+    ``check``: the single-frame check's verdict on the curve. Only an "ok" curve (re)starts a
+    track. A doubted curve ("suspect" or "failed") is believed only where it also lies within
+    ``disagree_mm`` of the prediction (the rest is trimmed at the ends or taken from the prior
+    inside), and not at all when it explains less than ``min_overlap`` of the prediction (the
+    frame is predicted). A "failed" curve is used only with a ``cloud``, when at least half of
+    it is supported; it does not teach the thread's length."""
     rejected = check == "failed"
     if cloud is not None:
         cloud = np.asarray(cloud, dtype=np.float64)
@@ -202,11 +282,13 @@ def track_step(
     n = p.n_samples
     if rejected and single is not None and not _usable_rejected(single, state, cloud, p):
         single = None
-    if not p.enabled or state is None:
-        start = single
-        if p.enabled and check != "ok" and single is not None:
-            start = _trim_unsupported(single, cloud, p)  # a doubted start: its supported part
-        return _restart(start, n, restarted=state is None and p.enabled, single=single)
+    if not p.enabled:
+        return _restart(single, n, restarted=False)
+    if state is None:
+        if check != "ok" and single is not None:  # a track starts from an "ok" curve only
+            reason = f"no track: the single-frame curve is {check}, a track starts from an ok one"
+            return TrackResult(None, single, "lost", False, reason, *_NO_FIT), None
+        return _restart(single, n, restarted=True)
     if len(state.points) != n:
         raise ValueError(f"state has {len(state.points)} samples, params say {n}")
     pred = state.predicted
@@ -227,7 +309,7 @@ def track_step(
     d_pred = cKDTree(obs).query(pred)[0]  # how well the observation explains each prediction
     explained = d_pred <= p.cover_mm
     if explained.mean() < p.min_overlap:
-        if rejected:  # a rejected curve that disagrees with the prior is no observation
+        if check != "ok":  # a doubted curve that disagrees with the prior is no observation
             return track_step(None, state, p, cloud)
         res, new = _restart(single, n, restarted=True)
         reason = f"observation explains {100 * explained.mean():.0f}% of the prediction; restarted"

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from threadrecon.core.corrections import VIEWS, apply_corrections
+from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.sequence_synth import (
     MotionParams,
     SequenceParams,
@@ -16,10 +18,12 @@ from threadrecon.core.synthetic import RenderParams, StereoCamera, SyntheticPara
 from threadrecon.core.tracking import (
     TrackParams,
     TrackState,
+    gate_corrections,
     motion_error,
     polyline_length,
     resample,
     search_alpha,
+    start_corrections,
     track_step,
 )
 
@@ -269,12 +273,86 @@ def test_a_failed_curve_never_starts_a_track_but_serves_with_a_prior():
     assert res.status == "predicted"
 
 
-def test_a_doubted_first_curve_starts_from_its_supported_part():
+def test_only_an_ok_curve_starts_a_track():
     p = TrackParams()
     full = _arc(400)
-    wild = np.vstack([full, full[-1] + np.linspace(0, 1, 40)[1:, None] * [0.0, 0.0, 4000.0]])
-    res, _ = track_step(wild, None, p, cloud=full, check="suspect")  # the end runs off 4 m deep
-    assert res.points[:, 2].max() < full[:, 2].max() + p.support_mm
-    assert res.length == pytest.approx(polyline_length(full), abs=1.0)
-    trusted, _ = track_step(wild, None, p, cloud=full)  # an "ok" curve is taken as it is
-    assert trusted.points[:, 2].max() > 1000
+    for check in ("suspect", "failed"):
+        res, state = track_step(full, None, p, cloud=full, check=check)
+        assert res.status == "lost" and res.points is None and state is None
+        assert "starts from an ok one" in res.reason or check == "failed"
+    res, state = track_step(full, None, p, cloud=full, check="ok")
+    assert res.status == "ok" and res.restarted and state is not None
+
+
+def test_a_doubted_curve_elsewhere_is_predicted_not_restarted_from():
+    p = TrackParams()
+    _, state = track_step(_arc(), None, p)
+    elsewhere = _arc() + np.array([0.0, 60.0, 0.0])  # e.g. an instrument's shaft
+    res, new = track_step(elsewhere, state, p, cloud=elsewhere, check="suspect")
+    assert res.status == "predicted" and not res.restarted
+    assert np.allclose(res.points, state.predicted) and new.coasted == 1
+
+
+def test_gate_keeps_a_band_around_the_reprojected_prediction_widened_by_the_motion():
+    P1, P2 = _P()
+    p = TrackParams(gate_px=10.0)
+    x = _arc(200) * np.array([0.5, 1.0, 1.0])  # in view
+    v = np.tile([1.0, 0.0, 0.0], (len(x), 1))  # 1 mm a frame to the right
+    gate = gate_corrections(TrackState(x, v), P1, P2, (CAM.height, CAM.width), p)
+    assert [c.op for c in gate] == ["keep", "keep"] and tuple(c.view for c in gate) == VIEWS
+    for c, P in zip(gate, (P1, P2), strict=True):
+        uv = np.column_stack([x + v, np.ones(len(x))]) @ P.T
+        uv = uv[:, :2] / uv[:, 2:]
+        pts = np.array(c.points, dtype=float)
+        assert cKDTree(pts).query(uv)[0].max() < 2.0  # the prediction, not the last curve
+        motion = CAM.fx * 1.0 / x[:, 2].min()  # px of 1 mm at the nearest sample
+        assert c.radius == pytest.approx(10.0 + motion, rel=0.02)
+    # applied to masks: a piece on the predicted curve stays, one far from it goes
+    mask = np.zeros((CAM.height, CAM.width), bool)
+    uv = np.rint(np.array(gate[0].points)).astype(int)
+    mask[uv[:, 1], uv[:, 0]] = True
+    mask[10:30, 10:200] = True  # an instrument far from the thread
+    grey = np.zeros(mask.shape, np.float32)
+    lifted = LiftedPair(I_L=grey, I_R=grey, P_L=mask, P_R=mask, grey_L=grey, grey_R=grey,
+               background=(0.0, 0.0), method="test")  # fmt: skip
+    out = apply_corrections(lifted, gate, 0)
+    assert out.P_L[uv[:, 1], uv[:, 0]].all() and not out.P_L[10:30, 10:200].any()
+    assert out.removed_L[10:30, 10:200].all()
+
+
+def test_gate_is_empty_without_a_prior_or_with_tracking_off():
+    P1, P2 = _P()
+    x = _arc(50)
+    state = TrackState(x, np.zeros_like(x))
+    assert gate_corrections(None, P1, P2, (480, 640), TrackParams()) == ()
+    assert gate_corrections(state, P1, P2, (480, 640), TrackParams(enabled=False)) == ()
+    assert gate_corrections(state, P1, P2, (480, 640), TrackParams(gate_px=0.0)) == ()
+    behind = TrackState(x * np.array([1, 1, -1]), np.zeros_like(x))
+    assert gate_corrections(behind, P1, P2, (480, 640), TrackParams()) == ()
+
+
+def test_gate_points_outside_the_image_are_clamped_to_its_border():
+    P1, P2 = _P()
+    x = _arc(100) * np.array([20.0, 1.0, 1.0])  # 2 m wide: far out of view on both sides
+    gate = gate_corrections(TrackState(x, np.zeros_like(x)), P1, P2, (480, 640), TrackParams())
+    for c in gate:
+        c.check_inside((480, 640))  # raises for a point outside
+
+
+def test_start_hypotheses_remove_the_largest_pieces_first():
+    mask = np.zeros((100, 200), bool)
+    mask[10:40, 10:150] = True  # largest (an instrument's shaft)
+    mask[60, 20:180] = True  # the thread
+    mask[90:92, 5:8] = True  # a speck
+    hyps = start_corrections(mask)
+    assert len(hyps) == 3
+    sizes = []
+    for (c,) in hyps:
+        assert c.op == "remove" and c.stereo and c.view == "left"
+        x, y = c.points[0]
+        assert mask[y, x]
+        sizes.append(int(mask[10:40, 10:150].sum()) if y < 40 else (160 if y == 60 else 6))
+    assert sizes == sorted(sizes, reverse=True)
+    assert start_corrections(mask[:50]) == []  # one piece: nothing to try
+    with pytest.raises(ValueError, match="mask"):
+        start_corrections(np.zeros(5, bool))
