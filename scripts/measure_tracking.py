@@ -7,6 +7,10 @@ For every seed and motion (drag, pull, instrument) it writes a sequence with
 or withheld with ``--no-masks``) and prints the
 share of good frames and the jitter of each, the jitter over the frame steps where both runs are
 good on both frames, and the throughput (frames/s) of each run.
+
+``--reuse MODE`` reads that mode's runs from an earlier call (their ``summary.csv`` in
+``OUT_DIR/runs``) instead of running them again, e.g. the single-frame runs when only tracking
+changed; their throughput is then not measured. ``--tag`` names this call's runs apart.
 """
 
 from __future__ import annotations
@@ -41,11 +45,14 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--motions", nargs="+", default=list(MOTIONS))
     ap.add_argument("--no-masks", action="store_true", help="raw frames: masks withheld")
+    ap.add_argument("--reuse", choices=("single", "tracked"), nargs="*", default=[])
+    ap.add_argument("--tag", default="", help="suffix of this call's run folders")
     args = ap.parse_args()
     raw = ["--no-masks"] if args.no_masks else []
     py = [sys.executable, "-m", "threadrecon.app.cli"]
     total = {"single": [0, 0], "single_within": [0, 0], "tracked": [0, 0]}
     jit_all: dict[str, list[float]] = {"single": [], "tracked": []}
+    jit_own: dict[str, list[float]] = {"single": [], "tracked": []}  # steps good in that run
     rates: dict[str, list[float]] = {"single": [], "tracked": []}
     for seed in args.seeds:
         for motion in args.motions:
@@ -69,7 +76,11 @@ def main() -> int:
                 )
             res = {}
             for mode, extra in (("single", ["--no-tracking"]), ("tracked", [])):
-                out = args.out / "runs" / f"{group}_{mode}{'_raw' if raw else ''}"
+                name = f"{group}_{mode}{'_raw' if raw else ''}"
+                if mode in args.reuse:
+                    res[mode] = _rows(args.out / "runs" / name / "summary.csv")
+                    continue
+                out = args.out / "runs" / f"{name}{args.tag}"
                 dt = _run([*py, "track", str(folder), "--out", str(out), *extra, *raw])
                 rows = _rows(out / "summary.csv")
                 rates[mode].append(len(rows) / dt)
@@ -89,6 +100,13 @@ def main() -> int:
             jt = [float(t[k]["track_jitter_mm"]) for k in both]
             jit_all["single"] += js
             jit_all["tracked"] += jt
+            for mode, g, rows, key in (
+                ("single", gs, s, "jitter_mm"),
+                ("tracked", gt, t, "track_jitter_mm"),
+            ):
+                jit_own[mode] += [
+                    float(rows[k][key]) for k in range(1, len(rows)) if g[k] and g[k - 1]
+                ]
             flagged = sum(r["flagged"] == "True" for r in t)
             print(
                 f"{group:>16}: good single {sum(gs)}/{len(gs)} (within {sum(ws)}), "
@@ -102,10 +120,17 @@ def main() -> int:
     for mode in ("single", "tracked"):
         g, n = total[mode]
         j = np.array(jit_all[mode])
+        o = np.array(jit_own[mode])
         print(
             f"{mode:>8}: good {g}/{n} = {100 * g / n:.1f}%; jitter mean {j.mean():.3f} mm, "
-            f"median {np.median(j):.3f} mm over {j.size} steps; "
-            f"median {np.median(rates[mode]):.2f} frames/s (incl. start-up)"
+            f"median {np.median(j):.3f} mm over {j.size} steps good in both runs "
+            f"(over its own good steps: mean {o.mean():.3f} mm, median {np.median(o):.3f} mm, "
+            f"{o.size} steps); "
+            + (
+                f"median {np.median(rates[mode]):.2f} frames/s (incl. start-up)"
+                if rates[mode]
+                else "rate not measured (runs reused)"
+            )
         )
     return 0
 
