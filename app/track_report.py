@@ -109,7 +109,9 @@ def _tracker_run(
     """The run with the tracker's mask corrections for a doubted frame (see track_sequence)."""
     if state is not None:
         calib = pipeline.calib
-        gate = gate_corrections(state, calib.P1, calib.P2, pipeline.pair.shape, track)
+        seg = rec["segment"] if "segment" in rec.runs else None
+        masks = None if seg is None else (seg.P_L, seg.P_R)
+        gate = gate_corrections(state, calib.P1, calib.P2, pipeline.pair.shape, track, masks)
         return (pipeline.run(p, corrections=gate), "gate") if gate else (None, "")
     if "segment" not in rec.runs:
         return None, ""

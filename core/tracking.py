@@ -92,6 +92,9 @@ class TrackParams(Params):
     gate_px: float = param(12.0, lo=0, hi=MAX_RADIUS_PX, unit="px", label="gate half-width")
     """Half-width of the band around the reprojected prediction that a doubted frame's masks
     are cut to, px, before one frame's predicted motion is added (0: no gate)."""
+    thick_px: float = param(6.0, lo=0, hi=MAX_RADIUS_PX, unit="px", label="thicker than thread")
+    """The gate also removes the parts of the band that a disk of this radius fits in: thicker
+    than a thread (an instrument crossing it), px (0: keeps them)."""
 
 
 @dataclass(frozen=True)
@@ -192,18 +195,26 @@ def gate_corrections(
     P2: np.ndarray,
     shape: tuple[int, int],
     p: TrackParams,
+    masks: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[Correction, ...]:
-    """The tracker's gate on the next frame's masks P_L, P_R: one ``keep`` correction per view,
+    """The tracker's gate on the next frame's masks P_L, P_R: per view, a ``keep`` correction,
     the band of half-width ``gate_px`` plus the predicted motion (px, the largest displacement
     of a sample between ``state.points`` and the prediction, reprojected) around the predicted
-    curve projected with the rectified ``P1`` (left) and ``P2`` (right), (3, 4). Samples outside
-    the (H, W) ``shape`` are clamped to its border (the band follows the thread out of view).
+    curve projected with the rectified ``P1`` (left) and ``P2`` (right), (3, 4); then, given the
+    segmented ``masks`` (P_L, P_R) (H, W) bool, ``erase`` corrections of the parts of the band
+    thicker than a thread (the disks of radius ``thick_px`` that fit in the mask: an instrument
+    where it crosses the thread, one stroke per row of disk centres). Samples outside the
+    (H, W) ``shape`` are clamped to its border (the band follows the thread out of view).
     Empty without a prior, with tracking off, ``gate_px`` 0, or a prediction behind a camera."""
     if state is None or not p.enabled or p.gate_px <= 0:
         return ()
+    if masks is not None and any(np.shape(m) != tuple(shape) for m in masks):
+        raise ValueError(
+            f"masks must be two {tuple(shape)} masks, got {[np.shape(m) for m in masks]}"
+        )
     h, w = shape
     out = []
-    for view, P in (("left", P1), ("right", P2)):
+    for i, (view, P) in enumerate((("left", P1), ("right", P2))):
         uv_next = _project(state.predicted, P)
         uv_now = _project(state.points, P)
         if uv_next is None or uv_now is None:
@@ -218,7 +229,30 @@ def gate_corrections(
         xy = xy[keep][:MAX_STROKE_POINTS]
         points = tuple((int(x), int(y)) for x, y in xy)
         out.append(Correction("keep", view, points, radius))  # type: ignore[arg-type]
+        if masks is not None and p.thick_px > 0:
+            out += _thick_erasures(np.asarray(masks[i], bool), xy, radius, p.thick_px, view)
     return tuple(out)
+
+
+def _thick_erasures(
+    mask: np.ndarray, xy: np.ndarray, radius: float, r: float, view: str
+) -> list[Correction]:
+    """``erase`` strokes of radius ``r`` through every row run of the pixels of ``mask`` whose
+    distance to its border is >= ``r`` (the centres of the disks that fit in it: their union is
+    the mask's opening by that disk), near the band of ``radius`` around the polyline ``xy``."""
+    dist = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    line = np.ones(mask.shape, np.uint8)
+    cv2.polylines(line, [xy.astype(np.int32).reshape(-1, 1, 2)], False, 0, thickness=1)
+    line[xy[0, 1], xy[0, 0]] = 0
+    near = cv2.distanceTransform(line, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) <= radius + r
+    centres = (dist >= r) & near
+    padded = np.pad(centres, ((0, 0), (1, 1))).astype(np.int8)
+    rows, cols = np.nonzero(np.diff(padded, axis=1))  # run starts and (exclusive) ends per row
+    out = []
+    for y, x0, x1 in zip(rows[0::2], cols[0::2], cols[1::2], strict=True):  # tens of row runs
+        pts = ((int(x0), int(y)), (int(x1) - 1, int(y)))
+        out.append(Correction("erase", view, pts, float(r)))  # type: ignore[arg-type]
+    return out
 
 
 def start_corrections(P_L: np.ndarray, pieces: int = START_PIECES) -> list[tuple[Correction, ...]]:

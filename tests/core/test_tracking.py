@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -356,3 +357,36 @@ def test_start_hypotheses_remove_the_largest_pieces_first():
     assert start_corrections(mask[:50]) == []  # one piece: nothing to try
     with pytest.raises(ValueError, match="mask"):
         start_corrections(np.zeros(5, bool))
+
+
+def test_gate_erases_what_is_thicker_than_a_thread_where_it_crosses_the_band():
+    P1, P2 = _P()
+    x = _arc(200) * np.array([0.5, 1.0, 1.0])
+    state = TrackState(x, np.zeros_like(x))
+    shape = (CAM.height, CAM.width)
+    p = TrackParams(gate_px=10.0, thick_px=6.0)
+    masks, threads = [], []
+    for P in (P1, P2):
+        thread, shaft = np.zeros(shape, np.uint8), np.zeros(shape, np.uint8)
+        uv = np.column_stack([x, np.ones(len(x))]) @ P.T
+        uv = np.round(uv[:, :2] / uv[:, 2:]).astype(np.int32)
+        cv2.polylines(thread, [uv.reshape(-1, 1, 2)], False, 1, thickness=3)  # the thread, 3 px
+        mid = uv[len(uv) // 2]
+        cv2.line(shaft, (0, int(mid[1]) - 60), (int(mid[0]) + 40, int(mid[1]) + 20), 1, 30)
+        masks.append((thread | shaft).astype(bool))
+        threads.append(thread.astype(bool) & ~cv2.dilate(shaft, np.ones((3, 3))).astype(bool))
+    gate = gate_corrections(state, P1, P2, shape, p, (masks[0], masks[1]))
+    assert {c.op for c in gate} == {"keep", "erase"}
+    grey = np.zeros(shape, np.float32)
+    lifted = LiftedPair(I_L=grey, I_R=grey, P_L=masks[0], P_R=masks[1], grey_L=grey,
+                        grey_R=grey, background=(0.0, 0.0), method="test")  # fmt: skip
+    out = apply_corrections(lifted, gate, 0)
+    for kept, thread in ((out.P_L, threads[0]), (out.P_R, threads[1])):
+        dist = cv2.distanceTransform(kept.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        assert dist.max() < p.thick_px  # nothing thicker than a thread is left
+        assert (kept & thread).sum() >= 0.97 * thread.sum()  # the visible thread stays
+        assert (kept & ~thread).sum() < 0.1 * thread.sum()  # the shaft's fringe at most
+    with pytest.raises(ValueError, match="masks"):
+        gate_corrections(state, P1, P2, shape, p, (masks[0][:10], masks[1]))
+    plain = gate_corrections(state, P1, P2, shape, TrackParams(thick_px=0.0), (masks[0], masks[1]))
+    assert [c.op for c in plain] == ["keep", "keep"]
