@@ -94,7 +94,8 @@ def track_sequence(
             if rec.status != "ok":
                 observed, by = _tracker_run(pipeline, rec, p, state, track)
             single, cloud, check = _observation(observed or rec)
-            result, state = track_step(single, state, track, cloud, check)
+            beside = "same" if observed is None else _curve(rec)  # flagged against the single
+            result, state = track_step(single, state, track, cloud, check, beside)
         ms = 1000.0 * (time.perf_counter() - t0)
         yield TrackedFrame(frame, rec, result, p.stereo.alpha, ms, observed, by)
 
@@ -244,6 +245,9 @@ def tracked_json(tf: TrackedFrame, row: dict[str, Any]) -> dict[str, Any]:
             "filled": tr.filled,
             "reversed": tr.reversed,
             "restarted": tr.restarted,
+            "observed_by": row["observed_by"],
+            "observed_status": row["observed_status"] or None,
+            "tracker_removed_px": row["tracker_removed_px"],
         }
     truth = {k: row[k] for k in row if k.endswith(("_mm", "good")) and k not in ("ms",)}
     out["truth_metrics"] = {

@@ -39,6 +39,7 @@ points (the calibration's unit, mm for the generator).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Final, Literal
@@ -291,11 +292,16 @@ def track_step(
     p: TrackParams,
     cloud: np.ndarray | None = None,
     check: Literal["ok", "suspect", "failed"] = "ok",
+    single_frame: np.ndarray | None | Literal["same"] = "same",
 ) -> tuple[TrackResult, TrackState | None]:
     """One frame of tracking: the single-frame curve ``single`` (M, 3) (None when the
     single-frame pipeline gave none), this frame's reliable stereo points ``cloud`` (K, 3)
     (optional: pieces filled from the prior are pulled onto them) and the previous state
     -> this frame's result and state.
+
+    ``single_frame``: when the observation ``single`` comes from another run than the
+    single-frame one (the masks with the tracker's corrections, :func:`gate_corrections`), the
+    single-frame curve (M, 3) or None: the result keeps it and is flagged against it.
 
     ``check``: the single-frame check's verdict on the curve. Only an "ok" curve (re)starts a
     track. A doubted curve ("suspect" or "failed") is believed only where it also lies within
@@ -303,6 +309,35 @@ def track_step(
     inside), and not at all when it explains less than ``min_overlap`` of the prediction (the
     frame is predicted). A "failed" curve is used only with a ``cloud``, when at least half of
     it is supported; it does not teach the thread's length."""
+    res, new = _track_step(single, state, p, cloud, check)
+    if isinstance(single_frame, str):
+        return res, new
+    return _against_single(res, single_frame, p), new
+
+
+def _against_single(res: TrackResult, single: np.ndarray | None, p: TrackParams) -> TrackResult:
+    """``res`` flagged against the single-frame curve ``single`` instead of its observation."""
+    if single is not None:
+        single = _check_curve(single, "single_frame")
+    if res.points is None:
+        return dataclasses.replace(res, single=single)
+    d = math.nan if single is None else _hausdorff(res.points, single)
+    parts = [r for r in res.reason.split("; ") if r and not r.startswith(_DIFFER)]
+    flagged = not d <= p.disagree_mm  # NaN (no single-frame curve) is flagged too
+    if flagged:
+        parts.insert(0, f"{_DIFFER} by {d:.1f} (> {p.disagree_mm:g})" if single is not None
+                     else "no single-frame curve")  # fmt: skip
+    return dataclasses.replace(res, single=single, flagged=flagged, reason="; ".join(parts),
+                               disagreement=d)  # fmt: skip
+
+
+def _track_step(
+    single: np.ndarray | None,
+    state: TrackState | None,
+    p: TrackParams,
+    cloud: np.ndarray | None,
+    check: Literal["ok", "suspect", "failed"],
+) -> tuple[TrackResult, TrackState | None]:
     rejected = check == "failed"
     if cloud is not None:
         cloud = np.asarray(cloud, dtype=np.float64)
@@ -344,7 +379,7 @@ def track_step(
     explained = d_pred <= p.cover_mm
     if explained.mean() < p.min_overlap:
         if check != "ok":  # a doubted curve that disagrees with the prior is no observation
-            return track_step(None, state, p, cloud)
+            return _track_step(None, state, p, cloud, "ok")
         res, new = _restart(single, n, restarted=True)
         reason = f"observation explains {100 * explained.mean():.0f}% of the prediction; restarted"
         return _replace_flag(res, reason, reversed_), new
@@ -374,11 +409,7 @@ def track_step(
 
     disagreement = _hausdorff(curve, single)
     flagged = disagreement > p.disagree_mm
-    reason = (
-        f"tracked and single-frame curves differ by {disagreement:.1f} (> {p.disagree_mm:g})"
-        if flagged
-        else ""
-    )
+    reason = f"{_DIFFER} by {disagreement:.1f} (> {p.disagree_mm:g})" if flagged else ""
     if filled > 0:
         reason = (reason + "; " if reason else "") + f"{filled:.1f} filled from the motion prior"
     # Velocity: mean displacement of the observed samples to the previous curve (normal motion;
@@ -392,6 +423,7 @@ def track_step(
 # ----------------------------------------------------------------------------------------------
 
 _NO_FIT = (math.nan, 0.0, False, False)  # disagreement, filled, reversed, restarted
+_DIFFER = "tracked and single-frame curves differ"
 
 
 def _check_curve(points: np.ndarray, name: str) -> np.ndarray:

@@ -230,8 +230,10 @@ def test_generate_sequence_then_track_writes_a_result_per_frame(tmp_path, capsys
     rows = list(csv.DictReader((out / "summary.csv").open()))
     assert [r["name"] for r in rows] == ["pull_1", "pull_2", "pull_3"]
     assert all(r["track_good"] == "True" for r in rows)
+    assert all(r["observed_by"] == "single" and r["tracker_removed_px"] == "0" for r in rows)
     data = json.loads((out / "frames" / "pull_2.json").read_text())
     assert data["tracked"]["status"] == "ok" and len(data["tracked"]["points"]) > 10
+    assert data["tracked"]["observed_by"] == "single"  # an ok frame is observed as it is
     assert data["status"] == "ok" and data["truth_metrics"]["track_e_length_mm"] < 5
     # the video of the same sequence, with the folder's calibration, no masks
     out_v = tmp_path / "run_video"

@@ -390,3 +390,19 @@ def test_gate_erases_what_is_thicker_than_a_thread_where_it_crosses_the_band():
         gate_corrections(state, P1, P2, shape, p, (masks[0][:10], masks[1]))
     plain = gate_corrections(state, P1, P2, shape, TrackParams(thick_px=0.0), (masks[0], masks[1]))
     assert [c.op for c in plain] == ["keep", "keep"]
+
+
+def test_an_observation_of_another_run_is_flagged_against_the_single_frame_curve():
+    p = TrackParams()
+    full = _arc(400)
+    _, state = track_step(full, None, p, cloud=full)
+    moved = full + np.array([0.3, 0.0, 0.0])
+    shaft = moved + np.array([0.0, 40.0, -20.0])  # the single-frame run took an instrument
+    res, new = track_step(moved, state, p, cloud=moved, check="suspect", single_frame=shaft)
+    assert res.status == "ok" and res.flagged and res.disagreement > 40
+    assert res.reason.startswith("tracked and single-frame curves differ by")
+    assert res.single is shaft and new is not None
+    same, _ = track_step(moved, state, p, cloud=moved, check="suspect")
+    assert not same.flagged and np.allclose(same.points, res.points)
+    none, _ = track_step(moved, state, p, cloud=moved, check="suspect", single_frame=None)
+    assert none.flagged and "no single-frame curve" in none.reason
