@@ -116,7 +116,8 @@ def _tracker_run(
         return (pipeline.run(p, corrections=gate), "gate") if gate else (None, "")
     if "segment" not in rec.runs:
         return None, ""
-    for corrections in start_corrections(rec["segment"].P_L):
+    seg = rec["segment"]
+    for corrections in start_corrections(seg.P_L, seg.P_R, track.thick_px):
         run = pipeline.run(p, corrections=corrections)
         if run.status == "ok":
             return run, "start"

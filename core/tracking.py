@@ -231,45 +231,78 @@ def gate_corrections(
         points = tuple((int(x), int(y)) for x, y in xy)
         out.append(Correction("keep", view, points, radius))  # type: ignore[arg-type]
         if masks is not None and p.thick_px > 0:
-            out += _thick_erasures(np.asarray(masks[i], bool), xy, radius, p.thick_px, view)
+            near = _near_polyline(shape, xy, radius + p.thick_px)
+            out += _thick_erasures(np.asarray(masks[i], bool), view, p.thick_px, near)
     return tuple(out)
 
 
 def _thick_erasures(
-    mask: np.ndarray, xy: np.ndarray, radius: float, r: float, view: str
+    mask: np.ndarray, view: str, r: float, near: np.ndarray | None = None
 ) -> list[Correction]:
     """``erase`` strokes of radius ``r`` through every row run of the pixels of ``mask`` whose
     distance to its border is >= ``r`` (the centres of the disks that fit in it: their union is
-    the mask's opening by that disk), near the band of ``radius`` around the polyline ``xy``."""
+    the mask's opening by that disk, what is thicker than a thread), restricted to ``near``
+    (H, W) bool when given."""
     dist = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    line = np.ones(mask.shape, np.uint8)
-    cv2.polylines(line, [xy.astype(np.int32).reshape(-1, 1, 2)], False, 0, thickness=1)
-    line[xy[0, 1], xy[0, 0]] = 0
-    near = cv2.distanceTransform(line, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) <= radius + r
-    centres = (dist >= r) & near
+    centres = dist >= r
+    if near is not None:
+        centres &= near
     padded = np.pad(centres, ((0, 0), (1, 1))).astype(np.int8)
     rows, cols = np.nonzero(np.diff(padded, axis=1))  # run starts and (exclusive) ends per row
-    out = []
-    for y, x0, x1 in zip(rows[0::2], cols[0::2], cols[1::2], strict=True):  # tens of row runs
-        pts = ((int(x0), int(y)), (int(x1) - 1, int(y)))
-        out.append(Correction("erase", view, pts, float(r)))  # type: ignore[arg-type]
-    return out
+    bounds = zip(rows[0::2], cols[0::2], cols[1::2], strict=True)
+    runs = [(int(y), int(a), int(b) - 1) for y, a, b in bounds]
+    per_row = np.bincount([y for y, _, _ in runs], minlength=mask.shape[0]) if runs else None
+    strokes: list[list[tuple[int, int]]] = []
+    last: tuple[int, int, int] | None = None
+    for y, a, b in runs:  # one stroke through consecutive rows of one overlapping run each
+        alone = per_row is not None and per_row[y] == 1
+        if alone and last is not None and last[0] == y - 1 and a <= last[2] and b >= last[1]:
+            m = max(a, last[1])  # a column in both runs: the step down stays on disk centres
+            strokes[-1] += [(m, y - 1), (m, y), (a, y), (b, y)]
+        else:
+            strokes.append([(a, y), (b, y)])
+        last = (y, a, b) if alone else None
+        if len(strokes[-1]) > MAX_STROKE_POINTS - 4:
+            last = None
+    return [Correction("erase", view, tuple(pts), float(r)) for pts in strokes]  # type: ignore[arg-type]
 
 
-def start_corrections(P_L: np.ndarray, pieces: int = START_PIECES) -> list[tuple[Correction, ...]]:
-    """Hypotheses for starting a track when the frame's single-frame curve is doubted: for each
-    of the ``pieces`` largest 8-connected pieces of the left mask P_L (H, W) bool, the piece's
-    removal in both views (``remove`` with its stereo partner, :mod:`core.corrections`), largest
-    first; empty when P_L has fewer than two pieces. The caller keeps the first hypothesis whose
-    curve the check calls "ok" (an instrument's shaft taken for thread is usually the largest)."""
+def _near_polyline(shape: tuple[int, int], xy: np.ndarray, distance: float) -> np.ndarray:
+    """(H, W) bool: the pixels within ``distance`` of the polyline through ``xy`` (K, 2)."""
+    line = np.ones(shape, np.uint8)
+    cv2.polylines(line, [xy.astype(np.int32).reshape(-1, 1, 2)], False, 0, thickness=1)
+    line[xy[0, 1], xy[0, 0]] = 0
+    return cv2.distanceTransform(line, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) <= distance
+
+
+def start_corrections(
+    P_L: np.ndarray,
+    P_R: np.ndarray | None = None,
+    thick_px: float = 0.0,
+    pieces: int = START_PIECES,
+) -> list[tuple[Correction, ...]]:
+    """Hypotheses for starting a track when the frame's single-frame curve is doubted, in
+    order: with ``thick_px`` > 0 and the right mask ``P_R``, the removal of what is thicker than
+    a thread in both views (the disks of radius ``thick_px`` that fit in the masks: an
+    instrument's shaft, also where it touches the thread); then for each of the ``pieces``
+    largest 8-connected pieces of the left mask P_L (H, W) bool, the piece's removal in both
+    views (``remove`` with its stereo partner, :mod:`core.corrections`), largest first (none
+    when P_L has fewer than two pieces). The caller keeps the first hypothesis whose curve the
+    check calls "ok"."""
     P_L = np.asarray(P_L)
     if P_L.ndim != 2:
         raise ValueError(f"P_L must be an (H, W) mask, got {P_L.shape}")
+    out: list[tuple[Correction, ...]] = []
+    if thick_px > 0 and P_R is not None:
+        if np.shape(P_R) != P_L.shape:
+            raise ValueError(f"P_R is {np.shape(P_R)}, P_L {P_L.shape}: masks of one pair differ")
+        thick = (*_thick_erasures(P_L, "left", thick_px), *_thick_erasures(P_R, "right", thick_px))
+        if thick:
+            out.append(thick)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(P_L.astype(np.uint8), connectivity=8)
     if n < 3:  # background and at most one piece
-        return []
+        return out
     order = 1 + np.argsort(-stats[1:, cv2.CC_STAT_AREA], kind="stable")[:pieces]
-    out = []
     for k in order:  # a handful of pieces
         rows, cols = np.nonzero(labels == k)
         click = ((int(cols[0]), int(rows[0])),)  # a pixel of the piece: it alone is removed

@@ -406,3 +406,29 @@ def test_an_observation_of_another_run_is_flagged_against_the_single_frame_curve
     assert not same.flagged and np.allclose(same.points, res.points)
     none, _ = track_step(moved, state, p, cloud=moved, check="suspect", single_frame=None)
     assert none.flagged and "no single-frame curve" in none.reason
+
+
+@pytest.mark.parametrize("angle", [10.0, 35.0, 60.0, 85.0, 120.0])
+def test_first_start_hypothesis_removes_exactly_what_is_thicker_than_a_thread(angle):
+    shape, r = (240, 320), 6.0
+    m = np.zeros(shape, np.uint8)
+    cv2.polylines(m, [np.array([[20, 200], [120, 150], [300, 190]], np.int32)], False, 1, 3)
+    t = np.deg2rad(angle)
+    c, d = np.array([160, 120]), 400 * np.array([np.cos(t), np.sin(t)])
+    p0, p1 = (c - d).astype(int), (c + d).astype(int)
+    cv2.line(m, tuple(int(v) for v in p0), tuple(int(v) for v in p1), 1, 25)  # touches the thread
+    mask = m.astype(bool)
+    hyps = start_corrections(mask, mask, thick_px=r)
+    thick = hyps[0]
+    assert {c.op for c in thick} == {"erase"} and {c.view for c in thick} == {"left", "right"}
+    assert len(thick) <= 6  # a shaft is a stroke or a few, not one per row
+    grey = np.zeros(shape, np.float32)
+    lifted = LiftedPair(I_L=grey, I_R=grey, P_L=mask, P_R=mask, grey_L=grey, grey_R=grey,
+                        background=(0.0, 0.0), method="test")  # fmt: skip
+    out = apply_corrections(lifted, thick, 0)
+    dist = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    opening = cv2.dilate((dist >= r).astype(np.uint8), cv2.getStructuringElement(
+        cv2.MORPH_ELLIPSE, (2 * int(r) + 1, 2 * int(r) + 1))).astype(bool) & mask  # fmt: skip
+    assert np.count_nonzero(out.P_L ^ (mask & ~opening)) <= 0.01 * mask.sum()
+    plain = start_corrections(mask, mask, thick_px=0.0)  # piece removals only
+    assert all(c.op == "remove" for h in plain for c in h)
