@@ -80,6 +80,7 @@ def main() -> int:
                     ]
                 )
             res = {}
+            speed: dict[str, str] = {}
             for mode, extra in (("single", ["--no-tracking"]), ("tracked", [])):
                 name = f"{group}_{mode}{'_raw' if raw else ''}"
                 if mode in args.reuse:
@@ -90,6 +91,7 @@ def main() -> int:
                 rows = _rows(out / "summary.csv")
                 rates[mode].append(len(rows) / dt)
                 cpu_rates[mode].append(len(rows) / cpu)
+                speed[mode] = f"{mode} {len(rows) / cpu:.2f}"
                 res[mode] = rows
             s, t = res["single"], res["tracked"]
             gs = [r["good"] == "True" for r in s]
@@ -118,7 +120,8 @@ def main() -> int:
                 f"{group:>16}: good single {sum(gs)}/{len(gs)} (within {sum(ws)}), "
                 f"tracked {sum(gt)}/{len(gt)}; "
                 f"jitter (both good, {len(both)} steps) single {np.mean(js):.3f} mm, "
-                f"tracked {np.mean(jt):.3f} mm; flagged {flagged}",
+                f"tracked {np.mean(jt):.3f} mm; flagged {flagged}"
+                + (f"; frames per CPU s: {', '.join(speed.values())}" if speed else ""),
                 flush=True,
             )
     g, n = total["single_within"]
