@@ -83,8 +83,11 @@ def main() -> int:
             speed: dict[str, str] = {}
             for mode, extra in (("single", ["--no-tracking"]), ("tracked", [])):
                 name = f"{group}_{mode}{'_raw' if raw else ''}"
-                if mode in args.reuse:
-                    res[mode] = _rows(args.out / "runs" / name / "summary.csv")
+                if mode in args.reuse:  # this call's tagged run, else the untagged one
+                    found = args.out / "runs" / f"{name}{args.tag}" / "summary.csv"
+                    if not found.is_file():
+                        found = args.out / "runs" / name / "summary.csv"
+                    res[mode] = _rows(found)
                     continue
                 out = args.out / "runs" / f"{name}{args.tag}"
                 dt, cpu = _run([*py, "track", str(folder), "--out", str(out), *extra, *raw])
