@@ -36,7 +36,7 @@ TIMELINES: Final = 3  # timelines kept at once (sequence x parameters x tracking
 ROW_KEYS: Final = (
     "frame", "name", "status", "length", "track_status", "track_length", "flagged",
     "track_reason", "alpha", "ms", "e_S_max_mm", "track_e_S_max_mm", "good", "track_good",
-    "jitter_mm", "track_jitter_mm",
+    "jitter_mm", "track_jitter_mm", "observed_by", "observed_status", "tracker_removed_px",
 )  # fmt: skip
 
 

@@ -15,7 +15,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -27,14 +27,17 @@ from threadrecon.app.presets import resolve_preset
 from threadrecon.app.recording import RecordedFrame
 from threadrecon.app.sequence import Sequence, SequenceFrame
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.corrections import CorrectedPair
 from threadrecon.core.metrics import frame_errors
 from threadrecon.core.pipeline import Pipeline, ReconParams, Reconstruction
 from threadrecon.core.tracking import (
     TrackParams,
     TrackResult,
     TrackState,
+    gate_corrections,
     motion_error,
     search_alpha,
+    start_corrections,
     track_step,
 )
 
@@ -45,13 +48,20 @@ GOOD_MM = 20.0  # a frame's length error and largest curve error must both be wi
 class TrackedFrame:
     """One frame's results: the single-frame reconstruction (``single``; with tracking, run
     with the tracked search range), the tracked curve beside it (None when tracking is off),
-    the search range used and the wall time of the frame (pipeline and tracking), ms."""
+    the search range used and the wall time of the frame (pipeline and tracking), ms.
+
+    ``observed``: when the tracker did not observe ``single`` itself, the run it observed: the
+    same pipeline with the tracker's mask corrections (``observed_by`` "gate": the masks cut to
+    the band around the prediction; "start": a piece removed to start a track), whose segment
+    result (a ``CorrectedPair``) shows what they removed."""
 
     frame: SequenceFrame
     single: Reconstruction
     tracked: TrackResult | None
     alpha: int
     ms: float
+    observed: Reconstruction | None = None
+    observed_by: str = ""
 
 
 def track_sequence(
@@ -60,7 +70,13 @@ def track_sequence(
     params: ReconParams | None = None,
     track: TrackParams | None = None,
 ) -> Iterator[TrackedFrame]:
-    """Reconstruct every frame and, when ``track.enabled``, track the curve across them."""
+    """Reconstruct every frame and, when ``track.enabled``, track the curve across them.
+
+    A frame whose single-frame curve the check doubts is run again with the tracker's mask
+    corrections: with a track, the gate around the predicted thread
+    (:func:`core.tracking.gate_corrections`), whose run is the observation; without one, the
+    removal of one of the largest pieces (:func:`core.tracking.start_corrections`), the first
+    whose curve the check calls "ok" starting the track."""
     params = ReconParams() if params is None else params
     track = TrackParams() if track is None else track
     state: TrackState | None = None
@@ -73,27 +89,75 @@ def track_sequence(
         if rec.status == "failed" and alpha is not None and alpha < params.stereo.alpha:
             p = params  # the prior's search range may be what failed: the configured one
             rec = pipeline.run(p)
-        result = None
+        result, observed, by = None, None, ""
         if track.enabled:
-            # A "suspect" curve is an observation (e.g. bridged across an instrument): the
-            # tracker keeps its supported part and takes what no stereo point shows from the prior.
-            single = _single_points(TrackedFrame(frame, rec, None, 0, 0.0))
-            rejected = single is None and rec.status == "failed" and "camera" in rec.runs
-            if rejected:  # its stereo-supported part may still serve (core.tracking.track_step)
-                single = rec["camera"].points
-            cloud = None
-            if "reliability" in rec.runs:
-                cloud = rec["stereo"].points[rec["reliability"].reliable]
-            check = "failed" if rejected else ("suspect" if rec.status == "suspect" else "ok")
-            result, state = track_step(single, state, track, cloud, check)
+            if rec.status != "ok":
+                observed, by = _tracker_run(pipeline, rec, p, state, track)
+            single, cloud, check = _observation(observed or rec)
+            beside = "same" if observed is None else _curve(rec)  # flagged against the single
+            result, state = track_step(single, state, track, cloud, check, beside)
         ms = 1000.0 * (time.perf_counter() - t0)
-        yield TrackedFrame(frame, rec, result, p.stereo.alpha, ms)
+        yield TrackedFrame(frame, rec, result, p.stereo.alpha, ms, observed, by)
+
+
+def _tracker_run(
+    pipeline: Pipeline,
+    rec: Reconstruction,
+    p: ReconParams,
+    state: TrackState | None,
+    track: TrackParams,
+) -> tuple[Reconstruction | None, str]:
+    """The run with the tracker's mask corrections for a doubted frame (see track_sequence)."""
+    if state is not None:
+        calib = pipeline.calib
+        seg = rec["segment"] if "segment" in rec.runs else None
+        masks = None if seg is None else (seg.P_L, seg.P_R)
+        gate = gate_corrections(state, calib.P1, calib.P2, pipeline.pair.shape, track, masks)
+        return (pipeline.run(p, corrections=gate), "gate") if gate else (None, "")
+    if "segment" not in rec.runs:
+        return None, ""
+    seg = rec["segment"]
+    for corrections in start_corrections(seg.P_L, seg.P_R, track.thick_px):
+        run = pipeline.run(p, corrections=corrections)
+        if run.status == "ok":
+            return run, "start"
+    return None, ""
+
+
+def _observation(
+    rec: Reconstruction,
+) -> tuple[np.ndarray | None, np.ndarray | None, Literal["ok", "suspect", "failed"]]:
+    """What the tracker observes of a run: its curve, its reliable stereo points and the check's
+    verdict. A "suspect" curve is an observation (e.g. bridged across an instrument): the
+    tracker keeps its supported part and takes what no stereo point shows from the prior; a
+    rejected ("failed") one's stereo-supported part may still serve (core.tracking.track_step)."""
+    single = _curve(rec)
+    rejected = single is None and rec.status == "failed" and "camera" in rec.runs
+    if rejected:
+        single = rec["camera"].points
+    cloud = None
+    if "reliability" in rec.runs:
+        cloud = rec["stereo"].points[rec["reliability"].reliable]
+    check = "failed" if rejected else ("suspect" if rec.status == "suspect" else "ok")
+    return single, cloud, check
+
+
+def _curve(rec: Reconstruction) -> np.ndarray | None:
+    """The run's curve when the pipeline gave one ("ok" or "suspect"), else None."""
+    return rec["camera"].points if rec.status != "failed" and "camera" in rec.runs else None
 
 
 def _single_points(tf: TrackedFrame) -> np.ndarray | None:
     """The single-frame curve when the pipeline gave one ("ok" or "suspect"), else None."""
-    rec = tf.single
-    return rec["camera"].points if rec.status != "failed" and "camera" in rec.runs else None
+    return _curve(tf.single)
+
+
+def _removed_px(rec: Reconstruction | None) -> int:
+    """Mask pixels (both views) the tracker's corrections removed in the run it observed."""
+    seg = None if rec is None or "segment" not in rec.runs else rec["segment"]
+    if not isinstance(seg, CorrectedPair):
+        return 0
+    return int(np.count_nonzero(seg.removed_L) + np.count_nonzero(seg.removed_R))
 
 
 def _tracked_points(tf: TrackedFrame) -> np.ndarray | None:
@@ -122,6 +186,9 @@ def frame_row(
         "filled": math.nan if tr is None else tr.filled,
         "alpha": tf.alpha,
         "ms": tf.ms,
+        "observed_by": tf.observed_by or ("single" if tr is not None else ""),
+        "observed_status": "" if tf.observed is None else tf.observed.status,
+        "tracker_removed_px": _removed_px(tf.observed),
     }
     curve = _tracked_points(tf) if tr is not None else single
     row["curve"] = "none" if curve is None else ("tracked" if tr is not None else "single")
@@ -179,6 +246,9 @@ def tracked_json(tf: TrackedFrame, row: dict[str, Any]) -> dict[str, Any]:
             "filled": tr.filled,
             "reversed": tr.reversed,
             "restarted": tr.restarted,
+            "observed_by": row["observed_by"],
+            "observed_status": row["observed_status"] or None,
+            "tracker_removed_px": row["tracker_removed_px"],
         }
     truth = {k: row[k] for k in row if k.endswith(("_mm", "good")) and k not in ("ms",)}
     out["truth_metrics"] = {

@@ -12,7 +12,9 @@ A correction is one user action on one view's mask, in the rectified image the d
   the click (see :func:`_evidence_piece`);
 - ``erase`` / ``paint``: a brush stroke of radius ``radius`` through ``points`` clears / sets P;
 - ``clear``: the view's mask (view "both": both masks) is the segmenter's again; later
-  actions apply on top of it.
+  actions apply on top of it;
+- ``keep``: only P within ``radius`` of the polyline through ``points`` stays (not a user
+  action: the tracker's gate around the thread it predicts, ``core.tracking.gate_corrections``).
 
 Corrections are applied in order, each to the mask the previous ones left, so that a removed
 piece stays removed when the segmentation parameters change and the piece moves a little.
@@ -31,7 +33,7 @@ import numpy as np
 
 from threadrecon.core.segmentation import LIFT_VALUE, LiftedPair, StereoPair, to_grey
 
-OPS: Final = ("remove", "add", "erase", "paint", "clear")
+OPS: Final = ("remove", "add", "erase", "paint", "clear", "keep")
 VIEWS: Final = ("left", "right")
 MAX_RADIUS_PX: Final = 200.0  # a brush larger than this is a mistake, not a correction
 MAX_STROKE_POINTS: Final = 5000  # points of one brush stroke (a long drag at 60 Hz is ~1000)
@@ -46,7 +48,7 @@ PARTNER_CANDIDATES: Final = 50  # pieces looked at (a mask of specks has hundred
 _MEDIAN_PX: Final = 20  # local background of the contrast cue: median over 20 px (> 3x a thread)
 _MEDIAN_STEP: Final = 4  # ... taken at quarter resolution: the background is smooth, 30x faster
 
-Op = Literal["remove", "add", "erase", "paint", "clear"]
+Op = Literal["remove", "add", "erase", "paint", "clear", "keep"]
 View = Literal["left", "right", "both"]
 
 
@@ -231,9 +233,11 @@ def _apply_one(
 ) -> np.ndarray:
     if c.op == "clear":
         return segmented.copy()
-    if c.op in ("erase", "paint"):
+    if c.op in ("erase", "paint", "keep"):
         brush = _stroke(mask.shape, c.points, c.radius)
-        return mask & ~brush if c.op == "erase" else mask | brush
+        return (
+            mask & brush if c.op == "keep" else mask & ~brush if c.op == "erase" else mask | brush
+        )
     (x, y), r = c.points[0], c.radius
     if c.op == "remove":
         return _remove_piece(mask, x, y, r)

@@ -23,6 +23,14 @@ adds, per frame t, with the previous tracked curve ``x_{t-1}`` and its velocity 
    ``smooth * exp(-(d / cover_mm)^2)``, d the distance between the two, so noise is damped and
    real disagreements are not.
 
+6. **Gate** (:func:`gate_corrections`): when the single-frame curve of a frame is doubted, the
+   segmentation's masks are cut to a band around the prediction reprojected into both views
+   (widened by one frame's predicted motion): a piece of the masks far from where the thread
+   can be (an instrument's shaft or jaws, a vessel) is a distractor. The band is a mask
+   correction (``keep``, :mod:`core.corrections`), so the debugger shows what it removed.
+
+A track (re)starts only from a curve the single-frame check calls "ok": a doubted first curve
+(an instrument taken for thread) would otherwise be locked onto and gate the thread away.
 A frame where the tracked and the single-frame curves differ by more than ``disagree_mm``
 (Hausdorff distance) is flagged; the single-frame curve is always kept beside the tracked one.
 Everything here is a pure function of arrays and frozen dataclasses; units are those of the
@@ -31,13 +39,16 @@ points (the calibration's unit, mm for the generator).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Final, Literal
 
+import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from threadrecon.core.corrections import MAX_RADIUS_PX, MAX_STROKE_POINTS, Correction
 from threadrecon.core.params import Params, param
 
 MIN_ALPHA: Final = 8  # the smallest stereo search range tracking sets, px (Eq. (3) needs > 4)
@@ -47,6 +58,7 @@ _MIN_SUPPORTED: Final = 0.2  # share of a curve that must be supported before tr
 _MIN_SUPPORTED_REJECTED: Final = 0.5  # share of a rejected curve that stereo must support
 _SNAP_NEIGHBOURS: Final = 8  # stereo points averaged per sample when snapping a filled piece
 _SNAP_SMOOTH: Final = 3.0  # std of the smoothing of snap offsets along a piece, samples
+START_PIECES: Final = 3  # pieces tried one by one to start a track: a few pipeline runs a frame
 
 Status = Literal["ok", "predicted", "lost"]
 
@@ -78,6 +90,12 @@ class TrackParams(Params):
     """Frames in a row the curve may be predicted without an observation before it is lost."""
     alpha_margin_px: float = param(10.0, lo=0, hi=512, unit="px", label="search margin")
     """Margin above the predicted largest disparity for the stereo search range, px."""
+    gate_px: float = param(12.0, lo=0, hi=MAX_RADIUS_PX, unit="px", label="gate half-width")
+    """Half-width of the band around the reprojected prediction that a doubted frame's masks
+    are cut to, px, before one frame's predicted motion is added (0: no gate)."""
+    thick_px: float = param(6.0, lo=0, hi=MAX_RADIUS_PX, unit="px", label="thicker than thread")
+    """The gate also removes the parts of the band that a disk of this radius fits in: thicker
+    than a thread (an instrument crossing it), px (0: keeps them)."""
 
 
 @dataclass(frozen=True)
@@ -172,23 +190,187 @@ def search_alpha(
     return int(np.clip(math.ceil(disparity.max() + p.alpha_margin_px), MIN_ALPHA, MAX_ALPHA))
 
 
+def gate_corrections(
+    state: TrackState | None,
+    P1: np.ndarray,
+    P2: np.ndarray,
+    shape: tuple[int, int],
+    p: TrackParams,
+    masks: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[Correction, ...]:
+    """The tracker's gate on the next frame's masks P_L, P_R: per view, a ``keep`` correction,
+    the band of half-width ``gate_px`` plus the predicted motion (px, the largest displacement
+    of a sample between ``state.points`` and the prediction, reprojected) around the predicted
+    curve projected with the rectified ``P1`` (left) and ``P2`` (right), (3, 4); then, given the
+    segmented ``masks`` (P_L, P_R) (H, W) bool, ``erase`` corrections of the parts of the band
+    thicker than a thread (the disks of radius ``thick_px`` that fit in the mask: an instrument
+    where it crosses the thread, one stroke per row of disk centres). Samples outside the
+    (H, W) ``shape`` are clamped to its border (the band follows the thread out of view).
+    Empty without a prior, with tracking off, ``gate_px`` 0, or a prediction behind a camera."""
+    if state is None or not p.enabled or p.gate_px <= 0:
+        return ()
+    if masks is not None and any(np.shape(m) != tuple(shape) for m in masks):
+        raise ValueError(
+            f"masks must be two {tuple(shape)} masks, got {[np.shape(m) for m in masks]}"
+        )
+    h, w = shape
+    out = []
+    for i, (view, P) in enumerate((("left", P1), ("right", P2))):
+        uv_next = _project(state.predicted, P)
+        uv_now = _project(state.points, P)
+        if uv_next is None or uv_now is None:
+            return ()
+        motion = float(np.linalg.norm(uv_next - uv_now, axis=1).max())
+        radius = min(p.gate_px + motion, MAX_RADIUS_PX)
+        xy = np.rint(uv_next).astype(np.int64)
+        xy[:, 0] = np.clip(xy[:, 0], 0, w - 1)
+        xy[:, 1] = np.clip(xy[:, 1], 0, h - 1)
+        keep = np.ones(len(xy), dtype=bool)
+        keep[1:] = np.any(xy[1:] != xy[:-1], axis=1)  # no repeated pixel
+        xy = xy[keep][:MAX_STROKE_POINTS]
+        points = tuple((int(x), int(y)) for x, y in xy)
+        out.append(Correction("keep", view, points, radius))  # type: ignore[arg-type]
+        if masks is not None and p.thick_px > 0:
+            near = _near_polyline(shape, xy, radius + p.thick_px)
+            out += _thick_erasures(np.asarray(masks[i], bool), view, p.thick_px, near)
+    return tuple(out)
+
+
+def _thick_erasures(
+    mask: np.ndarray, view: str, r: float, near: np.ndarray | None = None
+) -> list[Correction]:
+    """``erase`` strokes of radius ``r`` through every row run of the pixels of ``mask`` whose
+    distance to its border is >= ``r`` (the centres of the disks that fit in it: their union is
+    the mask's opening by that disk, what is thicker than a thread), restricted to ``near``
+    (H, W) bool when given."""
+    dist = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    centres = dist >= r
+    if near is not None:
+        centres &= near
+    padded = np.pad(centres, ((0, 0), (1, 1))).astype(np.int8)
+    rows, cols = np.nonzero(np.diff(padded, axis=1))  # run starts and (exclusive) ends per row
+    bounds = zip(rows[0::2], cols[0::2], cols[1::2], strict=True)
+    runs = [(int(y), int(a), int(b) - 1) for y, a, b in bounds]
+    per_row = np.bincount([y for y, _, _ in runs], minlength=mask.shape[0]) if runs else None
+    strokes: list[list[tuple[int, int]]] = []
+    last: tuple[int, int, int] | None = None
+    for y, a, b in runs:  # one stroke through consecutive rows of one overlapping run each
+        alone = per_row is not None and per_row[y] == 1
+        if alone and last is not None and last[0] == y - 1 and a <= last[2] and b >= last[1]:
+            m = max(a, last[1])  # a column in both runs: the step down stays on disk centres
+            strokes[-1] += [(m, y - 1), (m, y), (a, y), (b, y)]
+        else:
+            strokes.append([(a, y), (b, y)])
+        last = (y, a, b) if alone else None
+        if len(strokes[-1]) > MAX_STROKE_POINTS - 4:
+            last = None
+    return [Correction("erase", view, tuple(pts), float(r)) for pts in strokes]  # type: ignore[arg-type]
+
+
+def _near_polyline(shape: tuple[int, int], xy: np.ndarray, distance: float) -> np.ndarray:
+    """(H, W) bool: the pixels within ``distance`` of the polyline through ``xy`` (K, 2)."""
+    line = np.ones(shape, np.uint8)
+    cv2.polylines(line, [xy.astype(np.int32).reshape(-1, 1, 2)], False, 0, thickness=1)
+    line[xy[0, 1], xy[0, 0]] = 0
+    return cv2.distanceTransform(line, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) <= distance
+
+
+def start_corrections(
+    P_L: np.ndarray,
+    P_R: np.ndarray | None = None,
+    thick_px: float = 0.0,
+    pieces: int = START_PIECES,
+) -> list[tuple[Correction, ...]]:
+    """Hypotheses for starting a track when the frame's single-frame curve is doubted, in
+    order: with ``thick_px`` > 0 and the right mask ``P_R``, the removal of what is thicker than
+    a thread in both views (the disks of radius ``thick_px`` that fit in the masks: an
+    instrument's shaft, also where it touches the thread); then for each of the ``pieces``
+    largest 8-connected pieces of the left mask P_L (H, W) bool, the piece's removal in both
+    views (``remove`` with its stereo partner, :mod:`core.corrections`), largest first (none
+    when P_L has fewer than two pieces). The caller keeps the first hypothesis whose curve the
+    check calls "ok"."""
+    P_L = np.asarray(P_L)
+    if P_L.ndim != 2:
+        raise ValueError(f"P_L must be an (H, W) mask, got {P_L.shape}")
+    out: list[tuple[Correction, ...]] = []
+    if thick_px > 0 and P_R is not None:
+        if np.shape(P_R) != P_L.shape:
+            raise ValueError(f"P_R is {np.shape(P_R)}, P_L {P_L.shape}: masks of one pair differ")
+        thick = (*_thick_erasures(P_L, "left", thick_px), *_thick_erasures(P_R, "right", thick_px))
+        if thick:
+            out.append(thick)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(P_L.astype(np.uint8), connectivity=8)
+    if n < 3:  # background and at most one piece
+        return out
+    order = 1 + np.argsort(-stats[1:, cv2.CC_STAT_AREA], kind="stable")[:pieces]
+    for k in order:  # a handful of pieces
+        rows, cols = np.nonzero(labels == k)
+        click = ((int(cols[0]), int(rows[0])),)  # a pixel of the piece: it alone is removed
+        out.append((Correction("remove", "left", click, 0.5, stereo=True),))
+    return out
+
+
+def _project(x: np.ndarray, P: np.ndarray) -> np.ndarray | None:
+    """(N, 2) pixels (x, y) of the points ``x`` (N, 3) by the (3, 4) ``P``; None when a point
+    is behind the camera or not finite."""
+    u = np.column_stack([x, np.ones(len(x))]) @ np.asarray(P, dtype=np.float64).T
+    if np.any(u[:, 2] <= _EPS) or not np.all(np.isfinite(u)):
+        return None
+    return u[:, :2] / u[:, 2:]
+
+
 def track_step(
     single: np.ndarray | None,
     state: TrackState | None,
     p: TrackParams,
     cloud: np.ndarray | None = None,
     check: Literal["ok", "suspect", "failed"] = "ok",
+    single_frame: np.ndarray | None | Literal["same"] = "same",
 ) -> tuple[TrackResult, TrackState | None]:
     """One frame of tracking: the single-frame curve ``single`` (M, 3) (None when the
     single-frame pipeline gave none), this frame's reliable stereo points ``cloud`` (K, 3)
     (optional: pieces filled from the prior are pulled onto them) and the previous state
     -> this frame's result and state.
 
-    ``check``: the single-frame check's verdict on the curve. A doubted curve ("suspect" or
-    "failed") is believed only where it also lies within ``disagree_mm`` of the prediction
-    (the rest is trimmed at the ends or taken from the prior inside). A "failed" curve is used
-    only with a prior and a ``cloud``, when at least half of it is supported and it explains the
-    prediction; it never (re)starts a track and does not teach the thread's length."""
+    ``single_frame``: when the observation ``single`` comes from another run than the
+    single-frame one (the masks with the tracker's corrections, :func:`gate_corrections`), the
+    single-frame curve (M, 3) or None: the result keeps it and is flagged against it.
+
+    ``check``: the single-frame check's verdict on the curve. Only an "ok" curve (re)starts a
+    track. A doubted curve ("suspect" or "failed") is believed only where it also lies within
+    ``disagree_mm`` of the prediction (the rest is trimmed at the ends or taken from the prior
+    inside), and not at all when it explains less than ``min_overlap`` of the prediction (the
+    frame is predicted). A "failed" curve is used only with a ``cloud``, when at least half of
+    it is supported; it does not teach the thread's length."""
+    res, new = _track_step(single, state, p, cloud, check)
+    if isinstance(single_frame, str):
+        return res, new
+    return _against_single(res, single_frame, p), new
+
+
+def _against_single(res: TrackResult, single: np.ndarray | None, p: TrackParams) -> TrackResult:
+    """``res`` flagged against the single-frame curve ``single`` instead of its observation."""
+    if single is not None:
+        single = _check_curve(single, "single_frame")
+    if res.points is None:
+        return dataclasses.replace(res, single=single)
+    d = math.nan if single is None else _hausdorff(res.points, single)
+    parts = [r for r in res.reason.split("; ") if r and not r.startswith(_DIFFER)]
+    flagged = not d <= p.disagree_mm  # NaN (no single-frame curve) is flagged too
+    if flagged:
+        parts.insert(0, f"{_DIFFER} by {d:.1f} (> {p.disagree_mm:g})" if single is not None
+                     else "no single-frame curve")  # fmt: skip
+    return dataclasses.replace(res, single=single, flagged=flagged, reason="; ".join(parts),
+                               disagreement=d)  # fmt: skip
+
+
+def _track_step(
+    single: np.ndarray | None,
+    state: TrackState | None,
+    p: TrackParams,
+    cloud: np.ndarray | None,
+    check: Literal["ok", "suspect", "failed"],
+) -> tuple[TrackResult, TrackState | None]:
     rejected = check == "failed"
     if cloud is not None:
         cloud = np.asarray(cloud, dtype=np.float64)
@@ -202,11 +384,13 @@ def track_step(
     n = p.n_samples
     if rejected and single is not None and not _usable_rejected(single, state, cloud, p):
         single = None
-    if not p.enabled or state is None:
-        start = single
-        if p.enabled and check != "ok" and single is not None:
-            start = _trim_unsupported(single, cloud, p)  # a doubted start: its supported part
-        return _restart(start, n, restarted=state is None and p.enabled, single=single)
+    if not p.enabled:
+        return _restart(single, n, restarted=False)
+    if state is None:
+        if check != "ok" and single is not None:  # a track starts from an "ok" curve only
+            reason = f"no track: the single-frame curve is {check}, a track starts from an ok one"
+            return TrackResult(None, single, "lost", False, reason, *_NO_FIT), None
+        return _restart(single, n, restarted=True)
     if len(state.points) != n:
         raise ValueError(f"state has {len(state.points)} samples, params say {n}")
     pred = state.predicted
@@ -227,8 +411,8 @@ def track_step(
     d_pred = cKDTree(obs).query(pred)[0]  # how well the observation explains each prediction
     explained = d_pred <= p.cover_mm
     if explained.mean() < p.min_overlap:
-        if rejected:  # a rejected curve that disagrees with the prior is no observation
-            return track_step(None, state, p, cloud)
+        if check != "ok":  # a doubted curve that disagrees with the prior is no observation
+            return _track_step(None, state, p, cloud, "ok")
         res, new = _restart(single, n, restarted=True)
         reason = f"observation explains {100 * explained.mean():.0f}% of the prediction; restarted"
         return _replace_flag(res, reason, reversed_), new
@@ -258,11 +442,7 @@ def track_step(
 
     disagreement = _hausdorff(curve, single)
     flagged = disagreement > p.disagree_mm
-    reason = (
-        f"tracked and single-frame curves differ by {disagreement:.1f} (> {p.disagree_mm:g})"
-        if flagged
-        else ""
-    )
+    reason = f"{_DIFFER} by {disagreement:.1f} (> {p.disagree_mm:g})" if flagged else ""
     if filled > 0:
         reason = (reason + "; " if reason else "") + f"{filled:.1f} filled from the motion prior"
     # Velocity: mean displacement of the observed samples to the previous curve (normal motion;
@@ -276,6 +456,7 @@ def track_step(
 # ----------------------------------------------------------------------------------------------
 
 _NO_FIT = (math.nan, 0.0, False, False)  # disagreement, filled, reversed, restarted
+_DIFFER = "tracked and single-frame curves differ"
 
 
 def _check_curve(points: np.ndarray, name: str) -> np.ndarray:

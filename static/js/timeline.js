@@ -144,6 +144,9 @@ function drawPlot() {
   $("#tl-info").textContent = row
     ? `single ${row.status}, tracked ${row.track_status}${row.flagged ? " (flagged)" : ""}; length ${fmt(row.curve_length, 1)}; ${fmt(row.ms, 0)} ms`
       + (row.track_reason ? `; ${row.track_reason}` : "")
+      + (row.observed_by === "gate" || row.observed_by === "start"
+        ? `; tracker observed the masks ${row.observed_by === "gate" ? "cut to the predicted thread" : "without one piece"} (${row.observed_status}), ${row.tracker_removed_px} px removed`
+        : "")
     : "not computed yet";
 }
 

@@ -230,8 +230,10 @@ def test_generate_sequence_then_track_writes_a_result_per_frame(tmp_path, capsys
     rows = list(csv.DictReader((out / "summary.csv").open()))
     assert [r["name"] for r in rows] == ["pull_1", "pull_2", "pull_3"]
     assert all(r["track_good"] == "True" for r in rows)
+    assert all(r["observed_by"] == "single" and r["tracker_removed_px"] == "0" for r in rows)
     data = json.loads((out / "frames" / "pull_2.json").read_text())
     assert data["tracked"]["status"] == "ok" and len(data["tracked"]["points"]) > 10
+    assert data["tracked"]["observed_by"] == "single"  # an ok frame is observed as it is
     assert data["status"] == "ok" and data["truth_metrics"]["track_e_length_mm"] < 5
     # the video of the same sequence, with the folder's calibration, no masks
     out_v = tmp_path / "run_video"
@@ -241,6 +243,24 @@ def test_generate_sequence_then_track_writes_a_result_per_frame(tmp_path, capsys
     )  # fmt: skip
     assert code in (0, 1)
     assert len(list((out_v / "frames").glob("*.json"))) == 3
+
+
+def test_raw_frames_with_an_instrument_are_tracked_through_the_trackers_corrections(tmp_path):
+    """The segmenter takes the grasper's shaft for thread (no masks given): no single-frame
+    curve is good; the track starts from the frame whose shaft removal the check calls ok and
+    then follows the thread through the gate around its prediction."""
+    args = ["generate", str(tmp_path), "--sequence", "4", "--motion", "instrument", "--seed", "5",
+            "--size", "320x240", "--group", "inst"]  # fmt: skip
+    assert main(args) == 0
+    out = tmp_path / "run"
+    main(["track", str(tmp_path / "sequences" / "inst"), "--out", str(out), "--no-masks"])
+    rows = list(csv.DictReader((out / "summary.csv").open()))
+    assert [r["good"] for r in rows] == ["False"] * 4
+    assert [r["observed_by"] for r in rows] == ["single", "start", "gate", "gate"]
+    assert rows[0]["track_status"] == "lost" and "starts from an ok one" in rows[0]["track_reason"]
+    assert [r["track_good"] for r in rows[1:]] == ["True"] * 3
+    assert all(int(r["tracker_removed_px"]) > 1000 for r in rows[1:])
+    assert all(r["flagged"] == "True" for r in rows[1:])  # the single-frame curve took the shaft
 
 
 def test_track_without_a_calibration_is_a_one_line_error(tmp_path, frames, capsys):

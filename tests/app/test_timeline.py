@@ -157,29 +157,45 @@ class _Rec(SimpleNamespace):
 
 
 class _FakePipeline:
-    """A pipeline whose every run gives a "suspect" curve (the check doubted it)."""
+    """A pipeline whose first frame's curve is "ok" and every later one "suspect" (the check
+    doubted it); it records the tracker's corrections of each run."""
 
-    runs = 0
+    runs: list = []
 
     def __init__(self, pair, calib) -> None:
-        pass
+        self.pair, self.calib = pair, calib
 
-    def run(self, params):
-        _FakePipeline.runs += 1
+    def run(self, params, corrections=None):
+        _FakePipeline.runs.append(tuple(corrections or ()))
         x = np.linspace(0, 50, 30)
         pts = np.column_stack([x, np.zeros_like(x), np.full_like(x, 100.0)])
-        return _Rec(status="suspect", runs={"camera": SimpleNamespace(points=pts)}, message="")
+        status = "ok" if len(_FakePipeline.runs) == 1 else "suspect"
+        return _Rec(status=status, runs={"camera": SimpleNamespace(points=pts)}, message="")
 
 
-def test_a_suspect_curve_is_an_observation_and_is_not_rerun(monkeypatch):
+def test_a_suspect_curve_is_observed_through_the_gate_and_not_rerun(monkeypatch):
     monkeypatch.setattr(track_report, "Pipeline", _FakePipeline)
     calib = SimpleNamespace(P1=np.hstack([np.eye(3) * [500, 500, 1], np.zeros((3, 1))]),
                             P2=np.hstack([np.eye(3) * [500, 500, 1], [[-500.0], [0], [0]]]))  # fmt: skip
-    frames = [SimpleNamespace(pair=None, index=k, truth=None) for k in range(3)]
-    _FakePipeline.runs = 0
+    pair = SimpleNamespace(shape=(480, 640))
+    frames = [SimpleNamespace(pair=pair, index=k, truth=None) for k in range(3)]
+    _FakePipeline.runs = []
     out = list(track_report.track_sequence(frames, calib, ReconParams(), TrackParams()))
     assert [tf.tracked.status for tf in out] == ["ok", "ok", "ok"]
-    assert _FakePipeline.runs == 3  # no second run with the configured search range
+    assert [tf.observed_by for tf in out] == ["", "gate", "gate"]
+    # one run a frame, and for a doubted frame one more with the gate (no configured-alpha rerun)
+    ops = [tuple(c.op for c in run) for run in _FakePipeline.runs]
+    assert ops == [(), (), ("keep", "keep"), (), ("keep", "keep")]
+
+
+def test_a_suspect_first_curve_starts_no_track(monkeypatch):
+    monkeypatch.setattr(track_report, "Pipeline", _FakePipeline)
+    calib = SimpleNamespace(P1=None, P2=None)
+    frames = [SimpleNamespace(pair=None, index=k, truth=None) for k in range(2)]
+    _FakePipeline.runs = [()]  # the first run is already made: every run is "suspect"
+    out = list(track_report.track_sequence(frames, calib, ReconParams(), TrackParams()))
+    assert [tf.tracked.status for tf in out] == ["lost", "lost"]
+    assert all("starts from an ok one" in tf.tracked.reason for tf in out)
 
 
 def test_a_video_frame_is_reached_forward_from_a_cursor_and_backward_from_the_start(data):

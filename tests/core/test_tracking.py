@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from threadrecon.core.corrections import VIEWS, apply_corrections
+from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.sequence_synth import (
     MotionParams,
     SequenceParams,
@@ -16,10 +19,12 @@ from threadrecon.core.synthetic import RenderParams, StereoCamera, SyntheticPara
 from threadrecon.core.tracking import (
     TrackParams,
     TrackState,
+    gate_corrections,
     motion_error,
     polyline_length,
     resample,
     search_alpha,
+    start_corrections,
     track_step,
 )
 
@@ -269,12 +274,161 @@ def test_a_failed_curve_never_starts_a_track_but_serves_with_a_prior():
     assert res.status == "predicted"
 
 
-def test_a_doubted_first_curve_starts_from_its_supported_part():
+def test_only_an_ok_curve_starts_a_track():
     p = TrackParams()
     full = _arc(400)
-    wild = np.vstack([full, full[-1] + np.linspace(0, 1, 40)[1:, None] * [0.0, 0.0, 4000.0]])
-    res, _ = track_step(wild, None, p, cloud=full, check="suspect")  # the end runs off 4 m deep
-    assert res.points[:, 2].max() < full[:, 2].max() + p.support_mm
-    assert res.length == pytest.approx(polyline_length(full), abs=1.0)
-    trusted, _ = track_step(wild, None, p, cloud=full)  # an "ok" curve is taken as it is
-    assert trusted.points[:, 2].max() > 1000
+    for check in ("suspect", "failed"):
+        res, state = track_step(full, None, p, cloud=full, check=check)
+        assert res.status == "lost" and res.points is None and state is None
+        assert "starts from an ok one" in res.reason or check == "failed"
+    res, state = track_step(full, None, p, cloud=full, check="ok")
+    assert res.status == "ok" and res.restarted and state is not None
+
+
+def test_a_doubted_curve_elsewhere_is_predicted_not_restarted_from():
+    p = TrackParams()
+    _, state = track_step(_arc(), None, p)
+    elsewhere = _arc() + np.array([0.0, 60.0, 0.0])  # e.g. an instrument's shaft
+    res, new = track_step(elsewhere, state, p, cloud=elsewhere, check="suspect")
+    assert res.status == "predicted" and not res.restarted
+    assert np.allclose(res.points, state.predicted) and new.coasted == 1
+
+
+def test_gate_keeps_a_band_around_the_reprojected_prediction_widened_by_the_motion():
+    P1, P2 = _P()
+    p = TrackParams(gate_px=10.0)
+    x = _arc(200) * np.array([0.5, 1.0, 1.0])  # in view
+    v = np.tile([1.0, 0.0, 0.0], (len(x), 1))  # 1 mm a frame to the right
+    gate = gate_corrections(TrackState(x, v), P1, P2, (CAM.height, CAM.width), p)
+    assert [c.op for c in gate] == ["keep", "keep"] and tuple(c.view for c in gate) == VIEWS
+    for c, P in zip(gate, (P1, P2), strict=True):
+        uv = np.column_stack([x + v, np.ones(len(x))]) @ P.T
+        uv = uv[:, :2] / uv[:, 2:]
+        pts = np.array(c.points, dtype=float)
+        assert cKDTree(pts).query(uv)[0].max() < 2.0  # the prediction, not the last curve
+        motion = CAM.fx * 1.0 / x[:, 2].min()  # px of 1 mm at the nearest sample
+        assert c.radius == pytest.approx(10.0 + motion, rel=0.02)
+    # applied to masks: a piece on the predicted curve stays, one far from it goes
+    mask = np.zeros((CAM.height, CAM.width), bool)
+    uv = np.rint(np.array(gate[0].points)).astype(int)
+    mask[uv[:, 1], uv[:, 0]] = True
+    mask[10:30, 10:200] = True  # an instrument far from the thread
+    grey = np.zeros(mask.shape, np.float32)
+    lifted = LiftedPair(I_L=grey, I_R=grey, P_L=mask, P_R=mask, grey_L=grey, grey_R=grey,
+               background=(0.0, 0.0), method="test")  # fmt: skip
+    out = apply_corrections(lifted, gate, 0)
+    assert out.P_L[uv[:, 1], uv[:, 0]].all() and not out.P_L[10:30, 10:200].any()
+    assert out.removed_L[10:30, 10:200].all()
+
+
+def test_gate_is_empty_without_a_prior_or_with_tracking_off():
+    P1, P2 = _P()
+    x = _arc(50)
+    state = TrackState(x, np.zeros_like(x))
+    assert gate_corrections(None, P1, P2, (480, 640), TrackParams()) == ()
+    assert gate_corrections(state, P1, P2, (480, 640), TrackParams(enabled=False)) == ()
+    assert gate_corrections(state, P1, P2, (480, 640), TrackParams(gate_px=0.0)) == ()
+    behind = TrackState(x * np.array([1, 1, -1]), np.zeros_like(x))
+    assert gate_corrections(behind, P1, P2, (480, 640), TrackParams()) == ()
+
+
+def test_gate_points_outside_the_image_are_clamped_to_its_border():
+    P1, P2 = _P()
+    x = _arc(100) * np.array([20.0, 1.0, 1.0])  # 2 m wide: far out of view on both sides
+    gate = gate_corrections(TrackState(x, np.zeros_like(x)), P1, P2, (480, 640), TrackParams())
+    for c in gate:
+        c.check_inside((480, 640))  # raises for a point outside
+
+
+def test_start_hypotheses_remove_the_largest_pieces_first():
+    mask = np.zeros((100, 200), bool)
+    mask[10:40, 10:150] = True  # largest (an instrument's shaft)
+    mask[60, 20:180] = True  # the thread
+    mask[90:92, 5:8] = True  # a speck
+    hyps = start_corrections(mask)
+    assert len(hyps) == 3
+    sizes = []
+    for (c,) in hyps:
+        assert c.op == "remove" and c.stereo and c.view == "left"
+        x, y = c.points[0]
+        assert mask[y, x]
+        sizes.append(int(mask[10:40, 10:150].sum()) if y < 40 else (160 if y == 60 else 6))
+    assert sizes == sorted(sizes, reverse=True)
+    assert start_corrections(mask[:50]) == []  # one piece: nothing to try
+    with pytest.raises(ValueError, match="mask"):
+        start_corrections(np.zeros(5, bool))
+
+
+def test_gate_erases_what_is_thicker_than_a_thread_where_it_crosses_the_band():
+    P1, P2 = _P()
+    x = _arc(200) * np.array([0.5, 1.0, 1.0])
+    state = TrackState(x, np.zeros_like(x))
+    shape = (CAM.height, CAM.width)
+    p = TrackParams(gate_px=10.0, thick_px=6.0)
+    masks, threads = [], []
+    for P in (P1, P2):
+        thread, shaft = np.zeros(shape, np.uint8), np.zeros(shape, np.uint8)
+        uv = np.column_stack([x, np.ones(len(x))]) @ P.T
+        uv = np.round(uv[:, :2] / uv[:, 2:]).astype(np.int32)
+        cv2.polylines(thread, [uv.reshape(-1, 1, 2)], False, 1, thickness=3)  # the thread, 3 px
+        mid = uv[len(uv) // 2]
+        cv2.line(shaft, (0, int(mid[1]) - 60), (int(mid[0]) + 40, int(mid[1]) + 20), 1, 30)
+        masks.append((thread | shaft).astype(bool))
+        threads.append(thread.astype(bool) & ~cv2.dilate(shaft, np.ones((3, 3))).astype(bool))
+    gate = gate_corrections(state, P1, P2, shape, p, (masks[0], masks[1]))
+    assert {c.op for c in gate} == {"keep", "erase"}
+    grey = np.zeros(shape, np.float32)
+    lifted = LiftedPair(I_L=grey, I_R=grey, P_L=masks[0], P_R=masks[1], grey_L=grey,
+                        grey_R=grey, background=(0.0, 0.0), method="test")  # fmt: skip
+    out = apply_corrections(lifted, gate, 0)
+    for kept, thread in ((out.P_L, threads[0]), (out.P_R, threads[1])):
+        dist = cv2.distanceTransform(kept.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        assert dist.max() < p.thick_px  # nothing thicker than a thread is left
+        assert (kept & thread).sum() >= 0.97 * thread.sum()  # the visible thread stays
+        assert (kept & ~thread).sum() < 0.1 * thread.sum()  # the shaft's fringe at most
+    with pytest.raises(ValueError, match="masks"):
+        gate_corrections(state, P1, P2, shape, p, (masks[0][:10], masks[1]))
+    plain = gate_corrections(state, P1, P2, shape, TrackParams(thick_px=0.0), (masks[0], masks[1]))
+    assert [c.op for c in plain] == ["keep", "keep"]
+
+
+def test_an_observation_of_another_run_is_flagged_against_the_single_frame_curve():
+    p = TrackParams()
+    full = _arc(400)
+    _, state = track_step(full, None, p, cloud=full)
+    moved = full + np.array([0.3, 0.0, 0.0])
+    shaft = moved + np.array([0.0, 40.0, -20.0])  # the single-frame run took an instrument
+    res, new = track_step(moved, state, p, cloud=moved, check="suspect", single_frame=shaft)
+    assert res.status == "ok" and res.flagged and res.disagreement > 40
+    assert res.reason.startswith("tracked and single-frame curves differ by")
+    assert res.single is shaft and new is not None
+    same, _ = track_step(moved, state, p, cloud=moved, check="suspect")
+    assert not same.flagged and np.allclose(same.points, res.points)
+    none, _ = track_step(moved, state, p, cloud=moved, check="suspect", single_frame=None)
+    assert none.flagged and "no single-frame curve" in none.reason
+
+
+@pytest.mark.parametrize("angle", [10.0, 35.0, 60.0, 85.0, 120.0])
+def test_first_start_hypothesis_removes_exactly_what_is_thicker_than_a_thread(angle):
+    shape, r = (240, 320), 6.0
+    m = np.zeros(shape, np.uint8)
+    cv2.polylines(m, [np.array([[20, 200], [120, 150], [300, 190]], np.int32)], False, 1, 3)
+    t = np.deg2rad(angle)
+    c, d = np.array([160, 120]), 400 * np.array([np.cos(t), np.sin(t)])
+    p0, p1 = (c - d).astype(int), (c + d).astype(int)
+    cv2.line(m, tuple(int(v) for v in p0), tuple(int(v) for v in p1), 1, 25)  # touches the thread
+    mask = m.astype(bool)
+    hyps = start_corrections(mask, mask, thick_px=r)
+    thick = hyps[0]
+    assert {c.op for c in thick} == {"erase"} and {c.view for c in thick} == {"left", "right"}
+    assert len(thick) <= 6  # a shaft is a stroke or a few, not one per row
+    grey = np.zeros(shape, np.float32)
+    lifted = LiftedPair(I_L=grey, I_R=grey, P_L=mask, P_R=mask, grey_L=grey, grey_R=grey,
+                        background=(0.0, 0.0), method="test")  # fmt: skip
+    out = apply_corrections(lifted, thick, 0)
+    dist = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    opening = cv2.dilate((dist >= r).astype(np.uint8), cv2.getStructuringElement(
+        cv2.MORPH_ELLIPSE, (2 * int(r) + 1, 2 * int(r) + 1))).astype(bool) & mask  # fmt: skip
+    assert np.count_nonzero(out.P_L ^ (mask & ~opening)) <= 0.01 * mask.sum()
+    plain = start_corrections(mask, mask, thick_px=0.0)  # piece removals only
+    assert all(c.op == "remove" for h in plain for c in h)
