@@ -97,9 +97,14 @@ async def use_preset(state: State, sid: str, body: schemas.UsePresetBody) -> sch
 
 
 @router.get("/{sid}/overlay")
-def session_overlay(state: State, sid: str) -> JSONResponse:
-    """The 2D overlays of the session's current reconstruction."""
-    return JSONResponse(state.session(sid).overlay())
+def session_overlay(state: State, sid: str, known: str = "") -> JSONResponse:
+    """The 2D overlays of the session's current reconstruction. ``known``: comma-separated
+    tags (``_tags`` of an earlier answer) of payloads the page holds; those are left out."""
+    try:
+        tags = frozenset(int(t) for t in known.split(",") if t)
+    except ValueError:
+        raise Invalid(f"known must be comma-separated integer tags, got {known[:80]!r}") from None
+    return JSONResponse(state.session(sid).overlay(tags))
 
 
 @router.get("/{sid}/pixel")
