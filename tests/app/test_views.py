@@ -279,3 +279,21 @@ def test_overlay_cache_rebuilds_only_the_overlays_of_changed_stages():
         "_pixels",
         "_tags",
     }
+
+
+def test_a_layer_is_redrawn_when_any_result_it_is_drawn_from_changes():
+    # the stereo cloud is coloured by R (reliability), the spline layer shows the camera
+    # stage's control points: a layer keyed on fewer stages would keep stale nodes
+    pair, calib, gt = synthetic_case(seed=3)
+    rec = Pipeline(pair, calib).run()
+
+    def before(stage):
+        runs = {k: v for k, v in rec.runs.items() if STAGES.index(k) < STAGES.index(stage)}
+        return type(rec)(runs, None, None, rec.params)
+
+    grey = layer("stereo", before("reliability"), calib, gt)["depth"].colors
+    assert grey.shape == (3,) and layer("stereo", rec, calib, gt)["depth"].colors.ndim == 2
+    assert "reliability" in LAYERS["stereo"]
+    assert "control_points" not in layer("spline", before("camera"), calib, gt)
+    assert "control_points" in layer("spline", rec, calib, gt)
+    assert "camera" in LAYERS["spline"]
