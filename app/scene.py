@@ -227,8 +227,11 @@ class SceneView:
                     )  # fmt: skip
                 elif isinstance(node, Segments):
                     if len(node.points):
+                        color = node.color
+                        if isinstance(color, np.ndarray) and color.ndim == 2:  # per segment
+                            color = np.repeat(color[:, None, :], 2, axis=1)
                         self.scene.add_line_segments(
-                            path, node.points, node.color, thickness=node.width,
+                            path, node.points, color, thickness=node.width,
                             thickness_units="screen",
                         )  # fmt: skip
                 else:
