@@ -1,19 +1,22 @@
-"""Slider-to-scene latency of the debugger, server side, on every frame of a data folder.
+"""Slider latency of the debugger on every frame of a data folder, with its breakdown.
 
-Starts the debugger in this process, opens the page in headless Chromium (so that a real viser
-client is attached and every layer is really sent), then for each frame changes a spline
-parameter, eps1, eps2, eps3 and the reliability threshold through the same path a slider takes
-(``Session.submit``), and reads how long after the change each stage's layer was in the
-scene (``latency_ms`` of the session state: request -> layer handed to viser), and how long
-the 2D overlay the page fetches next takes to build and serve, and its size.
+Starts the debugger in this process and opens the page in headless Chromium (``--viewer
+chromium``: the page and its embedded viser viewer, software WebGL on the same cores), then for
+each frame changes a spline parameter, eps1, eps2, eps3 and the reliability threshold through
+the path a slider takes (``Session.submit``). With Chromium the latency is the time from the
+change until the page has the run's final state and has drawn its 2D overlays; the breakdown
+gives, per slider, the session worker's compute and publish (3D layers to viser) ms, wall and
+CPU, when the last layer was in the scene, when the page got the state, the page's overlay
+fetches (ms, kB) and its drawing ms. Without Chromium (``socket``: a websocket client that
+receives the 3D scene and renders nothing; ``none``) it is the server-side time until the last
+layer is in the scene, and the overlay GET the page would make.
 
     .venv/bin/python scripts/bench_latency.py [DATA_DIR] [--repeat 3] [--viewer chromium]
         [--set stereo.z_near_mm=40 --set stereo.z_far_mm=250]   # e.g. 1920x1080 frames
 
+HD frames: ``threadrecon generate DIR --size 1920x1080 --count 4 --seed 5601``.
 Targets (issue #13, p90): 150 ms for eps1-3 / threshold and 80 ms for a spline slider at
 640x480; 400 ms and 250 ms at 1920x1080 (sizes in between: 1920x1080's).
-
-Without Chromium it still runs, with no viewer attached (then drawing is not counted).
 """
 
 from __future__ import annotations
