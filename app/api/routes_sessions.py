@@ -64,11 +64,20 @@ async def session_state(
     s = state.session(sid)
     if since is not None and timeout > 0 and await s.changed(since, timeout) and s.busy:
         await s.finished(s.seq, SETTLE_S)
-    answer = session_answer(await run_in_threadpool(s.state)).model_dump(mode="json")
-    if overlay is not None and not answer["busy"]:
-        tags = _tags(overlay)
-        answer["overlay"] = await run_in_threadpool(s.overlay, tags)
+    tags = None if overlay is None else _tags(overlay)
+    data, overlays = await run_in_threadpool(_state_and_overlay, s, tags)  # one thread hop
+    answer = session_answer(data).model_dump(mode="json")
+    if overlays is not None:
+        answer["overlay"] = overlays
     return JSONResponse(answer)
+
+
+def _state_and_overlay(
+    s: Session, tags: frozenset[int] | None
+) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """The state, and with ``tags`` the overlays once the run has finished."""
+    data = s.state()
+    return data, s.overlay(tags) if tags is not None and not data["busy"] else None
 
 
 def _tags(known: str) -> frozenset[int]:
