@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -37,6 +38,7 @@ from threadrecon.core.pipeline import STAGES, ReconParams, Reconstruction
 
 POINT_SIZE_FRAC = 0.0025  # base point size as a fraction of the median thread depth
 STREAM_PAUSE_S = 0.35  # pause between stages of a streamed run, so each layer can be seen
+STATUS_EVERY_S = 0.3  # the status line's pace while a run goes on (a panel re-render each)
 CLOUD_POINTS = 12_000  # display budget of one point cloud: a 640x480 thread is drawn whole; a
 # 1920x1080 one (20-40k points a layer, 15 bytes each, resent on every slider move) every k-th
 
@@ -50,6 +52,7 @@ class SceneView:
         self._drawn: dict[str, tuple] = {}
         self._visible: dict[str, bool] = dict.fromkeys(LAYERS, True)
         self._base = 0.1
+        self._status_at = 0.0
         self._stereo_id: int | None = None
         self._syncing = threading.local()
         self._inputs: dict[str, tuple[Control, Any]] = {}
@@ -190,7 +193,15 @@ class SceneView:
                 self._recentre(rec)
             self._draw(name, layer(name, rec, loaded.calib, loaded.ground_truth))
             self._drawn[name] = key
-        self._status.content = _status_line(self.session, rec)
+        # the status line once a request's last stage is in (each update re-renders the
+        # viewer's panel), or at a watchable pace while a long or streamed run goes on
+        now = time.monotonic()
+        final = self.session.running is None or rec is None or rec.failed_stage is not None
+        if final or now - self._status_at >= STATUS_EVERY_S:
+            text = _status_line(self.session, rec)
+            if text != self._status.content:
+                self._status.content = text
+                self._status_at = now
 
     def _recentre(self, rec: Reconstruction) -> None:
         pts = rec["stereo"].points
@@ -216,8 +227,11 @@ class SceneView:
                     )  # fmt: skip
                 elif isinstance(node, Segments):
                     if len(node.points):
+                        color = node.color
+                        if isinstance(color, np.ndarray) and color.ndim == 2:  # per segment
+                            color = np.repeat(color[:, None, :], 2, axis=1)
                         self.scene.add_line_segments(
-                            path, node.points, node.color, thickness=node.width,
+                            path, node.points, color, thickness=node.width,
                             thickness_units="screen",
                         )  # fmt: skip
                 else:

@@ -17,15 +17,14 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 from threadrecon.app.dataset import evaluate_reconstruction
 from threadrecon.app.errors import Conflict, DomainError, Invalid
 from threadrecon.app.library import FrameLibrary, LoadedFrame, merge_params
 from threadrecon.app.notify import Changes
-from threadrecon.app.session_state import describe
-from threadrecon.app.views import overlay
+from threadrecon.app.session_state import TIMING_KEYS, Request, View, describe, timed
+from threadrecon.app.views import OverlayCache
 from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction, StageError
 
 __all__ = ["FrameLibrary", "LoadedFrame", "Session", "View", "merge_params"]
@@ -33,25 +32,6 @@ __all__ = ["FrameLibrary", "LoadedFrame", "Session", "View", "merge_params"]
 log = logging.getLogger("threadrecon.session")
 PIPELINES_PER_SESSION = 3  # frames whose stage cache a session keeps (back-and-forth browsing)
 MAX_PAUSE_S = 10.0  # longest pause between streamed stages (a watchable step, not a hang)
-
-
-class View(Protocol):
-    """A 3D view of a session (``app.scene.SceneView``)."""
-
-    def show_frame(self, loaded: LoadedFrame | None) -> None: ...
-    def show(self, rec: Reconstruction | None, loaded: LoadedFrame | None) -> None: ...
-    def show_params(self, params: ReconParams) -> None: ...
-    def show_inspect(self, info: dict[str, Any] | None) -> None: ...
-
-
-@dataclass(frozen=True)
-class Request:
-    seq: int
-    frame_id: str
-    params: ReconParams
-    reveal: int  # number of stages to compute and show (1..len(STAGES))
-    pause_s: float  # pause after each stage, so that a streamed run can be watched
-    t0: float  # perf_counter() when the request was made (for the latency figures)
 
 
 class Session:
@@ -89,7 +69,8 @@ class Session:
         self.views: dict[int, View] = {}
         self.last_used = time.monotonic()
         self._pipelines: OrderedDict[str, Pipeline] = OrderedDict()
-        self._overlay: tuple[tuple, dict[str, Any]] | None = None
+        self._overlays = OverlayCache()
+        self.timing: dict[str, float] = {}  # the last request's ms: compute, publish (+ _cpu)
 
     # --- requests ---------------------------------------------------------------------------
 
@@ -208,7 +189,8 @@ class Session:
 
     def _release(self) -> None:
         self._pipelines.clear()
-        self.rec, self.loaded, self._overlay, self.inspect = None, None, None, None
+        self.rec, self.loaded, self.inspect = None, None, None
+        self._overlays.clear()
 
     # --- views --------------------------------------------------------------------------------
 
@@ -316,19 +298,24 @@ class Session:
         rec: Reconstruction | None = None
         stages = pipe.stages(req.params, until)
         self.running = STAGES[0]
+        timing = self.timing = dict.fromkeys(TIMING_KEYS, 0.0)
         while True:
-            try:
-                run = next(stages)
-            except StopIteration:
-                break
-            except StageError as exc:
-                rec = Reconstruction(dict(runs), exc.stage, exc.reason, req.params)
-                break
+            with timed(timing, "compute"):
+                try:
+                    run = next(stages)
+                except StopIteration:
+                    break
+                except StageError as exc:
+                    rec = Reconstruction(dict(runs), exc.stage, exc.reason, req.params)
+                    break
             runs[run.stage] = run
             rec = Reconstruction(dict(runs), None, None, req.params)
             nxt = STAGES.index(run.stage) + 1
             self.running = STAGES[nxt] if run.stage != until and nxt < len(STAGES) else None
-            self._publish(rec, loaded)
+            # a cached stage changes no view: it is shown with the next computed one
+            if not run.cached or req.pause_s or run.stage == until:
+                with timed(timing, "publish"):
+                    self._publish(rec, loaded)
             self.latency_ms[run.stage] = 1000.0 * (time.perf_counter() - req.t0)
             if self._superseded(req):
                 return
@@ -339,7 +326,8 @@ class Session:
                     return
         if rec is None:
             return
-        self._publish(rec, loaded)
+        with timed(timing, "publish"):
+            self._publish(rec, loaded)
         try:
             metrics, self.metrics_error = (
                 evaluate_reconstruction(rec, loaded.calib, loaded.ground_truth),
@@ -374,19 +362,15 @@ class Session:
             self._pipelines.popitem(last=False)
         return pipe
 
-    def overlay(self) -> dict[str, Any]:
-        """The 2D overlays of the current reconstruction, computed once per set of stage
-        results (the page asks after every stage; a cached stage costs nothing)."""
+    def overlay(self, known: frozenset[int] = frozenset()) -> dict[str, Any]:
+        """The 2D overlays of the current reconstruction (``OverlayCache.answer``: each built
+        once per set of its stage results; payloads tagged ``known`` are left out)."""
         with self.draw_lock:
             rec, loaded, version = self.rec, self.loaded, self.version
         if rec is None or loaded is None:
             return {"frame_id": self.frame_id, "version": version}
-        key = (loaded.frame.id, *(id(run.result) for run in rec.runs.values()))
-        cached = self._overlay
-        if cached is None or cached[0] != key:
-            cached = (key, overlay(rec, loaded.calib))
-            self._overlay = cached
-        return {**cached[1], "frame_id": loaded.frame.id, "version": version}
+        out = self._overlays.answer(rec, loaded.calib, known)
+        return {**out, "frame_id": loaded.frame.id, "version": version}
 
     def shows(self, frame_id: str) -> bool:
         """True when the session's reconstruction is of ``frame_id``."""

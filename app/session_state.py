@@ -2,14 +2,52 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+import contextlib
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Protocol
 
 from threadrecon.app.presets import diff, params_hash
 from threadrecon.app.views.check import check_json
-from threadrecon.core.pipeline import STAGES
+from threadrecon.core.pipeline import STAGES, ReconParams, Reconstruction
 
 if TYPE_CHECKING:
+    from threadrecon.app.library import LoadedFrame
     from threadrecon.app.session import Session
+
+TIMING_KEYS = ("compute_ms", "compute_cpu_ms", "publish_ms", "publish_cpu_ms")
+
+
+@contextlib.contextmanager
+def timed(into: dict[str, float], part: str) -> Iterator[None]:
+    """Add the wall and this thread's CPU ms of the block to ``into[part + "_ms"]`` and
+    ``into[part + "_cpu_ms"]`` (the latency's breakdown: computing vs. publishing views)."""
+    t, c = time.perf_counter(), time.thread_time()
+    try:
+        yield
+    finally:
+        into[f"{part}_ms"] += 1000.0 * (time.perf_counter() - t)
+        into[f"{part}_cpu_ms"] += 1000.0 * (time.thread_time() - c)
+
+
+class View(Protocol):
+    """A 3D view of a session (``app.scene.SceneView``)."""
+
+    def show_frame(self, loaded: LoadedFrame | None) -> None: ...
+    def show(self, rec: Reconstruction | None, loaded: LoadedFrame | None) -> None: ...
+    def show_params(self, params: ReconParams) -> None: ...
+    def show_inspect(self, info: dict[str, Any] | None) -> None: ...
+
+
+@dataclass(frozen=True)
+class Request:
+    seq: int
+    frame_id: str
+    params: ReconParams
+    reveal: int  # number of stages to compute and show (1..len(STAGES))
+    pause_s: float  # pause after each stage, so that a streamed run can be watched
+    t0: float  # perf_counter() when the request was made (for the latency figures)
 
 
 def describe(s: Session) -> dict[str, Any]:
@@ -56,6 +94,7 @@ def describe(s: Session) -> dict[str, Any]:
         "check": check_json(rec),
         "metrics": dict(s.metrics),
         "latency_ms": dict(s.latency_ms),
+        "timing": dict(s.timing),
         "inspect": s.inspect,
         "unit": loaded.calib.unit if loaded is not None else None,
     }

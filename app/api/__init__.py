@@ -19,6 +19,7 @@ from fastapi_offline import FastAPIOffline
 from threadrecon.app.api import errors
 from threadrecon.app.api.config import ServerConfig
 from threadrecon.app.api.guard import Guard
+from threadrecon.app.api.isolation import OriginIsolation
 from threadrecon.app.api.routes_corrections import router as corrections
 from threadrecon.app.api.routes_evaluations import router as evaluations
 from threadrecon.app.api.routes_exports import router as exports
@@ -85,5 +86,6 @@ def create_app(config: ServerConfig) -> FastAPI:
     ):
         app.include_router(router)
     errors.install(app)
+    app.add_middleware(OriginIsolation)  # the page renders apart from the 3D viewer
     app.add_middleware(Guard, policy=state.policy, max_body=config.max_body_bytes)
     return app

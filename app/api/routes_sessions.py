@@ -19,6 +19,7 @@ from threadrecon.core.pipeline import ReconParams
 
 router = APIRouter(prefix="/api/sessions", tags=["sessions"])
 MAX_POLL_S = 25.0  # a long poll answers after this long even without news
+SETTLE_S = 0.15  # a long poll that finds a run going on waits this long for it to end
 
 
 async def _reply(state: AppState, s: Session, seq: int, wait: bool) -> schemas.SessionState:
@@ -46,19 +47,44 @@ def close_session(state: State, sid: str) -> Response:
     return Response(status_code=204)
 
 
-@router.get("/{sid}")
+@router.get("/{sid}", response_model=schemas.SessionState)
 async def session_state(
     state: State,
     sid: str,
     since: int | None = None,
     timeout: float = Query(0.0, ge=0.0, le=MAX_POLL_S),
-) -> schemas.SessionState:
+    overlay: str | None = None,
+) -> JSONResponse:
     """The session's stepper, metrics and errors; with ``since``, waits up to ``timeout`` s
-    for a version newer than ``since`` (a long poll: no thread is held while waiting)."""
+    for a version newer than ``since`` (a long poll: no thread is held while waiting). A run
+    in progress is answered when it ends or ``SETTLE_S`` after the change, whichever is
+    first: a slider's run is one answer, not one per stage. With ``overlay`` (the tags the page
+    holds, as for ``/overlay``), the answer of a finished run carries its 2D overlays too
+    (``"overlay"``), saving the page the round trip."""
     s = state.session(sid)
-    if since is not None and timeout > 0:
-        await s.changed(since, timeout)
-    return session_answer(await run_in_threadpool(s.state))
+    if since is not None and timeout > 0 and await s.changed(since, timeout) and s.busy:
+        await s.finished(s.seq, SETTLE_S)
+    tags = None if overlay is None else _tags(overlay)
+    data, overlays = await run_in_threadpool(_state_and_overlay, s, tags)  # one thread hop
+    answer = session_answer(data).model_dump(mode="json")
+    if overlays is not None:
+        answer["overlay"] = overlays
+    return JSONResponse(answer)
+
+
+def _state_and_overlay(
+    s: Session, tags: frozenset[int] | None
+) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """The state, and with ``tags`` the overlays once the run has finished."""
+    data = s.state()
+    return data, s.overlay(tags) if tags is not None and not data["busy"] else None
+
+
+def _tags(known: str) -> frozenset[int]:
+    try:
+        return frozenset(int(t) for t in known.split(",") if t)
+    except ValueError:
+        raise Invalid(f"known must be comma-separated integer tags, got {known[:80]!r}") from None
 
 
 @router.patch("/{sid}/params")
@@ -97,9 +123,10 @@ async def use_preset(state: State, sid: str, body: schemas.UsePresetBody) -> sch
 
 
 @router.get("/{sid}/overlay")
-def session_overlay(state: State, sid: str) -> JSONResponse:
-    """The 2D overlays of the session's current reconstruction."""
-    return JSONResponse(state.session(sid).overlay())
+def session_overlay(state: State, sid: str, known: str = "") -> JSONResponse:
+    """The 2D overlays of the session's current reconstruction. ``known``: comma-separated
+    tags (``_tags`` of an earlier answer) of payloads the page holds; those are left out."""
+    return JSONResponse(state.session(sid).overlay(_tags(known)))
 
 
 @router.get("/{sid}/pixel")

@@ -117,6 +117,9 @@ class SessionState(BaseModel):
     """The check stage's verdict (None before it has run)."""
     metrics: dict[str, float | int | str | None]
     latency_ms: dict[str, float]
+    """ms from the request to each stage's result in the scene."""
+    timing: dict[str, float] = {}
+    """The last request's ms: computing the stages and publishing their views (wall, _cpu)."""
     inspect: dict[str, Any] | None
     """The inspected pixel (see ``/pixel``), or None."""
     unit: str | None

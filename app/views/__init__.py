@@ -14,6 +14,7 @@ from threadrecon.app.views import check, corrections, ordering_graph, stages
 from threadrecon.app.views.data import (
     HEAVY_VALUES,
     SPLINE_SAMPLES,
+    OverlayCache,
     nearest_to_ray,
     overlay,
     pixel_info,
@@ -58,6 +59,7 @@ __all__ = [
     "LAYER_STAGE",
     "LAYER_VIEWS",
     "OVERLAY_VIEWS",
+    "OverlayCache",
     "SPLINE_SAMPLES",
     "Label",
     "Layer",

@@ -4,12 +4,14 @@ pixel inspector. Nothing here talks to viser or FastAPI."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
+import threading
 from typing import Any
 
 import numpy as np
 
 from threadrecon.app.export import json_safe
-from threadrecon.app.views.registry import OVERLAY_VIEWS
+from threadrecon.app.views.registry import OVERLAY_VIEWS, OverlayView
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.pipeline import STAGES, Reconstruction
 
@@ -64,24 +66,76 @@ def overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
     cover every pixel (:func:`decimate_pixels`); ``"_pixels": {key: {side: {"step", "count"}}}``
     says so, with the full pixel count. Pixel lists are plain ints and skip ``json_safe``'s
     walk (100 ms at 1920x1080)."""
-    out: dict[str, Any] = {"shape": list(calib.image_size)}
-    plain: dict[str, Any] = {}
-    meta: dict[str, dict[str, dict[str, int]]] = {}
+    out: dict[str, Any] = {"shape": list(calib.image_size), "_pixels": {}}
     for view in OVERLAY_VIEWS.values():
-        if not all(stage in rec.runs for stage in view.needs):
-            continue
-        payload = view.make(rec, calib)
-        if view.kind != "pixels":
-            out[view.key] = payload
-            continue
-        sides = {}
-        for side, flat in payload.items():
-            pixels = np.asarray(flat, dtype=np.int64).reshape(-1, 2)
-            blocks, step = decimate_pixels(pixels, OVERLAY_PIXELS)
-            sides[side] = blocks.ravel().tolist()
-            meta.setdefault(view.key, {})[side] = {"step": step, "count": len(pixels)}
-        plain[view.key] = sides
-    return {**json_safe(out), **plain, "_pixels": meta}
+        if all(stage in rec.runs for stage in view.needs):
+            out[view.key], meta = _overlay_entry(view, rec, calib)
+            if meta is not None:
+                out["_pixels"][view.key] = meta
+    return out
+
+
+def _overlay_entry(
+    view: OverlayView, rec: Reconstruction, calib: StereoCalibration
+) -> tuple[dict[str, Any], dict[str, dict[str, int]] | None]:
+    """One overlay's JSON payload ``{side: payload}``, and for a ``pixels`` overlay its
+    decimation ``{side: {"step", "count"}}`` (else None)."""
+    payload = view.make(rec, calib)
+    if view.kind != "pixels":
+        return json_safe(payload), None
+    sides, meta = {}, {}
+    for side, flat in payload.items():
+        pixels = np.asarray(flat, dtype=np.int64).reshape(-1, 2)
+        blocks, step = decimate_pixels(pixels, OVERLAY_PIXELS)
+        sides[side] = blocks.ravel().tolist()
+        meta[side] = {"step": step, "count": len(pixels)}
+    return sides, meta
+
+
+class OverlayCache:
+    """The 2D overlays of one session, each rebuilt only when one of the stage results it is
+    drawn from changed (the pipeline cache hands back the same result object otherwise): a
+    spline slider rebuilds the spline's overlays, not the masks'. Each payload carries a tag,
+    unique in this process, that changes exactly when the payload does; :meth:`answer` leaves
+    out the payloads whose tags the page already holds."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._entries: dict[str, tuple[tuple, int, dict[str, Any], Any]] = {}
+
+    def answer(
+        self, rec: Reconstruction, calib: StereoCalibration, known: frozenset[int] = frozenset()
+    ) -> dict[str, Any]:
+        """``{"shape", key: payload ..., "_pixels", "_tags": {key: tag}}`` of every overlay
+        whose stages ran in ``rec``; a payload whose tag is in ``known`` is left out (listed in
+        ``_tags`` all the same: the page keeps its copy)."""
+        out: dict[str, Any] = {"shape": list(calib.image_size), "_pixels": {}, "_tags": {}}
+        with self._lock:  # two requests of one page never build the same overlay twice
+            for view in OVERLAY_VIEWS.values():
+                if not all(stage in rec.runs for stage in view.needs):
+                    continue
+                key = tuple(id(rec.runs[s].result) for s in view.needs)
+                hit = self._entries.get(view.key)
+                if hit is None or hit[0] != key:
+                    payload, meta = _overlay_entry(view, rec, calib)
+                    # the results are kept with the key: their ids cannot be reused meanwhile
+                    results = tuple(rec.runs[s].result for s in view.needs)
+                    hit = (key, next(_TAGS), {"payload": payload, "meta": meta}, results)
+                    self._entries[view.key] = hit
+                tag, entry = hit[1], hit[2]
+                out["_tags"][view.key] = tag
+                if entry["meta"] is not None:
+                    out["_pixels"][view.key] = entry["meta"]
+                if tag not in known:
+                    out[view.key] = entry["payload"]
+        return out
+
+    def clear(self) -> None:
+        with self._lock:
+            self._entries.clear()
+
+
+_TAGS = itertools.count(1)  # overlay payload tags, unique in the process
 
 
 def decimate_pixels(pixels: np.ndarray, budget: int) -> tuple[np.ndarray, int]:

@@ -27,6 +27,8 @@ JUNCTION = (255, 255, 255)
 CHOSEN_CSS = "#28dc5a"
 REJECTED_CSS = "#eb3c3c"
 PIECE_ALPHA = 0.55  # pieces drawn faint on the image: the chosen path and decisions stand out
+MAX_COST_LABELS = 40  # cost labels in 3D, spread along the walk (one scene node each, ~2 ms to
+# send; an HD thread has hundreds of continuations); the 2D overlay labels every one
 
 
 def cost_text(cost: float, reason: str = "") -> str:
@@ -97,27 +99,36 @@ def _ordering_graph_overlay(rec: Reconstruction, calib: StereoCalibration) -> di
 def _ordering_graph_layer(
     rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None
 ) -> Layer:
-    """``pieces/i`` (one colour each), ``junctions``, ``chosen`` and ``rejected`` continuations
-    at the walk's decisions, and ``costs/j`` labels at their middles."""
+    """``pieces`` (one colour per piece), ``junctions``, ``chosen`` and ``rejected``
+    continuations at the walk's decisions, and ``costs/j`` labels at the middles of at most
+    ``MAX_COST_LABELS`` of them."""
     kp = rec["clustering"].keypoints.astype(np.float32)
     od: Ordering = rec["ordering"]
     finite = np.isfinite(kp).all(axis=1)
     nodes: Layer = {}
     pal = palette(max(len(od.graph.pieces), 1))
-    for i, piece in enumerate(od.graph.pieces):
-        pairs = np.array([(a, b) for a, b in zip(piece[:-1], piece[1:], strict=True)])
-        if len(pairs) and (pairs := pairs[finite[pairs].all(axis=1)]).size:
-            nodes[f"pieces/{i}"] = Segments(kp[pairs], tuple(int(v) for v in pal[i]), 2.0)
+    steps_of = [
+        (a, b, i)
+        for i, piece in enumerate(od.graph.pieces)
+        for a, b in zip(piece[:-1], piece[1:], strict=True)
+    ]
+    pairs = np.array(steps_of, dtype=np.int64).reshape(-1, 3)
+    pairs = pairs[finite[pairs[:, :2]].all(axis=1)]
+    if len(pairs):  # one node for every piece (a node costs ~2 ms to send; HD: hundreds)
+        nodes["pieces"] = Segments(kp[pairs[:, :2]], pal[pairs[:, 2]], 2.0)
     junctions = od.graph.junctions[finite[od.graph.junctions]]
     if junctions.size:
         nodes["junctions"] = Points(kp[junctions], np.array(JUNCTION, np.uint8), 5.0)
     chosen: list[tuple[int, int]] = []
     rejected: list[tuple[int, int]] = []
-    for j, (d, to, _, text, is_chosen) in enumerate(_steps(od)):
+    steps = _steps(od)
+    labelled = set(np.linspace(0, len(steps) - 1, min(len(steps), MAX_COST_LABELS)).astype(int))
+    for j, (d, to, _, text, is_chosen) in enumerate(steps):
         if not (finite[d.at] and finite[to]):
             continue
         (chosen if is_chosen else rejected).append((d.at, to))
-        nodes[f"costs/{j}"] = Label(text, 0.5 * (kp[d.at] + kp[to]))
+        if j in labelled:
+            nodes[f"costs/{j}"] = Label(text, 0.5 * (kp[d.at] + kp[to]))
     for name, pairs, color, width in (
         ("chosen", chosen, CHOSEN, 4.0),
         ("rejected", rejected, REJECTED, 2.0),

@@ -29,7 +29,8 @@ class Points:
 class Segments:
     points: np.ndarray
     """(M, 2, 3) float32 line segments."""
-    color: tuple[int, int, int]
+    color: tuple[int, int, int] | np.ndarray
+    """One RGB colour, or (M, 3) uint8: one per segment (many colours in one scene node)."""
     width: float
     """Screen-space width, px."""
 

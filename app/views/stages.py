@@ -106,7 +106,7 @@ def _finite_points(rec: Reconstruction) -> tuple[np.ndarray, np.ndarray]:
     return st.points, np.isfinite(st.points).all(axis=1)
 
 
-@layer_view("stereo", needs=("stereo",))
+@layer_view("stereo", needs=("stereo", "reliability"), shows_at="stereo")  # coloured by R
 def _stereo_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None) -> Layer:
     points, finite = _finite_points(rec)
     colors = (
@@ -173,7 +173,7 @@ def _bounds_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray 
     }
 
 
-@layer_view("spline", needs=("spline",))
+@layer_view("spline", needs=("spline", "camera"), shows_at="spline")  # + control points
 def _spline_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None) -> Layer:
     sp, G = rec["spline"], calib.G
     nodes: Layer = {

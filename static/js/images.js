@@ -14,12 +14,16 @@ export function loadImages(id) {
 
 // --- 2D overlays -----------------------------------------------------------------------------
 
-let overlayBusy = false, overlayAt = 0, overlayTimer = null;
-const OVERLAY_EVERY_MS = 400;  // while a run is going on, overlays follow at this pace
+let overlayBusy = false, overlayAt = 0, overlayTimer = null, busySince = 0;
+const OVERLAY_EVERY_MS = 400;  // while a run is going on, overlays follow at this pace (a run
+// shorter than this, e.g. a slider move, gets one overlay: its last)
 async function refreshOverlay() {
   if (overlayBusy || S.overlayVersion === S.version) return;
-  const wait = OVERLAY_EVERY_MS - (Date.now() - overlayAt);
-  if (S.state && S.state.busy && wait > 0) {
+  const busy = Boolean(S.state && S.state.busy);
+  if (busy && !busySince) busySince = Date.now();
+  if (!busy) busySince = 0;
+  const wait = OVERLAY_EVERY_MS - (Date.now() - Math.max(overlayAt, busySince));
+  if (busy && wait > 0) {
     if (!overlayTimer) overlayTimer = setTimeout(() => { overlayTimer = null; refreshOverlay(); }, wait);
     return;
   }
@@ -27,13 +31,33 @@ async function refreshOverlay() {
   overlayAt = Date.now();
   try {
     const v = S.version;
-    const ov = await api("GET", `/api/sessions/${S.session}/overlay`);
-    S.overlay = ov;
-    S.overlayVersion = v;
-    drawImages();
+    const ov = await api("GET", `/api/sessions/${S.session}/overlay?known=${knownOverlays()}`);
+    if (v > S.overlayVersion) takeOverlay(ov, v);  // else a newer state brought its own
   } catch (e) { /* the next state refreshes it */ }
   overlayBusy = false;
   if (S.overlayVersion !== S.version) refreshOverlay();
+}
+
+// The tags of the overlay payloads the page holds: the server leaves those out of its answer.
+export function knownOverlays() {
+  const old = S.overlay && S.overlay._tags ? S.overlay : null;
+  return old ? Object.keys(old._tags).filter((k) => k in old).map((k) => old._tags[k]).join(",") : "";
+}
+
+// An overlay answer (from /overlay or with a finished run's state) of session version `v`:
+// the payloads left out are the ones held; an unchanged overlay is not drawn again.
+function takeOverlay(ov, v) {
+  const old = S.overlay && S.overlay._tags ? S.overlay : null;
+  let same = Boolean(old) && old.frame_id === ov.frame_id;
+  for (const [k, tag] of Object.entries(ov._tags || {})) {
+    if (!(k in ov) && old && old._tags[k] === tag) ov[k] = old[k];
+    else same = false;
+  }
+  if (same && Object.keys(old._tags).length !== Object.keys(ov._tags || {}).length) same = false;
+  S.overlay = ov;
+  S.overlayVersion = v;
+  if (!same) drawImages();
+  S.overlayShown = { version: ov.version, at: Date.now() };  // for scripts/bench_latency.py
 }
 
 // The toggles come from /api/info (the server's overlay registry), never from a copy here.
@@ -103,6 +127,7 @@ const pixelMeta = (ov, key, side) => ov._pixels && ov._pixels[key] && ov._pixels
 const countOf = (o, payload, meta) => (o.kind === "pixels" ? (meta ? meta.count : payload.length / 2) : o.kind === "polyline" ? payload.points.length : o.kind === "segments" ? (payload.labels || []).length : payload.length);
 
 export function drawImages() {
+  const t0 = performance.now();
   const ov = S.overlay && S.overlay.frame_id === S.frameId ? S.overlay : {};
   const overlays = S.info ? S.info.overlays : [];
   for (const o of overlays) {
@@ -131,6 +156,7 @@ export function drawImages() {
     const sp = ov.spline && ov.spline[side];
     $(`#err-${side}`).textContent = sp && sp.mean_px !== undefined ? `reprojection mean ${fmt(sp.mean_px, 2)} px, max ${fmt(sp.max_px, 2)} px, coverage ${fmt(sp.coverage, 2)}` : "";
   }
+  S.drawMs = performance.now() - t0;  // the last drawing's ms (scripts/bench_latency.py)
 }
 
 // --- pixel inspector -------------------------------------------------------------------------
@@ -184,7 +210,8 @@ onState((st) => {
     S.pixel = Object.assign({}, st.inspect, { version: st.version });
     drawEnergy();
   }
-  refreshOverlay();
+  if (st.overlay) takeOverlay(st.overlay, st.version);  // a finished run's
+  else refreshOverlay();
 });
 
 $("#img-left").addEventListener("click", (ev) => {

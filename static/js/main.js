@@ -4,7 +4,7 @@ import { $, S, api, showError } from "./core.js";
 import { loadFrames, renderFrames } from "./frames.js";
 import "./stages.js";
 import "./check.js";
-import { buildOverlayToggles, loadImages } from "./images.js";
+import { buildOverlayToggles, knownOverlays, loadImages } from "./images.js";
 import "./rating.js";
 import "./corrections.js";
 import { loadPresetList } from "./presets.js";
@@ -27,9 +27,11 @@ function applyState(st) {
 async function poll() {
   for (;;) {
     try {
-      const st = await api("GET", `/api/sessions/${S.session}?since=${S.version}&timeout=10`);
+      // a finished run's state brings the 2D overlays the page does not hold
+      const st = await api("GET", `/api/sessions/${S.session}?since=${S.version}&timeout=10&overlay=${knownOverlays()}`);
       $("#conn").textContent = "connected"; $("#conn").className = "badge ok";
       if (st.version !== S.version || !S.state) {
+        S.stateAt = { version: st.version, at: Date.now() };  // for scripts/bench_latency.py
         S.version = st.version;
         applyState(st);
       }

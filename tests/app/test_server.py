@@ -301,3 +301,32 @@ def test_session_and_run_answers_are_declared_response_models(client):
     assert set(state) == set(spec["components"]["schemas"]["SessionState"]["properties"])
     assert state["status"] in ("ok", "suspect") and isinstance(state["reasons"], list)
     assert all(s["status"] in ("done", "cached") for s in state["stages"])
+
+
+def test_overlay_leaves_out_the_payloads_the_page_holds(client):
+    run(client, preset="default")
+    full = client.get("/api/sessions/api/overlay").json()
+    tags = full["_tags"]
+    assert set(tags) <= set(full) and len(set(tags.values())) == len(tags)
+    held = ",".join(str(tags[k]) for k in ("mask", "reliable"))
+    part = client.get("/api/sessions/api/overlay", params={"known": held}).json()
+    assert "mask" not in part and "reliable" not in part and part["_tags"] == tags
+    assert part["spline"] == full["spline"]
+    bad = client.get("/api/sessions/api/overlay", params={"known": "1,x"})
+    assert bad.status_code == 422 and "integer tags" in bad.json()["detail"]
+
+
+def test_the_page_asks_for_a_process_apart_from_the_viewer(client):
+    # the viewer's software WebGL frames must not hold up the page's main thread
+    assert client.get("/static/index.html").headers["origin-agent-cluster"] == "?1"
+
+
+def test_a_finished_run_state_brings_the_overlays_the_page_does_not_hold(client):
+    run(client, preset="default")
+    full = client.get("/api/sessions/api/overlay").json()
+    st = client.get("/api/sessions/api", params={"overlay": ""}).json()
+    assert not st["busy"] and st["overlay"]["spline"] == full["spline"]
+    held = ",".join(str(t) for t in full["_tags"].values())
+    st = client.get("/api/sessions/api", params={"overlay": held}).json()
+    assert set(st["overlay"]) == {"shape", "_pixels", "_tags", "frame_id", "version"}
+    assert "overlay" not in client.get("/api/sessions/api").json()  # only when asked

@@ -108,3 +108,27 @@ def test_the_number_of_sessions_is_bounded(library):
     for _ in range(12):
         manager.create()
     assert len(manager) == 5
+
+
+def test_a_slider_publishes_only_the_stages_it_recomputes(library, monkeypatch):
+    from threadrecon.app.session import Session
+
+    manager = SessionManager(library)
+    s = manager.create()
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    shown: list[tuple[str, ...]] = []
+    original = Session._publish
+    monkeypatch.setattr(
+        Session,
+        "_publish",
+        lambda self, rec, loaded: (shown.append(tuple(rec.runs)), original(self, rec, loaded)),
+    )
+    params = merge_params(s.params, {"spline": {"n_ctrl": s.params.spline.n_ctrl + 1}})
+    assert s.wait(s.submit(params=params), 120)
+    first = shown[0]
+    assert first[-1] == "spline" and len(first) == pipeline.STAGES.index("spline") + 1
+    assert [r[-1] for r in shown] == ["spline", "refine", "camera", "check", "check"]
+    timing = s.state()["timing"]
+    assert timing["compute_ms"] > 0 and timing["publish_ms"] > 0
+    assert timing["compute_cpu_ms"] <= timing["compute_ms"] * 1.5 + 5
+    manager.close()

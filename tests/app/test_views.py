@@ -248,3 +248,52 @@ def test_decimated_cloud_keeps_per_point_colours_aligned():
     assert len(p) <= 7 and c is single
     p, c = decimate_cloud(pts[:5], cols[:5], 7)
     assert len(p) == 5
+
+
+# --- overlay cache: a slider rebuilds and resends only the overlays of the stages it changed --
+
+
+def test_overlay_cache_rebuilds_only_the_overlays_of_changed_stages():
+    from threadrecon.app.library import merge_params
+    from threadrecon.app.views import OverlayCache
+
+    pair, calib, _ = synthetic_case(seed=3)
+    pipe = Pipeline(pair, calib)
+    cache = OverlayCache()
+    first = cache.answer(pipe.run(), calib)
+    assert set(first["_tags"]) == set(OVERLAY_VIEWS)  # every stage ran
+    assert first == {**overlay(pipe.run(), calib), "_tags": first["_tags"]}  # same payloads
+    n_ctrl = ReconParams().spline.n_ctrl
+    rec = pipe.run(merge_params(ReconParams(), {"spline": {"n_ctrl": n_ctrl + 2}}))
+    known = frozenset(first["_tags"].values())
+    again = cache.answer(rec, calib, known)
+    spline_only = {
+        k for k, v in OVERLAY_VIEWS.items() if set(v.needs) <= {"spline", "camera", "check"}
+    }
+    changed = {k for k in again["_tags"] if again["_tags"][k] != first["_tags"][k]}
+    assert changed == spline_only & changed and {"spline", "spline_initial"} <= changed
+    assert set(again) - {"shape", "_pixels", "_tags"} == changed  # the rest is left out
+    assert again["_pixels"] == first["_pixels"]  # decimation figures are always there
+    assert cache.answer(rec, calib, known | set(again["_tags"].values())).keys() == {
+        "shape",
+        "_pixels",
+        "_tags",
+    }
+
+
+def test_a_layer_is_redrawn_when_any_result_it_is_drawn_from_changes():
+    # the stereo cloud is coloured by R (reliability), the spline layer shows the camera
+    # stage's control points: a layer keyed on fewer stages would keep stale nodes
+    pair, calib, gt = synthetic_case(seed=3)
+    rec = Pipeline(pair, calib).run()
+
+    def before(stage):
+        runs = {k: v for k, v in rec.runs.items() if STAGES.index(k) < STAGES.index(stage)}
+        return type(rec)(runs, None, None, rec.params)
+
+    grey = layer("stereo", before("reliability"), calib, gt)["depth"].colors
+    assert grey.shape == (3,) and layer("stereo", rec, calib, gt)["depth"].colors.ndim == 2
+    assert "reliability" in LAYERS["stereo"]
+    assert "control_points" not in layer("spline", before("camera"), calib, gt)
+    assert "control_points" in layer("spline", rec, calib, gt)
+    assert "camera" in LAYERS["spline"]

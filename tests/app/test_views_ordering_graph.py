@@ -10,7 +10,7 @@ import pytest
 from support import synthetic_case
 
 from threadrecon.app.views import Label, Points, Segments, layer, overlay, stage_json
-from threadrecon.app.views.ordering_graph import cost_text
+from threadrecon.app.views.ordering_graph import MAX_COST_LABELS, cost_text
 from threadrecon.core.pipeline import Pipeline, ReconParams
 
 
@@ -63,12 +63,14 @@ def test_layer_draws_chosen_and_rejected_steps_and_cost_labels(crossing):
     assert isinstance(nodes["rejected"], Segments) and len(nodes["rejected"].points) == n_rej
     assert len(nodes["chosen"].points) == sum(d.chosen >= 0 for d in od.graph.decisions)
     labels = [v for k, v in nodes.items() if k.startswith("costs/")]
-    assert len(labels) == n_rej + len(nodes["chosen"].points)
+    assert len(labels) == min(n_rej + len(nodes["chosen"].points), MAX_COST_LABELS)
     assert all(isinstance(v, Label) for v in labels)
     assert isinstance(nodes["junctions"], Points)
     np.testing.assert_allclose(nodes["junctions"].points, kp[od.graph.junctions], rtol=1e-6)
-    pieces = [k for k in nodes if k.startswith("pieces/")]
-    assert len(pieces) == sum(len(p) > 1 for p in od.graph.pieces)
+    pieces = nodes["pieces"]  # one node, one colour per piece
+    assert len(pieces.points) == sum(len(p) - 1 for p in od.graph.pieces)
+    assert pieces.color.shape == (len(pieces.points), 3)
+    assert len({tuple(c) for c in pieces.color}) == sum(len(p) > 1 for p in od.graph.pieces)
 
 
 def test_excluded_continuations_name_their_rule():
