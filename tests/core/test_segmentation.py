@@ -335,6 +335,25 @@ def test_auto_threshold_leaves_an_instrument_over_a_flat_background_out(seed: in
         assert (P & M).sum() >= 0.9 * M.sum()  # and keeps the thread on both sides of it
 
 
+def test_the_wide_parts_quick_reject_is_exact() -> None:
+    """_drop_wide skips the disc's erosion where the inscribed square's finds nothing: the
+    square lies inside the disc, so that answer is the disc's too."""
+    from threadrecon.core import segmentation as seg
+
+    r, h = seg._WIDE_PX, seg._INSCRIBED_SQUARE.shape[0] // 2
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    assert disc[r - h : r + h + 1, r - h : r + h + 1].all()
+    rng = np.random.default_rng(4)
+    for _ in range(20):  # random blobs: wherever the disc fits, the square fits
+        off = np.zeros((120, 160), np.uint8)
+        for _ in range(3):
+            c = (int(rng.integers(0, 160)), int(rng.integers(0, 120)))
+            cv2.circle(off, c, int(rng.integers(3, 16)), 255, -1)
+        by_disc = cv2.erode(off, disc) > 0
+        by_square = cv2.erode(off, seg._INSCRIBED_SQUARE) > 0
+        assert not (by_disc & ~by_square).any()
+
+
 def test_raw_mask_of_a_thin_thread_is_not_wider_than_its_coverage() -> None:
     # A 1-2 px thread steps from one pixel row to the next: the two pixels sharing it hold less
     # than 1.5 px of coverage, and the exact mask (coverage >= 0.5) takes one of them.
