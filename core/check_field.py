@@ -13,13 +13,13 @@ segmentation, and so the mask object, is unchanged.
 
 from __future__ import annotations
 
-import threading
 import weakref
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from threadrecon.core.lru import LRU, MISSING
 
 FIELD_CACHE = 8  # fields kept: both views of a few frames, the debugger's working set
 
@@ -68,28 +68,21 @@ def mask_field(mask: np.ndarray, reach: float) -> MaskField:
     if mask.ndim != 2 or mask.dtype != bool:
         raise ValueError(f"a thread mask must be (H, W) bool, got {mask.shape} {mask.dtype}")
     key = (id(mask), float(reach))
-    with _LOCK:
-        hit = _FIELDS.get(key)
-        if hit is not None and hit[0]() is mask:
-            _FIELDS.move_to_end(key)
-            return hit[1]
+    hit = _FIELDS.get(key)
+    if hit is not MISSING and hit[0]() is mask:  # type: ignore[index]  # not a reused id
+        return hit[1]  # type: ignore[index]
     field = _compute(mask, float(reach))
     try:
         ref = weakref.ref(mask)
     except TypeError:  # pragma: no cover - ndarrays support weak references
         return field
-    with _LOCK:
-        _FIELDS[key] = (ref, field)
-        _FIELDS.move_to_end(key)
-        while len(_FIELDS) > FIELD_CACHE:
-            _FIELDS.popitem(last=False)
+    _FIELDS.put(key, (ref, field))
     return field
 
 
 def clear_fields() -> None:
     """Forget every cached field (timings of the check on a new segmentation)."""
-    with _LOCK:
-        _FIELDS.clear()
+    _FIELDS.clear()
 
 
 def _compute(mask: np.ndarray, reach: float) -> MaskField:
@@ -108,5 +101,4 @@ def _compute(mask: np.ndarray, reach: float) -> MaskField:
     return MaskField(dist, x0, y0, reach, int(total))
 
 
-_LOCK = threading.Lock()  # the server's sessions run pipelines in several threads
-_FIELDS: OrderedDict[tuple[int, float], tuple[weakref.ref, MaskField]] = OrderedDict()
+_FIELDS: LRU[tuple[int, float], tuple[weakref.ref, MaskField]] = LRU(FIELD_CACHE)

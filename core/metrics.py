@@ -13,14 +13,13 @@ and Table II (2D reprojection errors), plus coverage.
 from __future__ import annotations
 
 import hashlib
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.lru import LRU, MISSING
 
 COVERAGE_PX = 3.0  # skeleton pixels within 3 px of the projected curve count as covered
 RESAMPLE_N = 2000  # points per curve for closest-point distances
@@ -141,21 +140,16 @@ def skeleton(mask: np.ndarray) -> np.ndarray:
     if mask.ndim != 2:
         raise ValueError(f"expected an (H, W) mask, got {mask.shape}")
     key = _mask_key(mask)
-    with _CACHE_LOCK:
-        hit = _SKELETONS.get(key)
-        if hit is not None:
-            _SKELETONS.move_to_end(key)
-            return hit
+    hit = _SKELETONS.get(key)
+    if hit is not MISSING:
+        return hit  # type: ignore[return-value]
     out = np.zeros(mask.shape, dtype=bool)
     rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
     if rows.size:
         box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
         out[box] = _zhang_suen(mask[box])
     out.setflags(write=False)
-    with _CACHE_LOCK:
-        _SKELETONS[key] = out
-        if len(_SKELETONS) > SKELETON_CACHE:
-            _SKELETONS.popitem(last=False)
+    _SKELETONS.put(key, out)
     return out
 
 
@@ -169,11 +163,9 @@ def _mask_index(mask: np.ndarray) -> tuple[cKDTree, np.ndarray] | None:
     overlay after every slider move) query them without rebuilding; None for an empty mask."""
     mask = np.asarray(mask, dtype=bool)
     key = _mask_key(mask)
-    with _CACHE_LOCK:
-        hit = _MASK_INDEX.get(key)
-        if hit is not None:
-            _MASK_INDEX.move_to_end(key)
-            return hit[0]
+    hit = _MASK_INDEX.get(key)
+    if hit is not MISSING:
+        return hit  # type: ignore[return-value]
     ys, xs = np.nonzero(mask)
     if ys.size == 0:
         index = None
@@ -183,17 +175,13 @@ def _mask_index(mask: np.ndarray) -> tuple[cKDTree, np.ndarray] | None:
             cKDTree(np.column_stack([xs, ys]).astype(float)),
             np.column_stack([sx, sy]).astype(float),
         )
-    with _CACHE_LOCK:
-        _MASK_INDEX[key] = (index,)
-        if len(_MASK_INDEX) > SKELETON_CACHE:
-            _MASK_INDEX.popitem(last=False)
+    _MASK_INDEX.put(key, index)
     return index
 
 
 SKELETON_CACHE = 8  # masks kept: both views of a few frames, the debugger's working set
-_SKELETONS: OrderedDict[tuple, np.ndarray] = OrderedDict()
-_CACHE_LOCK = threading.Lock()  # the server's sessions evaluate in several threads
-_MASK_INDEX: OrderedDict[tuple, tuple[tuple[cKDTree, np.ndarray] | None]] = OrderedDict()
+_SKELETONS: LRU[tuple, np.ndarray] = LRU(SKELETON_CACHE)
+_MASK_INDEX: LRU[tuple, tuple[cKDTree, np.ndarray] | None] = LRU(SKELETON_CACHE)
 
 
 def _zhang_suen(mask: np.ndarray) -> np.ndarray:

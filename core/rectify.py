@@ -14,8 +14,6 @@ frame of the rectified left camera; both share the left camera centre and the un
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Literal
 
@@ -23,6 +21,7 @@ import cv2
 import numpy as np
 
 from threadrecon.core.calibration import StereoCalibration, make_calibration
+from threadrecon.core.lru import LRU, MISSING
 from threadrecon.core.segmentation import StereoPair
 
 Frame = Literal["left", "left_rectified"]
@@ -77,8 +76,7 @@ def needs_rectification(calib: StereoCalibration) -> bool:
     )
 
 
-_cache: OrderedDict[bytes, Rectification] = OrderedDict()
-_cache_lock = threading.Lock()
+_cache: LRU[bytes, Rectification] = LRU(MAP_CACHE_SIZE)
 
 
 def rectification(calib: StereoCalibration) -> Rectification:
@@ -89,16 +87,11 @@ def rectification(calib: StereoCalibration) -> Rectification:
         eye = np.eye(3)
         return Rectification(raw=calib, calib=calib, R1=eye, R2=eye, maps=None)
     key = _calibration_key(calib)
-    with _cache_lock:
-        hit = _cache.get(key)
-        if hit is not None:
-            _cache.move_to_end(key)
-            return hit
+    hit = _cache.get(key)
+    if hit is not MISSING:
+        return hit  # type: ignore[return-value]
     out = _compute(calib)
-    with _cache_lock:
-        _cache[key] = out
-        while len(_cache) > MAP_CACHE_SIZE:
-            _cache.popitem(last=False)
+    _cache.put(key, out)
     return out
 
 
