@@ -118,15 +118,25 @@ def test_repair_leaves_a_frame_without_a_mismatched_strand_alone() -> None:
     assert rec["refine"].bounds_dropped is None
 
 
-def test_repair_fixes_a_hairpin_strand_matched_to_its_neighbour() -> None:
-    # Generated hairpin (issue 12 suite, seed 5501 frame 5): stereo matched a section of one
-    # strand to the other (e_S^max 62 mm with the MVS depth); "repair" refines this frame
-    # exactly as "two_view" does.
+@pytest.mark.parametrize(
+    ("seed", "frame_no"),
+    [
+        # seed 5501 frame 5 (issue 12 suite): stereo matched a section of one strand to the
+        # other (e_S^max 62 mm with the MVS depth)
+        (5501, 5),
+        # seed 6602 frame 13: the bound centres agree with the runs, but the bounds are wide
+        # and the MVS curve's right projection misses the thread over a section (e_S^max 62 mm)
+        (6602, 13),
+    ],
+    ids=["strand-matched-to-its-neighbour", "mvs-curve-misses-the-right-thread"],
+)
+def test_repair_refines_a_generated_hairpin_as_two_view_does(seed: int, frame_no: int) -> None:
+    # Generated hairpins where "repair" acts, and refines exactly as "two_view" does.
     from threadrecon.core.segmentation import StereoPair
     from threadrecon.core.synthetic import SyntheticParams, ThreadParams, generate_frame
 
     syn = SyntheticParams(thread=ThreadParams(hairpin=True))
-    frame = generate_frame(syn, np.random.default_rng([5501, 5]))
+    frame = generate_frame(syn, np.random.default_rng([seed, frame_no]))
     pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
     pipe = Pipeline(pair, syn.camera.calibration())
     err, ctrl = {}, {}
@@ -155,26 +165,6 @@ def test_repair_rescues_a_hairpin_whose_mvs_failed_on_the_wrong_strand() -> None
     assert rec["refine"].ok and "repair" in rec["refine"].message
     assert rec.status != "failed"
     assert curve_errors(rec["camera"].points, frame.truth.centerline).e_S_max < 2.0
-
-
-def test_repair_acts_where_the_mvs_curve_misses_the_right_thread() -> None:
-    # Generated hairpin (seed 6602 frame 13): the bound centres agree with the runs, but the
-    # bounds are wide and the MVS curve's right projection misses the thread over a section
-    # (e_S^max 62 mm); "repair" refines this frame as "two_view" does.
-    from threadrecon.core.segmentation import StereoPair
-    from threadrecon.core.synthetic import SyntheticParams, ThreadParams, generate_frame
-
-    syn = SyntheticParams(thread=ThreadParams(hairpin=True))
-    frame = generate_frame(syn, np.random.default_rng([6602, 13]))
-    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
-    pipe = Pipeline(pair, syn.camera.calibration())
-    err, ctrl = {}, {}
-    for mode in ("off", "repair", "two_view"):
-        rec = pipe.run(replace(ReconParams(), refine=RefineParams(mode=mode)))
-        err[mode] = curve_errors(rec["camera"].points, frame.truth.centerline).e_S_max
-        ctrl[mode] = rec["refine"].ctrl
-    assert err["off"] > 20.0 and err["repair"] < 2.0
-    assert_close(ctrl["repair"], ctrl["two_view"])
 
 
 def test_runs_pair_by_rank_on_rows_of_three_only_where_flagged_shared() -> None:
