@@ -26,7 +26,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import astuple
+from dataclasses import astuple, replace
 from typing import Any
 
 import cv2
@@ -57,7 +57,10 @@ def machine_workers() -> int:
 
 
 def _frame_key(frame: Frame) -> tuple[Any, ...]:
-    """The frame and the modification times of its files: a rewritten file is a new key."""
+    """The frame's files and their modification times (a rewritten file is a new key). The
+    user's corrections are applied after loading, so they are not part of it: a frame loads
+    once whatever its corrections."""
+    frame = replace(frame, corrections=())
     stamps = []
     for p in astuple(frame):
         if isinstance(p, os.PathLike):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -17,6 +18,7 @@ from threadrecon.app.dataset import discover
 from threadrecon.app.distributed import _chunks, cached_frame, evaluate_rows
 from threadrecon.app.evaluation import evaluate_frame
 from threadrecon.app.tune import TuneConfig, parse_space, tune
+from threadrecon.core.corrections import Correction
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_data"
 
@@ -37,6 +39,8 @@ def test_cached_frames_are_read_only_and_follow_a_rewritten_file(tmp_path: Path)
     frame = next(f for f in discover(tmp_path) if f.id.endswith("flat_1"))
     pair, _, gt = cached_frame(frame)
     assert cached_frame(frame)[0] is pair  # a hit: the same object
+    corrected = replace(frame, corrections=(Correction("erase", "left", ((5, 5),)),))
+    assert cached_frame(corrected)[0] is pair  # corrections apply after loading: a hit too
     with pytest.raises(ValueError, match="read-only"):
         pair.left[0, 0] = 0
     assert gt is not None and not gt.flags.writeable
