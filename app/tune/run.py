@@ -30,6 +30,7 @@ from threadrecon.core.pipeline import ReconParams
 STUDY_NAME = "threadrecon"
 INTERRUPTED = "interrupted; run again"  # the error of a trial cut short by a kill
 _STORE_DB = "study.sqlite3"
+_LOCK_WAIT_S = 120.0
 
 
 @contextmanager
@@ -49,7 +50,13 @@ def open_study(store: Path, cfg: TuneConfig, create: bool = True) -> Any:
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     directions = [OBJECTIVES[o].direction for o in cfg.objectives]
-    storage = optuna.storages.RDBStorage(f"sqlite:///{store / _STORE_DB}")
+    # SQLite lets one writer in at a time; a reader (the debugger's tune page, a second process
+    # reading the study) holds the lock briefly. Wait for it rather than fail the trial with
+    # "database is locked" after sqlite's default 5 s on a loaded machine.
+    storage = optuna.storages.RDBStorage(
+        f"sqlite:///{store / _STORE_DB}",
+        engine_kwargs={"connect_args": {"timeout": _LOCK_WAIT_S}},
+    )
     if create:
         return optuna.create_study(
             storage=storage, study_name=STUDY_NAME, directions=directions, load_if_exists=True

@@ -292,7 +292,11 @@ def test_killing_the_tuner_mid_run_loses_no_finished_trial(dataset: Path, tmp_pa
                     before = {t.number: (t.params, t.values, t.user_attrs["rows"]) for t in done}
                     break
             time.sleep(0.05)
-        assert proc.poll() is None, "the tuner ended before it could be killed"
+        if proc.poll() is not None:
+            err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+            pytest.fail(
+                f"the tuner ended (exit {proc.returncode}) before it could be killed:\n{err}"
+            )
         os.kill(proc.pid, signal.SIGKILL)
     finally:
         proc.wait(timeout=60)
@@ -358,3 +362,26 @@ def test_a_trial_cut_short_inside_ask_leaves_no_duplicate_grid_point(
     result = tune(cfg, store, log=lines.append)
     assert "resuming: 2 interrupted trial(s) will run again" in lines
     assert [t.values for t in result.trials] == cfg.space.grid()[:3]
+
+
+def test_a_reader_holding_the_study_lock_delays_a_trial_instead_of_failing_it(
+    dataset: Path, tmp_path: Path
+) -> None:
+    import sqlite3
+    import threading
+
+    store = tmp_path / "store"
+    store.mkdir()
+    study = open_study(store, _grid_cfg(dataset))
+    holder = sqlite3.connect(store / "study.sqlite3", check_same_thread=False)
+    holder.execute("BEGIN EXCLUSIVE")  # another process reading/writing the study, for 6 s
+    release = threading.Timer(6.0, holder.rollback)  # longer than sqlite's default 5 s wait
+    release.start()
+    try:
+        t0 = time.monotonic()
+        trial = study.ask()  # a write: must wait for the lock, not raise "database is locked"
+        assert time.monotonic() - t0 >= 5.0
+        assert trial.number == 0
+    finally:
+        release.join()
+        holder.close()
