@@ -1,0 +1,38 @@
+"""The page's layout in a real browser at a laptop's size: every control of the centre
+column (overlay toggles, correction tools) can be scrolled to and receives the click, i.e.
+no panel (the evaluation and tune bars at the bottom) is drawn over it."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+from browser_support import SAMPLE, Server, browser, missing_browser
+
+pytestmark = pytest.mark.browser
+
+_reason = missing_browser()
+if _reason is not None:
+    pytest.skip(_reason, allow_module_level=True)
+
+_COVERED = """(sel) => [...document.querySelectorAll(sel)].filter((el) => {
+    el.scrollIntoView({block: "nearest"});
+    const r = el.getBoundingClientRect();
+    const hit = document.elementFromPoint(r.left + r.width / 2, r.top + r.height / 2);
+    return !(hit && (hit === el || el.contains(hit) || hit.contains(el)));
+}).map((el) => el.id || el.textContent.trim() || el.outerHTML.slice(0, 60))"""
+
+
+@pytest.mark.parametrize("size", [(1280, 720), (1400, 900)])
+def test_centre_controls_are_not_covered_by_the_bottom_bars(tmp_path, size):
+    data = tmp_path / "data"
+    shutil.copytree(SAMPLE / "simulated" / "flat", data / "simulated" / "flat")
+    with browser() as b, Server(data_dir=data) as server:
+        page = b.new_context(viewport={"width": size[0], "height": size[1]}).new_page()
+        page.goto(server.url + "/")
+        page.wait_for_function("window.threadrecon && window.threadrecon.state", timeout=60_000)
+        page.wait_for_selector("#overlay-toggles input", timeout=60_000)
+        page.wait_for_selector("#correct-tools button", timeout=60_000)
+        for sel in ("#overlay-toggles input", "#correct-tools button"):
+            assert page.locator(sel).count() > 0
+            assert page.evaluate(_COVERED, sel) == [], f"{sel} covered at {size}"
