@@ -25,15 +25,19 @@ rounds; the result is the spline of the previous stage with its S_z replaced.
 
 from __future__ import annotations
 
+import weakref
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Any, Final, Literal
 
+import cv2
 import numpy as np
 from scipy import optimize
 from scipy.interpolate import BSpline
 
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.lru import LRU, MISSING
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.spline import SplineResult
@@ -90,8 +94,8 @@ def refine_depth(
     u = np.linspace(0.0, spline.length, n)
     Bm = BSpline.design_matrix(u, t, k).toarray()
     xy = Bm @ c0[:, :2]
-    runs_L = _Runs(lifted.P_L, lifted.grey_L, lifted.background[0])
-    runs_R = _Runs(lifted.P_R, lifted.grey_R, lifted.background[1])
+    runs_L = _runs(lifted.P_L, lifted.grey_L, lifted.background[0])
+    runs_R = _runs(lifted.P_R, lifted.grey_R, lifted.background[1])
     rows = np.rint(xy[:, 1]).astype(np.int64)
     iL = runs_L.nearest_index(rows, xy[:, 0])
     cL, lL = runs_L.at(iL)
@@ -192,9 +196,7 @@ def _off_thread(
         x_R = xy[:, 0] - np.where(z > 0, fB / z, np.nan)
     inside = np.isfinite(x_R) & (x_R >= 0) & (x_R <= W - 1) & (rows >= 0) & (rows < H)
     xi = np.clip(np.nan_to_num(np.rint(x_R), nan=0.0), 0, W - 1).astype(np.int64)
-    sample = lifted.grey_R[::4, ::4].astype(np.float64)  # the background's own spread
-    spread = 1.4826 * float(np.median(np.abs(sample - np.median(sample))))
-    tol = max(BACKGROUND_TOL, 3.0 * spread)
+    tol = max(BACKGROUND_TOL, 3.0 * _derived("spread", (lifted.grey_R,), (), _spread))
     bare = inside & (
         np.abs(lifted.grey_R[np.clip(rows, 0, H - 1), xi] - lifted.background[1]) <= tol
     )
@@ -305,12 +307,43 @@ def _lsi(A: np.ndarray, r: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarr
     return np.linalg.solve(R, y + qr)
 
 
+def _spread(grey: np.ndarray) -> float:
+    """Robust standard deviation (1.4826 MAD) of an image's grey levels, on every 4th pixel of
+    every 4th row: the background's own spread."""
+    sample = grey[::4, ::4].astype(np.float64)
+    return 1.4826 * float(np.median(np.abs(sample - np.median(sample))))
+
+
+def _runs(mask: np.ndarray, grey: np.ndarray, background: float) -> _Runs:
+    """The (cached) runs of one view's mask P and grey image."""
+    return _derived("runs", (mask, grey), (float(background),), _Runs, background)
+
+
+DERIVED_CACHE: Final = 12  # runs of both views and a spread: the debugger's few frames
+_DERIVED: LRU[tuple, tuple[tuple[weakref.ref, ...], Any]] = LRU(DERIVED_CACHE)
+
+
+def _derived(
+    kind: str, arrays: tuple[np.ndarray, ...], extra: tuple, fn: Callable, *args: Any
+) -> Any:
+    """``fn(*arrays, *args)``: data that depend only on the segmentation (its masks and grey
+    images), cached by the array objects (weak references, so that a freed array whose id is
+    reused never hits) while the pipeline re-runs the stages after it (a spline slider)."""
+    key = (kind, *(id(a) for a in arrays), *extra)
+    hit = _DERIVED.get(key)
+    if hit is not MISSING and all(r() is a for r, a in zip(hit[0], arrays, strict=True)):  # type: ignore[index]
+        return hit[1]  # type: ignore[index]
+    value = fn(*arrays, *args)
+    _DERIVED.put(key, (tuple(weakref.ref(a) for a in arrays), value))
+    return value
+
+
 class _Runs:
     """Horizontal runs of a mask (one per maximal row segment) with sub-pixel centres."""
 
     def __init__(self, mask: np.ndarray, grey: np.ndarray, background: float) -> None:
         H, W = mask.shape
-        ys, xs = np.nonzero(mask)  # row-major: a run is a stretch of consecutive x on one row
+        ys, xs = _nonzero(mask)  # row-major: a run is a stretch of consecutive x on one row
         w = np.clip(background - grey[ys, xs].astype(np.float64), 1.0, None)  # darkness
         new = np.ones(len(xs), dtype=bool)
         new[1:] = (np.diff(xs) != 1) | (np.diff(ys) != 0)
@@ -381,3 +414,11 @@ class _Runs:
         r = rows[use]
         out[use] = other.row_start[r] + (idx[use] - self.row_start[r])
         return out
+
+
+def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.nonzero`` of an (H, W) mask, row-major, scanning only its bounding box."""
+    m = np.ascontiguousarray(mask, dtype=bool)
+    x, y, w, h = cv2.boundingRect(m.view(np.uint8))
+    ys, xs = np.nonzero(m[y : y + h, x : x + w])
+    return ys + y, xs + x
