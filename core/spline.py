@@ -319,8 +319,36 @@ def basis_matrix(x: np.ndarray, t: np.ndarray, k: int, nu: int = 0) -> np.ndarra
     """(len(x), m) dense matrix of the m B-spline basis functions on knots t (or their nu-th
     derivatives) at x in [t[k], t[-k-1]]: one evaluation of the spline with identity
     coefficients."""
-    basis = BSpline.construct_fast(t, np.eye(len(t) - k - 1), k)
-    return (basis.derivative(nu) if nu else basis)(np.asarray(x, dtype=np.float64))
+    m = len(t) - k - 1
+    if nu:
+        t, c, k = _derivative_coefficients(t, k, nu)
+    else:
+        c = np.eye(m)
+    return BSpline.construct_fast(t, c, k)(np.asarray(x, dtype=np.float64))
+
+
+def _derivative_coefficients(t: np.ndarray, k: int, nu: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """Knots, (len(t) - 2 nu, m) coefficients and degree of the nu-th derivatives of the m
+    basis functions on knots t: ``BSpline(t, eye(m), k).derivative(nu)`` without its array-API
+    layers (the same arithmetic as scipy's ``splder``, so the same values to the last bit)."""
+    m = len(t) - k - 1
+    if nu > k:
+        raise ValueError(f"derivative order {nu} exceeds the degree {k}")
+    c = np.zeros((len(t), m))
+    c[:m] = np.eye(m)  # FITPACK convention: as many coefficient rows as knots
+    with np.errstate(invalid="raise", divide="raise"):
+        try:
+            for _ in range(nu):
+                dt = (t[k + 1 : -1] - t[1 : -k - 1])[:, None]
+                c = (c[1 : -1 - k] - c[: -2 - k]) * k / dt
+                c = np.concatenate([c, np.zeros((k, m))])
+                t = t[1:-1]
+                k -= 1
+        except FloatingPointError as exc:
+            raise ValueError(
+                f"repeated inner knots: the spline is not {nu} times differentiable"
+            ) from exc
+    return t, c, k
 
 
 def _constraint_points(
@@ -461,18 +489,29 @@ class _Problem:
         return float(r @ r)
 
     def _qp(
-        self, H: np.ndarray, f: np.ndarray, b: np.ndarray, E: np.ndarray, e: np.ndarray
+        self,
+        H: np.ndarray,
+        f: np.ndarray,
+        b: np.ndarray,
+        E: np.ndarray,
+        e: np.ndarray,
+        C: np.ndarray,
+        sense: np.ndarray,
     ) -> tuple[np.ndarray, int]:
-        """DAQP on the step d: min 0.5 d'Hd + f'd, lo <= A(b+d) <= hi, E(b+d) = e."""
+        """DAQP on the step d: min 0.5 d'Hd + f'd, lo <= A(b+d) <= hi, E(b+d) = e; ``C``, ``sense``:
+        the rows [A; E] and their kinds (:meth:`_constraints`, the same at every step)."""
         Ab, Eb = self.A @ b, E @ b
-        C = np.vstack([self.A, E])
         upper = np.concatenate([self.hi - Ab, e - Eb])
         lower = np.concatenate([self.lo - Ab, e - Eb])
-        sense = np.concatenate([np.zeros(len(Ab), np.int32), np.full(len(e), 5, np.int32)])
-        d, _, flag, _ = daqp.solve(
-            np.ascontiguousarray(H), f, np.ascontiguousarray(C), upper, lower, sense
-        )
+        d, _, flag, _ = daqp.solve(np.ascontiguousarray(H), f, C, upper, lower, sense)
         return np.asarray(d, dtype=np.float64), int(flag)
+
+    def _constraints(self, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The QP's constraint rows [A; E] (contiguous) and their DAQP kinds: bounds on A,
+        equalities (5) on E."""
+        C = np.ascontiguousarray(np.vstack([self.A, E]))
+        sense = np.concatenate([np.zeros(len(self.A), np.int32), np.full(len(E), 5, np.int32)])
+        return C, sense
 
     def solve(self, b0: np.ndarray, E: np.ndarray, e: np.ndarray, max_iter: int) -> _Solution:
         m = b0.size
@@ -482,8 +521,9 @@ class _Problem:
             return _Solution(b0, "infeasible", msg, 0)
         # Step 0: a unit gradient step from b0 projected on the constraints (SLSQP's first QP,
         # identity Hessian); it lands on the feasible set, where the Gauss-Newton steps start.
+        C, sense = self._constraints(E)
         r0, J0 = self.residual(b0)
-        d, flag = self._qp(np.eye(m), 2.0 * (J0.T @ r0), b0, E, e)
+        d, flag = self._qp(np.eye(m), 2.0 * (J0.T @ r0), b0, E, e, C, sense)
         if flag not in (1, 2):
             word = _DAQP_FLAGS.get(flag, f"exit flag {flag}")
             status: Status = "infeasible" if flag == -1 else "solver_failed"
@@ -496,7 +536,7 @@ class _Problem:
         mu, nu = LM_MU0 * scale_h, 2.0
         for it in range(1, max_iter + 1):
             g = J.T @ r
-            d, flag = self._qp(2.0 * (JtJ + mu * np.eye(m)), 2.0 * g, b, E, e)
+            d, flag = self._qp(2.0 * (JtJ + mu * np.eye(m)), 2.0 * g, b, E, e, C, sense)
             if flag not in (1, 2):
                 word = _DAQP_FLAGS.get(flag, f"exit flag {flag}")
                 return _Solution(b, "solver_failed", f"QP (DAQP) {word} at step {it}", it)

@@ -379,3 +379,38 @@ def test_dropping_outlying_extra_points_keeps_a_spirals_end_on_the_thread() -> N
         rec = pipe.run(replace(ReconParams(), bounds=BP(drop_outliers=drop)))
         err[drop] = curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max
     assert err[False] > 100.0 and err[True] < 2.0
+
+
+def test_basis_derivatives_equal_scipys_derivative_spline_bit_for_bit() -> None:
+    """basis_matrix's own derivative coefficients (scipy's splder arithmetic without its
+    array-API layers) give exactly BSpline(t, eye(m), k).derivative(nu)(x): uniform and random
+    knots, degrees 2-5, every order, points at the ends and on the knots."""
+    from threadrecon.core.spline import basis_matrix
+
+    rng = np.random.default_rng(8)
+    for trial in range(200):
+        k = int(rng.integers(2, 6))
+        m = int(rng.integers(k + 1, 40))
+        length = float(rng.uniform(0.1, 300.0))
+        inner = (
+            np.linspace(0.0, length, m - k + 1)[1:-1]
+            if trial % 2
+            else np.sort(rng.uniform(0.0, length, m - k - 1))
+        )
+        t = np.concatenate([np.zeros(k + 1), inner, np.full(k + 1, length)])
+        x = np.concatenate([rng.uniform(0.0, length, 30), [0.0, length], inner])
+        for nu in range(k + 1):
+            basis = BSpline.construct_fast(t, np.eye(m), k)
+            expected = (basis.derivative(nu) if nu else basis)(x)
+            assert np.array_equal(basis_matrix(x, t, k, nu), expected)
+
+
+def test_basis_derivative_past_the_degree_or_at_repeated_knots_is_refused() -> None:
+    from threadrecon.core.spline import basis_matrix
+
+    t = np.concatenate([np.zeros(4), [0.5], np.ones(4)])
+    with pytest.raises(ValueError, match="exceeds the degree"):
+        basis_matrix(np.array([0.2]), t, 3, 4)
+    t = np.concatenate([np.zeros(4), [0.5, 0.5, 0.5], np.ones(4)])
+    with pytest.raises(ValueError, match="repeated inner knots"):
+        basis_matrix(np.array([0.2]), t, 3, 3)
