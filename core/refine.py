@@ -417,8 +417,11 @@ class _Runs:
 
 
 def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``np.nonzero`` of an (H, W) mask, row-major, scanning only its bounding box."""
-    m = np.ascontiguousarray(mask, dtype=bool)
-    x, y, w, h = cv2.boundingRect(m.view(np.uint8))
-    ys, xs = np.nonzero(m[y : y + h, x : x + w])
-    return ys + y, xs + x
+    """``np.nonzero`` of an (H, W) mask (row-major), found by cv2 on its bounding box."""
+    m = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
+    x, y, w, h = cv2.boundingRect(m)
+    pts = cv2.findNonZero(m[y : y + h, x : x + w]) if w else None
+    if pts is None:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    pts = pts.reshape(-1, 2)
+    return pts[:, 1].astype(np.intp) + y, pts[:, 0].astype(np.intp) + x
