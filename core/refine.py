@@ -196,14 +196,19 @@ def _off_thread(
         x_R = xy[:, 0] - np.where(z > 0, fB / z, np.nan)
     inside = np.isfinite(x_R) & (x_R >= 0) & (x_R <= W - 1) & (rows >= 0) & (rows < H)
     xi = np.clip(np.nan_to_num(np.rint(x_R), nan=0.0), 0, W - 1).astype(np.int64)
-    tol = max(BACKGROUND_TOL, 3.0 * _derived("spread", (lifted.grey_R,), (), _spread))
-    bare = inside & (
-        np.abs(lifted.grey_R[np.clip(rows, 0, H - 1), xi] - lifted.background[1]) <= tol
-    )
     cR, lR = runs_R.at(runs_R.nearest_index(rows, np.where(inside, x_R, -1e9)))
     with np.errstate(invalid="ignore"):
-        miss = okL & bare & np.isfinite(cR) & ~(np.abs(cR - x_R) <= 0.5 * lR + MISMATCH_PX)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], miss.astype(np.int8), [0]])))
+        miss = okL & inside & np.isfinite(cR) & ~(np.abs(cR - x_R) <= 0.5 * lR + MISMATCH_PX)
+    if not _long_stretch(miss):
+        return False  # not even counting every miss as bare background (the usual case)
+    tol = max(BACKGROUND_TOL, 3.0 * _derived("spread", (lifted.grey_R,), (), _spread))
+    miss &= np.abs(lifted.grey_R[np.clip(rows, 0, H - 1), xi] - lifted.background[1]) <= tol
+    return _long_stretch(miss)
+
+
+def _long_stretch(flags: np.ndarray) -> bool:
+    """Whether ``flags`` (n,) bool holds a run of at least ``OFF_THREAD_PX`` consecutive True."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(np.int8), [0]])))
     return bool(np.any(edges[1::2] - edges[::2] >= OFF_THREAD_PX))
 
 

@@ -478,11 +478,12 @@ class _Problem:
         self.mvs, self.scale = mvs, scale
         self.Bd, self.sw, self.c = Bd, sqrt_wd, centre
         self.A, self.lo, self.hi = A, lo, hi
+        self.J_d = self.sw[:, None] * Bd  # the data term's Jacobian: linear, the same at every b
 
     def residual(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         r_m, J_m = self.mvs.residual_jac(b, self.scale)
         r_d = self.sw * (self.Bd @ b - self.c)
-        return np.concatenate([r_m, r_d]), np.vstack([J_m, self.sw[:, None] * self.Bd])
+        return np.concatenate([r_m, r_d]), np.vstack([J_m, self.J_d])
 
     def value(self, b: np.ndarray) -> float:
         r, _ = self.residual(b)
