@@ -33,14 +33,13 @@ from typing import Any, Final, Literal
 import cv2
 import numpy as np
 from scipy import optimize
-from scipy.interpolate import BSpline
 
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.lru import LRU, MISSING
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LiftedPair
-from threadrecon.core.spline import SplineResult
+from threadrecon.core.spline import SplineResult, basis_matrix
 
 QUAD_PER_SPAN = 4  # Gauss-Legendre nodes per knot span: exact for the squared 3rd derivative
 RIDGE = 1e-9  # relative ridge that keeps the least-squares matrix of full column rank
@@ -92,7 +91,7 @@ def refine_depth(
     xy_len = float(np.linalg.norm(np.diff(spline.curve(200)[:, :2], axis=0), axis=1).sum())
     n = int(np.clip(xy_len, 50, 3000))  # about one sample per px of image arc length
     u = np.linspace(0.0, spline.length, n)
-    Bm = BSpline.design_matrix(u, t, k).toarray()
+    Bm = basis_matrix(u, t, k)
     xy = Bm @ c0[:, :2]
     runs_L = _runs(lifted.P_L, lifted.grey_L, lifted.background[0])
     runs_R = _runs(lifted.P_R, lifted.grey_R, lifted.background[1])
@@ -119,13 +118,13 @@ def refine_depth(
         return spline  # the MVS curve lies on the thread in both views: nothing to repair
     # Smoothness: third derivative over image arc length s = u * xy_len / length.
     uq, wq = _gauss_nodes(t, k, QUAD_PER_SPAN)
-    D3 = BSpline(t, np.eye(len(c0)), k).derivative(3)(uq)  # d^3 S_z / du^3 per control value
+    D3 = basis_matrix(uq, t, k, 3)  # d^3 S_z / du^3 per control value
     ds_du = xy_len / spline.length
     z_mean = float(np.mean(Bm @ c0[:, 2]))
     to_px = fB / z_mean**2  # depth -> disparity px at the mean depth
     S = D3 * (to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))[:, None]
 
-    BH = BSpline.design_matrix(np.clip(spline.u_H, 0, spline.length), t, k).toarray()
+    BH = basis_matrix(np.clip(spline.u_H, 0, spline.length), t, k)
     iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1), shared)
     if not remedy:
         iR_rank[:] = -1

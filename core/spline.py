@@ -124,7 +124,7 @@ class SplineResult:
     def curve(self, n: int = 400, initial: bool = False) -> np.ndarray:
         """(n, 3) samples of S at uniform u, (x px, y px, z depth)."""
         c = self.ctrl_init if initial else self.ctrl
-        return BSpline(self.knots, c, self.degree)(np.linspace(0.0, self.length, n))
+        return BSpline.construct_fast(self.knots, c, self.degree)(np.linspace(0.0, self.length, n))
 
 
 def fit_spline(

@@ -403,6 +403,8 @@ def test_basis_derivatives_equal_scipys_derivative_spline_bit_for_bit() -> None:
             basis = BSpline.construct_fast(t, np.eye(m), k)
             expected = (basis.derivative(nu) if nu else basis)(x)
             assert np.array_equal(basis_matrix(x, t, k, nu), expected)
+        # and scipy's sparse design matrix (what core/refine.py used before), value for value
+        assert np.array_equal(basis_matrix(x, t, k), BSpline.design_matrix(x, t, k).toarray())
 
 
 def test_basis_derivative_past_the_degree_or_at_repeated_knots_is_refused() -> None:
