@@ -248,8 +248,8 @@ def _mismatched(
         d_H = fB / bounds.centre
         bad = (iR >= 0) & (np.abs(cL - cR - d_H) > MISMATCH_PX)  # NaN (no depth): not bad
     coil = np.zeros_like(bad)
-    if d_run is not None and d_run.size:
-        n_L = runs_L.count(rows)  # same_rank requires as many in the right view
+    n_L = runs_L.count(rows)  # same_rank requires as many in the right view
+    if d_run is not None and d_run.size and (n_L >= 3).any():  # else no coil point (exact)
         many = np.ones(runs_R.H, dtype=bool)
         iR_n = runs_L.same_rank(runs_R, rows, iL, many)
         on = (iR_n >= 0) & (n_L >= 3)

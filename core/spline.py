@@ -319,23 +319,35 @@ def basis_matrix(x: np.ndarray, t: np.ndarray, k: int, nu: int = 0) -> np.ndarra
     """(len(x), m) dense matrix of the m B-spline basis functions on knots t (or their nu-th
     derivatives) at x in [t[k], t[-k-1]]: one evaluation of the spline with identity
     coefficients."""
-    m = len(t) - k - 1
-    if nu:
-        t, c, k = _derivative_coefficients(t, k, nu)
-    else:
-        c = np.eye(m)
-    return BSpline.construct_fast(t, c, k)(np.asarray(x, dtype=np.float64))
+    if not nu:
+        return BSpline.construct_fast(t, np.eye(len(t) - k - 1), k)(_as_points(x))
+    return basis_derivatives(x, t, k, nu)[-1]
 
 
-def _derivative_coefficients(t: np.ndarray, k: int, nu: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """Knots, (len(t) - 2 nu, m) coefficients and degree of the nu-th derivatives of the m
-    basis functions on knots t: ``BSpline(t, eye(m), k).derivative(nu)`` without its array-API
-    layers (the same arithmetic as scipy's ``splder``, so the same values to the last bit)."""
+def basis_derivatives(x: np.ndarray, t: np.ndarray, k: int, nu: int) -> list[np.ndarray]:
+    """``[basis_matrix(x, t, k, j) for j in 1..nu]``, each derivative's coefficients computed
+    from the previous one's (as ``basis_matrix`` itself does), once."""
+    x = _as_points(x)
+    return [BSpline.construct_fast(*tck)(x) for tck in _derivative_coefficients(t, k, nu)]
+
+
+def _as_points(x: np.ndarray) -> np.ndarray:
+    return np.asarray(x, dtype=np.float64)
+
+
+def _derivative_coefficients(
+    t: np.ndarray, k: int, nu: int
+) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    """Knots, (len(t) - 2 j, m) coefficients and degree of the j-th derivatives of the m basis
+    functions on knots t, j = 1..nu: ``BSpline(t, eye(m), k).derivative(j)`` without its
+    array-API layers (the same arithmetic as scipy's ``splder``, so the same values to the
+    last bit)."""
     m = len(t) - k - 1
     if nu > k:
         raise ValueError(f"derivative order {nu} exceeds the degree {k}")
     c = np.zeros((len(t), m))
     c[:m] = np.eye(m)  # FITPACK convention: as many coefficient rows as knots
+    out = []
     with np.errstate(invalid="raise", divide="raise"):
         try:
             for _ in range(nu):
@@ -344,11 +356,12 @@ def _derivative_coefficients(t: np.ndarray, k: int, nu: int) -> tuple[np.ndarray
                 c = np.concatenate([c, np.zeros((k, m))])
                 t = t[1:-1]
                 k -= 1
+                out.append((t, c, k))
         except FloatingPointError as exc:
             raise ValueError(
                 f"repeated inner knots: the spline is not {nu} times differentiable"
             ) from exc
-    return t, c, k
+    return out
 
 
 def _constraint_points(
@@ -386,7 +399,7 @@ class _Mvs:
         a, b = edges[:-1], edges[1:]
         self.uq = (0.5 * (b - a)[:, None] * (xg[None, :] + 1.0) + a[:, None]).ravel()
         self.wq = (0.5 * (b - a)[:, None] * wg[None, :]).ravel()
-        self.B = [basis_matrix(self.uq, t, k, d) for d in (1, 2, 3)]  # (nq, m) each
+        self.B = basis_derivatives(self.uq, t, k, 3)  # (nq, m) each, orders 1, 2, 3
         self.sqrt_wq = np.sqrt(self.wq)
 
     def _terms(self, b: np.ndarray) -> tuple[np.ndarray, ...]:
