@@ -29,8 +29,9 @@ from __future__ import annotations
 
 import functools
 import warnings
+import weakref
 from dataclasses import dataclass
-from typing import Literal
+from typing import Final, Literal
 
 import daqp
 import numpy as np
@@ -38,6 +39,7 @@ from scipy.interpolate import BSpline, splprep
 
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.lru import LRU, MISSING
 from threadrecon.core.params import Params, param
 
 EQ_TOL = 1e-3  # endpoint equalities hold to 0.1 % of the median bound half-width
@@ -141,55 +143,16 @@ def fit_spline(
         raise ValueError(f"xy_knots must be 'uniform' or 'adaptive', got {p.xy_knots!r}")
     if not p.xy_tol_px > 0:
         raise ValueError(f"xy_tol_px must be > 0, got {p.xy_tol_px}")
-    k = p.degree
-    P = len(bounds.H)
-    s = bounds.s
-    if P < 2 or s[-1] <= 0:
-        raise ValueError("H spans no length: cannot fit a spline")
-    z_mean = float(np.nanmean(bounds.centre))
-    length = float(s[-1] * z_mean / calib.focal)  # l: lateral arc length, calib units
-    u = np.clip(s * (length / s[-1]), 0.0, length)
-    u[-1] = length
-    m = min(p.n_ctrl, max(k + 1, P))  # no more control points than data points
-    t = np.concatenate(
-        [np.zeros(k + 1), np.linspace(0.0, length, m - k + 1)[1:-1], np.full(k + 1, length)]
-    )
-
-    Hi = np.column_stack([bounds.H[:, 0], bounds.H[:, 1], bounds.centre])  # H^i
-    ctrl_init = _init_fit(Hi, u, t, k)
-    t_xy, xy = t, None
-    if p.xy_knots == "adaptive":
-        t_xy, xy = _adaptive_xy(bounds.H[:, :2], u, t, k, p)
-
-    reexpress = _reexpress_matrix(t, k, t_xy) if xy is not None else None
-
-    def final(c: np.ndarray) -> np.ndarray:
-        """Control points on the knots of the result: S_x, S_y refined, S_z re-expressed."""
-        if xy is None:
-            return c
-        return np.column_stack([xy, reexpress @ c[:, 2]])
-
-    du_ds = length / s[-1]
-    lo_c, hi_c, u_c = _constraint_points(u, bounds.lower, bounds.upper)
-    half_c = 0.5 * (hi_c - lo_c)
-    mvs = _Mvs(t, k, length, p.quad_per_span)
-    b0 = ctrl_init[:, 2].copy()
-    f0 = mvs.value(b0)
-    A = basis_matrix(u_c, t, k)  # rows: u of H, then the midpoints
+    st = _setup(bounds, calib, p)
+    k, length, u, t_xy, ctrl_init = st.k, st.length, st.u.copy(), st.t_xy.copy(), st.ctrl_init
+    lo_c, hi_c, half_c, mvs, b0, f0, A = st.lo_c, st.hi_c, st.half_c, st.mvs, st.b0, st.f0, st.A
+    final = st.final
     if not p.optimise:
         viol = _violation(A @ b0, lo_c, hi_c, half_c)
         c0 = final(ctrl_init)
         return SplineResult(t_xy, c0, c0, k, length, u, "skipped", "", (f0, f0), 0, viol)
 
-    E = _end_rows(t, k, length)
-    e_rhs = np.array(
-        [
-            bounds.end_values[0],
-            bounds.end_slopes[0] / du_ds,
-            bounds.end_values[1],
-            bounds.end_slopes[1] / du_ds,
-        ]
-    )
+    E, e_rhs = st.E, st.e_rhs
     scale = 1.0 / f0 if f0 > 0 else 1.0
     Bd = A[: len(u)]  # basis at the points of H (the first constraint points)
     w_d = p.data_weight / (len(u) * np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12) ** 2)
@@ -232,6 +195,118 @@ def fit_spline(
         (f0, mvs.value(b)),
         sol.iterations,
         viol,
+    )
+
+
+SETUP_CACHE: Final = 8  # set-ups kept: a few frames' spline stage in the debugger
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """What :func:`fit_spline` derives from H, its bounds and the knots alone, before the
+    solve: the same for every value of the solver's parameters (``data_weight``,
+    ``max_iter``, ``bound_tol``, ``relax_slopes``, ``optimise``), so a slider of those re-runs
+    the solve only. Read-only: results get copies (``final``, ``u``, ``t_xy``)."""
+
+    k: int
+    length: float
+    u: np.ndarray
+    t_xy: np.ndarray
+    ctrl_init: np.ndarray
+    xy: np.ndarray | None
+    reexpress: np.ndarray | None
+    lo_c: np.ndarray
+    hi_c: np.ndarray
+    half_c: np.ndarray
+    mvs: _Mvs
+    b0: np.ndarray
+    f0: float
+    A: np.ndarray
+    E: np.ndarray
+    e_rhs: np.ndarray
+
+    def final(self, c: np.ndarray) -> np.ndarray:
+        """Control points on the knots of the result: S_x, S_y refined, S_z re-expressed."""
+        if self.xy is None:
+            return c.copy()
+        return np.column_stack([self.xy, self.reexpress @ c[:, 2]])
+
+
+_SETUPS: LRU[tuple, tuple[weakref.ref, _Setup]] = LRU(SETUP_CACHE)
+
+
+def _setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) -> _Setup:
+    """The (cached) set-up of Eq. (8) for ``bounds``: cached by the Bounds object (a weak
+    reference, so that a freed one whose id is reused never hits), the focal length and the
+    parameters the set-up reads."""
+    key = (id(bounds), calib.focal, p.n_ctrl, p.degree, p.quad_per_span, p.xy_knots, p.xy_tol_px)
+    hit = _SETUPS.get(key)
+    if hit is not MISSING and hit[0]() is bounds:  # type: ignore[index]
+        return hit[1]  # type: ignore[index]
+    st = _compute_setup(bounds, calib, p)
+    _SETUPS.put(key, (weakref.ref(bounds), st))
+    return st
+
+
+def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) -> _Setup:
+    k = p.degree
+    P = len(bounds.H)
+    s = bounds.s
+    if P < 2 or s[-1] <= 0:
+        raise ValueError("H spans no length: cannot fit a spline")
+    z_mean = float(np.nanmean(bounds.centre))
+    length = float(s[-1] * z_mean / calib.focal)  # l: lateral arc length, calib units
+    u = np.clip(s * (length / s[-1]), 0.0, length)
+    u[-1] = length
+    m = min(p.n_ctrl, max(k + 1, P))  # no more control points than data points
+    t = np.concatenate(
+        [np.zeros(k + 1), np.linspace(0.0, length, m - k + 1)[1:-1], np.full(k + 1, length)]
+    )
+
+    Hi = np.column_stack([bounds.H[:, 0], bounds.H[:, 1], bounds.centre])  # H^i
+    ctrl_init = _init_fit(Hi, u, t, k)
+    t_xy, xy = t, None
+    if p.xy_knots == "adaptive":
+        t_xy, xy = _adaptive_xy(bounds.H[:, :2], u, t, k, p)
+
+    reexpress = _reexpress_matrix(t, k, t_xy) if xy is not None else None
+    du_ds = length / s[-1]
+    lo_c, hi_c, u_c = _constraint_points(u, bounds.lower, bounds.upper)
+    half_c = 0.5 * (hi_c - lo_c)
+    mvs = _Mvs(t, k, length, p.quad_per_span)
+    b0 = ctrl_init[:, 2].copy()
+    f0 = mvs.value(b0)
+    A = basis_matrix(u_c, t, k)  # rows: u of H, then the midpoints
+    E = _end_rows(t, k, length)
+    e_rhs = np.array(
+        [
+            bounds.end_values[0],
+            bounds.end_slopes[0] / du_ds,
+            bounds.end_values[1],
+            bounds.end_slopes[1] / du_ds,
+        ]
+    )
+    arrays = (u, t_xy, ctrl_init, xy, reexpress, lo_c, hi_c, half_c, b0, A, E, e_rhs)
+    for a in arrays:
+        if a is not None:
+            a.setflags(write=False)
+    return _Setup(
+        k,
+        length,
+        u,
+        t_xy,
+        ctrl_init,
+        xy,
+        reexpress,
+        lo_c,
+        hi_c,
+        half_c,
+        mvs,
+        b0,
+        f0,
+        A,
+        E,
+        e_rhs,
     )
 
 

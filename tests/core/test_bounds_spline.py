@@ -416,3 +416,43 @@ def test_basis_derivative_past_the_degree_or_at_repeated_knots_is_refused() -> N
     t = np.concatenate([np.zeros(4), [0.5, 0.5, 0.5], np.ones(4)])
     with pytest.raises(ValueError, match="repeated inner knots"):
         basis_matrix(np.array([0.2]), t, 3, 3)
+
+
+def test_solver_parameter_changes_reuse_the_setup_and_give_the_fresh_fit(monkeypatch) -> None:
+    """data_weight, max_iter, bound_tol, relax_slopes and optimise leave H, the bounds and the
+    knots alone: a second fit reuses the cached set-up of Eq. (8) (no new initial fit) and
+    equals, to the last bit, a fit computed from scratch; n_ctrl builds a new set-up."""
+    import threadrecon.core.spline as spline_mod
+
+    pair, calib, _ = synthetic_case(3)
+    rec = Pipeline(pair, calib).run(ReconParams(), until="bounds")
+    bounds = rec["bounds"]
+    calls = []
+    init_fit = spline_mod._init_fit
+    monkeypatch.setattr(spline_mod, "_init_fit", lambda *a: calls.append(1) or init_fit(*a))
+    base = SplineParams()
+    fit_spline(bounds, calib, base)
+    variants = [
+        replace(base, data_weight=3.0),
+        replace(base, max_iter=2),
+        replace(base, bound_tol=0.0),
+        replace(base, optimise=False),
+    ]
+    for p in variants:
+        calls.clear()
+        got = fit_spline(bounds, calib, p)
+        assert not calls  # the set-up came from the cache
+        spline_mod._SETUPS.clear()
+        fresh = fit_spline(bounds, calib, p)
+        assert calls  # computed anew
+        for f in ("knots", "ctrl", "ctrl_init", "u_H"):
+            assert np.array_equal(getattr(got, f), getattr(fresh, f)), f
+            assert getattr(got, f).flags.writeable  # results own their arrays
+        assert (got.status, got.objective, got.iterations) == (
+            fresh.status,
+            fresh.objective,
+            fresh.iterations,
+        )
+    calls.clear()
+    fit_spline(bounds, calib, replace(base, n_ctrl=base.n_ctrl - 1))
+    assert calls
