@@ -243,7 +243,12 @@ def _extra_points(
     run_link = np.repeat(np.arange(M - 1), n_extra)
     extras = np.column_stack([cx, cy, med])[has]
     extra_link = run_link[has]
-    empty = np.flatnonzero(count == 0)  # a handful of links at most
+    empty = np.flatnonzero(count == 0)
+    # Most empty links join neighbouring keypoints, closer than extra_px: no bridge point.
+    # Only links whose chord (to 0.1 %, far beyond rounding) reaches extra_px go to _bridge,
+    # which measures the chord exactly and may still give none.
+    chord = np.hypot(*(path[empty + 1, :2] - path[empty, :2]).T)
+    empty = empty[chord >= 0.999 * extra_px]
     bridges = [_bridge(path, int(i), extra_px) for i in empty]
     if bridges:
         extras = np.concatenate([extras, *bridges])

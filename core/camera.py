@@ -68,18 +68,19 @@ def to_camera(
     k = spline.degree
     if p.mode == "paper":
         ctrl = image_to_camera(spline.ctrl, calib.G)
-        points = BSpline(knots, ctrl, k)(np.linspace(0.0, 1.0, p.n_points))
+        points = BSpline.construct_fast(knots, ctrl, k)(np.linspace(0.0, 1.0, p.n_points))
     elif p.mode == "refit":
         n_fit = max(p.n_points, 8 * len(spline.ctrl))
         u = np.linspace(0.0, 1.0, n_fit)
-        dense = image_to_camera(BSpline(knots, spline.ctrl, k)(u), calib.G)
+        dense = image_to_camera(BSpline.construct_fast(knots, spline.ctrl, k)(u), calib.G)
         B = basis_matrix(u, knots, k)
         ctrl = _least_squares(B, dense)
         if n_fit == p.n_points:  # the same samples
             points = dense
         else:
             points = image_to_camera(
-                BSpline(knots, spline.ctrl, k)(np.linspace(0.0, 1.0, p.n_points)), calib.G
+                BSpline.construct_fast(knots, spline.ctrl, k)(np.linspace(0.0, 1.0, p.n_points)),
+                calib.G,
             )
     else:
         raise ValueError(f"mode must be 'refit' or 'paper', got {p.mode!r}")

@@ -25,18 +25,21 @@ rounds; the result is the spline of the previous stage with its S_z replaced.
 
 from __future__ import annotations
 
+import weakref
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Any, Final, Literal
 
+import cv2
 import numpy as np
 from scipy import optimize
-from scipy.interpolate import BSpline
 
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.lru import LRU, MISSING
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LiftedPair
-from threadrecon.core.spline import SplineResult
+from threadrecon.core.spline import SplineResult, basis_matrix
 
 QUAD_PER_SPAN = 4  # Gauss-Legendre nodes per knot span: exact for the squared 3rd derivative
 RIDGE = 1e-9  # relative ridge that keeps the least-squares matrix of full column rank
@@ -88,10 +91,10 @@ def refine_depth(
     xy_len = float(np.linalg.norm(np.diff(spline.curve(200)[:, :2], axis=0), axis=1).sum())
     n = int(np.clip(xy_len, 50, 3000))  # about one sample per px of image arc length
     u = np.linspace(0.0, spline.length, n)
-    Bm = BSpline.design_matrix(u, t, k).toarray()
+    Bm = basis_matrix(u, t, k)
     xy = Bm @ c0[:, :2]
-    runs_L = _Runs(lifted.P_L, lifted.grey_L, lifted.background[0])
-    runs_R = _Runs(lifted.P_R, lifted.grey_R, lifted.background[1])
+    runs_L = _runs(lifted.P_L, lifted.grey_L, lifted.background[0])
+    runs_R = _runs(lifted.P_R, lifted.grey_R, lifted.background[1])
     rows = np.rint(xy[:, 1]).astype(np.int64)
     iL = runs_L.nearest_index(rows, xy[:, 0])
     cL, lL = runs_L.at(iL)
@@ -115,13 +118,13 @@ def refine_depth(
         return spline  # the MVS curve lies on the thread in both views: nothing to repair
     # Smoothness: third derivative over image arc length s = u * xy_len / length.
     uq, wq = _gauss_nodes(t, k, QUAD_PER_SPAN)
-    D3 = BSpline(t, np.eye(len(c0)), k).derivative(3)(uq)  # d^3 S_z / du^3 per control value
+    D3 = basis_matrix(uq, t, k, 3)  # d^3 S_z / du^3 per control value
     ds_du = xy_len / spline.length
     z_mean = float(np.mean(Bm @ c0[:, 2]))
     to_px = fB / z_mean**2  # depth -> disparity px at the mean depth
     S = D3 * (to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))[:, None]
 
-    BH = BSpline.design_matrix(np.clip(spline.u_H, 0, spline.length), t, k).toarray()
+    BH = basis_matrix(np.clip(spline.u_H, 0, spline.length), t, k)
     iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1), shared)
     if not remedy:
         iR_rank[:] = -1
@@ -192,16 +195,19 @@ def _off_thread(
         x_R = xy[:, 0] - np.where(z > 0, fB / z, np.nan)
     inside = np.isfinite(x_R) & (x_R >= 0) & (x_R <= W - 1) & (rows >= 0) & (rows < H)
     xi = np.clip(np.nan_to_num(np.rint(x_R), nan=0.0), 0, W - 1).astype(np.int64)
-    sample = lifted.grey_R[::4, ::4].astype(np.float64)  # the background's own spread
-    spread = 1.4826 * float(np.median(np.abs(sample - np.median(sample))))
-    tol = max(BACKGROUND_TOL, 3.0 * spread)
-    bare = inside & (
-        np.abs(lifted.grey_R[np.clip(rows, 0, H - 1), xi] - lifted.background[1]) <= tol
-    )
     cR, lR = runs_R.at(runs_R.nearest_index(rows, np.where(inside, x_R, -1e9)))
     with np.errstate(invalid="ignore"):
-        miss = okL & bare & np.isfinite(cR) & ~(np.abs(cR - x_R) <= 0.5 * lR + MISMATCH_PX)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], miss.astype(np.int8), [0]])))
+        miss = okL & inside & np.isfinite(cR) & ~(np.abs(cR - x_R) <= 0.5 * lR + MISMATCH_PX)
+    if not _long_stretch(miss):
+        return False  # not even counting every miss as bare background (the usual case)
+    tol = max(BACKGROUND_TOL, 3.0 * _derived("spread", (lifted.grey_R,), (), _spread))
+    miss &= np.abs(lifted.grey_R[np.clip(rows, 0, H - 1), xi] - lifted.background[1]) <= tol
+    return _long_stretch(miss)
+
+
+def _long_stretch(flags: np.ndarray) -> bool:
+    """Whether ``flags`` (n,) bool holds a run of at least ``OFF_THREAD_PX`` consecutive True."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(np.int8), [0]])))
     return bool(np.any(edges[1::2] - edges[::2] >= OFF_THREAD_PX))
 
 
@@ -242,8 +248,8 @@ def _mismatched(
         d_H = fB / bounds.centre
         bad = (iR >= 0) & (np.abs(cL - cR - d_H) > MISMATCH_PX)  # NaN (no depth): not bad
     coil = np.zeros_like(bad)
-    if d_run is not None and d_run.size:
-        n_L = runs_L.count(rows)  # same_rank requires as many in the right view
+    n_L = runs_L.count(rows)  # same_rank requires as many in the right view
+    if d_run is not None and d_run.size and (n_L >= 3).any():  # else no coil point (exact)
         many = np.ones(runs_R.H, dtype=bool)
         iR_n = runs_L.same_rank(runs_R, rows, iL, many)
         on = (iR_n >= 0) & (n_L >= 3)
@@ -305,12 +311,43 @@ def _lsi(A: np.ndarray, r: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarr
     return np.linalg.solve(R, y + qr)
 
 
+def _spread(grey: np.ndarray) -> float:
+    """Robust standard deviation (1.4826 MAD) of an image's grey levels, on every 4th pixel of
+    every 4th row: the background's own spread."""
+    sample = grey[::4, ::4].astype(np.float64)
+    return 1.4826 * float(np.median(np.abs(sample - np.median(sample))))
+
+
+def _runs(mask: np.ndarray, grey: np.ndarray, background: float) -> _Runs:
+    """The (cached) runs of one view's mask P and grey image."""
+    return _derived("runs", (mask, grey), (float(background),), _Runs, background)
+
+
+DERIVED_CACHE: Final = 12  # runs of both views and a spread: the debugger's few frames
+_DERIVED: LRU[tuple, tuple[tuple[weakref.ref, ...], Any]] = LRU(DERIVED_CACHE)
+
+
+def _derived(
+    kind: str, arrays: tuple[np.ndarray, ...], extra: tuple, fn: Callable, *args: Any
+) -> Any:
+    """``fn(*arrays, *args)``: data that depend only on the segmentation (its masks and grey
+    images), cached by the array objects (weak references, so that a freed array whose id is
+    reused never hits) while the pipeline re-runs the stages after it (a spline slider)."""
+    key = (kind, *(id(a) for a in arrays), *extra)
+    hit = _DERIVED.get(key)
+    if hit is not MISSING and all(r() is a for r, a in zip(hit[0], arrays, strict=True)):  # type: ignore[index]
+        return hit[1]  # type: ignore[index]
+    value = fn(*arrays, *args)
+    _DERIVED.put(key, (tuple(weakref.ref(a) for a in arrays), value))
+    return value
+
+
 class _Runs:
     """Horizontal runs of a mask (one per maximal row segment) with sub-pixel centres."""
 
     def __init__(self, mask: np.ndarray, grey: np.ndarray, background: float) -> None:
         H, W = mask.shape
-        ys, xs = np.nonzero(mask)  # row-major: a run is a stretch of consecutive x on one row
+        ys, xs = _nonzero(mask)  # row-major: a run is a stretch of consecutive x on one row
         w = np.clip(background - grey[ys, xs].astype(np.float64), 1.0, None)  # darkness
         new = np.ones(len(xs), dtype=bool)
         new[1:] = (np.diff(xs) != 1) | (np.diff(ys) != 0)
@@ -381,3 +418,14 @@ class _Runs:
         r = rows[use]
         out[use] = other.row_start[r] + (idx[use] - self.row_start[r])
         return out
+
+
+def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.nonzero`` of an (H, W) mask (row-major), found by cv2 on its bounding box."""
+    m = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
+    x, y, w, h = cv2.boundingRect(m)
+    pts = cv2.findNonZero(m[y : y + h, x : x + w]) if w else None
+    if pts is None:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    pts = pts.reshape(-1, 2)
+    return pts[:, 1].astype(np.intp) + y, pts[:, 0].astype(np.intp) + x

@@ -29,8 +29,9 @@ from __future__ import annotations
 
 import functools
 import warnings
+import weakref
 from dataclasses import dataclass
-from typing import Literal
+from typing import Final, Literal
 
 import daqp
 import numpy as np
@@ -38,6 +39,7 @@ from scipy.interpolate import BSpline, splprep
 
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.lru import LRU, MISSING
 from threadrecon.core.params import Params, param
 
 EQ_TOL = 1e-3  # endpoint equalities hold to 0.1 % of the median bound half-width
@@ -124,7 +126,7 @@ class SplineResult:
     def curve(self, n: int = 400, initial: bool = False) -> np.ndarray:
         """(n, 3) samples of S at uniform u, (x px, y px, z depth)."""
         c = self.ctrl_init if initial else self.ctrl
-        return BSpline(self.knots, c, self.degree)(np.linspace(0.0, self.length, n))
+        return BSpline.construct_fast(self.knots, c, self.degree)(np.linspace(0.0, self.length, n))
 
 
 def fit_spline(
@@ -141,55 +143,16 @@ def fit_spline(
         raise ValueError(f"xy_knots must be 'uniform' or 'adaptive', got {p.xy_knots!r}")
     if not p.xy_tol_px > 0:
         raise ValueError(f"xy_tol_px must be > 0, got {p.xy_tol_px}")
-    k = p.degree
-    P = len(bounds.H)
-    s = bounds.s
-    if P < 2 or s[-1] <= 0:
-        raise ValueError("H spans no length: cannot fit a spline")
-    z_mean = float(np.nanmean(bounds.centre))
-    length = float(s[-1] * z_mean / calib.focal)  # l: lateral arc length, calib units
-    u = np.clip(s * (length / s[-1]), 0.0, length)
-    u[-1] = length
-    m = min(p.n_ctrl, max(k + 1, P))  # no more control points than data points
-    t = np.concatenate(
-        [np.zeros(k + 1), np.linspace(0.0, length, m - k + 1)[1:-1], np.full(k + 1, length)]
-    )
-
-    Hi = np.column_stack([bounds.H[:, 0], bounds.H[:, 1], bounds.centre])  # H^i
-    ctrl_init = _init_fit(Hi, u, t, k)
-    t_xy, xy = t, None
-    if p.xy_knots == "adaptive":
-        t_xy, xy = _adaptive_xy(bounds.H[:, :2], u, t, k, p)
-
-    reexpress = _reexpress_matrix(t, k, t_xy) if xy is not None else None
-
-    def final(c: np.ndarray) -> np.ndarray:
-        """Control points on the knots of the result: S_x, S_y refined, S_z re-expressed."""
-        if xy is None:
-            return c
-        return np.column_stack([xy, reexpress @ c[:, 2]])
-
-    du_ds = length / s[-1]
-    lo_c, hi_c, u_c = _constraint_points(u, bounds.lower, bounds.upper)
-    half_c = 0.5 * (hi_c - lo_c)
-    mvs = _Mvs(t, k, length, p.quad_per_span)
-    b0 = ctrl_init[:, 2].copy()
-    f0 = mvs.value(b0)
-    A = basis_matrix(u_c, t, k)  # rows: u of H, then the midpoints
+    st = _setup(bounds, calib, p)
+    k, length, u, t_xy, ctrl_init = st.k, st.length, st.u.copy(), st.t_xy.copy(), st.ctrl_init
+    lo_c, hi_c, half_c, mvs, b0, f0, A = st.lo_c, st.hi_c, st.half_c, st.mvs, st.b0, st.f0, st.A
+    final = st.final
     if not p.optimise:
         viol = _violation(A @ b0, lo_c, hi_c, half_c)
         c0 = final(ctrl_init)
         return SplineResult(t_xy, c0, c0, k, length, u, "skipped", "", (f0, f0), 0, viol)
 
-    E = _end_rows(t, k, length)
-    e_rhs = np.array(
-        [
-            bounds.end_values[0],
-            bounds.end_slopes[0] / du_ds,
-            bounds.end_values[1],
-            bounds.end_slopes[1] / du_ds,
-        ]
-    )
+    E, e_rhs = st.E, st.e_rhs
     scale = 1.0 / f0 if f0 > 0 else 1.0
     Bd = A[: len(u)]  # basis at the points of H (the first constraint points)
     w_d = p.data_weight / (len(u) * np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12) ** 2)
@@ -232,6 +195,118 @@ def fit_spline(
         (f0, mvs.value(b)),
         sol.iterations,
         viol,
+    )
+
+
+SETUP_CACHE: Final = 8  # set-ups kept: a few frames' spline stage in the debugger
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """What :func:`fit_spline` derives from H, its bounds and the knots alone, before the
+    solve: the same for every value of the solver's parameters (``data_weight``,
+    ``max_iter``, ``bound_tol``, ``relax_slopes``, ``optimise``), so a slider of those re-runs
+    the solve only. Read-only: results get copies (``final``, ``u``, ``t_xy``)."""
+
+    k: int
+    length: float
+    u: np.ndarray
+    t_xy: np.ndarray
+    ctrl_init: np.ndarray
+    xy: np.ndarray | None
+    reexpress: np.ndarray | None
+    lo_c: np.ndarray
+    hi_c: np.ndarray
+    half_c: np.ndarray
+    mvs: _Mvs
+    b0: np.ndarray
+    f0: float
+    A: np.ndarray
+    E: np.ndarray
+    e_rhs: np.ndarray
+
+    def final(self, c: np.ndarray) -> np.ndarray:
+        """Control points on the knots of the result: S_x, S_y refined, S_z re-expressed."""
+        if self.xy is None:
+            return c.copy()
+        return np.column_stack([self.xy, self.reexpress @ c[:, 2]])
+
+
+_SETUPS: LRU[tuple, tuple[weakref.ref, _Setup]] = LRU(SETUP_CACHE)
+
+
+def _setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) -> _Setup:
+    """The (cached) set-up of Eq. (8) for ``bounds``: cached by the Bounds object (a weak
+    reference, so that a freed one whose id is reused never hits), the focal length and the
+    parameters the set-up reads."""
+    key = (id(bounds), calib.focal, p.n_ctrl, p.degree, p.quad_per_span, p.xy_knots, p.xy_tol_px)
+    hit = _SETUPS.get(key)
+    if hit is not MISSING and hit[0]() is bounds:  # type: ignore[index]
+        return hit[1]  # type: ignore[index]
+    st = _compute_setup(bounds, calib, p)
+    _SETUPS.put(key, (weakref.ref(bounds), st))
+    return st
+
+
+def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) -> _Setup:
+    k = p.degree
+    P = len(bounds.H)
+    s = bounds.s
+    if P < 2 or s[-1] <= 0:
+        raise ValueError("H spans no length: cannot fit a spline")
+    z_mean = float(np.nanmean(bounds.centre))
+    length = float(s[-1] * z_mean / calib.focal)  # l: lateral arc length, calib units
+    u = np.clip(s * (length / s[-1]), 0.0, length)
+    u[-1] = length
+    m = min(p.n_ctrl, max(k + 1, P))  # no more control points than data points
+    t = np.concatenate(
+        [np.zeros(k + 1), np.linspace(0.0, length, m - k + 1)[1:-1], np.full(k + 1, length)]
+    )
+
+    Hi = np.column_stack([bounds.H[:, 0], bounds.H[:, 1], bounds.centre])  # H^i
+    ctrl_init = _init_fit(Hi, u, t, k)
+    t_xy, xy = t, None
+    if p.xy_knots == "adaptive":
+        t_xy, xy = _adaptive_xy(bounds.H[:, :2], u, t, k, p)
+
+    reexpress = _reexpress_matrix(t, k, t_xy) if xy is not None else None
+    du_ds = length / s[-1]
+    lo_c, hi_c, u_c = _constraint_points(u, bounds.lower, bounds.upper)
+    half_c = 0.5 * (hi_c - lo_c)
+    mvs = _Mvs(t, k, length, p.quad_per_span)
+    b0 = ctrl_init[:, 2].copy()
+    f0 = mvs.value(b0)
+    A = basis_matrix(u_c, t, k)  # rows: u of H, then the midpoints
+    E = _end_rows(t, k, length)
+    e_rhs = np.array(
+        [
+            bounds.end_values[0],
+            bounds.end_slopes[0] / du_ds,
+            bounds.end_values[1],
+            bounds.end_slopes[1] / du_ds,
+        ]
+    )
+    arrays = (u, t_xy, ctrl_init, xy, reexpress, lo_c, hi_c, half_c, b0, A, E, e_rhs)
+    for a in arrays:
+        if a is not None:
+            a.setflags(write=False)
+    return _Setup(
+        k,
+        length,
+        u,
+        t_xy,
+        ctrl_init,
+        xy,
+        reexpress,
+        lo_c,
+        hi_c,
+        half_c,
+        mvs,
+        b0,
+        f0,
+        A,
+        E,
+        e_rhs,
     )
 
 
@@ -319,8 +394,49 @@ def basis_matrix(x: np.ndarray, t: np.ndarray, k: int, nu: int = 0) -> np.ndarra
     """(len(x), m) dense matrix of the m B-spline basis functions on knots t (or their nu-th
     derivatives) at x in [t[k], t[-k-1]]: one evaluation of the spline with identity
     coefficients."""
-    basis = BSpline.construct_fast(t, np.eye(len(t) - k - 1), k)
-    return (basis.derivative(nu) if nu else basis)(np.asarray(x, dtype=np.float64))
+    if not nu:
+        return BSpline.construct_fast(t, np.eye(len(t) - k - 1), k)(_as_points(x))
+    return basis_derivatives(x, t, k, nu)[-1]
+
+
+def basis_derivatives(x: np.ndarray, t: np.ndarray, k: int, nu: int) -> list[np.ndarray]:
+    """``[basis_matrix(x, t, k, j) for j in 1..nu]``, each derivative's coefficients computed
+    from the previous one's (as ``basis_matrix`` itself does), once."""
+    x = _as_points(x)
+    return [BSpline.construct_fast(*tck)(x) for tck in _derivative_coefficients(t, k, nu)]
+
+
+def _as_points(x: np.ndarray) -> np.ndarray:
+    return np.asarray(x, dtype=np.float64)
+
+
+def _derivative_coefficients(
+    t: np.ndarray, k: int, nu: int
+) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    """Knots, (len(t) - 2 j, m) coefficients and degree of the j-th derivatives of the m basis
+    functions on knots t, j = 1..nu: ``BSpline(t, eye(m), k).derivative(j)`` without its
+    array-API layers (the same arithmetic as scipy's ``splder``, so the same values to the
+    last bit)."""
+    m = len(t) - k - 1
+    if nu > k:
+        raise ValueError(f"derivative order {nu} exceeds the degree {k}")
+    c = np.zeros((len(t), m))
+    c[:m] = np.eye(m)  # FITPACK convention: as many coefficient rows as knots
+    out = []
+    with np.errstate(invalid="raise", divide="raise"):
+        try:
+            for _ in range(nu):
+                dt = (t[k + 1 : -1] - t[1 : -k - 1])[:, None]
+                c = (c[1 : -1 - k] - c[: -2 - k]) * k / dt
+                c = np.concatenate([c, np.zeros((k, m))])
+                t = t[1:-1]
+                k -= 1
+                out.append((t, c, k))
+        except FloatingPointError as exc:
+            raise ValueError(
+                f"repeated inner knots: the spline is not {nu} times differentiable"
+            ) from exc
+    return out
 
 
 def _constraint_points(
@@ -358,7 +474,7 @@ class _Mvs:
         a, b = edges[:-1], edges[1:]
         self.uq = (0.5 * (b - a)[:, None] * (xg[None, :] + 1.0) + a[:, None]).ravel()
         self.wq = (0.5 * (b - a)[:, None] * wg[None, :]).ravel()
-        self.B = [basis_matrix(self.uq, t, k, d) for d in (1, 2, 3)]  # (nq, m) each
+        self.B = basis_derivatives(self.uq, t, k, 3)  # (nq, m) each, orders 1, 2, 3
         self.sqrt_wq = np.sqrt(self.wq)
 
     def _terms(self, b: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -450,29 +566,41 @@ class _Problem:
         self.mvs, self.scale = mvs, scale
         self.Bd, self.sw, self.c = Bd, sqrt_wd, centre
         self.A, self.lo, self.hi = A, lo, hi
+        self.J_d = self.sw[:, None] * Bd  # the data term's Jacobian: linear, the same at every b
 
     def residual(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         r_m, J_m = self.mvs.residual_jac(b, self.scale)
         r_d = self.sw * (self.Bd @ b - self.c)
-        return np.concatenate([r_m, r_d]), np.vstack([J_m, self.sw[:, None] * self.Bd])
+        return np.concatenate([r_m, r_d]), np.vstack([J_m, self.J_d])
 
     def value(self, b: np.ndarray) -> float:
         r, _ = self.residual(b)
         return float(r @ r)
 
     def _qp(
-        self, H: np.ndarray, f: np.ndarray, b: np.ndarray, E: np.ndarray, e: np.ndarray
+        self,
+        H: np.ndarray,
+        f: np.ndarray,
+        b: np.ndarray,
+        E: np.ndarray,
+        e: np.ndarray,
+        C: np.ndarray,
+        sense: np.ndarray,
     ) -> tuple[np.ndarray, int]:
-        """DAQP on the step d: min 0.5 d'Hd + f'd, lo <= A(b+d) <= hi, E(b+d) = e."""
+        """DAQP on the step d: min 0.5 d'Hd + f'd, lo <= A(b+d) <= hi, E(b+d) = e; ``C``, ``sense``:
+        the rows [A; E] and their kinds (:meth:`_constraints`, the same at every step)."""
         Ab, Eb = self.A @ b, E @ b
-        C = np.vstack([self.A, E])
         upper = np.concatenate([self.hi - Ab, e - Eb])
         lower = np.concatenate([self.lo - Ab, e - Eb])
-        sense = np.concatenate([np.zeros(len(Ab), np.int32), np.full(len(e), 5, np.int32)])
-        d, _, flag, _ = daqp.solve(
-            np.ascontiguousarray(H), f, np.ascontiguousarray(C), upper, lower, sense
-        )
+        d, _, flag, _ = daqp.solve(np.ascontiguousarray(H), f, C, upper, lower, sense)
         return np.asarray(d, dtype=np.float64), int(flag)
+
+    def _constraints(self, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The QP's constraint rows [A; E] (contiguous) and their DAQP kinds: bounds on A,
+        equalities (5) on E."""
+        C = np.ascontiguousarray(np.vstack([self.A, E]))
+        sense = np.concatenate([np.zeros(len(self.A), np.int32), np.full(len(E), 5, np.int32)])
+        return C, sense
 
     def solve(self, b0: np.ndarray, E: np.ndarray, e: np.ndarray, max_iter: int) -> _Solution:
         m = b0.size
@@ -482,8 +610,9 @@ class _Problem:
             return _Solution(b0, "infeasible", msg, 0)
         # Step 0: a unit gradient step from b0 projected on the constraints (SLSQP's first QP,
         # identity Hessian); it lands on the feasible set, where the Gauss-Newton steps start.
+        C, sense = self._constraints(E)
         r0, J0 = self.residual(b0)
-        d, flag = self._qp(np.eye(m), 2.0 * (J0.T @ r0), b0, E, e)
+        d, flag = self._qp(np.eye(m), 2.0 * (J0.T @ r0), b0, E, e, C, sense)
         if flag not in (1, 2):
             word = _DAQP_FLAGS.get(flag, f"exit flag {flag}")
             status: Status = "infeasible" if flag == -1 else "solver_failed"
@@ -496,7 +625,7 @@ class _Problem:
         mu, nu = LM_MU0 * scale_h, 2.0
         for it in range(1, max_iter + 1):
             g = J.T @ r
-            d, flag = self._qp(2.0 * (JtJ + mu * np.eye(m)), 2.0 * g, b, E, e)
+            d, flag = self._qp(2.0 * (JtJ + mu * np.eye(m)), 2.0 * g, b, E, e, C, sense)
             if flag not in (1, 2):
                 word = _DAQP_FLAGS.get(flag, f"exit flag {flag}")
                 return _Solution(b, "solver_failed", f"QP (DAQP) {word} at step {it}", it)

@@ -171,7 +171,7 @@ def test_bench_prints_stage_medians(tmp_path: Path, capsys: pytest.CaptureFixtur
         shutil.copy(FLAT / name, data / name)
     code, stdout, _ = run(capsys, "bench", tmp_path / "data", "--repeat", "1")
     assert code == 0
-    for stage in ("stereo", "spline", "total", "spline rerun"):
+    for stage in ("stereo", "spline", "total", "spline rerun", "solver rerun"):
         assert stage in stdout
 
 

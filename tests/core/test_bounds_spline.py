@@ -379,3 +379,80 @@ def test_dropping_outlying_extra_points_keeps_a_spirals_end_on_the_thread() -> N
         rec = pipe.run(replace(ReconParams(), bounds=BP(drop_outliers=drop)))
         err[drop] = curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max
     assert err[False] > 100.0 and err[True] < 2.0
+
+
+def test_basis_derivatives_equal_scipys_derivative_spline_bit_for_bit() -> None:
+    """basis_matrix's own derivative coefficients (scipy's splder arithmetic without its
+    array-API layers) give exactly BSpline(t, eye(m), k).derivative(nu)(x): uniform and random
+    knots, degrees 2-5, every order, points at the ends and on the knots."""
+    from threadrecon.core.spline import basis_matrix
+
+    rng = np.random.default_rng(8)
+    for trial in range(200):
+        k = int(rng.integers(2, 6))
+        m = int(rng.integers(k + 1, 40))
+        length = float(rng.uniform(0.1, 300.0))
+        inner = (
+            np.linspace(0.0, length, m - k + 1)[1:-1]
+            if trial % 2
+            else np.sort(rng.uniform(0.0, length, m - k - 1))
+        )
+        t = np.concatenate([np.zeros(k + 1), inner, np.full(k + 1, length)])
+        x = np.concatenate([rng.uniform(0.0, length, 30), [0.0, length], inner])
+        for nu in range(k + 1):
+            basis = BSpline.construct_fast(t, np.eye(m), k)
+            expected = (basis.derivative(nu) if nu else basis)(x)
+            assert np.array_equal(basis_matrix(x, t, k, nu), expected)
+        # and scipy's sparse design matrix (what core/refine.py used before), value for value
+        assert np.array_equal(basis_matrix(x, t, k), BSpline.design_matrix(x, t, k).toarray())
+
+
+def test_basis_derivative_past_the_degree_or_at_repeated_knots_is_refused() -> None:
+    from threadrecon.core.spline import basis_matrix
+
+    t = np.concatenate([np.zeros(4), [0.5], np.ones(4)])
+    with pytest.raises(ValueError, match="exceeds the degree"):
+        basis_matrix(np.array([0.2]), t, 3, 4)
+    t = np.concatenate([np.zeros(4), [0.5, 0.5, 0.5], np.ones(4)])
+    with pytest.raises(ValueError, match="repeated inner knots"):
+        basis_matrix(np.array([0.2]), t, 3, 3)
+
+
+def test_solver_parameter_changes_reuse_the_setup_and_give_the_fresh_fit(monkeypatch) -> None:
+    """data_weight, max_iter, bound_tol, relax_slopes and optimise leave H, the bounds and the
+    knots alone: a second fit reuses the cached set-up of Eq. (8) (no new initial fit) and
+    equals, to the last bit, a fit computed from scratch; n_ctrl builds a new set-up."""
+    import threadrecon.core.spline as spline_mod
+
+    pair, calib, _ = synthetic_case(3)
+    rec = Pipeline(pair, calib).run(ReconParams(), until="bounds")
+    bounds = rec["bounds"]
+    calls = []
+    init_fit = spline_mod._init_fit
+    monkeypatch.setattr(spline_mod, "_init_fit", lambda *a: calls.append(1) or init_fit(*a))
+    base = SplineParams()
+    fit_spline(bounds, calib, base)
+    variants = [
+        replace(base, data_weight=3.0),
+        replace(base, max_iter=2),
+        replace(base, bound_tol=0.0),
+        replace(base, optimise=False),
+    ]
+    for p in variants:
+        calls.clear()
+        got = fit_spline(bounds, calib, p)
+        assert not calls  # the set-up came from the cache
+        spline_mod._SETUPS.clear()
+        fresh = fit_spline(bounds, calib, p)
+        assert calls  # computed anew
+        for f in ("knots", "ctrl", "ctrl_init", "u_H"):
+            assert np.array_equal(getattr(got, f), getattr(fresh, f)), f
+            assert getattr(got, f).flags.writeable  # results own their arrays
+        assert (got.status, got.objective, got.iterations) == (
+            fresh.status,
+            fresh.objective,
+            fresh.iterations,
+        )
+    calls.clear()
+    fit_spline(bounds, calib, replace(base, n_ctrl=base.n_ctrl - 1))
+    assert calls

@@ -211,3 +211,25 @@ def test_repair_fixes_a_coil_turn_matched_to_its_neighbour(frame: int, mvs_faile
     # the dropped bounds are not the check's evidence any more: the right curve is "ok"
     # (before the check skipped them: suspect, "leaves its depth bounds by 1.03 / 1.50")
     assert rec.status == "ok", rec["check"].reasons
+
+
+def test_runs_scan_the_bounding_box_only_and_are_cached_per_mask() -> None:
+    """The runs of a mask equal those of np.nonzero over the whole image; the same mask and
+    grey objects give the same cached runs, a new mask object (a new segmentation) new ones."""
+    from threadrecon.core.refine import _nonzero, _runs
+
+    rng = np.random.default_rng(3)
+    mask = np.zeros((40, 60), bool)
+    mask[5:30, 12:50] = rng.random((25, 38)) < 0.3
+    for m in (mask, np.zeros_like(mask), np.ones_like(mask)):
+        ys, xs = _nonzero(m)
+        ye, xe = np.nonzero(m)
+        assert np.array_equal(ys, ye) and np.array_equal(xs, xe)
+    grey = rng.uniform(0, 200, mask.shape).astype(np.float32)
+    a = _runs(mask, grey, 200.0)
+    assert _runs(mask, grey, 200.0) is a
+    fresh = _Runs(mask, grey, 200.0)
+    assert np.array_equal(a.centre, fresh.centre) and np.array_equal(a.length, fresh.length)
+    other = mask.copy()
+    assert _runs(other, grey, 200.0) is not a
+    assert _runs(mask, grey, 201.0) is not a

@@ -366,3 +366,64 @@ def test_raw_mask_of_a_thin_thread_is_not_wider_than_its_coverage() -> None:
             ious.append(_iou(P, M))
     assert np.mean(ratios) <= 1.3  # 1.36 before the shared-coverage rule
     assert np.mean(ious) >= 0.76  # 0.74 before
+
+
+def _full_image_reference(pair: StereoPair, p: SegmentationParams) -> dict[str, np.ndarray]:
+    """The threshold path of Eq. (1) computed pixel by pixel on the whole float32 image: the
+    tables and bounding boxes of core/segmentation.py must give exactly this."""
+    from threadrecon.core.segment_raw import drop_specks
+
+    out: dict[str, np.ndarray] = {}
+    for side, image in (("L", pair.left), ("R", pair.right)):
+        grey = image.astype(np.float32)
+        hist = np.bincount(image.ravel(), minlength=256)
+        bg = float(np.argmax(hist)) if p.background is None else float(p.background)
+        P = grey < bg - p.seg_delta
+        off = (np.abs(grey - np.float32(bg)) > np.float32(p.seg_delta)).astype(np.uint8) * 255
+        off = cv2.morphologyEx(off, cv2.MORPH_CLOSE, cv2.getStructuringElement(2, (5, 5)))
+        core = cv2.erode(off, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (21, 21)))
+        wide = cv2.dilate(core, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (25, 25))) > 0
+        P = drop_specks(P & ~wide, p.min_component_px)
+        scale = 1.0 / (2.0 * max(p.seg_delta, 1.0))
+        out["P_" + side] = P
+        out["score_" + side] = np.clip((bg - grey) * scale, 0.0, 1.0).astype(np.float32)
+        d = p.lift_dilate_px
+        near = cv2.dilate(P.astype(np.uint8), np.ones((2 * d + 1, 2 * d + 1), np.uint8)) > 0
+        out["I_" + side] = np.where(near, grey, np.float32(LIFT_VALUE))
+        out["grey_" + side] = grey
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_threshold_path_equals_the_whole_image_formulas_bit_for_bit(seed: int) -> None:
+    """Tables per grey level and work on the thread's bounding box change no value: random
+    flat frames with dark curves, specks, a wide bar, noise, odd levels and deltas."""
+    rng = np.random.default_rng(seed)
+    background = [None, 180.7, 200.0][seed % 3]
+    views = []
+    for _ in range(2):
+        level = int(rng.integers(150, 256)) if background is None else round(background)
+        img = np.full((120, 160), level, np.uint8)
+        for _ in range(3):
+            pts = rng.integers(0, [160, 120], size=(6, 2)).astype(np.int32)
+            cv2.polylines(img, [pts], False, int(rng.integers(0, 120)), int(rng.integers(1, 4)))
+        img[rng.integers(0, 120, 12), rng.integers(0, 160, 12)] = 40  # specks
+        if seed % 2:
+            img[30:60, 100:140] = 90  # an instrument-wide bar
+        noise = rng.normal(0, 1.0 + seed, img.shape) * (rng.random(img.shape) < 0.1)
+        views.append(np.clip(img + noise, 0, 255).astype(np.uint8))
+    pair = StereoPair(views[0], views[1])
+    p = SegmentationParams(
+        method="auto",
+        flat_share=0.0,  # auto always thresholds: its wide-part removal is tested too
+        seg_delta=0.0 if seed == 0 else float(rng.choice([3.0, 6.0, 6.5, 17.3])),
+        background=background,
+        lift_dilate_px=int(rng.integers(0, 4)),
+        min_component_px=int(rng.integers(0, 40)),
+    )
+    lifted = segment(pair, p)
+    assert lifted.method == "threshold"
+    for name, expected in _full_image_reference(pair, p).items():
+        got = getattr(lifted, name)
+        assert got.dtype == expected.dtype and got.shape == expected.shape, name
+        assert np.array_equal(got, expected), name
