@@ -21,6 +21,21 @@ minimiser of the same energy with the right image linearly interpolated between 
 disparities (closed form on [d_min-1, d_min] and [d_min, d_min+1]). With a 1 mm baseline one
 pixel of disparity is about 7-11 mm of depth, so integer disparities cannot reach millimetre
 accuracy. ``subpixel=False`` gives the paper's integer disparities.
+
+Deviation (``epipolar_deg > 0``, default 15 deg): continuity along near-epipolar runs. Where the
+thread runs within ``epipolar_deg`` of the image rows, shifting the match along the row hardly
+changes the SSD (the cost of Eq. (2) is flat along the epipolar line), and the sub-pixel minimum
+is set by image noise or by resampling errors of a rectified pair: a vertical error of e px
+moves it by about e / tan(theta). Each pixel's disparity has the least-squares variance
+sigma_d^2 = s^2 / sum(dI_R/dx)^2 (s^2: the residual per window pixel at the minimum, at least
+the two images' rounding noise). Pixels with sigma_d <= ``ANCHOR_PX`` or off near-epipolar runs
+keep their own disparity; the others take the MAP estimate of a membrane along the thread:
+minimise sum_p w_p (d_p - d_hat_p)^2 + sum_(p,q neighbours) (d_p - d_q)^2 / tau^2 with
+w_p = 1 / (|g_p| sigma_d^2) (|g_p|: the pixels that share the window's data) and
+tau = ``continuity_px``, the anchors fixed (Dirichlet). A flat run then follows its
+well-conditioned ends and its own data where that is precise; both terms are made robust
+(Cauchy, a few reweighted rounds) so that gross mismatches and the other strand at a crossing
+do not pull. ``epipolar_deg=0`` (paper-strict: ``subpixel=false``) leaves Eq. (3)'s minimiser.
 """
 
 from __future__ import annotations
@@ -31,6 +46,8 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+from scipy import sparse
+from scipy.sparse.linalg import spsolve
 
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.params import Params, param
@@ -38,6 +55,11 @@ from threadrecon.core.segmentation import LIFT_VALUE, LiftedPair
 
 NEXT_GAP = 2  # Eq. (6) text: |d_next - d_min| > 2, neighbours of d_min have similar energies
 D_MAX = 4096  # largest disparity search range, px: a depth range that asks for more is an error
+ANCHOR_PX = 0.05  # px: a pixel whose disparity s.d. is below this keeps its own match
+ROUNDING_VAR = 1.0 / 6.0  # grey^2: two 8-bit roundings (1/12 each), the least residual per pixel
+ROBUST_PX = 0.5  # px: Cauchy scale of a pixel's own match (a gross mismatch stops pulling)
+STRAND_PX = 1.0  # px: Cauchy scale of a neighbour's difference (another strand at a crossing)
+ROUNDS = 3  # reweighted least-squares rounds of the robust membrane
 
 
 @dataclass(frozen=True)
@@ -52,6 +74,28 @@ class StereoParams(Params):
     """Side of the square window g_p, px (odd)."""
     subpixel: bool = True
     """Refine d_min to sub-pixel precision (deviation, see module docstring)."""
+    epipolar_deg: float = param(
+        15.0,
+        lo=0.0,
+        hi=45.0,
+        unit="deg",
+        label="near-epipolar angle",
+        slider=(0.0, 45.0, 1.0),
+        doc="Thread runs within this angle of the image rows take their sub-pixel disparity "
+        "from continuity along the thread where their own match is imprecise "
+        "(module docstring; 0: off, each pixel's own minimum).",
+    )
+    continuity_px: float = param(
+        0.03,
+        lo=1e-4,
+        hi=10.0,
+        unit="px",
+        symbol="tau",
+        label="continuity tau",
+        slider=(0.005, 0.2, 0.005),
+        doc="Expected change of disparity between neighbouring thread pixels (the membrane's "
+        "tau), px: smaller smooths near-epipolar runs more.",
+    )
     z_near_mm: float | None = param(
         None,
         lo=1.0,
@@ -257,10 +301,19 @@ def match_stereo(
 
     disparity = d_min.astype(np.float64)
     if p.subpixel:
-        disparity = disparity + _subpixel_kernel(
+        step, ee, resid, count, tan2 = _subpixel_kernel(
             box.ry, box.rx, box.I_L_p, box.index, r, lifted.I_R, box.y0, box.x0, d_min, d_hi,
             LIFT_VALUE,
         )  # fmt: skip
+        disparity = disparity + step
+        if p.epipolar_deg > 0:
+            var = np.maximum(resid, count * ROUNDING_VAR) / np.maximum(count - 1, 1)
+            with np.errstate(divide="ignore"):
+                var = var / ee  # sigma_d^2, px^2 (inf where the cost has no slope)
+            free = (tan2 < math.tan(math.radians(p.epipolar_deg)) ** 2) & (var > ANCHOR_PX**2)
+            if free.any():
+                w = 1.0 / (np.maximum(count, 1) * var)
+                disparity = _continuity(box.index, disparity, w, free, p.continuity_px)
 
     points = _reproject(cols, rows, disparity, calib.Q)
     return StereoResult(
@@ -275,6 +328,51 @@ def match_stereo(
         shape=(H, W),
         d_range=(d_lo, d_hi),
     )._with_source(_EnergySource(lifted, p.window, d_lo, d_hi))
+
+
+def _continuity(
+    index: np.ndarray, d_hat: np.ndarray, w: np.ndarray, free: np.ndarray, tau: float
+) -> np.ndarray:
+    """Robust membrane MAP of the disparity on the ``free`` pixels (module docstring).
+
+    ``index``: (h, w) box image of pixel indices (-1 off P_L); ``d_hat``: (N,) sub-pixel
+    disparities, px; ``w``: (N,) data weights, 1/px^2; ``free``: (N,) bool, the pixels solved
+    for (the others are fixed at ``d_hat``). Returns the (N,) disparities."""
+    a, b = _neighbour_pairs(index)
+    touch = free[a] | free[b]
+    a, b = a[touch], b[touch]
+    fi = np.flatnonzero(free)
+    pos = np.full(d_hat.size, -1, dtype=np.int64)
+    pos[fi] = np.arange(fi.size)
+    fa, fb = free[a], free[b]
+    both = fa & fb
+    d = d_hat.copy()
+    for _ in range(ROUNDS):
+        rho = w[fi] / (1.0 + ((d_hat[fi] - d[fi]) / ROBUST_PX) ** 2)  # Cauchy IRLS weights
+        e = 1.0 / (tau**2 * (1.0 + ((d[a] - d[b]) / STRAND_PX) ** 2))
+        diag = rho + 1e-9 + np.bincount(pos[a[fa]], e[fa], fi.size)  # ridge: a run with no data
+        diag += np.bincount(pos[b[fb]], e[fb], fi.size)
+        rhs = rho * d_hat[fi]
+        rhs += np.bincount(pos[a[fa & ~fb]], e[fa & ~fb] * d_hat[b[fa & ~fb]], fi.size)
+        rhs += np.bincount(pos[b[fb & ~fa]], e[fb & ~fa] * d_hat[a[fb & ~fa]], fi.size)
+        off = sparse.coo_matrix((-e[both], (pos[a[both]], pos[b[both]])), (fi.size, fi.size))
+        A = (off + off.T + sparse.diags(diag)).tocsc()
+        d[fi] = spsolve(A, rhs)
+    return d
+
+
+def _neighbour_pairs(index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(E,) index pairs of 8-connected pixels of P_L in the box image ``index``, each once."""
+    h, w = index.shape
+    out_a, out_b = [], []
+    for dy, dx in ((0, 1), (1, -1), (1, 0), (1, 1)):
+        x0, x1 = max(0, -dx), w - max(0, dx)
+        ia = index[0 : h - dy, x0:x1]
+        ib = index[dy:h, x0 + dx : x1 + dx]
+        keep = (ia >= 0) & (ib >= 0)
+        out_a.append(ia[keep])
+        out_b.append(ib[keep])
+    return np.concatenate(out_a).astype(np.int64), np.concatenate(out_b).astype(np.int64)
 
 
 def reproject(x: np.ndarray, y: np.ndarray, disparity: np.ndarray, Q: np.ndarray) -> np.ndarray:
@@ -388,14 +486,25 @@ def _best_two(e, d_lo, gap):  # noqa: ANN001
 
 @numba.njit(cache=True, nogil=True)
 def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  # noqa: ANN001
-    """Exact minimiser of Eq. (2) on [d_min - 1, d_min + 1], I_R linearly interpolated."""
+    """Exact minimiser of Eq. (2) on [d_min - 1, d_min + 1], I_R linearly interpolated.
+
+    Returns, per pixel: the step from d_min, px; the cost's curvature sum(dI_R/dd)^2 (the mean
+    of the two one-sided ones), grey^2/px^2; the energy at the minimum, grey^2; the number of
+    window pixels |g_p|; and tan^2 of the thread's angle to the rows, sum(I_x^2) / sum(I_y^2)
+    of I_R's central differences at the match (inf without vertical structure)."""
     n = ry.size
     h, w = index.shape
-    W = I_R.shape[1]
+    H, W = I_R.shape
     out = np.zeros(n)
+    curv = np.zeros(n)
+    resid = np.zeros(n)
+    count = np.zeros(n)
+    tan2 = np.zeros(n)
     for i in range(n):
         yi, xi, di = ry[i], rx[i], d_min[i]
         E0 = 0.0
+        cnt = 0
+        gxx = gyy = 0.0
         ce_p = ee_p = ce_m = ee_m = 0.0
         for yy in range(max(0, yi - r), min(h, yi + r + 1)):
             for xx in range(max(0, xi - r), min(w, xi + r + 1)):
@@ -407,8 +516,13 @@ def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  
                 a = float(I_R[row, xb]) if 0 <= xb < W else lift
                 c = I_L_p[j] - a
                 E0 += c * c
+                cnt += 1
                 ap = float(I_R[row, xb - 1]) if 0 <= xb - 1 < W else lift  # d_min + 1
                 am = float(I_R[row, xb + 1]) if 0 <= xb + 1 < W else lift  # d_min - 1
+                up = float(I_R[row - 1, xb]) if 0 <= xb < W and row >= 1 else lift
+                dn = float(I_R[row + 1, xb]) if 0 <= xb < W and row + 1 < H else lift
+                gxx += 0.25 * (ap - am) ** 2
+                gyy += 0.25 * (dn - up) ** 2
                 ep, em = ap - a, am - a
                 ce_p += c * ep
                 ee_p += ep * ep
@@ -425,4 +539,8 @@ def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  
                 best_t, best_E = sign * t, E_t
             best_E = min(E_t, best_E)
         out[i] = best_t
-    return out
+        curv[i] = 0.5 * (ee_p + ee_m)
+        resid[i] = best_E
+        count[i] = cnt
+        tan2[i] = gxx / gyy if gyy > 0 else np.inf
+    return out, curv, resid, count, tan2
