@@ -30,9 +30,11 @@ moves it by about e / tan(theta). Each pixel's disparity has the least-squares v
 sigma_d^2 = s^2 / sum(dI_R/dx)^2 (s^2: the residual per window pixel at the minimum, at least
 the two images' rounding noise). Pixels with sigma_d <= ``ANCHOR_PX`` or off near-epipolar runs
 keep their own disparity; the others take the MAP estimate of a membrane along the thread:
-minimise sum_p w_p (d_p - d_hat_p)^2 + sum_(p,q neighbours) (d_p - d_q)^2 / tau^2 with
-w_p = 1 / (|g_p| sigma_d^2) (|g_p|: the pixels that share the window's data) and
-tau = ``continuity_px``, the anchors fixed (Dirichlet). A flat run then follows its
+minimise sum_p w_p (d_p - d_hat_p)^2 + sum_(p,q 8-neighbours) (d_p - d_q)^2 / tau^2 with
+w_p = 1 / (n sigma_d^2) and tau = ``continuity_px``, the anchors fixed (Dirichlet). n, the
+window side, counts the pixels along the thread that share one window's data (neighbouring
+estimates are not independent); data and membrane then both scale with the thread's width,
+so the smoothing length does not depend on it. A flat run then follows its
 well-conditioned ends and its own data where that is precise; both terms are made robust
 (Cauchy, a few reweighted rounds) so that gross mismatches and the other strand at a crossing
 do not pull. ``epipolar_deg=0`` (paper-strict: ``subpixel=false``) leaves Eq. (3)'s minimiser.
@@ -312,7 +314,7 @@ def match_stereo(
                 var = var / ee  # sigma_d^2, px^2 (inf where the cost has no slope)
             free = (tan2 < math.tan(math.radians(p.epipolar_deg)) ** 2) & (var > ANCHOR_PX**2)
             if free.any():
-                w = 1.0 / (np.maximum(count, 1) * var)
+                w = 1.0 / (p.window * var)
                 disparity = _continuity(box.index, disparity, w, free, p.continuity_px)
 
     points = _reproject(cols, rows, disparity, calib.Q)
