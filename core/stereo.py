@@ -35,9 +35,10 @@ w_p = 1 / (n sigma_d^2) and tau = ``continuity_px``, the anchors fixed (Dirichle
 window side, counts the pixels along the thread that share one window's data (neighbouring
 estimates are not independent); data and membrane then both scale with the thread's width,
 so the smoothing length does not depend on it. A flat run then follows its
-well-conditioned ends and its own data where that is precise; both terms are made robust
-(Cauchy, a few reweighted rounds) so that gross mismatches and the other strand at a crossing
-do not pull. ``epipolar_deg=0`` (paper-strict: ``subpixel=false``) leaves Eq. (3)'s minimiser.
+well-conditioned ends and its own data where that is precise. Both terms are robust, over a few
+reweighted rounds started from the 3 x 3 median of d_hat: a pixel's own match is Cauchy-weighted
+(a gross mismatch stops pulling) and a link between neighbours Welsch-weighted at ``STRAND_PX``
+(another strand touching the run in the image, a few px of disparity away, is cut off). ``epipolar_deg=0`` (paper-strict: ``subpixel=false``) leaves Eq. (3)'s minimiser.
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ D_MAX = 4096  # largest disparity search range, px: a depth range that asks for 
 ANCHOR_PX = 0.05  # px: a pixel whose disparity s.d. is below this keeps its own match
 ROUNDING_VAR = 1.0 / 6.0  # grey^2: two 8-bit roundings (1/12 each), the least residual per pixel
 ROBUST_PX = 0.5  # px: Cauchy scale of a pixel's own match (a gross mismatch stops pulling)
-STRAND_PX = 1.0  # px: Cauchy scale of a neighbour's difference (another strand at a crossing)
+STRAND_PX = 1.0  # px: Welsch scale of a neighbour's difference (another strand at a crossing)
 ROUNDS = 3  # reweighted least-squares rounds of the robust membrane
 
 
@@ -349,9 +350,10 @@ def _continuity(
     fa, fb = free[a], free[b]
     both = fa & fb
     d = d_hat.copy()
+    d[fi] = _local_median(index, d_hat)[fi]  # a start that neither a mismatch nor noise moves
     for _ in range(ROUNDS):
         rho = w[fi] / (1.0 + ((d_hat[fi] - d[fi]) / ROBUST_PX) ** 2)  # Cauchy IRLS weights
-        e = 1.0 / (tau**2 * (1.0 + ((d[a] - d[b]) / STRAND_PX) ** 2))
+        e = np.exp(-(((d[a] - d[b]) / STRAND_PX) ** 2)) / tau**2  # Welsch: strands part
         diag = rho + 1e-9 + np.bincount(pos[a[fa]], e[fa], fi.size)  # ridge: a run with no data
         diag += np.bincount(pos[b[fb]], e[fb], fi.size)
         rhs = rho * d_hat[fi]
@@ -361,6 +363,18 @@ def _continuity(
         A = (off + off.T + sparse.diags(diag)).tocsc()
         d[fi] = spsolve(A, rhs)
     return d
+
+
+def _local_median(index: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """(N,) median of ``values`` over each pixel of P_L and its 8-neighbours in P_L."""
+    pad = np.pad(index, 1, constant_values=-1)
+    ys, xs = np.nonzero(index >= 0)
+    order = index[ys, xs]
+    stack = np.full((9, values.size), np.nan)
+    for k, (dy, dx) in enumerate((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)):
+        j = pad[ys + 1 + dy, xs + 1 + dx]
+        stack[k, order] = np.where(j >= 0, values[j], np.nan)
+    return np.nanmedian(stack, axis=0)
 
 
 def _neighbour_pairs(index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
