@@ -50,7 +50,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 from scipy import sparse
-from scipy.sparse.linalg import spsolve
+from scipy.linalg import solveh_banded
+from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.params import Params, param
@@ -338,43 +339,61 @@ def _continuity(
 ) -> np.ndarray:
     """Robust membrane MAP of the disparity on the ``free`` pixels (module docstring).
 
-    ``index``: (h, w) box image of pixel indices (-1 off P_L); ``d_hat``: (N,) sub-pixel
-    disparities, px; ``w``: (N,) data weights, 1/px^2; ``free``: (N,) bool, the pixels solved
-    for (the others are fixed at ``d_hat``). Returns the (N,) disparities."""
+    ``index``: (h, w) box image of pixel indices (-1 off P_L, row-major); ``d_hat``: (N,)
+    sub-pixel disparities, px; ``w``: (N,) data weights, 1/px^2; ``free``: (N,) bool, the pixels
+    solved for (the others are fixed at ``d_hat``). Returns the (N,) disparities."""
     a, b = _neighbour_pairs(index)
     touch = free[a] | free[b]
     a, b = a[touch], b[touch]
     fi = np.flatnonzero(free)
+    m = fi.size
     pos = np.full(d_hat.size, -1, dtype=np.int64)
-    pos[fi] = np.arange(fi.size)
+    pos[fi] = np.arange(m)
     fa, fb = free[a], free[b]
-    both = fa & fb
+    both, a_only, b_only = fa & fb, fa & ~fb, fb & ~fa
+    pa, pb = pos[a], pos[b]
+    # The matrix is a thin band once its pixels are in reverse Cuthill-McKee order (the thread
+    # is a few px wide): a banded Cholesky per round, the order and band layout computed once.
+    ia, ib = pa[both], pb[both]
+    pattern = sparse.csr_matrix((np.ones(ia.size), (ia, ib)), shape=(m, m))
+    perm = reverse_cuthill_mckee((pattern + pattern.T).tocsr(), symmetric_mode=True)
+    rank = np.empty(m, dtype=np.int64)
+    rank[perm] = np.arange(m)
+    ra, rb = rank[ia], rank[ib]
+    lo, hi = np.minimum(ra, rb), np.maximum(ra, rb)
+    band = int((hi - lo).max()) if hi.size else 0
     d = d_hat.copy()
-    d[fi] = _local_median(index, d_hat)[fi]  # a start that neither a mismatch nor noise moves
+    d[fi] = _local_median(index, d_hat, fi)  # a start that neither a mismatch nor noise moves
     for _ in range(ROUNDS):
         rho = w[fi] / (1.0 + ((d_hat[fi] - d[fi]) / ROBUST_PX) ** 2)  # Cauchy IRLS weights
         e = np.exp(-(((d[a] - d[b]) / STRAND_PX) ** 2)) / tau**2  # Welsch: strands part
-        diag = rho + 1e-9 + np.bincount(pos[a[fa]], e[fa], fi.size)  # ridge: a run with no data
-        diag += np.bincount(pos[b[fb]], e[fb], fi.size)
+        diag = rho + 1e-9  # ridge: a run with no data and no anchor keeps a solution
+        diag += np.bincount(pa[fa], e[fa], m) + np.bincount(pb[fb], e[fb], m)
         rhs = rho * d_hat[fi]
-        rhs += np.bincount(pos[a[fa & ~fb]], e[fa & ~fb] * d_hat[b[fa & ~fb]], fi.size)
-        rhs += np.bincount(pos[b[fb & ~fa]], e[fb & ~fa] * d_hat[a[fb & ~fa]], fi.size)
-        off = sparse.coo_matrix((-e[both], (pos[a[both]], pos[b[both]])), (fi.size, fi.size))
-        A = (off + off.T + sparse.diags(diag)).tocsc()
-        d[fi] = spsolve(A, rhs)
+        rhs += np.bincount(pa[a_only], e[a_only] * d_hat[b[a_only]], m)
+        rhs += np.bincount(pb[b_only], e[b_only] * d_hat[a[b_only]], m)
+        ab = np.zeros((band + 1, m))  # upper band form of solveh_banded, permuted order
+        ab[band, rank] = diag
+        np.add.at(ab, (band + lo - hi, hi), -e[both])
+        x = solveh_banded(ab, rhs[perm])
+        d[fi] = x[rank]
     return d
 
 
-def _local_median(index: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """(N,) median of ``values`` over each pixel of P_L and its 8-neighbours in P_L."""
+def _local_median(index: np.ndarray, values: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """(len(which),) median of ``values`` over the pixels ``which`` of P_L and their
+    8-neighbours in P_L (``index``: the box image of row-major pixel indices)."""
     pad = np.pad(index, 1, constant_values=-1)
-    ys, xs = np.nonzero(index >= 0)
-    order = index[ys, xs]
-    stack = np.full((9, values.size), np.nan)
+    ys, xs = np.divmod(np.flatnonzero(index >= 0), index.shape[1])  # pixel k at (ys[k], xs[k])
+    ys, xs = ys[which] + 1, xs[which] + 1
+    stack = np.full((9, which.size), np.nan)
     for k, (dy, dx) in enumerate((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)):
-        j = pad[ys + 1 + dy, xs + 1 + dx]
-        stack[k, order] = np.where(j >= 0, values[j], np.nan)
-    return np.nanmedian(stack, axis=0)
+        j = pad[ys + dy, xs + dx]
+        stack[k] = np.where(j >= 0, values[j], np.nan)
+    stack.sort(axis=0)  # NaN last
+    n = np.count_nonzero(~np.isnan(stack), axis=0)  # >= 1: the pixel itself
+    cols = np.arange(which.size)
+    return 0.5 * (stack[(n - 1) // 2, cols] + stack[n // 2, cols])
 
 
 def _neighbour_pairs(index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
