@@ -21,6 +21,24 @@ minimiser of the same energy with the right image linearly interpolated between 
 disparities (closed form on [d_min-1, d_min] and [d_min, d_min+1]). With a 1 mm baseline one
 pixel of disparity is about 7-11 mm of depth, so integer disparities cannot reach millimetre
 accuracy. ``subpixel=False`` gives the paper's integer disparities.
+
+Deviation (``epipolar_deg > 0``, default 15 deg): continuity along near-epipolar runs. Where the
+thread runs within ``epipolar_deg`` of the image rows, shifting the match along the row hardly
+changes the SSD (the cost of Eq. (2) is flat along the epipolar line), and the sub-pixel minimum
+is set by image noise or by resampling errors of a rectified pair: a vertical error of e px
+moves it by about e / tan(theta). Each pixel's disparity has the least-squares variance
+sigma_d^2 = s^2 / sum(dI_R/dx)^2 (s^2: the residual per window pixel at the minimum, at least
+the two images' rounding noise). Pixels with sigma_d <= ``ANCHOR_PX`` or off near-epipolar runs
+keep their own disparity; the others take the MAP estimate of a membrane along the thread:
+minimise sum_p w_p (d_p - d_hat_p)^2 + sum_(p,q 8-neighbours) (d_p - d_q)^2 / tau^2 with
+w_p = 1 / (n sigma_d^2) and tau = ``continuity_px``, the anchors fixed (Dirichlet). n, the
+window side, counts the pixels along the thread that share one window's data (neighbouring
+estimates are not independent); data and membrane then both scale with the thread's width,
+so the smoothing length does not depend on it. A flat run then follows its
+well-conditioned ends and its own data where that is precise. Both terms are robust, over a few
+reweighted rounds started from the 3 x 3 median of d_hat: a pixel's own match is Cauchy-weighted
+(a gross mismatch stops pulling) and a link between neighbours Welsch-weighted at ``STRAND_PX``
+(another strand touching the run in the image, a few px of disparity away, is cut off). ``epipolar_deg=0`` (paper-strict: ``subpixel=false``) leaves Eq. (3)'s minimiser.
 """
 
 from __future__ import annotations
@@ -31,6 +49,9 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+from scipy import sparse
+from scipy.linalg import solveh_banded
+from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.params import Params, param
@@ -38,6 +59,11 @@ from threadrecon.core.segmentation import LIFT_VALUE, LiftedPair
 
 NEXT_GAP = 2  # Eq. (6) text: |d_next - d_min| > 2, neighbours of d_min have similar energies
 D_MAX = 4096  # largest disparity search range, px: a depth range that asks for more is an error
+ANCHOR_PX = 0.05  # px: a pixel whose disparity s.d. is below this keeps its own match
+ROUNDING_VAR = 1.0 / 6.0  # grey^2: two 8-bit roundings (1/12 each), the least residual per pixel
+ROBUST_PX = 0.5  # px: Cauchy scale of a pixel's own match (a gross mismatch stops pulling)
+STRAND_PX = 1.0  # px: Welsch scale of a neighbour's difference (another strand at a crossing)
+ROUNDS = 3  # reweighted least-squares rounds of the robust membrane
 
 
 @dataclass(frozen=True)
@@ -52,6 +78,28 @@ class StereoParams(Params):
     """Side of the square window g_p, px (odd)."""
     subpixel: bool = True
     """Refine d_min to sub-pixel precision (deviation, see module docstring)."""
+    epipolar_deg: float = param(
+        15.0,
+        lo=0.0,
+        hi=45.0,
+        unit="deg",
+        label="near-epipolar angle",
+        slider=(0.0, 45.0, 1.0),
+        doc="Thread runs within this angle of the image rows take their sub-pixel disparity "
+        "from continuity along the thread where their own match is imprecise "
+        "(module docstring; 0: off, each pixel's own minimum).",
+    )
+    continuity_px: float = param(
+        0.03,
+        lo=1e-4,
+        hi=10.0,
+        unit="px",
+        symbol="tau",
+        label="continuity tau",
+        slider=(0.005, 0.2, 0.005),
+        doc="Expected change of disparity between neighbouring thread pixels (the membrane's "
+        "tau), px: smaller smooths near-epipolar runs more.",
+    )
     z_near_mm: float | None = param(
         None,
         lo=1.0,
@@ -257,10 +305,19 @@ def match_stereo(
 
     disparity = d_min.astype(np.float64)
     if p.subpixel:
-        disparity = disparity + _subpixel_kernel(
+        step, ee, resid, count, tan2 = _subpixel_kernel(
             box.ry, box.rx, box.I_L_p, box.index, r, lifted.I_R, box.y0, box.x0, d_min, d_hi,
             LIFT_VALUE,
         )  # fmt: skip
+        disparity = disparity + step
+        if p.epipolar_deg > 0:
+            var = np.maximum(resid, count * ROUNDING_VAR) / np.maximum(count - 1, 1)
+            with np.errstate(divide="ignore"):
+                var = var / ee  # sigma_d^2, px^2 (inf where the cost has no slope)
+            free = (tan2 < math.tan(math.radians(p.epipolar_deg)) ** 2) & (var > ANCHOR_PX**2)
+            if free.any():
+                w = 1.0 / (p.window * var)
+                disparity = _continuity(box.index, disparity, w, free, p.continuity_px)
 
     points = _reproject(cols, rows, disparity, calib.Q)
     return StereoResult(
@@ -275,6 +332,82 @@ def match_stereo(
         shape=(H, W),
         d_range=(d_lo, d_hi),
     )._with_source(_EnergySource(lifted, p.window, d_lo, d_hi))
+
+
+def _continuity(
+    index: np.ndarray, d_hat: np.ndarray, w: np.ndarray, free: np.ndarray, tau: float
+) -> np.ndarray:
+    """Robust membrane MAP of the disparity on the ``free`` pixels (module docstring).
+
+    ``index``: (h, w) box image of pixel indices (-1 off P_L, row-major); ``d_hat``: (N,)
+    sub-pixel disparities, px; ``w``: (N,) data weights, 1/px^2; ``free``: (N,) bool, the pixels
+    solved for (the others are fixed at ``d_hat``). Returns the (N,) disparities."""
+    a, b = _neighbour_pairs(index)
+    touch = free[a] | free[b]
+    a, b = a[touch], b[touch]
+    fi = np.flatnonzero(free)
+    m = fi.size
+    pos = np.full(d_hat.size, -1, dtype=np.int64)
+    pos[fi] = np.arange(m)
+    fa, fb = free[a], free[b]
+    both, a_only, b_only = fa & fb, fa & ~fb, fb & ~fa
+    pa, pb = pos[a], pos[b]
+    # The matrix is a thin band once its pixels are in reverse Cuthill-McKee order (the thread
+    # is a few px wide): a banded Cholesky per round, the order and band layout computed once.
+    ia, ib = pa[both], pb[both]
+    pattern = sparse.csr_matrix((np.ones(ia.size), (ia, ib)), shape=(m, m))
+    perm = reverse_cuthill_mckee((pattern + pattern.T).tocsr(), symmetric_mode=True)
+    rank = np.empty(m, dtype=np.int64)
+    rank[perm] = np.arange(m)
+    ra, rb = rank[ia], rank[ib]
+    lo, hi = np.minimum(ra, rb), np.maximum(ra, rb)
+    band = int((hi - lo).max()) if hi.size else 0
+    d = d_hat.copy()
+    d[fi] = _local_median(index, d_hat, fi)  # a start that neither a mismatch nor noise moves
+    for _ in range(ROUNDS):
+        rho = w[fi] / (1.0 + ((d_hat[fi] - d[fi]) / ROBUST_PX) ** 2)  # Cauchy IRLS weights
+        e = np.exp(-(((d[a] - d[b]) / STRAND_PX) ** 2)) / tau**2  # Welsch: strands part
+        diag = rho + 1e-9  # ridge: a run with no data and no anchor keeps a solution
+        diag += np.bincount(pa[fa], e[fa], m) + np.bincount(pb[fb], e[fb], m)
+        rhs = rho * d_hat[fi]
+        rhs += np.bincount(pa[a_only], e[a_only] * d_hat[b[a_only]], m)
+        rhs += np.bincount(pb[b_only], e[b_only] * d_hat[a[b_only]], m)
+        ab = np.zeros((band + 1, m))  # upper band form of solveh_banded, permuted order
+        ab[band, rank] = diag
+        np.add.at(ab, (band + lo - hi, hi), -e[both])
+        x = solveh_banded(ab, rhs[perm])
+        d[fi] = x[rank]
+    return d
+
+
+def _local_median(index: np.ndarray, values: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """(len(which),) median of ``values`` over the pixels ``which`` of P_L and their
+    8-neighbours in P_L (``index``: the box image of row-major pixel indices)."""
+    pad = np.pad(index, 1, constant_values=-1)
+    ys, xs = np.divmod(np.flatnonzero(index >= 0), index.shape[1])  # pixel k at (ys[k], xs[k])
+    ys, xs = ys[which] + 1, xs[which] + 1
+    stack = np.full((9, which.size), np.nan)
+    for k, (dy, dx) in enumerate((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)):
+        j = pad[ys + dy, xs + dx]
+        stack[k] = np.where(j >= 0, values[j], np.nan)
+    stack.sort(axis=0)  # NaN last
+    n = np.count_nonzero(~np.isnan(stack), axis=0)  # >= 1: the pixel itself
+    cols = np.arange(which.size)
+    return 0.5 * (stack[(n - 1) // 2, cols] + stack[n // 2, cols])
+
+
+def _neighbour_pairs(index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(E,) index pairs of 8-connected pixels of P_L in the box image ``index``, each once."""
+    h, w = index.shape
+    out_a, out_b = [], []
+    for dy, dx in ((0, 1), (1, -1), (1, 0), (1, 1)):
+        x0, x1 = max(0, -dx), w - max(0, dx)
+        ia = index[0 : h - dy, x0:x1]
+        ib = index[dy:h, x0 + dx : x1 + dx]
+        keep = (ia >= 0) & (ib >= 0)
+        out_a.append(ia[keep])
+        out_b.append(ib[keep])
+    return np.concatenate(out_a).astype(np.int64), np.concatenate(out_b).astype(np.int64)
 
 
 def reproject(x: np.ndarray, y: np.ndarray, disparity: np.ndarray, Q: np.ndarray) -> np.ndarray:
@@ -388,14 +521,25 @@ def _best_two(e, d_lo, gap):  # noqa: ANN001
 
 @numba.njit(cache=True, nogil=True)
 def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  # noqa: ANN001
-    """Exact minimiser of Eq. (2) on [d_min - 1, d_min + 1], I_R linearly interpolated."""
+    """Exact minimiser of Eq. (2) on [d_min - 1, d_min + 1], I_R linearly interpolated.
+
+    Returns, per pixel: the step from d_min, px; the cost's curvature sum(dI_R/dd)^2 (the mean
+    of the two one-sided ones), grey^2/px^2; the energy at the minimum, grey^2; the number of
+    window pixels |g_p|; and tan^2 of the thread's angle to the rows, sum(I_x^2) / sum(I_y^2)
+    of I_R's central differences at the match (inf without vertical structure)."""
     n = ry.size
     h, w = index.shape
-    W = I_R.shape[1]
+    H, W = I_R.shape
     out = np.zeros(n)
+    curv = np.zeros(n)
+    resid = np.zeros(n)
+    count = np.zeros(n)
+    tan2 = np.zeros(n)
     for i in range(n):
         yi, xi, di = ry[i], rx[i], d_min[i]
         E0 = 0.0
+        cnt = 0
+        gxx = gyy = 0.0
         ce_p = ee_p = ce_m = ee_m = 0.0
         for yy in range(max(0, yi - r), min(h, yi + r + 1)):
             for xx in range(max(0, xi - r), min(w, xi + r + 1)):
@@ -407,8 +551,13 @@ def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  
                 a = float(I_R[row, xb]) if 0 <= xb < W else lift
                 c = I_L_p[j] - a
                 E0 += c * c
+                cnt += 1
                 ap = float(I_R[row, xb - 1]) if 0 <= xb - 1 < W else lift  # d_min + 1
                 am = float(I_R[row, xb + 1]) if 0 <= xb + 1 < W else lift  # d_min - 1
+                up = float(I_R[row - 1, xb]) if 0 <= xb < W and row >= 1 else lift
+                dn = float(I_R[row + 1, xb]) if 0 <= xb < W and row + 1 < H else lift
+                gxx += 0.25 * (ap - am) ** 2
+                gyy += 0.25 * (dn - up) ** 2
                 ep, em = ap - a, am - a
                 ce_p += c * ep
                 ee_p += ep * ep
@@ -425,4 +574,8 @@ def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  
                 best_t, best_E = sign * t, E_t
             best_E = min(E_t, best_E)
         out[i] = best_t
-    return out
+        curv[i] = 0.5 * (ee_p + ee_m)
+        resid[i] = best_E
+        count[i] = cnt
+        tan2[i] = gxx / gyy if gyy > 0 else np.inf
+    return out, curv, resid, count, tan2

@@ -1,7 +1,7 @@
 """Raw calibrated pairs vs rectified input: e_S of each, per generated frame.
 
     python scripts/measure_raw_rig.py [FIRST_SEED LAST_SEED] [--no-masks] [--blur PX]
-        [--views resample] [--control-noise SIGMA]
+        [--views resample] [--control-noise SIGMA] [--set STAGE.NAME=VALUE ...] [--pixels]
 
 Each seed's frame is seen by rotated, distorting cameras (tests/rig_support.py): the thread
 rendered directly in each raw camera (default), or the rectified pair resampled into the raw
@@ -13,6 +13,11 @@ result of the same frame is the reference.
 ``--control-noise SIGMA`` replaces the raw rig by the rectified input itself with i.i.d. pixel
 noise of SIGMA grey levels (same thread, same masks, no rectification): how far the pipeline
 moves under a perturbation of that size, the floor the raw rig is measured against.
+
+``--set`` changes a parameter of both runs (e.g. ``--set stereo.epipolar_deg=0``: no continuity
+along near-epipolar runs). ``--pixels`` adds, per frame, the stereo stage's disparity error
+against the true centreline's (RMS, px) by the thread's angle to the image rows, for the
+rectified input and the raw rig (or noisy input): where on the thread disparity moves.
 """
 
 from __future__ import annotations
@@ -27,9 +32,13 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from rig_support import RAW_MARGIN_PX, raw_rig  # noqa: E402
+from scipy.spatial import cKDTree  # noqa: E402
 
+from threadrecon.app.bench import parse_overrides  # noqa: E402
+from threadrecon.app.presets import validate  # noqa: E402
+from threadrecon.core.calibration import StereoCalibration  # noqa: E402
 from threadrecon.core.metrics import curve_errors  # noqa: E402
-from threadrecon.core.pipeline import reconstruct  # noqa: E402
+from threadrecon.core.pipeline import ReconParams, Reconstruction, reconstruct  # noqa: E402
 from threadrecon.core.rectify import rectification, rectify_pair, to_left_frame  # noqa: E402
 from threadrecon.core.segmentation import StereoPair  # noqa: E402
 from threadrecon.core.synthetic import (  # noqa: E402
@@ -61,26 +70,38 @@ def main() -> None:
         metavar="SIGMA",
         help="instead of the raw rig: the rectified input with i.i.d. noise, grey levels",
     )
+    parser.add_argument(
+        "--set", action="append", default=[], metavar="STAGE.NAME=VALUE", help="a parameter"
+    )
+    parser.add_argument(
+        "--pixels", action="store_true", help="disparity error by thread angle, per frame"
+    )
     args = parser.parse_args()
+    data = ReconParams().to_dict()
+    for stage, values in parse_overrides(args.set).items():
+        data[stage].update(values)
+    params = validate(data)
     diffs = []
     for seed in range(args.first, args.last + 1):
         rig = raw_rig(seed, views=args.views, blur_sigma=args.blur)
         reference = rig.reference
-        ref = reconstruct(_images_only(reference, args.no_masks), rig.reference_calib)
+        ref = reconstruct(_images_only(reference, args.no_masks), rig.reference_calib, params)
         if args.control_noise is None:
             rect = rectification(rig.calib)
             raw = _images_only(rig.pair, args.no_masks)
-            rec = reconstruct(rectify_pair(raw, rect), rect.calib)
+            rec = reconstruct(rectify_pair(raw, rect), rect.calib, params)
             points = to_left_frame(rec["camera"].points, rect) if rec.status == "ok" else None
             truth = rig.truth_left
+            rec_calib, rec_truth = rect.calib, truth @ rect.R1.T  # the rectified left frame
         else:
             render = RenderParams(blur_sigma=args.blur, noise_sigma=args.control_noise)
             thread = ThreadParams(margin_px=RAW_MARGIN_PX)
             noisy = generate_frame(SyntheticParams(thread=thread, render=render), rng=seed)
             pair = StereoPair(noisy.left, noisy.right, reference.mask_left, reference.mask_right)
-            rec = reconstruct(_images_only(pair, args.no_masks), rig.reference_calib)
+            rec = reconstruct(_images_only(pair, args.no_masks), rig.reference_calib, params)
             points = rec["camera"].points if rec.status == "ok" else None
             truth = rig.frame.truth.centerline
+            rec_calib, rec_truth = rig.reference_calib, truth
         if ref.status != "ok" or points is None:
             print(f"seed {seed}: failed ({ref.message or rec.message})")
             continue
@@ -92,11 +113,45 @@ def main() -> None:
             f"seed {seed}: e_S rectified input {e_ref:.3f} mm, {what} {e_raw:.3f} mm, "
             f"|difference| {abs(e_raw - e_ref):.3f} mm"
         )
+        if args.pixels:
+            for name, run, calib, centreline in (
+                ("rectified input", ref, rig.reference_calib, rig.frame.truth.centerline),
+                (what, rec, rec_calib, rec_truth),
+            ):
+                print(
+                    f"    {name:15s} disparity RMS error, px, " + _by_angle(run, calib, centreline)
+                )
     d = np.array(diffs)
     print(
         f"|difference| median {np.median(d):.3f} mm, max {d.max():.3f} mm, "
         f"within 0.1 mm on {(d < 0.1).sum()} of {len(d)} frames"
     )
+
+
+ANGLES = (0.0, 3.0, 6.0, 10.0, 15.0, 30.0, 90.1)  # deg: classes of the thread's angle to the rows
+
+
+def _by_angle(run: Reconstruction, calib: StereoCalibration, centreline: np.ndarray) -> str:
+    """The stereo stage's disparity error against the true centreline's (the nearest projected
+    centreline point of each pixel, rectified left frame), RMS per class of the thread's angle
+    to the image rows there; pixels more than 3 px off the projection are left out."""
+    stereo = run["stereo"]
+    K = calib.K1
+    fB = calib.focal * calib.baseline
+    z = centreline[:, 2]
+    uv = np.stack(
+        [K[0, 0] * centreline[:, 0] / z + K[0, 2], K[1, 1] * centreline[:, 1] / z + K[1, 2]], 1
+    )
+    dist, j = cKDTree(uv).query(stereo.pixels.astype(float))
+    tangent = np.gradient(uv, axis=0)[j]
+    angle = np.degrees(np.arctan2(np.abs(tangent[:, 1]), np.abs(tangent[:, 0])))
+    err = stereo.disparity - fB / z[j]
+    out = []
+    for lo, hi in zip(ANGLES[:-1], ANGLES[1:], strict=True):
+        m = (angle >= lo) & (angle < hi) & (dist <= 3.0)
+        rms = f"{np.sqrt(np.mean(err[m] ** 2)):.3f}" if m.any() else "-"
+        out.append(f"{lo:g}-{min(hi, 90):g} deg {rms} ({m.sum()})")
+    return ", ".join(out)
 
 
 def _images_only(pair: StereoPair, no_masks: bool) -> StereoPair:
