@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.ends import fuse_end
 from threadrecon.core.ordering import OUTLIER_PX, Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.stereo import StereoResult
@@ -104,6 +105,7 @@ def depth_bounds(
     r_k = max(p.r_k_min, int(round(p.r_k_frac * n_kp)))
     z_fit = _fit_depths(H, is_key, s, key_idx, fB) if p.drop_outliers else H[:, 2]
     line_at_key, slopes = _window_line_fits(s, z_fit, key_idx, r_k)
+    line_at_key = _tip_ends(line_at_key, ordering.end_disparity, s, z_fit, key_idx, r_k, fB)
     half = p.bound_scale * np.abs(line_at_key - z_key)  # Eq. (7)
     min_half = p.widen_px * z_key**2 / (calib.focal * calib.baseline)
     half = np.maximum(half, min_half)
@@ -120,6 +122,52 @@ def depth_bounds(
         end_slopes=(float(slopes[0]), float(slopes[-1])),
         r_k=r_k,
     )
+
+
+def _tip_ends(
+    line_at_key: np.ndarray,
+    end_disparity: np.ndarray,
+    s: np.ndarray,
+    z: np.ndarray,
+    key_idx: np.ndarray,
+    r_k: int,
+    fB: float,
+) -> np.ndarray:
+    """L_{k_1}, L_{k_n} (Eq. (8)'s end values, and Eq. (7)'s lines at the end keypoints) fused
+    with the depth of the tip matched in both views (``Ordering.end_disparity``, core/ends.py),
+    each weighted by its inverse variance: the line's from its window's residuals, the tip's
+    from its match. The other keypoints' lines are returned unchanged."""
+    out = line_at_key.copy()
+    M = len(key_idx)
+    for row, i in ((0, 0), (1, M - 1)):
+        d, var_d = end_disparity[row]
+        if not (np.isfinite(d) and d > 0 and np.isfinite(var_d)):
+            continue
+        z_tip = fB / d
+        var_tip = var_d * (z_tip * z_tip / fB) ** 2  # dz = z^2 / (f B) dd
+        lo = key_idx[max(0, i - r_k)]
+        hi = key_idx[min(M - 1, i + r_k)] + 1
+        var_line = _line_variance(s[lo:hi], z[lo:hi], s[key_idx[i]])
+        out[i] = fuse_end(float(line_at_key[i]), var_line, z_tip, var_tip)[0]
+    return out
+
+
+def _line_variance(s: np.ndarray, z: np.ndarray, s_at: float) -> float:
+    """Variance of a least-squares line z = a + b s through the finite (s, z), evaluated at
+    ``s_at``, from its residuals (inf with fewer than 3 points: no residual to judge by)."""
+    ok = np.isfinite(z)
+    s, z = s[ok], z[ok]
+    n = len(s)
+    if n < 3:
+        return float("inf")
+    sc = s - s.mean()
+    sxx = float(sc @ sc)
+    if sxx <= 0:
+        return float("inf")
+    b = float(sc @ (z - z.mean())) / sxx
+    res = z - z.mean() - b * sc
+    sigma2 = float(res @ res) / (n - 2)
+    return sigma2 * (1.0 / n + (s_at - s.mean()) ** 2 / sxx)
 
 
 def _fit_depths(
