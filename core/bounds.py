@@ -105,7 +105,9 @@ def depth_bounds(
     r_k = max(p.r_k_min, int(round(p.r_k_frac * n_kp)))
     z_fit = _fit_depths(H, is_key, s, key_idx, fB) if p.drop_outliers else H[:, 2]
     line_at_key, slopes = _window_line_fits(s, z_fit, key_idx, r_k)
-    line_at_key = _tip_ends(line_at_key, ordering.end_disparity, s, z_fit, key_idx, r_k, fB)
+    line_at_key, slopes = _tip_ends(
+        line_at_key, slopes, ordering.end_disparity, s, z_fit, key_idx, r_k, fB
+    )
     half = p.bound_scale * np.abs(line_at_key - z_key)  # Eq. (7)
     min_half = p.widen_px * z_key**2 / (calib.focal * calib.baseline)
     half = np.maximum(half, min_half)
@@ -126,18 +128,21 @@ def depth_bounds(
 
 def _tip_ends(
     line_at_key: np.ndarray,
+    slopes: np.ndarray,
     end_disparity: np.ndarray,
     s: np.ndarray,
     z: np.ndarray,
     key_idx: np.ndarray,
     r_k: int,
     fB: float,
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """L_{k_1}, L_{k_n} (Eq. (8)'s end values, and Eq. (7)'s lines at the end keypoints) fused
     with the depth of the tip matched in both views (``Ordering.end_disparity``, core/ends.py),
     each weighted by its inverse variance: the line's from its window's residuals, the tip's
-    from its match. The other keypoints' lines are returned unchanged."""
-    out = line_at_key.copy()
+    from its match. The end's slope is then the window's least-squares line through the fused
+    end value (the line's own slope belongs to its own end value). The other keypoints' lines
+    and slopes are returned unchanged."""
+    out, out_slope = line_at_key.copy(), slopes.copy()
     M = len(key_idx)
     for row, i in ((0, 0), (1, M - 1)):
         d, var_d = end_disparity[row]
@@ -147,9 +152,15 @@ def _tip_ends(
         var_tip = var_d * (z_tip * z_tip / fB) ** 2  # dz = z^2 / (f B) dd
         lo = key_idx[max(0, i - r_k)]
         hi = key_idx[min(M - 1, i + r_k)] + 1
-        var_line = _line_variance(s[lo:hi], z[lo:hi], s[key_idx[i]])
+        s_end = s[key_idx[i]]
+        var_line = _line_variance(s[lo:hi], z[lo:hi], s_end)
         out[i] = fuse_end(float(line_at_key[i]), var_line, z_tip, var_tip)[0]
-    return out
+        ds, dz = s[lo:hi] - s_end, z[lo:hi] - out[i]
+        ok = np.isfinite(dz)
+        sxx = float(ds[ok] @ ds[ok])
+        if sxx > 0:
+            out_slope[i] = float(ds[ok] @ dz[ok]) / sxx
+    return out, out_slope
 
 
 def _line_variance(s: np.ndarray, z: np.ndarray, s_at: float) -> float:
