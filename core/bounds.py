@@ -103,10 +103,11 @@ def depth_bounds(
 
     n_kp = int(np.sum(ordering.order >= 0))
     r_k = max(p.r_k_min, int(round(p.r_k_frac * n_kp)))
-    z_fit = _fit_depths(H, is_key, s, key_idx, fB) if p.drop_outliers else H[:, 2]
+    z_rel = _fit_depths(H, is_key, s, key_idx, fB)  # extra points matched elsewhere: NaN
+    z_fit = z_rel if p.drop_outliers else H[:, 2]
     line_at_key, slopes = _window_line_fits(s, z_fit, key_idx, r_k)
     line_at_key, slopes = _tip_ends(
-        line_at_key, slopes, ordering.end_disparity, s, z_fit, key_idx, r_k, fB
+        line_at_key, slopes, ordering.end_disparity, s, z_rel, key_idx, r_k, fB
     )
     half = p.bound_scale * np.abs(line_at_key - z_key)  # Eq. (7)
     min_half = p.widen_px * z_key**2 / (calib.focal * calib.baseline)
@@ -138,8 +139,8 @@ def _tip_ends(
 ) -> tuple[np.ndarray, np.ndarray]:
     """L_{k_1}, L_{k_n} (Eq. (8)'s end values, and Eq. (7)'s lines at the end keypoints) fused
     with the depth of the tip matched in both views (``Ordering.end_disparity``, core/ends.py),
-    each weighted by its inverse variance: the line's from its window's residuals, the tip's
-    from its match. The end's slope is then the window's least-squares line through the fused
+    each weighted by its inverse variance: the line's from its window's residuals and its
+    distance from the end keypoint's depth, the tip's from its match. The end's slope is then the window's least-squares line through the fused
     end value (the line's own slope belongs to its own end value). The other keypoints' lines
     and slopes are returned unchanged."""
     out, out_slope = line_at_key.copy(), slopes.copy()
@@ -153,7 +154,11 @@ def _tip_ends(
         lo = key_idx[max(0, i - r_k)]
         hi = key_idx[min(M - 1, i + r_k)] + 1
         s_end = s[key_idx[i]]
-        var_line = _line_variance(s[lo:hi], z[lo:hi], s_end)
+        # The line's variance: its fit's, plus Eq. (7)'s own measure of doubt at a keypoint,
+        # the line's distance from the keypoint's depth (an extra point matched elsewhere
+        # pulls an extrapolated line by metres while its residuals stay moderate).
+        doubt = float(line_at_key[i] - z[key_idx[i]])
+        var_line = _line_variance(s[lo:hi], z[lo:hi], s_end) + doubt * doubt
         out[i] = fuse_end(float(line_at_key[i]), var_line, z_tip, var_tip)[0]
         ds, dz = s[lo:hi] - s_end, z[lo:hi] - out[i]
         ok = np.isfinite(dz)
