@@ -8,7 +8,7 @@ from support import synthetic_case
 
 from threadrecon.core.bounds import _line_variance, _tip_ends, _window_line_fits
 from threadrecon.core.ends import NO_MATCH, QUANT_VAR, fuse_end, tip_disparity
-from threadrecon.core.ordering import OrderingParams
+from threadrecon.core.ordering import OrderingParams, _window_is_own
 from threadrecon.core.pipeline import Pipeline, ReconParams
 
 
@@ -112,3 +112,23 @@ def test_end_window_zero_is_the_papers_extension() -> None:
     b_off = rec_off["bounds"]
     line, _ = _window_line_fits(b_off.s, b_off.H[:, 2], np.flatnonzero(b_off.is_key), b_off.r_k)
     assert b_off.end_values == (float(line[0]), float(line[-1]))
+
+
+def test_a_tip_window_holding_another_strand_is_not_matched() -> None:
+    # Keypoints 0, 1, 2 run from the tip at (10, 10) along +x; keypoint 3 is far along the walk
+    # (its strand crosses near the tip). Pixels: clusters 0 and 1 by the tip, gap node K + 0
+    # between 0 and 1, and a pixel of keypoint 3 inside the window or outside it.
+    K = 4
+    key_px = np.array([[12.0, 10.0, 1.0], [18.0, 10.0, 1.0], [60.0, 10.0, 1.0], [40.0, 40.0, 1.0]])
+    seq = [0, 1, 2, 3]
+    gaps = {0: {K}, 1: {K}}
+    tip = np.array([10.0, 10.0])
+    pixels = np.array([[10, 10], [12, 10], [15, 10], [18, 10]])
+    nodes = np.array([0, 0, K, 1])
+    assert _window_is_own(pixels, nodes, K, seq, key_px, gaps, tip, 7)
+    crossing = (np.vstack([pixels, [[13, 14]]]), np.append(nodes, 3))
+    assert not _window_is_own(*crossing, K, seq, key_px, gaps, tip, 7)
+    outside = (np.vstack([pixels, [[13, 30]]]), np.append(nodes, 3))
+    assert _window_is_own(*outside, K, seq, key_px, gaps, tip, 7)
+    foreign_gap = (np.vstack([pixels, [[13, 14]]]), np.append(nodes, K + 1))
+    assert not _window_is_own(*foreign_gap, K, seq, key_px, gaps, tip, 7)
