@@ -76,6 +76,10 @@ class Bounds:
     end_values: tuple[float, float]
     end_slopes: tuple[float, float]
     r_k: int
+    line_ends: tuple[float, float, float, float] | None = None
+    """(L_{k_1}, its slope, L_{k_n}, its slope) of the window lines alone (the paper's end
+    constraints) when a tip matched in both views moved ``end_values`` (deviation 22), else
+    None; the spline falls back to them when the tips' make Eq. (8) infeasible."""
 
 
 def depth_bounds(
@@ -106,9 +110,11 @@ def depth_bounds(
     z_rel = _fit_depths(H, is_key, s, key_idx, fB)  # extra points matched elsewhere: NaN
     z_fit = z_rel if p.drop_outliers else H[:, 2]
     line_at_key, slopes = _window_line_fits(s, z_fit, key_idx, r_k)
+    paper_ends = (line_at_key[0], slopes[0], line_at_key[-1], slopes[-1])
     line_at_key, slopes = _tip_ends(
         line_at_key, slopes, ordering.end_disparity, s, z_rel, key_idx, r_k, fB
     )
+    tipped = (line_at_key[0], slopes[0], line_at_key[-1], slopes[-1]) != paper_ends
     half = p.bound_scale * np.abs(line_at_key - z_key)  # Eq. (7)
     min_half = p.widen_px * z_key**2 / (calib.focal * calib.baseline)
     half = np.maximum(half, min_half)
@@ -124,6 +130,7 @@ def depth_bounds(
         end_values=(float(line_at_key[0]), float(line_at_key[-1])),
         end_slopes=(float(slopes[0]), float(slopes[-1])),
         r_k=r_k,
+        line_ends=tuple(float(v) for v in paper_ends) if tipped else None,  # type: ignore[arg-type]
     )
 
 

@@ -44,6 +44,9 @@ def _reversed(b: Bounds) -> Bounds:
         upper=b.upper[::-1].copy(),
         end_values=(b.end_values[1], b.end_values[0]),
         end_slopes=(-b.end_slopes[1], -b.end_slopes[0]),
+        line_ends=None
+        if b.line_ends is None
+        else (b.line_ends[2], -b.line_ends[3], b.line_ends[0], -b.line_ends[1]),
     )
 
 
