@@ -324,6 +324,7 @@ def test_contradictory_endpoint_slopes_are_relaxed_or_reported_infeasible() -> N
         b,
         end_values=(float(b.centre[0]), float(b.centre[-1])),
         end_slopes=(20.0 * float(half.max()), b.end_slopes[1]),  # per px: leaves at once
+        line_ends=None,  # no tip's values to fall back from (deviation 22)
     )
     strict = fit_spline(tight, calib, SplineParams(relax_slopes=False))
     assert strict.status == "infeasible" and not strict.ok
@@ -333,6 +334,20 @@ def test_contradictory_endpoint_slopes_are_relaxed_or_reported_infeasible() -> N
     assert relaxed.status == "ok", relaxed.message
     assert "relaxed" in relaxed.message
     assert relaxed.max_violation <= SplineParams().bound_tol
+
+
+def test_infeasible_tip_end_values_fall_back_to_the_window_lines() -> None:
+    # Deviation 22: an end value from a tip that no spline inside the bounds can reach (far
+    # outside the next points' bounds) gives way to the window lines' own end constraints.
+    b, calib = _bounds(2)
+    half = 0.5 * (b.upper - b.lower)
+    paper = (b.end_values[0], b.end_slopes[0], b.end_values[1], b.end_slopes[1])
+    tipped = replace(b, end_values=(float(b.centre[0]) + 50.0 * float(half.max()), b.end_values[1]))
+    assert fit_spline(replace(tipped, line_ends=None), calib).status == "infeasible"
+    sp = fit_spline(replace(tipped, line_ends=paper), calib)
+    assert sp.status == "ok", sp.message
+    assert "window lines' end values" in sp.message
+    assert_close(sp.ctrl, fit_spline(replace(b, line_ends=None), calib).ctrl)
 
 
 def test_a_border_keypoint_with_a_cut_search_takes_its_neighbours_depth() -> None:
