@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.ends import fuse_end
 from threadrecon.core.ordering import OUTLIER_PX, Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.stereo import StereoResult
@@ -75,6 +76,10 @@ class Bounds:
     end_values: tuple[float, float]
     end_slopes: tuple[float, float]
     r_k: int
+    line_ends: tuple[float, float, float, float] | None = None
+    """(L_{k_1}, its slope, L_{k_n}, its slope) of the window lines alone (the paper's end
+    constraints) when a tip matched in both views moved ``end_values`` (deviation 23), else
+    None; the spline falls back to them when the tips' make Eq. (8) infeasible."""
 
 
 def depth_bounds(
@@ -102,8 +107,14 @@ def depth_bounds(
 
     n_kp = int(np.sum(ordering.order >= 0))
     r_k = max(p.r_k_min, int(round(p.r_k_frac * n_kp)))
-    z_fit = _fit_depths(H, is_key, s, key_idx, fB) if p.drop_outliers else H[:, 2]
+    z_rel = _fit_depths(H, is_key, s, key_idx, fB)  # extra points matched elsewhere: NaN
+    z_fit = z_rel if p.drop_outliers else H[:, 2]
     line_at_key, slopes = _window_line_fits(s, z_fit, key_idx, r_k)
+    paper_ends = (line_at_key[0], slopes[0], line_at_key[-1], slopes[-1])
+    line_at_key, slopes = _tip_ends(
+        line_at_key, slopes, ordering.end_disparity, s, z_rel, key_idx, r_k, fB
+    )
+    tipped = (line_at_key[0], slopes[0], line_at_key[-1], slopes[-1]) != paper_ends
     half = p.bound_scale * np.abs(line_at_key - z_key)  # Eq. (7)
     min_half = p.widen_px * z_key**2 / (calib.focal * calib.baseline)
     half = np.maximum(half, min_half)
@@ -119,7 +130,67 @@ def depth_bounds(
         end_values=(float(line_at_key[0]), float(line_at_key[-1])),
         end_slopes=(float(slopes[0]), float(slopes[-1])),
         r_k=r_k,
+        line_ends=tuple(float(v) for v in paper_ends) if tipped else None,  # type: ignore[arg-type]
     )
+
+
+def _tip_ends(
+    line_at_key: np.ndarray,
+    slopes: np.ndarray,
+    end_disparity: np.ndarray,
+    s: np.ndarray,
+    z: np.ndarray,
+    key_idx: np.ndarray,
+    r_k: int,
+    fB: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """L_{k_1}, L_{k_n} (Eq. (8)'s end values, and Eq. (7)'s lines at the end keypoints) fused
+    with the depth of the tip matched in both views (``Ordering.end_disparity``, core/ends.py),
+    each weighted by its inverse variance: the line's from its window's residuals and its
+    distance from the end keypoint's depth, the tip's from its match. The end's slope is then the window's least-squares line through the fused
+    end value (the line's own slope belongs to its own end value). The other keypoints' lines
+    and slopes are returned unchanged."""
+    out, out_slope = line_at_key.copy(), slopes.copy()
+    M = len(key_idx)
+    for row, i in ((0, 0), (1, M - 1)):
+        d, var_d = end_disparity[row]
+        if not (np.isfinite(d) and d > 0 and np.isfinite(var_d)):
+            continue
+        z_tip = fB / d
+        var_tip = var_d * (z_tip * z_tip / fB) ** 2  # dz = z^2 / (f B) dd
+        lo = key_idx[max(0, i - r_k)]
+        hi = key_idx[min(M - 1, i + r_k)] + 1
+        s_end = s[key_idx[i]]
+        # The line's variance: its fit's, plus Eq. (7)'s own measure of doubt at a keypoint,
+        # the line's distance from the keypoint's depth (an extra point matched elsewhere
+        # pulls an extrapolated line by metres while its residuals stay moderate).
+        doubt = float(line_at_key[i] - z[key_idx[i]])
+        var_line = _line_variance(s[lo:hi], z[lo:hi], s_end) + doubt * doubt
+        out[i] = fuse_end(float(line_at_key[i]), var_line, z_tip, var_tip)[0]
+        ds, dz = s[lo:hi] - s_end, z[lo:hi] - out[i]
+        ok = np.isfinite(dz)
+        sxx = float(ds[ok] @ ds[ok])
+        if sxx > 0:
+            out_slope[i] = float(ds[ok] @ dz[ok]) / sxx
+    return out, out_slope
+
+
+def _line_variance(s: np.ndarray, z: np.ndarray, s_at: float) -> float:
+    """Variance of a least-squares line z = a + b s through the finite (s, z), evaluated at
+    ``s_at``, from its residuals (inf with fewer than 3 points: no residual to judge by)."""
+    ok = np.isfinite(z)
+    s, z = s[ok], z[ok]
+    n = len(s)
+    if n < 3:
+        return float("inf")
+    sc = s - s.mean()
+    sxx = float(sc @ sc)
+    if sxx <= 0:
+        return float("inf")
+    b = float(sc @ (z - z.mean())) / sxx
+    res = z - z.mean() - b * sc
+    sigma2 = float(res @ res) / (n - 2)
+    return sigma2 * (1.0 / n + (s_at - s.mean()) ** 2 / sxx)
 
 
 def _fit_depths(

@@ -160,6 +160,10 @@ def fit_spline(
     problem = _Problem(mvs, scale, Bd, np.sqrt(w_d), bounds.centre, A / zs, lo_c / zs, hi_c / zs)
 
     sol = problem.solve(b0, E / zs, e_rhs / zs, p.max_iter)
+    untipped = sol.status == "infeasible" and bounds.line_ends is not None
+    if untipped:  # a tip's end value (deviation 23) against tight bounds: the lines' (paper)
+        e_rhs = np.asarray(bounds.line_ends) / np.array([1.0, st.du_ds, 1.0, st.du_ds])
+        sol = problem.solve(b0, E / zs, e_rhs / zs, p.max_iter)
     relaxed = False
     if sol.status == "infeasible" and p.relax_slopes:
         # The endpoint slopes of L_{k_1}, L_{k_n} can contradict tight bounds next to the ends
@@ -183,6 +187,7 @@ def fit_spline(
     ctrl = ctrl_init.copy()
     ctrl[:, 2] = b
     msg = sol.message + (" (endpoint slope constraints relaxed)" if relaxed else "")
+    msg += " (the window lines' end values: the tips' were infeasible)" if untipped else ""
     return SplineResult(
         t_xy,
         final(ctrl),
@@ -224,6 +229,7 @@ class _Setup:
     A: np.ndarray
     E: np.ndarray
     e_rhs: np.ndarray
+    du_ds: float  # u per unit of H's arc length s (the end slopes' scale)
 
     def final(self, c: np.ndarray) -> np.ndarray:
         """Control points on the knots of the result: S_x, S_y refined, S_z re-expressed."""
@@ -307,6 +313,7 @@ def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) ->
         A,
         E,
         e_rhs,
+        du_ds,
     )
 
 

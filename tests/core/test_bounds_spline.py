@@ -18,6 +18,7 @@ from threadrecon.core.bounds import (
 )
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import to_camera
+from threadrecon.core.ordering import OrderingParams
 from threadrecon.core.pipeline import Pipeline, ReconParams
 from threadrecon.core.spline import SplineParams, SplineResult, _Mvs, fit_spline
 
@@ -43,6 +44,9 @@ def _reversed(b: Bounds) -> Bounds:
         upper=b.upper[::-1].copy(),
         end_values=(b.end_values[1], b.end_values[0]),
         end_slopes=(-b.end_slopes[1], -b.end_slopes[0]),
+        line_ends=None
+        if b.line_ends is None
+        else (b.line_ends[2], -b.line_ends[3], b.line_ends[0], -b.line_ends[1]),
     )
 
 
@@ -320,6 +324,7 @@ def test_contradictory_endpoint_slopes_are_relaxed_or_reported_infeasible() -> N
         b,
         end_values=(float(b.centre[0]), float(b.centre[-1])),
         end_slopes=(20.0 * float(half.max()), b.end_slopes[1]),  # per px: leaves at once
+        line_ends=None,  # no tip's values to fall back from (deviation 23)
     )
     strict = fit_spline(tight, calib, SplineParams(relax_slopes=False))
     assert strict.status == "infeasible" and not strict.ok
@@ -329,6 +334,20 @@ def test_contradictory_endpoint_slopes_are_relaxed_or_reported_infeasible() -> N
     assert relaxed.status == "ok", relaxed.message
     assert "relaxed" in relaxed.message
     assert relaxed.max_violation <= SplineParams().bound_tol
+
+
+def test_infeasible_tip_end_values_fall_back_to_the_window_lines() -> None:
+    # Deviation 22: an end value from a tip that no spline inside the bounds can reach (far
+    # outside the next points' bounds) gives way to the window lines' own end constraints.
+    b, calib = _bounds(2)
+    half = 0.5 * (b.upper - b.lower)
+    paper = (b.end_values[0], b.end_slopes[0], b.end_values[1], b.end_slopes[1])
+    tipped = replace(b, end_values=(float(b.centre[0]) + 50.0 * float(half.max()), b.end_values[1]))
+    assert fit_spline(replace(tipped, line_ends=None), calib).status == "infeasible"
+    sp = fit_spline(replace(tipped, line_ends=paper), calib)
+    assert sp.status == "ok", sp.message
+    assert "window lines' end values" in sp.message
+    assert_close(sp.ctrl, fit_spline(replace(b, line_ends=None), calib).ctrl)
 
 
 def test_a_border_keypoint_with_a_cut_search_takes_its_neighbours_depth() -> None:
@@ -375,10 +394,16 @@ def test_dropping_outlying_extra_points_keeps_a_spirals_end_on_the_thread() -> N
         StereoPair(fr.left, fr.right, fr.mask_left, fr.mask_right), syn.camera.calibration()
     )
     err = {}
+    no_tip = OrderingParams(end_window_px=0)  # the end value from the window line alone
     for drop in (False, True):
-        rec = pipe.run(replace(ReconParams(), bounds=BP(drop_outliers=drop)))
+        rec = pipe.run(replace(ReconParams(), ordering=no_tip, bounds=BP(drop_outliers=drop)))
         err[drop] = curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max
     assert err[False] > 100.0 and err[True] < 2.0
+
+    # The tip matched in both views (deviation 23) doubts the line there on its own: the
+    # line lies metres from the end keypoint's depth.
+    rec = pipe.run(ReconParams())
+    assert curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max < 2.0
 
 
 def test_basis_derivatives_equal_scipys_derivative_spline_bit_for_bit() -> None:
