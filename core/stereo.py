@@ -29,10 +29,10 @@ import functools
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.compiled import helper, kernel
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LIFT_VALUE, LiftedPair
 
@@ -292,10 +292,14 @@ def _reproject(x: np.ndarray, y: np.ndarray, disparity: np.ndarray, Q: np.ndarra
 
 
 # --- compiled kernels ------------------------------------------------------------------------
-# cache=True: compiled once per machine (numba's cache beside this file), not once per process.
+# Compiled ahead of time once per machine, loaded without numba (core/compiled.py).
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(
+    "Tuple((float32[:, :], int64[:], int64[:], float64[:], float64[:]))(int64[:], int64[:], "
+    "float64[:], int32[:, :], int64, int64[:], int64[:], float64[:], int64, int64, int64, "
+    "float64, boolean)"
+)
 def _energy_kernel(ty, tx, I_L_p, index, r, q_ptr, q_col, q_val, x0, d_lo, d_hi, lift, store):  # noqa: ANN001
     """Eqs. (2)-(3) at the pixels (ty, tx) of P_L: d_min, d_next, E_min, E_next, and with
     ``store`` the (T, d_hi+1) float32 energy E(d, p) (else a (0, d_hi+1) array, and only
@@ -343,7 +347,7 @@ def _energy_kernel(ty, tx, I_L_p, index, r, q_ptr, q_col, q_val, x0, d_lo, d_hi,
     return out, d_min, d_next, E_min, E_next
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@helper(inline="always")
 def _add_column(
     xx, yi, sign, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_from, d_hi, acc, base
 ):  # noqa: ANN001
@@ -364,7 +368,7 @@ def _add_column(
             k += 1
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@helper(inline="always")
 def _best_two(e, d_lo, gap):  # noqa: ANN001
     """Eq. (3) on one curve e (float32, d = 0..d_hi): d_min = argmin over [d_lo, d_hi];
     d_next = argmin over |d - d_min| > gap (first index on ties, as np.argmin); E_next = inf
@@ -386,7 +390,10 @@ def _best_two(e, d_lo, gap):  # noqa: ANN001
     return best, nxt, float(vb), float(vn)
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(
+    "float64[:](int64[:], int64[:], float64[:], int32[:, :], int64, float32[:, :], int64, "
+    "int64, int64[:], int64, float64)"
+)
 def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  # noqa: ANN001
     """Exact minimiser of Eq. (2) on [d_min - 1, d_min + 1], I_R linearly interpolated."""
     n = ry.size
