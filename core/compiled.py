@@ -8,11 +8,11 @@ frame's images and ~37 MB for its lifted pair (issue #13, "peak RSS <= 300 MB").
 
 So each kernel module's kernels are compiled ahead of time, once per machine, into one small
 extension module (numba's AOT compiler, ``numba.pycc``; ~1 MB, no numba needed to load it),
-kept in the module's ``__pycache__`` (or ``$THREADRECON_KERNEL_CACHE``) under a name that hashes
-the module's source, the signatures and the Python and numpy versions: an edit of the module
-builds anew (a kernel must read no other module's globals: pass them as arguments). The
-first process builds it (numba imported then, as numba's own cache compiles on first use);
-later processes load it. Where it cannot be built (no C compiler, a numba without ``pycc``)
+kept in the module's ``__pycache__`` (else the user's cache folder; ``$THREADRECON_KERNEL_CACHE``
+overrides both) under a name that hashes the module's source, the signatures and the Python
+and numpy versions: an edit of the module builds anew (so a kernel reads no other module's
+globals: they come in as arguments). The first process builds it (numba imported then, as
+numba's own cache compiles on first use); later processes load it. Where it cannot be built (no C compiler, a numba without ``pycc``)
 or with ``THREADRECON_KERNELS=jit`` every kernel is the numba JIT function of the same source,
 ``cache=True, nogil=True``, as before.
 
@@ -199,10 +199,17 @@ class _KernelModule:
         return f"{self.name.rsplit('.', 1)[-1]}_aot_{self.key()}"
 
     def cache_dir(self) -> Path:
+        """``$THREADRECON_KERNEL_CACHE``, else the module's ``__pycache__`` where it can be
+        written, else the user's cache folder (an installation the user cannot write to)."""
         env = os.environ.get(CACHE_ENV)
         if env:
             return Path(env)
-        return Path(sys.modules[self.name].__file__).resolve().parent / "__pycache__"  # type: ignore[arg-type]
+        here = Path(sys.modules[self.name].__file__).resolve().parent  # type: ignore[arg-type]
+        pycache = here / "__pycache__"
+        if os.access(pycache if pycache.is_dir() else here, os.W_OK):
+            return pycache
+        user = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        return Path(user) / "threadrecon" / "kernels"
 
     def load(self) -> None:
         """Bind every kernel to its AOT function (building the extension if missing), or to

@@ -113,3 +113,18 @@ def test_a_signature_that_does_not_fit_the_function_is_refused() -> None:
         @kernel("int64(complex128[:])")
         def two(a):  # noqa: ANN001, ANN202
             return a.size
+
+
+def test_the_kernels_go_to_the_user_cache_when_the_package_is_read_only(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    from threadrecon.core import compiled
+
+    module = compiled._module_of(walk_kernel.walk_on.fn)
+    monkeypatch.delenv(compiled.CACHE_ENV, raising=False)
+    assert module.cache_dir() == Path(walk_kernel.__file__).resolve().parent / "__pycache__"
+    monkeypatch.setattr(compiled.os, "access", lambda *_: False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert module.cache_dir() == tmp_path / "threadrecon" / "kernels"
+    monkeypatch.setenv(compiled.CACHE_ENV, str(tmp_path / "mine"))
+    assert module.cache_dir() == tmp_path / "mine"
