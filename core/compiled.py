@@ -29,6 +29,7 @@ the same time.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.util
 import inspect
@@ -39,7 +40,7 @@ import sysconfig
 import tempfile
 import threading
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -242,8 +243,10 @@ class _KernelModule:
         suffix = sysconfig.get_config_var("EXT_SUFFIX") or ".so"
         path = self.cache_dir() / f"{name}{suffix}"
         if not path.exists():
-            self._build(name, path)
-            self.built = True
+            with _file_lock(path.parent / f"{name}.lock"):  # one process builds, the others wait
+                if not path.exists():
+                    self._build(name, path)
+                    self.built = True
         spec = importlib.util.spec_from_file_location(name, path)
         if spec is None or spec.loader is None:
             raise ImportError(f"cannot load {path}")
@@ -289,9 +292,26 @@ class _KernelModule:
         finally:
             g.update(saved)
         prefix = name.rsplit("_", 1)[0] + "_"
-        for old in path.parent.glob(f"{prefix}*{path.suffix}"):  # builds of earlier sources
-            if old != path and old.name.startswith(prefix):
+        for old in path.parent.glob(f"{prefix}*"):  # builds (and locks) of earlier sources
+            if old.is_file() and not old.name.startswith(name):
                 old.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def _file_lock(path: Path) -> Iterator[None]:
+    """An exclusive lock on ``path`` across processes (POSIX ``flock``; none elsewhere)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as f:
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - Windows: concurrent builds replace atomically
+            yield
+            return
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def backends() -> dict[str, str | None]:
