@@ -129,7 +129,9 @@ def _neighbour_lists(pixels: np.ndarray, radius: int) -> tuple[np.ndarray, np.nd
 # Compiled ahead of time once per machine, loaded without numba (core/compiled.py).
 
 
-@kernel("Tuple((int64[:], int64[:]))(int32[:, :], int64[:], int64[:], int64[:], int64[:])")
+@kernel(
+    "Tuple((int64[::1], int64[::1]))(int32[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1])"
+)
 def _gather_kernel(idx, y, x, dy, dx):  # noqa: ANN001
     """CSR of the pixels at offsets (dy, dx) from each pixel (y, x) in the index image ``idx``
     (-1 where none), in offset order: the order of a (n, offsets) gather and a row-wise mask."""
@@ -167,7 +169,7 @@ def _bfs(indptr, indices, start, seen, mark, order):  # noqa: ANN001
     return tail
 
 
-@kernel("int64[:](int64[:], int64[:], int64, int64)")
+@kernel("int64[::1](int64[::1], int64[::1], int64, int64)")
 def _wavefront_kernel(indptr, indices, min_size, max_size):  # noqa: ANN001
     """Per connected component of >= ``min_size`` px (in the order of their lowest pixel): a BFS
     from its lowest pixel finds an extremity (the last pixel reached), a BFS from there orders

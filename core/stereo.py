@@ -296,9 +296,9 @@ def _reproject(x: np.ndarray, y: np.ndarray, disparity: np.ndarray, Q: np.ndarra
 
 
 @kernel(
-    "Tuple((float32[:, :], int64[:], int64[:], float64[:], float64[:]))(int64[:], int64[:], "
-    "float64[:], int32[:, :], int64, int64[:], int64[:], float64[:], int64, int64, int64, "
-    "float64, boolean)"
+    "Tuple((float32[:, ::1], int64[::1], int64[::1], float64[::1], float64[::1]))(int64[::1], "
+    "int64[::1], float64[::1], int32[:, ::1], int64, int64[::1], int64[::1], float64[::1], int64, "
+    "int64, int64, float64, boolean)"
 )
 def _energy_kernel(ty, tx, I_L_p, index, r, q_ptr, q_col, q_val, x0, d_lo, d_hi, lift, store):  # noqa: ANN001
     """Eqs. (2)-(3) at the pixels (ty, tx) of P_L: d_min, d_next, E_min, E_next, and with
@@ -398,8 +398,8 @@ def _fill_best_two(row, base, acc, d_from, d_lo, gap):  # noqa: ANN001
 
 
 @kernel(
-    "float64[:](int64[:], int64[:], float64[:], int32[:, :], int64, float32[:, :], int64, "
-    "int64, int64[:], int64, float64)"
+    "float64[::1](int64[::1], int64[::1], float64[::1], int32[:, ::1], int64, float32[:, :], "
+    "int64, int64, int64[::1], int64, float64)"
 )
 def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  # noqa: ANN001
     """Exact minimiser of Eq. (2) on [d_min - 1, d_min + 1], I_R linearly interpolated."""

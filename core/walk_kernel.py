@@ -30,8 +30,9 @@ def _before(a: float, b: float) -> bool:
 
 
 @kernel(
-    "UniTuple(int64, 2)(int64[:], int64, boolean[:], int64[:], int64[:], float64[:, :], "
-    "float64[:], float64, float64, float64, int64[:], float64[:], float64[:])"
+    "UniTuple(int64, 2)(int64[::1], int64, boolean[::1], int64[::1], int64[::1], "
+    "float64[:, ::1], float64[::1], float64, float64, float64, int64[::1], float64[::1], "
+    "float64[::1])"
 )
 def step_costs(
     walk, n, visited, indptr, indices, pos, disp, bend_w, disp_w, cos_max, cand, cost, cos_t
@@ -98,8 +99,9 @@ def step_costs(
 
 
 @kernel(
-    "UniTuple(int64, 3)(int64[:], int64, int64, float64[:], int64, boolean[:], int64[:], "
-    "int64[:], float64[:, :], float64[:], float64, float64, float64, int64[:], int64[:], int64)"
+    "UniTuple(int64, 3)(int64[::1], int64, int64, float64[::1], int64, boolean[::1], "
+    "int64[::1], int64[::1], float64[:, ::1], float64[::1], float64, float64, float64, "
+    "int64[::1], int64[::1], int64)"
 )
 def walk_on(
     walk,

@@ -92,12 +92,19 @@ def test_an_array_of_another_dtype_is_a_type_error_naming_it() -> None:
         np.zeros(K, np.int64), np.zeros(K, np.int64), 0,
     ]  # fmt: skip
     if walk_kernel.walk_on.backend == "aot":
-        with pytest.raises(TypeError, match="walk must be a 1-D int64 array, got int32"):
+        with pytest.raises(
+            TypeError, match="walk must be a 1-D int64 C-contiguous array, got int32"
+        ):
             walk_kernel.walk_on(*args)
     args[0] = np.zeros(K, np.int64)
     args[8] = np.zeros(2 * K)  # pos: 2-D expected
     if walk_kernel.walk_on.backend == "aot":
-        with pytest.raises(TypeError, match="pos must be a 2-D float64 array"):
+        with pytest.raises(TypeError, match="pos must be a 2-D float64 C-contiguous array"):
+            walk_kernel.walk_on(*args)
+    args[8] = np.zeros((K, 2))
+    args[0] = np.zeros(2 * K, np.int64)[::2]  # walk: written in place, so no copy is made
+    if walk_kernel.walk_on.backend == "aot":
+        with pytest.raises(TypeError, match=r"walk must be .* C-contiguous array, got .* strided"):
             walk_kernel.walk_on(*args)
 
 
