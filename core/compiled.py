@@ -64,6 +64,17 @@ _ARG = re.compile(r"\s*(\w+)\s*(\[[^\]]*\])?\s*(?:,|$)")
 
 _lock = threading.RLock()
 _modules: dict[str, _KernelModule] = {}
+_default_mode = "aot"
+
+
+def set_default_mode(mode: str) -> None:
+    """The kernels' backend when ``$THREADRECON_KERNELS`` is unset: "aot" (default) or "jit"
+    (numba's, ~100 MB more, but its kernels release the GIL: a server whose threads run
+    pipelines while others serve requests). Takes effect for modules not resolved yet."""
+    global _default_mode
+    if mode not in ("aot", "jit"):
+        raise ValueError(f"kernel mode must be 'aot' or 'jit', got {mode!r}")
+    _default_mode = mode
 
 
 def kernel(signature: str) -> Callable[[Callable[..., Any]], Kernel]:
@@ -229,7 +240,7 @@ class _KernelModule:
     def load(self) -> None:
         """Bind every kernel to its AOT function (building the extension if missing), or to
         numba's JIT."""
-        mode = os.environ.get(MODE_ENV, "aot").lower()
+        mode = os.environ.get(MODE_ENV, _default_mode).lower()
         if mode not in ("aot", "jit"):
             raise ValueError(f"{MODE_ENV} must be 'aot' or 'jit', got {mode!r}")
         if mode == "aot":

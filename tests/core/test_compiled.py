@@ -135,3 +135,11 @@ def test_the_kernels_go_to_the_user_cache_when_the_package_is_read_only(
     assert module.cache_dir() == tmp_path / "threadrecon" / "kernels"
     monkeypatch.setenv(compiled.CACHE_ENV, str(tmp_path / "mine"))
     assert module.cache_dir() == tmp_path / "mine"
+
+
+def test_the_default_mode_takes_only_aot_or_jit() -> None:
+    from threadrecon.core import compiled
+
+    with pytest.raises(ValueError, match="'aot' or 'jit'"):
+        compiled.set_default_mode("fast")
+    assert compiled._default_mode == "aot"
