@@ -15,6 +15,7 @@ import numpy as np
 from threadrecon.app.dataset import Frame, discover, load_frame
 from threadrecon.app.errors import UserError
 from threadrecon.app.presets import resolve_preset, validate
+from threadrecon.core.compiled import backends, built_here
 from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction, StageError
 
 
@@ -91,7 +92,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         "   (data_weight changed: the stages from spline on, the spline's set-up reused)"
     )
     print(f"first run in this process (loads compiled kernels): {warmup_ms:.0f} ms")
-    print(f"peak RSS: {_peak_rss_mb():.0f} MB")
+    print(f"peak RSS: {_peak_rss_mb():.0f} MB{_kernel_note()}")
     return 0
 
 
@@ -177,6 +178,15 @@ def _bench_frames(root: Path) -> list[Frame]:
         )
         for p in images
     ]
+
+
+def _kernel_note() -> str:
+    """What the peak RSS includes besides the runs: compiling the kernels, or numba's JIT."""
+    if built_here():
+        return " (includes compiling the kernels in this process: run again for the steady figure)"
+    if "jit" in backends().values():
+        return " (numba's JIT kernels, ~100 MB of it: core/compiled.py)"
+    return ""
 
 
 def _peak_rss_mb() -> float:

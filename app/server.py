@@ -29,6 +29,9 @@ def serve(config: ServerConfig, sock: socket.socket | None = None) -> None:
     binds it first, with SO_REUSEADDR, so that a taken port is a one-line error)."""
     import uvicorn
 
+    from threadrecon.core.compiled import set_default_mode
+
+    set_default_mode("jit")  # numba's kernels release the GIL: pipelines in worker threads
     app = create_app(config)
     state: AppState = app.state.core
     uv = uvicorn.Server(

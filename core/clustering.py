@@ -17,10 +17,10 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Literal
 
-import numba
 import numpy as np
 import scipy.sparse as sp
 
+from threadrecon.core.compiled import helper, kernel
 from threadrecon.core.params import Params, param
 from threadrecon.core.reliability import ReliabilityResult
 from threadrecon.core.stereo import StereoResult
@@ -126,10 +126,12 @@ def _neighbour_lists(pixels: np.ndarray, radius: int) -> tuple[np.ndarray, np.nd
 
 
 # --- compiled kernels ------------------------------------------------------------------------
-# cache=True: compiled once per machine (numba's cache beside this file), not once per process.
+# Compiled ahead of time once per machine, loaded without numba (core/compiled.py).
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(
+    "Tuple((int64[::1], int64[::1]))(int32[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1])"
+)
 def _gather_kernel(idx, y, x, dy, dx):  # noqa: ANN001
     """CSR of the pixels at offsets (dy, dx) from each pixel (y, x) in the index image ``idx``
     (-1 where none), in offset order: the order of a (n, offsets) gather and a row-wise mask."""
@@ -147,7 +149,7 @@ def _gather_kernel(idx, y, x, dy, dx):  # noqa: ANN001
     return indptr, indices[:k].copy()
 
 
-@numba.njit(cache=True, nogil=True)
+@helper()
 def _bfs(indptr, indices, start, seen, mark, order):  # noqa: ANN001
     """BFS from ``start`` over nodes whose ``seen`` differs from ``mark`` (sets it to ``mark``),
     neighbours in CSR order (as csgraph.breadth_first_order): the visit order in ``order``;
@@ -167,7 +169,7 @@ def _bfs(indptr, indices, start, seen, mark, order):  # noqa: ANN001
     return tail
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel("int64[::1](int64[::1], int64[::1], int64, int64)")
 def _wavefront_kernel(indptr, indices, min_size, max_size):  # noqa: ANN001
     """Per connected component of >= ``min_size`` px (in the order of their lowest pixel): a BFS
     from its lowest pixel finds an extremity (the last pixel reached), a BFS from there orders

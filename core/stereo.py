@@ -47,13 +47,13 @@ import functools
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 from scipy import sparse
 from scipy.linalg import solveh_banded
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.compiled import helper, kernel
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LIFT_VALUE, LiftedPair
 
@@ -425,10 +425,14 @@ def _reproject(x: np.ndarray, y: np.ndarray, disparity: np.ndarray, Q: np.ndarra
 
 
 # --- compiled kernels ------------------------------------------------------------------------
-# cache=True: compiled once per machine (numba's cache beside this file), not once per process.
+# Compiled ahead of time once per machine, loaded without numba (core/compiled.py).
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(
+    "Tuple((float32[:, ::1], int64[::1], int64[::1], float64[::1], float64[::1]))(int64[::1], "
+    "int64[::1], float64[::1], int32[:, ::1], int64, int64[::1], int64[::1], float64[::1], int64, "
+    "int64, int64, float64, boolean)"
+)
 def _energy_kernel(ty, tx, I_L_p, index, r, q_ptr, q_col, q_val, x0, d_lo, d_hi, lift, store):  # noqa: ANN001
     """Eqs. (2)-(3) at the pixels (ty, tx) of P_L: d_min, d_next, E_min, E_next, and with
     ``store`` the (T, d_hi+1) float32 energy E(d, p) (else a (0, d_hi+1) array, and only
@@ -467,16 +471,16 @@ def _energy_kernel(ty, tx, I_L_p, index, r, q_ptr, q_col, q_val, x0, d_lo, d_hi,
             base[0] = 0.0
             for xx in range(xi - r, xi + r + 1):
                 _add_column(xx, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_from, d_hi, acc, base)  # fmt: skip
-        for d in range(d_from, d_hi + 1):
-            row[d] = base[0] + acc[d]
+        d_min[i], d_next[i], E_min[i], E_next[i] = _fill_best_two(
+            row, base[0], acc, d_from, d_lo, NEXT_GAP
+        )
         if store:
             out[i, :] = row
-        d_min[i], d_next[i], E_min[i], E_next[i] = _best_two(row, d_lo, NEXT_GAP)
         prev_y, prev_x = yi, xi
     return out, d_min, d_next, E_min, E_next
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@helper(inline="always")
 def _add_column(
     xx, yi, sign, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_from, d_hi, acc, base
 ):  # noqa: ANN001
@@ -497,29 +501,39 @@ def _add_column(
             k += 1
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _best_two(e, d_lo, gap):  # noqa: ANN001
-    """Eq. (3) on one curve e (float32, d = 0..d_hi): d_min = argmin over [d_lo, d_hi];
+@helper(inline="always")
+def _fill_best_two(row, base, acc, d_from, d_lo, gap):  # noqa: ANN001
+    """Write one pixel's curve row[d] = base + acc[d] (float32, d = d_from..d_hi) and apply
+    Eq. (3) to it: d_min = argmin over [d_lo, d_hi] (found while writing: one pass less);
     d_next = argmin over |d - d_min| > gap (first index on ties, as np.argmin); E_next = inf
     when no such d exists."""
-    m = e.size
-    best, vb = d_lo, e[d_lo]
+    m = row.size
+    for d in range(d_from, d_lo):
+        row[d] = base + acc[d]
+    vb = np.float32(base + acc[d_lo])
+    row[d_lo] = vb
+    best = d_lo
     for d in range(d_lo + 1, m):
-        if e[d] < vb:
-            best, vb = d, e[d]
+        v = np.float32(base + acc[d])
+        row[d] = v
+        if v < vb:
+            best, vb = d, v
     nxt, vn = -1, np.float32(np.inf)
     for d in range(d_lo, max(d_lo, best - gap)):
-        if e[d] < vn:
-            nxt, vn = d, e[d]
+        if row[d] < vn:
+            nxt, vn = d, row[d]
     for d in range(best + gap + 1, m):
-        if e[d] < vn:
-            nxt, vn = d, e[d]
+        if row[d] < vn:
+            nxt, vn = d, row[d]
     if nxt < 0:
         return best, (d_lo if best - d_lo > gap else m - 1), float(vb), np.inf
     return best, nxt, float(vb), float(vn)
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(
+    "float64[::1](int64[::1], int64[::1], float64[::1], int32[:, ::1], int64, float32[:, :], "
+    "int64, int64, int64[::1], int64, float64)"
+)
 def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  # noqa: ANN001
     """Exact minimiser of Eq. (2) on [d_min - 1, d_min + 1], I_R linearly interpolated.
 

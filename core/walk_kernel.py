@@ -15,20 +15,25 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from threadrecon.core.compiled import helper, kernel
 
 WALK_END = 0  # the walk ends: no continuation, every one excluded, or the forced one missing
 WALK_JUMP = 1  # tiers 0 and 1 are empty: the caller looks for a jump (tier 2)
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@helper(inline="always")
 def _before(a: float, b: float) -> bool:
     """a sorts before b (np.argsort: NaN last)."""
     return a < b or (math.isnan(b) and not math.isnan(a))
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(
+    "UniTuple(int64, 2)(int64[::1], int64, boolean[::1], int64[::1], int64[::1], "
+    "float64[:, ::1], float64[::1], float64, float64, float64, int64[::1], float64[::1], "
+    "float64[::1])"
+)
 def step_costs(
     walk, n, visited, indptr, indices, pos, disp, bend_w, disp_w, cos_max, cand, cost, cos_t
 ):  # noqa: ANN001
@@ -93,7 +98,11 @@ def step_costs(
     return m, tier
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel(
+    "UniTuple(int64, 3)(int64[::1], int64, int64, float64[::1], int64, boolean[::1], "
+    "int64[::1], int64[::1], float64[:, ::1], float64[::1], float64, float64, float64, "
+    "int64[::1], int64[::1], int64)"
+)
 def walk_on(
     walk,
     n,
