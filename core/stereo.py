@@ -531,7 +531,8 @@ def _fill_best_two(row, base, acc, d_from, d_lo, gap):  # noqa: ANN001
 
 
 @kernel(
-    "float64[::1](int64[::1], int64[::1], float64[::1], int32[:, ::1], int64, float32[:, :], "
+    "Tuple((float64[::1], float64[::1], float64[::1], float64[::1], float64[::1]))"
+    "(int64[::1], int64[::1], float64[::1], int32[:, ::1], int64, float32[:, :], "
     "int64, int64, int64[::1], int64, float64)"
 )
 def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  # noqa: ANN001
