@@ -291,9 +291,9 @@ def noise_sigma(f: np.ndarray) -> np.ndarray:
     are sparse there; the differences are symmetric about 0), as a Gaussian sigma; at least
     the uint8 quantisation noise."""
     sub = f[::_NOISE_ROW_STEP]
-    d = cv2.absdiff(sub[:, 1:], sub[:, :-1]).reshape(-1, f.shape[2]).T.copy()  # (C, N)
-    mid = d.shape[1] // 2
-    mad = np.partition(d, mid, axis=1)[:, mid]
+    d = cv2.absdiff(sub[:, 1:], sub[:, :-1]).reshape(-1, f.shape[2])  # (N, C)
+    mid = d.shape[0] // 2
+    mad = np.array([_kth_smallest(d[:, j], mid) for j in range(d.shape[1])], np.float32)
     return np.maximum(1.4826 * mad / np.sqrt(2.0), _QUANT_SIGMA)
 
 
@@ -402,7 +402,24 @@ def _robust_level(s: np.ndarray) -> float:
     second pixel of every second row."""
     sample = s[::2, ::2].ravel()
     k = int(0.9 * (sample.size - 1))
-    return max(float(np.partition(sample, k)[k]), 1e-3)
+    return max(_kth_smallest(sample, k), 1e-3)
+
+
+def _kth_smallest(x: np.ndarray, k: int) -> float:
+    """The ``k``-th smallest (0-based) of the non-negative float32 values ``x`` (N,), exactly
+    ``np.partition(x, k)[k]`` in 1/3 of its time: the bit patterns of non-negative floats sort
+    like the floats, so a histogram of their top 16 bits finds the bin holding the k-th value,
+    and only that bin (a few %) is partitioned."""
+    if x.dtype != np.float32 or x.ndim != 1 or not 0 <= k < x.size:
+        raise ValueError(f"_kth_smallest needs (N,) float32 and 0 <= k < N, got {x.dtype} "
+                         f"{x.shape}, k={k}")  # fmt: skip
+    top = (np.ascontiguousarray(x).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 16  # -0.0 is 0
+    top = top.astype(np.intp)
+    below = np.cumsum(np.bincount(top))
+    b = int(np.searchsorted(below, k, side="right"))  # below[b - 1] <= k < below[b]
+    rest = x[top == b]
+    kk = k - (int(below[b - 1]) if b else 0)
+    return float(np.partition(rest, kk)[kk])
 
 
 def _pieces(
@@ -491,39 +508,52 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     A pixel blending thread colour T over local background B with coverage c has
     I - B = c (T - B), so c^2 = |I - B|^2 / |T - B|^2; |T - B|^2 is the largest |I - B|^2 of a
     core pixel within the band (a box of radius _BAND_PX; the thread's axis is there). B is
-    the candidate-free average of the view (:func:`_background`). Sparse: band pixels only.
+    the candidate-free average of the view (:func:`_background`). Sparse: band pixels only,
+    and the two dilations run on the core's bounding box grown by the band (exact: a dilation
+    reaches no further than its radius).
     """
+    h, w = core.shape
+    out = np.zeros(core.shape, bool)
+    pts = cv2.findNonZero(core)
+    if pts is None:
+        return out
+    x0, y0, bw, bh = cv2.boundingRect(pts)
+    # The box: the core's bounding box grown by the band and by the 2 px the coverage test
+    # looks at (zeros there, as in the full image), clipped to the image.
+    m = _BAND_PX + 2
+    r0, r1, c0, c1 = max(y0 - m, 0), min(y0 + bh + m, h), max(x0 - m, 0), min(x0 + bw + m, w)
+    core_b = core[r0:r1, c0:c1]
     a = v.img if v.img.ndim == 3 else v.img[:, :, None]
-    a = a[:, :, : v.bg_rgb.shape[2]]
+    a = a[r0:r1, c0:c1, : v.bg_rgb.shape[2]]
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * _BAND_PX + 1, 2 * _BAND_PX + 1))
-    band = cv2.dilate(core, k)
-    rows, cols = _points(band)
+    band = cv2.dilate(core_b, k)
+    rows, cols = _points(band)  # in the box
     bg = v.bg_rgb
-    diff = a[rows, cols].astype(np.float32) - bg[_qi(rows, bg.shape[0]), _qi(cols, bg.shape[1])]
+    diff = a[rows, cols].astype(np.float32) - bg[_qi(rows + r0, bg.shape[0]),
+                                                 _qi(cols + c0, bg.shape[1])]  # fmt: skip
     c2 = np.einsum("ij,ij->i", diff, diff)
-    on_core = core[rows, cols] > 0
-    dense = np.zeros(core.shape, np.float32)
+    on_core = core_b[rows, cols] > 0
+    dense = np.zeros(core_b.shape, np.float32)
     dense[rows[on_core], cols[on_core]] = c2[on_core]
     box = np.ones((2 * _BAND_PX + 1, 2 * _BAND_PX + 1), np.uint8)
     peak = cv2.dilate(dense, box)[rows, cols]
-    out = np.zeros(core.shape, bool)
     keep = (c2 >= 0.25 * peak) & (peak > 0)
     # Coverage is conserved: a cross-section of two pixels (its outer neighbours below 0.5)
     # whose coverages sum to < _SHARED_PX holds less than that much thread (a 1-2 px thread
     # crossing from one pixel row or column to the next); coverage 0.5 takes the larger only.
-    cov = np.zeros(core.shape, np.float32)
+    cov = np.zeros(core_b.shape, np.float32)
     cov[rows[keep], cols[keep]] = np.sqrt(c2[keep] / peak[keep])
-    c = cov[rows, cols]
-    h, w = core.shape
-
-    def at(dr: int, dc: int) -> np.ndarray:
-        return cov[np.clip(rows + dr, 0, h - 1), np.clip(cols + dc, 0, w - 1)]
-
-    for dr, dc in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        nb = at(dr, dc)
-        alone = (at(2 * dr, 2 * dc) < 0.5) & (at(-dr, -dc) < 0.5)
+    # Neighbours up to 2 px away by flat index into a copy padded by replicating the edge: the
+    # box's own 2 px margin inside the image, the image's edge pixel outside it (clipping).
+    cov = cv2.copyMakeBorder(cov, 2, 2, 2, 2, cv2.BORDER_REPLICATE).ravel()
+    stride = core_b.shape[1] + 4
+    at0 = (rows + 2) * stride + (cols + 2)
+    c = cov[at0]
+    for step in (stride, -stride, 1, -1):
+        nb = cov[at0 + step]
+        alone = (cov[at0 + 2 * step] < 0.5) & (cov[at0 - step] < 0.5)
         keep &= ~((nb > c) & (nb + c < _SHARED_PX) & alone)
-    out[rows[keep], cols[keep]] = True
+    out[rows[keep] + r0, cols[keep] + c0] = True
     return out
 
 
