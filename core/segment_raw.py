@@ -427,7 +427,7 @@ def _pieces(
 ) -> tuple:
     """Hysteresis pieces of ``mask`` (uint8, a subset of the view's lo pixels: those where
     ``sub`` (M,) is True, all when None): the piece of each lo pixel (M,) (0: none), candidate
-    mask (H, W) uint8, per-piece mean S, length, shape ok."""
+    mask (H, W) uint8, per-piece mean S, length (exact where shape ok), shape ok."""
     n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
     rows, cols = (v.rows, v.cols) if sub is None else (v.rows[sub], v.cols[sub])
     lab = labels[rows, cols]
@@ -437,13 +437,18 @@ def _pieces(
     seeded = np.zeros(n, bool)
     seeded[lab[s_px >= p.ridge_hi * v.level]] = True
     # Half-width of a piece: its largest distance to the outside; length: area / width (a loop
-    # or a coil is long in a small box), at least the bounding box diagonal.
-    dist = cv2.distanceTransform(mask, cv2.DIST_L2, 3)[rows, cols]
-    half, r0, r1, c0, c1 = _label_stats(lab, rows, cols, dist, n)
+    # or a coil is long in a small box), at least the bounding box diagonal. Both only matter
+    # for seeded pieces that can reach min_length_px: length <= max(diag, area) <= sqrt(2) area
+    # (max(2 half, 1) >= 1; a connected piece's box sides are <= its area). Those are few (a
+    # few % of the pieces), and each is measured alone.
+    cands = seeded & (np.sqrt(2.0) * area >= p.min_length_px)
+    cands[0] = False
+    on = cands[lab]
+    r0, r1, c0, c1 = _boxes(lab[on], rows[on], cols[on], n)
+    half = _half_widths(labels, np.flatnonzero(cands), (r0, r1, c0, c1))
     diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
     length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
-    ok = seeded & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
-    ok[0] = False
+    ok = cands & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
     means[0] = 0.0
     cand = np.zeros(mask.shape, np.uint8)
     on = ok[lab]
@@ -452,19 +457,10 @@ def _pieces(
     return lab_all, cand, means, length, ok
 
 
-def _scatter(values: np.ndarray, where: np.ndarray) -> np.ndarray:
-    """(len(where),) array holding ``values`` where ``where`` is True and 0 elsewhere."""
-    out = np.zeros(len(where), values.dtype)
-    out[where] = values
-    return out
-
-
-def _label_stats(
-    lab: np.ndarray, rows: np.ndarray, cols: np.ndarray, dist: np.ndarray, n: int
-) -> tuple[np.ndarray, ...]:
-    """Per label (n,): largest ``dist``, first and last row, first and last column of its
-    pixels (given in row-major order): one stable sort and four reduceats."""
-    out = [np.zeros(n) for _ in range(5)]
+def _boxes(lab: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
+    """Per label (n,): first and last row, first and last column of its pixels (given in
+    row-major order), 0 for labels without pixels: one stable sort and reduceats."""
+    out = [np.zeros(n, np.intp) for _ in range(4)]
     if lab.size == 0:
         return tuple(out)
     order = np.argsort(lab, kind="stable")
@@ -473,12 +469,36 @@ def _label_stats(
     ends = np.append(starts[1:], len(lab_s)) - 1
     ids = lab_s[starts]
     r_s, c_s = rows[order], cols[order]
-    out[0][ids] = np.maximum.reduceat(dist[order], starts)
-    out[1][ids] = r_s[starts]  # row-major order: a label's rows ascend
-    out[2][ids] = r_s[ends]
-    out[3][ids] = np.minimum.reduceat(c_s, starts)
-    out[4][ids] = np.maximum.reduceat(c_s, starts)
+    out[0][ids] = r_s[starts]  # row-major order: a label's rows ascend
+    out[1][ids] = r_s[ends]
+    out[2][ids] = np.minimum.reduceat(c_s, starts)
+    out[3][ids] = np.maximum.reduceat(c_s, starts)
     return tuple(out)
+
+
+def _half_widths(labels: np.ndarray, ids: np.ndarray, boxes: tuple[np.ndarray, ...]) -> np.ndarray:
+    """(n,) largest distance (cv2 DIST_L2, 3x3 chamfer) of the pixels of the pieces ``ids`` to
+    the outside of their mask, 0 for the other pieces. A piece's own pixels in its box
+    (``boxes``: first and last row and column per label), with a 1 px margin of zeros where
+    the box is not at the image edge (cv2 takes the outside of the image as far), give the
+    distances of the whole mask: a path leaving a piece meets a zero of its 8-neighbourhood
+    (no other piece) first."""
+    half = np.zeros(len(boxes[0]))
+    h, w = labels.shape
+    r0, r1, c0, c1 = (b.tolist() for b in boxes)
+    for i in ids.tolist():
+        piece = cv2.compare(labels[r0[i] : r1[i] + 1, c0[i] : c1[i] + 1], i, cv2.CMP_EQ)
+        piece = cv2.copyMakeBorder(piece, int(r0[i] > 0), int(r1[i] < h - 1), int(c0[i] > 0),
+                                   int(c1[i] < w - 1), cv2.BORDER_CONSTANT, value=0)  # fmt: skip
+        half[i] = float(cv2.distanceTransform(piece, cv2.DIST_L2, 3).max())
+    return half
+
+
+def _scatter(values: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """(len(where),) array holding ``values`` where ``where`` is True and 0 elsewhere."""
+    out = np.zeros(len(where), values.dtype)
+    out[where] = values
+    return out
 
 
 def _reach(mask: np.ndarray, d: int, look_left: bool) -> np.ndarray:
