@@ -228,19 +228,22 @@ def _select(
     ``nearest_hue`` (a blood-like thread among vessels): pieces and pixels join the thread only
     when their hue is nearer the thread's than the vessels'."""
     D = int(p.max_disparity_px)
-    cands = [v.pieces[1] for v in views]
-    partners = (_reach(cands[1], D, look_left=True), _reach(cands[0], D, look_left=False))
+    width = views[0].lo.shape[1]
+    keys = [_row_keys(*v.pieces[1], width, D) for v in views]  # shape-ok pixels, sorted
     out = []
     salience = 0.0
     cos_vessels = -1.0
-    for v, partner in zip(views, partners, strict=True):
+    for i, v in enumerate(views):
         lab, _, means, length, ok = v.pieces  # lab: piece of each lo pixel (0: none), sparse
-        use = lab > 0
-        k = _consistent(lab[use], partner[v.rows[use], v.cols[use]] > 0, ok)
+        # Only the pixels of shape-ok pieces can join (the rest of the lo pixels is skipped).
+        on = np.flatnonzero(ok[lab])
+        lab_on = lab[on]
+        partner = _has_partner(v.rows[on], v.cols[on], keys[1 - i], width, D, look_left=(i == 0))
+        k = _consistent(lab_on, partner, ok)
         n = len(k)
-        area = np.maximum(np.bincount(lab[use], minlength=n), 1).astype(np.float64)
+        area = np.maximum(np.bincount(lab_on, minlength=n), 1).astype(np.float64)
         delta = np.stack(
-            [np.bincount(lab[use], weights=v.delta[use, j], minlength=n) / area
+            [np.bincount(lab_on, weights=v.delta[on, j], minlength=n) / area
              for j in range(v.delta.shape[1])],
             1,
         )  # fmt: skip
@@ -266,16 +269,15 @@ def _select(
         k[0] = False
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
-        hue = _same_dye(v.delta, d_best)
+        px = on[k[lab_on]]  # the lo pixels of the kept pieces
+        hue = _same_dye(v.delta[px], d_best)
         other = hue < _SAME_DYE_COS_PX
         if nearest_hue and d_vessel is not None:
-            other |= hue <= _same_dye(v.delta, d_vessel)
-        sel = k[lab] & ~other
-        sel &= v.S[v.rows, v.cols] >= _CORE_FRACTION * means[lab]
-        if not sel.any():
-            sel = lab == best
+            other |= hue <= _same_dye(v.delta[px], d_vessel)
+        sel = ~other & (v.S[v.rows[px], v.cols[px]] >= _CORE_FRACTION * means[lab[px]])
+        px = px[sel] if sel.any() else np.flatnonzero(lab == best)
         core = np.zeros(v.lo.shape, np.uint8)
-        core[v.rows[sel], v.cols[sel]] = 1
+        core[v.rows[px], v.cols[px]] = 1
         out.append(core)
     return out, salience, cos_vessels
 
@@ -426,8 +428,9 @@ def _pieces(
     s: np.ndarray, mask: np.ndarray, sub: np.ndarray | None, v: _View, p: SegmentationParams
 ) -> tuple:
     """Hysteresis pieces of ``mask`` (uint8, a subset of the view's lo pixels: those where
-    ``sub`` (M,) is True, all when None): the piece of each lo pixel (M,) (0: none), candidate
-    mask (H, W) uint8, per-piece mean S, length (exact where shape ok), shape ok."""
+    ``sub`` (M,) is True, all when None): the piece of each lo pixel (M,) (0: none), rows and
+    columns of the shape-ok pieces' pixels, per-piece mean S, length (exact where shape ok),
+    shape ok."""
     n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
     rows, cols = (v.rows, v.cols) if sub is None else (v.rows[sub], v.cols[sub])
     lab = labels[rows, cols]
@@ -450,11 +453,9 @@ def _pieces(
     length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
     ok = cands & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
     means[0] = 0.0
-    cand = np.zeros(mask.shape, np.uint8)
     on = ok[lab]
-    cand[rows[on], cols[on]] = 1
     lab_all = lab if sub is None else _scatter(lab, sub)
-    return lab_all, cand, means, length, ok
+    return lab_all, (rows[on], cols[on]), means, length, ok
 
 
 def _boxes(lab: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
@@ -501,13 +502,21 @@ def _scatter(values: np.ndarray, where: np.ndarray) -> np.ndarray:
     return out
 
 
-def _reach(mask: np.ndarray, d: int, look_left: bool) -> np.ndarray:
-    """(H, W) uint8, 1 at pixels (r, c) with a ``mask`` pixel at (r, c - j) (``look_left``) or
-    (r, c + j), 0 <= j <= d: one dilation by a 1 x (d + 1) box anchored at its end."""
-    if d <= 0:
-        return mask
-    k = np.ones((1, d + 1), np.uint8)  # dilate: out(c) = max_i mask(c + i - anchor)
-    return cv2.dilate(mask, k, anchor=(d if look_left else 0, 0))
+def _row_keys(rows: np.ndarray, cols: np.ndarray, width: int, d: int) -> np.ndarray:
+    """(M,) sorted keys ``row (width + d + 1) + col`` of pixels: a window of d + 1 columns
+    never spans two rows."""
+    return np.sort(rows.astype(np.int64) * (width + d + 1) + cols)
+
+
+def _has_partner(
+    rows: np.ndarray, cols: np.ndarray, keys: np.ndarray, width: int, d: int, look_left: bool
+) -> np.ndarray:
+    """(M,) bool: a pixel of ``keys`` (the other view, :func:`_row_keys`) at (r, c - j)
+    (``look_left``) or (r, c + j), 0 <= j <= max(d, 0), for each pixel (r, c)."""
+    d = max(d, 0)
+    q = rows.astype(np.int64) * (width + d + 1) + cols
+    lo, hi = (q - d, q) if look_left else (q, q + d)
+    return np.searchsorted(keys, hi, side="right") > np.searchsorted(keys, lo, side="left")
 
 
 def _consistent(lab: np.ndarray, partner: np.ndarray, ok: np.ndarray) -> np.ndarray:

@@ -1,5 +1,6 @@
 """Tests of core/segment_raw.py's exact shortcuts: each equals the plain computation it replaces."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -56,3 +57,18 @@ def test_grow_mask_on_the_box_equals_the_mask_of_a_padded_image() -> None:
     # Away from the crop's edge (2 px of coverage test, the band) both see the same pixels.
     m = sr._BAND_PX + 2
     assert np.array_equal(inner[m:, m:], mask[r0q + m :, c0q + m :])
+
+
+@pytest.mark.parametrize("look_left", [True, False])
+@pytest.mark.parametrize("d", [0, 1, 7, 80])
+def test_has_partner_equals_a_row_dilation_of_the_other_view(look_left: bool, d: int) -> None:
+    """A partner within d px on the same row, as the box dilation of the other view's mask."""
+    rng = np.random.default_rng([d, look_left])
+    h, w = 40, 90
+    other = (rng.random((h, w)) < 0.02).astype(np.uint8)
+    anchor = (d, 0) if look_left else (0, 0)  # dilate: out(c) = max_i other(c + i - anchor)
+    reach = cv2.dilate(other, np.ones((1, d + 1), np.uint8), anchor=anchor) if d else other
+    rows, cols = np.nonzero(np.ones((h, w), bool))
+    keys = sr._row_keys(*np.nonzero(other), w, d)
+    got = sr._has_partner(rows, cols, keys, w, d, look_left)
+    assert np.array_equal(got, reach[rows, cols] > 0)
