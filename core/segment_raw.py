@@ -340,7 +340,7 @@ def _log_channels(img: np.ndarray) -> np.ndarray:
     if u8.ndim == 2 or u8.shape[2] == 1:
         return cv2.LUT(u8.reshape(u8.shape[0], u8.shape[1]), _LOG_LUT)[:, :, None]
     logs = cv2.LUT(np.ascontiguousarray(u8[:, :, :3]), _LOG_LUT)
-    return cv2.transform(logs, _LOG_MIX)
+    return cv2.transform(logs, _LOG_MIX, dst=logs)  # in place: one 12 B/px buffer, not two
 
 
 _LOG_LUT: Final = (_LOG_SCALE * np.log(np.arange(256, dtype=np.float64) + _LOG_OFFSET)).astype(
@@ -359,20 +359,21 @@ def _line_response(f: np.ndarray) -> np.ndarray:
     upsampled: the same response for a quarter of the work.
     """
     h, w = f.shape[:2]
-    fine = _line_at(np.ascontiguousarray(f[:, :, 0]), _SCALES[0], _SCALES[0])
+    fine = _line_at(f[:, :, 0].copy(), _SCALES[0], _SCALES[0])
     coarse = _line_at(cv2.pyrDown(f), 0.5 * _SCALES[1], _SCALES[1])
     return cv2.max(fine, cv2.resize(coarse, (w, h), interpolation=cv2.INTER_LINEAR), dst=fine)
 
 
 def _line_at(f: np.ndarray, sigma: float, norm: float) -> np.ndarray:
-    """Line strength at Gaussian scale ``sigma`` px of this image, normalised as scale ``norm``.
+    """Line strength at Gaussian scale ``sigma`` px of this image (overwritten: it is blurred
+    in place), normalised as scale ``norm``.
 
-    Written with cv2's in-place outputs: six buffers instead of fifteen fresh arrays (page
+    Written with cv2's in-place outputs: five buffers instead of fifteen fresh arrays (page
     faults on fresh memory cost more than the arithmetic here).
     """
     h, w = f.shape[:2]
     c = 1 if f.ndim == 2 else f.shape[2]
-    g = cv2.GaussianBlur(f, (0, 0), sigma)
+    g = cv2.GaussianBlur(f, (0, 0), sigma, dst=f)
     shape = (h, w * c)
     r = sigma / norm  # derivatives per original pixel: a half-resolution pixel is 2 px
     bufs = [np.empty(shape, np.float32) for _ in range(5)]
