@@ -442,21 +442,25 @@ def _pieces(
     seeded[lab[s_px >= p.ridge_hi * v.level]] = True
     # Half-width of a piece: its largest distance to the outside; length: area / width (a loop
     # or a coil is long in a small box), at least the bounding box diagonal. Both only matter
-    # for seeded pieces that can reach min_length_px: length <= max(diag, area) <= sqrt(2) area
-    # (max(2 half, 1) >= 1; a connected piece's box sides are <= its area). Those are few (a
-    # few % of the pieces), and each is measured alone.
+    # for seeded pieces that can reach min_length_px: length <= max(diag, area / (2 a)), a =
+    # 0.955 the chamfer's smallest distance, and diag <= sqrt(2) area (a connected piece's box
+    # sides are <= its area). Those are few (a few % of the pieces); each is measured alone.
     cands = seeded & (np.sqrt(2.0) * area >= p.min_length_px)
     cands[0] = False
     on = cands[lab]
     r0, r1, c0, c1 = _boxes(lab[on], rows[on], cols[on], n)
-    half = _half_widths(labels, np.flatnonzero(cands), (r0, r1, c0, c1))
     diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
+    cands &= np.maximum(diag, area / (2.0 * _CHAMFER_A)) >= p.min_length_px
+    half = _half_widths(labels, np.flatnonzero(cands), (r0, r1, c0, c1))
     length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
     ok = cands & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
     means[0] = 0.0
     on = ok[lab]
     lab_all = lab if sub is None else _scatter(lab, sub)
     return lab_all, (rows[on], cols[on]), means, length, ok
+
+
+_CHAMFER_A: Final = 0.95  # below cv2's DIST_L2 3x3 step (0.955): no piece is thinner
 
 
 def _boxes(lab: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
