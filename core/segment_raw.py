@@ -596,11 +596,15 @@ def drop_specks(mask: np.ndarray, min_px: int) -> np.ndarray:
     if min_px <= 1:
         return mask
     u8 = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
-    rows, cols = _points(u8)
-    if not len(rows):
+    pts = cv2.findNonZero(u8)
+    if pts is None:
         return mask
-    n, labels = cv2.connectedComponents(u8, connectivity=8, ltype=cv2.CV_32S)
-    lab = labels[rows, cols]
+    # Labelled on the pixels' bounding box only: the same components, hence the same sizes.
+    x, y, w, h = cv2.boundingRect(pts)
+    n, labels = cv2.connectedComponents(u8[y : y + h, x : x + w], connectivity=8, ltype=cv2.CV_32S)
+    pts = pts.reshape(-1, 2)
+    rows, cols = pts[:, 1].astype(np.intp), pts[:, 0].astype(np.intp)
+    lab = labels[rows - y, cols - x]
     keep = np.bincount(lab, minlength=n) >= min_px
     keep = keep[lab]
     out = np.zeros(mask.shape, bool)

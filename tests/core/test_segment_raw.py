@@ -72,3 +72,17 @@ def test_has_partner_equals_a_row_dilation_of_the_other_view(look_left: bool, d:
     keys = sr._row_keys(*np.nonzero(other), w, d)
     got = sr._has_partner(rows, cols, keys, w, d, look_left)
     assert np.array_equal(got, reach[rows, cols] > 0)
+
+
+@pytest.mark.parametrize("trial", range(6))
+def test_drop_specks_keeps_exactly_the_components_of_at_least_min_px(trial: int) -> None:
+    rng = np.random.default_rng([91, trial])
+    mask = rng.random((60, 80)) < [0.03, 0.1, 0.3, 0.5, 0.0, 0.02][trial]
+    if trial == 5:  # one component touching the image corner, one speck elsewhere
+        mask[:3, :20] = True
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.view(np.uint8), connectivity=8)
+    for min_px in (1, 2, 5, 30):
+        big = stats[:, cv2.CC_STAT_AREA] >= min_px
+        big[0] = False
+        expected = big[labels] if min_px > 1 else mask
+        assert np.array_equal(sr.drop_specks(mask, min_px), expected)
