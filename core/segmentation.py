@@ -222,8 +222,8 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
     if p.lift_dilate_px < 0:
         raise ValueError(f"lift_dilate_px must be >= 0, got {p.lift_dilate_px}")
     Params._check(p)  # type: ignore[arg-type]  # declared ranges of every field
-    grey_L, grey_R = to_grey(pair.left), to_grey(pair.right)
-    bg = (_background_level(grey_L, p), _background_level(grey_R, p))
+    (grey_L, hist_L), (grey_R, hist_R) = _grey_and_hist(pair.left), _grey_and_hist(pair.right)
+    bg = (_background_level(hist_L, p), _background_level(hist_R, p))
     score_L = score_R = None
     if pair.mask_left is not None and pair.mask_right is not None:
         P_L, P_R = pair.mask_left.astype(bool), pair.mask_right.astype(bool)
@@ -231,7 +231,8 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
     else:
         method = p.method
         if method == "auto":
-            flat = min(_flat_share(grey_L, bg[0]), _flat_share(grey_R, bg[1]))
+            flat = min(_flat_share(grey_L, hist_L, bg[0], pair.left.dtype == np.uint8),
+                       _flat_share(grey_R, hist_R, bg[1], pair.right.dtype == np.uint8))  # fmt: skip
             method = "threshold" if flat >= p.flat_share else "raw"
         if method == "threshold":
             P_L, P_R = grey_L < bg[0] - p.seg_delta, grey_R < bg[1] - p.seg_delta
@@ -264,8 +265,13 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
     )
 
 
-def _flat_share(grey: np.ndarray, level: float) -> float:
-    """Share of pixels within 1 grey level of ``level``."""
+def _flat_share(grey: np.ndarray, hist: np.ndarray, level: float, integer: bool) -> float:
+    """Share of pixels within 1 grey level of ``level`` (float32 arithmetic); ``integer``: the
+    grey levels are integers 0-255 (a uint8 image) and the (256,) histogram ``hist`` of them
+    answers without a pass over the image."""
+    if integer:
+        near = np.abs(np.arange(256, dtype=np.float32) - np.float32(level)) <= 1.0
+        return float(hist[near].sum()) / grey.size
     near = cv2.compare(cv2.absdiff(grey, float(level)), 1.0, cv2.CMP_LE)
     return cv2.countNonZero(near) / grey.size
 
@@ -314,8 +320,24 @@ def _lift(grey: np.ndarray, P: np.ndarray, dilate_px: int) -> np.ndarray:
     return np.where(P, grey, np.float32(LIFT_VALUE)).astype(np.float32, copy=False)
 
 
-def _background_level(grey: np.ndarray, p: SegmentationParams) -> float:
+def _grey_and_hist(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`to_grey` of ``image`` and the (256,) float64 histogram of its grey levels
+    clipped and truncated to 0-255 (uint8 images: the grey levels themselves, one pass)."""
+    if image.dtype == np.uint8 and (image.ndim == 2 or image.shape[2] in (1, 3, 4)):
+        u8 = image if image.ndim == 2 else image[:, :, 0] if image.shape[2] == 1 else None
+        if u8 is None:
+            u8 = cv2.cvtColor(np.ascontiguousarray(image[:, :, :3]), cv2.COLOR_RGB2GRAY)
+        u8 = np.ascontiguousarray(u8)
+        grey = u8.astype(np.float32)
+    else:
+        grey = to_grey(image)
+        u8 = np.clip(grey, 0, 255).astype(np.uint8)
+    hist = cv2.calcHist([u8], [0], None, [256], [0, 256]).ravel().astype(np.float64)
+    return grey, hist
+
+
+def _background_level(hist: np.ndarray, p: SegmentationParams) -> float:
+    """Background level B: ``p.background`` when given, else the mode of ``hist`` (256,)."""
     if p.background is not None:
         return float(p.background)
-    hist = cv2.calcHist([np.clip(grey, 0, 255).astype(np.uint8)], [0], None, [256], [0, 256])
     return float(np.argmax(hist))
