@@ -2,9 +2,12 @@
 consistency. :func:`segment_raw` is the ``method="raw"`` of :func:`core.segmentation.segment`.
 
 Speed: every full-resolution pass costs ~0.2-0.5 ms at 640x480, so full-image work is kept to
-the line response, one threshold, one labelling and one distance transform per view; the rest
-runs on the candidate pixels (a few %, sparse) or at quarter resolution (the local background,
-the instrument mask).
+the line response, one threshold and the labellings of the pieces per view; the rest runs on the
+candidate pixels (a few %, sparse), on bounding boxes (the distance transform of each piece that
+can be long enough, the grown mask, its specks), or at quarter resolution (the local background,
+the instrument mask). Percentiles are exact selections on a histogram of float bits; stereo
+partners are a sorted-key search. Every shortcut gives the same masks as the plain computation
+(tests/core/test_segment_raw.py; scripts/seg_fingerprint.py on whole suites).
 """
 
 from __future__ import annotations
