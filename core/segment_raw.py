@@ -2,9 +2,12 @@
 consistency. :func:`segment_raw` is the ``method="raw"`` of :func:`core.segmentation.segment`.
 
 Speed: every full-resolution pass costs ~0.2-0.5 ms at 640x480, so full-image work is kept to
-the line response, one threshold, one labelling and one distance transform per view; the rest
-runs on the candidate pixels (a few %, sparse) or at quarter resolution (the local background,
-the instrument mask).
+the line response, one threshold and the labellings of the pieces per view; the rest runs on the
+candidate pixels (a few %, sparse), on bounding boxes (the distance transform of each piece that
+can be long enough, the grown mask, its specks), or at quarter resolution (the local background,
+the instrument mask). Percentiles are exact selections on a histogram of float bits; stereo
+partners are a sorted-key search. Every shortcut gives the same masks as the plain computation
+(tests/core/test_segment_raw.py; scripts/seg_fingerprint.py on whole suites).
 """
 
 from __future__ import annotations
@@ -228,19 +231,22 @@ def _select(
     ``nearest_hue`` (a blood-like thread among vessels): pieces and pixels join the thread only
     when their hue is nearer the thread's than the vessels'."""
     D = int(p.max_disparity_px)
-    cands = [v.pieces[1] for v in views]
-    partners = (_reach(cands[1], D, look_left=True), _reach(cands[0], D, look_left=False))
+    width = views[0].lo.shape[1]
+    keys = [_row_keys(*v.pieces[1], width, D) for v in views]  # shape-ok pixels, sorted
     out = []
     salience = 0.0
     cos_vessels = -1.0
-    for v, partner in zip(views, partners, strict=True):
+    for i, v in enumerate(views):
         lab, _, means, length, ok = v.pieces  # lab: piece of each lo pixel (0: none), sparse
-        use = lab > 0
-        k = _consistent(lab[use], partner[v.rows[use], v.cols[use]] > 0, ok)
+        # Only the pixels of shape-ok pieces can join (the rest of the lo pixels is skipped).
+        on = np.flatnonzero(ok[lab])
+        lab_on = lab[on]
+        partner = _has_partner(v.rows[on], v.cols[on], keys[1 - i], width, D, look_left=(i == 0))
+        k = _consistent(lab_on, partner, ok)
         n = len(k)
-        area = np.maximum(np.bincount(lab[use], minlength=n), 1).astype(np.float64)
+        area = np.maximum(np.bincount(lab_on, minlength=n), 1).astype(np.float64)
         delta = np.stack(
-            [np.bincount(lab[use], weights=v.delta[use, j], minlength=n) / area
+            [np.bincount(lab_on, weights=v.delta[on, j], minlength=n) / area
              for j in range(v.delta.shape[1])],
             1,
         )  # fmt: skip
@@ -266,16 +272,15 @@ def _select(
         k[0] = False
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
-        hue = _same_dye(v.delta, d_best)
+        px = on[k[lab_on]]  # the lo pixels of the kept pieces
+        hue = _same_dye(v.delta[px], d_best)
         other = hue < _SAME_DYE_COS_PX
         if nearest_hue and d_vessel is not None:
-            other |= hue <= _same_dye(v.delta, d_vessel)
-        sel = k[lab] & ~other
-        sel &= v.S[v.rows, v.cols] >= _CORE_FRACTION * means[lab]
-        if not sel.any():
-            sel = lab == best
+            other |= hue <= _same_dye(v.delta[px], d_vessel)
+        sel = ~other & (v.S[v.rows[px], v.cols[px]] >= _CORE_FRACTION * means[lab[px]])
+        px = px[sel] if sel.any() else np.flatnonzero(lab == best)
         core = np.zeros(v.lo.shape, np.uint8)
-        core[v.rows[sel], v.cols[sel]] = 1
+        core[v.rows[px], v.cols[px]] = 1
         out.append(core)
     return out, salience, cos_vessels
 
@@ -291,9 +296,9 @@ def noise_sigma(f: np.ndarray) -> np.ndarray:
     are sparse there; the differences are symmetric about 0), as a Gaussian sigma; at least
     the uint8 quantisation noise."""
     sub = f[::_NOISE_ROW_STEP]
-    d = cv2.absdiff(sub[:, 1:], sub[:, :-1]).reshape(-1, f.shape[2]).T.copy()  # (C, N)
-    mid = d.shape[1] // 2
-    mad = np.partition(d, mid, axis=1)[:, mid]
+    d = cv2.absdiff(sub[:, 1:], sub[:, :-1]).reshape(-1, f.shape[2])  # (N, C)
+    mid = d.shape[0] // 2
+    mad = np.array([_kth_smallest(d[:, j], mid) for j in range(d.shape[1])], np.float32)
     return np.maximum(1.4826 * mad / np.sqrt(2.0), _QUANT_SIGMA)
 
 
@@ -338,7 +343,7 @@ def _log_channels(img: np.ndarray) -> np.ndarray:
     if u8.ndim == 2 or u8.shape[2] == 1:
         return cv2.LUT(u8.reshape(u8.shape[0], u8.shape[1]), _LOG_LUT)[:, :, None]
     logs = cv2.LUT(np.ascontiguousarray(u8[:, :, :3]), _LOG_LUT)
-    return cv2.transform(logs, _LOG_MIX)
+    return cv2.transform(logs, _LOG_MIX, dst=logs)  # in place: one 12 B/px buffer, not two
 
 
 _LOG_LUT: Final = (_LOG_SCALE * np.log(np.arange(256, dtype=np.float64) + _LOG_OFFSET)).astype(
@@ -357,20 +362,21 @@ def _line_response(f: np.ndarray) -> np.ndarray:
     upsampled: the same response for a quarter of the work.
     """
     h, w = f.shape[:2]
-    fine = _line_at(np.ascontiguousarray(f[:, :, 0]), _SCALES[0], _SCALES[0])
+    fine = _line_at(f[:, :, 0].copy(), _SCALES[0], _SCALES[0])
     coarse = _line_at(cv2.pyrDown(f), 0.5 * _SCALES[1], _SCALES[1])
     return cv2.max(fine, cv2.resize(coarse, (w, h), interpolation=cv2.INTER_LINEAR), dst=fine)
 
 
 def _line_at(f: np.ndarray, sigma: float, norm: float) -> np.ndarray:
-    """Line strength at Gaussian scale ``sigma`` px of this image, normalised as scale ``norm``.
+    """Line strength at Gaussian scale ``sigma`` px of this image (overwritten: it is blurred
+    in place), normalised as scale ``norm``.
 
-    Written with cv2's in-place outputs: six buffers instead of fifteen fresh arrays (page
+    Written with cv2's in-place outputs: five buffers instead of fifteen fresh arrays (page
     faults on fresh memory cost more than the arithmetic here).
     """
     h, w = f.shape[:2]
     c = 1 if f.ndim == 2 else f.shape[2]
-    g = cv2.GaussianBlur(f, (0, 0), sigma)
+    g = cv2.GaussianBlur(f, (0, 0), sigma, dst=f)
     shape = (h, w * c)
     r = sigma / norm  # derivatives per original pixel: a half-resolution pixel is 2 px
     bufs = [np.empty(shape, np.float32) for _ in range(5)]
@@ -402,15 +408,33 @@ def _robust_level(s: np.ndarray) -> float:
     second pixel of every second row."""
     sample = s[::2, ::2].ravel()
     k = int(0.9 * (sample.size - 1))
-    return max(float(np.partition(sample, k)[k]), 1e-3)
+    return max(_kth_smallest(sample, k), 1e-3)
+
+
+def _kth_smallest(x: np.ndarray, k: int) -> float:
+    """The ``k``-th smallest (0-based) of the non-negative float32 values ``x`` (N,), exactly
+    ``np.partition(x, k)[k]`` in 1/3 of its time: the bit patterns of non-negative floats sort
+    like the floats, so a histogram of their top 16 bits finds the bin holding the k-th value,
+    and only that bin (a few %) is partitioned."""
+    if x.dtype != np.float32 or x.ndim != 1 or not 0 <= k < x.size:
+        raise ValueError(f"_kth_smallest needs (N,) float32 and 0 <= k < N, got {x.dtype} "
+                         f"{x.shape}, k={k}")  # fmt: skip
+    top = (np.ascontiguousarray(x).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 16  # -0.0 is 0
+    top = top.astype(np.intp)
+    below = np.cumsum(np.bincount(top))
+    b = int(np.searchsorted(below, k, side="right"))  # below[b - 1] <= k < below[b]
+    rest = x[top == b]
+    kk = k - (int(below[b - 1]) if b else 0)
+    return float(np.partition(rest, kk)[kk])
 
 
 def _pieces(
     s: np.ndarray, mask: np.ndarray, sub: np.ndarray | None, v: _View, p: SegmentationParams
 ) -> tuple:
     """Hysteresis pieces of ``mask`` (uint8, a subset of the view's lo pixels: those where
-    ``sub`` (M,) is True, all when None): the piece of each lo pixel (M,) (0: none), candidate
-    mask (H, W) uint8, per-piece mean S, length, shape ok."""
+    ``sub`` (M,) is True, all when None): the piece of each lo pixel (M,) (0: none), rows and
+    columns of the shape-ok pieces' pixels, per-piece mean S, length (exact where shape ok),
+    shape ok."""
     n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
     rows, cols = (v.rows, v.cols) if sub is None else (v.rows[sub], v.cols[sub])
     lab = labels[rows, cols]
@@ -420,19 +444,63 @@ def _pieces(
     seeded = np.zeros(n, bool)
     seeded[lab[s_px >= p.ridge_hi * v.level]] = True
     # Half-width of a piece: its largest distance to the outside; length: area / width (a loop
-    # or a coil is long in a small box), at least the bounding box diagonal.
-    dist = cv2.distanceTransform(mask, cv2.DIST_L2, 3)[rows, cols]
-    half, r0, r1, c0, c1 = _label_stats(lab, rows, cols, dist, n)
+    # or a coil is long in a small box), at least the bounding box diagonal. Both only matter
+    # for seeded pieces that can reach min_length_px: length <= max(diag, area / (2 a)), a =
+    # 0.955 the chamfer's smallest distance, and diag <= sqrt(2) area (a connected piece's box
+    # sides are <= its area). Those are few (a few % of the pieces); each is measured alone.
+    cands = seeded & (np.sqrt(2.0) * area >= p.min_length_px)
+    cands[0] = False
+    on = cands[lab]
+    r0, r1, c0, c1 = _boxes(lab[on], rows[on], cols[on], n)
     diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
+    cands &= np.maximum(diag, area / (2.0 * _CHAMFER_A)) >= p.min_length_px
+    half = _half_widths(labels, np.flatnonzero(cands), (r0, r1, c0, c1))
     length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
-    ok = seeded & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
-    ok[0] = False
+    ok = cands & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
     means[0] = 0.0
-    cand = np.zeros(mask.shape, np.uint8)
     on = ok[lab]
-    cand[rows[on], cols[on]] = 1
     lab_all = lab if sub is None else _scatter(lab, sub)
-    return lab_all, cand, means, length, ok
+    return lab_all, (rows[on], cols[on]), means, length, ok
+
+
+_CHAMFER_A: Final = 0.95  # below cv2's DIST_L2 3x3 step (0.955): no piece is thinner
+
+
+def _boxes(lab: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
+    """Per label (n,): first and last row, first and last column of its pixels (given in
+    row-major order), 0 for labels without pixels: one stable sort and reduceats."""
+    out = [np.zeros(n, np.intp) for _ in range(4)]
+    if lab.size == 0:
+        return tuple(out)
+    order = np.argsort(lab, kind="stable")
+    lab_s = lab[order]
+    starts = np.flatnonzero(np.concatenate([[True], lab_s[1:] != lab_s[:-1]]))
+    ends = np.append(starts[1:], len(lab_s)) - 1
+    ids = lab_s[starts]
+    r_s, c_s = rows[order], cols[order]
+    out[0][ids] = r_s[starts]  # row-major order: a label's rows ascend
+    out[1][ids] = r_s[ends]
+    out[2][ids] = np.minimum.reduceat(c_s, starts)
+    out[3][ids] = np.maximum.reduceat(c_s, starts)
+    return tuple(out)
+
+
+def _half_widths(labels: np.ndarray, ids: np.ndarray, boxes: tuple[np.ndarray, ...]) -> np.ndarray:
+    """(n,) largest distance (cv2 DIST_L2, 3x3 chamfer) of the pixels of the pieces ``ids`` to
+    the outside of their mask, 0 for the other pieces. A piece's own pixels in its box
+    (``boxes``: first and last row and column per label), with a 1 px margin of zeros where
+    the box is not at the image edge (cv2 takes the outside of the image as far), give the
+    distances of the whole mask: a path leaving a piece meets a zero of its 8-neighbourhood
+    (no other piece) first."""
+    half = np.zeros(len(boxes[0]))
+    h, w = labels.shape
+    r0, r1, c0, c1 = (b.tolist() for b in boxes)
+    for i in ids.tolist():
+        piece = cv2.compare(labels[r0[i] : r1[i] + 1, c0[i] : c1[i] + 1], i, cv2.CMP_EQ)
+        piece = cv2.copyMakeBorder(piece, int(r0[i] > 0), int(r1[i] < h - 1), int(c0[i] > 0),
+                                   int(c1[i] < w - 1), cv2.BORDER_CONSTANT, value=0)  # fmt: skip
+        half[i] = float(cv2.distanceTransform(piece, cv2.DIST_L2, 3).max())
+    return half
 
 
 def _scatter(values: np.ndarray, where: np.ndarray) -> np.ndarray:
@@ -442,35 +510,21 @@ def _scatter(values: np.ndarray, where: np.ndarray) -> np.ndarray:
     return out
 
 
-def _label_stats(
-    lab: np.ndarray, rows: np.ndarray, cols: np.ndarray, dist: np.ndarray, n: int
-) -> tuple[np.ndarray, ...]:
-    """Per label (n,): largest ``dist``, first and last row, first and last column of its
-    pixels (given in row-major order): one stable sort and four reduceats."""
-    out = [np.zeros(n) for _ in range(5)]
-    if lab.size == 0:
-        return tuple(out)
-    order = np.argsort(lab, kind="stable")
-    lab_s = lab[order]
-    starts = np.flatnonzero(np.concatenate([[True], lab_s[1:] != lab_s[:-1]]))
-    ends = np.append(starts[1:], len(lab_s)) - 1
-    ids = lab_s[starts]
-    r_s, c_s = rows[order], cols[order]
-    out[0][ids] = np.maximum.reduceat(dist[order], starts)
-    out[1][ids] = r_s[starts]  # row-major order: a label's rows ascend
-    out[2][ids] = r_s[ends]
-    out[3][ids] = np.minimum.reduceat(c_s, starts)
-    out[4][ids] = np.maximum.reduceat(c_s, starts)
-    return tuple(out)
+def _row_keys(rows: np.ndarray, cols: np.ndarray, width: int, d: int) -> np.ndarray:
+    """(M,) sorted keys ``row (width + d + 1) + col`` of pixels: a window of d + 1 columns
+    never spans two rows."""
+    return np.sort(rows.astype(np.int64) * (width + d + 1) + cols)
 
 
-def _reach(mask: np.ndarray, d: int, look_left: bool) -> np.ndarray:
-    """(H, W) uint8, 1 at pixels (r, c) with a ``mask`` pixel at (r, c - j) (``look_left``) or
-    (r, c + j), 0 <= j <= d: one dilation by a 1 x (d + 1) box anchored at its end."""
-    if d <= 0:
-        return mask
-    k = np.ones((1, d + 1), np.uint8)  # dilate: out(c) = max_i mask(c + i - anchor)
-    return cv2.dilate(mask, k, anchor=(d if look_left else 0, 0))
+def _has_partner(
+    rows: np.ndarray, cols: np.ndarray, keys: np.ndarray, width: int, d: int, look_left: bool
+) -> np.ndarray:
+    """(M,) bool: a pixel of ``keys`` (the other view, :func:`_row_keys`) at (r, c - j)
+    (``look_left``) or (r, c + j), 0 <= j <= max(d, 0), for each pixel (r, c)."""
+    d = max(d, 0)
+    q = rows.astype(np.int64) * (width + d + 1) + cols
+    lo, hi = (q - d, q) if look_left else (q, q + d)
+    return np.searchsorted(keys, hi, side="right") > np.searchsorted(keys, lo, side="left")
 
 
 def _consistent(lab: np.ndarray, partner: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -491,39 +545,52 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     A pixel blending thread colour T over local background B with coverage c has
     I - B = c (T - B), so c^2 = |I - B|^2 / |T - B|^2; |T - B|^2 is the largest |I - B|^2 of a
     core pixel within the band (a box of radius _BAND_PX; the thread's axis is there). B is
-    the candidate-free average of the view (:func:`_background`). Sparse: band pixels only.
+    the candidate-free average of the view (:func:`_background`). Sparse: band pixels only,
+    and the two dilations run on the core's bounding box grown by the band (exact: a dilation
+    reaches no further than its radius).
     """
+    h, w = core.shape
+    out = np.zeros(core.shape, bool)
+    pts = cv2.findNonZero(core)
+    if pts is None:
+        return out
+    x0, y0, bw, bh = cv2.boundingRect(pts)
+    # The box: the core's bounding box grown by the band and by the 2 px the coverage test
+    # looks at (zeros there, as in the full image), clipped to the image.
+    m = _BAND_PX + 2
+    r0, r1, c0, c1 = max(y0 - m, 0), min(y0 + bh + m, h), max(x0 - m, 0), min(x0 + bw + m, w)
+    core_b = core[r0:r1, c0:c1]
     a = v.img if v.img.ndim == 3 else v.img[:, :, None]
-    a = a[:, :, : v.bg_rgb.shape[2]]
+    a = a[r0:r1, c0:c1, : v.bg_rgb.shape[2]]
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * _BAND_PX + 1, 2 * _BAND_PX + 1))
-    band = cv2.dilate(core, k)
-    rows, cols = _points(band)
+    band = cv2.dilate(core_b, k)
+    rows, cols = _points(band)  # in the box
     bg = v.bg_rgb
-    diff = a[rows, cols].astype(np.float32) - bg[_qi(rows, bg.shape[0]), _qi(cols, bg.shape[1])]
+    diff = a[rows, cols].astype(np.float32) - bg[_qi(rows + r0, bg.shape[0]),
+                                                 _qi(cols + c0, bg.shape[1])]  # fmt: skip
     c2 = np.einsum("ij,ij->i", diff, diff)
-    on_core = core[rows, cols] > 0
-    dense = np.zeros(core.shape, np.float32)
+    on_core = core_b[rows, cols] > 0
+    dense = np.zeros(core_b.shape, np.float32)
     dense[rows[on_core], cols[on_core]] = c2[on_core]
     box = np.ones((2 * _BAND_PX + 1, 2 * _BAND_PX + 1), np.uint8)
     peak = cv2.dilate(dense, box)[rows, cols]
-    out = np.zeros(core.shape, bool)
     keep = (c2 >= 0.25 * peak) & (peak > 0)
     # Coverage is conserved: a cross-section of two pixels (its outer neighbours below 0.5)
     # whose coverages sum to < _SHARED_PX holds less than that much thread (a 1-2 px thread
     # crossing from one pixel row or column to the next); coverage 0.5 takes the larger only.
-    cov = np.zeros(core.shape, np.float32)
+    cov = np.zeros(core_b.shape, np.float32)
     cov[rows[keep], cols[keep]] = np.sqrt(c2[keep] / peak[keep])
-    c = cov[rows, cols]
-    h, w = core.shape
-
-    def at(dr: int, dc: int) -> np.ndarray:
-        return cov[np.clip(rows + dr, 0, h - 1), np.clip(cols + dc, 0, w - 1)]
-
-    for dr, dc in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        nb = at(dr, dc)
-        alone = (at(2 * dr, 2 * dc) < 0.5) & (at(-dr, -dc) < 0.5)
+    # Neighbours up to 2 px away by flat index into a copy padded by replicating the edge: the
+    # box's own 2 px margin inside the image, the image's edge pixel outside it (clipping).
+    cov = cv2.copyMakeBorder(cov, 2, 2, 2, 2, cv2.BORDER_REPLICATE).ravel()
+    stride = core_b.shape[1] + 4
+    at0 = (rows + 2) * stride + (cols + 2)
+    c = cov[at0]
+    for step in (stride, -stride, 1, -1):
+        nb = cov[at0 + step]
+        alone = (cov[at0 + 2 * step] < 0.5) & (cov[at0 - step] < 0.5)
         keep &= ~((nb > c) & (nb + c < _SHARED_PX) & alone)
-    out[rows[keep], cols[keep]] = True
+    out[rows[keep] + r0, cols[keep] + c0] = True
     return out
 
 
@@ -532,11 +599,15 @@ def drop_specks(mask: np.ndarray, min_px: int) -> np.ndarray:
     if min_px <= 1:
         return mask
     u8 = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
-    rows, cols = _points(u8)
-    if not len(rows):
+    pts = cv2.findNonZero(u8)
+    if pts is None:
         return mask
-    n, labels = cv2.connectedComponents(u8, connectivity=8, ltype=cv2.CV_32S)
-    lab = labels[rows, cols]
+    # Labelled on the pixels' bounding box only: the same components, hence the same sizes.
+    x, y, w, h = cv2.boundingRect(pts)
+    n, labels = cv2.connectedComponents(u8[y : y + h, x : x + w], connectivity=8, ltype=cv2.CV_32S)
+    pts = pts.reshape(-1, 2)
+    rows, cols = pts[:, 1].astype(np.intp), pts[:, 0].astype(np.intp)
+    lab = labels[rows - y, cols - x]
     keep = np.bincount(lab, minlength=n) >= min_px
     keep = keep[lab]
     out = np.zeros(mask.shape, bool)

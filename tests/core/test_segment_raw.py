@@ -1,0 +1,88 @@
+"""Tests of core/segment_raw.py's exact shortcuts: each equals the plain computation it replaces."""
+
+import cv2
+import numpy as np
+import pytest
+
+from threadrecon.core import segment_raw as sr
+from threadrecon.core.segmentation import SegmentationParams
+from threadrecon.core.synthetic import RenderParams, SyntheticParams, ThreadParams, generate_frame
+
+
+@pytest.mark.parametrize("trial", range(40))
+def test_kth_smallest_equals_partition(trial: int) -> None:
+    rng = np.random.default_rng([77, trial])
+    n = int(rng.integers(1, 4000))
+    x = (rng.random(n) * rng.choice([1e-4, 1.0, 1e5])).astype(np.float32)
+    if trial % 3 == 0:  # many exact zeros, as in a clipped line response
+        x[rng.random(n) < 0.6] = 0.0
+    if trial % 4 == 0:  # ties
+        x = np.round(x, 1).astype(np.float32)
+    if trial % 5 == 0:  # negative zeros sort as zeros
+        x[rng.random(n) < 0.2] = np.float32(-0.0)
+    for k in (0, n // 2, int(0.9 * (n - 1)), n - 1):
+        assert sr._kth_smallest(x, k) == np.partition(x, k)[k]
+
+
+def test_kth_smallest_rejects_bad_input() -> None:
+    with pytest.raises(ValueError, match="float32"):
+        sr._kth_smallest(np.zeros(4), 1)
+    with pytest.raises(ValueError, match="k=4"):
+        sr._kth_smallest(np.zeros(4, np.float32), 4)
+
+
+def test_grow_mask_on_the_box_equals_the_mask_of_a_padded_image() -> None:
+    """The mask grown on the core's bounding box is the one grown in a larger image holding the
+    same pixels (the box clipped at the image edge behaves as the full image there)."""
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=RenderParams(background="tissue")),
+        np.random.default_rng(5),
+    )
+    p = SegmentationParams(method="raw")
+    views = [sr._View.build(img, p) for img in (frame.left, frame.right)]
+    found, _, _ = sr._select(views, p)
+    assert found is not None
+    v, core = views[0], found[0]
+    mask = sr._grow_mask(v, core)
+    assert mask.sum() > 100
+    # The same view cropped so that the thread touches the crop's edges: same mask inside.
+    rows, cols = np.nonzero(core)
+    r0, c0 = int(rows.min()) + 3, int(cols.min()) + 3
+    crop = sr._View(**{k: getattr(v, k) for k in v.__dataclass_fields__})
+    # The quarter-resolution background must stay aligned: crop on whole blocks only.
+    r0q, c0q = r0 // sr._Q * sr._Q, c0 // sr._Q * sr._Q
+    crop.img = v.img[r0q:, c0q:]
+    crop.bg_rgb = v.bg_rgb[r0q // sr._Q :, c0q // sr._Q :]
+    inner = sr._grow_mask(crop, np.ascontiguousarray(core[r0q:, c0q:]))
+    # Away from the crop's edge (2 px of coverage test, the band) both see the same pixels.
+    m = sr._BAND_PX + 2
+    assert np.array_equal(inner[m:, m:], mask[r0q + m :, c0q + m :])
+
+
+@pytest.mark.parametrize("look_left", [True, False])
+@pytest.mark.parametrize("d", [0, 1, 7, 80])
+def test_has_partner_equals_a_row_dilation_of_the_other_view(look_left: bool, d: int) -> None:
+    """A partner within d px on the same row, as the box dilation of the other view's mask."""
+    rng = np.random.default_rng([d, look_left])
+    h, w = 40, 90
+    other = (rng.random((h, w)) < 0.02).astype(np.uint8)
+    anchor = (d, 0) if look_left else (0, 0)  # dilate: out(c) = max_i other(c + i - anchor)
+    reach = cv2.dilate(other, np.ones((1, d + 1), np.uint8), anchor=anchor) if d else other
+    rows, cols = np.nonzero(np.ones((h, w), bool))
+    keys = sr._row_keys(*np.nonzero(other), w, d)
+    got = sr._has_partner(rows, cols, keys, w, d, look_left)
+    assert np.array_equal(got, reach[rows, cols] > 0)
+
+
+@pytest.mark.parametrize("trial", range(6))
+def test_drop_specks_keeps_exactly_the_components_of_at_least_min_px(trial: int) -> None:
+    rng = np.random.default_rng([91, trial])
+    mask = rng.random((60, 80)) < [0.03, 0.1, 0.3, 0.5, 0.0, 0.02][trial]
+    if trial == 5:  # one component touching the image corner, one speck elsewhere
+        mask[:3, :20] = True
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.view(np.uint8), connectivity=8)
+    for min_px in (1, 2, 5, 30):
+        big = stats[:, cv2.CC_STAT_AREA] >= min_px
+        big[0] = False
+        expected = big[labels] if min_px > 1 else mask
+        assert np.array_equal(sr.drop_specks(mask, min_px), expected)
