@@ -42,7 +42,8 @@ from scipy.spatial import cKDTree
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
-from threadrecon.core.check_field import MaskField, mask_field
+from threadrecon.core.check_field import MaskField, derived, mask_field
+from threadrecon.core.check_kernel import overlap_hits
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.reliability import ReliabilityResult
@@ -561,7 +562,8 @@ def _check(
         )  # fmt: skip
 
     # Bound excursions of the returned spline and the solver's status.
-    excursion = _excursion(spline, bounds)
+    zs = _spline_z(spline)
+    excursion = _excursion(spline, bounds, zs)
     if not spline.ok and p.solver_suspect:
         findings.append(
             ("suspect", f"the MVS solver's result was rejected ({spline.status}: "
@@ -590,7 +592,7 @@ def _check(
              f"no reliable match supports it (limit {p.max_unsupported_mm:g} mm): length the "
              "images do not show")
         )  # fmt: skip
-    unsupported_exc = _excursion(spline, bounds, ~supported)
+    unsupported_exc = _excursion(spline, bounds, zs, ~supported)
     if unsupported_exc > p.bound_tol:
         findings.append(
             ("suspect", f"the curve leaves its depth bounds by {unsupported_exc:.2f} of the "
@@ -684,7 +686,7 @@ def _failed_early(
         length=nan,
         length_range=(nan, nan),
         path_px=float(bounds.s[-1]),
-        bound_excursion=_excursion(spline, bounds),
+        bound_excursion=_excursion(spline, bounds, _spline_z(spline)),
         solver_status=spline.status,
         longest_jump_px=nan,
         overlap_px=nan,
@@ -753,13 +755,19 @@ def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> 
     return float(np.count_nonzero(band & mask)) / v.total
 
 
-def _excursion(spline: SplineResult, bounds: Bounds, where: np.ndarray | None = None) -> float:
+def _spline_z(spline: SplineResult) -> np.ndarray:
+    """S_z at the points of H (the returned spline)."""
+    return BSpline(spline.knots, spline.ctrl[:, 2], spline.degree)(spline.u_H)
+
+
+def _excursion(
+    spline: SplineResult, bounds: Bounds, zs: np.ndarray, where: np.ndarray | None = None
+) -> float:
     """Largest excursion of S_z outside [lower, upper] at the points of H, in half-widths;
     with ``where`` (one flag per dense curve point, evenly spaced in the spline's parameter),
     only at the points of H whose nearest curve point is flagged. Bounds the refine stage
     dropped (``spline.bounds_dropped``: stereo matched a strand to its neighbour there, so
     they bound the wrong strand) are not evidence and are skipped."""
-    zs = BSpline(spline.knots, spline.ctrl[:, 2], spline.degree)(spline.u_H)
     half = np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12)
     out = np.maximum(bounds.lower - zs, zs - bounds.upper) / half
     dropped = spline.bounds_dropped
@@ -820,17 +828,11 @@ def _overlap(uv: np.ndarray, step: np.ndarray, loop_px: float) -> float:
     ok = np.all(np.isfinite(uv), axis=1)
     if ok.sum() < 3 or loop_px <= 0:
         return 0.0
-    s = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))])
-    idx = np.flatnonzero(ok)
-    pairs = cKDTree(uv[ok]).query_pairs(loop_px, output_type="ndarray")
-    if pairs.size == 0:
-        return 0.0
-    a, b = idx[pairs[:, 0]], idx[pairs[:, 1]]
-    far = np.abs(s[a] - s[b]) > np.pi * loop_px + 3.0
-    hit = np.zeros(len(uv), dtype=bool)
-    hit[a[far]] = True
-    hit[b[far]] = True
     seg = np.where(np.isfinite(step), step, 0.0)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    hit = np.zeros(len(uv), dtype=bool)
+    q = uv[ok]
+    hit[ok] = overlap_hits(q[:, 0].copy(), q[:, 1].copy(), s[ok], loop_px**2, np.pi * loop_px + 3.0)
     return float(0.5 * np.sum(seg * (hit[1:] & hit[:-1])))
 
 
@@ -1055,14 +1057,24 @@ def _disparity_residual(
     support_px: float,
 ) -> np.ndarray:
     """|curve disparity - disparity of the nearest reliable pixel| + distance / support_px."""
-    sel = np.flatnonzero(rel.reliable)
-    if sel.size == 0:
+    tree, disp_rel = derived(
+        (stereo.pixels, stereo.disparity, rel.reliable), "reliable_tree", lambda: _tree(stereo, rel)
+    )
+    if tree is None:
         return np.full(len(uv_l), 1e3)
     ok = np.all(np.isfinite(uv_l), axis=1)
     q = np.where(ok[:, None], uv_l, 0.0)
-    dist, j = cKDTree(stereo.pixels[sel].astype(np.float64)).query(q)
-    r = np.abs(disp_curve - stereo.disparity[sel][j]) + dist / support_px
+    dist, j = tree.query(q)
+    r = np.abs(disp_curve - disp_rel[j]) + dist / support_px
     return np.where(ok & np.isfinite(r), r, 1e3)
+
+
+def _tree(stereo: StereoResult, rel: ReliabilityResult) -> tuple[cKDTree | None, np.ndarray]:
+    """The k-d tree of the reliable pixels P_L^R and their disparities (per stereo result)."""
+    sel = np.flatnonzero(rel.reliable)
+    if sel.size == 0:
+        return None, np.zeros(0)
+    return cKDTree(stereo.pixels[sel].astype(np.float64)), stereo.disparity[sel]
 
 
 def _bound_halfwidth_px(spline: SplineResult, bounds: Bounds, n: int, fB: float) -> np.ndarray:
@@ -1120,7 +1132,7 @@ def _grasp(
         dist = from_start if best == "start" else from_end
         cand = np.array([int(np.argmin(np.abs(dist - p.grasp_mm)))])
     i = int(cand[np.argmax(conf[cand])])
-    tangent = np.gradient(pts, axis=0)[i]
+    tangent = _gradient_at(pts, i)
     norm = np.linalg.norm(tangent)
     tangent = tangent / norm if norm > 0 else np.zeros(3)
     dist = from_start if best == "start" else from_end
@@ -1132,3 +1144,12 @@ def _grasp(
         from_end=best,
         distance=float(dist[i] / mm),
     )
+
+
+def _gradient_at(pts: np.ndarray, i: int) -> np.ndarray:
+    """Row i of ``np.gradient(pts, axis=0)`` (unit spacing, edge_order 1)."""
+    if i == 0:
+        return pts[1] - pts[0]
+    if i == len(pts) - 1:
+        return pts[-1] - pts[-2]
+    return (pts[i + 1] - pts[i - 1]) / 2.0

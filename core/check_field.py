@@ -14,7 +14,9 @@ segmentation, and so the mask object, is unchanged.
 from __future__ import annotations
 
 import weakref
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
@@ -22,6 +24,8 @@ import numpy as np
 from threadrecon.core.lru import LRU, MISSING
 
 FIELD_CACHE = 8  # fields kept: both views of a few frames, the debugger's working set
+DERIVED_CACHE = 16  # other per-segmentation values kept (a few kinds for a few frames)
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -81,8 +85,23 @@ def mask_field(mask: np.ndarray, reach: float) -> MaskField:
 
 
 def clear_fields() -> None:
-    """Forget every cached field (timings of the check on a new segmentation)."""
+    """Forget every cached field and derived value (timings of the check on a new
+    segmentation)."""
     _FIELDS.clear()
+    _DERIVED.clear()
+
+
+def derived(owners: tuple[np.ndarray, ...], tag: str, compute: Callable[[], T]) -> T:
+    """``compute()``, cached while the arrays ``owners`` are alive (weak references, as for
+    the fields): what the check derives from one segmentation or stereo result and re-reads
+    after a slider move of a later stage. ``tag`` names the kind of value."""
+    key = (tag, *map(id, owners))
+    hit: Any = _DERIVED.get(key)
+    if hit is not MISSING and all(r() is o for r, o in zip(hit[0], owners, strict=True)):
+        return hit[1]
+    value = compute()
+    _DERIVED.put(key, (tuple(weakref.ref(o) for o in owners), value))
+    return value
 
 
 def _compute(mask: np.ndarray, reach: float) -> MaskField:
@@ -102,3 +121,4 @@ def _compute(mask: np.ndarray, reach: float) -> MaskField:
 
 
 _FIELDS: LRU[tuple[int, float], tuple[weakref.ref, MaskField]] = LRU(FIELD_CACHE)
+_DERIVED: LRU[tuple[Any, ...], tuple[tuple[weakref.ref, ...], Any]] = LRU(DERIVED_CACHE)
