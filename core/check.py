@@ -719,40 +719,64 @@ def _border_distance(a: np.ndarray, b: np.ndarray, shape: tuple[int, int]) -> fl
 
 @dataclass(frozen=True)
 class _View:
-    """One view's thread mask cropped to a box holding every thread pixel: the coverage is
-    measured on this crop (the curve's band outside it holds no thread pixel)."""
+    """One view's thread mask for the coverage: ``mask`` (h, w) uint8 0/1, the thread pixels'
+    bounding box [bx, bx + w) x [by, by + h) of the image (the curve's band outside it holds no
+    thread pixel); ``x0``, ``y0`` the origin of the field's box the curve is measured from
+    (the band is drawn from the same fixed-point coordinates as on that box)."""
 
     mask: np.ndarray
     x0: int
     y0: int
+    bx: int
+    by: int
     total: int
+    shape: tuple[int, int]
 
 
 def _view(mask: np.ndarray, field: MaskField) -> _View:
-    """The thread mask on its field's box (every thread pixel, grown by the field's reach)."""
-    h, w = field.dist.shape
-    return _View(mask[field.y0 : field.y0 + h, field.x0 : field.x0 + w], field.x0, field.y0,
-                 field.total)  # fmt: skip
+    """The thread mask on its bounding box (per segmentation, cached with it)."""
+    return derived((mask,), f"view{field.x0},{field.y0}", lambda: _crop(mask, field))
+
+
+def _crop(mask: np.ndarray, field: MaskField) -> _View:
+    m8 = np.ascontiguousarray(mask).view(np.uint8)
+    bx, by, bw, bh = cv2.boundingRect(m8) if field.total else (0, 0, 0, 0)
+    crop = np.ascontiguousarray(m8[by : by + bh, bx : bx + bw])
+    crop.setflags(write=False)
+    return _View(crop, field.x0, field.y0, bx, by, field.total, mask.shape)
 
 
 def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> float:
     """Share of thread pixels within ``cover_px`` + the thread's half-width of the curve.
 
     The half-width is the thread area in a band around the curve divided by twice the curve's
-    2D length (a wrong curve over background gets a thin band: stricter, never looser)."""
+    2D length (a wrong curve over background gets a thin band: stricter, never looser).
+    A band is drawn as 0 over a copy of the thread mask: the thread pixels it covers are the
+    ones that no longer count."""
     if inside.sum() < 2 or v.total == 0:
         return 0.0
     xy = uv[inside] - [v.x0, v.y0]
     poly = np.rint(xy * 4).astype(np.int32).reshape(-1, 1, 2)  # 2 fractional bits
-    mask = v.mask.view(np.uint8)
-    band = np.zeros(mask.shape, np.uint8)
-    cv2.polylines(band, [poly], False, 1, 2 * BAND_PX + 1, cv2.LINE_8, 2)
     length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
-    half = min(0.5 * float(np.count_nonzero(band & mask)) / max(length, 1.0), BAND_PX)
+    half = min(0.5 * _in_band(v, poly, 2 * BAND_PX + 1) / max(length, 1.0), BAND_PX)
     reach = int(np.ceil(cover_px + half))
-    band[:] = 0
-    cv2.polylines(band, [poly], False, 1, 2 * reach + 1, cv2.LINE_8, 2)
-    return float(np.count_nonzero(band & mask)) / v.total
+    return _in_band(v, poly, 2 * reach + 1) / v.total
+
+
+def _in_band(v: _View, poly: np.ndarray, thickness: int) -> float:
+    """Thread pixels under the polyline ``poly`` (fixed point, 2 bits, from the field's box)
+    drawn ``thickness`` px wide."""
+    if thickness < 3:  # a thin line is clipped to the canvas: draw it on the field's box
+        H, W = v.shape
+        canvas = np.zeros((H - v.y0, W - v.x0), np.uint8)
+        canvas[v.by - v.y0 : v.by - v.y0 + v.mask.shape[0],
+               v.bx - v.x0 : v.bx - v.x0 + v.mask.shape[1]] = v.mask  # fmt: skip
+        cv2.polylines(canvas, [poly], False, 0, thickness, cv2.LINE_8, 2)
+        return float(v.total - cv2.countNonZero(canvas))
+    canvas = v.mask.copy()  # a thick line is a union of polygons and discs: shift-invariant
+    shifted = poly - np.array([4 * (v.bx - v.x0), 4 * (v.by - v.y0)], np.int32)
+    cv2.polylines(canvas, [shifted], False, 0, thickness, cv2.LINE_8, 2)
+    return float(v.total - cv2.countNonZero(canvas))
 
 
 def _spline_z(spline: SplineResult) -> np.ndarray:
