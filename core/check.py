@@ -781,7 +781,9 @@ def _in_band(v: _View, poly: np.ndarray, thickness: int) -> float:
 
 def _spline_z(spline: SplineResult) -> np.ndarray:
     """S_z at the points of H (the returned spline)."""
-    return BSpline(spline.knots, spline.ctrl[:, 2], spline.degree)(spline.u_H)
+    c = np.ascontiguousarray(spline.ctrl[:, 2], dtype=np.float64)  # as BSpline() keeps it
+    t = np.ascontiguousarray(spline.knots, dtype=np.float64)
+    return BSpline.construct_fast(t, c, int(spline.degree))(spline.u_H)
 
 
 def _excursion(
@@ -883,7 +885,12 @@ class _BareBackground:
             (np.asarray(lifted.grey_L), lifted.P_L, fields[0]),
             (np.asarray(lifted.grey_R), lifted.P_R, fields[1]),
         ]
-        self._cache: dict[tuple[int, int, int], tuple[float, float] | None] = {}
+        # the levels depend on the segmentation only: kept with it for the next slider move
+        self._cache: dict[tuple[int, int, int], tuple[float, float] | None] = derived(
+            (lifted.grey_L, lifted.grey_R, lifted.P_L, lifted.P_R),
+            f"bare{fields[0].reach:g},{fields[1].reach:g}",
+            dict,
+        )
 
     def _level(self, side: int, xy: np.ndarray) -> tuple[float, float] | None:
         """Median and spread of the ring around the thread within REACH_PX of ``xy``."""

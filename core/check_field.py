@@ -21,6 +21,7 @@ from typing import Any, TypeVar
 import cv2
 import numpy as np
 
+from threadrecon.core.check_kernel import field_at
 from threadrecon.core.lru import LRU, MISSING
 
 FIELD_CACHE = 8  # fields kept: both views of a few frames, the debugger's working set
@@ -43,17 +44,10 @@ class MaskField:
         """Distance (px) of each (x, y) in ``uv`` (N, 2) to the nearest thread pixel, saturated
         at ``reach``; a non-finite point gets ``reach``. A point off the image adds its
         distance to the nearest image pixel of the box."""
-        out = np.full(len(uv), self.reach)
-        ok = np.all(np.isfinite(uv), axis=1)
-        if self.total == 0 or not ok.any():
-            return out
-        h, w = self.dist.shape
-        q = uv[ok] - [self.x0, self.y0]
-        qc = np.clip(np.rint(q), 0, [w - 1, h - 1])
-        qi = qc.astype(np.intp)
-        off = np.hypot(*(q - qc).T)  # beyond the box (off the image), and the rounding, px
-        out[ok] = np.minimum(self.dist[qi[:, 1], qi[:, 0]] + off, self.reach)
-        return out
+        if self.total == 0:
+            return np.full(len(uv), self.reach)
+        uv = np.ascontiguousarray(uv, dtype=np.float64)
+        return field_at(self.dist, float(self.x0), float(self.y0), float(self.reach), uv)
 
     def window(self, x: int, y: int, r: int) -> tuple[np.ndarray, slice, slice]:
         """The field on the image window of half-size ``r`` around pixel (x, y), clipped to

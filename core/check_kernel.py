@@ -16,6 +16,8 @@ the curve (``check._overlap``), by a sweep over the samples sorted by x.
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
@@ -88,3 +90,23 @@ def overlap_hits(x, y, s, r2, gap):  # noqa: ANN001
                 hit[i] = True
                 hit[j] = True
     return hit
+
+
+@numba.njit(cache=True, nogil=True)
+def field_at(dist, x0, y0, reach, uv):  # noqa: ANN001
+    """``MaskField.at`` over (N, 2) points: the field at each point's nearest pixel of the box
+    plus the point's distance to that pixel, saturated at ``reach``; ``reach`` where not
+    finite."""
+    h, w = dist.shape
+    out = np.empty(len(uv))
+    for k in range(len(uv)):
+        x, y = uv[k, 0], uv[k, 1]
+        if not (np.isfinite(x) and np.isfinite(y)):
+            out[k] = reach
+            continue
+        qx, qy = x - x0, y - y0
+        cx = min(max(np.rint(qx), 0.0), w - 1.0)
+        cy = min(max(np.rint(qy), 0.0), h - 1.0)
+        v = np.float64(dist[int(cy), int(cx)]) + math.hypot(qx - cx, qy - cy)
+        out[k] = v if v < reach else reach
+    return out
