@@ -1,17 +1,10 @@
-"""Compiled kernels of the check stage (core/check.py, core/check_field.py).
-
-``chamfer_at``: the distance field of a thread mask read at a few pixels, without the
-distance transform of the whole mask box. ``cv2.distanceTransform(.., DIST_L2, DIST_MASK_3)``
-is the 3x3 chamfer distance with the fixed-point weights ``HV`` (a step along a row or column)
-and ``DIAG`` (a diagonal step), 16 fractional bits: its two raster passes give, at each pixel,
-the smallest weight of a staircase path to a thread pixel, i.e. ``m DIAG + (M - m) HV`` over the
-thread pixels at offset (dx, dy), m = min(|dx|, |dy|), M = max(|dx|, |dy|); the float it writes
-is that integer times 2^-16 (exact below 2^24, i.e. 256 px). The kernel takes the same minimum
-ring by ring around each pixel (a thread pixel on the Chebyshev ring r weighs at least r HV),
-so it returns the very integer the transform would.
+"""Compiled kernels of the check stage (core/check.py, core/check_field.py): loops over the
+curve's samples that numpy would run as many small calls, with the same floating-point
+operations (the check's results are bit-identical to the numpy forms they replace).
 
 ``overlap_hits``: the pairs of curve samples within a distance in the image and far apart along
-the curve (``check._overlap``), by a sweep over the samples sorted by x.
+the curve (``check._overlap``), by a sweep over the samples sorted by x. ``field_at``: the
+distance field of a thread mask read at the curve's points (``MaskField.at``).
 """
 
 from __future__ import annotations
@@ -21,55 +14,8 @@ import math
 import numba
 import numpy as np
 
-DIST_SHIFT = 16  # fractional bits of OpenCV's chamfer distances
-HV = 62587  # round(float32(0.955) * 2^16): OpenCV's 3x3 L2 weight of a row or column step
-DIAG = 89738  # round(float32(1.3693) * 2^16): its weight of a diagonal step
-
 
 # cache=True: compiled once per machine (numba's cache beside this file), not once per process.
-@numba.njit(cache=True, nogil=True)
-def chamfer_at(mask, xs, ys, cap, budget):  # noqa: ANN001
-    """Chamfer distance (fixed point, ``HV``/``DIAG`` weights) of the pixels (xs[k], ys[k]) of
-    the (H, W) bool ``mask`` to its nearest True pixel; ``cap`` where it is ``cap`` or more.
-    Returns (distances int64, done): done False when more than ``budget`` pixels would have to
-    be visited (the caller then takes the distance transform of the whole box)."""
-    h, w = mask.shape
-    out = np.empty(len(xs), dtype=np.int64)
-    visited = 0
-    for k in range(len(xs)):
-        x, y = xs[k], ys[k]
-        if mask[y, x]:
-            out[k] = 0
-            continue
-        best = cap
-        r = 1
-        while r * HV < best:
-            visited += 8 * r
-            if visited > budget:
-                return out, False
-            r0, r1 = max(y - r, 0), min(y + r, h - 1)
-            c0, c1 = max(x - r, 0), min(x + r, w - 1)
-            for yy in (y - r, y + r):  # the ring's top and bottom rows
-                if 0 <= yy < h:
-                    for xx in range(c0, c1 + 1):
-                        if mask[yy, xx]:
-                            m = min(abs(xx - x), r)
-                            c = m * DIAG + (r - m) * HV
-                            if c < best:
-                                best = c
-            for xx in (x - r, x + r):  # its left and right columns, corners excluded
-                if 0 <= xx < w:
-                    for yy in range(max(r0, y - r + 1), min(r1, y + r - 1) + 1):
-                        if mask[yy, xx]:
-                            m = abs(yy - y)
-                            c = m * DIAG + (r - m) * HV
-                            if c < best:
-                                best = c
-            r += 1
-        out[k] = best
-    return out, True
-
-
 @numba.njit(cache=True, nogil=True)
 def overlap_hits(x, y, s, r2, gap):  # noqa: ANN001
     """(n,) bool: sample i lies within sqrt(r2) (squared distance <= r2) of a sample j with
