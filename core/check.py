@@ -187,6 +187,19 @@ class CheckParams(Params):
         doc="Two curve samples this close in the left image, but far apart along the curve, "
         "overlap.",
     )  # fmt: skip
+    crossing_disparity_px: float = param(
+        1.0, lo=0.0, unit="px", slider=(0.0, 10.0, 0.25), label="crossing depth gap",
+        doc="Two passes of the curve over the same left pixels are two strands crossing, not a "
+        "loop, when the thread pixels cross at a keypoint, both passes lie on them, each is "
+        "within crossing_support_px along the curve of a point a reliable match supports, and "
+        "their disparities differ by at least this (default 4 sigma_d: a loop or doubling back "
+        "re-uses the same matches, at the same depth). Such a crossing is no overlap.",
+    )  # fmt: skip
+    crossing_support_px: float = param(
+        25.0, lo=0.0, unit="px", slider=(0.0, 100.0, 1.0), label="crossing support reach",
+        doc="2D length along the curve within which a crossing strand needs a supported point "
+        "(its depth across the crossing is interpolated from there).",
+    )  # fmt: skip
     max_overlap_px: float = param(
         25.0, lo=0.0, unit="px", slider=(0.0, 200.0, 1.0), label="longest overlap",
         doc="Suspect when more than this length of the left projection runs over another part "
@@ -574,7 +587,11 @@ def _check(
     K = ordering.n_clusters
     degree = np.bincount(ordering.edges.ravel(), minlength=K) if ordering.edges.size else []
     crossings = int(np.sum(np.asarray(degree) >= p.crossing_degree))
-    overlap = _overlap(uv_l, step, p.loop_px)
+    z_pos = np.maximum(z, 1e-12)
+    r = _disparity_residual(stereo, rel, uv_l, f * B / z_pos, p.support_px)
+    supported = r <= p.support_tol_px
+    strand = _strand_samples(crossings, in_l & (rho_l <= p.jump_px), supported, step, p)
+    overlap = _overlap(uv_l, step, p.loop_px, f * B / z_pos, strand, p.crossing_disparity_px)
     if overlap > p.max_overlap_px:
         findings.append(
             ("suspect", f"{overlap:.0f} px of the curve run over another part of it (a loop or "
@@ -582,9 +599,6 @@ def _check(
         )  # fmt: skip
 
     # Per-point expected error and confidence.
-    z_pos = np.maximum(z, 1e-12)
-    r = _disparity_residual(stereo, rel, uv_l, f * B / z_pos, p.support_px)
-    supported = r <= p.support_tol_px
     unsupported = _unsupported_travel(z, supported) * mm
     if unsupported > p.max_unsupported_mm:
         findings.append(
@@ -848,9 +862,34 @@ def _unsupported_travel(z: np.ndarray, supported: np.ndarray) -> float:
     return float(np.sum(travel - net))
 
 
-def _overlap(uv: np.ndarray, step: np.ndarray, loop_px: float) -> float:
+def _strand_samples(
+    crossings: int, on_l: np.ndarray, supported: np.ndarray, step: np.ndarray, p: CheckParams
+) -> np.ndarray:
+    """Samples that may belong to a strand crossing another (``crossing_disparity_px``): the
+    thread pixels cross at a keypoint, the sample lies on the left thread pixels and a
+    supported sample lies within ``crossing_support_px`` of it along the curve (2D)."""
+    n = len(on_l)
+    if crossings == 0 or not supported.any():
+        return np.zeros(n, dtype=bool)
+    s = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))])
+    ss = s[supported]
+    k = np.searchsorted(ss, s)
+    before = np.abs(s - ss[np.maximum(k - 1, 0)])
+    after = np.abs(ss[np.minimum(k, len(ss) - 1)] - s)
+    return on_l & (np.minimum(before, after) <= p.crossing_support_px)
+
+
+def _overlap(
+    uv: np.ndarray,
+    step: np.ndarray,
+    loop_px: float,
+    disp: np.ndarray,
+    strand: np.ndarray,
+    dtol: float,
+) -> float:
     """2D length (px) of the curve lying within ``loop_px`` of a part of the curve more than
-    ``pi * loop_px`` + 3 px away along it (a crossing contributes a few px)."""
+    ``pi * loop_px`` + 3 px away along it (a crossing contributes a few px); two ``strand``
+    samples whose disparities differ by ``dtol`` or more cross, they do not overlap."""
     ok = np.all(np.isfinite(uv), axis=1)
     if ok.sum() < 3 or loop_px <= 0:
         return 0.0
@@ -858,7 +897,10 @@ def _overlap(uv: np.ndarray, step: np.ndarray, loop_px: float) -> float:
     s = np.concatenate([[0.0], np.cumsum(seg)])
     hit = np.zeros(len(uv), dtype=bool)
     q = uv[ok]
-    hit[ok] = overlap_hits(q[:, 0].copy(), q[:, 1].copy(), s[ok], loop_px**2, np.pi * loop_px + 3.0)
+    hit[ok] = overlap_hits(
+        q[:, 0].copy(), q[:, 1].copy(), s[ok], loop_px**2, np.pi * loop_px + 3.0,
+        np.ascontiguousarray(disp[ok]), np.ascontiguousarray(strand[ok]), float(dtol),
+    )  # fmt: skip
     return float(0.5 * np.sum(seg * (hit[1:] & hit[:-1])))
 
 

@@ -17,9 +17,11 @@ import numpy as np
 
 # cache=True: compiled once per machine (numba's cache beside this file), not once per process.
 @numba.njit(cache=True, nogil=True)
-def overlap_hits(x, y, s, r2, gap):  # noqa: ANN001
+def overlap_hits(x, y, s, r2, gap, disp, strand, dtol):  # noqa: ANN001
     """(n,) bool: sample i lies within sqrt(r2) (squared distance <= r2) of a sample j with
-    |s[i] - s[j]| > gap. Samples must be finite; the sweep visits them sorted by x."""
+    |s[i] - s[j]| > gap, unless both are ``strand`` samples whose disparities ``disp`` differ by
+    ``dtol`` or more (two strands crossing at different depths). Samples must be finite; the
+    sweep visits them sorted by x."""
     n = len(x)
     hit = np.zeros(n, dtype=np.bool_)
     order = np.argsort(x, kind="mergesort")
@@ -33,6 +35,8 @@ def overlap_hits(x, y, s, r2, gap):  # noqa: ANN001
             dx = x[i] - x[j]
             dy = y[i] - y[j]
             if dx * dx + dy * dy <= r2 and abs(s[i] - s[j]) > gap:
+                if strand[i] and strand[j] and abs(disp[i] - disp[j]) >= dtol:
+                    continue
                 hit[i] = True
                 hit[j] = True
     return hit
