@@ -753,9 +753,8 @@ def _view(mask: np.ndarray, field: MaskField) -> _View:
 
 
 def _crop(mask: np.ndarray, field: MaskField) -> _View:
-    m8 = np.ascontiguousarray(mask).view(np.uint8)
-    bx, by, bw, bh = cv2.boundingRect(m8) if field.total else (0, 0, 0, 0)
-    crop = np.ascontiguousarray(m8[by : by + bh, bx : bx + bw])
+    bx, by, bw, bh = field.bbox
+    crop = np.ascontiguousarray(mask[by : by + bh, bx : bx + bw]).view(np.uint8)
     crop.setflags(write=False)
     return _View(crop, field.x0, field.y0, bx, by, field.total, mask.shape)
 

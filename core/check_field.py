@@ -39,6 +39,8 @@ class MaskField:
     y0: int
     reach: float
     total: int
+    bbox: tuple[int, int, int, int] = (0, 0, 0, 0)
+    """(x, y, w, h) of the thread pixels' bounding box in the image."""
 
     def at(self, uv: np.ndarray) -> np.ndarray:
         """Distance (px) of each (x, y) in ``uv`` (N, 2) to the nearest thread pixel, saturated
@@ -111,7 +113,7 @@ def _compute(mask: np.ndarray, reach: float) -> MaskField:
     background = cv2.compare(m8[y0:y1, x0:x1], 0, cv2.CMP_EQ)
     dist = cv2.distanceTransform(background, cv2.DIST_L2, cv2.DIST_MASK_3)
     dist.setflags(write=False)
-    return MaskField(dist, x0, y0, reach, int(total))
+    return MaskField(dist, x0, y0, reach, int(total), (bx, by, bw, bh))
 
 
 _FIELDS: LRU[tuple[int, float], tuple[weakref.ref, MaskField]] = LRU(FIELD_CACHE)
