@@ -42,7 +42,8 @@ from scipy.spatial import cKDTree
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
-from threadrecon.core.check_field import MaskField, mask_field
+from threadrecon.core.check_field import MaskField, derived, mask_field
+from threadrecon.core.check_kernel import overlap_hits
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.reliability import ReliabilityResult
@@ -185,6 +186,19 @@ class CheckParams(Params):
         1.5, lo=0.0, unit="px", slider=(0.0, 10.0, 0.5), label="loop distance",
         doc="Two curve samples this close in the left image, but far apart along the curve, "
         "overlap.",
+    )  # fmt: skip
+    crossing_disparity_px: float = param(
+        1.0, lo=0.0, unit="px", slider=(0.0, 10.0, 0.25), label="crossing depth gap",
+        doc="Two passes of the curve over the same left pixels are two strands crossing, not a "
+        "loop, when the thread pixels cross at a keypoint, both passes lie on them, each is "
+        "within crossing_support_px along the curve of a point a reliable match supports, and "
+        "their disparities differ by at least this (default 4 sigma_d: a loop or doubling back "
+        "re-uses the same matches, at the same depth). Such a crossing is no overlap.",
+    )  # fmt: skip
+    crossing_support_px: float = param(
+        25.0, lo=0.0, unit="px", slider=(0.0, 100.0, 1.0), label="crossing support reach",
+        doc="2D length along the curve within which a crossing strand needs a supported point "
+        "(its depth across the crossing is interpolated from there).",
     )  # fmt: skip
     max_overlap_px: float = param(
         25.0, lo=0.0, unit="px", slider=(0.0, 200.0, 1.0), label="longest overlap",
@@ -561,7 +575,8 @@ def _check(
         )  # fmt: skip
 
     # Bound excursions of the returned spline and the solver's status.
-    excursion = _excursion(spline, bounds)
+    zs = _spline_z(spline)
+    excursion = _excursion(spline, bounds, zs)
     if not spline.ok and p.solver_suspect:
         findings.append(
             ("suspect", f"the MVS solver's result was rejected ({spline.status}: "
@@ -572,7 +587,11 @@ def _check(
     K = ordering.n_clusters
     degree = np.bincount(ordering.edges.ravel(), minlength=K) if ordering.edges.size else []
     crossings = int(np.sum(np.asarray(degree) >= p.crossing_degree))
-    overlap = _overlap(uv_l, step, p.loop_px)
+    z_pos = np.maximum(z, 1e-12)
+    r = _disparity_residual(stereo, rel, uv_l, f * B / z_pos, p.support_px)
+    supported = r <= p.support_tol_px
+    strand = _strand_samples(crossings, in_l & (rho_l <= p.jump_px), supported, step, p)
+    overlap = _overlap(uv_l, step, p.loop_px, f * B / z_pos, strand, p.crossing_disparity_px)
     if overlap > p.max_overlap_px:
         findings.append(
             ("suspect", f"{overlap:.0f} px of the curve run over another part of it (a loop or "
@@ -580,9 +599,6 @@ def _check(
         )  # fmt: skip
 
     # Per-point expected error and confidence.
-    z_pos = np.maximum(z, 1e-12)
-    r = _disparity_residual(stereo, rel, uv_l, f * B / z_pos, p.support_px)
-    supported = r <= p.support_tol_px
     unsupported = _unsupported_travel(z, supported) * mm
     if unsupported > p.max_unsupported_mm:
         findings.append(
@@ -590,7 +606,7 @@ def _check(
              f"no reliable match supports it (limit {p.max_unsupported_mm:g} mm): length the "
              "images do not show")
         )  # fmt: skip
-    unsupported_exc = _excursion(spline, bounds, ~supported)
+    unsupported_exc = _excursion(spline, bounds, zs, ~supported)
     if unsupported_exc > p.bound_tol:
         findings.append(
             ("suspect", f"the curve leaves its depth bounds by {unsupported_exc:.2f} of the "
@@ -684,7 +700,7 @@ def _failed_early(
         length=nan,
         length_range=(nan, nan),
         path_px=float(bounds.s[-1]),
-        bound_excursion=_excursion(spline, bounds),
+        bound_excursion=_excursion(spline, bounds, _spline_z(spline)),
         solver_status=spline.status,
         longest_jump_px=nan,
         overlap_px=nan,
@@ -717,49 +733,80 @@ def _border_distance(a: np.ndarray, b: np.ndarray, shape: tuple[int, int]) -> fl
 
 @dataclass(frozen=True)
 class _View:
-    """One view's thread mask cropped to a box holding every thread pixel: the coverage is
-    measured on this crop (the curve's band outside it holds no thread pixel)."""
+    """One view's thread mask for the coverage: ``mask`` (h, w) uint8 0/1, the thread pixels'
+    bounding box [bx, bx + w) x [by, by + h) of the image (the curve's band outside it holds no
+    thread pixel); ``x0``, ``y0`` the origin of the field's box the curve is measured from
+    (the band is drawn from the same fixed-point coordinates as on that box)."""
 
     mask: np.ndarray
     x0: int
     y0: int
+    bx: int
+    by: int
     total: int
+    shape: tuple[int, int]
 
 
 def _view(mask: np.ndarray, field: MaskField) -> _View:
-    """The thread mask on its field's box (every thread pixel, grown by the field's reach)."""
-    h, w = field.dist.shape
-    return _View(mask[field.y0 : field.y0 + h, field.x0 : field.x0 + w], field.x0, field.y0,
-                 field.total)  # fmt: skip
+    """The thread mask on its bounding box (per segmentation, cached with it)."""
+    return derived((mask,), f"view{field.x0},{field.y0}", lambda: _crop(mask, field))
+
+
+def _crop(mask: np.ndarray, field: MaskField) -> _View:
+    bx, by, bw, bh = field.bbox
+    crop = np.ascontiguousarray(mask[by : by + bh, bx : bx + bw]).view(np.uint8)
+    crop.setflags(write=False)
+    return _View(crop, field.x0, field.y0, bx, by, field.total, mask.shape)
 
 
 def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> float:
     """Share of thread pixels within ``cover_px`` + the thread's half-width of the curve.
 
     The half-width is the thread area in a band around the curve divided by twice the curve's
-    2D length (a wrong curve over background gets a thin band: stricter, never looser)."""
+    2D length (a wrong curve over background gets a thin band: stricter, never looser).
+    A band is drawn as 0 over a copy of the thread mask: the thread pixels it covers are the
+    ones that no longer count."""
     if inside.sum() < 2 or v.total == 0:
         return 0.0
     xy = uv[inside] - [v.x0, v.y0]
     poly = np.rint(xy * 4).astype(np.int32).reshape(-1, 1, 2)  # 2 fractional bits
-    mask = v.mask.view(np.uint8)
-    band = np.zeros(mask.shape, np.uint8)
-    cv2.polylines(band, [poly], False, 1, 2 * BAND_PX + 1, cv2.LINE_8, 2)
     length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
-    half = min(0.5 * float(np.count_nonzero(band & mask)) / max(length, 1.0), BAND_PX)
+    half = min(0.5 * _in_band(v, poly, 2 * BAND_PX + 1) / max(length, 1.0), BAND_PX)
     reach = int(np.ceil(cover_px + half))
-    band[:] = 0
-    cv2.polylines(band, [poly], False, 1, 2 * reach + 1, cv2.LINE_8, 2)
-    return float(np.count_nonzero(band & mask)) / v.total
+    return _in_band(v, poly, 2 * reach + 1) / v.total
 
 
-def _excursion(spline: SplineResult, bounds: Bounds, where: np.ndarray | None = None) -> float:
+def _in_band(v: _View, poly: np.ndarray, thickness: int) -> float:
+    """Thread pixels under the polyline ``poly`` (fixed point, 2 bits, from the field's box)
+    drawn ``thickness`` px wide."""
+    if thickness < 3:  # a thin line is clipped to the canvas: draw it on the field's box
+        H, W = v.shape
+        canvas = np.zeros((H - v.y0, W - v.x0), np.uint8)
+        canvas[v.by - v.y0 : v.by - v.y0 + v.mask.shape[0],
+               v.bx - v.x0 : v.bx - v.x0 + v.mask.shape[1]] = v.mask  # fmt: skip
+        cv2.polylines(canvas, [poly], False, 0, thickness, cv2.LINE_8, 2)
+        return float(v.total - cv2.countNonZero(canvas))
+    canvas = v.mask.copy()  # a thick line is a union of polygons and discs: shift-invariant
+    shifted = poly - np.array([4 * (v.bx - v.x0), 4 * (v.by - v.y0)], np.int32)
+    cv2.polylines(canvas, [shifted], False, 0, thickness, cv2.LINE_8, 2)
+    return float(v.total - cv2.countNonZero(canvas))
+
+
+def _spline_z(spline: SplineResult) -> np.ndarray:
+    """S_z at the points of H (the returned spline)."""
+    c = np.ascontiguousarray(spline.ctrl[:, 2], dtype=np.float64)  # as BSpline() keeps it
+    t = np.ascontiguousarray(spline.knots, dtype=np.float64)
+    return BSpline.construct_fast(t, c, int(spline.degree))(spline.u_H)
+
+
+def _excursion(
+    spline: SplineResult, bounds: Bounds, zs: np.ndarray, where: np.ndarray | None = None
+) -> float:
     """Largest excursion of S_z outside [lower, upper] at the points of H, in half-widths;
     with ``where`` (one flag per dense curve point, evenly spaced in the spline's parameter),
     only at the points of H whose nearest curve point is flagged. Bounds the refine stage
     dropped (``spline.bounds_dropped``: stereo matched a strand to its neighbour there, so
     they bound the wrong strand) are not evidence and are skipped."""
-    zs = BSpline(spline.knots, spline.ctrl[:, 2], spline.degree)(spline.u_H)
     half = np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12)
     out = np.maximum(bounds.lower - zs, zs - bounds.upper) / half
     dropped = spline.bounds_dropped
@@ -814,23 +861,45 @@ def _unsupported_travel(z: np.ndarray, supported: np.ndarray) -> float:
     return float(np.sum(travel - net))
 
 
-def _overlap(uv: np.ndarray, step: np.ndarray, loop_px: float) -> float:
+def _strand_samples(
+    crossings: int, on_l: np.ndarray, supported: np.ndarray, step: np.ndarray, p: CheckParams
+) -> np.ndarray:
+    """Samples that may belong to a strand crossing another (``crossing_disparity_px``): the
+    thread pixels cross at a keypoint, the sample lies on the left thread pixels and a
+    supported sample lies within ``crossing_support_px`` of it along the curve (2D)."""
+    n = len(on_l)
+    if crossings == 0 or not supported.any():
+        return np.zeros(n, dtype=bool)
+    s = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))])
+    ss = s[supported]
+    k = np.searchsorted(ss, s)
+    before = np.abs(s - ss[np.maximum(k - 1, 0)])
+    after = np.abs(ss[np.minimum(k, len(ss) - 1)] - s)
+    return on_l & (np.minimum(before, after) <= p.crossing_support_px)
+
+
+def _overlap(
+    uv: np.ndarray,
+    step: np.ndarray,
+    loop_px: float,
+    disp: np.ndarray,
+    strand: np.ndarray,
+    dtol: float,
+) -> float:
     """2D length (px) of the curve lying within ``loop_px`` of a part of the curve more than
-    ``pi * loop_px`` + 3 px away along it (a crossing contributes a few px)."""
+    ``pi * loop_px`` + 3 px away along it (a crossing contributes a few px); two ``strand``
+    samples whose disparities differ by ``dtol`` or more cross, they do not overlap."""
     ok = np.all(np.isfinite(uv), axis=1)
     if ok.sum() < 3 or loop_px <= 0:
         return 0.0
-    s = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))])
-    idx = np.flatnonzero(ok)
-    pairs = cKDTree(uv[ok]).query_pairs(loop_px, output_type="ndarray")
-    if pairs.size == 0:
-        return 0.0
-    a, b = idx[pairs[:, 0]], idx[pairs[:, 1]]
-    far = np.abs(s[a] - s[b]) > np.pi * loop_px + 3.0
-    hit = np.zeros(len(uv), dtype=bool)
-    hit[a[far]] = True
-    hit[b[far]] = True
     seg = np.where(np.isfinite(step), step, 0.0)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    hit = np.zeros(len(uv), dtype=bool)
+    q = uv[ok]
+    hit[ok] = overlap_hits(
+        q[:, 0].copy(), q[:, 1].copy(), s[ok], loop_px**2, np.pi * loop_px + 3.0,
+        np.ascontiguousarray(disp[ok]), np.ascontiguousarray(strand[ok]), float(dtol),
+    )  # fmt: skip
     return float(0.5 * np.sum(seg * (hit[1:] & hit[:-1])))
 
 
@@ -857,7 +926,12 @@ class _BareBackground:
             (np.asarray(lifted.grey_L), lifted.P_L, fields[0]),
             (np.asarray(lifted.grey_R), lifted.P_R, fields[1]),
         ]
-        self._cache: dict[tuple[int, int, int], tuple[float, float] | None] = {}
+        # the levels depend on the segmentation only: kept with it for the next slider move
+        self._cache: dict[tuple[int, int, int], tuple[float, float] | None] = derived(
+            (lifted.grey_L, lifted.grey_R, lifted.P_L, lifted.P_R),
+            f"bare{fields[0].reach:g},{fields[1].reach:g}",
+            dict,
+        )
 
     def _level(self, side: int, xy: np.ndarray) -> tuple[float, float] | None:
         """Median and spread of the ring around the thread within REACH_PX of ``xy``."""
@@ -1055,14 +1129,24 @@ def _disparity_residual(
     support_px: float,
 ) -> np.ndarray:
     """|curve disparity - disparity of the nearest reliable pixel| + distance / support_px."""
-    sel = np.flatnonzero(rel.reliable)
-    if sel.size == 0:
+    tree, disp_rel = derived(
+        (stereo.pixels, stereo.disparity, rel.reliable), "reliable_tree", lambda: _tree(stereo, rel)
+    )
+    if tree is None:
         return np.full(len(uv_l), 1e3)
     ok = np.all(np.isfinite(uv_l), axis=1)
     q = np.where(ok[:, None], uv_l, 0.0)
-    dist, j = cKDTree(stereo.pixels[sel].astype(np.float64)).query(q)
-    r = np.abs(disp_curve - stereo.disparity[sel][j]) + dist / support_px
+    dist, j = tree.query(q)
+    r = np.abs(disp_curve - disp_rel[j]) + dist / support_px
     return np.where(ok & np.isfinite(r), r, 1e3)
+
+
+def _tree(stereo: StereoResult, rel: ReliabilityResult) -> tuple[cKDTree | None, np.ndarray]:
+    """The k-d tree of the reliable pixels P_L^R and their disparities (per stereo result)."""
+    sel = np.flatnonzero(rel.reliable)
+    if sel.size == 0:
+        return None, np.zeros(0)
+    return cKDTree(stereo.pixels[sel].astype(np.float64)), stereo.disparity[sel]
 
 
 def _bound_halfwidth_px(spline: SplineResult, bounds: Bounds, n: int, fB: float) -> np.ndarray:
@@ -1120,7 +1204,7 @@ def _grasp(
         dist = from_start if best == "start" else from_end
         cand = np.array([int(np.argmin(np.abs(dist - p.grasp_mm)))])
     i = int(cand[np.argmax(conf[cand])])
-    tangent = np.gradient(pts, axis=0)[i]
+    tangent = _gradient_at(pts, i)
     norm = np.linalg.norm(tangent)
     tangent = tangent / norm if norm > 0 else np.zeros(3)
     dist = from_start if best == "start" else from_end
@@ -1132,3 +1216,12 @@ def _grasp(
         from_end=best,
         distance=float(dist[i] / mm),
     )
+
+
+def _gradient_at(pts: np.ndarray, i: int) -> np.ndarray:
+    """Row i of ``np.gradient(pts, axis=0)`` (unit spacing, edge_order 1)."""
+    if i == 0:
+        return pts[1] - pts[0]
+    if i == len(pts) - 1:
+        return pts[-1] - pts[-2]
+    return (pts[i + 1] - pts[i - 1]) / 2.0

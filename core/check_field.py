@@ -14,14 +14,19 @@ segmentation, and so the mask object, is unchanged.
 from __future__ import annotations
 
 import weakref
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
 
+from threadrecon.core.check_kernel import field_at
 from threadrecon.core.lru import LRU, MISSING
 
 FIELD_CACHE = 8  # fields kept: both views of a few frames, the debugger's working set
+DERIVED_CACHE = 16  # other per-segmentation values kept (a few kinds for a few frames)
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -34,22 +39,17 @@ class MaskField:
     y0: int
     reach: float
     total: int
+    bbox: tuple[int, int, int, int] = (0, 0, 0, 0)
+    """(x, y, w, h) of the thread pixels' bounding box in the image."""
 
     def at(self, uv: np.ndarray) -> np.ndarray:
         """Distance (px) of each (x, y) in ``uv`` (N, 2) to the nearest thread pixel, saturated
         at ``reach``; a non-finite point gets ``reach``. A point off the image adds its
         distance to the nearest image pixel of the box."""
-        out = np.full(len(uv), self.reach)
-        ok = np.all(np.isfinite(uv), axis=1)
-        if self.total == 0 or not ok.any():
-            return out
-        h, w = self.dist.shape
-        q = uv[ok] - [self.x0, self.y0]
-        qc = np.clip(np.rint(q), 0, [w - 1, h - 1])
-        qi = qc.astype(np.intp)
-        off = np.hypot(*(q - qc).T)  # beyond the box (off the image), and the rounding, px
-        out[ok] = np.minimum(self.dist[qi[:, 1], qi[:, 0]] + off, self.reach)
-        return out
+        if self.total == 0:
+            return np.full(len(uv), self.reach)
+        uv = np.ascontiguousarray(uv, dtype=np.float64)
+        return field_at(self.dist, float(self.x0), float(self.y0), float(self.reach), uv)
 
     def window(self, x: int, y: int, r: int) -> tuple[np.ndarray, slice, slice]:
         """The field on the image window of half-size ``r`` around pixel (x, y), clipped to
@@ -81,8 +81,23 @@ def mask_field(mask: np.ndarray, reach: float) -> MaskField:
 
 
 def clear_fields() -> None:
-    """Forget every cached field (timings of the check on a new segmentation)."""
+    """Forget every cached field and derived value (timings of the check on a new
+    segmentation)."""
     _FIELDS.clear()
+    _DERIVED.clear()
+
+
+def derived(owners: tuple[np.ndarray, ...], tag: str, compute: Callable[[], T]) -> T:
+    """``compute()``, cached while the arrays ``owners`` are alive (weak references, as for
+    the fields): what the check derives from one segmentation or stereo result and re-reads
+    after a slider move of a later stage. ``tag`` names the kind of value."""
+    key = (tag, *map(id, owners))
+    hit: Any = _DERIVED.get(key)
+    if hit is not MISSING and all(r() is o for r, o in zip(hit[0], owners, strict=True)):
+        return hit[1]
+    value = compute()
+    _DERIVED.put(key, (tuple(weakref.ref(o) for o in owners), value))
+    return value
 
 
 def _compute(mask: np.ndarray, reach: float) -> MaskField:
@@ -98,7 +113,8 @@ def _compute(mask: np.ndarray, reach: float) -> MaskField:
     background = cv2.compare(m8[y0:y1, x0:x1], 0, cv2.CMP_EQ)
     dist = cv2.distanceTransform(background, cv2.DIST_L2, cv2.DIST_MASK_3)
     dist.setflags(write=False)
-    return MaskField(dist, x0, y0, reach, int(total))
+    return MaskField(dist, x0, y0, reach, int(total), (bx, by, bw, bh))
 
 
 _FIELDS: LRU[tuple[int, float], tuple[weakref.ref, MaskField]] = LRU(FIELD_CACHE)
+_DERIVED: LRU[tuple[Any, ...], tuple[tuple[weakref.ref, ...], Any]] = LRU(DERIVED_CACHE)

@@ -18,6 +18,8 @@ from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check import (
     CheckParams,
     CheckResult,
+    _overlap,
+    _strand_samples,
     _surface_behind,
     _unsupported_travel,
     check_curve,
@@ -234,6 +236,50 @@ def test_unsupported_travel_is_the_back_and_forth_between_supported_points() -> 
     tail = np.array([True, True, True, False, False, False])
     assert _unsupported_travel(z, tail) == pytest.approx(2.5)  # an unsupported end: all of it
     assert _unsupported_travel(ramp, tail) == pytest.approx(3.0)  # even a straight change
+
+
+def _crossing_curve(n: int = 2000) -> tuple[np.ndarray, np.ndarray]:
+    """An alpha loop in the image, (n, 2) px: the curve crosses itself once at (100, 100)."""
+    t = np.linspace(-1.6, 1.6, n)
+    x = 100.0 + 120.0 * t * (t**2 - 1.0)  # x = 0 at t = -1 and t = 1: one crossing
+    y = 100.0 + 60.0 * (t**2 - 1.0)
+    return np.column_stack([x, y]), t
+
+
+def test_two_strands_at_different_depths_cross_and_a_doubling_back_overlaps() -> None:
+    uv, t = _crossing_curve()
+    step = np.linalg.norm(np.diff(uv, axis=0), axis=1)
+    near = np.abs(np.abs(t) - 1.0) < 0.05  # the two passes over the crossing
+    everywhere = np.ones(len(uv), bool)
+    same = np.full(len(uv), 20.0)  # both passes at one disparity
+    apart = np.where(t < 0, 20.0, 23.0)  # the second strand 3 px of disparity nearer
+    loop = _overlap(uv, step, 1.5, same, everywhere, 1.0)
+    assert 0.0 < loop < 20.0  # a crossing: a few px
+    assert _overlap(uv, step, 1.5, apart, everywhere, 1.0) == 0.0  # strands at two depths
+    assert _overlap(uv, step, 1.5, apart, ~near, 1.0) == pytest.approx(loop)  # not strands
+    assert _overlap(uv, step, 1.5, apart, everywhere, 4.0) == pytest.approx(loop)  # too close
+    # doubling back along one strand: the pixels are re-used at one depth, an overlap
+    back = np.concatenate([uv[:400], uv[399::-1]])
+    bstep = np.linalg.norm(np.diff(back, axis=0), axis=1)
+    d = np.full(len(back), 20.0)
+    assert _overlap(back, bstep, 1.5, d, np.ones(len(back), bool), 1.0) > 100.0
+
+
+def test_strand_samples_need_a_crossing_the_thread_pixels_and_nearby_support() -> None:
+    n = 100
+    step = np.ones(n - 1)  # 1 px per step
+    on = np.ones(n, bool)
+    sup = np.zeros(n, bool)
+    sup[[10, 90]] = True
+    p = CheckParams(crossing_support_px=20.0)
+    got = _strand_samples(1, on, sup, step, p)
+    want = (np.abs(np.arange(n) - 10) <= 20) | (np.abs(np.arange(n) - 90) <= 20)
+    assert np.array_equal(got, want)
+    assert not _strand_samples(0, on, sup, step, p).any()  # no crossing of the pixels
+    assert not _strand_samples(1, on, np.zeros(n, bool), step, p).any()  # nothing supported
+    off = on.copy()
+    off[5] = False
+    assert not _strand_samples(1, off, sup, step, p)[5]  # off the thread pixels
 
 
 def _wiggle_in_depth(points: np.ndarray, amp_mm: float) -> np.ndarray:

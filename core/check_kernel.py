@@ -1,0 +1,62 @@
+"""Compiled kernels of the check stage (core/check.py, core/check_field.py): loops over the
+curve's samples that numpy would run as many small calls, with the same floating-point
+operations (the check's results are bit-identical to the numpy forms they replace).
+
+``overlap_hits``: the pairs of curve samples within a distance in the image and far apart along
+the curve (``check._overlap``), by a sweep over the samples sorted by x. ``field_at``: the
+distance field of a thread mask read at the curve's points (``MaskField.at``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+
+# cache=True: compiled once per machine (numba's cache beside this file), not once per process.
+@numba.njit(cache=True, nogil=True)
+def overlap_hits(x, y, s, r2, gap, disp, strand, dtol):  # noqa: ANN001
+    """(n,) bool: sample i lies within sqrt(r2) (squared distance <= r2) of a sample j with
+    |s[i] - s[j]| > gap, unless both are ``strand`` samples whose disparities ``disp`` differ by
+    ``dtol`` or more (two strands crossing at different depths). Samples must be finite; the
+    sweep visits them sorted by x."""
+    n = len(x)
+    hit = np.zeros(n, dtype=np.bool_)
+    order = np.argsort(x, kind="mergesort")
+    r = np.sqrt(r2)
+    for a in range(n):
+        i = order[a]
+        for b in range(a + 1, n):
+            j = order[b]
+            if x[j] - x[i] > r * (1.0 + 1e-9):  # beyond r, whatever sqrt's rounding
+                break
+            dx = x[i] - x[j]
+            dy = y[i] - y[j]
+            if dx * dx + dy * dy <= r2 and abs(s[i] - s[j]) > gap:
+                if strand[i] and strand[j] and abs(disp[i] - disp[j]) >= dtol:
+                    continue
+                hit[i] = True
+                hit[j] = True
+    return hit
+
+
+@numba.njit(cache=True, nogil=True)
+def field_at(dist, x0, y0, reach, uv):  # noqa: ANN001
+    """``MaskField.at`` over (N, 2) points: the field at each point's nearest pixel of the box
+    plus the point's distance to that pixel, saturated at ``reach``; ``reach`` where not
+    finite."""
+    h, w = dist.shape
+    out = np.empty(len(uv))
+    for k in range(len(uv)):
+        x, y = uv[k, 0], uv[k, 1]
+        if not (np.isfinite(x) and np.isfinite(y)):
+            out[k] = reach
+            continue
+        qx, qy = x - x0, y - y0
+        cx = min(max(np.rint(qx), 0.0), w - 1.0)
+        cy = min(max(np.rint(qy), 0.0), h - 1.0)
+        v = np.float64(dist[int(cy), int(cx)]) + math.hypot(qx - cx, qy - cy)
+        out[k] = v if v < reach else reach
+    return out
