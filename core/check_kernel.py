@@ -11,12 +11,16 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
+from threadrecon.core.compiled import kernel
 
-# cache=True: compiled once per machine (numba's cache beside this file), not once per process.
-@numba.njit(cache=True, nogil=True)
+
+# Compiled ahead of time once per machine (core/compiled.py), so that numba is not loaded.
+@kernel(
+    "boolean[::1](float64[::1], float64[::1], float64[::1], float64, float64, float64[::1], "
+    "boolean[::1], float64)"
+)
 def overlap_hits(x, y, s, r2, gap, disp, strand, dtol):  # noqa: ANN001
     """(n,) bool: sample i lies within sqrt(r2) (squared distance <= r2) of a sample j with
     |s[i] - s[j]| > gap, unless both are ``strand`` samples whose disparities ``disp`` differ by
@@ -42,7 +46,7 @@ def overlap_hits(x, y, s, r2, gap, disp, strand, dtol):  # noqa: ANN001
     return hit
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel("float64[::1](float32[:, ::1], float64, float64, float64, float64[:, ::1])")
 def field_at(dist, x0, y0, reach, uv):  # noqa: ANN001
     """``MaskField.at`` over (N, 2) points: the field at each point's nearest pixel of the box
     plus the point's distance to that pixel, saturated at ``reach``; ``reach`` where not
