@@ -106,13 +106,13 @@ def _check_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray |
 def _confidence_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
     """The final curve projected into both views, each segment coloured by its confidence."""
     pts, conf = _finite_curve(rec)
-    colors = _css(confidence_colors(conf))
+    colors = np.array(_css(confidence_colors(conf)))
     out: dict[str, Any] = {}
     for side, (uv, _) in reprojections(pts, calib, rec["segment"], errors=False).items():
         ok = np.isfinite(uv).all(axis=1)
         out[side] = {
-            "points": np.round(uv[ok], 2).tolist(),
-            "colors": [c for c, k in zip(colors, ok, strict=True) if k],
+            "points": np.round(uv[ok], 2),
+            "colors": colors[ok].tolist(),
         }
     return out
 
@@ -129,15 +129,10 @@ def _grasp_projected(rec: Reconstruction, calib: StereoCalibration) -> dict[str,
 @overlay_view("grasp", "grasp point", "circles", ("camera", "check"), "#00dcff")
 def _grasp_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
     """The grasp point projected into both views."""
-    return {
-        side: [np.round(uv[1], 2).tolist()] for side, uv in _grasp_projected(rec, calib).items()
-    }
+    return {side: np.round(uv[1:2], 2) for side, uv in _grasp_projected(rec, calib).items()}
 
 
 @overlay_view("grasp_tangent", "grasp tangent", "polyline", ("camera", "check"), "#00dcff")
 def _grasp_tangent_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
     """The curve's tangent at the grasp point, TANGENT_MM either side, in both views."""
-    return {
-        side: {"points": np.round(uv, 2).tolist()}
-        for side, uv in _grasp_projected(rec, calib).items()
-    }
+    return {side: {"points": np.round(uv, 2)} for side, uv in _grasp_projected(rec, calib).items()}

@@ -48,12 +48,12 @@ def _reliable_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str
 
 @overlay_view("path", "ordering", "polyline", ("ordering",), "#ff8c00")
 def _path_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
-    return {"left": {"points": np.round(rec["ordering"].path_px[:, :2], 2).tolist()}}
+    return {"left": {"points": np.round(rec["ordering"].path_px[:, :2], 2)}}
 
 
 @overlay_view("keypoints", "keypoints", "circles", ("clustering",), "#ffe14d", count=True)
 def _keypoints_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
-    return {"left": np.round(rec["clustering"].keypoints_px[:, :2], 2).tolist()}
+    return {"left": np.round(rec["clustering"].keypoints_px[:, :2], 2)}
 
 
 @overlay_view("H", "points H", "squares", ("bounds",), "#ffffff", color2="#ffc83c")
@@ -72,7 +72,7 @@ def _projected(
 ) -> dict[str, Any]:
     sides: dict[str, Any] = {}
     for side, (uv, r) in reprojections(points, calib, rec["segment"], errors).items():
-        entry: dict[str, Any] = {"points": np.round(uv, 2).tolist()}
+        entry: dict[str, Any] = {"points": np.round(uv, 2)}
         if r is not None:
             entry.update(mean_px=r.mean, max_px=r.max, coverage=r.coverage)
         sides[side] = entry
