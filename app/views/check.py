@@ -14,7 +14,6 @@ from threadrecon.app.views.registry import Label, Layer, Points, Segments, layer
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.pipeline import Reconstruction
 
-CONFIDENCE_BINS = 5  # the 3D curve is drawn as this many single-colour segment sets
 TANGENT_MM = 8.0  # half-length of the drawn grasp tangent, mm (a jaw's width)
 _LOW, _MID, _HIGH = (
     np.array(c, np.float64) for c in ((230, 40, 40), (240, 200, 40), (40, 200, 80))
@@ -81,13 +80,9 @@ def _check_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray |
     nodes: Layer = {}
     if len(pts) > 1:
         seg_conf = np.minimum(conf[:-1], conf[1:])  # a segment is as sure as its weaker end
-        bins = np.minimum((seg_conf * CONFIDENCE_BINS).astype(int), CONFIDENCE_BINS - 1)
         segs = np.stack([pts[:-1], pts[1:]], axis=1).astype(np.float32)
-        for b in range(CONFIDENCE_BINS):
-            sel = bins == b
-            if sel.any():
-                rgb = confidence_colors(np.array([(b + 0.5) / CONFIDENCE_BINS]))[0]
-                nodes[f"confidence/{b}"] = Segments(segs[sel], tuple(int(v) for v in rgb), 5.0)
+        # one scene node, a colour per segment: a slider move re-sends one node, not a few
+        nodes["confidence"] = Segments(segs, confidence_colors(seg_conf), 5.0)
         nodes["points"] = Points(pts.astype(np.float32), confidence_colors(conf), 1.5)
     g = rec["check"].grasp
     ends = _tangent_ends(rec, calib)

@@ -190,6 +190,13 @@ def _spline_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray 
         nodes["control_points"] = Points(
             rec["camera"].ctrl.astype(np.float32), np.array((255, 0, 200), np.uint8), 3.0
         )
-    if gt is not None:
-        nodes["ground_truth"] = Segments(polyline(gt), (0, 200, 90), 2.0)
     return nodes
+
+
+@layer_view("ground_truth", needs=(), shows_at="segment")
+def _ground_truth_layer(
+    rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None
+) -> Layer:
+    """The frame's true curve, when it has one: drawn once per frame (it needs no stage result,
+    so no slider redraws it)."""
+    return {} if gt is None else {"curve": Segments(polyline(gt), (0, 200, 90), 2.0)}

@@ -110,7 +110,11 @@ def test_the_number_of_sessions_is_bounded(library):
     assert len(manager) == 5
 
 
-def test_a_slider_publishes_only_the_stages_it_recomputes(library, monkeypatch):
+@pytest.mark.parametrize("progress_after_s", [1e9, 0.0])
+def test_a_slider_publishes_only_the_stages_it_recomputes(library, monkeypatch, progress_after_s):
+    """A quick run shows its result once; a slow one each computed stage as it comes (the
+    cached stages before the first computed one are shown with it)."""
+    from threadrecon.app import session as session_module
     from threadrecon.app.session import Session
 
     manager = SessionManager(library)
@@ -123,12 +127,47 @@ def test_a_slider_publishes_only_the_stages_it_recomputes(library, monkeypatch):
         "_publish",
         lambda self, rec, loaded: (shown.append(tuple(rec.runs)), original(self, rec, loaded)),
     )
+    monkeypatch.setattr(session_module, "PROGRESS_AFTER_S", progress_after_s)
     params = merge_params(s.params, {"spline": {"n_ctrl": s.params.spline.n_ctrl + 1}})
     assert s.wait(s.submit(params=params), 120)
-    first = shown[0]
-    assert first[-1] == "spline" and len(first) == pipeline.STAGES.index("spline") + 1
-    assert [r[-1] for r in shown] == ["spline", "refine", "camera", "check", "check"]
+    assert shown[-1] == pipeline.STAGES
+    if progress_after_s:
+        assert len(shown) == 1
+    else:
+        first = shown[0]
+        assert first[-1] == "spline" and len(first) == pipeline.STAGES.index("spline") + 1
+        assert [r[-1] for r in shown] == ["spline", "refine", "camera", "check"]
     timing = s.state()["timing"]
     assert timing["compute_ms"] > 0 and timing["publish_ms"] > 0
     assert timing["compute_cpu_ms"] <= timing["compute_ms"] * 1.5 + 5
+    manager.close()
+
+
+def test_a_run_that_fails_at_a_stage_is_shown_up_to_that_stage(library, monkeypatch):
+    from threadrecon.app.session import Session
+
+    manager = SessionManager(library)
+    s = manager.create()
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    shown: list[tuple[str, ...]] = []
+    original = Session._publish
+    monkeypatch.setattr(
+        Session,
+        "_publish",
+        lambda self, rec, loaded: (shown.append(tuple(rec.runs)), original(self, rec, loaded)),
+    )
+    original_stages = pipeline.Pipeline.stages
+
+    def failing(self, params, until=None):
+        for run in original_stages(self, params, until):
+            if run.stage == "spline":
+                raise pipeline.StageError("spline", "no curve through these bounds")
+            yield run
+
+    monkeypatch.setattr(pipeline.Pipeline, "stages", failing)
+    params = merge_params(s.params, {"spline": {"n_ctrl": s.params.spline.n_ctrl + 1}})
+    assert s.wait(s.submit(params=params), 120)
+    st = s.state()
+    assert st["failed_stage"] == "spline" and "no curve" in st["error"]
+    assert shown == [pipeline.STAGES[: pipeline.STAGES.index("spline")]]
     manager.close()
