@@ -334,13 +334,14 @@ class Session:
         if rec is not shown:  # the run stopped at a failed stage
             with timed(timing, "publish"):
                 self._publish(rec, loaded)
-        try:
-            metrics, self.metrics_error = (
-                evaluate_reconstruction(rec, loaded.calib, loaded.ground_truth),
-                None,
-            )
-        except Exception as exc:  # e.g. a ground truth holding NaN: the figures say why
-            metrics, self.metrics_error = {}, f"metrics: {type(exc).__name__}: {exc}"
+        with timed(timing, "metrics"):
+            try:
+                metrics, self.metrics_error = (
+                    evaluate_reconstruction(rec, loaded.calib, loaded.ground_truth),
+                    None,
+                )
+            except Exception as exc:  # e.g. a ground truth holding NaN: the figures say why
+                metrics, self.metrics_error = {}, f"metrics: {type(exc).__name__}: {exc}"
         with self.draw_lock:
             self.metrics = metrics
         self._bump()

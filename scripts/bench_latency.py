@@ -139,9 +139,8 @@ def socket_viewer(viser_port: int, sid: str):
 
 
 _PART_ORDER = [
-    "compute", "compute cpu", "publish", "publish cpu", "scene", "page state", "overlay GET",
-    "overlay kB",
-    "page draw",
+    "compute", "compute cpu", "publish", "publish cpu", "metrics", "metrics cpu", "scene",
+    "page state", "overlay GET", "overlay kB", "page draw",
 ]  # fmt: skip
 
 
@@ -300,10 +299,11 @@ def main() -> int:
             f"{label:<24}{len(values):>4}{statistics.median(values):>10.1f}{p90:>10.1f}"
             f"{values[-1]:>10.1f}{target:>10.0f}"
         )
-    print("\nbreakdown, medians (ms unless said): compute / publish = the session worker computing")
-    print("the stages / drawing their 3D layers and sending them to viser (wall and CPU of its")
-    print("thread); scene = request -> last layer sent; overlay GET = the page's fetch of the 2D")
-    print("overlays (only the payloads it does not hold); page draw = redrawing the two images")
+    print("\nbreakdown, medians (ms unless said): compute / publish / metrics = the session worker")
+    print("computing the stages / drawing their 3D layers and sending them to viser / the frame's")
+    print("metrics (wall and CPU of its thread); scene = request -> last layer sent; page state =")
+    print("request -> the page has the final state; overlay GET = the page's own fetches of the 2D")
+    print("overlays (0 when they came with the state); page draw = redrawing the two images")
     keys = sorted({k for p in parts.values() for k in p}, key=_PART_ORDER.index)
     print(f"{'change':<24}" + "".join(f"{k:>13}" for k in keys))
     for label, part in parts.items():

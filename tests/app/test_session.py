@@ -171,3 +171,31 @@ def test_a_run_that_fails_at_a_stage_is_shown_up_to_that_stage(library, monkeypa
     assert st["failed_stage"] == "spline" and "no curve" in st["error"]
     assert shown == [pipeline.STAGES[: pipeline.STAGES.index("spline")]]
     manager.close()
+
+
+def test_a_dragged_slider_shows_its_values_in_order_and_ends_on_the_last(library, monkeypatch):
+    """Latest wins: moves that come faster than the runs are dropped, never queued, and an
+    older value is never shown after a newer one."""
+    from threadrecon.app.session import Session
+
+    manager = SessionManager(library)
+    s = manager.create()
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    shown: list[int] = []
+    original = Session._publish
+    monkeypatch.setattr(
+        Session,
+        "_publish",
+        lambda self, rec, loaded: (
+            shown.append(rec.params.spline.n_ctrl),
+            original(self, rec, loaded),
+        ),
+    )
+    values = list(range(8, 20))
+    for n in values:
+        seq = s.submit(params=merge_params(s.params, {"spline": {"n_ctrl": n}}))
+    assert s.wait(seq, 120)
+    assert shown[-1] == values[-1] and shown == sorted(shown)
+    assert len(shown) <= len(values)
+    assert s.state()["params"]["spline"]["n_ctrl"] == values[-1] and not s.busy
+    manager.close()
