@@ -316,12 +316,13 @@ class Session:
             rec = Reconstruction(dict(runs), None, None, req.params)
             nxt = STAGES.index(run.stage) + 1
             self.running = STAGES[nxt] if run.stage != until and nxt < len(STAGES) else None
+            self.latency_ms[run.stage] = 1000.0 * (time.perf_counter() - req.t0)
             # a cached stage changes no view: it is shown with the next computed one
             if req.pause_s or run.stage == until or (not run.cached and self._slow(req)):
                 with timed(timing, "publish"):
                     self._publish(rec, loaded)
                 shown = rec
-            self.latency_ms[run.stage] = 1000.0 * (time.perf_counter() - req.t0)
+                self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
             if self._superseded(req):
                 return
             if req.pause_s and run.stage != until:
@@ -334,6 +335,7 @@ class Session:
         if rec is not shown:  # the run stopped at a failed stage
             with timed(timing, "publish"):
                 self._publish(rec, loaded)
+            self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
         with timed(timing, "metrics"):
             try:
                 metrics, self.metrics_error = (

@@ -131,6 +131,8 @@ def test_a_slider_publishes_only_the_stages_it_recomputes(library, monkeypatch, 
     params = merge_params(s.params, {"spline": {"n_ctrl": s.params.spline.n_ctrl + 1}})
     assert s.wait(s.submit(params=params), 120)
     assert shown[-1] == pipeline.STAGES
+    latency = s.state()["latency_ms"]  # request -> each stage done, and -> the last one shown
+    assert latency["check"] <= latency["shown"]
     if progress_after_s:
         assert len(shown) == 1
     else:
