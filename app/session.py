@@ -254,7 +254,9 @@ class Session:
                         self._done_seq = max(self._done_seq, req.seq)
                     self.running = None
                     self._cond.notify_all()
-                self.changes.notify()
+                # "busy" changed: a new version, so that a long poll that answered the
+                # last one while the run was ending still gets the idle state
+                self._bump()
         with self.draw_lock:
             self._release()
 

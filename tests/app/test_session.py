@@ -201,3 +201,25 @@ def test_a_dragged_slider_shows_its_values_in_order_and_ends_on_the_last(library
     assert len(shown) <= len(values)
     assert s.state()["params"]["spline"]["n_ctrl"] == values[-1] and not s.busy
     manager.close()
+
+
+def test_the_end_of_a_run_is_a_new_version(library, monkeypatch):
+    """A long poll answers a version; the state of a run that has ended (not busy) must be a
+    newer version than any state seen while it was running, or a page that saw the last one
+    busy would wait for news forever."""
+    from threadrecon.app.session import Session
+
+    manager = SessionManager(library)
+    s = manager.create()
+    seen: list[tuple[int, bool]] = []
+    original = Session._bump
+    monkeypatch.setattr(
+        Session, "_bump", lambda self: (original(self), seen.append((self.version, self.busy)))
+    )
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    params = merge_params(s.params, {"spline": {"n_ctrl": s.params.spline.n_ctrl + 1}})
+    assert s.wait(s.submit(params=params), 120)
+    final = s.state()
+    assert not final["busy"] and seen
+    assert all(version < final["version"] for version, busy in seen if busy)
+    manager.close()
