@@ -126,6 +126,7 @@ class Session:
             seq = self._seq
         if changed:  # every view's controls follow, whoever changed the parameters
             self.sync_params()
+        self._bump()  # the page's long poll learns of the request (preset, busy) at once
         return seq
 
     def step(self, action: str, pause_s: float = 0.0) -> int:
