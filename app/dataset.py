@@ -29,6 +29,7 @@ and ROS files metres.
 
 from __future__ import annotations
 
+import hashlib
 import re
 from collections.abc import Collection
 from dataclasses import dataclass
@@ -40,6 +41,7 @@ from threadrecon.app.export import InputFile
 from threadrecon.app.io import load_calibration, load_ground_truth, load_pair, prepare_pair
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.corrections import Correction
+from threadrecon.core.lru import LRU, MISSING
 from threadrecon.core.metrics import (
     ReprojectionErrors,
     frame_errors,
@@ -329,5 +331,22 @@ def reprojections(
     out = {}
     for side, P, mask in (("left", calib.P1, lifted.P_L), ("right", calib.P2, lifted.P_R)):
         uv = project(points, P)
-        out[side] = (uv, reprojection_errors(uv, mask) if errors else None)
+        out[side] = (uv, _errors(uv, mask) if errors else None)
     return out
+
+
+_ERRORS: LRU[tuple, tuple[np.ndarray, ReprojectionErrors]] = LRU(8)  # a few frames' curves
+# The metrics and the spline overlay ask for the same curve's errors after every run.
+
+
+def _errors(uv: np.ndarray, mask: np.ndarray) -> ReprojectionErrors:
+    """``reprojection_errors(uv, mask)``, remembered by the pixels' content and the mask
+    (held, so that its id is not reused while the entry lives)."""
+    uv = np.ascontiguousarray(uv)
+    key = (uv.shape, hashlib.blake2b(uv.tobytes(), digest_size=16).digest(), id(mask))
+    hit = _ERRORS.get(key)
+    if hit is not MISSING and hit[0] is mask:  # type: ignore[index]
+        return hit[1]  # type: ignore[index]
+    errors = reprojection_errors(uv, mask)
+    _ERRORS.put(key, (mask, errors))
+    return errors

@@ -59,7 +59,7 @@ def json_safe(obj: Any) -> Any:
     if isinstance(obj, list | tuple):
         return [json_safe(v) for v in obj]
     if isinstance(obj, np.ndarray):
-        return json_safe(obj.tolist())
+        return _array_json(obj)
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):  # e.g. the grasp point
         return {f.name: json_safe(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
     if isinstance(obj, np.generic):
@@ -67,6 +67,21 @@ def json_safe(obj: Any) -> Any:
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
     return obj
+
+
+def _array_json(a: np.ndarray) -> Any:
+    """A numeric array as nested lists in one vectorised pass (NaN/inf -> None); the overlays
+    of every slider move go through here, and a per-element walk cost them milliseconds."""
+    if a.dtype.kind in "biu":
+        return a.tolist()
+    if a.dtype.kind == "f":
+        finite = np.isfinite(a)
+        if finite.all():
+            return a.tolist()
+        out = a.astype(object)
+        out[~finite] = None
+        return out.tolist()
+    return json_safe(a.tolist())
 
 
 @dataclass(frozen=True)

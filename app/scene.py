@@ -178,7 +178,13 @@ class SceneView:
         cam.look_at = tuple(float(v) for v in target)
 
     def show(self, rec: Reconstruction | None, loaded: LoadedFrame | None) -> None:
-        """Draw every layer whose stage is in ``rec`` and changed; remove the others."""
+        """Draw every layer whose stage is in ``rec`` and changed; remove the others. One
+        batch of scene updates, sent at once: the viewer applies and renders it as one."""
+        with self.client.atomic():
+            self._show(rec, loaded)
+        self.client.flush()  # no windowing delay: the batch is complete
+
+    def _show(self, rec: Reconstruction | None, loaded: LoadedFrame | None) -> None:
         for name, deps in LAYERS.items():
             if rec is None or loaded is None or LAYER_STAGE[name] not in rec.runs:
                 if name in self._drawn:

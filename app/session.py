@@ -4,7 +4,8 @@ A session holds the frame being looked at, the parameters, how many stages are r
 latest reconstruction, and the 3D views (viser clients) that show it. Controls only *submit*
 what they want (frame, parameters, stages to reveal); one worker thread per session computes
 the newest request (latest wins: an older request still running stops at its next stage) and
-publishes each stage's layers as soon as the stage exists. The worker survives any exception
+publishes its layers once it is done, or each stage's as soon as it exists once the run has
+taken longer than ``PROGRESS_AFTER_S`` (or is streamed). The worker survives any exception
 (the stage that raised shows the error; the next request runs). Waiting is possible from a
 thread (:meth:`Session.wait`) or the event loop, holding no thread (:meth:`Session.finished`).
 """
@@ -32,6 +33,8 @@ __all__ = ["FrameLibrary", "LoadedFrame", "Session", "View", "merge_params"]
 log = logging.getLogger("threadrecon.session")
 PIPELINES_PER_SESSION = 3  # frames whose stage cache a session keeps (back-and-forth browsing)
 MAX_PAUSE_S = 10.0  # longest pause between streamed stages (a watchable step, not a hang)
+PROGRESS_AFTER_S = 0.1  # a run older than this shows each stage as it comes; a quicker one
+# (a slider move, 10-40 ms) shows its result once: one batch of scene updates, one redraw
 
 
 class Session:
@@ -123,6 +126,7 @@ class Session:
             seq = self._seq
         if changed:  # every view's controls follow, whoever changed the parameters
             self.sync_params()
+        self._bump()  # the page's long poll learns of the request (preset, busy) at once
         return seq
 
     def step(self, action: str, pause_s: float = 0.0) -> int:
@@ -251,7 +255,9 @@ class Session:
                         self._done_seq = max(self._done_seq, req.seq)
                     self.running = None
                     self._cond.notify_all()
-                self.changes.notify()
+                # "busy" changed: a new version, so that a long poll that answered the
+                # last one while the run was ending still gets the idle state
+                self._bump()
         with self.draw_lock:
             self._release()
 
@@ -296,6 +302,7 @@ class Session:
         until = STAGES[req.reveal - 1]
         runs: dict[str, Any] = {}
         rec: Reconstruction | None = None
+        shown: Reconstruction | None = None
         stages = pipe.stages(req.params, until)
         self.running = STAGES[0]
         timing = self.timing = dict.fromkeys(TIMING_KEYS, 0.0)
@@ -312,11 +319,13 @@ class Session:
             rec = Reconstruction(dict(runs), None, None, req.params)
             nxt = STAGES.index(run.stage) + 1
             self.running = STAGES[nxt] if run.stage != until and nxt < len(STAGES) else None
+            self.latency_ms[run.stage] = 1000.0 * (time.perf_counter() - req.t0)
             # a cached stage changes no view: it is shown with the next computed one
-            if not run.cached or req.pause_s or run.stage == until:
+            if req.pause_s or run.stage == until or (not run.cached and self._slow(req)):
                 with timed(timing, "publish"):
                     self._publish(rec, loaded)
-            self.latency_ms[run.stage] = 1000.0 * (time.perf_counter() - req.t0)
+                shown = rec
+                self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
             if self._superseded(req):
                 return
             if req.pause_s and run.stage != until:
@@ -326,20 +335,27 @@ class Session:
                     return
         if rec is None:
             return
-        with timed(timing, "publish"):
-            self._publish(rec, loaded)
-        try:
-            metrics, self.metrics_error = (
-                evaluate_reconstruction(rec, loaded.calib, loaded.ground_truth),
-                None,
-            )
-        except Exception as exc:  # e.g. a ground truth holding NaN: the figures say why
-            metrics, self.metrics_error = {}, f"metrics: {type(exc).__name__}: {exc}"
+        if rec is not shown:  # the run stopped at a failed stage
+            with timed(timing, "publish"):
+                self._publish(rec, loaded)
+            self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
+        with timed(timing, "metrics"):
+            try:
+                metrics, self.metrics_error = (
+                    evaluate_reconstruction(rec, loaded.calib, loaded.ground_truth),
+                    None,
+                )
+            except Exception as exc:  # e.g. a ground truth holding NaN: the figures say why
+                metrics, self.metrics_error = {}, f"metrics: {type(exc).__name__}: {exc}"
         with self.draw_lock:
             self.metrics = metrics
         self._bump()
         if rec.failed_stage is not None or "camera" in rec.runs:
             self._status(req.frame_id, rec.status)
+
+    @staticmethod
+    def _slow(req: Request) -> bool:
+        return time.perf_counter() - req.t0 >= PROGRESS_AFTER_S
 
     def _publish(self, rec: Reconstruction, loaded: LoadedFrame) -> None:
         with self.draw_lock:

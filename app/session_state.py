@@ -16,13 +16,16 @@ if TYPE_CHECKING:
     from threadrecon.app.library import LoadedFrame
     from threadrecon.app.session import Session
 
-TIMING_KEYS = ("compute_ms", "compute_cpu_ms", "publish_ms", "publish_cpu_ms")
+TIMING_KEYS = (
+    "compute_ms", "compute_cpu_ms", "publish_ms", "publish_cpu_ms", "metrics_ms", "metrics_cpu_ms",
+)  # fmt: skip
 
 
 @contextlib.contextmanager
 def timed(into: dict[str, float], part: str) -> Iterator[None]:
     """Add the wall and this thread's CPU ms of the block to ``into[part + "_ms"]`` and
-    ``into[part + "_cpu_ms"]`` (the latency's breakdown: computing vs. publishing views)."""
+    ``into[part + "_cpu_ms"]`` (the latency's breakdown: computing the stages, publishing
+    their views, the metrics)."""
     t, c = time.perf_counter(), time.thread_time()
     try:
         yield

@@ -14,7 +14,6 @@ from threadrecon.app.views.registry import Label, Layer, Points, Segments, layer
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.pipeline import Reconstruction
 
-CONFIDENCE_BINS = 5  # the 3D curve is drawn as this many single-colour segment sets
 TANGENT_MM = 8.0  # half-length of the drawn grasp tangent, mm (a jaw's width)
 _LOW, _MID, _HIGH = (
     np.array(c, np.float64) for c in ((230, 40, 40), (240, 200, 40), (40, 200, 80))
@@ -81,13 +80,9 @@ def _check_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray |
     nodes: Layer = {}
     if len(pts) > 1:
         seg_conf = np.minimum(conf[:-1], conf[1:])  # a segment is as sure as its weaker end
-        bins = np.minimum((seg_conf * CONFIDENCE_BINS).astype(int), CONFIDENCE_BINS - 1)
         segs = np.stack([pts[:-1], pts[1:]], axis=1).astype(np.float32)
-        for b in range(CONFIDENCE_BINS):
-            sel = bins == b
-            if sel.any():
-                rgb = confidence_colors(np.array([(b + 0.5) / CONFIDENCE_BINS]))[0]
-                nodes[f"confidence/{b}"] = Segments(segs[sel], tuple(int(v) for v in rgb), 5.0)
+        # one scene node, a colour per segment: a slider move re-sends one node, not a few
+        nodes["confidence"] = Segments(segs, confidence_colors(seg_conf), 5.0)
         nodes["points"] = Points(pts.astype(np.float32), confidence_colors(conf), 1.5)
     g = rec["check"].grasp
     ends = _tangent_ends(rec, calib)
@@ -106,13 +101,13 @@ def _check_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray |
 def _confidence_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
     """The final curve projected into both views, each segment coloured by its confidence."""
     pts, conf = _finite_curve(rec)
-    colors = _css(confidence_colors(conf))
+    colors = np.array(_css(confidence_colors(conf)))
     out: dict[str, Any] = {}
     for side, (uv, _) in reprojections(pts, calib, rec["segment"], errors=False).items():
         ok = np.isfinite(uv).all(axis=1)
         out[side] = {
-            "points": np.round(uv[ok], 2).tolist(),
-            "colors": [c for c, k in zip(colors, ok, strict=True) if k],
+            "points": np.round(uv[ok], 2),
+            "colors": colors[ok].tolist(),
         }
     return out
 
@@ -129,15 +124,10 @@ def _grasp_projected(rec: Reconstruction, calib: StereoCalibration) -> dict[str,
 @overlay_view("grasp", "grasp point", "circles", ("camera", "check"), "#00dcff")
 def _grasp_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
     """The grasp point projected into both views."""
-    return {
-        side: [np.round(uv[1], 2).tolist()] for side, uv in _grasp_projected(rec, calib).items()
-    }
+    return {side: np.round(uv[1:2], 2) for side, uv in _grasp_projected(rec, calib).items()}
 
 
 @overlay_view("grasp_tangent", "grasp tangent", "polyline", ("camera", "check"), "#00dcff")
 def _grasp_tangent_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
     """The curve's tangent at the grasp point, TANGENT_MM either side, in both views."""
-    return {
-        side: {"points": np.round(uv, 2).tolist()}
-        for side, uv in _grasp_projected(rec, calib).items()
-    }
+    return {side: {"points": np.round(uv, 2)} for side, uv in _grasp_projected(rec, calib).items()}

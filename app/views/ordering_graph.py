@@ -85,7 +85,7 @@ def _ordering_graph_overlay(rec: Reconstruction, calib: StereoCalibration) -> di
         labels.append([round(float(mid[0]), 1), round(float(mid[1]), 1), text, css])
     return {
         "left": {
-            "segments": np.round(np.array(segments, dtype=float).reshape(-1, 4), 2).tolist(),
+            "segments": np.round(np.array(segments, dtype=float).reshape(-1, 4), 2),
             "colors": colors,
             "labels": labels,
         }

@@ -48,12 +48,12 @@ def _reliable_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str
 
 @overlay_view("path", "ordering", "polyline", ("ordering",), "#ff8c00")
 def _path_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
-    return {"left": {"points": np.round(rec["ordering"].path_px[:, :2], 2).tolist()}}
+    return {"left": {"points": np.round(rec["ordering"].path_px[:, :2], 2)}}
 
 
 @overlay_view("keypoints", "keypoints", "circles", ("clustering",), "#ffe14d", count=True)
 def _keypoints_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[str, Any]:
-    return {"left": np.round(rec["clustering"].keypoints_px[:, :2], 2).tolist()}
+    return {"left": np.round(rec["clustering"].keypoints_px[:, :2], 2)}
 
 
 @overlay_view("H", "points H", "squares", ("bounds",), "#ffffff", color2="#ffc83c")
@@ -72,7 +72,7 @@ def _projected(
 ) -> dict[str, Any]:
     sides: dict[str, Any] = {}
     for side, (uv, r) in reprojections(points, calib, rec["segment"], errors).items():
-        entry: dict[str, Any] = {"points": np.round(uv, 2).tolist()}
+        entry: dict[str, Any] = {"points": np.round(uv, 2)}
         if r is not None:
             entry.update(mean_px=r.mean, max_px=r.max, coverage=r.coverage)
         sides[side] = entry
@@ -190,6 +190,13 @@ def _spline_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray 
         nodes["control_points"] = Points(
             rec["camera"].ctrl.astype(np.float32), np.array((255, 0, 200), np.uint8), 3.0
         )
-    if gt is not None:
-        nodes["ground_truth"] = Segments(polyline(gt), (0, 200, 90), 2.0)
     return nodes
+
+
+@layer_view("ground_truth", needs=(), shows_at="segment")
+def _ground_truth_layer(
+    rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None
+) -> Layer:
+    """The frame's true curve, when it has one: drawn once per frame (it needs no stage result,
+    so no slider redraws it)."""
+    return {} if gt is None else {"curve": Segments(polyline(gt), (0, 200, 90), 2.0)}

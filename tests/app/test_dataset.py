@@ -11,7 +11,8 @@ import yaml
 from rig_support import opencv_yaml, raw_rig, ros_camera_info
 from support import assert_close, calibration_for, synthetic_frame, write_calibration, write_png
 
-from threadrecon.app.dataset import discover, load_frame
+from threadrecon.app.dataset import discover, load_frame, reprojections
+from threadrecon.core.metrics import project, reprojection_errors
 from threadrecon.core.rectify import rectification, rectify_pair
 
 
@@ -190,3 +191,30 @@ def test_debugger_library_holds_the_rectified_pair_of_a_raw_frame(tmp_path: Path
     np.testing.assert_array_equal(loaded.pair.left, expected.left)  # what the page shows
     np.testing.assert_array_equal(loaded.pair.right, expected.right)
     assert loaded.calib.rectified is True
+
+
+def test_reprojections_remember_errors_by_the_pixels_and_the_mask() -> None:
+    """The metrics and the spline overlay share one computation of a curve's errors; a moved
+    curve or another mask gets its own."""
+    calib = calibration_for(synthetic_frame(3).camera)
+    pts = np.column_stack([np.linspace(-5, 5, 40), np.zeros(40), np.full(40, 60.0)])
+    h, w = calib.image_size
+    masks = [np.zeros((h, w), bool) for _ in range(2)]
+    masks[0][h // 2 - 1 : h // 2 + 2, :] = True
+    masks[1][h // 2 + 5 : h // 2 + 8, :] = True
+
+    class Lifted:
+        P_L, P_R = masks
+
+    first = reprojections(pts, calib, Lifted)
+    assert reprojections(pts, calib, Lifted)["left"][1] is first["left"][1]
+    for side, P, mask in (("left", calib.P1, masks[0]), ("right", calib.P2, masks[1])):
+        assert first[side][1] == reprojection_errors(project(pts, P), mask)
+    moved = pts + np.array([0.0, 1.0, 0.0])
+    assert reprojections(moved, calib, Lifted)["left"][1] == reprojection_errors(
+        project(moved, calib.P1), masks[0]
+    )
+    Lifted.P_L = masks[1].copy()
+    assert reprojections(pts, calib, Lifted)["left"][1] == reprojection_errors(
+        project(pts, calib.P1), masks[1]
+    )

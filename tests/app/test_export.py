@@ -196,6 +196,15 @@ def test_json_safe_replaces_non_finite_and_numpy() -> None:
     assert type(got["b"][0]) is int
 
 
+def test_json_safe_converts_whole_arrays_like_their_elements() -> None:
+    a = np.array([[1.25, np.nan], [-np.inf, 2.0]])
+    assert json_safe(a) == [[1.25, None], [None, 2.0]]
+    assert json_safe(a.astype(np.float32)[1:, 1:]) == [[2.0]]
+    assert json_safe(np.array([[1, 2]], np.int16)) == [[1, 2]]
+    assert json_safe(np.array([True, False])) == [True, False]
+    assert all(type(v) is float for v in json_safe(np.array([0.5, 1.5], np.float32)))
+
+
 # --- the one result schema and the PLY polyline ------------------------------------------
 
 

@@ -110,7 +110,11 @@ def test_the_number_of_sessions_is_bounded(library):
     assert len(manager) == 5
 
 
-def test_a_slider_publishes_only_the_stages_it_recomputes(library, monkeypatch):
+@pytest.mark.parametrize("progress_after_s", [1e9, 0.0])
+def test_a_slider_publishes_only_the_stages_it_recomputes(library, monkeypatch, progress_after_s):
+    """A quick run shows its result once; a slow one each computed stage as it comes (the
+    cached stages before the first computed one are shown with it)."""
+    from threadrecon.app import session as session_module
     from threadrecon.app.session import Session
 
     manager = SessionManager(library)
@@ -123,12 +127,99 @@ def test_a_slider_publishes_only_the_stages_it_recomputes(library, monkeypatch):
         "_publish",
         lambda self, rec, loaded: (shown.append(tuple(rec.runs)), original(self, rec, loaded)),
     )
+    monkeypatch.setattr(session_module, "PROGRESS_AFTER_S", progress_after_s)
     params = merge_params(s.params, {"spline": {"n_ctrl": s.params.spline.n_ctrl + 1}})
     assert s.wait(s.submit(params=params), 120)
-    first = shown[0]
-    assert first[-1] == "spline" and len(first) == pipeline.STAGES.index("spline") + 1
-    assert [r[-1] for r in shown] == ["spline", "refine", "camera", "check", "check"]
+    assert shown[-1] == pipeline.STAGES
+    latency = s.state()["latency_ms"]  # request -> each stage done, and -> the last one shown
+    assert latency["check"] <= latency["shown"]
+    if progress_after_s:
+        assert len(shown) == 1
+    else:
+        first = shown[0]
+        assert first[-1] == "spline" and len(first) == pipeline.STAGES.index("spline") + 1
+        assert [r[-1] for r in shown] == ["spline", "refine", "camera", "check"]
     timing = s.state()["timing"]
     assert timing["compute_ms"] > 0 and timing["publish_ms"] > 0
     assert timing["compute_cpu_ms"] <= timing["compute_ms"] * 1.5 + 5
+    manager.close()
+
+
+def test_a_run_that_fails_at_a_stage_is_shown_up_to_that_stage(library, monkeypatch):
+    from threadrecon.app.session import Session
+
+    manager = SessionManager(library)
+    s = manager.create()
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    shown: list[tuple[str, ...]] = []
+    original = Session._publish
+    monkeypatch.setattr(
+        Session,
+        "_publish",
+        lambda self, rec, loaded: (shown.append(tuple(rec.runs)), original(self, rec, loaded)),
+    )
+    original_stages = pipeline.Pipeline.stages
+
+    def failing(self, params, until=None):
+        for run in original_stages(self, params, until):
+            if run.stage == "spline":
+                raise pipeline.StageError("spline", "no curve through these bounds")
+            yield run
+
+    monkeypatch.setattr(pipeline.Pipeline, "stages", failing)
+    params = merge_params(s.params, {"spline": {"n_ctrl": s.params.spline.n_ctrl + 1}})
+    assert s.wait(s.submit(params=params), 120)
+    st = s.state()
+    assert st["failed_stage"] == "spline" and "no curve" in st["error"]
+    assert shown == [pipeline.STAGES[: pipeline.STAGES.index("spline")]]
+    manager.close()
+
+
+def test_a_dragged_slider_shows_its_values_in_order_and_ends_on_the_last(library, monkeypatch):
+    """Latest wins: moves that come faster than the runs are dropped, never queued, and an
+    older value is never shown after a newer one."""
+    from threadrecon.app.session import Session
+
+    manager = SessionManager(library)
+    s = manager.create()
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    shown: list[int] = []
+    original = Session._publish
+    monkeypatch.setattr(
+        Session,
+        "_publish",
+        lambda self, rec, loaded: (
+            shown.append(rec.params.spline.n_ctrl),
+            original(self, rec, loaded),
+        ),
+    )
+    values = list(range(8, 20))
+    for n in values:
+        seq = s.submit(params=merge_params(s.params, {"spline": {"n_ctrl": n}}))
+    assert s.wait(seq, 120)
+    assert shown[-1] == values[-1] and shown == sorted(shown)
+    assert len(shown) <= len(values)
+    assert s.state()["params"]["spline"]["n_ctrl"] == values[-1] and not s.busy
+    manager.close()
+
+
+def test_the_end_of_a_run_is_a_new_version(library, monkeypatch):
+    """A long poll answers a version; the state of a run that has ended (not busy) must be a
+    newer version than any state seen while it was running, or a page that saw the last one
+    busy would wait for news forever."""
+    from threadrecon.app.session import Session
+
+    manager = SessionManager(library)
+    s = manager.create()
+    seen: list[tuple[int, bool]] = []
+    original = Session._bump
+    monkeypatch.setattr(
+        Session, "_bump", lambda self: (original(self), seen.append((self.version, self.busy)))
+    )
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    params = merge_params(s.params, {"spline": {"n_ctrl": s.params.spline.n_ctrl + 1}})
+    assert s.wait(s.submit(params=params), 120)
+    final = s.state()
+    assert not final["busy"] and seen
+    assert all(version < final["version"] for version, busy in seen if busy)
     manager.close()

@@ -297,3 +297,13 @@ def test_a_layer_is_redrawn_when_any_result_it_is_drawn_from_changes():
     assert "control_points" not in layer("spline", before("camera"), calib, gt)
     assert "control_points" in layer("spline", rec, calib, gt)
     assert "camera" in LAYERS["spline"]
+
+
+def test_the_ground_truth_is_a_layer_of_its_own_that_no_slider_redraws():
+    pair, calib, gt = synthetic_case(seed=3)
+    rec = Pipeline(pair, calib).run()
+    assert LAYERS["ground_truth"] == ()  # keyed on no stage result: drawn once per frame
+    assert "ground_truth" not in layer("spline", rec, calib, gt)
+    curve = layer("ground_truth", rec, calib, gt)["curve"]
+    np.testing.assert_allclose(curve.points[:, 0], gt[:-1], rtol=1e-6)
+    assert layer("ground_truth", rec, calib, None) == {}

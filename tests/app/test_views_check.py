@@ -11,7 +11,7 @@ import pytest
 from support import synthetic_case
 
 from threadrecon.app.views import LAYER_VIEWS, Points, Segments, layer, overlay
-from threadrecon.app.views.check import CONFIDENCE_BINS, check_json, confidence_colors
+from threadrecon.app.views.check import check_json, confidence_colors
 from threadrecon.core.metrics import project
 from threadrecon.core.pipeline import Pipeline, ReconParams, reconstruct
 
@@ -41,9 +41,11 @@ def test_check_layer_colours_every_curve_segment_by_its_confidence(case):
     pts = nodes["points"]
     assert isinstance(pts, Points)
     np.testing.assert_array_equal(pts.colors, confidence_colors(chk.confidence))
-    segs = [v for k, v in nodes.items() if k.startswith("confidence/")]
-    assert sum(len(s.points) for s in segs) == len(rec["camera"].points) - 1
-    assert 1 <= len(segs) <= CONFIDENCE_BINS
+    segs = nodes["confidence"]
+    assert isinstance(segs, Segments) and len(segs.points) == len(rec["camera"].points) - 1
+    np.testing.assert_array_equal(segs.points[1:, 0], segs.points[:-1, 1])  # one chain
+    weaker = np.minimum(chk.confidence[:-1], chk.confidence[1:])
+    np.testing.assert_array_equal(segs.color, confidence_colors(weaker))
     g = chk.grasp
     np.testing.assert_allclose(nodes["grasp/point"].points[0], g.point, rtol=1e-6)
     tangent = nodes["grasp/tangent"]
