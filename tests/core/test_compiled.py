@@ -141,6 +141,7 @@ def test_the_kernels_go_to_the_user_cache_when_the_package_is_read_only(
 def test_the_default_mode_takes_only_aot_or_jit() -> None:
     from threadrecon.core import compiled
 
+    before = compiled._default_mode  # "jit" when a test before this one built the server
     with pytest.raises(ValueError, match="'aot' or 'jit'"):
         compiled.set_default_mode("fast")
-    assert compiled._default_mode == "aot"
+    assert compiled._default_mode == before in ("aot", "jit")  # a refused value changes nothing
