@@ -31,6 +31,8 @@ from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from stage_fingerprint import compare  # noqa: E402  (scripts/, this folder)
+
 from threadrecon.app.dataset import discover, load_frame  # noqa: E402
 from threadrecon.app.presets import resolve_preset  # noqa: E402
 from threadrecon.core.check import check_curve  # noqa: E402
@@ -127,28 +129,6 @@ def _write(args: argparse.Namespace) -> None:
     )
 
 
-def _compare(args: argparse.Namespace) -> int:
-    a = json.loads(Path(args.before).read_text())
-    b = json.loads(Path(args.after).read_text())
-    if set(a) != set(b):
-        print(f"different frames: {sorted(set(a) ^ set(b))}")
-        return 1
-    fields: dict[str, int] = {}
-    for k in sorted(a):
-        for run in ("run", "rerun"):
-            fa = (a[k] or {}).get(run) or {}
-            fb = (b[k] or {}).get(run) or {}
-            diff = [f for f in sorted(set(fa) | set(fb)) if fa.get(f) != fb.get(f)]
-            for f in diff:
-                fields[f"{run}.{f}"] = fields.get(f"{run}.{f}", 0) + 1
-            if diff and args.verbose:
-                print(k, run, diff)
-    n = sum(v is not None for v in a.values())
-    print(f"{len(a)} frames ({n} checked, each run and re-run); fields that differ: "
-          f"{fields or 'none'}")  # fmt: skip
-    return 0 if not fields else 1
-
-
 def _profile(args: argparse.Namespace) -> None:
     params = resolve_preset(args.config)
     calls = []
@@ -195,7 +175,7 @@ def main() -> int:
     if args.cmd == "profile":
         _profile(args)
         return 0
-    return _compare(args)
+    return compare(args)
 
 
 if __name__ == "__main__":

@@ -25,6 +25,8 @@ from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from stage_fingerprint import compare  # noqa: E402  (scripts/, this folder)
+
 from threadrecon.app.bench import _with_overrides  # noqa: E402
 from threadrecon.app.dataset import discover, load_frame  # noqa: E402
 from threadrecon.app.presets import resolve_preset  # noqa: E402
@@ -52,7 +54,9 @@ def _write(args: argparse.Namespace) -> None:
                         d = {
                             "method": lifted.method,
                             "P": _h(lifted.P_L) + _h(lifted.P_R),
-                            "score": _h(np.round(lifted.score_L * 1e4))
+                            "score": None  # masks given: no score
+                            if lifted.score_L is None
+                            else _h(np.round(lifted.score_L * 1e4))
                             + _h(np.round(lifted.score_R * 1e4)),
                             "px": int(lifted.P_L.sum() + lifted.P_R.sum()),
                         }
@@ -66,23 +70,6 @@ def _write(args: argparse.Namespace) -> None:
         f"{len(out)} frames -> {args.out}; segment CPU ms median {np.median(cpu):.2f}, "
         f"mean {np.mean(cpu):.2f}, p90 {np.percentile(cpu, 90):.2f}"
     )
-
-
-def _compare(args: argparse.Namespace) -> int:
-    a = json.loads(Path(args.before).read_text())
-    b = json.loads(Path(args.after).read_text())
-    if set(a) != set(b):
-        print(f"different frames: {sorted(set(a) ^ set(b))}")
-        return 1
-    fields: dict[str, int] = {}
-    for k in sorted(a):
-        diff = [f for f in sorted(set(a[k]) | set(b[k])) if a[k].get(f) != b[k].get(f)]
-        for f in diff:
-            fields[f] = fields.get(f, 0) + 1
-        if diff and args.verbose:
-            print(k, {f: (a[k].get(f), b[k].get(f)) for f in diff})
-    print(f"{len(a)} frames; fields that differ (frames): {fields or 'none'}")
-    return 0 if not fields else 1
 
 
 def main() -> int:
@@ -102,7 +89,7 @@ def main() -> int:
     if args.cmd == "write":
         _write(args)
         return 0
-    return _compare(args)
+    return compare(args)
 
 
 if __name__ == "__main__":

@@ -97,7 +97,21 @@ def _same(a: Any, b: Any) -> bool:
     return a == b or nan
 
 
-def _compare(args: argparse.Namespace) -> int:
+def _flat(d: Any) -> dict[str, Any]:
+    """A frame's fingerprint with nested dicts (e.g. a check's run and re-run) as "a.b" keys."""
+    out: dict[str, Any] = {}
+    for k, v in (d or {}).items():
+        if isinstance(v, dict):
+            out.update({f"{k}.{f}": x for f, x in v.items()})
+        else:
+            out[k] = v
+    return out
+
+
+def compare(args: argparse.Namespace) -> int:
+    """``compare BEFORE AFTER [-v]`` of this script and of the other fingerprint scripts
+    (scripts/seg_fingerprint.py, scripts/check_identity.py): the fields that differ, per
+    field the number of frames; exit 1 if any does."""
     a = json.loads(Path(args.before).read_text())
     b = json.loads(Path(args.after).read_text())
     if set(a) != set(b):
@@ -105,11 +119,12 @@ def _compare(args: argparse.Namespace) -> int:
         return 1
     fields: dict[str, int] = {}
     for k in sorted(a):
-        diff = [f for f in sorted(set(a[k]) | set(b[k])) if not _same(a[k].get(f), b[k].get(f))]
+        fa, fb = _flat(a[k]), _flat(b[k])
+        diff = [f for f in sorted(set(fa) | set(fb)) if not _same(fa.get(f), fb.get(f))]
         for f in diff:
             fields[f] = fields.get(f, 0) + 1
         if diff and args.verbose:
-            print(k, diff)
+            print(k, {f: (fa.get(f), fb.get(f)) for f in diff})
     print(f"{len(a)} frames; fields that differ (frames): {fields or 'none'}")
     return 0 if not fields else 1
 
@@ -130,7 +145,7 @@ def main() -> int:
     if args.cmd == "write":
         _write(args)
         return 0
-    return _compare(args)
+    return compare(args)
 
 
 if __name__ == "__main__":
