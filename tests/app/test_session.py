@@ -110,16 +110,10 @@ def test_the_number_of_sessions_is_bounded(library):
     assert len(manager) == 5
 
 
-@pytest.mark.parametrize("progress_after_s", [1e9, 0.0])
-def test_a_slider_publishes_only_the_stages_it_recomputes(library, monkeypatch, progress_after_s):
-    """A quick run shows its result once; a slow one each computed stage as it comes (the
-    cached stages before the first computed one are shown with it)."""
-    from threadrecon.app import session as session_module
+def _record_publishes(monkeypatch) -> list[tuple[str, ...]]:
+    """The stages of each result a session publishes to its views, in order."""
     from threadrecon.app.session import Session
 
-    manager = SessionManager(library)
-    s = manager.create()
-    assert s.wait(s.submit(frame_id=FLAT), 120)
     shown: list[tuple[str, ...]] = []
     original = Session._publish
     monkeypatch.setattr(
@@ -127,6 +121,19 @@ def test_a_slider_publishes_only_the_stages_it_recomputes(library, monkeypatch, 
         "_publish",
         lambda self, rec, loaded: (shown.append(tuple(rec.runs)), original(self, rec, loaded)),
     )
+    return shown
+
+
+@pytest.mark.parametrize("progress_after_s", [1e9, 0.0])
+def test_a_slider_publishes_only_the_stages_it_recomputes(library, monkeypatch, progress_after_s):
+    """A quick run shows its result once; a slow one each computed stage as it comes (the
+    cached stages before the first computed one are shown with it)."""
+    from threadrecon.app import session as session_module
+
+    manager = SessionManager(library)
+    s = manager.create()
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    shown = _record_publishes(monkeypatch)
     monkeypatch.setattr(session_module, "PROGRESS_AFTER_S", progress_after_s)
     params = merge_params(s.params, {"spline": {"n_ctrl": s.params.spline.n_ctrl + 1}})
     assert s.wait(s.submit(params=params), 120)
@@ -146,18 +153,11 @@ def test_a_slider_publishes_only_the_stages_it_recomputes(library, monkeypatch, 
 
 
 def test_a_run_that_fails_at_a_stage_is_shown_up_to_that_stage(library, monkeypatch):
-    from threadrecon.app.session import Session
 
     manager = SessionManager(library)
     s = manager.create()
     assert s.wait(s.submit(frame_id=FLAT), 120)
-    shown: list[tuple[str, ...]] = []
-    original = Session._publish
-    monkeypatch.setattr(
-        Session,
-        "_publish",
-        lambda self, rec, loaded: (shown.append(tuple(rec.runs)), original(self, rec, loaded)),
-    )
+    shown = _record_publishes(monkeypatch)
     original_stages = pipeline.Pipeline.stages
 
     def failing(self, params, until=None):
