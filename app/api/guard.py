@@ -151,7 +151,10 @@ def guard_viser(port: int, policy: Policy) -> bool:
     from websockets.http11 import Response
 
     for obj in gc.get_objects():
-        if not isinstance(obj, Server) or obj.server is None:
+        try:
+            if not isinstance(obj, Server) or obj.server is None:
+                continue
+        except ReferenceError:  # a weakref.proxy on the heap whose object is gone
             continue
         if not any(s.getsockname()[1] == port for s in obj.server.sockets):
             continue

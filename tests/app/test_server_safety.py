@@ -205,3 +205,27 @@ def test_an_idle_session_expires(tmp_path):
         sid = c.post("/api/sessions").json()["session"]
         assert c.delete(f"/api/sessions/{sid}").status_code == 204
         assert c.get(f"/api/sessions/{sid}").status_code == 404
+
+
+def test_the_viser_guard_walks_past_dead_weak_proxies_on_the_heap():
+    """guard_viser looks for viser's websockets server among the heap's objects; a
+    ``weakref.proxy`` whose object is gone raises ReferenceError on any access (isinstance
+    too). It killed a server start once in the suite: the search must step over it."""
+    import gc
+    import weakref
+
+    from threadrecon.app.api.guard import Policy, guard_viser
+
+    class Gone:
+        pass
+
+    obj = Gone()
+    dead = [weakref.proxy(obj)]
+    del obj
+    gc.collect()
+    with pytest.raises(ReferenceError):
+        isinstance(dead[0], int)  # the hazard is real on this Python
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        free = s.getsockname()[1]
+    assert guard_viser(free, Policy()) is False  # no server there, and no ReferenceError
