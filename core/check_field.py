@@ -13,7 +13,6 @@ segmentation, and so the mask object, is unchanged.
 
 from __future__ import annotations
 
-import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -22,7 +21,7 @@ import cv2
 import numpy as np
 
 from threadrecon.core.check_kernel import field_at
-from threadrecon.core.lru import LRU, MISSING
+from threadrecon.core.lru import LRU
 
 FIELD_CACHE = 8  # fields kept: both views of a few frames, the debugger's working set
 DERIVED_CACHE = 16  # other per-segmentation values kept (a few kinds for a few frames)
@@ -67,17 +66,7 @@ def mask_field(mask: np.ndarray, reach: float) -> MaskField:
     """The (cached) distance field of a boolean (H, W) thread mask up to ``reach`` px."""
     if mask.ndim != 2 or mask.dtype != bool:
         raise ValueError(f"a thread mask must be (H, W) bool, got {mask.shape} {mask.dtype}")
-    key = (id(mask), float(reach))
-    hit = _FIELDS.get(key)
-    if hit is not MISSING and hit[0]() is mask:  # type: ignore[index]  # not a reused id
-        return hit[1]  # type: ignore[index]
-    field = _compute(mask, float(reach))
-    try:
-        ref = weakref.ref(mask)
-    except TypeError:  # pragma: no cover - ndarrays support weak references
-        return field
-    _FIELDS.put(key, (ref, field))
-    return field
+    return _FIELDS.cached((mask,), (float(reach),), lambda: _compute(mask, float(reach)))
 
 
 def clear_fields() -> None:
@@ -91,13 +80,7 @@ def derived(owners: tuple[np.ndarray, ...], tag: str, compute: Callable[[], T]) 
     """``compute()``, cached while the arrays ``owners`` are alive (weak references, as for
     the fields): what the check derives from one segmentation or stereo result and re-reads
     after a slider move of a later stage. ``tag`` names the kind of value."""
-    key = (tag, *map(id, owners))
-    hit: Any = _DERIVED.get(key)
-    if hit is not MISSING and all(r() is o for r, o in zip(hit[0], owners, strict=True)):
-        return hit[1]
-    value = compute()
-    _DERIVED.put(key, (tuple(weakref.ref(o) for o in owners), value))
-    return value
+    return _DERIVED.cached(owners, (tag,), compute)
 
 
 def _compute(mask: np.ndarray, reach: float) -> MaskField:
@@ -116,5 +99,5 @@ def _compute(mask: np.ndarray, reach: float) -> MaskField:
     return MaskField(dist, x0, y0, reach, int(total), (bx, by, bw, bh))
 
 
-_FIELDS: LRU[tuple[int, float], tuple[weakref.ref, MaskField]] = LRU(FIELD_CACHE)
-_DERIVED: LRU[tuple[Any, ...], tuple[tuple[weakref.ref, ...], Any]] = LRU(DERIVED_CACHE)
+_FIELDS: LRU[tuple, Any] = LRU(FIELD_CACHE)  # LRU.cached entries
+_DERIVED: LRU[tuple, Any] = LRU(DERIVED_CACHE)

@@ -5,11 +5,14 @@ The server's sessions run pipelines in several threads, so every access takes th
 from __future__ import annotations
 
 import threading
+import weakref
 from collections import OrderedDict
-from typing import Generic, TypeVar
+from collections.abc import Callable
+from typing import Any, Generic, TypeVar
 
 K = TypeVar("K")
 V = TypeVar("V")
+T = TypeVar("T")
 
 MISSING: object = object()
 """What :meth:`LRU.get` returns for a key it does not hold (a cached value may be None)."""
@@ -40,6 +43,19 @@ class LRU(Generic[K, V]):
             self._entries.move_to_end(key)
             while len(self._entries) > self.size:
                 self._entries.popitem(last=False)
+
+    def cached(self, owners: tuple[Any, ...], key: tuple, compute: Callable[[], T]) -> T:
+        """``compute()``, kept under ``key`` while the objects ``owners`` (arrays, a Bounds)
+        live: the entry holds weak references to them, so that an object freed and another
+        allocated at its id never hits. Values derived from one stage's result and re-read
+        when a later stage re-runs (a slider move)."""
+        full = (*key, *map(id, owners))
+        hit: Any = self.get(full)  # type: ignore[arg-type]
+        if hit is not MISSING and all(r() is o for r, o in zip(hit[0], owners, strict=True)):
+            return hit[1]
+        value = compute()
+        self.put(full, (tuple(weakref.ref(o) for o in owners), value))  # type: ignore[arg-type]
+        return value
 
     def clear(self) -> None:
         with self._lock:

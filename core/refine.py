@@ -25,7 +25,6 @@ rounds; the result is the spline of the previous stage with its S_z replaced.
 
 from __future__ import annotations
 
-import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any, Final, Literal
@@ -36,7 +35,7 @@ from scipy import optimize
 
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
-from threadrecon.core.lru import LRU, MISSING
+from threadrecon.core.lru import LRU
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.spline import SplineResult, basis_matrix
@@ -324,7 +323,7 @@ def _runs(mask: np.ndarray, grey: np.ndarray, background: float) -> _Runs:
 
 
 DERIVED_CACHE: Final = 12  # runs of both views and a spread: the debugger's few frames
-_DERIVED: LRU[tuple, tuple[tuple[weakref.ref, ...], Any]] = LRU(DERIVED_CACHE)
+_DERIVED: LRU[tuple, Any] = LRU(DERIVED_CACHE)  # LRU.cached entries
 
 
 def _derived(
@@ -333,13 +332,7 @@ def _derived(
     """``fn(*arrays, *args)``: data that depend only on the segmentation (its masks and grey
     images), cached by the array objects (weak references, so that a freed array whose id is
     reused never hits) while the pipeline re-runs the stages after it (a spline slider)."""
-    key = (kind, *(id(a) for a in arrays), *extra)
-    hit = _DERIVED.get(key)
-    if hit is not MISSING and all(r() is a for r, a in zip(hit[0], arrays, strict=True)):  # type: ignore[index]
-        return hit[1]  # type: ignore[index]
-    value = fn(*arrays, *args)
-    _DERIVED.put(key, (tuple(weakref.ref(a) for a in arrays), value))
-    return value
+    return _DERIVED.cached(arrays, (kind, *extra), lambda: fn(*arrays, *args))
 
 
 class _Runs:

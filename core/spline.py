@@ -29,9 +29,8 @@ from __future__ import annotations
 
 import functools
 import warnings
-import weakref
 from dataclasses import dataclass
-from typing import Final, Literal
+from typing import Any, Final, Literal
 
 import daqp
 import numpy as np
@@ -39,7 +38,7 @@ from scipy.interpolate import BSpline, splprep
 
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
-from threadrecon.core.lru import LRU, MISSING
+from threadrecon.core.lru import LRU
 from threadrecon.core.params import Params, param
 
 EQ_TOL = 1e-3  # endpoint equalities hold to 0.1 % of the median bound half-width
@@ -238,20 +237,15 @@ class _Setup:
         return np.column_stack([self.xy, self.reexpress @ c[:, 2]])
 
 
-_SETUPS: LRU[tuple, tuple[weakref.ref, _Setup]] = LRU(SETUP_CACHE)
+_SETUPS: LRU[tuple, Any] = LRU(SETUP_CACHE)  # LRU.cached entries
 
 
 def _setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) -> _Setup:
     """The (cached) set-up of Eq. (8) for ``bounds``: cached by the Bounds object (a weak
     reference, so that a freed one whose id is reused never hits), the focal length and the
     parameters the set-up reads."""
-    key = (id(bounds), calib.focal, p.n_ctrl, p.degree, p.quad_per_span, p.xy_knots, p.xy_tol_px)
-    hit = _SETUPS.get(key)
-    if hit is not MISSING and hit[0]() is bounds:  # type: ignore[index]
-        return hit[1]  # type: ignore[index]
-    st = _compute_setup(bounds, calib, p)
-    _SETUPS.put(key, (weakref.ref(bounds), st))
-    return st
+    key = (calib.focal, p.n_ctrl, p.degree, p.quad_per_span, p.xy_knots, p.xy_tol_px)
+    return _SETUPS.cached((bounds,), key, lambda: _compute_setup(bounds, calib, p))
 
 
 def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) -> _Setup:

@@ -30,3 +30,27 @@ def test_a_cached_none_is_a_hit_and_clear_forgets() -> None:
 def test_a_size_under_one_is_refused() -> None:
     with pytest.raises(ValueError, match="at least 1"):
         LRU(0)
+
+
+def test_cached_values_live_with_their_owners_and_a_reused_id_never_hits() -> None:
+    import gc
+
+    import numpy as np
+
+    cache: LRU[tuple, object] = LRU(4)
+    calls: list[int] = []
+    a = np.zeros(3)
+    first = cache.cached((a,), ("k",), lambda: calls.append(1) or "value of a")
+    assert cache.cached((a,), ("k",), lambda: calls.append(1) or "again") == first
+    assert calls == [1]  # the second call hit
+    assert cache.cached((a,), ("other",), lambda: "other key") == "other key"
+    a_id = id(a)
+    del a
+    gc.collect()
+    b = None
+    for _ in range(1000):  # an array at the freed id: the weak reference tells it apart
+        b = np.zeros(3)
+        if id(b) == a_id:
+            break
+    if b is not None and id(b) == a_id:
+        assert cache.cached((b,), ("k",), lambda: "value of b") == "value of b"
