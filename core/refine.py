@@ -44,9 +44,11 @@ QUAD_PER_SPAN = 4  # Gauss-Legendre nodes per knot span: exact for the squared 3
 RIDGE = 1e-9  # relative ridge that keeps the least-squares matrix of full column rank
 GATE_PX = 2.0  # a run is associated when the prediction lies within its half-length + 2 px
 MISMATCH_PX = 4.0  # stereo off by more than this from the same-rank runs: another strand
+MISMATCH_SIGMA = 2.0  # ... and by more than this many of the runs' sigma: 2 L / sqrt(6) < L + 1
 MISMATCH_RUN = 3  # consecutive points of H that make a mismatched section
 OFF_THREAD_PX = 10  # samples (~px of image arc) off the right thread that make a section
 BACKGROUND_TOL = 12.0  # grey levels from B that look like bare background (2 x seg_delta)
+ROW_LIMIT = 2.0**31  # px: an ordinate beyond any image (and safe to cast to int64)
 MIN_DISPARITY_PX = 0.5  # the solve linear in depth needs a positive target disparity
 
 
@@ -94,7 +96,7 @@ def refine_depth(
     xy = Bm @ c0[:, :2]
     runs_L = _runs(lifted.P_L, lifted.grey_L, lifted.background[0])
     runs_R = _runs(lifted.P_R, lifted.grey_R, lifted.background[1])
-    rows = np.rint(xy[:, 1]).astype(np.int64)
+    rows = _rows(xy[:, 1])
     iL = runs_L.nearest_index(rows, xy[:, 0])
     cL, lL = runs_L.at(iL)
     okL = np.isfinite(cL) & (np.abs(cL - xy[:, 0]) <= 0.5 * lL + GATE_PX)
@@ -229,7 +231,10 @@ def _mismatched(
     of such sections found on rows of three or more runs.
 
     On a row where both views hold two runs, the run of the same rank (runs keep their
-    left-to-right order between the views) gives a disparity more than ``MISMATCH_PX`` away.
+    left-to-right order between the views) gives a disparity more than :func:`_tolerance`
+    away: ``MISMATCH_PX``, or ``MISMATCH_SIGMA`` standard deviations of the run-centre
+    disparity where the runs are long (a thread along the rows pins its runs' centres only to
+    +- L / sqrt(12); on a 57 px run a correct match was 6 px off them).
     On a row where both views hold equally many runs, three or more (the turns of a coil),
     the same, and the right run that the point's stereo depth predicts is taken: it is the
     same-rank partner of another left run, on which the curve's own disparity ``d_run``
@@ -241,21 +246,21 @@ def _mismatched(
     rows = np.rint(H[:, 1]).astype(np.int64)
     iL = runs_L.nearest_index(rows, H[:, 0])
     iR = runs_L.same_rank(runs_R, rows, iL)
-    cL, _ = runs_L.at(iL)
-    cR, _ = runs_R.at(iR)
+    cL, lL = runs_L.at(iL)
+    cR, lR = runs_R.at(iR)
     with np.errstate(divide="ignore", invalid="ignore"):
         d_H = fB / bounds.centre
-        bad = (iR >= 0) & (np.abs(cL - cR - d_H) > MISMATCH_PX)  # NaN (no depth): not bad
+        bad = (iR >= 0) & (np.abs(cL - cR - d_H) > _tolerance(lL, lR))  # NaN depth: not bad
     coil = np.zeros_like(bad)
     n_L = runs_L.count(rows)  # same_rank requires as many in the right view
     if d_run is not None and d_run.size and (n_L >= 3).any():  # else no coil point (exact)
         many = np.ones(runs_R.H, dtype=bool)
         iR_n = runs_L.same_rank(runs_R, rows, iL, many)
         on = (iR_n >= 0) & (n_L >= 3)
-        cR_n, _ = runs_R.at(np.where(on, iR_n, -1))
+        cR_n, lR_n = runs_R.at(np.where(on, iR_n, -1))
         with np.errstate(invalid="ignore"):
             x_R = np.where(np.isfinite(d_H), cL - d_H, -1e9)
-            on &= np.abs(cL - cR_n - d_H) > MISMATCH_PX
+            on &= np.abs(cL - cR_n - d_H) > _tolerance(lL, lR_n)
         j = runs_R.nearest_index(rows, np.where(on, x_R, -1e9))
         r = np.clip(rows, 0, runs_R.H - 1)
         other = np.where(on & (j >= 0), runs_L.row_start[r] + (j - runs_R.row_start[r]), -1)
@@ -278,6 +283,23 @@ def _mismatched(
                 lo, hi = int(rows[a:b].min()), int(rows[a:b].max())
                 shared[max(lo - 1, 0) : min(hi + 2, runs_R.H)] = True
     return out, shared
+
+
+def _tolerance(l_L: np.ndarray, l_R: np.ndarray) -> np.ndarray:
+    """How far, px, a stereo disparity may lie from the disparity of a left and a right run of
+    lengths ``l_L``, ``l_R`` (px) and still be theirs: ``MISMATCH_PX``, or ``MISMATCH_SIGMA``
+    times the run-centre disparity's standard deviation sqrt((l_L^2 + l_R^2) / 12) (the
+    weight of the solve), whichever is larger. With ``MISMATCH_SIGMA`` = 2 a stereo depth from
+    the neighbour strand still exceeds it on runs of equal length L: two disjoint runs' centres
+    lie at least L + 1 apart, and 2 L / sqrt(6) < L + 1. Inf where a run is missing."""
+    return np.maximum(MISMATCH_PX, MISMATCH_SIGMA * np.sqrt((l_L**2 + l_R**2) / 12.0))
+
+
+def _rows(y: np.ndarray) -> np.ndarray:
+    """Image rows (int64) of sample ordinates ``y``, px; -1 (outside the image) where y is not
+    finite or beyond any image (an unoptimised spline's NaN or 1e40 control values)."""
+    inside = np.abs(y) < ROW_LIMIT  # False for NaN
+    return np.rint(np.where(inside, y, -1.0)).astype(np.int64)
 
 
 def _gauss_nodes(t: np.ndarray, k: int, per_span: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,14 +1,16 @@
 """Raw calibrated pairs vs rectified input: e_S of each, per generated frame.
 
     python scripts/measure_raw_rig.py [FIRST_SEED LAST_SEED] [--no-masks] [--blur PX]
-        [--views resample] [--control-noise SIGMA] [--set STAGE.NAME=VALUE ...] [--pixels]
+        [--views resample|rectified] [--control-noise SIGMA] [--set STAGE.NAME=VALUE ...] [--pixels]
 
 Each seed's frame is seen by rotated, distorting cameras (tests/rig_support.py): the thread
 rendered directly in each raw camera (default), or the rectified pair resampled into the raw
 cameras (``--views resample``, two resamplings before the pipeline); ``--blur`` gives both rigs
 the optics' blur (the generator's ``blur_sigma``, px). The raw pair is rectified in the load step
 (core/rectify.py) and the curve mapped back to the left camera's frame; the rectified-input
-result of the same frame is the reference.
+result of the same frame is the reference. ``--views rectified`` renders the raw rig's rectified
+views directly in its rectified cameras instead (no remap): the same rig and frames with a
+rectification that loses nothing, the floor of the load step's.
 
 ``--control-noise SIGMA`` replaces the raw rig by the rectified input itself with i.i.d. pixel
 noise of SIGMA grey levels (same thread, same masks, no rectification): how far the pipeline
@@ -31,7 +33,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
-from rig_support import RAW_MARGIN_PX, raw_rig  # noqa: E402
+from rig_support import RAW_MARGIN_PX, raw_rig, rectified_views  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 from threadrecon.app.bench import parse_overrides  # noqa: E402
@@ -56,9 +58,10 @@ def main() -> None:
     parser.add_argument("--no-masks", action="store_true", help="segment the images instead")
     parser.add_argument(
         "--views",
-        choices=("render", "resample"),
+        choices=("render", "resample", "rectified"),
         default="render",
-        help="raw views rendered in the raw cameras (default) or resampled from the rectified pair",
+        help="raw views rendered in the raw cameras (default) or resampled from the rectified "
+        "pair; 'rectified': the raw rig's rectified views rendered directly (no remap)",
     )
     parser.add_argument(
         "--blur", type=float, default=0.0, help="the optics' blur of both rigs, px (generator)"
@@ -83,13 +86,17 @@ def main() -> None:
     params = validate(data)
     diffs = []
     for seed in range(args.first, args.last + 1):
-        rig = raw_rig(seed, views=args.views, blur_sigma=args.blur)
+        views = "render" if args.views == "rectified" else args.views
+        rig = raw_rig(seed, views=views, blur_sigma=args.blur)
         reference = rig.reference
         ref = reconstruct(_images_only(reference, args.no_masks), rig.reference_calib, params)
         if args.control_noise is None:
             rect = rectification(rig.calib)
-            raw = _images_only(rig.pair, args.no_masks)
-            rec = reconstruct(rectify_pair(raw, rect), rect.calib, params)
+            if args.views == "rectified":  # rendered in the rectified cameras: no remap
+                pair = _images_only(rectified_views(rig, rect, args.blur), args.no_masks)
+            else:
+                pair = rectify_pair(_images_only(rig.pair, args.no_masks), rect)
+            rec = reconstruct(pair, rect.calib, params)
             points = to_left_frame(rec["camera"].points, rect) if rec.status == "ok" else None
             truth = rig.truth_left
             rec_calib, rec_truth = rect.calib, truth @ rect.R1.T  # the rectified left frame

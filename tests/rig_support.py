@@ -29,6 +29,7 @@ import numpy as np
 from scipy.interpolate import BSpline
 
 from threadrecon.core.calibration import StereoCalibration, make_calibration
+from threadrecon.core.rectify import Rectification
 from threadrecon.core.segmentation import StereoPair
 from threadrecon.core.synthetic import (
     RenderParams,
@@ -210,6 +211,26 @@ def raw_rig(
         Ra2=Ra2,
         truth_left=frame.truth.centerline @ Ra1.T,
     )
+
+
+def rectified_views(rig: RawRig, rect: Rectification, blur_sigma: float = 0.0) -> StereoPair:
+    """The raw rig's rectified pair rendered directly in its rectified cameras (K_i =
+    P_i[:, :3], rotated by R_i Ra_i from the reference cameras, no distortion) with the raw
+    rig's ``blur_sigma``: a rectification without resampling, the floor of the load step's
+    (``rect`` is ``rectification(rig.calib)``)."""
+    if rect.identity:
+        raise ValueError("the rig needs no rectification: its raw views are the rectified ones")
+    d = ThreadParams(margin_px=RAW_MARGIN_PX).diameter_mm
+    render = RenderParams(blur_sigma=blur_sigma)
+    t = np.array([-rig.frame.camera.baseline, 0.0, 0.0])
+    zero = np.zeros(5)
+    left, mask_left = _rendered_views(
+        rig.frame, d, render, rect.calib.K1, zero, rect.R1 @ rig.Ra1, np.zeros(3)
+    )
+    right, mask_right = _rendered_views(
+        rig.frame, d, render, rect.calib.K2, zero, rect.R2 @ rig.Ra2, -t
+    )
+    return StereoPair(left, right, mask_left, mask_right)
 
 
 def opencv_yaml(calib: StereoCalibration) -> str:

@@ -44,6 +44,7 @@ def test_the_wheel_holds_one_package_with_its_data(wheel_names: list[str]) -> No
         "threadrecon/configs/default.toml",
         "threadrecon/configs/paper-real.toml",
         "threadrecon/sample_data/README.md",
+        "threadrecon/docs/result.schema.json",  # the result JSON's schema, for installed users
     ):
         assert needed in wheel_names, needed
     assert any(n.startswith("threadrecon/sample_data/simulated/") for n in wheel_names)
