@@ -3,6 +3,7 @@ built-in presets and the sample set; nothing else at the top level."""
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -14,13 +15,19 @@ import threadrecon
 from threadrecon.app import resources
 
 REPO = Path(__file__).resolve().parent.parent
+# what a checkout holds besides its source (the venv, caches, compiled kernels, builds, stores)
+LOCAL_ONLY = (".venv", ".git", "build", "out", "__pycache__", "*.egg-info", ".*_cache", "*.sqlite3")
 
 
 @pytest.fixture(scope="module")
 def wheel_names(tmp_path_factory: pytest.TempPathFactory) -> list[str]:
     out = tmp_path_factory.mktemp("wheel")
+    # built from a copy of the source: setuptools leaves a build/ folder where it builds, and a
+    # stale one in the checkout would put deleted modules back into later wheels
+    src = tmp_path_factory.mktemp("src") / "threadrecon"
+    shutil.copytree(REPO, src, ignore=shutil.ignore_patterns(*LOCAL_ONLY))
     proc = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", str(out), str(REPO)],
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", str(out), str(src)],
         capture_output=True,
         text=True,
         timeout=600,
