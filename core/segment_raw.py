@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING, Final
 import cv2
 import numpy as np
 
+from threadrecon.core.ridge_kernel import line_response
+
 if TYPE_CHECKING:
     from threadrecon.core.segmentation import SegmentationParams
 
@@ -369,38 +371,24 @@ def _line_response(f: np.ndarray) -> np.ndarray:
 
 def _line_at(f: np.ndarray, sigma: float, norm: float) -> np.ndarray:
     """Line strength at Gaussian scale ``sigma`` px of this image (overwritten: it is blurred
-    in place), normalised as scale ``norm``.
-
-    Written with cv2's in-place outputs: five buffers instead of fifteen fresh arrays (page
-    faults on fresh memory cost more than the arithmetic here).
-    """
+    in place), normalised as scale ``norm``: one compiled pass over the smoothed image
+    (:func:`threadrecon.core.ridge_kernel.line_response`; the same formula as fifteen cv2
+    calls, to float32 rounding, without their buffers)."""
     h, w = f.shape[:2]
     c = 1 if f.ndim == 2 else f.shape[2]
     g = cv2.GaussianBlur(f, (0, 0), sigma, dst=f)
-    shape = (h, w * c)
     r = sigma / norm  # derivatives per original pixel: a half-resolution pixel is 2 px
-    bufs = [np.empty(shape, np.float32) for _ in range(5)]
-    gx, gy, hxx, hyy, hxy = bufs
-    for out, (dx, dy, scale) in zip(
-        bufs,
-        ((1, 0, 0.125 * r), (0, 1, 0.125 * r), (2, 0, 0.25 * r * r), (0, 2, 0.25 * r * r),
-         (1, 1, 0.25 * r * r)),
-        strict=True,
-    ):  # fmt: skip
-        cv2.Sobel(g, cv2.CV_32F, dx, dy, dst=out.reshape(g.shape), ksize=3, scale=scale)
-    grad = cv2.magnitude(gx, gy, gx)
-    a = cv2.addWeighted(hxx, 0.5, hyy, 0.5, 0.0, dst=gy)
-    cv2.absdiff(a, 0.0, dst=a)  # |l1 + l2| / 2
-    cv2.addWeighted(hxx, 0.5, hyy, -0.5, 0.0, dst=hxx)
-    d = cv2.magnitude(hxx, hxy, hyy)  # |l1 - l2| / 2
-    line = cv2.min(a, d, dst=a)
-    cv2.addWeighted(line, 2.0 * norm * norm, grad, -_EDGE_K * norm, 0.0, dst=line)
-    cv2.max(line, 0.0, dst=line)
-    if c == 1:  # one channel: the norm over channels is the response itself
-        return line
-    cv2.multiply(line, line, dst=line)
-    sq = cv2.transform(line.reshape(h, w, c), np.ones((1, c), np.float32))
-    return cv2.sqrt(sq.reshape(h, w))
+    # Sobel 3x3 sums 4 (first) or 16 (second derivative) times the derivative; the response
+    # is 2 norm^2 min(|l1 + l2| / 2, |l1 - l2| / 2) - _EDGE_K norm |gradient|, at least 0.
+    return line_response(
+        g.reshape(h, w * c),
+        c,
+        np.float32(0.125 * r),
+        np.float32(0.25 * r * r),
+        np.float32(2.0 * norm * norm),
+        np.float32(_EDGE_K * norm),
+        np.empty((h, w), np.float32),
+    )
 
 
 def _robust_level(s: np.ndarray) -> float:

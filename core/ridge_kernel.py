@@ -1,0 +1,212 @@
+"""Compiled kernel of the raw segmentation's line response (core/segment_filters.py).
+
+The response at one scale is five 3x3 derivative filters of the smoothed image (gradient and
+Hessian) and a dozen per-pixel operations on them. As cv2 calls that is fifteen passes over
+full-size float32 images, five of them into fresh buffers (their page faults cost more than
+the arithmetic at 640x480); here it is one pass that reads three rows of the smoothed image
+and writes the response, with the same formula (see :func:`line_response`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from threadrecon.core.compiled import helper, kernel
+
+
+@kernel(
+    "float32[:, ::1](float32[:, ::1], int64, float32, float32, float32, float32, float32[:, ::1])"
+)
+def line_response(g, c, k1, k2, w_line, w_grad, out):  # noqa: ANN001
+    """Line strength of the smoothed channels ``g`` (H, W * c), ``c`` interleaved channels,
+    into ``out`` (H, W), returned. Per channel, with the 3x3 Sobel filters of cv2 (border:
+    reflect-101) scaled to derivatives, gx = k1 Sobel_x, gy, hxx = k2 Sobel_xx, hyy, hxy:
+
+        line = max(w_line min(|hxx + hyy| / 2, |(hxx - hyy, 2 hxy)| / 2) - w_grad |(gx, gy)|, 0)
+
+    and the response is line (one channel) or the Euclidean norm of the channels' lines."""
+    h = g.shape[0]
+    w = g.shape[1] // c
+    two = np.float32(2.0)
+    # Rows filtered vertically, one per channel, padded by a reflect-101 column on each side:
+    # s = [1 2 1], t = [-1 0 1], q = [1 -2 1] down the column.
+    s = np.empty((c, w + 2), np.float32)
+    t = np.empty((c, w + 2), np.float32)
+    q = np.empty((c, w + 2), np.float32)
+    line = np.empty(w, np.float32)
+    lo = 1 if w > 1 else 0  # reflect-101 columns: -1 -> 1, W -> W - 2 (one column: itself)
+    hi = w - 2 if w > 1 else 0
+    for y in range(h):
+        up = g[y - 1 if y > 0 else min(1, h - 1)]
+        mid = g[y]
+        dn = g[y + 1 if y < h - 1 else max(h - 2, 0)]
+        for j in range(c):
+            sj, tj, qj = s[j], t[j], q[j]
+            for x in range(w):
+                u, m, d = up[x * c + j], mid[x * c + j], dn[x * c + j]
+                sj[x + 1] = u + two * m + d
+                tj[x + 1] = d - u
+                qj[x + 1] = u - two * m + d
+            sj[0], tj[0], qj[0] = sj[lo + 1], tj[lo + 1], qj[lo + 1]
+            sj[w + 1], tj[w + 1], qj[w + 1] = sj[hi + 1], tj[hi + 1], qj[hi + 1]
+        row = out[y]
+        for j in range(c):
+            _row_line(s[j], t[j], q[j], w, k1, k2, w_line, w_grad, line)
+            if c == 1:
+                for x in range(w):
+                    row[x] = line[x]
+            elif j == 0:
+                for x in range(w):
+                    row[x] = line[x] * line[x]
+            else:
+                for x in range(w):
+                    row[x] += line[x] * line[x]
+        if c > 1:
+            for x in range(w):
+                row[x] = np.sqrt(row[x])
+    return out
+
+
+@helper(inline="always")
+def _row_line(s, t, q, w, k1, k2, w_line, w_grad, line):  # noqa: ANN001
+    """One row's line strength (``line``, (W,)) from its vertically filtered rows s, t, q
+    (W + 2,): the horizontal halves of the five Sobel filters, then the formula."""
+    two = np.float32(2.0)
+    half = np.float32(0.5)
+    zero = np.float32(0.0)
+    for x in range(w):
+        gx = k1 * (s[x + 2] - s[x])
+        gy = k1 * (t[x] + two * t[x + 1] + t[x + 2])
+        hxx = k2 * (s[x] - two * s[x + 1] + s[x + 2])
+        hyy = k2 * (q[x] + two * q[x + 1] + q[x + 2])
+        hxy = k2 * (t[x + 2] - t[x])
+        a = abs(half * hxx + half * hyy)
+        dd = half * hxx - half * hyy
+        d = np.sqrt(dd * dd + hxy * hxy)
+        v = w_line * min(a, d) - w_grad * np.sqrt(gx * gx + gy * gy)
+        line[x] = max(v, zero)
+
+
+@helper(inline="always")
+def _reflect(i, n):  # noqa: ANN001
+    """Index ``i`` in 0..n-1 with cv2's BORDER_REFLECT_101 (..., 2, 1, 0, 1, 2, ...)."""
+    if n == 1:
+        return 0
+    period = 2 * n - 2
+    i = abs(i) % period
+    return period - i if i >= n else i
+
+
+@helper(inline="always")
+def _mixed_row(img, r, c, lut, mix, row):  # noqa: ANN001
+    """Row ``r`` of the log channels of ``img`` (H, W * c) uint8 into ``row`` (W * c,):
+    the channels ``mix`` (c, c) of lut[value] (log R, log G, log B)."""
+    src = img[r]
+    w = src.shape[0] // c
+    if c == 1:
+        for x in range(w):
+            row[x] = lut[src[x]]
+        return
+    m00, m01, m02 = mix[0, 0], mix[0, 1], mix[0, 2]
+    m10, m11, m12 = mix[1, 0], mix[1, 1], mix[1, 2]
+    m20, m21, m22 = mix[2, 0], mix[2, 1], mix[2, 2]
+    for x in range(w):
+        lr = lut[src[3 * x]]
+        lg = lut[src[3 * x + 1]]
+        lb = lut[src[3 * x + 2]]
+        row[3 * x] = m00 * lr + m01 * lg + m02 * lb
+        row[3 * x + 1] = m10 * lr + m11 * lg + m12 * lb
+        row[3 * x + 2] = m20 * lr + m21 * lg + m22 * lb
+
+
+@kernel(
+    "float32[:, ::1](uint8[:, ::1], int64, float32[::1], float32[:, ::1], float32[:, ::1], "
+    "float32[:, ::1])"
+)
+def log_planes(img, c, lut, mix, grey, half):  # noqa: ANN001
+    """Log channels of ``img`` (H, W * c) uint8, ``c`` = 1 or 3 interleaved channels: their
+    first channel at full resolution into ``grey`` (H, W), and all of them at half resolution
+    into ``half`` (h, w * c), h = (H + 1) // 2, w = (W + 1) // 2, as cv2.pyrDown takes them
+    (5 x 5 binomial filter [1 4 6 4 1] / 16 each way, reflect-101, even pixels); returns
+    ``half``. A channel is ``mix`` (c, c) of lut[value] of the pixel's values."""
+    h_in = img.shape[0]
+    w = img.shape[1] // c
+    h2 = half.shape[0]
+    w2 = half.shape[1] // c
+    wc = w * c
+    # The mixed rows of the last five input rows (each row is mixed once): slot r % 5.
+    cache = np.empty((5, wc), np.float32)
+    cached = np.full(5, -1, np.int64)
+    acc = np.empty(wc, np.float32)
+    taps = np.array([1.0, 4.0, 6.0, 4.0, 1.0], np.float32)
+    scale = np.float32(1.0 / 256.0)
+    for y2 in range(h2):
+        for x in range(wc):
+            acc[x] = 0.0
+        for k in range(5):
+            r = _reflect(2 * y2 + k - 2, h_in)
+            slot = r % 5
+            row = cache[slot]
+            if cached[slot] != r:
+                _mixed_row(img, r, c, lut, mix, row)
+                cached[slot] = r
+                g = grey[r]
+                for x in range(w):
+                    g[x] = row[x * c]
+            tk = taps[k]
+            for x in range(wc):
+                acc[x] += tk * row[x]
+        out = half[y2]
+        for x2 in range(w2):
+            for j in range(c):
+                v = np.float32(0.0)
+                for k in range(5):
+                    v += taps[k] * acc[_reflect(2 * x2 + k - 2, w) * c + j]
+                out[x2 * c + j] = v * scale
+    return half
+
+
+@kernel("float32[:, ::1](float32[:, ::1], float32[:, ::1])")
+def upsample_max(coarse, out):  # noqa: ANN001
+    """``out`` (H, W) = max(out, coarse (h, w) resized to (W, H) bilinearly as cv2.resize's
+    INTER_LINEAR does: source coordinate (x + 0.5) h / H - 0.5, clamped to the edge);
+    returns ``out``."""
+    h, w = coarse.shape
+    big_h, big_w = out.shape
+    x0 = np.empty(big_w, np.int64)
+    x1 = np.empty(big_w, np.int64)
+    ax = np.empty(big_w, np.float32)
+    for x in range(big_w):
+        i, a = _linear_source(x, w, big_w)
+        x0[x] = i
+        x1[x] = min(i + 1, w - 1)
+        ax[x] = a
+    one = np.float32(1.0)
+    lo = np.empty(big_w, np.float32)
+    hi = np.empty(big_w, np.float32)
+    for y in range(big_h):
+        i, b = _linear_source(y, h, big_h)
+        r0 = coarse[i]
+        r1 = coarse[min(i + 1, h - 1)]
+        for x in range(big_w):
+            lo[x] = (one - ax[x]) * r0[x0[x]] + ax[x] * r0[x1[x]]
+            hi[x] = (one - ax[x]) * r1[x0[x]] + ax[x] * r1[x1[x]]
+        row = out[y]
+        for x in range(big_w):
+            v = (one - b) * lo[x] + b * hi[x]
+            row[x] = max(row[x], v)
+    return out
+
+
+@helper(inline="always")
+def _linear_source(x, n, big_n):  # noqa: ANN001
+    """(index, weight of index + 1) of output pixel ``x`` of ``big_n`` resized from ``n``
+    (cv2 INTER_LINEAR: centres aligned, the edge pixel repeated)."""
+    f = (x + 0.5) * (n / big_n) - 0.5
+    i = int(np.floor(f))
+    a = f - i
+    if i < 0:
+        return 0, np.float32(0.0)
+    if i >= n - 1:
+        return n - 1, np.float32(0.0)
+    return i, np.float32(a)

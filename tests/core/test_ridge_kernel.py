@@ -1,0 +1,67 @@
+"""Tests of core/ridge_kernel.py: the compiled filters of the raw segmentation give what the
+cv2 calls they replace give, to float32 rounding, on every image size down to one pixel."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from threadrecon.core import ridge_kernel as rk
+
+_SIZES = [(480, 640), (37, 51), (2, 3), (1, 1), (1, 7), (6, 1)]
+
+
+def _cv2_line(g: np.ndarray, r: float, norm: float, edge_k: float) -> np.ndarray:
+    """The response as cv2 calls: Sobel derivatives, the formula, the norm over channels."""
+    d = {}
+    for name, (dx, dy, k) in {
+        "gx": (1, 0, 0.125 * r), "gy": (0, 1, 0.125 * r), "hxx": (2, 0, 0.25 * r * r),
+        "hyy": (0, 2, 0.25 * r * r), "hxy": (1, 1, 0.25 * r * r),
+    }.items():  # fmt: skip
+        d[name] = cv2.Sobel(g, cv2.CV_64F, dx, dy, ksize=3, scale=k)
+    a = np.abs(d["hxx"] + d["hyy"]) / 2
+    dd = np.hypot(d["hxx"] - d["hyy"], 2 * d["hxy"]) / 2
+    line = 2 * norm * norm * np.minimum(a, dd) - edge_k * norm * np.hypot(d["gx"], d["gy"])
+    line = np.maximum(line, 0.0)
+    return line if line.ndim == 2 else np.sqrt((line**2).sum(axis=2))
+
+
+def _image(shape: tuple[int, ...], seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    img = rng.random(shape).astype(np.float32) * 50
+    return cv2.GaussianBlur(img, (0, 0), 1.0) if min(shape[:2]) > 1 else img
+
+
+@pytest.mark.parametrize("shape", _SIZES)
+@pytest.mark.parametrize("c", [1, 3])
+def test_line_response_is_the_cv2_sobel_formula(shape: tuple[int, int], c: int) -> None:
+    g = _image(shape if c == 1 else (*shape, c), seed=shape[0] * 7 + c)
+    r, norm, edge_k = 0.5, 2.0, 2.0
+    out = np.full(shape, -1.0, np.float32)
+    got = rk.line_response(
+        g.reshape(shape[0], -1), c, np.float32(0.125 * r), np.float32(0.25 * r * r),
+        np.float32(2 * norm * norm), np.float32(edge_k * norm), out,
+    )  # fmt: skip
+    assert got is out
+    want = _cv2_line(g.astype(np.float64), r, norm, edge_k)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-4 * max(float(want.max()), 1.0))
+
+
+def test_line_response_is_zero_on_a_flat_and_on_a_linear_image() -> None:
+    ramp = np.add.outer(np.arange(20.0), 3 * np.arange(30.0)).astype(np.float32)
+    for g in (np.full((20, 30), 7.0, np.float32), ramp):
+        out = rk.line_response(g, 1, np.float32(0.125), np.float32(0.25), np.float32(2.0),
+                               np.float32(0.0), np.empty_like(g))  # fmt: skip
+        # A linear image has no second derivative, but the reflected border bends it.
+        assert not out[1:-1, 1:-1].any()
+
+
+def test_line_response_peaks_on_a_thin_dark_line() -> None:
+    img = np.full((40, 40), 100.0, np.float32)
+    img[:, 20] = 60.0
+    g = cv2.GaussianBlur(img, (0, 0), 1.0)
+    out = rk.line_response(g, 1, np.float32(0.125), np.float32(0.25), np.float32(2.0),
+                           np.float32(2.0), np.empty_like(g))  # fmt: skip
+    assert set(np.argmax(out, axis=1).tolist()) == {20}
+    assert out[:, 20].min() > 5 * out[:, :15].max()
