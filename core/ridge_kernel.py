@@ -98,70 +98,79 @@ def _reflect(i, n):  # noqa: ANN001
 
 
 @helper(inline="always")
-def _mixed_row(img, r, c, lut, mix, row):  # noqa: ANN001
-    """Row ``r`` of the log channels of ``img`` (H, W * c) uint8 into ``row`` (W * c,):
-    the channels ``mix`` (c, c) of lut[value] (log R, log G, log B)."""
-    src = img[r]
-    w = src.shape[0] // c
+def _mixed_row(src, c, w, lut, mix, row):  # noqa: ANN001
+    """One image row ``src`` (W, c) uint8 as log channels into ``row`` (c, W + 4): channel j
+    at row[j, x + 2] is ``mix[j]`` of lut[value] of (R, G, B) (lut[value] for one channel),
+    and two columns on each side are reflect-101 copies (for the 5-tap filter)."""
     if c == 1:
+        r0 = row[0]
         for x in range(w):
-            row[x] = lut[src[x]]
-        return
-    m00, m01, m02 = mix[0, 0], mix[0, 1], mix[0, 2]
-    m10, m11, m12 = mix[1, 0], mix[1, 1], mix[1, 2]
-    m20, m21, m22 = mix[2, 0], mix[2, 1], mix[2, 2]
-    for x in range(w):
-        lr = lut[src[3 * x]]
-        lg = lut[src[3 * x + 1]]
-        lb = lut[src[3 * x + 2]]
-        row[3 * x] = m00 * lr + m01 * lg + m02 * lb
-        row[3 * x + 1] = m10 * lr + m11 * lg + m12 * lb
-        row[3 * x + 2] = m20 * lr + m21 * lg + m22 * lb
+            r0[x + 2] = lut[src[x, 0]]
+    else:
+        r0, r1, r2 = row[0], row[1], row[2]
+        m00, m01, m02 = mix[0, 0], mix[0, 1], mix[0, 2]
+        m10, m11, m12 = mix[1, 0], mix[1, 1], mix[1, 2]
+        m20, m21, m22 = mix[2, 0], mix[2, 1], mix[2, 2]
+        for x in range(w):
+            lr = lut[src[x, 0]]
+            lg = lut[src[x, 1]]
+            lb = lut[src[x, 2]]
+            r0[x + 2] = m00 * lr + m01 * lg + m02 * lb
+            r1[x + 2] = m10 * lr + m11 * lg + m12 * lb
+            r2[x + 2] = m20 * lr + m21 * lg + m22 * lb
+    for j in range(c):
+        rj = row[j]
+        for p in (0, 1, w + 2, w + 3):
+            rj[p] = rj[_reflect(p - 2, w) + 2]
 
 
 @kernel(
-    "float32[:, ::1](uint8[:, ::1], int64, float32[::1], float32[:, ::1], float32[:, ::1], "
+    "float32[:, ::1](uint8[:, :, :], float32[::1], float32[:, ::1], float32[:, ::1], "
     "float32[:, ::1])"
 )
-def log_planes(img, c, lut, mix, grey, half):  # noqa: ANN001
-    """Log channels of ``img`` (H, W * c) uint8, ``c`` = 1 or 3 interleaved channels: their
+def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
+    """Log channels of ``img`` (H, W, c) uint8 (any strides), c = 1 or 3 channels: their
     first channel at full resolution into ``grey`` (H, W), and all of them at half resolution
     into ``half`` (h, w * c), h = (H + 1) // 2, w = (W + 1) // 2, as cv2.pyrDown takes them
     (5 x 5 binomial filter [1 4 6 4 1] / 16 each way, reflect-101, even pixels); returns
     ``half``. A channel is ``mix`` (c, c) of lut[value] of the pixel's values."""
-    h_in = img.shape[0]
-    w = img.shape[1] // c
+    h_in, w, c = img.shape
     h2 = half.shape[0]
     w2 = half.shape[1] // c
-    wc = w * c
     # The mixed rows of the last five input rows (each row is mixed once): slot r % 5.
-    cache = np.empty((5, wc), np.float32)
+    cache = np.empty((5, c, w + 4), np.float32)
     cached = np.full(5, -1, np.int64)
-    acc = np.empty(wc, np.float32)
-    taps = np.array([1.0, 4.0, 6.0, 4.0, 1.0], np.float32)
+    acc = np.empty((c, w + 4), np.float32)
+    one = np.float32(1.0)
+    four = np.float32(4.0)
+    six = np.float32(6.0)
     scale = np.float32(1.0 / 256.0)
     for y2 in range(h2):
-        for x in range(wc):
-            acc[x] = 0.0
         for k in range(5):
             r = _reflect(2 * y2 + k - 2, h_in)
             slot = r % 5
             row = cache[slot]
             if cached[slot] != r:
-                _mixed_row(img, r, c, lut, mix, row)
+                _mixed_row(img[r], c, w, lut, mix, row)
                 cached[slot] = r
-                g = grey[r]
+                g, r0 = grey[r], row[0]
                 for x in range(w):
-                    g[x] = row[x * c]
-            tk = taps[k]
-            for x in range(wc):
-                acc[x] += tk * row[x]
-        out = half[y2]
-        for x2 in range(w2):
+                    g[x] = r0[x + 2]
+            tk = one if k == 0 or k == 4 else (four if k == 1 or k == 3 else six)
             for j in range(c):
-                v = np.float32(0.0)
-                for k in range(5):
-                    v += taps[k] * acc[_reflect(2 * x2 + k - 2, w) * c + j]
+                aj, rj = acc[j], row[j]
+                if k == 0:
+                    for x in range(w + 4):
+                        aj[x] = rj[x]
+                else:
+                    for x in range(w + 4):
+                        aj[x] += tk * rj[x]
+        out = half[y2]
+        for j in range(c):
+            aj = acc[j]
+            for x2 in range(w2):
+                p = 2 * x2
+                v = aj[p] + four * aj[p + 1] + six * aj[p + 2] + four * aj[p + 3] + aj[p + 4]
                 out[x2 * c + j] = v * scale
     return half
 
@@ -182,19 +191,21 @@ def upsample_max(coarse, out):  # noqa: ANN001
         x1[x] = min(i + 1, w - 1)
         ax[x] = a
     one = np.float32(1.0)
-    lo = np.empty(big_w, np.float32)
-    hi = np.empty(big_w, np.float32)
+    # The coarse rows resized along x, the last two: slot i % 2 holds coarse row i.
+    rows = np.empty((2, big_w), np.float32)
+    held = np.full(2, -1, np.int64)
     for y in range(big_h):
         i, b = _linear_source(y, h, big_h)
-        r0 = coarse[i]
-        r1 = coarse[min(i + 1, h - 1)]
-        for x in range(big_w):
-            lo[x] = (one - ax[x]) * r0[x0[x]] + ax[x] * r0[x1[x]]
-            hi[x] = (one - ax[x]) * r1[x0[x]] + ax[x] * r1[x1[x]]
+        for k in (i, min(i + 1, h - 1)):
+            if held[k % 2] != k:
+                src, dst = coarse[k], rows[k % 2]
+                for x in range(big_w):
+                    dst[x] = (one - ax[x]) * src[x0[x]] + ax[x] * src[x1[x]]
+                held[k % 2] = k
+        lo, hi = rows[i % 2], rows[min(i + 1, h - 1) % 2]
         row = out[y]
         for x in range(big_w):
-            v = (one - b) * lo[x] + b * hi[x]
-            row[x] = max(row[x], v)
+            row[x] = max(row[x], (one - b) * lo[x] + b * hi[x])
     return out
 
 

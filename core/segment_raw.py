@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Final
 import cv2
 import numpy as np
 
-from threadrecon.core.ridge_kernel import line_response
+from threadrecon.core.ridge_kernel import line_response, log_planes, upsample_max
 
 if TYPE_CHECKING:
     from threadrecon.core.segmentation import SegmentationParams
@@ -134,13 +134,14 @@ class _View:
 
     @classmethod
     def build(cls, img: np.ndarray, p: SegmentationParams) -> _View:
-        f = _log_channels(img)
-        S = _line_response(f)
+        grey, half = _log_planes(img)
+        c = half.shape[2]
+        S = _line_response(grey, half)
         level = _robust_level(S)
         lo = cv2.compare(S, float(p.ridge_lo * level), cv2.CMP_GE)
         rows, cols = _points(lo)
-        a_q = _quarter(img if img.ndim == 3 else img[:, :, None])[:, :, : f.shape[2]]
-        if f.shape[2] > 1 and len(rows):
+        a_q = _quarter(img if img.ndim == 3 else img[:, :, None])[:, :, :c]
+        if c > 1 and len(rows):
             tool = _instrument_mask(_log_of(a_q))
             on_tool = tool[_qi(rows, tool.shape[0]), _qi(cols, tool.shape[1])]
             if on_tool.any():
@@ -149,15 +150,16 @@ class _View:
         free = _free_blocks(rows, cols, a_q.shape[:2])
         bg_rgb = _background(a_q, free)
         bg = _log_of(bg_rgb)
-        delta = f[rows, cols] - bg[_qi(rows, bg.shape[0]), _qi(cols, bg.shape[1])]
-        if f.shape[2] > 1:
+        delta = _log_at(img, rows, cols) - bg[_qi(rows, bg.shape[0]), _qi(cols, bg.shape[1])]
+        if c > 1:
             redder = (delta[:, 1] > p.blood_rg * _LOG_SCALE) | (
                 delta[:, 1] >= -_BLOOD_RATIO * delta[:, 0]
             )
             blood = redder & (delta[:, 0] < 0)
         else:
             blood = np.zeros(len(rows), bool)
-        v = cls(img, S, level, lo, rows, cols, delta, blood, noise_sigma(f), bg_rgb)
+        sigma = noise_sigma(_log_channels(img[::_NOISE_ROW_STEP]), row_step=1)
+        v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb)
         if blood.any():
             mask = lo.copy()
             mask[rows[blood], cols[blood]] = 0
@@ -292,12 +294,12 @@ def _cosine(a: np.ndarray, b: np.ndarray) -> float:
     return float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-9)
 
 
-def noise_sigma(f: np.ndarray) -> np.ndarray:
+def noise_sigma(f: np.ndarray, row_step: int = _NOISE_ROW_STEP) -> np.ndarray:
     """(C,) robust pixel-noise sigma of each channel of ``f`` (H, W, C): the median absolute
-    difference of horizontal neighbours on every _NOISE_ROW_STEP-th row (texture and edges
+    difference of horizontal neighbours on every ``row_step``-th row (texture and edges
     are sparse there; the differences are symmetric about 0), as a Gaussian sigma; at least
     the uint8 quantisation noise."""
-    sub = f[::_NOISE_ROW_STEP]
+    sub = f[::row_step]
     d = cv2.absdiff(sub[:, 1:], sub[:, :-1]).reshape(-1, f.shape[2])  # (N, C)
     mid = d.shape[0] // 2
     mad = np.array([_kth_smallest(d[:, j], mid) for j in range(d.shape[1])], np.float32)
@@ -356,17 +358,49 @@ _LOG_MIX: Final = np.array(
 )  # (brightness, log R/G, log B/G) from (log R, log G, log B)
 
 
-def _line_response(f: np.ndarray) -> np.ndarray:
-    """(H, W) float32 multi-scale line strength of the (H, W, C) channels ``f``.
+def _uint8(img: np.ndarray) -> np.ndarray:
+    """``img`` (H, W) or (H, W, C) as uint8 (H, W, 1 or 3) (clipped; its first 3 channels, or
+    its first one), a view when it is uint8 already."""
+    u8 = img if img.dtype == np.uint8 else np.clip(img, 0, 255).astype(np.uint8)
+    if u8.ndim == 2:
+        return u8[:, :, None]
+    return u8[:, :, :1] if u8.shape[2] < 3 else u8[:, :, :3]
+
+
+def _log_planes(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The channels of :func:`_log_channels` as the line response reads them: the first
+    (brightness) at full resolution (H, W) float32, and all C of them at half resolution as
+    cv2.pyrDown gives them (h, w, C) float32, h = (H + 1) // 2, w = (W + 1) // 2; one compiled
+    pass (:func:`threadrecon.core.ridge_kernel.log_planes`), no (H, W, C) image."""
+    u8 = _uint8(img)
+    h, w, c = u8.shape
+    grey = np.empty((h, w), np.float32)
+    half = np.empty(((h + 1) // 2, ((w + 1) // 2) * c), np.float32)
+    mix = _LOG_MIX if c == 3 else np.ones((1, 1), np.float32)
+    log_planes(u8, _LOG_LUT, mix, grey, half)
+    return grey, half.reshape(half.shape[0], -1, c)
+
+
+def _log_at(img: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(M, C) channels of :func:`_log_channels` at the pixels (rows, cols) only."""
+    px = _uint8(img)[rows, cols]  # (M, C)
+    if len(rows) == 0:
+        return np.zeros((0, px.shape[1]), np.float32)
+    return _log_channels(px[None]).reshape(len(rows), -1)
+
+
+def _line_response(grey: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """(H, W) float32 multi-scale line strength of the channels of :func:`_log_planes`: the
+    brightness ``grey`` (H, W) and all C channels at half resolution ``half`` (h, w, C), both
+    overwritten.
 
     The fine scale sees the grey channel only (a 1-2 px thread differs from tissue mostly in
     brightness); the coarse scale sees every channel at half resolution (pyrDown) and is
-    upsampled: the same response for a quarter of the work.
+    upsampled (bilinear, as cv2.resize): the same response for a quarter of the work.
     """
-    h, w = f.shape[:2]
-    fine = _line_at(f[:, :, 0].copy(), _SCALES[0], _SCALES[0])
-    coarse = _line_at(cv2.pyrDown(f), 0.5 * _SCALES[1], _SCALES[1])
-    return cv2.max(fine, cv2.resize(coarse, (w, h), interpolation=cv2.INTER_LINEAR), dst=fine)
+    fine = _line_at(grey, _SCALES[0], _SCALES[0])
+    coarse = _line_at(half, 0.5 * _SCALES[1], _SCALES[1])
+    return upsample_max(coarse, fine)
 
 
 def _line_at(f: np.ndarray, sigma: float, norm: float) -> np.ndarray:

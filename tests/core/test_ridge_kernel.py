@@ -65,3 +65,44 @@ def test_line_response_peaks_on_a_thin_dark_line() -> None:
                            np.float32(2.0), np.empty_like(g))  # fmt: skip
     assert set(np.argmax(out, axis=1).tolist()) == {20}
     assert out[:, 20].min() > 5 * out[:, :15].max()
+
+
+@pytest.mark.parametrize("shape", _SIZES)
+@pytest.mark.parametrize("channels", [0, 1, 3, 4])
+def test_log_planes_are_the_log_channels_and_their_pyrdown(
+    shape: tuple[int, int], channels: int
+) -> None:
+    from threadrecon.core.segment_raw import _log_channels, _log_planes
+
+    rng = np.random.default_rng(shape[0] + channels)
+    img = rng.integers(0, 256, (*shape, max(channels, 1)), dtype=np.uint8)
+    img = img[:, :, 0] if channels == 0 else img[:, :, ::-1]  # a strided view, as loaded
+    grey, half = _log_planes(img)
+    f = _log_channels(img if channels != 4 else img[:, :, :3])
+    assert grey.shape == shape and half.shape == ((shape[0] + 1) // 2, (shape[1] + 1) // 2,
+                                                  f.shape[2])  # fmt: skip
+    np.testing.assert_allclose(grey, f[:, :, 0], rtol=0, atol=1e-4)
+    want = cv2.pyrDown(f).reshape(half.shape)
+    np.testing.assert_allclose(half, want, rtol=0, atol=1e-4)
+
+
+def test_log_at_gives_the_log_channels_of_those_pixels_bit_for_bit() -> None:
+    from threadrecon.core.segment_raw import _log_at, _log_channels
+
+    rng = np.random.default_rng(5)
+    for img in (rng.integers(0, 256, (30, 40, 3), dtype=np.uint8)[:, :, ::-1],
+                rng.integers(0, 256, (30, 40), dtype=np.uint8)):  # fmt: skip
+        rows, cols = np.nonzero(rng.random((30, 40)) < 0.2)
+        np.testing.assert_array_equal(_log_at(img, rows, cols), _log_channels(img)[rows, cols])
+        assert _log_at(img, rows[:0], cols[:0]).shape == (0, 1 if img.ndim == 2 else 3)
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (37, 51), (2, 3), (1, 1), (1, 7), (6, 1)])
+def test_upsample_max_is_cv2_resize_then_max(shape: tuple[int, int]) -> None:
+    rng = np.random.default_rng(shape[1])
+    coarse = rng.random(((shape[0] + 1) // 2, (shape[1] + 1) // 2), dtype=np.float32)
+    fine = rng.random(shape, dtype=np.float32)
+    want = np.maximum(fine, cv2.resize(coarse, shape[::-1], interpolation=cv2.INTER_LINEAR))
+    got = rk.upsample_max(coarse, fine)
+    assert got is fine
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
