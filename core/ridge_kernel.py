@@ -19,8 +19,9 @@ from threadrecon.core.compiled import helper, kernel
 )
 def line_response(g, c, k1, k2, w_line, w_grad, out):  # noqa: ANN001
     """Line strength of the smoothed channels ``g`` (H, W * c), ``c`` interleaved channels,
-    into ``out`` (H, W), returned. Per channel, with the 3x3 Sobel filters of cv2 (border:
-    reflect-101) scaled to derivatives, gx = k1 Sobel_x, gy, hxx = k2 Sobel_xx, hyy, hxy:
+    into ``out`` (H, W), returned; ``out`` may be ``g`` itself (one channel). Per channel, with
+    the 3x3 Sobel filters of cv2 (border: reflect-101) scaled to derivatives, gx = k1 Sobel_x,
+    gy, hxx = k2 Sobel_xx, hyy, hxy:
 
         line = max(w_line min(|hxx + hyy| / 2, |(hxx - hyy, 2 hxy)| / 2) - w_grad |(gx, gy)|, 0)
 
@@ -34,12 +35,13 @@ def line_response(g, c, k1, k2, w_line, w_grad, out):  # noqa: ANN001
     t = np.empty((c, w + 2), np.float32)
     q = np.empty((c, w + 2), np.float32)
     line = np.empty(w, np.float32)
+    prev = np.empty(g.shape[1], np.float32)  # row y - 1 as it was (``out`` may overwrite it)
     lo = 1 if w > 1 else 0  # reflect-101 columns: -1 -> 1, W -> W - 2 (one column: itself)
     hi = w - 2 if w > 1 else 0
     for y in range(h):
-        up = g[y - 1 if y > 0 else min(1, h - 1)]
         mid = g[y]
-        dn = g[y + 1 if y < h - 1 else max(h - 2, 0)]
+        up = prev if y > 0 else g[min(1, h - 1)]
+        dn = g[y + 1] if y < h - 1 else (prev if h > 1 else mid)
         for j in range(c):
             sj, tj, qj = s[j], t[j], q[j]
             for x in range(w):
@@ -49,6 +51,8 @@ def line_response(g, c, k1, k2, w_line, w_grad, out):  # noqa: ANN001
                 qj[x + 1] = u - two * m + d
             sj[0], tj[0], qj[0] = sj[lo + 1], tj[lo + 1], qj[lo + 1]
             sj[w + 1], tj[w + 1], qj[w + 1] = sj[hi + 1], tj[hi + 1], qj[hi + 1]
+        for x in range(g.shape[1]):
+            prev[x] = mid[x]
         row = out[y]
         for j in range(c):
             _row_line(s[j], t[j], q[j], w, k1, k2, w_line, w_grad, line)
@@ -221,3 +225,35 @@ def _linear_source(x, n, big_n):  # noqa: ANN001
     if i >= n - 1:
         return n - 1, np.float32(0.0)
     return i, np.float32(a)
+
+
+@kernel("float32(float32[:, :], int64)")
+def kth_smallest(x, k):  # noqa: ANN001
+    """The ``k``-th smallest (0-based) of the non-negative values ``x`` (any 2-D view), as
+    ``np.partition(x.ravel(), k)[k]``: the bit patterns of non-negative floats sort like the
+    floats, so a histogram of their top 16 bits finds the bin holding the k-th value, and only
+    that bin (a few %) is sorted."""
+    n = x.shape[0] * x.shape[1]
+    buf = np.empty(n, np.float32)
+    i = 0
+    for r in range(x.shape[0]):
+        for c in range(x.shape[1]):
+            buf[i] = x[r, c]
+            i += 1
+    bits = buf.view(np.uint32)
+    counts = np.zeros(1 << 15, np.int64)  # sign bit cleared (-0.0 is 0): 15 bits are left
+    for i in range(n):
+        counts[(bits[i] & 0x7FFFFFFF) >> 16] += 1
+    below = 0
+    b = 0
+    while below + counts[b] <= k:
+        below += counts[b]
+        b += 1
+    rest = np.empty(counts[b], np.float32)
+    m = 0
+    for i in range(n):
+        if (bits[i] & 0x7FFFFFFF) >> 16 == b:
+            rest[m] = buf[i]
+            m += 1
+    rest.sort()
+    return rest[k - below]

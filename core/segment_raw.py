@@ -18,7 +18,12 @@ from typing import TYPE_CHECKING, Final
 import cv2
 import numpy as np
 
-from threadrecon.core.ridge_kernel import line_response, log_planes, upsample_max
+from threadrecon.core.ridge_kernel import (
+    kth_smallest,
+    line_response,
+    log_planes,
+    upsample_max,
+)
 
 if TYPE_CHECKING:
     from threadrecon.core.segmentation import SegmentationParams
@@ -302,7 +307,7 @@ def noise_sigma(f: np.ndarray, row_step: int = _NOISE_ROW_STEP) -> np.ndarray:
     sub = f[::row_step]
     d = cv2.absdiff(sub[:, 1:], sub[:, :-1]).reshape(-1, f.shape[2])  # (N, C)
     mid = d.shape[0] // 2
-    mad = np.array([_kth_smallest(d[:, j], mid) for j in range(d.shape[1])], np.float32)
+    mad = np.array([_kth_smallest(d[:, j : j + 1], mid) for j in range(d.shape[1])], np.float32)
     return np.maximum(1.4826 * mad / np.sqrt(2.0), _QUANT_SIGMA)
 
 
@@ -405,9 +410,9 @@ def _line_response(grey: np.ndarray, half: np.ndarray) -> np.ndarray:
 
 def _line_at(f: np.ndarray, sigma: float, norm: float) -> np.ndarray:
     """Line strength at Gaussian scale ``sigma`` px of this image (overwritten: it is blurred
-    in place), normalised as scale ``norm``: one compiled pass over the smoothed image
-    (:func:`threadrecon.core.ridge_kernel.line_response`; the same formula as fifteen cv2
-    calls, to float32 rounding, without their buffers)."""
+    in place, and one channel becomes the response), normalised as scale ``norm``: one
+    compiled pass over the smoothed image (:func:`threadrecon.core.ridge_kernel.line_response`;
+    the same formula as fifteen cv2 calls, to float32 rounding, without their buffers)."""
     h, w = f.shape[:2]
     c = 1 if f.ndim == 2 else f.shape[2]
     g = cv2.GaussianBlur(f, (0, 0), sigma, dst=f)
@@ -421,33 +426,26 @@ def _line_at(f: np.ndarray, sigma: float, norm: float) -> np.ndarray:
         np.float32(0.25 * r * r),
         np.float32(2.0 * norm * norm),
         np.float32(_EDGE_K * norm),
-        np.empty((h, w), np.float32),
+        g if c == 1 else np.empty((h, w), np.float32),  # one channel: in place
     )
 
 
 def _robust_level(s: np.ndarray) -> float:
     """Typical response of the background: the 90th percentile (thread px are < 5 %) of every
     second pixel of every second row."""
-    sample = s[::2, ::2].ravel()
+    sample = s[::2, ::2]
     k = int(0.9 * (sample.size - 1))
     return max(_kth_smallest(sample, k), 1e-3)
 
 
 def _kth_smallest(x: np.ndarray, k: int) -> float:
-    """The ``k``-th smallest (0-based) of the non-negative float32 values ``x`` (N,), exactly
-    ``np.partition(x, k)[k]`` in 1/3 of its time: the bit patterns of non-negative floats sort
-    like the floats, so a histogram of their top 16 bits finds the bin holding the k-th value,
-    and only that bin (a few %) is partitioned."""
-    if x.dtype != np.float32 or x.ndim != 1 or not 0 <= k < x.size:
-        raise ValueError(f"_kth_smallest needs (N,) float32 and 0 <= k < N, got {x.dtype} "
-                         f"{x.shape}, k={k}")  # fmt: skip
-    top = (np.ascontiguousarray(x).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 16  # -0.0 is 0
-    top = top.astype(np.intp)
-    below = np.cumsum(np.bincount(top))
-    b = int(np.searchsorted(below, k, side="right"))  # below[b - 1] <= k < below[b]
-    rest = x[top == b]
-    kk = k - (int(below[b - 1]) if b else 0)
-    return float(np.partition(rest, kk)[kk])
+    """The ``k``-th smallest (0-based) of the non-negative float32 values ``x`` (N,) or a 2-D
+    view, exactly ``np.partition(x.ravel(), k)[k]`` in a fraction of its time (a histogram of
+    the values' top bits, then the one bin: :func:`threadrecon.core.ridge_kernel.kth_smallest`)."""
+    if x.dtype != np.float32 or x.ndim not in (1, 2) or not 0 <= k < x.size:
+        raise ValueError(f"_kth_smallest needs (N,) or 2-D float32 and 0 <= k < N, got "
+                         f"{x.dtype} {x.shape}, k={k}")  # fmt: skip
+    return float(kth_smallest(x if x.ndim == 2 else x[None], k))
 
 
 def _pieces(

@@ -106,3 +106,23 @@ def test_upsample_max_is_cv2_resize_then_max(shape: tuple[int, int]) -> None:
     got = rk.upsample_max(coarse, fine)
     assert got is fine
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
+
+
+def test_line_response_in_place_is_the_response_into_another_buffer() -> None:
+    for shape in _SIZES:
+        g = _image(shape, seed=shape[1])
+        args = (1, np.float32(0.125), np.float32(0.25), np.float32(2.0), np.float32(2.0))
+        want = rk.line_response(g, *args, np.empty_like(g))
+        got = rk.line_response(g, *args, g)
+        assert got is g
+        np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("trial", range(10))
+def test_kth_smallest_of_a_strided_view_is_partition_of_its_values(trial: int) -> None:
+    rng = np.random.default_rng([91, trial])
+    s = np.maximum(rng.normal(0, 1, (int(rng.integers(1, 60)), 70)), 0).astype(np.float32)
+    for view in (s[::2, ::2], s[:, 3:4], s[1:, ::-3]):
+        flat = view.ravel()
+        for k in (0, flat.size // 2, int(0.9 * (flat.size - 1)), flat.size - 1):
+            assert rk.kth_smallest(view, k) == np.partition(flat, k)[k]
