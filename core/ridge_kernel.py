@@ -102,26 +102,26 @@ def _reflect(i, n):  # noqa: ANN001
 
 
 @helper(inline="always")
-def _mixed_row(src, c, w, lut, mix, row):  # noqa: ANN001
+def _mixed_row(src, c, w, lut, mix, logs, row):  # noqa: ANN001
     """One image row ``src`` (W, c) uint8 as log channels into ``row`` (c, W + 4): channel j
     at row[j, x + 2] is ``mix[j]`` of lut[value] of (R, G, B) (lut[value] for one channel),
-    and two columns on each side are reflect-101 copies (for the 5-tap filter)."""
+    and two columns on each side are reflect-101 copies (for the 5-tap filter). ``logs``
+    (c, W): scratch for lut[value]."""
     if c == 1:
         r0 = row[0]
         for x in range(w):
             r0[x + 2] = lut[src[x, 0]]
     else:
-        r0, r1, r2 = row[0], row[1], row[2]
-        m00, m01, m02 = mix[0, 0], mix[0, 1], mix[0, 2]
-        m10, m11, m12 = mix[1, 0], mix[1, 1], mix[1, 2]
-        m20, m21, m22 = mix[2, 0], mix[2, 1], mix[2, 2]
-        for x in range(w):
-            lr = lut[src[x, 0]]
-            lg = lut[src[x, 1]]
-            lb = lut[src[x, 2]]
-            r0[x + 2] = m00 * lr + m01 * lg + m02 * lb
-            r1[x + 2] = m10 * lr + m11 * lg + m12 * lb
-            r2[x + 2] = m20 * lr + m21 * lg + m22 * lb
+        for j in range(3):
+            lj = logs[j]
+            for x in range(w):
+                lj[x] = lut[src[x, j]]
+        lr, lg, lb = logs[0], logs[1], logs[2]
+        for j in range(3):
+            rj = row[j]
+            m0, m1, m2 = mix[j, 0], mix[j, 1], mix[j, 2]
+            for x in range(w):
+                rj[x + 2] = m0 * lr[x] + m1 * lg[x] + m2 * lb[x]
     for j in range(c):
         rj = row[j]
         for p in (0, 1, w + 2, w + 3):
@@ -144,6 +144,7 @@ def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
     # The mixed rows of the last five input rows (each row is mixed once): slot r % 5.
     cache = np.empty((5, c, w + 4), np.float32)
     cached = np.full(5, -1, np.int64)
+    logs = np.empty((c, w), np.float32)
     acc = np.empty((c, w + 4), np.float32)
     one = np.float32(1.0)
     four = np.float32(4.0)
@@ -155,7 +156,7 @@ def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
             slot = r % 5
             row = cache[slot]
             if cached[slot] != r:
-                _mixed_row(img[r], c, w, lut, mix, row)
+                _mixed_row(img[r], c, w, lut, mix, logs, row)
                 cached[slot] = r
                 g, r0 = grey[r], row[0]
                 for x in range(w):
