@@ -276,3 +276,78 @@ def _bin_of(counts, k):  # noqa: ANN001
         below += counts[b]
         b += 1
     return b, k - below
+
+
+@kernel("int64(uint8[:, :], int64, boolean)")
+def small_components(mask, min_px, clear):  # noqa: ANN001
+    """Pixels of ``mask`` (H, W) uint8 (any strides) in 8-connected components of fewer than
+    ``min_px`` pixels; with ``clear``, those pixels are set to 0 in ``mask``. Components are
+    unions of row runs (a run touches the runs of the row above that overlap it grown by one
+    column): a thin mask's few hundred runs, not a label image."""
+    h, w = mask.shape
+    n = 0
+    for y in range(h):
+        prev = 0
+        for x in range(w):
+            on = 1 if mask[y, x] != 0 else 0
+            if on and not prev:
+                n += 1
+            prev = on
+    row = np.empty(n, np.int64)
+    start = np.empty(n, np.int64)
+    stop = np.empty(n, np.int64)  # exclusive
+    parent = np.arange(n)
+    i = 0
+    above0 = 0  # the runs of the row above: above0 .. above1 - 1
+    above1 = 0
+    for y in range(h):
+        first = i
+        x = 0
+        j = above0
+        while x < w:
+            if mask[y, x] == 0:
+                x += 1
+                continue
+            a = x
+            while x < w and mask[y, x] != 0:
+                x += 1
+            row[i], start[i], stop[i] = y, a, x
+            while j < above1 and stop[j] < a:  # ends before column a - 1
+                j += 1
+            k = j
+            while k < above1 and start[k] <= x:  # starts by column x (the run's end + 1)
+                _union(parent, i, k)
+                k += 1
+            i += 1
+        above0, above1 = first, i
+    size = np.zeros(n, np.int64)
+    for r in range(n):
+        size[_root(parent, r)] += stop[r] - start[r]
+    small = 0
+    for r in range(n):
+        if size[_root(parent, r)] < min_px:
+            small += stop[r] - start[r]
+            if clear:
+                for x in range(start[r], stop[r]):
+                    mask[row[r], x] = 0
+    return small
+
+
+@helper()
+def _root(parent, i):  # noqa: ANN001
+    """Root of ``i`` in the union-find forest ``parent`` (paths halved on the way)."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@helper()
+def _union(parent, a, b):  # noqa: ANN001
+    """Join the trees of ``a`` and ``b`` (the smaller root becomes the root)."""
+    ra = _root(parent, a)
+    rb = _root(parent, b)
+    if ra < rb:
+        parent[rb] = ra
+    elif rb < ra:
+        parent[ra] = rb

@@ -22,6 +22,7 @@ from threadrecon.core.ridge_kernel import (
     kth_smallest,
     line_response,
     log_planes,
+    small_components,
     upsample_max,
 )
 
@@ -615,21 +616,18 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
 
 
 def drop_specks(mask: np.ndarray, min_px: int) -> np.ndarray:
-    """``mask`` (H, W) bool without its 8-connected components smaller than ``min_px``."""
+    """``mask`` (H, W) bool without its 8-connected components smaller than ``min_px`` (``mask``
+    itself when it has none)."""
     if min_px <= 1:
         return mask
     u8 = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
-    pts = cv2.findNonZero(u8)
-    if pts is None:
-        return mask
     # Labelled on the pixels' bounding box only: the same components, hence the same sizes.
-    x, y, w, h = cv2.boundingRect(pts)
-    n, labels = cv2.connectedComponents(u8[y : y + h, x : x + w], connectivity=8, ltype=cv2.CV_32S)
-    pts = pts.reshape(-1, 2)
-    rows, cols = pts[:, 1].astype(np.intp), pts[:, 0].astype(np.intp)
-    lab = labels[rows - y, cols - x]
-    keep = np.bincount(lab, minlength=n) >= min_px
-    keep = keep[lab]
-    out = np.zeros(mask.shape, bool)
-    out[rows[keep], cols[keep]] = True
+    x, y, w, h = cv2.boundingRect(u8)
+    if w == 0:
+        return mask
+    box = u8[y : y + h, x : x + w]
+    if small_components(box, min_px, False) == 0:  # the common case: nothing to drop
+        return mask
+    out = np.array(mask, dtype=bool)
+    small_components(out.view(np.uint8)[y : y + h, x : x + w], min_px, True)
     return out

@@ -126,3 +126,45 @@ def test_kth_smallest_of_a_strided_view_is_partition_of_its_values(trial: int) -
         flat = view.ravel()
         for k in (0, flat.size // 2, int(0.9 * (flat.size - 1)), flat.size - 1):
             assert rk.kth_smallest(view, k) == np.partition(flat, k)[k]
+
+
+def _drop_specks_by_labels(mask: np.ndarray, min_px: int) -> np.ndarray:
+    """The plain computation: cv2's 8-connected labels of the whole mask, sizes, keep."""
+    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    keep = np.bincount(labels.ravel(), minlength=n) >= min_px
+    keep[0] = False
+    return keep[labels]
+
+
+@pytest.mark.parametrize("trial", range(60))
+def test_drop_specks_equals_the_labelling_of_the_whole_mask(trial: int) -> None:
+    from threadrecon.core.segment_raw import drop_specks
+
+    rng = np.random.default_rng([13, trial])
+    shape = (int(rng.integers(1, 50)), int(rng.integers(1, 50)))
+    mask = rng.random(shape) < rng.choice([0.05, 0.3, 0.6])
+    if trial % 3 == 0:  # thin lines (diagonal steps join 8-neighbours only) and specks
+        mask[:] = False
+        for _ in range(3):
+            r, c = rng.integers(0, shape[0]), rng.integers(0, shape[1])
+            for _ in range(int(rng.integers(1, 40))):
+                mask[r % shape[0], c % shape[1]] = True
+                r, c = r + rng.integers(0, 2), c + rng.integers(0, 2)
+    for min_px in (0, 2, 5, 20):
+        before = mask.copy()
+        got = drop_specks(mask, min_px)
+        want = mask if min_px <= 1 else _drop_specks_by_labels(mask, min_px)
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(mask, before)  # the input is never written
+
+
+def test_small_components_counts_and_clears_only_the_small_ones() -> None:
+    m = np.zeros((6, 12), np.uint8)
+    m[1, 1:4] = 1  # 3 px
+    m[2, 4] = 1  # joins it diagonally: 4 px
+    m[0:6, 8] = 1  # 6 px
+    view = m[:, ::-1]  # strided
+    assert rk.small_components(view, 5, False) == 4
+    assert rk.small_components(view, 7, False) == 10
+    assert rk.small_components(view, 5, True) == 4
+    assert m.sum() == 6 and m[:, 8].all()
