@@ -168,3 +168,12 @@ def test_small_components_counts_and_clears_only_the_small_ones() -> None:
     assert rk.small_components(view, 7, False) == 10
     assert rk.small_components(view, 5, True) == 4
     assert m.sum() == 6 and m[:, 8].all()
+
+
+def test_noise_sigma_of_the_sampled_rows_is_that_of_the_image() -> None:
+    from threadrecon.core.segment_raw import _NOISE_ROW_STEP, _log_channels, noise_sigma
+
+    img = np.random.default_rng(8).integers(0, 256, (100, 90, 3), dtype=np.uint8)[:, :, ::-1]
+    f = _log_channels(img)
+    rows = _log_channels(img[::_NOISE_ROW_STEP])
+    np.testing.assert_array_equal(noise_sigma(rows, row_step=1), noise_sigma(f))
