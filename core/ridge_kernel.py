@@ -351,3 +351,27 @@ def _union(parent, a, b):  # noqa: ANN001
         parent[rb] = ra
     elif rb < ra:
         parent[ra] = rb
+
+
+@kernel("int64[:, ::1](float32[:, ::1], float32, uint8[:, ::1])")
+def at_least(s, t, lo):  # noqa: ANN001
+    """``lo`` (H, W) = 255 where ``s`` (H, W) >= ``t``, else 0 (cv2.compare's CMP_GE), and the
+    rows and columns (2, M) of those pixels in row-major order (cv2.findNonZero's)."""
+    h, w = s.shape
+    n = 0
+    for y in range(h):
+        sy, ly = s[y], lo[y]
+        for x in range(w):
+            on = sy[x] >= t
+            ly[x] = 255 if on else 0
+            n += 1 if on else 0
+    out = np.empty((2, n), np.int64)
+    i = 0
+    for y in range(h):
+        ly = lo[y]
+        for x in range(w):
+            if ly[x]:
+                out[0, i] = y
+                out[1, i] = x
+                i += 1
+    return out

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from threadrecon.core.ridge_kernel import (
+    at_least,
     kth_smallest,
     line_response,
     log_planes,
@@ -144,8 +145,8 @@ class _View:
         c = half.shape[2]
         S = _line_response(grey, half)
         level = _robust_level(S)
-        lo = cv2.compare(S, float(p.ridge_lo * level), cv2.CMP_GE)
-        rows, cols = _points(lo)
+        lo = np.empty(S.shape, np.uint8)  # cv2.compare(S, ridge_lo level, CMP_GE) and its points
+        rows, cols = at_least(S, np.float32(p.ridge_lo * level), lo)
         a_q = _quarter(img if img.ndim == 3 else img[:, :, None])[:, :, :c]
         if c > 1 and len(rows):
             tool = _instrument_mask(_log_of(a_q))

@@ -177,3 +177,19 @@ def test_noise_sigma_of_the_sampled_rows_is_that_of_the_image() -> None:
     f = _log_channels(img)
     rows = _log_channels(img[::_NOISE_ROW_STEP])
     np.testing.assert_array_equal(noise_sigma(rows, row_step=1), noise_sigma(f))
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (2, 1), (3, 7)])  # cv2 takes 1x1 as a scalar
+def test_at_least_is_cv2_compare_and_find_non_zero(shape: tuple[int, int]) -> None:
+    from threadrecon.core.segment_raw import _points
+
+    s = np.random.default_rng(shape[1]).random(shape, dtype=np.float32)
+    s[0, 0] = np.float32(0.3)  # exactly at the threshold: kept
+    for t in (0.3, 0.9, 2.0, 1 / 3):
+        lo = np.empty(shape, np.uint8)
+        rows, cols = rk.at_least(s, np.float32(t), lo)
+        want = cv2.compare(s, t, cv2.CMP_GE)
+        np.testing.assert_array_equal(lo, want)
+        want_rows, want_cols = _points(want)
+        np.testing.assert_array_equal(rows, want_rows)
+        np.testing.assert_array_equal(cols, want_cols)
