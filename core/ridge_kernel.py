@@ -1,10 +1,19 @@
-"""Compiled kernel of the raw segmentation's line response (core/segment_filters.py).
+"""Compiled kernels of the raw segmentation's filters (core/segment_raw.py).
 
-The response at one scale is five 3x3 derivative filters of the smoothed image (gradient and
-Hessian) and a dozen per-pixel operations on them. As cv2 calls that is fifteen passes over
-full-size float32 images, five of them into fresh buffers (their page faults cost more than
-the arithmetic at 640x480); here it is one pass that reads three rows of the smoothed image
-and writes the response, with the same formula (see :func:`line_response`).
+The line response at one scale is five 3x3 derivative filters of the smoothed image (gradient
+and Hessian) and a dozen per-pixel operations on them. As cv2 calls that was fifteen passes
+over full-size float32 images, five of them into fresh buffers (their page faults cost more
+than the arithmetic at 640x480); :func:`line_response` is one pass that reads three rows of
+the smoothed image and writes the response, with the same formula. :func:`log_planes` gives
+the log channels the response reads (full-resolution brightness, half-resolution pyrDown of
+all channels) straight from the uint8 image, without the (H, W, 3) float image, and
+:func:`upsample_max` merges the coarse scale into the fine one in place.
+
+Exactness: these three compute cv2's formulas in float32 in another order, so the response
+differs from the cv2 calls' in the last bits (~1e-5 relative); on 195 raw frames of 15 suites
+(two seeds) the masks were the same but for one pixel of one frame, and the held-out suites'
+figures were unchanged. :func:`kth_smallest`, :func:`at_least` and
+:func:`small_components` give exactly the values of the numpy/cv2 code they replace.
 """
 
 from __future__ import annotations
