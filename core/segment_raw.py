@@ -18,6 +18,15 @@ from typing import TYPE_CHECKING, Final
 import cv2
 import numpy as np
 
+from threadrecon.core.ridge_kernel import (
+    at_least,
+    kth_smallest,
+    line_response,
+    log_planes,
+    small_components,
+    upsample_max,
+)
+
 if TYPE_CHECKING:
     from threadrecon.core.segmentation import SegmentationParams
 
@@ -132,13 +141,14 @@ class _View:
 
     @classmethod
     def build(cls, img: np.ndarray, p: SegmentationParams) -> _View:
-        f = _log_channels(img)
-        S = _line_response(f)
+        grey, half = _log_planes(img)
+        c = half.shape[2]
+        S = _line_response(grey, half)
         level = _robust_level(S)
-        lo = cv2.compare(S, float(p.ridge_lo * level), cv2.CMP_GE)
-        rows, cols = _points(lo)
-        a_q = _quarter(img if img.ndim == 3 else img[:, :, None])[:, :, : f.shape[2]]
-        if f.shape[2] > 1 and len(rows):
+        lo = np.empty(S.shape, np.uint8)  # cv2.compare(S, ridge_lo level, CMP_GE) and its points
+        rows, cols = at_least(S, np.float32(p.ridge_lo * level), lo)
+        a_q = _quarter(img if img.ndim == 3 else img[:, :, None])[:, :, :c]
+        if c > 1 and len(rows):
             tool = _instrument_mask(_log_of(a_q))
             on_tool = tool[_qi(rows, tool.shape[0]), _qi(cols, tool.shape[1])]
             if on_tool.any():
@@ -147,15 +157,16 @@ class _View:
         free = _free_blocks(rows, cols, a_q.shape[:2])
         bg_rgb = _background(a_q, free)
         bg = _log_of(bg_rgb)
-        delta = f[rows, cols] - bg[_qi(rows, bg.shape[0]), _qi(cols, bg.shape[1])]
-        if f.shape[2] > 1:
+        delta = _log_at(img, rows, cols) - bg[_qi(rows, bg.shape[0]), _qi(cols, bg.shape[1])]
+        if c > 1:
             redder = (delta[:, 1] > p.blood_rg * _LOG_SCALE) | (
                 delta[:, 1] >= -_BLOOD_RATIO * delta[:, 0]
             )
             blood = redder & (delta[:, 0] < 0)
         else:
             blood = np.zeros(len(rows), bool)
-        v = cls(img, S, level, lo, rows, cols, delta, blood, noise_sigma(f), bg_rgb)
+        sigma = noise_sigma(_log_channels(img[::_NOISE_ROW_STEP]), row_step=1)
+        v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb)
         if blood.any():
             mask = lo.copy()
             mask[rows[blood], cols[blood]] = 0
@@ -290,15 +301,15 @@ def _cosine(a: np.ndarray, b: np.ndarray) -> float:
     return float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-9)
 
 
-def noise_sigma(f: np.ndarray) -> np.ndarray:
+def noise_sigma(f: np.ndarray, row_step: int = _NOISE_ROW_STEP) -> np.ndarray:
     """(C,) robust pixel-noise sigma of each channel of ``f`` (H, W, C): the median absolute
-    difference of horizontal neighbours on every _NOISE_ROW_STEP-th row (texture and edges
+    difference of horizontal neighbours on every ``row_step``-th row (texture and edges
     are sparse there; the differences are symmetric about 0), as a Gaussian sigma; at least
     the uint8 quantisation noise."""
-    sub = f[::_NOISE_ROW_STEP]
+    sub = f[::row_step]
     d = cv2.absdiff(sub[:, 1:], sub[:, :-1]).reshape(-1, f.shape[2])  # (N, C)
     mid = d.shape[0] // 2
-    mad = np.array([_kth_smallest(d[:, j], mid) for j in range(d.shape[1])], np.float32)
+    mad = np.array([_kth_smallest(d[:, j : j + 1], mid) for j in range(d.shape[1])], np.float32)
     return np.maximum(1.4826 * mad / np.sqrt(2.0), _QUANT_SIGMA)
 
 
@@ -354,78 +365,89 @@ _LOG_MIX: Final = np.array(
 )  # (brightness, log R/G, log B/G) from (log R, log G, log B)
 
 
-def _line_response(f: np.ndarray) -> np.ndarray:
-    """(H, W) float32 multi-scale line strength of the (H, W, C) channels ``f``.
+def _uint8(img: np.ndarray) -> np.ndarray:
+    """``img`` (H, W) or (H, W, C) as uint8 (H, W, 1 or 3) (clipped; its first 3 channels, or
+    its first one), a view when it is uint8 already."""
+    u8 = img if img.dtype == np.uint8 else np.clip(img, 0, 255).astype(np.uint8)
+    if u8.ndim == 2:
+        return u8[:, :, None]
+    return u8[:, :, :1] if u8.shape[2] < 3 else u8[:, :, :3]
+
+
+def _log_planes(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The channels of :func:`_log_channels` as the line response reads them: the first
+    (brightness) at full resolution (H, W) float32, and all C of them at half resolution as
+    cv2.pyrDown gives them (h, w, C) float32, h = (H + 1) // 2, w = (W + 1) // 2; one compiled
+    pass (:func:`threadrecon.core.ridge_kernel.log_planes`), no (H, W, C) image."""
+    u8 = _uint8(img)
+    h, w, c = u8.shape
+    grey = np.empty((h, w), np.float32)
+    half = np.empty(((h + 1) // 2, ((w + 1) // 2) * c), np.float32)
+    mix = _LOG_MIX if c == 3 else np.ones((1, 1), np.float32)
+    log_planes(u8, _LOG_LUT, mix, grey, half)
+    return grey, half.reshape(half.shape[0], -1, c)
+
+
+def _log_at(img: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(M, C) channels of :func:`_log_channels` at the pixels (rows, cols) only."""
+    px = _uint8(img)[rows, cols]  # (M, C)
+    if len(rows) == 0:
+        return np.zeros((0, px.shape[1]), np.float32)
+    return _log_channels(px[None]).reshape(len(rows), -1)
+
+
+def _line_response(grey: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """(H, W) float32 multi-scale line strength of the channels of :func:`_log_planes`: the
+    brightness ``grey`` (H, W) and all C channels at half resolution ``half`` (h, w, C), both
+    overwritten.
 
     The fine scale sees the grey channel only (a 1-2 px thread differs from tissue mostly in
     brightness); the coarse scale sees every channel at half resolution (pyrDown) and is
-    upsampled: the same response for a quarter of the work.
+    upsampled (bilinear, as cv2.resize): the same response for a quarter of the work.
     """
-    h, w = f.shape[:2]
-    fine = _line_at(f[:, :, 0].copy(), _SCALES[0], _SCALES[0])
-    coarse = _line_at(cv2.pyrDown(f), 0.5 * _SCALES[1], _SCALES[1])
-    return cv2.max(fine, cv2.resize(coarse, (w, h), interpolation=cv2.INTER_LINEAR), dst=fine)
+    fine = _line_at(grey, _SCALES[0], _SCALES[0])
+    coarse = _line_at(half, 0.5 * _SCALES[1], _SCALES[1])
+    return upsample_max(coarse, fine)
 
 
 def _line_at(f: np.ndarray, sigma: float, norm: float) -> np.ndarray:
     """Line strength at Gaussian scale ``sigma`` px of this image (overwritten: it is blurred
-    in place), normalised as scale ``norm``.
-
-    Written with cv2's in-place outputs: five buffers instead of fifteen fresh arrays (page
-    faults on fresh memory cost more than the arithmetic here).
-    """
+    in place, and one channel becomes the response), normalised as scale ``norm``: one
+    compiled pass over the smoothed image (:func:`threadrecon.core.ridge_kernel.line_response`;
+    the same formula as fifteen cv2 calls, to float32 rounding, without their buffers)."""
     h, w = f.shape[:2]
     c = 1 if f.ndim == 2 else f.shape[2]
     g = cv2.GaussianBlur(f, (0, 0), sigma, dst=f)
-    shape = (h, w * c)
     r = sigma / norm  # derivatives per original pixel: a half-resolution pixel is 2 px
-    bufs = [np.empty(shape, np.float32) for _ in range(5)]
-    gx, gy, hxx, hyy, hxy = bufs
-    for out, (dx, dy, scale) in zip(
-        bufs,
-        ((1, 0, 0.125 * r), (0, 1, 0.125 * r), (2, 0, 0.25 * r * r), (0, 2, 0.25 * r * r),
-         (1, 1, 0.25 * r * r)),
-        strict=True,
-    ):  # fmt: skip
-        cv2.Sobel(g, cv2.CV_32F, dx, dy, dst=out.reshape(g.shape), ksize=3, scale=scale)
-    grad = cv2.magnitude(gx, gy, gx)
-    a = cv2.addWeighted(hxx, 0.5, hyy, 0.5, 0.0, dst=gy)
-    cv2.absdiff(a, 0.0, dst=a)  # |l1 + l2| / 2
-    cv2.addWeighted(hxx, 0.5, hyy, -0.5, 0.0, dst=hxx)
-    d = cv2.magnitude(hxx, hxy, hyy)  # |l1 - l2| / 2
-    line = cv2.min(a, d, dst=a)
-    cv2.addWeighted(line, 2.0 * norm * norm, grad, -_EDGE_K * norm, 0.0, dst=line)
-    cv2.max(line, 0.0, dst=line)
-    if c == 1:  # one channel: the norm over channels is the response itself
-        return line
-    cv2.multiply(line, line, dst=line)
-    sq = cv2.transform(line.reshape(h, w, c), np.ones((1, c), np.float32))
-    return cv2.sqrt(sq.reshape(h, w))
+    # Sobel 3x3 sums 4 (first) or 16 (second derivative) times the derivative; the response
+    # is 2 norm^2 min(|l1 + l2| / 2, |l1 - l2| / 2) - _EDGE_K norm |gradient|, at least 0.
+    return line_response(
+        g.reshape(h, w * c),
+        c,
+        np.float32(0.125 * r),
+        np.float32(0.25 * r * r),
+        np.float32(2.0 * norm * norm),
+        np.float32(_EDGE_K * norm),
+        g if c == 1 else np.empty((h, w), np.float32),  # one channel: in place
+    )
 
 
 def _robust_level(s: np.ndarray) -> float:
     """Typical response of the background: the 90th percentile (thread px are < 5 %) of every
     second pixel of every second row."""
-    sample = s[::2, ::2].ravel()
+    sample = s[::2, ::2]
     k = int(0.9 * (sample.size - 1))
     return max(_kth_smallest(sample, k), 1e-3)
 
 
 def _kth_smallest(x: np.ndarray, k: int) -> float:
-    """The ``k``-th smallest (0-based) of the non-negative float32 values ``x`` (N,), exactly
-    ``np.partition(x, k)[k]`` in 1/3 of its time: the bit patterns of non-negative floats sort
-    like the floats, so a histogram of their top 16 bits finds the bin holding the k-th value,
-    and only that bin (a few %) is partitioned."""
-    if x.dtype != np.float32 or x.ndim != 1 or not 0 <= k < x.size:
-        raise ValueError(f"_kth_smallest needs (N,) float32 and 0 <= k < N, got {x.dtype} "
-                         f"{x.shape}, k={k}")  # fmt: skip
-    top = (np.ascontiguousarray(x).view(np.uint32) & np.uint32(0x7FFFFFFF)) >> 16  # -0.0 is 0
-    top = top.astype(np.intp)
-    below = np.cumsum(np.bincount(top))
-    b = int(np.searchsorted(below, k, side="right"))  # below[b - 1] <= k < below[b]
-    rest = x[top == b]
-    kk = k - (int(below[b - 1]) if b else 0)
-    return float(np.partition(rest, kk)[kk])
+    """The ``k``-th smallest (0-based) of the non-negative float32 values ``x`` (N,) or a 2-D
+    view, exactly ``np.partition(x.ravel(), k)[k]`` in a fraction of its time (a histogram of
+    the values' top bits, then the one bin: :func:`threadrecon.core.ridge_kernel.kth_smallest`)."""
+    if x.dtype != np.float32 or x.ndim not in (1, 2) or not 0 <= k < x.size:
+        raise ValueError(f"_kth_smallest needs (N,) or 2-D float32 and 0 <= k < N, got "
+                         f"{x.dtype} {x.shape}, k={k}")  # fmt: skip
+    return float(kth_smallest(x if x.ndim == 2 else x[None], k))
 
 
 def _pieces(
@@ -595,21 +617,18 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
 
 
 def drop_specks(mask: np.ndarray, min_px: int) -> np.ndarray:
-    """``mask`` (H, W) bool without its 8-connected components smaller than ``min_px``."""
+    """``mask`` (H, W) bool without its 8-connected components smaller than ``min_px`` (``mask``
+    itself when it has none)."""
     if min_px <= 1:
         return mask
     u8 = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
-    pts = cv2.findNonZero(u8)
-    if pts is None:
-        return mask
     # Labelled on the pixels' bounding box only: the same components, hence the same sizes.
-    x, y, w, h = cv2.boundingRect(pts)
-    n, labels = cv2.connectedComponents(u8[y : y + h, x : x + w], connectivity=8, ltype=cv2.CV_32S)
-    pts = pts.reshape(-1, 2)
-    rows, cols = pts[:, 1].astype(np.intp), pts[:, 0].astype(np.intp)
-    lab = labels[rows - y, cols - x]
-    keep = np.bincount(lab, minlength=n) >= min_px
-    keep = keep[lab]
-    out = np.zeros(mask.shape, bool)
-    out[rows[keep], cols[keep]] = True
+    x, y, w, h = cv2.boundingRect(u8)
+    if w == 0:
+        return mask
+    box = u8[y : y + h, x : x + w]
+    if small_components(box, min_px, False) == 0:  # the common case: nothing to drop
+        return mask
+    out = np.array(mask, dtype=bool)
+    small_components(out.view(np.uint8)[y : y + h, x : x + w], min_px, True)
     return out

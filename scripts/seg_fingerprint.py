@@ -5,6 +5,9 @@ bit for bit, to show that a speed-up of the segmentation changed nothing; and it
     python scripts/seg_fingerprint.py write before.json DATA_DIR[,DATA_DIR...] [--set ...]
     python scripts/seg_fingerprint.py compare before.json after.json
 
+``write --masks`` also keeps the masks (``before.masks.npz``, bit-packed); ``compare`` then
+says how many pixels differ where the masks of a frame differ.
+
 ``write`` also prints the median CPU time of ``segment`` per frame (best of ``--repeat`` runs).
 Scores are hashed to 1e-4: cv2.magnitude's result depends on its buffers' memory alignment in
 the last bit, so two runs of one code version may differ there (masks do not).
@@ -41,6 +44,7 @@ def _h(a: Any) -> str:
 def _write(args: argparse.Namespace) -> None:
     params = _with_overrides(resolve_preset(args.config), args.set).segment
     out: dict[str, Any] = {}
+    masks: dict[str, np.ndarray] = {}
     cpu: list[float] = []
     with threadpool_limits(1):
         for root in args.data.split(","):
@@ -60,16 +64,59 @@ def _write(args: argparse.Namespace) -> None:
                             + _h(np.round(lifted.score_R * 1e4)),
                             "px": int(lifted.P_L.sum() + lifted.P_R.sum()),
                         }
+                        if args.masks:
+                            masks[f"{root}:{frame.id}"] = np.stack([lifted.P_L, lifted.P_R])
                     except ValueError as exc:
                         d = {"error": str(exc)}
                     best = min(best, 1000 * (time.thread_time() - c0))
                 cpu.append(best)
                 out[f"{root}:{frame.id}"] = d
     Path(args.out).write_text(json.dumps(out, indent=1, sort_keys=True))
+    if args.masks:
+        keys = sorted(masks)
+        np.savez_compressed(
+            _masks_path(args.out),
+            keys=np.array(keys),
+            shapes=np.array([masks[k].shape for k in keys]).reshape(-1, 3),
+            **{f"m{i}": np.packbits(masks[k]) for i, k in enumerate(keys)},
+        )
     print(
         f"{len(out)} frames -> {args.out}; segment CPU ms median {np.median(cpu):.2f}, "
         f"mean {np.mean(cpu):.2f}, p90 {np.percentile(cpu, 90):.2f}"
     )
+
+
+def _masks_path(json_path: str) -> Path:
+    return Path(json_path).with_suffix(".masks.npz")
+
+
+def _load_masks(json_path: str) -> dict[str, np.ndarray] | None:
+    path = _masks_path(json_path)
+    if not path.exists():
+        return None
+    z = np.load(path)
+    return {
+        str(k): np.unpackbits(z[f"m{i}"], count=int(np.prod(shape))).reshape(shape).astype(bool)
+        for i, (k, shape) in enumerate(zip(z["keys"], z["shapes"], strict=True))
+    }
+
+
+def _compare(args: argparse.Namespace) -> int:
+    """The fields that differ (scripts/stage_fingerprint.py), then, where both runs kept their
+    masks, the pixels that differ in each frame whose masks differ."""
+    status = compare(args)
+    a, b = _load_masks(args.before), _load_masks(args.after)
+    if a is None or b is None:
+        return status
+    for k in sorted(set(a) & set(b)):
+        if a[k].shape != b[k].shape:
+            print(f"{k}: mask shapes {a[k].shape} vs {b[k].shape}")
+        elif not np.array_equal(a[k], b[k]):
+            only_a = (a[k] & ~b[k]).sum(axis=(1, 2)).tolist()
+            only_b = (b[k] & ~a[k]).sum(axis=(1, 2)).tolist()
+            print(f"{k}: pixels only before (L, R) {only_a}, only after {only_b}, "
+                  f"of {a[k].sum(axis=(1, 2)).tolist()}")  # fmt: skip
+    return status
 
 
 def main() -> int:
@@ -81,6 +128,7 @@ def main() -> int:
     w.add_argument("--config", default=None)
     w.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE")
     w.add_argument("--repeat", type=int, default=3)
+    w.add_argument("--masks", action="store_true", help="keep the masks (OUT.masks.npz)")
     c = sub.add_parser("compare")
     c.add_argument("before")
     c.add_argument("after")
@@ -89,7 +137,7 @@ def main() -> int:
     if args.cmd == "write":
         _write(args)
         return 0
-    return compare(args)
+    return _compare(args)
 
 
 if __name__ == "__main__":

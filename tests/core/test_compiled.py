@@ -23,9 +23,11 @@ sys.path.insert(0, {tests!r})
 from support import synthetic_case
 from threadrecon.core import compiled
 from threadrecon.core.pipeline import reconstruct
+from threadrecon.core.segmentation import SegmentationParams, segment
 pair, calib, _ = synthetic_case(1)
 rec = reconstruct(pair, calib)
 st = rec["stereo"]
+raw = segment(pair, SegmentationParams(method="raw"))  # the raw segmentation's kernels
 def h(*arrays):
     return hashlib.sha1(b"".join(np.ascontiguousarray(a).tobytes() for a in arrays)).hexdigest()
 print(json.dumps({{
@@ -36,6 +38,7 @@ print(json.dumps({{
     "clusters": h(rec["clustering"].labels),
     "order": h(np.asarray(rec["ordering"].order)),
     "curve": h(rec["camera"].points),
+    "raw": h(raw.P_L, raw.P_R, raw.score_L, raw.score_R),
 }}))
 """
 
@@ -65,6 +68,7 @@ def test_a_reconstruction_loads_aot_kernels_without_numba(aot_run: dict) -> None
         "threadrecon.core.clustering": "aot",
         "threadrecon.core.walk_kernel": "aot",
         "threadrecon.core.check_kernel": "aot",
+        "threadrecon.core.ridge_kernel": "aot",
     }
     assert not aot_run["numba"]
 
@@ -72,7 +76,7 @@ def test_a_reconstruction_loads_aot_kernels_without_numba(aot_run: dict) -> None
 def test_aot_kernels_give_the_jit_kernels_results_bit_for_bit(aot_run: dict) -> None:
     jit = _run({MODE_ENV: "jit"})
     assert set(jit["backends"].values()) == {"jit"} and jit["numba"]
-    for key in ("status", "stereo", "clusters", "order", "curve"):
+    for key in ("status", "stereo", "clusters", "order", "curve", "raw"):
         assert aot_run[key] == jit[key], key
 
 

@@ -1,0 +1,386 @@
+"""Compiled kernels of the raw segmentation's filters (core/segment_raw.py).
+
+The line response at one scale is five 3x3 derivative filters of the smoothed image (gradient
+and Hessian) and a dozen per-pixel operations on them. As cv2 calls that was fifteen passes
+over full-size float32 images, five of them into fresh buffers (their page faults cost more
+than the arithmetic at 640x480); :func:`line_response` is one pass that reads three rows of
+the smoothed image and writes the response, with the same formula. :func:`log_planes` gives
+the log channels the response reads (full-resolution brightness, half-resolution pyrDown of
+all channels) straight from the uint8 image, without the (H, W, 3) float image, and
+:func:`upsample_max` merges the coarse scale into the fine one in place.
+
+Exactness: these three compute cv2's formulas in float32 in another order, so the response
+differs from the cv2 calls' in the last bits (~1e-5 relative); on 195 raw frames of 15 suites
+(two seeds) the masks were the same but for one pixel of one frame, and the held-out suites'
+figures were unchanged. :func:`kth_smallest`, :func:`at_least` and
+:func:`small_components` give exactly the values of the numpy/cv2 code they replace.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from threadrecon.core.compiled import helper, kernel
+
+
+@kernel(
+    "float32[:, ::1](float32[:, ::1], int64, float32, float32, float32, float32, float32[:, ::1])"
+)
+def line_response(g, c, k1, k2, w_line, w_grad, out):  # noqa: ANN001
+    """Line strength of the smoothed channels ``g`` (H, W * c), ``c`` interleaved channels,
+    into ``out`` (H, W), returned; ``out`` may be ``g`` itself (one channel). Per channel, with
+    the 3x3 Sobel filters of cv2 (border: reflect-101) scaled to derivatives, gx = k1 Sobel_x,
+    gy, hxx = k2 Sobel_xx, hyy, hxy:
+
+        line = max(w_line min(|hxx + hyy| / 2, |(hxx - hyy, 2 hxy)| / 2) - w_grad |(gx, gy)|, 0)
+
+    and the response is line (one channel) or the Euclidean norm of the channels' lines."""
+    h = g.shape[0]
+    w = g.shape[1] // c
+    two = np.float32(2.0)
+    # Rows filtered vertically, one per channel, padded by a reflect-101 column on each side:
+    # s = [1 2 1], t = [-1 0 1], q = [1 -2 1] down the column.
+    s = np.empty((c, w + 2), np.float32)
+    t = np.empty((c, w + 2), np.float32)
+    q = np.empty((c, w + 2), np.float32)
+    line = np.empty(w, np.float32)
+    prev = np.empty(g.shape[1], np.float32)  # row y - 1 as it was (``out`` may overwrite it)
+    lo = 1 if w > 1 else 0  # reflect-101 columns: -1 -> 1, W -> W - 2 (one column: itself)
+    hi = w - 2 if w > 1 else 0
+    for y in range(h):
+        mid = g[y]
+        up = prev if y > 0 else g[min(1, h - 1)]
+        dn = g[y + 1] if y < h - 1 else (prev if h > 1 else mid)
+        for j in range(c):
+            sj, tj, qj = s[j], t[j], q[j]
+            for x in range(w):
+                u, m, d = up[x * c + j], mid[x * c + j], dn[x * c + j]
+                sj[x + 1] = u + two * m + d
+                tj[x + 1] = d - u
+                qj[x + 1] = u - two * m + d
+            sj[0], tj[0], qj[0] = sj[lo + 1], tj[lo + 1], qj[lo + 1]
+            sj[w + 1], tj[w + 1], qj[w + 1] = sj[hi + 1], tj[hi + 1], qj[hi + 1]
+        for x in range(g.shape[1]):
+            prev[x] = mid[x]
+        row = out[y]
+        for j in range(c):
+            _row_line(s[j], t[j], q[j], w, k1, k2, w_line, w_grad, line)
+            if c == 1:
+                for x in range(w):
+                    row[x] = line[x]
+            elif j == 0:
+                for x in range(w):
+                    row[x] = line[x] * line[x]
+            else:
+                for x in range(w):
+                    row[x] += line[x] * line[x]
+        if c > 1:
+            for x in range(w):
+                row[x] = np.sqrt(row[x])
+    return out
+
+
+@helper(inline="always")
+def _row_line(s, t, q, w, k1, k2, w_line, w_grad, line):  # noqa: ANN001
+    """One row's line strength (``line``, (W,)) from its vertically filtered rows s, t, q
+    (W + 2,): the horizontal halves of the five Sobel filters, then the formula."""
+    two = np.float32(2.0)
+    half = np.float32(0.5)
+    zero = np.float32(0.0)
+    for x in range(w):
+        gx = k1 * (s[x + 2] - s[x])
+        gy = k1 * (t[x] + two * t[x + 1] + t[x + 2])
+        hxx = k2 * (s[x] - two * s[x + 1] + s[x + 2])
+        hyy = k2 * (q[x] + two * q[x + 1] + q[x + 2])
+        hxy = k2 * (t[x + 2] - t[x])
+        a = abs(half * hxx + half * hyy)
+        dd = half * hxx - half * hyy
+        d = np.sqrt(dd * dd + hxy * hxy)
+        v = w_line * min(a, d) - w_grad * np.sqrt(gx * gx + gy * gy)
+        line[x] = max(v, zero)
+
+
+@helper(inline="always")
+def _reflect(i, n):  # noqa: ANN001
+    """Index ``i`` in 0..n-1 with cv2's BORDER_REFLECT_101 (..., 2, 1, 0, 1, 2, ...)."""
+    if n == 1:
+        return 0
+    period = 2 * n - 2
+    i = abs(i) % period
+    return period - i if i >= n else i
+
+
+@helper(inline="always")
+def _mixed_row(src, c, w, lut, mix, logs, row):  # noqa: ANN001
+    """One image row ``src`` (W, c) uint8 as log channels into ``row`` (c, W + 4): channel j
+    at row[j, x + 2] is ``mix[j]`` of lut[value] of (R, G, B) (lut[value] for one channel),
+    and two columns on each side are reflect-101 copies (for the 5-tap filter). ``logs``
+    (c, W): scratch for lut[value]."""
+    if c == 1:
+        r0 = row[0]
+        for x in range(w):
+            r0[x + 2] = lut[src[x, 0]]
+    else:
+        for j in range(3):
+            lj = logs[j]
+            for x in range(w):
+                lj[x] = lut[src[x, j]]
+        lr, lg, lb = logs[0], logs[1], logs[2]
+        for j in range(3):
+            rj = row[j]
+            m0, m1, m2 = mix[j, 0], mix[j, 1], mix[j, 2]
+            for x in range(w):
+                rj[x + 2] = m0 * lr[x] + m1 * lg[x] + m2 * lb[x]
+    for j in range(c):
+        rj = row[j]
+        for p in (0, 1, w + 2, w + 3):
+            rj[p] = rj[_reflect(p - 2, w) + 2]
+
+
+@kernel(
+    "float32[:, ::1](uint8[:, :, :], float32[::1], float32[:, ::1], float32[:, ::1], "
+    "float32[:, ::1])"
+)
+def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
+    """Log channels of ``img`` (H, W, c) uint8 (any strides), c = 1 or 3 channels: their
+    first channel at full resolution into ``grey`` (H, W), and all of them at half resolution
+    into ``half`` (h, w * c), h = (H + 1) // 2, w = (W + 1) // 2, as cv2.pyrDown takes them
+    (5 x 5 binomial filter [1 4 6 4 1] / 16 each way, reflect-101, even pixels); returns
+    ``half``. A channel is ``mix`` (c, c) of lut[value] of the pixel's values."""
+    h_in, w, c = img.shape
+    h2 = half.shape[0]
+    w2 = half.shape[1] // c
+    # The mixed rows of the last five input rows (each row is mixed once): slot r % 5.
+    cache = np.empty((5, c, w + 4), np.float32)
+    cached = np.full(5, -1, np.int64)
+    logs = np.empty((c, w), np.float32)
+    acc = np.empty((c, w + 4), np.float32)
+    one = np.float32(1.0)
+    four = np.float32(4.0)
+    six = np.float32(6.0)
+    scale = np.float32(1.0 / 256.0)
+    for y2 in range(h2):
+        for k in range(5):
+            r = _reflect(2 * y2 + k - 2, h_in)
+            slot = r % 5
+            row = cache[slot]
+            if cached[slot] != r:
+                _mixed_row(img[r], c, w, lut, mix, logs, row)
+                cached[slot] = r
+                g, r0 = grey[r], row[0]
+                for x in range(w):
+                    g[x] = r0[x + 2]
+            tk = one if k == 0 or k == 4 else (four if k == 1 or k == 3 else six)
+            for j in range(c):
+                aj, rj = acc[j], row[j]
+                if k == 0:
+                    for x in range(w + 4):
+                        aj[x] = rj[x]
+                else:
+                    for x in range(w + 4):
+                        aj[x] += tk * rj[x]
+        out = half[y2]
+        for j in range(c):
+            aj = acc[j]
+            for x2 in range(w2):
+                p = 2 * x2
+                v = aj[p] + four * aj[p + 1] + six * aj[p + 2] + four * aj[p + 3] + aj[p + 4]
+                out[x2 * c + j] = v * scale
+    return half
+
+
+@kernel("float32[:, ::1](float32[:, ::1], float32[:, ::1])")
+def upsample_max(coarse, out):  # noqa: ANN001
+    """``out`` (H, W) = max(out, coarse (h, w) resized to (W, H) bilinearly as cv2.resize's
+    INTER_LINEAR does: source coordinate (x + 0.5) h / H - 0.5, clamped to the edge);
+    returns ``out``."""
+    h, w = coarse.shape
+    big_h, big_w = out.shape
+    x0 = np.empty(big_w, np.int64)
+    x1 = np.empty(big_w, np.int64)
+    ax = np.empty(big_w, np.float32)
+    for x in range(big_w):
+        i, a = _linear_source(x, w, big_w)
+        x0[x] = i
+        x1[x] = min(i + 1, w - 1)
+        ax[x] = a
+    one = np.float32(1.0)
+    # The coarse rows resized along x, the last two: slot i % 2 holds coarse row i.
+    rows = np.empty((2, big_w), np.float32)
+    held = np.full(2, -1, np.int64)
+    for y in range(big_h):
+        i, b = _linear_source(y, h, big_h)
+        for k in (i, min(i + 1, h - 1)):
+            if held[k % 2] != k:
+                src, dst = coarse[k], rows[k % 2]
+                for x in range(big_w):
+                    dst[x] = (one - ax[x]) * src[x0[x]] + ax[x] * src[x1[x]]
+                held[k % 2] = k
+        lo, hi = rows[i % 2], rows[min(i + 1, h - 1) % 2]
+        row = out[y]
+        for x in range(big_w):
+            row[x] = max(row[x], (one - b) * lo[x] + b * hi[x])
+    return out
+
+
+@helper(inline="always")
+def _linear_source(x, n, big_n):  # noqa: ANN001
+    """(index, weight of index + 1) of output pixel ``x`` of ``big_n`` resized from ``n``
+    (cv2 INTER_LINEAR: centres aligned, the edge pixel repeated)."""
+    f = (x + 0.5) * (n / big_n) - 0.5
+    i = int(np.floor(f))
+    a = f - i
+    if i < 0:
+        return 0, np.float32(0.0)
+    if i >= n - 1:
+        return n - 1, np.float32(0.0)
+    return i, np.float32(a)
+
+
+@kernel("float32(float32[:, :], int64)")
+def kth_smallest(x, k):  # noqa: ANN001
+    """The ``k``-th smallest (0-based) of the non-negative values ``x`` (any 2-D view), as
+    ``np.partition(x.ravel(), k)[k]``: the bit patterns of non-negative floats sort like the
+    floats (sign bit cleared: -0.0 is 0), so histograms of their top 11 bits, then of the next
+    12 among the values in the bin holding the k-th, find the sub-bin holding it; only that
+    (a handful of values) is sorted. Small histograms: no fresh pages to fault in."""
+    n = x.shape[0] * x.shape[1]
+    bits = np.empty(n, np.uint32)
+    vals = x.ravel() if x.flags.c_contiguous else np.empty(n, np.float32)
+    if not x.flags.c_contiguous:
+        i = 0
+        for r in range(x.shape[0]):
+            for c in range(x.shape[1]):
+                vals[i] = x[r, c]
+                i += 1
+    raw = vals.view(np.uint32)
+    for i in range(n):
+        bits[i] = raw[i] & 0x7FFFFFFF
+    top = np.zeros(1 << 11, np.int64)  # bits 20-30
+    for i in range(n):
+        top[bits[i] >> 20] += 1
+    b1, k1 = _bin_of(top, k)
+    sub = np.zeros(1 << 12, np.int64)  # bits 8-19 of the values in bin b1
+    for i in range(n):
+        if bits[i] >> 20 == b1:
+            sub[(bits[i] >> 8) & 0xFFF] += 1
+    b2, k2 = _bin_of(sub, k1)
+    rest = np.empty(sub[b2], np.float32)
+    m = 0
+    key = (b1 << 12) | b2
+    for i in range(n):
+        if bits[i] >> 8 == key:
+            rest[m] = vals[i]
+            m += 1
+    rest.sort()
+    return rest[k2]
+
+
+@helper(inline="always")
+def _bin_of(counts, k):  # noqa: ANN001
+    """(bin, rank within it) of the ``k``-th smallest (0-based) of values in ``counts``."""
+    below = 0
+    b = 0
+    while below + counts[b] <= k:
+        below += counts[b]
+        b += 1
+    return b, k - below
+
+
+@kernel("int64(uint8[:, :], int64, boolean)")
+def small_components(mask, min_px, clear):  # noqa: ANN001
+    """Pixels of ``mask`` (H, W) uint8 (any strides) in 8-connected components of fewer than
+    ``min_px`` pixels; with ``clear``, those pixels are set to 0 in ``mask``. Components are
+    unions of row runs (a run touches the runs of the row above that overlap it grown by one
+    column): a thin mask's few hundred runs, not a label image."""
+    h, w = mask.shape
+    n = 0
+    for y in range(h):
+        prev = 0
+        for x in range(w):
+            on = 1 if mask[y, x] != 0 else 0
+            if on and not prev:
+                n += 1
+            prev = on
+    row = np.empty(n, np.int64)
+    start = np.empty(n, np.int64)
+    stop = np.empty(n, np.int64)  # exclusive
+    parent = np.arange(n)
+    i = 0
+    above0 = 0  # the runs of the row above: above0 .. above1 - 1
+    above1 = 0
+    for y in range(h):
+        first = i
+        x = 0
+        j = above0
+        while x < w:
+            if mask[y, x] == 0:
+                x += 1
+                continue
+            a = x
+            while x < w and mask[y, x] != 0:
+                x += 1
+            row[i], start[i], stop[i] = y, a, x
+            while j < above1 and stop[j] < a:  # ends before column a - 1
+                j += 1
+            k = j
+            while k < above1 and start[k] <= x:  # starts by column x (the run's end + 1)
+                _union(parent, i, k)
+                k += 1
+            i += 1
+        above0, above1 = first, i
+    size = np.zeros(n, np.int64)
+    for r in range(n):
+        size[_root(parent, r)] += stop[r] - start[r]
+    small = 0
+    for r in range(n):
+        if size[_root(parent, r)] < min_px:
+            small += stop[r] - start[r]
+            if clear:
+                for x in range(start[r], stop[r]):
+                    mask[row[r], x] = 0
+    return small
+
+
+@helper()
+def _root(parent, i):  # noqa: ANN001
+    """Root of ``i`` in the union-find forest ``parent`` (paths halved on the way)."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@helper()
+def _union(parent, a, b):  # noqa: ANN001
+    """Join the trees of ``a`` and ``b`` (the smaller root becomes the root)."""
+    ra = _root(parent, a)
+    rb = _root(parent, b)
+    if ra < rb:
+        parent[rb] = ra
+    elif rb < ra:
+        parent[ra] = rb
+
+
+@kernel("int64[:, ::1](float32[:, ::1], float32, uint8[:, ::1])")
+def at_least(s, t, lo):  # noqa: ANN001
+    """``lo`` (H, W) = 255 where ``s`` (H, W) >= ``t``, else 0 (cv2.compare's CMP_GE), and the
+    rows and columns (2, M) of those pixels in row-major order (cv2.findNonZero's)."""
+    h, w = s.shape
+    n = 0
+    for y in range(h):
+        sy, ly = s[y], lo[y]
+        for x in range(w):
+            on = sy[x] >= t
+            ly[x] = 255 if on else 0
+            n += 1 if on else 0
+    out = np.empty((2, n), np.int64)
+    i = 0
+    for y in range(h):
+        ly = lo[y]
+        for x in range(w):
+            if ly[x]:
+                out[0, i] = y
+                out[1, i] = x
+                i += 1
+    return out

@@ -1,0 +1,195 @@
+"""Tests of core/ridge_kernel.py: the compiled filters of the raw segmentation give what the
+cv2 calls they replace give, to float32 rounding, on every image size down to one pixel."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from threadrecon.core import ridge_kernel as rk
+
+_SIZES = [(480, 640), (37, 51), (2, 3), (1, 1), (1, 7), (6, 1)]
+
+
+def _cv2_line(g: np.ndarray, r: float, norm: float, edge_k: float) -> np.ndarray:
+    """The response as cv2 calls: Sobel derivatives, the formula, the norm over channels."""
+    d = {}
+    for name, (dx, dy, k) in {
+        "gx": (1, 0, 0.125 * r), "gy": (0, 1, 0.125 * r), "hxx": (2, 0, 0.25 * r * r),
+        "hyy": (0, 2, 0.25 * r * r), "hxy": (1, 1, 0.25 * r * r),
+    }.items():  # fmt: skip
+        d[name] = cv2.Sobel(g, cv2.CV_64F, dx, dy, ksize=3, scale=k)
+    a = np.abs(d["hxx"] + d["hyy"]) / 2
+    dd = np.hypot(d["hxx"] - d["hyy"], 2 * d["hxy"]) / 2
+    line = 2 * norm * norm * np.minimum(a, dd) - edge_k * norm * np.hypot(d["gx"], d["gy"])
+    line = np.maximum(line, 0.0)
+    return line if line.ndim == 2 else np.sqrt((line**2).sum(axis=2))
+
+
+def _image(shape: tuple[int, ...], seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    img = rng.random(shape).astype(np.float32) * 50
+    return cv2.GaussianBlur(img, (0, 0), 1.0) if min(shape[:2]) > 1 else img
+
+
+@pytest.mark.parametrize("shape", _SIZES)
+@pytest.mark.parametrize("c", [1, 3])
+def test_line_response_is_the_cv2_sobel_formula(shape: tuple[int, int], c: int) -> None:
+    g = _image(shape if c == 1 else (*shape, c), seed=shape[0] * 7 + c)
+    r, norm, edge_k = 0.5, 2.0, 2.0
+    out = np.full(shape, -1.0, np.float32)
+    got = rk.line_response(
+        g.reshape(shape[0], -1), c, np.float32(0.125 * r), np.float32(0.25 * r * r),
+        np.float32(2 * norm * norm), np.float32(edge_k * norm), out,
+    )  # fmt: skip
+    assert got is out
+    want = _cv2_line(g.astype(np.float64), r, norm, edge_k)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-4 * max(float(want.max()), 1.0))
+
+
+def test_line_response_is_zero_on_a_flat_and_on_a_linear_image() -> None:
+    ramp = np.add.outer(np.arange(20.0), 3 * np.arange(30.0)).astype(np.float32)
+    for g in (np.full((20, 30), 7.0, np.float32), ramp):
+        out = rk.line_response(g, 1, np.float32(0.125), np.float32(0.25), np.float32(2.0),
+                               np.float32(0.0), np.empty_like(g))  # fmt: skip
+        # A linear image has no second derivative, but the reflected border bends it.
+        assert not out[1:-1, 1:-1].any()
+
+
+def test_line_response_peaks_on_a_thin_dark_line() -> None:
+    img = np.full((40, 40), 100.0, np.float32)
+    img[:, 20] = 60.0
+    g = cv2.GaussianBlur(img, (0, 0), 1.0)
+    out = rk.line_response(g, 1, np.float32(0.125), np.float32(0.25), np.float32(2.0),
+                           np.float32(2.0), np.empty_like(g))  # fmt: skip
+    assert set(np.argmax(out, axis=1).tolist()) == {20}
+    assert out[:, 20].min() > 5 * out[:, :15].max()
+
+
+@pytest.mark.parametrize("shape", _SIZES)
+@pytest.mark.parametrize("channels", [0, 1, 3, 4])
+def test_log_planes_are_the_log_channels_and_their_pyrdown(
+    shape: tuple[int, int], channels: int
+) -> None:
+    from threadrecon.core.segment_raw import _log_channels, _log_planes
+
+    rng = np.random.default_rng(shape[0] + channels)
+    img = rng.integers(0, 256, (*shape, max(channels, 1)), dtype=np.uint8)
+    img = img[:, :, 0] if channels == 0 else img[:, :, ::-1]  # a strided view, as loaded
+    grey, half = _log_planes(img)
+    f = _log_channels(img if channels != 4 else img[:, :, :3])
+    assert grey.shape == shape and half.shape == ((shape[0] + 1) // 2, (shape[1] + 1) // 2,
+                                                  f.shape[2])  # fmt: skip
+    np.testing.assert_allclose(grey, f[:, :, 0], rtol=0, atol=1e-4)
+    want = cv2.pyrDown(f).reshape(half.shape)
+    np.testing.assert_allclose(half, want, rtol=0, atol=1e-4)
+
+
+def test_log_at_gives_the_log_channels_of_those_pixels_bit_for_bit() -> None:
+    from threadrecon.core.segment_raw import _log_at, _log_channels
+
+    rng = np.random.default_rng(5)
+    for img in (rng.integers(0, 256, (30, 40, 3), dtype=np.uint8)[:, :, ::-1],
+                rng.integers(0, 256, (30, 40), dtype=np.uint8)):  # fmt: skip
+        rows, cols = np.nonzero(rng.random((30, 40)) < 0.2)
+        np.testing.assert_array_equal(_log_at(img, rows, cols), _log_channels(img)[rows, cols])
+        assert _log_at(img, rows[:0], cols[:0]).shape == (0, 1 if img.ndim == 2 else 3)
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (37, 51), (2, 3), (1, 1), (1, 7), (6, 1)])
+def test_upsample_max_is_cv2_resize_then_max(shape: tuple[int, int]) -> None:
+    rng = np.random.default_rng(shape[1])
+    coarse = rng.random(((shape[0] + 1) // 2, (shape[1] + 1) // 2), dtype=np.float32)
+    fine = rng.random(shape, dtype=np.float32)
+    want = np.maximum(fine, cv2.resize(coarse, shape[::-1], interpolation=cv2.INTER_LINEAR))
+    got = rk.upsample_max(coarse, fine)
+    assert got is fine
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
+
+
+def test_line_response_in_place_is_the_response_into_another_buffer() -> None:
+    for shape in _SIZES:
+        g = _image(shape, seed=shape[1])
+        args = (1, np.float32(0.125), np.float32(0.25), np.float32(2.0), np.float32(2.0))
+        want = rk.line_response(g, *args, np.empty_like(g))
+        got = rk.line_response(g, *args, g)
+        assert got is g
+        np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("trial", range(10))
+def test_kth_smallest_of_a_strided_view_is_partition_of_its_values(trial: int) -> None:
+    rng = np.random.default_rng([91, trial])
+    s = np.maximum(rng.normal(0, 1, (int(rng.integers(1, 60)), 70)), 0).astype(np.float32)
+    for view in (s[::2, ::2], s[:, 3:4], s[1:, ::-3]):
+        flat = view.ravel()
+        for k in (0, flat.size // 2, int(0.9 * (flat.size - 1)), flat.size - 1):
+            assert rk.kth_smallest(view, k) == np.partition(flat, k)[k]
+
+
+def _drop_specks_by_labels(mask: np.ndarray, min_px: int) -> np.ndarray:
+    """The plain computation: cv2's 8-connected labels of the whole mask, sizes, keep."""
+    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    keep = np.bincount(labels.ravel(), minlength=n) >= min_px
+    keep[0] = False
+    return keep[labels]
+
+
+@pytest.mark.parametrize("trial", range(60))
+def test_drop_specks_equals_the_labelling_of_the_whole_mask(trial: int) -> None:
+    from threadrecon.core.segment_raw import drop_specks
+
+    rng = np.random.default_rng([13, trial])
+    shape = (int(rng.integers(1, 50)), int(rng.integers(1, 50)))
+    mask = rng.random(shape) < rng.choice([0.05, 0.3, 0.6])
+    if trial % 3 == 0:  # thin lines (diagonal steps join 8-neighbours only) and specks
+        mask[:] = False
+        for _ in range(3):
+            r, c = rng.integers(0, shape[0]), rng.integers(0, shape[1])
+            for _ in range(int(rng.integers(1, 40))):
+                mask[r % shape[0], c % shape[1]] = True
+                r, c = r + rng.integers(0, 2), c + rng.integers(0, 2)
+    for min_px in (0, 2, 5, 20):
+        before = mask.copy()
+        got = drop_specks(mask, min_px)
+        want = mask if min_px <= 1 else _drop_specks_by_labels(mask, min_px)
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(mask, before)  # the input is never written
+
+
+def test_small_components_counts_and_clears_only_the_small_ones() -> None:
+    m = np.zeros((6, 12), np.uint8)
+    m[1, 1:4] = 1  # 3 px
+    m[2, 4] = 1  # joins it diagonally: 4 px
+    m[0:6, 8] = 1  # 6 px
+    view = m[:, ::-1]  # strided
+    assert rk.small_components(view, 5, False) == 4
+    assert rk.small_components(view, 7, False) == 10
+    assert rk.small_components(view, 5, True) == 4
+    assert m.sum() == 6 and m[:, 8].all()
+
+
+def test_noise_sigma_of_the_sampled_rows_is_that_of_the_image() -> None:
+    from threadrecon.core.segment_raw import _NOISE_ROW_STEP, _log_channels, noise_sigma
+
+    img = np.random.default_rng(8).integers(0, 256, (100, 90, 3), dtype=np.uint8)[:, :, ::-1]
+    f = _log_channels(img)
+    rows = _log_channels(img[::_NOISE_ROW_STEP])
+    np.testing.assert_array_equal(noise_sigma(rows, row_step=1), noise_sigma(f))
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (2, 1), (3, 7)])  # cv2 takes 1x1 as a scalar
+def test_at_least_is_cv2_compare_and_find_non_zero(shape: tuple[int, int]) -> None:
+    from threadrecon.core.segment_raw import _points
+
+    s = np.random.default_rng(shape[1]).random(shape, dtype=np.float32)
+    s[0, 0] = np.float32(0.3)  # exactly at the threshold: kept
+    for t in (0.3, 0.9, 2.0, 1 / 3):
+        lo = np.empty(shape, np.uint8)
+        rows, cols = rk.at_least(s, np.float32(t), lo)
+        want = cv2.compare(s, t, cv2.CMP_GE)
+        np.testing.assert_array_equal(lo, want)
+        want_rows, want_cols = _points(want)
+        np.testing.assert_array_equal(rows, want_rows)
+        np.testing.assert_array_equal(cols, want_cols)
