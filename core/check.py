@@ -48,6 +48,7 @@ from scipy.spatial import cKDTree
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
+from threadrecon.core.check_beyond import beyond_ends
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_kernel import overlap_hits
 from threadrecon.core.ordering import Ordering
@@ -61,6 +62,7 @@ Status = Literal["ok", "suspect", "failed"]
 _RANK = {"ok": 0, "suspect": 1, "failed": 2}
 BAND_PX = 8  # band around the curve in which the thread width is measured, px
 _SCORE_STEPS = (1.0, 2.0, 4.0, 8.0)  # score 5..1 edges, in multiples of score_mm
+BEYOND_COVER_PX = 2.0  # px: a thread's half-width, added to cover_px for the pieces beyond
 _R_CAP_PX = 10.0  # a residual counts at most this (px) in the local mean: no reliable match near
 
 
@@ -312,7 +314,9 @@ class CheckResult:
     ``path_px`` the 2D length of H, ``bound_excursion`` the largest excursion outside the depth
     bounds (fraction of the half-width), ``solver_status`` the spline's, ``longest_jump_px``
     the longest run of the left projection off the thread, ``overlap_px`` the length of the
-    left projection running over another part of the curve.
+    left projection running over another part of the curve, ``beyond_mm`` how far (mm, at the
+    end's depth) a piece of thread pixels beyond a free end across an occluder reaches
+    (core/check_beyond.py; 0 when there is none).
     """
 
     status: Status
@@ -343,6 +347,7 @@ class CheckResult:
     unsupported_mm: float = 0.0
     ambiguous_mm: float = 0.0
     ends_at_border: tuple[str, ...] = ()
+    beyond_mm: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -377,6 +382,7 @@ class CheckResult:
             "unsupported_mm": self.unsupported_mm,
             "ambiguous_mm": self.ambiguous_mm,
             "ends_at_border": list(self.ends_at_border),
+            "beyond_mm": self.beyond_mm,
         }
 
 
@@ -575,6 +581,27 @@ def _check(
              f"({p.grasp_mm + p.grasp_window_mm:g} mm): no free end to grasp from")
         )  # fmt: skip
 
+    # A curve that stops short at an occluder: uncovered thread beyond a free end, across
+    # pixels that are neither thread nor bare background, in both views (core/check_beyond).
+    free = tuple(e for e in ("start", "end") if e not in at_border)
+    missing = 0.0
+    if free and cov_l < 1.0 and cov_r < 1.0:
+        if bare is None:
+            bare = _BareBackground(lifted, (field_l, field_r), p)
+        found = beyond_ends(
+            (uv_l, uv_r), (lifted.P_L, lifted.P_R), free, {"start": z[0], "end": z[-1]}, f,
+            p.cover_px + BEYOND_COVER_PX, p.max_bridge_mm / mm, bare, p.bare_share,
+        )  # fmt: skip
+        for b in found:
+            missing = max(missing, b.missing * mm)
+            if b.missing * mm > p.max_unobserved_mm:
+                findings.append(
+                    ("suspect", f"a piece of thread pixels lies beyond the curve's {b.end} "
+                     f"across an occluder in both views ({b.gap_px:.0f} px away, reaching "
+                     f"{b.reach_px:.0f} px): the curve probably stops short by at least "
+                     f"{b.missing * mm:.1f} mm (limit {p.max_unobserved_mm:g} mm)")
+                )  # fmt: skip
+
     # Length against the 2D path length and the depth span of the bounds.
     path_px = float(bounds.s[-1])
     z_lo = float(max(np.min(bounds.lower), z_allowed[0]))
@@ -691,6 +718,7 @@ def _check(
         unsupported_mm=unsupported,
         ambiguous_mm=ambiguous,
         ends_at_border=at_border,
+        beyond_mm=missing,
     )
 
 
