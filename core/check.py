@@ -48,7 +48,7 @@ from scipy.spatial import cKDTree
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
-from threadrecon.core.check_beyond import beyond_ends
+from threadrecon.core.check_beyond import beyond_ends, cut_end
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_kernel import overlap_hits
 from threadrecon.core.ordering import Ordering
@@ -230,6 +230,13 @@ class CheckParams(Params):
         2.0, lo=1e-6, unit="mm", slider=(0.1, 20.0, 0.1), label="end error reach",
         doc="The expected error doubles at an end of the curve (its depth is fitted from one "
         "side) and falls back over this distance from the end.",
+    )  # fmt: skip
+    cut_end_px: float = param(
+        5.0, lo=0.0, unit="px", slider=(0.0, 50.0, 0.5), label="cut end",
+        doc="Suspect when one view sees uncovered thread pixels more than this farther beyond a "
+        "free end of the curve than the other view, and the other view shows no bare "
+        "background just beyond the end: the end is cut by an occluder in that view (a free "
+        "end stops at one 3D point, seen in both views), so the thread may continue hidden.",
     )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
@@ -585,9 +592,21 @@ def _check(
     # pixels that are neither thread nor bare background, in both views (core/check_beyond).
     free = tuple(e for e in ("start", "end") if e not in at_border)
     missing = 0.0
+    if free and bare is None:
+        bare = _BareBackground(lifted, (field_l, field_r), p)
+    for end in free:  # a free end ends at one 3D point: both views see the thread stop there
+        reach_px = p.max_unobserved_mm / mm * f / (z[0] if end == "start" else z[-1])
+        cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach_px, p.cut_end_px,
+                      p.cover_px + BEYOND_COVER_PX, bare, p.bare_share)  # fmt: skip
+        if cut is not None:
+            side, ext = cut
+            findings.append(
+                ("suspect", f"the {side} view sees the thread {max(ext):.0f} px beyond the "
+                 f"curve's {end}, the other {min(ext):.0f} px, over no bare background: the end "
+                 "is cut by an occluder (a free end stops at one point in both views), the "
+                 "thread may go on hidden under it")
+            )  # fmt: skip
     if free and cov_l < 1.0 and cov_r < 1.0:
-        if bare is None:
-            bare = _BareBackground(lifted, (field_l, field_r), p)
         found = beyond_ends(
             (uv_l, uv_r), (lifted.P_L, lifted.P_R), free, {"start": z[0], "end": z[-1]}, f,
             p.cover_px + BEYOND_COVER_PX, p.max_bridge_mm / mm, bare, p.bare_share,

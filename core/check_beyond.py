@@ -25,6 +25,7 @@ END_SAMPLES = 8  # curve samples over which an end's outward direction is taken
 MIN_PIECE_PX = 12  # a piece spans at least this many px (smaller: segmentation speckle)
 PIECE_SAMPLES = 64  # pixels per piece tested against the curve (evenly spread over it)
 GAP_SAMPLES = 24  # samples along the gap between an end and a piece (occluder test)
+FAN_MARGIN_PX = 4  # px around the cone's sampled outline (its arc bulges between samples)
 MAX_TURN_COS = float(np.cos(np.radians(45.0)))  # the piece lies within 45 deg of the end's way
 
 
@@ -49,19 +50,21 @@ def pieces(mask: np.ndarray) -> list[np.ndarray]:
 
 def _pieces(mask: np.ndarray) -> list[np.ndarray]:
     m8 = np.ascontiguousarray(mask).view(np.uint8)
-    if not m8.any():
+    bx, by, bw, bh = cv2.boundingRect(m8)
+    if bw == 0 or bh == 0:
         return []
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(m8, connectivity=8)
-    big = [
-        k for k in range(1, n)
-        if max(stats[k, cv2.CC_STAT_WIDTH], stats[k, cv2.CC_STAT_HEIGHT]) >= MIN_PIECE_PX
-    ]  # fmt: skip
-    if not big:
+    crop = np.ascontiguousarray(m8[by : by + bh, bx : bx + bw])
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(crop, connectivity=8)
+    keep = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) >= MIN_PIECE_PX
+    keep[0] = False  # the background
+    if not keep.any():
         return []
-    ys, xs = np.nonzero(np.isin(labels, big))
+    ys, xs = np.nonzero(crop)
     lab = labels[ys, xs]
+    sel = keep[lab]
+    ys, xs, lab = ys[sel], xs[sel], lab[sel]
     order = np.argsort(lab, kind="stable")
-    xy = np.column_stack([xs, ys]).astype(np.float64)[order]
+    xy = np.column_stack([xs + bx, ys + by]).astype(np.float64)[order]
     cuts = np.flatnonzero(np.diff(lab[order])) + 1
     out = np.split(xy, cuts)
     for a in out:
@@ -92,6 +95,10 @@ def beyond_ends(
     for end in ends:
         per_view = []
         for side in (0, 1):
+            fr = _end_frame(uv[side], end)
+            radius = max_gap * f / depth[end]
+            if fr is None or not len(_cone(*fr, masks[side], radius, MAX_TURN_COS, cover_px)[0]):
+                break  # no uncovered thread pixel ahead of the end: no piece beyond it
             hit = _beyond(uv[side], pieces(masks[side]), end, cover_px,
                           max_gap * f / depth[end], side, bare, bare_share)  # fmt: skip
             if hit is None:
@@ -106,6 +113,61 @@ def beyond_ends(
         reach = min(reach_l, reach_r)
         found.append(Beyond(end, gap_l, reach, reach * depth[end] / f))
     return found
+
+
+def _end_frame(uv: np.ndarray, end: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The finite curve samples, the ``end``'s tip and its outward unit direction (over
+    END_SAMPLES samples); None for a curve too short or without direction."""
+    ok = np.all(np.isfinite(uv), axis=1)
+    if ok.sum() < END_SAMPLES + 1:
+        return None
+    curve = uv[ok]
+    tip = curve[0] if end == "start" else curve[-1]
+    back = curve[END_SAMPLES] if end == "start" else curve[-1 - END_SAMPLES]
+    way = tip - back
+    norm = float(np.linalg.norm(way))
+    if norm == 0.0:
+        return None
+    return curve, tip, way / norm
+
+
+def _cone(
+    curve: np.ndarray,
+    tip: np.ndarray,
+    way: np.ndarray,
+    mask: np.ndarray,
+    radius: float,
+    cos: float,
+    cover_px: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Thread pixels (k, 2) within ``radius`` of the tip, within acos(cos) of its way and more
+    than ``cover_px`` along it, that no curve sample covers (farther than ``cover_px``), and
+    their distance along the way: a cheap superset of any piece beyond the end."""
+    h, w = mask.shape
+    half = float(np.arccos(np.clip(cos, -1.0, 1.0)))
+    ang = np.arctan2(way[1], way[0]) + np.linspace(-half, half, 9)
+    fan = np.vstack([tip, tip + radius * np.column_stack([np.cos(ang), np.sin(ang)])])
+    lo = np.floor(fan.min(axis=0)) - FAN_MARGIN_PX
+    hi = np.ceil(fan.max(axis=0)) + FAN_MARGIN_PX
+    x0, y0 = max(int(lo[0]), 0), max(int(lo[1]), 0)
+    x1, y1 = min(int(hi[0]) + 1, w), min(int(hi[1]) + 1, h)
+    if x1 <= x0 or y1 <= y0:
+        return np.zeros((0, 2)), np.zeros(0)
+    nz = cv2.findNonZero(np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8))
+    if nz is None:
+        return np.zeros((0, 2)), np.zeros(0)
+    px = nz.reshape(-1, 2).astype(np.float64) + [x0, y0]
+    rel = px - tip
+    dist = np.hypot(rel[:, 0], rel[:, 1])
+    along = rel @ way
+    keep = (dist <= radius) & (along >= cos * dist) & (along > cover_px)
+    px, along = px[keep], along[keep]
+    near = curve[np.hypot(*(curve - tip).T) <= radius + cover_px]
+    if len(px) and len(near):
+        d2 = (px[:, None, 0] - near[None, :, 0]) ** 2 + (px[:, None, 1] - near[None, :, 1]) ** 2
+        free = d2.min(axis=1) > cover_px**2
+        px, along = px[free], along[free]
+    return px, along
 
 
 def _beyond(
@@ -158,3 +220,77 @@ def _covered(px: np.ndarray, curve: np.ndarray, cover_px: float) -> bool:
     sub = px[::step]
     d2 = (sub[:, None, 0] - curve[None, :, 0]) ** 2 + (sub[:, None, 1] - curve[None, :, 1]) ** 2
     return bool(d2.min() <= cover_px**2)
+
+
+CUT_PROBE_PX = 8  # px beyond an end where the view that stops is probed for an occluder
+CONE_COS = float(np.cos(np.radians(30.0)))  # pixels within 30 deg of an end's way extend it
+
+
+def extension(
+    uv: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    end: str,
+    reach_px: float,
+    cover_px: float,
+    min_px: float,
+) -> tuple[float, float]:
+    """Per view: how far (px) the thread pixels of the piece at the curve's ``end`` reach
+    beyond the end's projection, not covered by the curve, along its outward direction
+    (within 30 deg of it, up to ``reach_px``); 0 when nothing does. When neither view reaches
+    beyond ``min_px``, the cheap bound (any thread pixel there) is returned without looking
+    for the pieces."""
+    out = []
+    cones = []
+    for side in (0, 1):
+        fr = _end_frame(uv[side], end)
+        if fr is None:
+            return 0.0, 0.0
+        px, along = _cone(*fr, masks[side], reach_px, CONE_COS, cover_px)
+        cones.append((fr[1], px, along))
+        out.append(float(along.max()) if along.size else 0.0)
+    if max(out) <= min_px:
+        return out[0], out[1]
+    for side, (tip, px, along) in enumerate(cones):
+        out[side] = 0.0
+        for part in pieces(masks[side]):
+            if np.min(np.hypot(*(part - tip).T)) > 2.0:
+                continue  # the end's projection is not on this piece
+            on = _rows_in(px, part)
+            if on.any():
+                out[side] = max(out[side], float(along[on].max()))
+    return out[0], out[1]
+
+
+def cut_end(
+    uv: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    end: str,
+    reach_px: float,
+    cut_px: float,
+    cover_px: float,
+    bare: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+    bare_share: float,
+) -> tuple[str, tuple[float, float]] | None:
+    """Whether the curve's free ``end`` is cut by an occluder in one view: one view sees the
+    thread (``extension``) more than ``cut_px`` farther beyond it than the other, and in the
+    other view the CUT_PROBE_PX px just beyond the end are not bare background (more than
+    ``bare_share`` not bare). Returns the view that sees farther ("left"/"right") and both
+    extensions (px), or None."""
+    ext = extension(uv, masks, end, reach_px, cover_px, cut_px)
+    if abs(ext[0] - ext[1]) <= cut_px:
+        return None
+    stop = 1 if ext[0] > ext[1] else 0  # the view where the thread stops
+    fr = _end_frame(uv[stop], end)
+    if fr is None:
+        return None
+    _, tip, way = fr
+    probe = tip + np.arange(2.0, 2.0 + CUT_PROBE_PX)[:, None] * way
+    if float(np.mean(bare(stop, probe, tip, tip))) > bare_share:
+        return None  # bare background just beyond the end there: a free end
+    return ("left" if stop == 1 else "right"), ext
+
+
+def _rows_in(px: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """Which pixels of ``px`` (k, 2) belong to ``part`` (m, 2) (integer coordinates)."""
+    key = lambda a: a[:, 1].astype(np.int64) * 1_000_003 + a[:, 0].astype(np.int64)  # noqa: E731
+    return np.isin(key(px), key(part))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from threadrecon.core.check_beyond import beyond_ends, pieces
+from threadrecon.core.check_beyond import beyond_ends, cut_end, extension, pieces
 
 SHAFT = (80, 110)  # columns of the occluder in the left view
 
@@ -69,3 +69,30 @@ def test_the_curve_own_pixels_are_no_piece_beyond() -> None:
     P_R[49:52, 75:105] = True
     assert _find((P_L, P_R), uv) == []
     assert len(pieces(P_L)) == 1 and len(pieces(masks[0])) == 2
+
+
+def _cut_scene(right_extra: int):
+    """The thread ends at column 79 in the left view (the curve's end) and ``right_extra`` px
+    further on in the right view (shifted by 5 px of disparity)."""
+    masks, uv = _scene()
+    P_L, P_R = masks
+    P_L[:, 100:] = False  # no piece beyond
+    P_R[:, 95:] = False
+    P_R[49:52, 75 : 75 + right_extra] = True
+    return (P_L, P_R), uv
+
+
+def test_an_end_the_other_view_sees_further_over_no_bare_background_is_cut() -> None:
+    masks, uv = _cut_scene(20)
+    ext = extension(uv, masks, "end", 100.0, 5.0, 5.0)
+    assert ext[0] == 0.0 and abs(ext[1] - 20.0) < 1.5
+    cut = cut_end(uv, masks, "end", 100.0, 5.0, 5.0, _occluder_bare, 0.5)
+    assert cut is not None and cut[0] == "right"
+    everywhere_bare = lambda s, xy, a, b: np.ones(len(xy), bool)  # noqa: E731
+    assert cut_end(uv, masks, "end", 100.0, 5.0, 5.0, everywhere_bare, 0.5) is None
+    assert cut_end(uv, masks, "start", 100.0, 5.0, 5.0, _occluder_bare, 0.5) is None
+
+
+def test_an_end_both_views_see_stop_at_the_same_point_is_not_cut() -> None:
+    masks, uv = _cut_scene(3)  # within the cut tolerance (the thread's rounded tip)
+    assert cut_end(uv, masks, "end", 100.0, 5.0, 5.0, _occluder_bare, 0.5) is None
