@@ -62,6 +62,7 @@ Status = Literal["ok", "suspect", "failed"]
 _RANK = {"ok": 0, "suspect": 1, "failed": 2}
 BAND_PX = 8  # band around the curve in which the thread width is measured, px
 _SCORE_STEPS = (1.0, 2.0, 4.0, 8.0)  # score 5..1 edges, in multiples of score_mm
+CUT_REACH_PX = 35.0  # px searched past cut_end_px (an occluder shifts a cut by 10-25 px)
 BEYOND_COVER_PX = 2.0  # px: a thread's half-width, added to cover_px for the pieces beyond
 _R_CAP_PX = 10.0  # a residual counts at most this (px) in the local mean: no reliable match near
 
@@ -595,7 +596,8 @@ def _check(
     if free and bare is None:
         bare = _BareBackground(lifted, (field_l, field_r), p)
     for end in free:  # a free end ends at one 3D point: both views see the thread stop there
-        reach_px = p.max_unobserved_mm / mm * f / (z[0] if end == "start" else z[-1])
+        reach_px = min(p.max_unobserved_mm / mm * f / (z[0] if end == "start" else z[-1]),
+                       p.cut_end_px + CUT_REACH_PX)  # fmt: skip
         cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach_px, p.cut_end_px,
                       p.cover_px + BEYOND_COVER_PX, bare, p.bare_share)  # fmt: skip
         if cut is not None:

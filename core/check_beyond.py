@@ -13,11 +13,13 @@ Thread pixels are split into 8-connected pieces once per segmentation (``check_f
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from threadrecon.core.check_field import derived
 
@@ -118,14 +120,13 @@ def beyond_ends(
 def _end_frame(uv: np.ndarray, end: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The finite curve samples, the ``end``'s tip and its outward unit direction (over
     END_SAMPLES samples); None for a curve too short or without direction."""
-    ok = np.all(np.isfinite(uv), axis=1)
-    if ok.sum() < END_SAMPLES + 1:
+    curve = uv if np.isfinite(uv).all() else uv[np.all(np.isfinite(uv), axis=1)]
+    if len(curve) < END_SAMPLES + 1:
         return None
-    curve = uv[ok]
     tip = curve[0] if end == "start" else curve[-1]
     back = curve[END_SAMPLES] if end == "start" else curve[-1 - END_SAMPLES]
     way = tip - back
-    norm = float(np.linalg.norm(way))
+    norm = float(np.hypot(way[0], way[1]))
     if norm == 0.0:
         return None
     return curve, tip, way / norm
@@ -144,13 +145,17 @@ def _cone(
     than ``cover_px`` along it, that no curve sample covers (farther than ``cover_px``), and
     their distance along the way: a cheap superset of any piece beyond the end."""
     h, w = mask.shape
-    half = float(np.arccos(np.clip(cos, -1.0, 1.0)))
-    ang = np.arctan2(way[1], way[0]) + np.linspace(-half, half, 9)
-    fan = np.vstack([tip, tip + radius * np.column_stack([np.cos(ang), np.sin(ang)])])
-    lo = np.floor(fan.min(axis=0)) - FAN_MARGIN_PX
-    hi = np.ceil(fan.max(axis=0)) + FAN_MARGIN_PX
-    x0, y0 = max(int(lo[0]), 0), max(int(lo[1]), 0)
-    x1, y1 = min(int(hi[0]) + 1, w), min(int(hi[1]) + 1, h)
+    half = math.acos(min(max(cos, -1.0), 1.0))
+    a0 = math.atan2(way[1], way[0])
+    xs, ys = [float(tip[0])], [float(tip[1])]
+    for k in range(9):  # the fan's outline: the tip and 9 points on its arc
+        a = a0 + half * (k / 4.0 - 1.0)
+        xs.append(tip[0] + radius * math.cos(a))
+        ys.append(tip[1] + radius * math.sin(a))
+    x0 = max(int(math.floor(min(xs))) - FAN_MARGIN_PX, 0)
+    y0 = max(int(math.floor(min(ys))) - FAN_MARGIN_PX, 0)
+    x1 = min(int(math.ceil(max(xs))) + FAN_MARGIN_PX + 1, w)
+    y1 = min(int(math.ceil(max(ys))) + FAN_MARGIN_PX + 1, h)
     if x1 <= x0 or y1 <= y0:
         return np.zeros((0, 2)), np.zeros(0)
     nz = cv2.findNonZero(np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8))
@@ -164,8 +169,8 @@ def _cone(
     px, along = px[keep], along[keep]
     near = curve[np.hypot(*(curve - tip).T) <= radius + cover_px]
     if len(px) and len(near):
-        d2 = (px[:, None, 0] - near[None, :, 0]) ** 2 + (px[:, None, 1] - near[None, :, 1]) ** 2
-        free = d2.min(axis=1) > cover_px**2
+        d, _ = cKDTree(near).query(px, distance_upper_bound=cover_px * (1 + 1e-9))
+        free = ~np.isfinite(d)  # no curve sample within cover_px
         px, along = px[free], along[free]
     return px, along
 
