@@ -144,6 +144,7 @@ REASON_KINDS = {  # a keyword of each kind of reason (core/check.py) -> a short 
     "no reliable match": "unsupported depth",
     "expected error above": "crossing ambiguity",
     "stops short": "piece beyond an end",
+    "cut by an occluder": "cut end",
 }
 
 
