@@ -27,6 +27,7 @@ END_SAMPLES = 8  # curve samples over which an end's outward direction is taken
 MIN_PIECE_PX = 12  # a piece spans at least this many px (smaller: segmentation speckle)
 PIECE_SAMPLES = 64  # pixels per piece tested against the curve (evenly spread over it)
 GAP_SAMPLES = 24  # samples along the gap between an end and a piece (occluder test)
+BRUTE_PAIRS = 20000  # pixel-sample pairs up to which distances are taken directly (no tree)
 FAN_MARGIN_PX = 4  # px around the cone's sampled outline (its arc bulges between samples)
 MAX_TURN_COS = float(np.cos(np.radians(45.0)))  # the piece lies within 45 deg of the end's way
 
@@ -167,12 +168,18 @@ def _cone(
     along = rel @ way
     keep = (dist <= radius) & (along >= cos * dist) & (along > cover_px)
     px, along = px[keep], along[keep]
+    if not len(px):
+        return px, along
     near = curve[np.hypot(*(curve - tip).T) <= radius + cover_px]
-    if len(px) and len(near):
+    if not len(near):
+        return px, along
+    if len(px) * len(near) <= BRUTE_PAIRS:
+        d2 = (px[:, None, 0] - near[None, :, 0]) ** 2 + (px[:, None, 1] - near[None, :, 1]) ** 2
+        free = d2.min(axis=1) > cover_px**2  # no curve sample within cover_px
+    else:
         d, _ = cKDTree(near).query(px, distance_upper_bound=cover_px * (1 + 1e-9))
-        free = ~np.isfinite(d)  # no curve sample within cover_px
-        px, along = px[free], along[free]
-    return px, along
+        free = ~np.isfinite(d)
+    return px[free], along[free]
 
 
 def _beyond(
