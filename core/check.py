@@ -17,13 +17,19 @@ the paper's 1-5 rating scale (Sec. IV-B: 1 very bad .. 5 very good, below 3 a fa
 Per-point confidence. For each point i of the dense curve an expected 3D error is predicted
 from the evidence near it, in mm:
 
-    e_i = (Z_i^2 / (f B)) * sqrt(sigma_d^2 + r_i^2 + h_i^2) + (Z_i / f) * rho_i,
+    e_i = (Z_i^2 / (f B)) * sqrt(sigma_d^2 + rbar_i^2) * (1 + exp(-a_i / end_mm))
+          + (Z_i / f) * rho_i + bridge_error * g_i,
 
 with Z_i / f and Z_i^2 / (f B) the lateral and depth size of a pixel and of a pixel of
-disparity at the point's depth, r_i the disparity residual against the nearest reliable pixel
-of P_L^R (stretched when that pixel is far away), h_i the bound half-width of Eq. (7) in px of
-disparity, rho_i the larger of the two reprojection distances to the thread pixels, and sigma_d
-the matching precision (``sigma_disparity_px``). The confidence is exp(-e_i / ``conf_mm``).
+disparity at the point's depth; rbar_i the mean, over one knot span of the spline around the
+point (the stretch whose matches the spline averages), of r, the disparity residual of the
+curve against the nearest reliable pixel of P_L^R (stretched when that pixel is far away);
+sigma_d the matching precision (``sigma_disparity_px``); a_i the distance to the nearer end
+(an end is fitted from one side); rho_i the larger of the two reprojection distances to the
+thread pixels; g_i the distance into a bridge (its shape is interpolated). The confidence is
+exp(-e_i / ``conf_mm``). The bound half-width h_i of Eq. (7) is left out: where no match pins
+the depth it was no sign of a larger error (docs/method.md, the check's fifth round); the
+crossing-ambiguity finding uses it.
 
 All image measurements use one distance field per view of the thread masks (``check_field``:
 computed once per segmentation and cached with it), so the stage costs a few milliseconds.
@@ -42,6 +48,7 @@ from scipy.spatial import cKDTree
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
+from threadrecon.core.check_beyond import beyond_ends, cut_end
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_kernel import overlap_hits
 from threadrecon.core.ordering import Ordering
@@ -55,6 +62,9 @@ Status = Literal["ok", "suspect", "failed"]
 _RANK = {"ok": 0, "suspect": 1, "failed": 2}
 BAND_PX = 8  # band around the curve in which the thread width is measured, px
 _SCORE_STEPS = (1.0, 2.0, 4.0, 8.0)  # score 5..1 edges, in multiples of score_mm
+CUT_REACH_PX = 35.0  # px searched past cut_end_px (an occluder shifts a cut by 10-25 px)
+BEYOND_COVER_PX = 2.0  # px: a thread's half-width, added to cover_px for the pieces beyond
+_R_CAP_PX = 10.0  # a residual counts at most this (px) in the local mean: no reliable match near
 
 
 @dataclass(frozen=True)
@@ -192,8 +202,8 @@ class CheckParams(Params):
         doc="Two passes of the curve over the same left pixels are two strands crossing, not a "
         "loop, when the thread pixels cross at a keypoint, both passes lie on them, each is "
         "within crossing_support_px along the curve of a point a reliable match supports, and "
-        "their disparities differ by at least this (default 4 sigma_d: a loop or doubling back "
-        "re-uses the same matches, at the same depth). Such a crossing is no overlap.",
+        "their disparities differ by at least this (default 1 px, 20 sigma_d: a loop or "
+        "doubling back re-uses the same matches, at the same depth). Such a crossing is no overlap.",
     )  # fmt: skip
     crossing_support_px: float = param(
         25.0, lo=0.0, unit="px", slider=(0.0, 100.0, 1.0), label="crossing support reach",
@@ -206,23 +216,38 @@ class CheckParams(Params):
         "of the curve (a loop or doubling back the pixels do not show; a crossing is short).",
     )  # fmt: skip
     sigma_disparity_px: float = param(
-        0.25, lo=0.0, unit="px", slider=(0.0, 2.0, 0.05), symbol="sigma_d",
+        0.05, lo=0.0, unit="px", slider=(0.0, 2.0, 0.01), symbol="sigma_d",
         label="matching precision",
-        doc="Disparity precision of a reliable match, for the per-point expected error.",
+        doc="Disparity precision of a reliable match, for the per-point expected error (the "
+        "generated suites' supported points have a median depth error of 0.02-0.03 px of "
+        "disparity).",
     )  # fmt: skip
     support_px: float = param(
         10.0, lo=1.0, unit="px", slider=(1.0, 50.0, 1.0), label="support distance",
         doc="Distance to the nearest reliable pixel at which its disparity counts one pixel "
         "less (adds to the residual r_i).",
     )  # fmt: skip
+    end_mm: float = param(
+        2.0, lo=1e-6, unit="mm", slider=(0.1, 20.0, 0.1), label="end error reach",
+        doc="The expected error doubles at an end of the curve (its depth is fitted from one "
+        "side) and falls back over this distance from the end.",
+    )  # fmt: skip
+    cut_end_px: float = param(
+        5.0, lo=0.0, unit="px", slider=(0.0, 50.0, 0.5), label="cut end",
+        doc="Suspect when one view sees uncovered thread pixels more than this farther beyond a "
+        "free end of the curve than the other view, and the other view shows no bare "
+        "background just beyond the end: the end is cut by an occluder in that view (a free "
+        "end stops at one 3D point, seen in both views), so the thread may continue hidden.",
+    )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
         doc="Expected error at which the confidence is exp(-1).",
     )  # fmt: skip
     score_mm: float = param(
-        1.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="score scale",
-        doc="Quality score from the mean expected error e: 5 below 1x, 4 below 2x, 3 below "
-        "4x, 2 below 8x this, else 1; suspect curves score at most 2, failed ones 1.",
+        0.25, lo=1e-6, unit="mm", slider=(0.05, 10.0, 0.05), label="score scale",
+        doc="Quality score from the typical expected error e (geometric mean of e_i): 5 below "
+        "1x, 4 below 2x, 3 below 4x, 2 below 8x this, else 1; suspect curves score at most 2, "
+        "failed ones 1.",
     )  # fmt: skip
     grasp_mm: float = param(
         10.0, lo=0.0, unit="mm", slider=(0.0, 100.0, 1.0), label="grasp distance",
@@ -297,7 +322,9 @@ class CheckResult:
     ``path_px`` the 2D length of H, ``bound_excursion`` the largest excursion outside the depth
     bounds (fraction of the half-width), ``solver_status`` the spline's, ``longest_jump_px``
     the longest run of the left projection off the thread, ``overlap_px`` the length of the
-    left projection running over another part of the curve.
+    left projection running over another part of the curve, ``beyond_mm`` how far (mm, at the
+    end's depth) a piece of thread pixels beyond a free end across an occluder reaches
+    (core/check_beyond.py; 0 when there is none).
     """
 
     status: Status
@@ -328,6 +355,7 @@ class CheckResult:
     unsupported_mm: float = 0.0
     ambiguous_mm: float = 0.0
     ends_at_border: tuple[str, ...] = ()
+    beyond_mm: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -362,6 +390,7 @@ class CheckResult:
             "unsupported_mm": self.unsupported_mm,
             "ambiguous_mm": self.ambiguous_mm,
             "ends_at_border": list(self.ends_at_border),
+            "beyond_mm": self.beyond_mm,
         }
 
 
@@ -560,6 +589,40 @@ def _check(
              f"({p.grasp_mm + p.grasp_window_mm:g} mm): no free end to grasp from")
         )  # fmt: skip
 
+    # A curve that stops short at an occluder: uncovered thread beyond a free end, across
+    # pixels that are neither thread nor bare background, in both views (core/check_beyond).
+    free = tuple(e for e in ("start", "end") if e not in at_border)
+    missing = 0.0
+    if free and bare is None:
+        bare = _BareBackground(lifted, (field_l, field_r), p)
+    for end in free:  # a free end ends at one 3D point: both views see the thread stop there
+        reach_px = min(p.max_unobserved_mm / mm * f / (z[0] if end == "start" else z[-1]),
+                       p.cut_end_px + CUT_REACH_PX)  # fmt: skip
+        cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach_px, p.cut_end_px,
+                      p.cover_px + BEYOND_COVER_PX, bare, p.bare_share)  # fmt: skip
+        if cut is not None:
+            side, ext = cut
+            findings.append(
+                ("suspect", f"the {side} view sees the thread {max(ext):.0f} px beyond the "
+                 f"curve's {end}, the other {min(ext):.0f} px, over no bare background: the end "
+                 "is cut by an occluder (a free end stops at one point in both views), the "
+                 "thread may go on hidden under it")
+            )  # fmt: skip
+    if free and cov_l < 1.0 and cov_r < 1.0:
+        found = beyond_ends(
+            (uv_l, uv_r), (lifted.P_L, lifted.P_R), free, {"start": z[0], "end": z[-1]}, f,
+            p.cover_px + BEYOND_COVER_PX, p.max_bridge_mm / mm, bare, p.bare_share,
+        )  # fmt: skip
+        for b in found:
+            missing = max(missing, b.missing * mm)
+            if b.missing * mm > p.max_unobserved_mm:
+                findings.append(
+                    ("suspect", f"a piece of thread pixels lies beyond the curve's {b.end} "
+                     f"across an occluder in both views ({b.gap_px:.0f} px away, reaching "
+                     f"{b.reach_px:.0f} px): the curve probably stops short by at least "
+                     f"{b.missing * mm:.1f} mm (limit {p.max_unobserved_mm:g} mm)")
+                )  # fmt: skip
+
     # Length against the 2D path length and the depth span of the bounds.
     path_px = float(bounds.s[-1])
     z_lo = float(max(np.min(bounds.lower), z_allowed[0]))
@@ -618,7 +681,8 @@ def _check(
         np.where(in_r & ~bridge_r & ~hidden_r, rho_r, 0.0),
     )
     lateral = z_pos / f * rho * mm + p.bridge_error * bridge_gap  # bridges: interpolated
-    e_mm = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h**2) * mm + lateral
+    e_mm = _expected_error(z_pos, r, step, s3, spline, f * B, p)
+    e_mm = e_mm * mm + lateral
     e_mm[(z <= 0) | (z_right <= 0)] = np.inf
     conf = np.exp(-e_mm / p.conf_mm)
 
@@ -644,7 +708,7 @@ def _check(
              "depth may be mixed up")
         )  # fmt: skip
     status: Status = max((s for s, _ in findings), key=_RANK.__getitem__, default="ok")
-    score = _score(float(np.mean(np.minimum(e_mm, 1e6))), status, p.score_mm)
+    score = _score(_typical(e_mm), status, p.score_mm)
     grasp = _grasp(pts, conf, uv_l, uv_r, (H, W), mm, p)
     return CheckResult(
         status=status,
@@ -675,6 +739,7 @@ def _check(
         unsupported_mm=unsupported,
         ambiguous_mm=ambiguous,
         ends_at_border=at_border,
+        beyond_mm=missing,
     )
 
 
@@ -1149,6 +1214,36 @@ def _tree(stereo: StereoResult, rel: ReliabilityResult) -> tuple[cKDTree | None,
     return cKDTree(stereo.pixels[sel].astype(np.float64)), stereo.disparity[sel]
 
 
+def _expected_error(
+    z: np.ndarray,
+    r: np.ndarray,
+    step: np.ndarray,
+    s3: np.ndarray,
+    spline: SplineResult,
+    fB: float,
+    p: CheckParams,
+) -> np.ndarray:
+    """Depth part of the expected error e_i (calib units): the depth size of a pixel of
+    disparity z^2 / (f B) times the local disparity error sqrt(sigma_d^2 + rbar_i^2), rbar_i
+    the mean residual r of the reliable matches over one knot span of the spline around the
+    point (the stretch whose matches the spline averages; r capped at _R_CAP_PX); doubled at
+    an end of the curve (fitted from one side only), falling back over ``end_mm``."""
+    n_spans = max(len(spline.ctrl) - int(spline.degree), 1)
+    s2 = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))])
+    r_local = _local_mean(np.minimum(r, _R_CAP_PX), s2, s2[-1] / n_spans)
+    d = np.sqrt(p.sigma_disparity_px**2 + r_local**2)
+    end = np.minimum(s3, s3[-1] - s3)  # mm to the nearer end
+    return z**2 / fB * d * (1.0 + np.exp(-end / p.end_mm))
+
+
+def _local_mean(x: np.ndarray, s: np.ndarray, width: float) -> np.ndarray:
+    """Mean of x over the samples within width / 2 of each sample along the arc length s."""
+    c = np.concatenate([[0.0], np.cumsum(x)])
+    lo = np.searchsorted(s, s - 0.5 * width)
+    hi = np.searchsorted(s, s + 0.5 * width, side="right")
+    return (c[hi] - c[lo]) / np.maximum(hi - lo, 1)
+
+
 def _bound_halfwidth_px(spline: SplineResult, bounds: Bounds, n: int, fB: float) -> np.ndarray:
     """Bound half-width of Eq. (7) at each curve point, in px of disparity (|dd/dz| = fB/z^2)."""
     u = np.linspace(0.0, 1.0, n)
@@ -1158,9 +1253,16 @@ def _bound_halfwidth_px(spline: SplineResult, bounds: Bounds, n: int, fB: float)
     return half * fB / centre**2
 
 
-def _score(mean_error_mm: float, status: Status, score_mm: float) -> int:
-    """The paper's 1-5 rating from the mean expected error, capped by the status."""
-    score = 5 - int(np.searchsorted(np.array(_SCORE_STEPS) * score_mm, mean_error_mm))
+def _typical(e_mm: np.ndarray) -> float:
+    """The typical expected error of a curve (mm): the geometric mean of e_i (a few points of
+    large e_i, e.g. an interpolated stretch, do not swamp it; 1e6 for a non-finite one)."""
+    with np.errstate(divide="ignore"):
+        return float(np.exp(np.mean(np.log(np.clip(e_mm, 1e-9, 1e6)))))
+
+
+def _score(error_mm: float, status: Status, score_mm: float) -> int:
+    """The paper's 1-5 rating from the typical expected error, capped by the status."""
+    score = 5 - int(np.searchsorted(np.array(_SCORE_STEPS) * score_mm, error_mm))
     if status == "failed":
         return 1
     if status == "suspect":

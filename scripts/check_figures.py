@@ -143,6 +143,8 @@ REASON_KINDS = {  # a keyword of each kind of reason (core/check.py) -> a short 
     "deg at its": "bridge turn",
     "no reliable match": "unsupported depth",
     "expected error above": "crossing ambiguity",
+    "stops short": "piece beyond an end",
+    "cut by an occluder": "cut end",
 }
 
 

@@ -1,0 +1,308 @@
+"""The check's look beyond the curve's ends: a curve that stops short at an occluder.
+
+A thread that runs under an instrument and out again is seen as two pieces. When the curve
+keeps one and stops at the occluder, nothing else in the check sees it: the curve lies on the
+thread pixels and covers most of them. The cue here: a piece of thread pixels no part of the
+curve covers lies beyond an end of the curve, in the end's direction, across pixels that are
+neither thread nor bare background (an occluder), and the same holds in both views with the
+two pieces on the same rows (rectified views: the same piece of thread). The piece's far end
+then bounds what the curve misses: its distance from the curve's end, at the end's depth.
+
+Thread pixels are split into 8-connected pieces once per segmentation (``check_field.derived``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from threadrecon.core.check_field import derived
+
+END_SAMPLES = 8  # curve samples over which an end's outward direction is taken
+MIN_PIECE_PX = 12  # a piece spans at least this many px (smaller: segmentation speckle)
+PIECE_SAMPLES = 64  # pixels per piece tested against the curve (evenly spread over it)
+GAP_SAMPLES = 24  # samples along the gap between an end and a piece (occluder test)
+BRUTE_PAIRS = 20000  # pixel-sample pairs up to which distances are taken directly (no tree)
+FAN_MARGIN_PX = 4  # px around the cone's sampled outline (its arc bulges between samples)
+MAX_TURN_COS = float(np.cos(np.radians(45.0)))  # the piece lies within 45 deg of the end's way
+
+
+@dataclass(frozen=True)
+class Beyond:
+    """A piece of thread pixels beyond an end of the curve, in both views: ``end`` "start" or
+    "end"; ``gap_px`` from the end to the piece and ``reach_px`` to its far side (left view,
+    the smaller of the two views for ``reach_px``); ``missing`` the reach at the end's depth,
+    in calib units (a lower bound of what the curve misses)."""
+
+    end: str
+    gap_px: float
+    reach_px: float
+    missing: float
+
+
+def pieces(mask: np.ndarray) -> list[np.ndarray]:
+    """The 8-connected pieces of a thread mask spanning at least MIN_PIECE_PX, each as (k, 2)
+    float64 pixels (x, y) (cached with the mask)."""
+    return derived((mask,), "pieces", lambda: _pieces(mask))
+
+
+def _pieces(mask: np.ndarray) -> list[np.ndarray]:
+    m8 = np.ascontiguousarray(mask).view(np.uint8)
+    bx, by, bw, bh = cv2.boundingRect(m8)
+    if bw == 0 or bh == 0:
+        return []
+    crop = np.ascontiguousarray(m8[by : by + bh, bx : bx + bw])
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(crop, connectivity=8)
+    keep = np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) >= MIN_PIECE_PX
+    keep[0] = False  # the background
+    if not keep.any():
+        return []
+    ys, xs = np.nonzero(crop)
+    lab = labels[ys, xs]
+    sel = keep[lab]
+    ys, xs, lab = ys[sel], xs[sel], lab[sel]
+    order = np.argsort(lab, kind="stable")
+    xy = np.column_stack([xs + bx, ys + by]).astype(np.float64)[order]
+    cuts = np.flatnonzero(np.diff(lab[order])) + 1
+    out = np.split(xy, cuts)
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
+def beyond_ends(
+    uv: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    ends: tuple[str, ...],
+    depth: dict[str, float],
+    f: float,
+    cover_px: float,
+    max_gap: float,
+    bare: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+    bare_share: float,
+) -> list[Beyond]:
+    """The pieces beyond the curve's ``ends`` ("start", "end") found in both views.
+
+    ``uv``: the curve's (N, 2) projections (x, y) in the left and right view; ``masks``: P_L,
+    P_R; ``depth``: each end's depth (calib units); ``cover_px``: a piece with a pixel this
+    close to the curve is the curve's own; ``max_gap``: the longest gap (calib units, at the
+    end's depth) across which a piece counts (the longest bridge the check accepts); ``bare``:
+    ``bare(side, samples, end_a, end_b)`` flags samples over bare background (the check's test);
+    a gap more than ``bare_share`` bare is no occluder."""
+    found = []
+    for end in ends:
+        per_view = []
+        for side in (0, 1):
+            fr = _end_frame(uv[side], end)
+            radius = max_gap * f / depth[end]
+            if fr is None or not len(_cone(*fr, masks[side], radius, MAX_TURN_COS, cover_px)[0]):
+                break  # no uncovered thread pixel ahead of the end: no piece beyond it
+            hit = _beyond(uv[side], pieces(masks[side]), end, cover_px,
+                          max_gap * f / depth[end], side, bare, bare_share)  # fmt: skip
+            if hit is None:
+                break
+            per_view.append(hit)
+        if len(per_view) < 2:
+            continue
+        (gap_l, reach_l, rows_l), (_, reach_r, rows_r) = per_view
+        lo, hi = max(rows_l[0], rows_r[0]), min(rows_l[1], rows_r[1])
+        if hi - lo < 0.5 * min(rows_l[1] - rows_l[0], rows_r[1] - rows_r[0]):
+            continue  # not on the same rows: not the same piece of thread
+        reach = min(reach_l, reach_r)
+        found.append(Beyond(end, gap_l, reach, reach * depth[end] / f))
+    return found
+
+
+def _end_frame(uv: np.ndarray, end: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The finite curve samples, the ``end``'s tip and its outward unit direction (over
+    END_SAMPLES samples); None for a curve too short or without direction."""
+    curve = uv if np.isfinite(uv).all() else uv[np.all(np.isfinite(uv), axis=1)]
+    if len(curve) < END_SAMPLES + 1:
+        return None
+    tip = curve[0] if end == "start" else curve[-1]
+    back = curve[END_SAMPLES] if end == "start" else curve[-1 - END_SAMPLES]
+    way = tip - back
+    norm = float(np.hypot(way[0], way[1]))
+    if norm == 0.0:
+        return None
+    return curve, tip, way / norm
+
+
+def _cone(
+    curve: np.ndarray,
+    tip: np.ndarray,
+    way: np.ndarray,
+    mask: np.ndarray,
+    radius: float,
+    cos: float,
+    cover_px: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Thread pixels (k, 2) within ``radius`` of the tip, within acos(cos) of its way and more
+    than ``cover_px`` along it, that no curve sample covers (farther than ``cover_px``), and
+    their distance along the way: a cheap superset of any piece beyond the end."""
+    h, w = mask.shape
+    half = math.acos(min(max(cos, -1.0), 1.0))
+    a0 = math.atan2(way[1], way[0])
+    xs, ys = [float(tip[0])], [float(tip[1])]
+    for k in range(9):  # the fan's outline: the tip and 9 points on its arc
+        a = a0 + half * (k / 4.0 - 1.0)
+        xs.append(tip[0] + radius * math.cos(a))
+        ys.append(tip[1] + radius * math.sin(a))
+    x0 = max(int(math.floor(min(xs))) - FAN_MARGIN_PX, 0)
+    y0 = max(int(math.floor(min(ys))) - FAN_MARGIN_PX, 0)
+    x1 = min(int(math.ceil(max(xs))) + FAN_MARGIN_PX + 1, w)
+    y1 = min(int(math.ceil(max(ys))) + FAN_MARGIN_PX + 1, h)
+    if x1 <= x0 or y1 <= y0:
+        return np.zeros((0, 2)), np.zeros(0)
+    nz = cv2.findNonZero(np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8))
+    if nz is None:
+        return np.zeros((0, 2)), np.zeros(0)
+    px = nz.reshape(-1, 2).astype(np.float64) + [x0, y0]
+    rel = px - tip
+    dist = np.hypot(rel[:, 0], rel[:, 1])
+    along = rel @ way
+    keep = (dist <= radius) & (along >= cos * dist) & (along > cover_px)
+    px, along = px[keep], along[keep]
+    if not len(px):
+        return px, along
+    near = curve[np.hypot(*(curve - tip).T) <= radius + cover_px]
+    if not len(near):
+        return px, along
+    if len(px) * len(near) <= BRUTE_PAIRS:
+        d2 = (px[:, None, 0] - near[None, :, 0]) ** 2 + (px[:, None, 1] - near[None, :, 1]) ** 2
+        free = d2.min(axis=1) > cover_px**2  # no curve sample within cover_px
+    else:
+        d, _ = cKDTree(near).query(px, distance_upper_bound=cover_px * (1 + 1e-9))
+        free = ~np.isfinite(d)
+    return px[free], along[free]
+
+
+def _beyond(
+    uv: np.ndarray,
+    parts: list[np.ndarray],
+    end: str,
+    cover_px: float,
+    max_gap_px: float,
+    side: int,
+    bare: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+    bare_share: float,
+) -> tuple[float, float, tuple[float, float]] | None:
+    """In one view: the nearest uncovered piece beyond ``end`` across an occluder, as (gap px,
+    reach px to its far side, its (min, max) rows); None when there is none."""
+    ok = np.all(np.isfinite(uv), axis=1)
+    if ok.sum() < END_SAMPLES + 1 or not parts:
+        return None
+    curve = uv[ok]
+    tip = curve[0] if end == "start" else curve[-1]
+    back = curve[END_SAMPLES] if end == "start" else curve[-1 - END_SAMPLES]
+    way = tip - back
+    norm = float(np.linalg.norm(way))
+    if norm == 0.0:
+        return None
+    way /= norm
+    best = None
+    for px in parts:
+        rel = px - tip
+        dist = np.hypot(rel[:, 0], rel[:, 1])
+        k = int(np.argmin(dist))
+        gap = float(dist[k])
+        if gap > max_gap_px or gap <= cover_px or float(rel[k] @ way) < MAX_TURN_COS * gap:
+            continue
+        if best is not None and gap >= best[0]:
+            continue
+        if _covered(px, curve, cover_px):
+            continue
+        t = np.linspace(0.0, 1.0, GAP_SAMPLES + 2)[1:-1, None]
+        gap_xy = tip + t * (px[k] - tip)
+        if float(np.mean(bare(side, gap_xy, tip, px[k]))) > bare_share:
+            continue  # bare background between: the thread would be seen there
+        best = (gap, float(dist.max()), (float(px[:, 1].min()), float(px[:, 1].max())))
+    return best
+
+
+def _covered(px: np.ndarray, curve: np.ndarray, cover_px: float) -> bool:
+    """Whether any of (up to PIECE_SAMPLES of) the piece's pixels lies within ``cover_px`` of a
+    curve sample (the piece is the curve's own)."""
+    step = max(1, len(px) // PIECE_SAMPLES)
+    sub = px[::step]
+    d2 = (sub[:, None, 0] - curve[None, :, 0]) ** 2 + (sub[:, None, 1] - curve[None, :, 1]) ** 2
+    return bool(d2.min() <= cover_px**2)
+
+
+CUT_PROBE_PX = 8  # px beyond an end where the view that stops is probed for an occluder
+CONE_COS = float(np.cos(np.radians(30.0)))  # pixels within 30 deg of an end's way extend it
+
+
+def extension(
+    uv: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    end: str,
+    reach_px: float,
+    cover_px: float,
+    min_px: float,
+) -> tuple[float, float]:
+    """Per view: how far (px) the thread pixels of the piece at the curve's ``end`` reach
+    beyond the end's projection, not covered by the curve, along its outward direction
+    (within 30 deg of it, up to ``reach_px``); 0 when nothing does. When neither view reaches
+    beyond ``min_px``, the cheap bound (any thread pixel there) is returned without looking
+    for the pieces."""
+    out = []
+    cones = []
+    for side in (0, 1):
+        fr = _end_frame(uv[side], end)
+        if fr is None:
+            return 0.0, 0.0
+        px, along = _cone(*fr, masks[side], reach_px, CONE_COS, cover_px)
+        cones.append((fr[1], px, along))
+        out.append(float(along.max()) if along.size else 0.0)
+    if max(out) <= min_px:
+        return out[0], out[1]
+    for side, (tip, px, along) in enumerate(cones):
+        out[side] = 0.0
+        for part in pieces(masks[side]):
+            if np.min(np.hypot(*(part - tip).T)) > 2.0:
+                continue  # the end's projection is not on this piece
+            on = _rows_in(px, part)
+            if on.any():
+                out[side] = max(out[side], float(along[on].max()))
+    return out[0], out[1]
+
+
+def cut_end(
+    uv: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    end: str,
+    reach_px: float,
+    cut_px: float,
+    cover_px: float,
+    bare: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+    bare_share: float,
+) -> tuple[str, tuple[float, float]] | None:
+    """Whether the curve's free ``end`` is cut by an occluder in one view: one view sees the
+    thread (``extension``) more than ``cut_px`` farther beyond it than the other, and in the
+    other view the CUT_PROBE_PX px just beyond the end are not bare background (more than
+    ``bare_share`` not bare). Returns the view that sees farther ("left"/"right") and both
+    extensions (px), or None."""
+    ext = extension(uv, masks, end, reach_px, cover_px, cut_px)
+    if abs(ext[0] - ext[1]) <= cut_px:
+        return None
+    stop = 1 if ext[0] > ext[1] else 0  # the view where the thread stops
+    fr = _end_frame(uv[stop], end)
+    if fr is None:
+        return None
+    _, tip, way = fr
+    probe = tip + np.arange(2.0, 2.0 + CUT_PROBE_PX)[:, None] * way
+    if float(np.mean(bare(stop, probe, tip, tip))) > bare_share:
+        return None  # bare background just beyond the end there: a free end
+    return ("left" if stop == 1 else "right"), ext
+
+
+def _rows_in(px: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """Which pixels of ``px`` (k, 2) belong to ``part`` (m, 2) (integer coordinates)."""
+    key = lambda a: a[:, 1].astype(np.int64) * 1_000_003 + a[:, 0].astype(np.int64)  # noqa: E731
+    return np.isin(key(px), key(part))

@@ -1,0 +1,98 @@
+"""Tests of core/check_beyond.py: a piece of thread beyond a curve end, across an occluder."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from threadrecon.core.check_beyond import beyond_ends, cut_end, extension, pieces
+
+SHAFT = (80, 110)  # columns of the occluder in the left view
+
+
+def _scene(piece_rows_right: tuple[int, int] = (49, 52), shift: int = 5):
+    """Left and right masks: the thread (rows 49-51) up to column 79, an occluder over columns
+    80-109 (no thread pixels), the thread again from column 110 to 149; the right view is the
+    left shifted by ``shift`` px (disparity), its far piece on ``piece_rows_right``."""
+    P_L = np.zeros((100, 200), bool)
+    P_L[49:52, 10:80] = True
+    P_L[49:52, 110:150] = True
+    P_R = np.zeros_like(P_L)
+    P_R[49:52, 10 - shift : 80 - shift] = True
+    P_R[slice(*piece_rows_right), 110 - shift : 150 - shift] = True
+    x = np.linspace(10.0, 79.0, 70)
+    uv_l = np.column_stack([x, np.full_like(x, 50.0)])
+    uv_r = uv_l - [shift, 0.0]
+    return (P_L, P_R), (uv_l, uv_r)
+
+
+def _occluder_bare(side: int, xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    lo, hi = SHAFT[0] - 5 * side, SHAFT[1] - 5 * side
+    return ~((xy[:, 0] >= lo) & (xy[:, 0] < hi))
+
+
+def _find(masks, uv, bare=_occluder_bare, ends=("start", "end")):
+    return beyond_ends(uv, masks, ends, {"start": 100.0, "end": 100.0}, 500.0, 5.0, 40.0,
+                       bare, 0.5)  # fmt: skip
+
+
+def test_a_piece_beyond_the_end_across_an_occluder_in_both_views_is_found() -> None:
+    masks, uv = _scene()
+    (hit,) = _find(masks, uv)
+    assert hit.end == "end"
+    assert abs(hit.gap_px - 31.0) < 1.5  # from column 79 to 110
+    assert abs(hit.reach_px - 70.0) < 1.5  # to column 149
+    np.testing.assert_allclose(hit.missing, hit.reach_px * 100.0 / 500.0)
+
+
+def test_no_piece_when_the_gap_is_bare_background() -> None:
+    masks, uv = _scene()
+    assert _find(masks, uv, bare=lambda s, xy, a, b: np.ones(len(xy), bool)) == []
+
+
+def test_no_piece_when_the_right_view_shows_it_on_other_rows() -> None:
+    masks, uv = _scene(piece_rows_right=(80, 83))
+    assert _find(masks, uv) == []
+
+
+def test_no_piece_behind_the_other_end_or_beyond_the_reach() -> None:
+    masks, uv = _scene()
+    assert _find(masks, uv, ends=("start",)) == []  # the piece lies beyond the end, not start
+    far = beyond_ends(uv, masks, ("end",), {"start": 100.0, "end": 100.0}, 500.0, 5.0, 5.0,
+                      _occluder_bare, 0.5)  # fmt: skip
+    assert far == []  # 31 px at depth 100, f 500: 6.2 units, beyond a 5-unit reach
+
+
+def test_the_curve_own_pixels_are_no_piece_beyond() -> None:
+    masks, uv = _scene()
+    P_L, P_R = (m.copy() for m in masks)
+    P_L[49:52, 80:110] = True  # the thread is seen across: one piece, the curve's own
+    P_R[49:52, 75:105] = True
+    assert _find((P_L, P_R), uv) == []
+    assert len(pieces(P_L)) == 1 and len(pieces(masks[0])) == 2
+
+
+def _cut_scene(right_extra: int):
+    """The thread ends at column 79 in the left view (the curve's end) and ``right_extra`` px
+    further on in the right view (shifted by 5 px of disparity)."""
+    masks, uv = _scene()
+    P_L, P_R = masks
+    P_L[:, 100:] = False  # no piece beyond
+    P_R[:, 95:] = False
+    P_R[49:52, 75 : 75 + right_extra] = True
+    return (P_L, P_R), uv
+
+
+def test_an_end_the_other_view_sees_further_over_no_bare_background_is_cut() -> None:
+    masks, uv = _cut_scene(20)
+    ext = extension(uv, masks, "end", 100.0, 5.0, 5.0)
+    assert ext[0] == 0.0 and abs(ext[1] - 20.0) < 1.5
+    cut = cut_end(uv, masks, "end", 100.0, 5.0, 5.0, _occluder_bare, 0.5)
+    assert cut is not None and cut[0] == "right"
+    everywhere_bare = lambda s, xy, a, b: np.ones(len(xy), bool)  # noqa: E731
+    assert cut_end(uv, masks, "end", 100.0, 5.0, 5.0, everywhere_bare, 0.5) is None
+    assert cut_end(uv, masks, "start", 100.0, 5.0, 5.0, _occluder_bare, 0.5) is None
+
+
+def test_an_end_both_views_see_stop_at_the_same_point_is_not_cut() -> None:
+    masks, uv = _cut_scene(3)  # within the cut tolerance (the thread's rounded tip)
+    assert cut_end(uv, masks, "end", 100.0, 5.0, 5.0, _occluder_bare, 0.5) is None
