@@ -29,8 +29,6 @@ from typing import Literal
 
 import cv2
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse import csgraph
 
 from threadrecon.core import walk_kernel
 from threadrecon.core.clustering import Clusters
@@ -344,7 +342,10 @@ def _window_is_own(
 
 
 class _GapGeodesics:
-    """Geodesic (8-connected, unit/sqrt2 steps) distances inside gaps from a cluster's border."""
+    """Geodesic (8-connected, unit/sqrt2 steps) distances inside gaps from a cluster's border.
+
+    The gap graph (an edge between 8-neighbours of the same gap) is never built: the compiled
+    search (:func:`walk_kernel.gap_distances`) reads it from the neighbour table and the nodes."""
 
     def __init__(
         self,
@@ -354,28 +355,26 @@ class _GapGeodesics:
         nb: np.ndarray | None = None,
     ) -> None:
         """``nb``: (N, 8) neighbour pixel indices of :meth:`_PixelGrid.neighbours`, if known."""
-        n = len(pixel_node)
         if nb is None:
             nb = _PixelGrid(stereo.pixels, 1).neighbours()
-        offs = _OFFSETS_8
-        step = np.array([np.hypot(dy, dx) for dy, dx in offs])
+        self.nb = np.ascontiguousarray(nb, dtype=np.int32)
+        self.node = np.ascontiguousarray(pixel_node, dtype=np.int64)
+        self.K = K
         self.nb_node = np.where(nb >= 0, pixel_node[np.maximum(nb, 0)], -1)
-        # Edges between pixels of the same gap. CSR built directly: the pixels are in row-major
-        # order, so each row's neighbours (in _OFFSETS_8 order) are already sorted.
-        ok = (self.nb_node == pixel_node[:, None]) & (pixel_node >= K)[:, None]
-        indptr = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(ok.sum(axis=1), out=indptr[1:])
-        data = np.broadcast_to(step, ok.shape)[ok]
-        self.graph = sp.csr_matrix((data, nb[ok], indptr), shape=(n, n))
+
+    def distances(self, src: np.ndarray) -> np.ndarray:
+        """(N,) geodesic distances from the pixels ``src`` inside their gaps, px; inf where
+        unreachable (the multi-source search of scipy's ``csgraph.dijkstra(min_only=True)``)."""
+        return walk_kernel.gap_distances(
+            self.nb, self.node, self.K, _STEPS_8, np.ascontiguousarray(src, dtype=np.int64)
+        )
 
     def distance_from(self, cluster: int, sel: np.ndarray) -> np.ndarray:
-        """Distances of pixels ``sel`` (one gap set) from the border of ``cluster``, px."""
+        """Distances of pixels ``sel`` (whole gaps) from the border of ``cluster``, px."""
         src = sel[np.any(self.nb_node[sel] == cluster, axis=1)]
         if src.size == 0:
             return np.full(sel.size, np.nan)
-        sub = self.graph[sel][:, sel]
-        pos = np.searchsorted(sel, src)
-        d = csgraph.dijkstra(sub, directed=False, indices=pos, min_only=True)
+        d = self.distances(src)[sel]
         return np.where(np.isinf(d), np.nan, d + 1.0)
 
 
@@ -427,7 +426,7 @@ def _link_positions(
         if src.size == 0:
             d.append(np.full(sel.size, np.nan))
             continue
-        dist = csgraph.dijkstra(geo.graph, directed=False, indices=src, min_only=True)[sel]
+        dist = geo.distances(src)[sel]
         d.append(np.where(np.isinf(dist), np.nan, dist + 1.0))
     da, db = d
     top_a = np.zeros(len(links))
@@ -485,6 +484,7 @@ class _PixelGrid:
 
 
 _OFFSETS_8 = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
+_STEPS_8 = np.array([np.hypot(dy, dx) for dy, dx in _OFFSETS_8])  # their lengths, px
 
 
 def _solidify(grid: _PixelGrid, labels: np.ndarray, radius: int) -> np.ndarray:
