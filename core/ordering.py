@@ -24,6 +24,7 @@ crossings run in a compiled kernel (core/walk_kernel.py), jumps across gaps in n
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -286,7 +287,10 @@ def order_keypoints(
         r = p.end_window_px
         for row, (e, k) in enumerate(((0, walk[0]), (-1, walk[-1]))):
             seq = walk if e == 0 else walk[::-1]
-            if _window_is_own(stereo.pixels, pixel_node, K, seq, key_px, cluster_gaps, path[e], r):
+            own = _window_is_own(
+                stereo.pixels, pixel_node, K, seq, key_px, cluster_gaps, path[e], r, grid
+            )
+            if own:
                 m = tip_disparity(lifted.I_L, lifted.I_R, path[e][:2], disp[k], r)
                 end_disparity[row] = (m.disparity, m.var)
 
@@ -323,15 +327,22 @@ def _window_is_own(
     cluster_gaps: dict[int, set[int]],
     tip: np.ndarray,
     radius: int,
+    grid: _PixelGrid | None = None,
 ) -> bool:
     """True when every pixel of P_L in the (2 radius + 1)^2 window on ``tip`` belongs to the
     thread's own last stretch: a cluster of the walk ``seq`` (from this end) whose keypoint lies
     within 3 ``radius`` px of arc of the tip (and the next one), or a gap touching one. Another
     strand in the window (the end pokes out past a crossing, a hairpin's other leg) moves by
     its own disparity, and the tip's match, which assumes one strand, is then wrong (generated
-    crossing frame: 4.4 px off with a 0.3 px sd)."""
-    inbox = np.all(np.abs(pixels - np.round(tip[:2])) <= radius, axis=1)
-    nodes = np.unique(pixel_node[inbox])
+    crossing frame: 4.4 px off with a 0.3 px sd). ``grid``: the pixels' index image
+    (:class:`_PixelGrid` of ``pixels``), to read the window from instead of testing every
+    pixel."""
+    cx, cy = np.round(tip[:2])
+    if grid is None:
+        inbox = np.all(np.abs(pixels - np.array([cx, cy])) <= radius, axis=1)
+        nodes = np.unique(pixel_node[inbox])
+    else:
+        nodes = np.unique(pixel_node[grid.window(cx, cy, radius)])
     xy = key_px[seq, :2]
     arc = np.linalg.norm(xy[0] - tip[:2]) + np.concatenate(
         [[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]
@@ -462,6 +473,21 @@ class _PixelGrid:
         self.index = np.full(shape, -1, dtype=np.int32)  # int32: 8 MB for a whole 1920x1080 box
         self.index[self.y, self.x] = np.arange(n)
 
+    def window(self, cx: float, cy: float, radius: int) -> np.ndarray:
+        """Indices of the pixels with |x - cx| <= radius and |y - cy| <= radius (``cx``,
+        ``cy``: whole numbers, px; none for a non-finite centre)."""
+        h, w = self.index.shape
+        if not (math.isfinite(cx) and math.isfinite(cy)):
+            return np.zeros(0, dtype=np.int64)
+        x0 = max(math.ceil(cx - radius) - self.x0 + self.pad, 0)
+        x1 = min(math.floor(cx + radius) - self.x0 + self.pad + 1, w)
+        y0 = max(math.ceil(cy - radius) - self.y0 + self.pad, 0)
+        y1 = min(math.floor(cy + radius) - self.y0 + self.pad + 1, h)
+        if x0 >= x1 or y0 >= y1:
+            return np.zeros(0, dtype=np.int64)
+        ids = self.index[y0:y1, x0:x1].ravel()
+        return ids[ids >= 0].astype(np.int64)
+
     def neighbours(self) -> np.ndarray:
         """(N, 8) index of each pixel's 8-neighbours in P_L (order ``_OFFSETS_8``), -1 if none."""
         return np.stack([self.index[self.y + dy, self.x + dx] for dy, dx in _OFFSETS_8], axis=1)
@@ -510,12 +536,14 @@ def _solidify(grid: _PixelGrid, labels: np.ndarray, radius: int) -> np.ndarray:
 
 def _touching_pairs(pixel_node: np.ndarray, nb_node: np.ndarray) -> np.ndarray:
     """(P, 2) unique pairs (a < b, sorted) of different nodes that are 8-neighbours somewhere."""
-    a = np.broadcast_to(pixel_node[:, None], nb_node.shape)
-    ok = (nb_node >= 0) & (a >= 0) & (nb_node != a)
-    lo = np.minimum(a[ok], nb_node[ok])
-    hi = np.maximum(a[ok], nb_node[ok])
-    m = int(hi.max()) + 1 if hi.size else 1
-    key = np.unique(lo * m + hi)
+    m = int(pixel_node.max()) + 1 if pixel_node.size else 1
+    key = np.unique(
+        walk_kernel.touching_keys(
+            np.ascontiguousarray(pixel_node, dtype=np.int64),
+            np.ascontiguousarray(nb_node, dtype=np.int64),
+            m,
+        )
+    )
     return np.stack([key // m, key % m], axis=1)
 
 

@@ -239,3 +239,23 @@ def _pop(hk, hv, size):  # noqa: ANN001
     if size > 0:
         hk[i], hv[i] = key, val
     return size
+
+
+@kernel("int64[::1](int64[::1], int64[:, ::1], int64)")
+def touching_keys(node, nb_node, m):  # noqa: ANN001
+    """Keys lo * m + hi (lo < hi) of the pairs of different nodes >= 0 that are 8-neighbours
+    (``node``: each pixel's, ``nb_node``: its neighbours', -1 for none; ``m`` > every node),
+    with repeats, in pixel order."""
+    n, k = nb_node.shape
+    out = np.empty(n * k, dtype=np.int64)
+    c = 0
+    for i in range(n):
+        a = node[i]
+        if a < 0:
+            continue
+        for j in range(k):
+            b = nb_node[i, j]
+            if b >= 0 and b != a:
+                out[c] = min(a, b) * m + max(a, b)
+                c += 1
+    return out[:c].copy()
