@@ -25,6 +25,7 @@ from typing import Final, Literal
 import cv2
 import numpy as np
 
+from threadrecon.core.compiled import kernel
 from threadrecon.core.params import Params, param
 from threadrecon.core.segment_raw import segment_raw
 
@@ -366,17 +367,15 @@ def _threshold_auto8(
 
 def _drop_specks(mask: np.ndarray, min_px: int) -> np.ndarray:
     """``mask`` (h, w) bool without its 8-connected components smaller than ``min_px`` (those
-    of :func:`core.segment_raw.drop_specks`); the mask itself when none is dropped (the usual
-    case: no new image)."""
+    of :func:`core.segment_raw.drop_specks`), as a new array: one compiled pass that labels
+    no image (:func:`_drop_specks_kernel`)."""
     if min_px <= 1:
         return mask
-    mask = np.ascontiguousarray(mask, dtype=bool)
-    n, labels = cv2.connectedComponents(mask.view(np.uint8), connectivity=8, ltype=cv2.CV_32S)
-    keep = np.bincount(labels[mask], minlength=n) >= min_px  # each component's size
-    keep[0] = False  # the background
-    if keep[1:].all():
-        return mask
-    return keep[labels]
+    out = np.zeros(mask.shape, dtype=bool)
+    _drop_specks_kernel(
+        np.array(mask, dtype=bool, order="C").view(np.uint8), out.view(np.uint8), min_px
+    )
+    return out
 
 
 def _box(mask: np.ndarray, margin: int) -> tuple[slice, slice] | None:
@@ -496,3 +495,39 @@ def _background_level(hist: np.ndarray, p: SegmentationParams) -> float:
     if p.background is not None:
         return float(p.background)
     return float(np.argmax(hist))
+
+
+# --- compiled kernel ---------------------------------------------------------------------------
+# Compiled ahead of time once per machine, loaded without numba (core/compiled.py).
+
+
+@kernel("int64(uint8[:, ::1], uint8[:, ::1], int64)")
+def _drop_specks_kernel(mask, out, min_px):  # noqa: ANN001
+    """Write to ``out`` (h, w, zeros) the 8-connected components of ``mask`` (h, w, 0/1) of at
+    least ``min_px`` pixels; returns how many smaller ones were left out. A search per
+    component marks its pixels 2 in ``mask`` (a scratch copy) and keeps them on a list."""
+    h, w = mask.shape
+    todo = np.empty(h * w, dtype=np.int64)  # the component's pixels, flat (the search's queue)
+    dropped = 0
+    for y0 in range(h):
+        for x0 in range(w):
+            if mask[y0, x0] != 1:
+                continue
+            mask[y0, x0] = 2
+            todo[0] = y0 * w + x0
+            n, i = 1, 0
+            while i < n:
+                y, x = todo[i] // w, todo[i] % w
+                i += 1
+                for yy in range(max(y - 1, 0), min(y + 2, h)):
+                    for xx in range(max(x - 1, 0), min(x + 2, w)):
+                        if mask[yy, xx] == 1:
+                            mask[yy, xx] = 2
+                            todo[n] = yy * w + xx
+                            n += 1
+            if n < min_px:
+                dropped += 1
+            else:
+                for j in range(n):
+                    out[todo[j] // w, todo[j] % w] = 1
+    return dropped

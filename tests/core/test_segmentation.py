@@ -427,3 +427,16 @@ def test_threshold_path_equals_the_whole_image_formulas_bit_for_bit(seed: int) -
         got = getattr(lifted, name)
         assert got.dtype == expected.dtype and got.shape == expected.shape, name
         assert np.array_equal(got, expected), name
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_speck_removal_keeps_exactly_the_components_drop_specks_keeps(seed: int) -> None:
+    from threadrecon.core.segment_raw import drop_specks
+    from threadrecon.core.segmentation import _drop_specks
+
+    rng = np.random.default_rng(seed)
+    mask = rng.random((60, 90)) < [0.1, 0.3, 0.45, 0.6][seed]  # many sizes, edges touched
+    for min_px in (0, 1, 2, 4, 9, 40, 10_000):
+        got = _drop_specks(mask, min_px)
+        assert got.dtype == bool and np.array_equal(got, drop_specks(mask, min_px)), min_px
+    assert 0 < _drop_specks(mask, 4).sum() < mask.sum() or seed == 3
