@@ -440,3 +440,16 @@ def test_compiled_speck_removal_keeps_exactly_the_components_drop_specks_keeps(s
         got = _drop_specks(mask, min_px)
         assert got.dtype == bool and np.array_equal(got, drop_specks(mask, min_px)), min_px
     assert 0 < _drop_specks(mask, 4).sum() < mask.sum() or seed == 3
+
+
+def test_compiled_histogram_counts_every_grey_level_exactly() -> None:
+    from threadrecon.core.segmentation import _Grey
+
+    rng = np.random.default_rng(5)
+    for shape in ((7, 9), (120, 161), (3, 1)):  # sizes not a multiple of 4 too
+        img = rng.integers(0, 256, shape, dtype=np.uint8)
+        img[0, 0] = 255
+        hist = _Grey(img).histogram()
+        assert hist.dtype == np.int64 and np.array_equal(
+            hist, np.bincount(img.ravel(), minlength=256)
+        )
