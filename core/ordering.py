@@ -24,13 +24,12 @@ crossings run in a compiled kernel (core/walk_kernel.py), jumps across gaps in n
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
 import cv2
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse import csgraph
 
 from threadrecon.core import walk_kernel
 from threadrecon.core.clustering import Clusters
@@ -288,7 +287,10 @@ def order_keypoints(
         r = p.end_window_px
         for row, (e, k) in enumerate(((0, walk[0]), (-1, walk[-1]))):
             seq = walk if e == 0 else walk[::-1]
-            if _window_is_own(stereo.pixels, pixel_node, K, seq, key_px, cluster_gaps, path[e], r):
+            own = _window_is_own(
+                stereo.pixels, pixel_node, K, seq, key_px, cluster_gaps, path[e], r, grid
+            )
+            if own:
                 m = tip_disparity(lifted.I_L, lifted.I_R, path[e][:2], disp[k], r)
                 end_disparity[row] = (m.disparity, m.var)
 
@@ -325,15 +327,22 @@ def _window_is_own(
     cluster_gaps: dict[int, set[int]],
     tip: np.ndarray,
     radius: int,
+    grid: _PixelGrid | None = None,
 ) -> bool:
     """True when every pixel of P_L in the (2 radius + 1)^2 window on ``tip`` belongs to the
     thread's own last stretch: a cluster of the walk ``seq`` (from this end) whose keypoint lies
     within 3 ``radius`` px of arc of the tip (and the next one), or a gap touching one. Another
     strand in the window (the end pokes out past a crossing, a hairpin's other leg) moves by
     its own disparity, and the tip's match, which assumes one strand, is then wrong (generated
-    crossing frame: 4.4 px off with a 0.3 px sd)."""
-    inbox = np.all(np.abs(pixels - np.round(tip[:2])) <= radius, axis=1)
-    nodes = np.unique(pixel_node[inbox])
+    crossing frame: 4.4 px off with a 0.3 px sd). ``grid``: the pixels' index image
+    (:class:`_PixelGrid` of ``pixels``), to read the window from instead of testing every
+    pixel."""
+    cx, cy = np.round(tip[:2])
+    if grid is None:
+        inbox = np.all(np.abs(pixels - np.array([cx, cy])) <= radius, axis=1)
+        nodes = np.unique(pixel_node[inbox])
+    else:
+        nodes = np.unique(pixel_node[grid.window(cx, cy, radius)])
     xy = key_px[seq, :2]
     arc = np.linalg.norm(xy[0] - tip[:2]) + np.concatenate(
         [[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]
@@ -344,7 +353,10 @@ def _window_is_own(
 
 
 class _GapGeodesics:
-    """Geodesic (8-connected, unit/sqrt2 steps) distances inside gaps from a cluster's border."""
+    """Geodesic (8-connected, unit/sqrt2 steps) distances inside gaps from a cluster's border.
+
+    The gap graph (an edge between 8-neighbours of the same gap) is never built: the compiled
+    search (:func:`walk_kernel.gap_distances`) reads it from the neighbour table and the nodes."""
 
     def __init__(
         self,
@@ -354,28 +366,26 @@ class _GapGeodesics:
         nb: np.ndarray | None = None,
     ) -> None:
         """``nb``: (N, 8) neighbour pixel indices of :meth:`_PixelGrid.neighbours`, if known."""
-        n = len(pixel_node)
         if nb is None:
             nb = _PixelGrid(stereo.pixels, 1).neighbours()
-        offs = _OFFSETS_8
-        step = np.array([np.hypot(dy, dx) for dy, dx in offs])
+        self.nb = np.ascontiguousarray(nb, dtype=np.int32)
+        self.node = np.ascontiguousarray(pixel_node, dtype=np.int64)
+        self.K = K
         self.nb_node = np.where(nb >= 0, pixel_node[np.maximum(nb, 0)], -1)
-        # Edges between pixels of the same gap. CSR built directly: the pixels are in row-major
-        # order, so each row's neighbours (in _OFFSETS_8 order) are already sorted.
-        ok = (self.nb_node == pixel_node[:, None]) & (pixel_node >= K)[:, None]
-        indptr = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(ok.sum(axis=1), out=indptr[1:])
-        data = np.broadcast_to(step, ok.shape)[ok]
-        self.graph = sp.csr_matrix((data, nb[ok], indptr), shape=(n, n))
+
+    def distances(self, src: np.ndarray) -> np.ndarray:
+        """(N,) geodesic distances from the pixels ``src`` inside their gaps, px; inf where
+        unreachable (the multi-source search of scipy's ``csgraph.dijkstra(min_only=True)``)."""
+        return walk_kernel.gap_distances(
+            self.nb, self.node, self.K, _STEPS_8, np.ascontiguousarray(src, dtype=np.int64)
+        )
 
     def distance_from(self, cluster: int, sel: np.ndarray) -> np.ndarray:
-        """Distances of pixels ``sel`` (one gap set) from the border of ``cluster``, px."""
+        """Distances of pixels ``sel`` (whole gaps) from the border of ``cluster``, px."""
         src = sel[np.any(self.nb_node[sel] == cluster, axis=1)]
         if src.size == 0:
             return np.full(sel.size, np.nan)
-        sub = self.graph[sel][:, sel]
-        pos = np.searchsorted(sel, src)
-        d = csgraph.dijkstra(sub, directed=False, indices=pos, min_only=True)
+        d = self.distances(src)[sel]
         return np.where(np.isinf(d), np.nan, d + 1.0)
 
 
@@ -427,7 +437,7 @@ def _link_positions(
         if src.size == 0:
             d.append(np.full(sel.size, np.nan))
             continue
-        dist = csgraph.dijkstra(geo.graph, directed=False, indices=src, min_only=True)[sel]
+        dist = geo.distances(src)[sel]
         d.append(np.where(np.isinf(dist), np.nan, dist + 1.0))
     da, db = d
     top_a = np.zeros(len(links))
@@ -463,6 +473,21 @@ class _PixelGrid:
         self.index = np.full(shape, -1, dtype=np.int32)  # int32: 8 MB for a whole 1920x1080 box
         self.index[self.y, self.x] = np.arange(n)
 
+    def window(self, cx: float, cy: float, radius: int) -> np.ndarray:
+        """Indices of the pixels with |x - cx| <= radius and |y - cy| <= radius (``cx``,
+        ``cy``: whole numbers, px; none for a non-finite centre)."""
+        h, w = self.index.shape
+        if not (math.isfinite(cx) and math.isfinite(cy)):
+            return np.zeros(0, dtype=np.int64)
+        x0 = max(math.ceil(cx - radius) - self.x0 + self.pad, 0)
+        x1 = min(math.floor(cx + radius) - self.x0 + self.pad + 1, w)
+        y0 = max(math.ceil(cy - radius) - self.y0 + self.pad, 0)
+        y1 = min(math.floor(cy + radius) - self.y0 + self.pad + 1, h)
+        if x0 >= x1 or y0 >= y1:
+            return np.zeros(0, dtype=np.int64)
+        ids = self.index[y0:y1, x0:x1].ravel()
+        return ids[ids >= 0].astype(np.int64)
+
     def neighbours(self) -> np.ndarray:
         """(N, 8) index of each pixel's 8-neighbours in P_L (order ``_OFFSETS_8``), -1 if none."""
         return np.stack([self.index[self.y + dy, self.x + dx] for dy, dx in _OFFSETS_8], axis=1)
@@ -485,6 +510,7 @@ class _PixelGrid:
 
 
 _OFFSETS_8 = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
+_STEPS_8 = np.array([np.hypot(dy, dx) for dy, dx in _OFFSETS_8])  # their lengths, px
 
 
 def _solidify(grid: _PixelGrid, labels: np.ndarray, radius: int) -> np.ndarray:
@@ -510,12 +536,14 @@ def _solidify(grid: _PixelGrid, labels: np.ndarray, radius: int) -> np.ndarray:
 
 def _touching_pairs(pixel_node: np.ndarray, nb_node: np.ndarray) -> np.ndarray:
     """(P, 2) unique pairs (a < b, sorted) of different nodes that are 8-neighbours somewhere."""
-    a = np.broadcast_to(pixel_node[:, None], nb_node.shape)
-    ok = (nb_node >= 0) & (a >= 0) & (nb_node != a)
-    lo = np.minimum(a[ok], nb_node[ok])
-    hi = np.maximum(a[ok], nb_node[ok])
-    m = int(hi.max()) + 1 if hi.size else 1
-    key = np.unique(lo * m + hi)
+    m = int(pixel_node.max()) + 1 if pixel_node.size else 1
+    key = np.unique(
+        walk_kernel.touching_keys(
+            np.ascontiguousarray(pixel_node, dtype=np.int64),
+            np.ascontiguousarray(nb_node, dtype=np.int64),
+            m,
+        )
+    )
     return np.stack([key // m, key % m], axis=1)
 
 

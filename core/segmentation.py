@@ -25,6 +25,7 @@ from typing import Final, Literal
 import cv2
 import numpy as np
 
+from threadrecon.core.compiled import kernel
 from threadrecon.core.params import Params, param
 from threadrecon.core.segment_raw import drop_specks, segment_raw
 
@@ -251,7 +252,7 @@ class _Grey:
         """(256,) int64 pixel counts of the grey levels 0..255 (values clipped to 0-255 and
         truncated to integers, as a uint8 conversion does)."""
         g = self.u8 if self.u8 is not None else np.clip(self.f32, 0, 255).astype(np.uint8)
-        return cv2.calcHist([g], [0], None, [256], [0, 256]).ravel().astype(np.int64)
+        return _histogram_kernel(np.ascontiguousarray(g))
 
 
 _LEVELS: Final = np.arange(256, dtype=np.float32)  # every grey level of a uint8 image
@@ -272,6 +273,7 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
     hists = [v.histogram() for v in views]
     bg = (_background_level(hists[0], p), _background_level(hists[1], p))
     score_L = score_R = None
+    box_L = box_R = None  # boxes known to hold P_L, P_R (else their bounding boxes)
     if pair.mask_left is not None and pair.mask_right is not None:
         P_L, P_R = pair.mask_left.astype(bool), pair.mask_right.astype(bool)
         method = "mask"
@@ -283,7 +285,9 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
             )
             method = "threshold" if flat >= p.flat_share else "raw"
         if method == "threshold":
-            P_L, P_R = (_threshold(v, b, p) for v, b in zip(views, bg, strict=True))
+            (P_L, box_L), (P_R, box_R) = (
+                _threshold(v, b, p) for v, b in zip(views, bg, strict=True)
+            )
             score_L, score_R = (
                 v.map(lambda g, b=b: _threshold_score(g, b, p.seg_delta))
                 for v, b in zip(views, bg, strict=True)
@@ -294,8 +298,8 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
         raise ValueError("empty segmentation: no thread pixel in the left image")
     if not P_R.any():
         raise ValueError("empty segmentation: no thread pixel in the right image")
-    I_L = _lift(views[0].f32, P_L, p.lift_dilate_px)
-    I_R = _lift(views[1].f32, P_R, p.lift_dilate_px)
+    I_L = _lift(views[0].f32, P_L, p.lift_dilate_px, box_L)
+    I_R = _lift(views[1].f32, P_R, p.lift_dilate_px, box_R)
     return LiftedPair(
         I_L=I_L,
         I_R=I_R,
@@ -310,20 +314,55 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
     )
 
 
-def _threshold(view: _Grey, level: float, p: SegmentationParams) -> np.ndarray:
+def _threshold(
+    view: _Grey, level: float, p: SegmentationParams
+) -> tuple[np.ndarray, tuple[slice, slice] | None]:
     """P of one view: darker than B - delta; with ``method="auto"`` without the wide parts
-    (:func:`_drop_wide`); components under ``min_component_px`` dropped. Past the threshold
-    itself, the work is on the bounding box of what it marks."""
+    (:func:`_drop_wide`); components under ``min_component_px`` dropped. Returns P and a box
+    (row and column slices) that holds it (None: P is empty). Past the threshold itself, the
+    work is on the bounding box of what it marks."""
     threshold = level - p.seg_delta
+    if p.method == "auto" and view.u8 is not None:
+        return _threshold_auto8(view.u8, level, p)
     P = view.map(lambda g: g < threshold)
     if p.method == "auto":  # an instrument over a flat background is no thread
         P = _drop_wide(P, view, level, p.seg_delta)
     box = _box(P, 0)
     if box is None:
-        return P
+        return P, None
     out = np.zeros_like(P)
     out[box] = drop_specks(np.ascontiguousarray(P[box]), p.min_component_px)
-    return out
+    return out, box
+
+
+def _threshold_auto8(
+    u8: np.ndarray, level: float, p: SegmentationParams
+) -> tuple[np.ndarray, tuple[slice, slice] | None]:
+    """:func:`_threshold` of ``method="auto"`` for a uint8 view, the same P from one table
+    lookup of the image: bit 0 thread (below B - delta), bit 1 off the background level (what
+    :func:`_drop_wide` reads). Everything else works on the bounding box of the marked pixels
+    grown by _CLOSE_MARGIN, which holds P and the box :func:`_drop_wide` would take (a larger
+    box changes no value there: see it)."""
+    thread = np.less(_LEVELS, level - p.seg_delta)  # the table of view.map(g < B - delta)
+    codes = cv2.LUT(u8, (thread | (_off_level(_LEVELS, level, p.seg_delta) << 1)).astype(np.uint8))
+    x, y, w, h = cv2.boundingRect(codes)
+    out = np.zeros(u8.shape, bool)
+    if w == 0:
+        return out, None
+    H, W = u8.shape
+    m = _CLOSE_MARGIN
+    y0, y1, x0, x1 = max(y - m, 0), min(y + h + m, H), max(x - m, 0), min(x + w + m, W)
+    cb = codes[y0:y1, x0:x1]
+    P = cv2.bitwise_and(cb, 1)
+    wide = _wide_parts(cv2.compare(cb, 2, cv2.CMP_GE))  # off8: 255 off the level
+    if wide is not None:
+        P[wide] = 0
+    bx, by, bw, bh = cv2.boundingRect(P)
+    if bw == 0:
+        return out, None
+    box = (slice(y0 + by, y0 + by + bh), slice(x0 + bx, x0 + bx + bw))
+    out[box] = drop_specks(P[by : by + bh, bx : bx + bw].view(bool), p.min_component_px)
+    return out, box
 
 
 def _box(mask: np.ndarray, margin: int) -> tuple[slice, slice] | None:
@@ -372,30 +411,39 @@ def _drop_wide(mask: np.ndarray, view: _Grey, level: float, delta: float) -> np.
     inside it): erosions there see the same pixels as on the whole image, and the dilation of
     the core is only read on ``mask``."""
 
-    def off_level(g: np.ndarray) -> np.ndarray:
-        return cv2.compare(cv2.absdiff(g, float(level)), float(delta), cv2.CMP_GT).ravel() > 0
-
     if view.u8 is None:
-        off = off_level(view.f32).reshape(view.f32.shape)
+        off = _off_level(view.f32, level, delta).reshape(view.f32.shape)
     else:
-        off = cv2.LUT(view.u8, off_level(_LEVELS).view(np.uint8)).view(bool)
+        off = cv2.LUT(view.u8, _off_level(_LEVELS, level, delta).view(np.uint8)).view(bool)
     box = _box(off, _CLOSE_MARGIN)
     if box is None:
         return mask
-    off8 = np.ascontiguousarray(off[box]).view(np.uint8) * np.uint8(255)
+    wide = _wide_parts(np.ascontiguousarray(off[box]).view(np.uint8) * np.uint8(255))
+    if wide is None:
+        return mask
+    out = mask.copy()
+    out[box] &= ~wide
+    return out
+
+
+def _off_level(g: np.ndarray, level: float, delta: float) -> np.ndarray:
+    """Flat bool: grey levels ``g`` off the background level by more than ``delta``."""
+    return cv2.compare(cv2.absdiff(g, float(level)), float(delta), cv2.CMP_GT).ravel() > 0
+
+
+def _wide_parts(off8: np.ndarray) -> np.ndarray | None:
+    """(h, w) bool: the wide parts (and their rim) of the off-level pixels ``off8`` (uint8, 255
+    off the level) of a box (:func:`_drop_wide`); None when there is none."""
     off8 = cv2.morphologyEx(off8, cv2.MORPH_CLOSE, _GAP_DISC)  # a shading splits none
     if not cv2.countNonZero(cv2.erode(off8, _INSCRIBED_SQUARE)):
-        return mask  # the usual case, a thin thread only: no square, so no disc fits (exact)
+        return None  # the usual case, a thin thread only: no square, so no disc fits (exact)
     r = _WIDE_PX
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     core = cv2.erode(off8, disc)
     if not core.any():
-        return mask
+        return None
     grow = 2 * (r + _WIDE_RIM_PX) + 1
-    wide = cv2.dilate(core, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (grow, grow)))
-    out = mask.copy()
-    out[box] &= wide == 0
-    return out
+    return cv2.dilate(core, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (grow, grow))) > 0
 
 
 def _threshold_score(grey: np.ndarray, level: float, delta: float) -> np.ndarray:
@@ -404,11 +452,21 @@ def _threshold_score(grey: np.ndarray, level: float, delta: float) -> np.ndarray
     return np.clip((level - grey) * scale, 0.0, 1.0).astype(np.float32)
 
 
-def _lift(grey: np.ndarray, P: np.ndarray, dilate_px: int) -> np.ndarray:
+def _lift(
+    grey: np.ndarray, P: np.ndarray, dilate_px: int, box: tuple[slice, slice] | None = None
+) -> np.ndarray:
     """Eq. (1): keep the image on P (dilated by ``dilate_px``), 255 elsewhere. Computed on the
-    bounding box of P grown by ``dilate_px``: the dilation reaches no farther."""
+    bounding box of P (or ``box``, known to hold it) grown by ``dilate_px``: the dilation
+    reaches no farther."""
     out = np.full(grey.shape, LIFT_VALUE, np.float32)
-    box = _box(P, dilate_px)
+    if box is None:
+        box = _box(P, dilate_px)
+    else:
+        H, W = P.shape
+        box = (
+            slice(max(box[0].start - dilate_px, 0), min(box[0].stop + dilate_px, H)),
+            slice(max(box[1].start - dilate_px, 0), min(box[1].stop + dilate_px, W)),
+        )
     if box is None:
         return out
     Pb = np.ascontiguousarray(P[box], dtype=bool)
@@ -424,3 +482,28 @@ def _background_level(hist: np.ndarray, p: SegmentationParams) -> float:
     if p.background is not None:
         return float(p.background)
     return float(np.argmax(hist))
+
+
+# --- compiled kernel ---------------------------------------------------------------------------
+# Compiled ahead of time once per machine, loaded without numba (core/compiled.py).
+
+
+@kernel("int64[::1](uint8[:, ::1])")
+def _histogram_kernel(g):  # noqa: ANN001
+    """(256,) counts of the levels of ``g``, one pass (four partial histograms, so that runs of
+    one level do not wait on their own increments)."""
+    part = np.zeros((4, 256), dtype=np.int64)
+    flat = g.ravel()
+    n = flat.size
+    m = n - n % 4
+    for i in range(0, m, 4):
+        part[0, flat[i]] += 1
+        part[1, flat[i + 1]] += 1
+        part[2, flat[i + 2]] += 1
+        part[3, flat[i + 3]] += 1
+    for i in range(m, n):
+        part[0, flat[i]] += 1
+    out = np.zeros(256, dtype=np.int64)
+    for v in range(256):
+        out[v] = part[0, v] + part[1, v] + part[2, v] + part[3, v]
+    return out

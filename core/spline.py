@@ -376,9 +376,18 @@ def _penalised_fit(
     m = len(t) - k - 1
     B = basis_matrix(u, t, k)
     BtB = B.T @ B
-    D = np.diff(np.eye(m), 3, axis=0)
-    c = np.linalg.solve(BtB + XY_PENALTY * np.trace(BtB) / m * (D.T @ D), B.T @ xy)
+    c = np.linalg.solve(BtB + XY_PENALTY * np.trace(BtB) / m * _third_difference_gram(m), B.T @ xy)
     return c, B
+
+
+@functools.lru_cache(maxsize=64)
+def _third_difference_gram(m: int) -> np.ndarray:
+    """(m, m) D^T D of the third-difference matrix D ((m - 3, m)): integers, so computed once
+    per m with no rounding (read-only)."""
+    D = np.diff(np.eye(m), 3, axis=0)
+    out = D.T @ D
+    out.setflags(write=False)
+    return out
 
 
 def _reexpress_matrix(t: np.ndarray, k: int, t_new: np.ndarray) -> np.ndarray:

@@ -47,6 +47,7 @@ import functools
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy import sparse
 from scipy.linalg import solveh_banded
@@ -250,14 +251,12 @@ class _Box:
 
     @staticmethod
     def of(lifted: LiftedPair, d_hi: int) -> _Box:
-        rows_any = np.flatnonzero(lifted.P_L.any(axis=1))
-        if rows_any.size == 0:
+        P_L = np.ascontiguousarray(lifted.P_L, dtype=bool)
+        x0, y0, bw, bh = cv2.boundingRect(P_L.view(np.uint8))
+        if bw == 0:
             raise ValueError("empty segmentation: no thread pixel in the left image")
-        y0, y1 = int(rows_any[0]), int(rows_any[-1]) + 1
-        band_L = lifted.P_L[y0:y1]
-        cols_any = np.flatnonzero(band_L.any(axis=0))
-        x0, x1 = int(cols_any[0]), int(cols_any[-1]) + 1
-        ry, rx = _nonzero(band_L[:, x0:x1])  # row-major order of P_L
+        y1, x1 = y0 + bh, x0 + bw
+        ry, rx = _nonzero(P_L[y0:y1, x0:x1])  # row-major order of P_L
         n = ry.size
         index = np.full((y1 - y0, x1 - x0), -1, dtype=np.int32)
         index[ry, rx] = np.arange(n, dtype=np.int32)
@@ -342,7 +341,8 @@ def _continuity(
     ``index``: (h, w) box image of pixel indices (-1 off P_L, row-major); ``d_hat``: (N,)
     sub-pixel disparities, px; ``w``: (N,) data weights, 1/px^2; ``free``: (N,) bool, the pixels
     solved for (the others are fixed at ``d_hat``). Returns the (N,) disparities."""
-    a, b = _neighbour_pairs(index)
+    at = _positions(index)
+    a, b = _neighbour_pairs_kernel(index, at)
     touch = free[a] | free[b]
     a, b = a[touch], b[touch]
     fi = np.flatnonzero(free)
@@ -355,15 +355,18 @@ def _continuity(
     # The matrix is a thin band once its pixels are in reverse Cuthill-McKee order (the thread
     # is a few px wide): a banded Cholesky per round, the order and band layout computed once.
     ia, ib = pa[both], pb[both]
-    pattern = sparse.csr_matrix((np.ones(ia.size), (ia, ib)), shape=(m, m))
-    perm = reverse_cuthill_mckee((pattern + pattern.T).tocsr(), symmetric_mode=True)
+    indptr, indices = _free_pattern_kernel(index, at[fi], pos)
+    pattern = sparse.csr_matrix((np.ones(indices.size), indices, indptr), shape=(m, m))
+    perm = reverse_cuthill_mckee(pattern, symmetric_mode=True)
     rank = np.empty(m, dtype=np.int64)
     rank[perm] = np.arange(m)
     ra, rb = rank[ia], rank[ib]
     lo, hi = np.minimum(ra, rb), np.maximum(ra, rb)
     band = int((hi - lo).max()) if hi.size else 0
     d = d_hat.copy()
-    d[fi] = _local_median(index, d_hat, fi)  # a start that neither a mismatch nor noise moves
+    d[fi] = _local_median_kernel(
+        index, d_hat, at[fi]
+    )  # a start that neither a mismatch nor noise moves
     for _ in range(ROUNDS):
         rho = w[fi] / (1.0 + ((d_hat[fi] - d[fi]) / ROBUST_PX) ** 2)  # Cauchy IRLS weights
         e = np.exp(-(((d[a] - d[b]) / STRAND_PX) ** 2)) / tau**2  # Welsch: strands part
@@ -374,7 +377,7 @@ def _continuity(
         rhs += np.bincount(pb[b_only], e[b_only] * d_hat[a[b_only]], m)
         ab = np.zeros((band + 1, m))  # upper band form of solveh_banded, permuted order
         ab[band, rank] = diag
-        np.add.at(ab, (band + lo - hi, hi), -e[both])
+        ab[band + lo - hi, hi] = -e[both]  # each pair once, off the diagonal row: no sums
         x = solveh_banded(ab, rhs[perm])
         d[fi] = x[rank]
     return d
@@ -382,32 +385,23 @@ def _continuity(
 
 def _local_median(index: np.ndarray, values: np.ndarray, which: np.ndarray) -> np.ndarray:
     """(len(which),) median of ``values`` over the pixels ``which`` of P_L and their
-    8-neighbours in P_L (``index``: the box image of row-major pixel indices)."""
-    pad = np.pad(index, 1, constant_values=-1)
-    ys, xs = np.divmod(np.flatnonzero(index >= 0), index.shape[1])  # pixel k at (ys[k], xs[k])
-    ys, xs = ys[which] + 1, xs[which] + 1
-    stack = np.full((9, which.size), np.nan)
-    for k, (dy, dx) in enumerate((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)):
-        j = pad[ys + dy, xs + dx]
-        stack[k] = np.where(j >= 0, values[j], np.nan)
-    stack.sort(axis=0)  # NaN last
-    n = np.count_nonzero(~np.isnan(stack), axis=0)  # >= 1: the pixel itself
-    cols = np.arange(which.size)
-    return 0.5 * (stack[(n - 1) // 2, cols] + stack[n // 2, cols])
+    8-neighbours in P_L (``index``: the box image of row-major pixel indices); NaN values do
+    not count."""
+    return _local_median_kernel(
+        index, np.ascontiguousarray(values, dtype=np.float64), _positions(index)[which]
+    )
+
+
+def _positions(index: np.ndarray) -> np.ndarray:
+    """(N,) flat box position of each pixel of the box image ``index`` (row-major order)."""
+    return np.flatnonzero(index >= 0)
 
 
 def _neighbour_pairs(index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(E,) index pairs of 8-connected pixels of P_L in the box image ``index``, each once."""
-    h, w = index.shape
-    out_a, out_b = [], []
-    for dy, dx in ((0, 1), (1, -1), (1, 0), (1, 1)):
-        x0, x1 = max(0, -dx), w - max(0, dx)
-        ia = index[0 : h - dy, x0:x1]
-        ib = index[dy:h, x0 + dx : x1 + dx]
-        keep = (ia >= 0) & (ib >= 0)
-        out_a.append(ia[keep])
-        out_b.append(ib[keep])
-    return np.concatenate(out_a).astype(np.int64), np.concatenate(out_b).astype(np.int64)
+    """(E,) index pairs of 8-connected pixels of P_L in the box image ``index``, each once:
+    the right, lower-left, lower and lower-right neighbour of each pixel, in that order of
+    directions and row-major order within each."""
+    return _neighbour_pairs_kernel(index, _positions(index))
 
 
 def reproject(x: np.ndarray, y: np.ndarray, disparity: np.ndarray, Q: np.ndarray) -> np.ndarray:
@@ -594,3 +588,74 @@ def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  
         count[i] = cnt
         tan2[i] = gxx / gyy if gyy > 0 else np.inf
     return out, curv, resid, count, tan2
+
+
+@kernel("Tuple((int64[::1], int64[::1]))(int32[:, ::1], int64[::1])")
+def _neighbour_pairs_kernel(index, at):  # noqa: ANN001
+    """The pairs of :func:`_neighbour_pairs`: per direction (dy, dx) in (0, 1), (1, -1), (1, 0),
+    (1, 1), every pixel of P_L (row-major; ``at``: flat box positions) whose neighbour in that
+    direction is in P_L."""
+    h, w = index.shape
+    dirs = ((0, 1), (1, -1), (1, 0), (1, 1))
+    n = at.size
+    a = np.empty(4 * n, dtype=np.int64)
+    b = np.empty(4 * n, dtype=np.int64)
+    m = 0
+    for dy, dx in dirs:
+        for i in range(n):
+            y, x = at[i] // w + dy, at[i] % w + dx
+            if y < h and 0 <= x < w and index[y, x] >= 0:
+                a[m], b[m] = i, index[y, x]
+                m += 1
+    return a[:m].copy(), b[:m].copy()
+
+
+@kernel("Tuple((int64[::1], int64[::1]))(int32[:, ::1], int64[::1], int64[::1])")
+def _free_pattern_kernel(index, at, pos):  # noqa: ANN001
+    """CSR (indptr, indices) of the symmetric 8-neighbour pattern among the free pixels, in
+    their order (``at``: their flat box positions, row-major; ``pos``: each pixel's place among
+    them, -1 if not free), columns ascending in each row: the canonical form that
+    ``(P + P.T).tocsr()`` of the pairs gives, whose column order reverse Cuthill-McKee's ties
+    follow. Neighbours visited in row-major order come in ascending order."""
+    h, w = index.shape
+    m = at.size
+    indptr = np.zeros(m + 1, dtype=np.int64)
+    indices = np.empty(8 * m, dtype=np.int64)
+    k = 0
+    for r in range(m):
+        y, x = at[r] // w, at[r] % w
+        for yy in range(y - 1, y + 2):
+            for xx in range(x - 1, x + 2):
+                if (yy != y or xx != x) and 0 <= yy < h and 0 <= xx < w:
+                    j = index[yy, xx]
+                    if j >= 0 and pos[j] >= 0:
+                        indices[k] = pos[j]
+                        k += 1
+        indptr[r + 1] = k
+    return indptr, indices[:k].copy()
+
+
+@kernel("float64[::1](int32[:, ::1], float64[::1], int64[::1])")
+def _local_median_kernel(index, values, pos):  # noqa: ANN001
+    """Median of ``values`` over the 3 x 3 neighbourhood in P_L of each box position ``pos``
+    (flat, row-major), NaN values left out (NaN when none is left): the mean of the two middle
+    order statistics, 0.5 (a + b), as np.median takes them."""
+    h, w = index.shape
+    out = np.empty(pos.size)
+    buf = np.empty(9)
+    for i in range(pos.size):
+        y, x = pos[i] // w, pos[i] % w
+        n = 0
+        for yy in range(y - 1, y + 2):
+            for xx in range(x - 1, x + 2):
+                if 0 <= yy < h and 0 <= xx < w and index[yy, xx] >= 0:
+                    v = values[index[yy, xx]]
+                    if not math.isnan(v):
+                        k = n  # insertion sort as the values come
+                        while k > 0 and buf[k - 1] > v:
+                            buf[k] = buf[k - 1]
+                            k -= 1
+                        buf[k] = v
+                        n += 1
+        out[i] = 0.5 * (buf[(n - 1) // 2] + buf[n // 2]) if n > 0 else np.nan
+    return out

@@ -1,4 +1,5 @@
-"""Compiled kernel of the ordering walk (core/ordering.py, walk = "bending").
+"""Compiled kernels of the ordering (core/ordering.py): the walk (walk = "bending") and the
+geodesic distances inside gaps (:func:`gap_distances`).
 
 A walk step looks at a handful of keypoints, and a 1920x1080 frame tries up to ``MAX_WALKS``
 walks of 500-800 steps: as numpy calls on arrays of one or two elements that is 10-60 us a
@@ -164,3 +165,97 @@ def walk_on(
         walk[n] = v
         steps[n - 1] = cost[j]
         n += 1
+
+
+@kernel("float64[::1](int32[:, ::1], int64[::1], int64, float64[::1], int64[::1])")
+def gap_distances(nb, node, K, step, src):  # noqa: ANN001
+    """(N,) geodesic distances from the pixels ``src`` (distance 0) over the gap graph, inf
+    where unreachable: Dijkstra with a binary heap. Pixel i steps to its neighbour nb[i, k]
+    (-1: none) at cost step[k] when both lie in the same gap (``node`` equal and >= K).
+
+    Every correct Dijkstra computes the same distances to the last bit: d[v] is the minimum over
+    v's neighbours u of d[u] + w (a float64 sum, monotone in d[u], and > d[u] for w > 0), a
+    fixed point that is unique given the sources; so these equal scipy's csgraph.dijkstra on
+    the same graph, whatever the order in which ties are taken off the heap."""
+    n = node.size
+    dist = np.full(n, np.inf)
+    cap = 8 * n + src.size + 1  # pushes: one per source and at most one per edge
+    hk = np.empty(cap)  # heap keys (distances) and values (pixels)
+    hv = np.empty(cap, dtype=np.int64)
+    size = 0
+    for s in src:
+        if dist[s] > 0.0:
+            dist[s] = 0.0
+            size = _push(hk, hv, size, 0.0, s)
+    while size > 0:
+        d, u = hk[0], hv[0]
+        size = _pop(hk, hv, size)
+        if d > dist[u]:
+            continue  # a stale entry: u was reached more cheaply since
+        g = node[u]
+        if g < K:
+            continue  # a source on a cluster's pixel: no gap edge leaves it
+        for k in range(nb.shape[1]):
+            v = nb[u, k]
+            if v < 0 or node[v] != g:
+                continue
+            nd = d + step[k]
+            if nd < dist[v]:
+                dist[v] = nd
+                size = _push(hk, hv, size, nd, v)
+    return dist
+
+
+@helper(inline="always")
+def _push(hk, hv, size, key, val):  # noqa: ANN001
+    """Insert (key, val) into the binary min-heap hk[:size], hv[:size]; returns the new size."""
+    i = size
+    while i > 0:
+        parent = (i - 1) // 2
+        if hk[parent] <= key:
+            break
+        hk[i], hv[i] = hk[parent], hv[parent]
+        i = parent
+    hk[i], hv[i] = key, val
+    return size + 1
+
+
+@helper(inline="always")
+def _pop(hk, hv, size):  # noqa: ANN001
+    """Remove the root of the binary min-heap hk[:size], hv[:size]; returns the new size."""
+    size -= 1
+    key, val = hk[size], hv[size]
+    i = 0
+    while True:
+        c = 2 * i + 1
+        if c >= size:
+            break
+        if c + 1 < size and hk[c + 1] < hk[c]:
+            c += 1
+        if hk[c] >= key:
+            break
+        hk[i], hv[i] = hk[c], hv[c]
+        i = c
+    if size > 0:
+        hk[i], hv[i] = key, val
+    return size
+
+
+@kernel("int64[::1](int64[::1], int64[:, ::1], int64)")
+def touching_keys(node, nb_node, m):  # noqa: ANN001
+    """Keys lo * m + hi (lo < hi) of the pairs of different nodes >= 0 that are 8-neighbours
+    (``node``: each pixel's, ``nb_node``: its neighbours', -1 for none; ``m`` > every node),
+    with repeats, in pixel order."""
+    n, k = nb_node.shape
+    out = np.empty(n * k, dtype=np.int64)
+    c = 0
+    for i in range(n):
+        a = node[i]
+        if a < 0:
+            continue
+        for j in range(k):
+            b = nb_node[i, j]
+            if b >= 0 and b != a:
+                out[c] = min(a, b) * m + max(a, b)
+                c += 1
+    return out[:c].copy()

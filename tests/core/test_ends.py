@@ -8,7 +8,7 @@ from support import synthetic_case
 
 from threadrecon.core.bounds import _line_variance, _tip_ends, _window_line_fits
 from threadrecon.core.ends import NO_MATCH, QUANT_VAR, fuse_end, tip_disparity
-from threadrecon.core.ordering import OrderingParams, _window_is_own
+from threadrecon.core.ordering import OrderingParams, _PixelGrid, _window_is_own
 from threadrecon.core.pipeline import Pipeline, ReconParams
 
 
@@ -132,3 +132,16 @@ def test_a_tip_window_holding_another_strand_is_not_matched() -> None:
     assert _window_is_own(*outside, K, seq, key_px, gaps, tip, 7)
     foreign_gap = (np.vstack([pixels, [[13, 14]]]), np.append(nodes, K + 1))
     assert not _window_is_own(*foreign_gap, K, seq, key_px, gaps, tip, 7)
+    # read from the pixels' index image: the same answers, the window's edge included (17 in,
+    # 18 out for a tip at 10.4 and radius 7)
+    edge_in, edge_out = (np.vstack([pixels, [[x, 17]]]) for x in (17, 18))
+    for px, nd in (
+        (pixels, nodes), crossing, outside, foreign_gap, (edge_in, np.append(nodes, 3)),
+        (edge_out, np.append(nodes, 3)), (edge_out[[4]], np.array([3])),
+    ):  # fmt: skip
+        for t in (tip, tip + 0.4, np.array([100.0, -50.0])):
+            want = _window_is_own(px, nd, K, seq, key_px, gaps, t, 7)
+            got = _window_is_own(px, nd, K, seq, key_px, gaps, t, 7, _PixelGrid(px, 1))
+            assert want == got
+    assert not _window_is_own(edge_in, np.append(nodes, 3), K, seq, key_px, gaps, tip, 7)
+    assert _window_is_own(edge_out, np.append(nodes, 3), K, seq, key_px, gaps, tip, 7)

@@ -5,11 +5,14 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy import sparse
+from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 from support import calibration_for, synthetic_case, synthetic_frame
 
 from threadrecon.core.metrics import curve_errors, polyline_length, resample
 from threadrecon.core.ordering import (
+    _OFFSETS_8,
     Ordering,
     OrderingParams,
     _adjacency,
@@ -18,6 +21,7 @@ from threadrecon.core.ordering import (
     _explain,
     _GapGeodesics,
     _normalised,
+    _PixelGrid,
     _walk_from,
     _WalkGraph,
 )
@@ -128,6 +132,33 @@ def test_link_positions_match_per_link_geodesics(seed: int) -> None:
             expected[sel] = da / (da + db)
     assert np.array_equal(np.isfinite(expected), np.isfinite(o.pixel_t))
     np.testing.assert_allclose(o.pixel_t[np.isfinite(expected)], expected[np.isfinite(expected)])
+
+
+@pytest.mark.parametrize("seed", TRIALS)
+def test_gap_distances_equal_scipys_dijkstra_on_the_gap_graph_bit_for_bit(seed: int) -> None:
+    # The compiled search against csgraph.dijkstra on the explicit gap graph (an edge between
+    # 8-neighbours of one gap, unit and sqrt 2 steps): random blobs of pixels, random clusters
+    # and gaps, random sources; the distances must be identical, not close.
+    rng = np.random.default_rng(seed)
+    img = rng.random((40, 60)) < 0.55
+    ys, xs = np.nonzero(img)
+    pixels = np.column_stack([xs, ys])
+    K = 3
+    node = np.where(rng.random(len(ys)) < 0.2, rng.integers(0, K, len(ys)), K)
+    node[node == K] += (xs[node == K] > 30).astype(int)  # two gaps, split by a column
+    grid = _PixelGrid(pixels, 1)
+    nb = grid.neighbours()
+    geo = _GapGeodesics(None, node, K, nb=nb)  # type: ignore[arg-type]
+    step = np.array([np.hypot(dy, dx) for dy, dx in _OFFSETS_8])
+    ok = (np.where(nb >= 0, node[np.maximum(nb, 0)], -1) == node[:, None]) & (node >= K)[:, None]
+    rows = np.repeat(np.arange(len(node)), ok.sum(axis=1))
+    graph = sparse.csr_matrix((np.broadcast_to(step, ok.shape)[ok], (rows, nb[ok])))
+    graph.resize((len(node), len(node)))
+    src = rng.choice(np.flatnonzero(node >= K), size=5, replace=False)
+    expected = csgraph.dijkstra(graph, directed=False, indices=src, min_only=True)
+    got = geo.distances(src)
+    assert np.isfinite(got).sum() > 50
+    assert np.array_equal(got, expected)
 
 
 @pytest.mark.parametrize("seed", TRIALS[:4])

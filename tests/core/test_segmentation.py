@@ -427,3 +427,16 @@ def test_threshold_path_equals_the_whole_image_formulas_bit_for_bit(seed: int) -
         got = getattr(lifted, name)
         assert got.dtype == expected.dtype and got.shape == expected.shape, name
         assert np.array_equal(got, expected), name
+
+
+def test_compiled_histogram_counts_every_grey_level_exactly() -> None:
+    from threadrecon.core.segmentation import _Grey
+
+    rng = np.random.default_rng(5)
+    for shape in ((7, 9), (120, 161), (3, 1)):  # sizes not a multiple of 4 too
+        img = rng.integers(0, 256, shape, dtype=np.uint8)
+        img[0, 0] = 255
+        hist = _Grey(img).histogram()
+        assert hist.dtype == np.int64 and np.array_equal(
+            hist, np.bincount(img.ravel(), minlength=256)
+        )

@@ -263,3 +263,68 @@ def test_continuity_interpolates_a_flat_run_between_its_anchors(strand_px: float
     assert np.abs(out[: h * n].reshape(h, n) - ramp).max() < 0.05
     # without continuity the run keeps its noise and its mismatch
     assert np.abs(run - ramp).max() > 4.0
+
+
+def _box_index(rng: np.random.Generator, h: int = 30, w: int = 50) -> np.ndarray:
+    """A box image of row-major pixel indices over random blobs, -1 elsewhere."""
+    mask = rng.random((h, w)) < 0.45
+    index = np.full((h, w), -1, dtype=np.int32)
+    index[mask] = np.arange(mask.sum(), dtype=np.int32)
+    return index
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_continuity_set_up_kernels_give_the_numpy_formulations_exactly(seed: int) -> None:
+    # The compiled neighbour pairs, 3 x 3 medians and free-pixel pattern against the numpy
+    # formulations they replace (the pair order, NaN handling and column order matter: the
+    # pattern's column order breaks reverse Cuthill-McKee's ties).
+    from scipy import sparse
+
+    from threadrecon.core.stereo import (
+        _free_pattern_kernel,
+        _local_median,
+        _neighbour_pairs,
+        _positions,
+    )
+
+    rng = np.random.default_rng(seed)
+    index = _box_index(rng)
+    h, w = index.shape
+    n = int(index.max()) + 1
+    out_a, out_b = [], []
+    for dy, dx in ((0, 1), (1, -1), (1, 0), (1, 1)):
+        x0, x1 = max(0, -dx), w - max(0, dx)
+        ia, ib = index[0 : h - dy, x0:x1], index[dy:h, x0 + dx : x1 + dx]
+        keep = (ia >= 0) & (ib >= 0)
+        out_a.append(ia[keep])
+        out_b.append(ib[keep])
+    a, b = _neighbour_pairs(index)
+    assert np.array_equal(a, np.concatenate(out_a)) and np.array_equal(b, np.concatenate(out_b))
+
+    values = rng.normal(30.0, 2.0, n)
+    values[rng.random(n) < 0.2] = np.nan
+    which = np.flatnonzero(rng.random(n) < 0.5)
+    pad = np.pad(index, 1, constant_values=-1)
+    ys, xs = np.divmod(np.flatnonzero(index >= 0), w)
+    ys, xs = ys[which] + 1, xs[which] + 1
+    stack = np.full((9, which.size), np.nan)
+    for k, (dy, dx) in enumerate((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)):
+        j = pad[ys + dy, xs + dx]
+        stack[k] = np.where(j >= 0, values[j], np.nan)
+    stack.sort(axis=0)
+    cnt = np.count_nonzero(~np.isnan(stack), axis=0)
+    cols = np.arange(which.size)
+    expected = 0.5 * (stack[(cnt - 1) // 2, cols] + stack[cnt // 2, cols])
+    assert np.array_equal(_local_median(index, values, which), expected, equal_nan=True)
+
+    free = rng.random(n) < 0.6
+    fi = np.flatnonzero(free)
+    pos = np.full(n, -1, dtype=np.int64)
+    pos[fi] = np.arange(fi.size)
+    both = free[a] & free[b]
+    pattern = sparse.csr_matrix(
+        (np.ones(both.sum()), (pos[a[both]], pos[b[both]])), shape=(fi.size, fi.size)
+    )
+    sym = (pattern + pattern.T).tocsr()
+    indptr, indices = _free_pattern_kernel(index, _positions(index)[fi], pos)
+    assert np.array_equal(indptr, sym.indptr) and np.array_equal(indices, sym.indices)
