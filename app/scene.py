@@ -22,6 +22,7 @@ import numpy as np
 import viser
 
 from threadrecon.app.controls import Control, controls
+from threadrecon.app.display import decimate_cloud, simplify_segments
 from threadrecon.app.library import LoadedFrame, merge_params
 from threadrecon.app.session import Session
 from threadrecon.app.views import (
@@ -41,6 +42,9 @@ STREAM_PAUSE_S = 0.35  # pause between stages of a streamed run, so each layer c
 STATUS_EVERY_S = 0.3  # the status line's pace while a run goes on (a panel re-render each)
 CLOUD_POINTS = 12_000  # display budget of one point cloud: a 640x480 thread is drawn whole; a
 # 1920x1080 one (20-40k points a layer, 15 bytes each, resent on every slider move) every k-th
+LINE_TOL_FRAC = 0.2  # a drawn polyline leaves out vertices within this many base point sizes
+# (0.05 % of the thread's depth, about a pixel of the default view) of its chord: software
+# WebGL pays ~25 us a segment every frame (app.display)
 
 
 class SceneView:
@@ -233,11 +237,17 @@ class SceneView:
                     )  # fmt: skip
                 elif isinstance(node, Segments):
                     if len(node.points):
+                        per_segment = isinstance(node.color, np.ndarray) and node.color.ndim == 2
+                        segs, seg_colors = simplify_segments(
+                            node.points,
+                            node.color if per_segment else None,
+                            LINE_TOL_FRAC * self._base,
+                        )
                         color = node.color
-                        if isinstance(color, np.ndarray) and color.ndim == 2:  # per segment
-                            color = np.repeat(color[:, None, :], 2, axis=1)
+                        if seg_colors is not None:  # per segment: one colour for both ends
+                            color = np.repeat(seg_colors[:, None, :], 2, axis=1)
                         self.scene.add_line_segments(
-                            path, node.points, color, thickness=node.width,
+                            path, segs, color, thickness=node.width,
                             thickness_units="screen",
                         )  # fmt: skip
                 else:
@@ -287,23 +297,6 @@ class SceneView:
             + (f"R {rel:.3f} ({'reliable' if info.get('reliable') else 'not reliable'})  \n" if rel is not None else "")
             + (f"depth {info['depth']:.4g}" if info.get("depth") is not None else "depth: none")
         )  # fmt: skip
-
-
-def decimate_cloud(
-    points: np.ndarray, colors: np.ndarray, budget: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """At most ``budget`` of the (N, 3) points, for display: every k-th (the points of a layer
-    follow the pixels of P_L in row-major order, so a stride thins them evenly along the
-    thread), with their colours ((N, 3) per point, or one (3,) colour). The pixel inspector
-    still picks among all points of the stage result."""
-    if budget < 1:
-        raise ValueError(f"budget must be >= 1, got {budget}")
-    n = len(points)
-    if n <= budget:
-        return points, colors
-    k = -(-n // budget)  # ceil
-    per_point = colors.ndim == 2 and len(colors) == n
-    return points[::k], colors[::k] if per_point else colors
 
 
 def _status_line(session: Session, rec: Reconstruction | None) -> str:
