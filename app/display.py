@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+MIN_CHAIN = 128  # chains of fewer segments are drawn as they are: thinning one costs the server
+# about as much once as the ~30 segments it saves cost the viewer over a move's few frames
 COLOR_STEP = 16  # per-segment colours are compared in steps of this many (of 255) levels: a
 # run of segments whose colours differ by less is drawn as one colour (its first segment's)
 
@@ -85,30 +87,35 @@ def simplify_polyline(points: np.ndarray, tol: float, keep: np.ndarray | None = 
 
 
 def simplify_segments(
-    segments: np.ndarray, colors: np.ndarray | None, tol: float
+    segments: np.ndarray, colors: np.ndarray | None, tol: float, min_chain: int = MIN_CHAIN
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Thin the (M, 2, 3) segments for display: each chain of consecutive segments (one
     segment's end is the next one's start) is simplified by :func:`simplify_polyline`; with
     per-segment ``colors`` ((M, 3) uint8) a vertex where the colour changes by ``COLOR_STEP``
     or more is kept, and a kept segment takes the colour of the first one it replaces.
-    Segments that form no chain are returned as they are. Returns (segments, colors)."""
+    Segments in no chain of ``min_chain`` or more are returned as they are. Returns
+    (segments, colors)."""
     seg = np.asarray(segments)
     if seg.ndim != 3 or seg.shape[1:] != (2, 3):
         raise ValueError(f"segments must be (M, 2, 3), got {seg.shape}")
     m = len(seg)
     if colors is not None and np.shape(colors) != (m, 3):
         raise ValueError(f"colors must be ({m}, 3), got {np.shape(colors)}")
-    if m < 2:
+    if m < max(2, min_chain):
         return seg, colors
     joined = np.all(seg[1:, 0] == seg[:-1, 1], axis=1)  # segment i+1 continues segment i
-    if not joined.any():
-        return seg, colors
-    # vertices of the chains: each chain's starts, then its last end
     starts = np.flatnonzero(np.r_[True, ~joined])  # first segment of each chain
     ends = np.r_[starts[1:], m]  # one past its last segment
+    long = ends - starts >= min_chain
+    if not long.any():
+        return seg, colors
     out_seg, out_col = [], []
-    for s, e in zip(starts, ends, strict=True):
-        verts = np.concatenate([seg[s:e, 0], seg[e - 1 : e, 1]])
+    done = 0  # segments before this one are in the output
+    for s, e in zip(starts[long], ends[long], strict=True):
+        out_seg.append(seg[done:s])  # the shorter chains in between, as they are
+        if colors is not None:
+            out_col.append(np.asarray(colors[done:s]))
+        verts = np.concatenate([seg[s:e, 0], seg[e - 1 : e, 1]])  # the chain's vertices
         keep = None
         if colors is not None:
             level = np.asarray(colors[s:e], np.int32) // COLOR_STEP
@@ -118,5 +125,9 @@ def simplify_segments(
         out_seg.append(np.stack([verts[idx[:-1]], verts[idx[1:]]], axis=1))
         if colors is not None:
             out_col.append(np.asarray(colors[s:e])[idx[:-1]])
+        done = e
+    out_seg.append(seg[done:])
+    if colors is not None:
+        out_col.append(np.asarray(colors[done:]))
     thin = np.concatenate(out_seg).astype(seg.dtype, copy=False)
     return thin, (np.concatenate(out_col) if colors is not None else None)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from threadrecon.app.display import COLOR_STEP, simplify_polyline, simplify_segments
+from threadrecon.app.display import COLOR_STEP, MIN_CHAIN, simplify_polyline, simplify_segments
 
 
 def _chord_distances(pts: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -101,7 +101,11 @@ def test_simplified_segments_thin_chains_and_leave_loose_segments_alone():
     kept = np.concatenate([thin[:-5, 0], thin[-6:-5, 1]])  # the chain's kept vertices
     idx = [int(np.flatnonzero((curve == v).all(axis=1))[0]) for v in kept]
     assert _chord_distances(curve.astype(np.float64), np.array(idx)).max() <= 0.2 + 1e-6
-    assert np.array_equal(simplify_segments(loose, None, 1e3)[0], loose)
+    assert np.array_equal(simplify_segments(loose, None, 1e3, min_chain=1)[0], loose)
+    short = chain[: MIN_CHAIN - 1]
+    mixed = simplify_segments(np.concatenate([short, loose, chain]), None, 0.2)[0]
+    assert np.array_equal(mixed[: len(short) + 5], np.concatenate([short, loose]))
+    assert np.array_equal(mixed[len(short) + 5 :], thin[:-5])
 
 
 def test_per_segment_colours_break_the_simplification_where_they_change():
@@ -111,7 +115,8 @@ def test_per_segment_colours_break_the_simplification_where_they_change():
     colors[:, 1] = 200
     colors[12:, 0] = 250  # a change at vertex 12
     colors[5:, 2] = COLOR_STEP // 4  # below a colour step: no break
-    thin, thin_colors = simplify_segments(segs, colors, 1.0)
+    assert simplify_segments(segs, colors, 1.0)[0] is segs  # shorter than MIN_CHAIN: as it is
+    thin, thin_colors = simplify_segments(segs, colors, 1.0, min_chain=2)
     assert len(thin) == 2
     assert np.array_equal(thin[0], [line[0], line[12]])
     assert np.array_equal(thin[1], [line[12], line[20]])
