@@ -7,12 +7,16 @@ the path a slider takes (``Session.submit``). With Chromium the latency is the t
 change until the page has the run's final state and has drawn its 2D overlays; the breakdown
 gives, per slider, the session worker's compute and publish (3D layers to viser) ms, wall and
 CPU, when the last layer was in the scene, when the page got the state, the page's overlay
-fetches (ms, kB) and its drawing ms. Without Chromium (``socket``: a websocket client that
+fetches (ms, kB) and its drawing ms, and Chromium's CPU ms per change: its GPU process (the
+viewer's software-WebGL frames) and its renderers (the page, the viewer's JavaScript). A probe
+in the viewer also gives the ms until the 3D view has issued its first frame after the change's
+scene message. Without Chromium (``socket``: a websocket client that
 receives the 3D scene and renders nothing; ``none``) it is the server-side time until the last
 layer is in the scene, and the overlay GET the page would make.
 
     .venv/bin/python scripts/bench_latency.py [DATA_DIR] [--repeat 3] [--viewer chromium]
         [--set stereo.z_near_mm=40 --set stereo.z_far_mm=250]   # e.g. 1920x1080 frames
+        [--pause-ms 300]   # a pause after each change (default 0: back to back)
 
 HD frames: ``threadrecon generate DIR --size 1920x1080 --count 4 --seed 5601``.
 Targets (issue #13, p90): 150 ms for eps1-3 / threshold and 80 ms for a spline slider at
