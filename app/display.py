@@ -17,6 +17,9 @@ import numpy as np
 
 MIN_CHAIN = 128  # chains of fewer segments are drawn as they are: thinning one costs the server
 # about as much once as the ~30 segments it saves cost the viewer over a move's few frames
+MAX_PASSES = 16  # Douglas-Peucker passes (tree levels) at most: a noisy pixel path splits one
+# vertex off a run per pass; after these, every vertex of a run still open is kept (never wrong,
+# only less thin), so the cost stays MAX_PASSES vectorised passes over the polyline
 COLOR_STEP = 16  # per-segment colours are compared in steps of this many (of 255) levels: a
 # run of segments whose colours differ by less is drawn as one colour (its first segment's)
 
@@ -61,7 +64,7 @@ def simplify_polyline(points: np.ndarray, tol: float, keep: np.ndarray | None = 
     kept = forced.copy()
     active = np.ones(n, bool)  # vertices of runs not settled yet
     tol2 = tol * tol
-    while True:
+    for _ in range(MAX_PASSES):
         ki = np.flatnonzero(kept)
         cand = np.flatnonzero(active & ~kept)
         if not len(cand):
@@ -83,6 +86,8 @@ def simplify_polyline(points: np.ndarray, tol: float, keep: np.ndarray | None = 
         pick = np.minimum.reduceat(np.where(hit, np.arange(len(cand)), len(cand)), first)
         kept[cand[pick[far]]] = True
         active[cand[~far[per]]] = False  # runs within tol are settled
+    else:
+        kept |= active  # runs still open after MAX_PASSES keep every vertex
     return np.flatnonzero(kept)
 
 

@@ -128,3 +128,21 @@ def test_simplify_segments_refuses_bad_shapes():
         simplify_segments(np.zeros((4, 3)), None, 0.1)
     with pytest.raises(ValueError, match="colors"):
         simplify_segments(np.zeros((4, 2, 3)), np.zeros((3, 3), np.uint8), 0.1)
+
+
+def test_a_noisy_path_costs_at_most_max_passes_and_stays_within_tolerance():
+    from threadrecon.app import display
+
+    rng = np.random.default_rng(11)
+    t = np.linspace(0.0, 1.0, 3000)
+    pts = np.c_[100 * t, np.zeros_like(t), 50 + np.zeros_like(t)] + rng.normal(0, 0.5, (3000, 3))
+    calls = []
+    real = display.np.searchsorted  # one call per pass
+    display.np.searchsorted = lambda *a, **k: calls.append(1) or real(*a, **k)
+    try:
+        idx = simplify_polyline(pts, 0.3)
+    finally:
+        display.np.searchsorted = real
+    assert len(calls) <= display.MAX_PASSES
+    assert _chord_distances(pts, idx).max() <= 0.3 + 1e-9
+    assert set(_reference(pts, 0.3)) <= set(idx.tolist())  # never thinner than the textbook
