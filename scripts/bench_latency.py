@@ -17,6 +17,7 @@ layer is in the scene, and the overlay GET the page would make.
     .venv/bin/python scripts/bench_latency.py [DATA_DIR] [--repeat 3] [--viewer chromium]
         [--set stereo.z_near_mm=40 --set stereo.z_far_mm=250]   # e.g. 1920x1080 frames
         [--pause-ms 300]   # a pause after each change (default 0: back to back)
+        [--user-priority]   # Chromium at nice 0, as for a user who is not root
 
 HD frames: ``threadrecon generate DIR --size 1920x1080 --count 4 --seed 5601``.
 Targets (issue #13, p90): 150 ms for eps1-3 / threshold and 80 ms for a spline slider at
@@ -203,9 +204,8 @@ def _page_shown(page, version: int, timeout_s: float = 120.0) -> dict[str, float
     )
 
 
-def _chromium_cpu_ms() -> dict[str, float]:
-    """CPU ms so far of this process's Chromium descendants (Linux /proc): its GPU process
-    (software WebGL: the viewer's frames) and its renderers (the page, the viewer's page)."""
+def _chromium_pids() -> list[int]:
+    """This process's Chromium descendants (Linux /proc)."""
     parent: dict[int, int] = {}
     for d in Path("/proc").iterdir():
         if d.name.isdigit():
@@ -217,13 +217,38 @@ def _chromium_cpu_ms() -> dict[str, float]:
         kids = [c for c, pp in parent.items() if pp == pid]
         mine.update(kids)
         todo.extend(kids)
+    out = []
+    for pid in mine:
+        with contextlib.suppress(OSError):
+            if b"chrom" in Path(f"/proc/{pid}/cmdline").read_bytes():
+                out.append(pid)
+    return out
+
+
+def _user_priority() -> int:
+    """Put Chromium's threads back to nice 0 where they run higher: as root, Chromium raises
+    its GPU process (the software-WebGL frames) and browser threads to nice -8, which a user
+    without CAP_SYS_NICE cannot, and they would then pre-empt the server. Returns how many."""
+    n = 0
+    for pid in _chromium_pids():
+        with contextlib.suppress(OSError):
+            for task in Path(f"/proc/{pid}/task").iterdir():
+                with contextlib.suppress(OSError, ValueError, IndexError):
+                    tid = int(task.name)
+                    if int((task / "stat").read_text().rsplit(")", 1)[1].split()[16]) < 0:
+                        os.setpriority(os.PRIO_PROCESS, tid, 0)
+                        n += 1
+    return n
+
+
+def _chromium_cpu_ms() -> dict[str, float]:
+    """CPU ms so far of this process's Chromium descendants (Linux /proc): its GPU process
+    (software WebGL: the viewer's frames) and its renderers (the page, the viewer's page)."""
     out = {"gpu": 0.0, "renderers": 0.0}
     tick = os.sysconf("SC_CLK_TCK")
-    for pid in mine:
+    for pid in _chromium_pids():
         with contextlib.suppress(OSError, IndexError, ValueError):
             cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
-            if b"chrom" not in cmd:
-                continue
             f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
             ms = 1000.0 * (int(f[11]) + int(f[12])) / tick  # utime + stime
             key = "gpu" if b"--type=gpu-process" in cmd else "renderers"
@@ -284,6 +309,12 @@ def main() -> int:
         "stereo.z_near_mm=40 (repeatable)",
     )
     ap.add_argument(
+        "--user-priority",
+        action="store_true",
+        help="put Chromium's threads that run at nice -8 (it raises its GPU process and "
+        "browser so when run as root) back to 0, as for a user who is not root",
+    )
+    ap.add_argument(
         "--pause-ms",
         type=float,
         default=0.0,
@@ -335,7 +366,10 @@ def main() -> int:
         frames = [f["id"] for f in http.get("/api/frames").json()]
         tags: dict[str, int] = {}  # overlay payloads held, as the page holds them
         probe = _viewer_frame(page)
+        reniced = 0
         for frame in frames:
+            if page is not None and args.user_priority:
+                reniced += _user_priority()  # new threads come and go
             moves: list[tuple[float, str]] = []  # (epoch ms of the change, label)
             http.post(f"/api/frames/{frame}/run", json={"session": sid, "preset": "default"})
             if overrides:
@@ -391,6 +425,8 @@ def main() -> int:
         f"{len(frames)} frames of {args.data}, {viewers} viewer(s) attached ({args.viewer}), "
         f"{received[0] / 1e6:.1f} MB sent to the socket viewer"
     )
+    if args.user_priority:
+        print(f"Chromium threads put back from nice -8 to 0 (as a user who is not root): {reniced}")
     what = (
         "until the page has the final state and has drawn its 2D overlay"
         if args.viewer == "chromium"
