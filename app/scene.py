@@ -4,7 +4,8 @@ Scene (OpenCV camera frame of the left rectified camera, calibration units, y do
 cameras as frustums, then one layer per stage under a path that names it: ``/stereo``,
 ``/reliability``, ``/clusters``, ``/ordering``, ``/bounds``, ``/spline``. A layer is redrawn only
 when one of the stage results it is drawn from changed (the pipeline cache hands back the same
-result object otherwise), so a spline slider sends only the spline.
+result object otherwise), so a spline slider sends only the spline; a redrawn layer with the
+same nodes updates them in place, thinned for display (``app.scene_nodes``, ``app.display``).
 
 Control panel: run buttons, layer switches, one control per core parameter grouped by stage
 (``app.controls``), and the pixel inspector. Controls only submit a request to the session;
@@ -217,8 +218,9 @@ class SceneView:
                 self._look(np.median(pts[ok], axis=0), float(np.ptp(pts[ok], axis=0).max()))
 
     def _toggle(self, name: str, visible: bool) -> None:
-        self._visible[name] = visible
-        self._layers[name].set_visible(visible)
+        with self.session.draw_lock:  # the worker may be replacing the layer
+            self._visible[name] = visible
+            self._layers[name].set_visible(visible)
 
     # --- pixel inspector ----------------------------------------------------------------------
 
