@@ -4,7 +4,8 @@ Scene (OpenCV camera frame of the left rectified camera, calibration units, y do
 cameras as frustums, then one layer per stage under a path that names it: ``/stereo``,
 ``/reliability``, ``/clusters``, ``/ordering``, ``/bounds``, ``/spline``. A layer is redrawn only
 when one of the stage results it is drawn from changed (the pipeline cache hands back the same
-result object otherwise), so a spline slider sends only the spline.
+result object otherwise), so a spline slider sends only the spline; a redrawn layer with the
+same nodes updates them in place, thinned for display (``app.scene_nodes``, ``app.display``).
 
 Control panel: run buttons, layer switches, one control per core parameter grouped by stage
 (``app.controls``), and the pixel inspector. Controls only submit a request to the session;
@@ -23,13 +24,11 @@ import viser
 
 from threadrecon.app.controls import Control, controls
 from threadrecon.app.library import LoadedFrame, merge_params
+from threadrecon.app.scene_nodes import LayerNodes
 from threadrecon.app.session import Session
 from threadrecon.app.views import (
     LAYER_STAGE,
     LAYERS,
-    Label,
-    Points,
-    Segments,
     layer,
     nearest_to_ray,
     pixel_info,
@@ -39,8 +38,6 @@ from threadrecon.core.pipeline import STAGES, ReconParams, Reconstruction
 POINT_SIZE_FRAC = 0.0025  # base point size as a fraction of the median thread depth
 STREAM_PAUSE_S = 0.35  # pause between stages of a streamed run, so each layer can be seen
 STATUS_EVERY_S = 0.3  # the status line's pace while a run goes on (a panel re-render each)
-CLOUD_POINTS = 12_000  # display budget of one point cloud: a 640x480 thread is drawn whole; a
-# 1920x1080 one (20-40k points a layer, 15 bytes each, resent on every slider move) every k-th
 
 
 class SceneView:
@@ -49,8 +46,9 @@ class SceneView:
         self.session = session
         self.scene = client.scene
         self.gui = client.gui
-        self._drawn: dict[str, tuple] = {}
+        self._drawn: dict[str, tuple] = {}  # layer -> ids of the results it was drawn from
         self._visible: dict[str, bool] = dict.fromkeys(LAYERS, True)
+        self._layers = {name: LayerNodes(self.scene, name, True) for name in LAYERS}
         self._base = 0.1
         self._status_at = 0.0
         self._stereo_id: int | None = None
@@ -142,7 +140,7 @@ class SceneView:
     def show_frame(self, loaded: LoadedFrame | None) -> None:
         """New frame: cameras, view point, and every layer cleared."""
         for name in list(self._drawn):
-            self.scene.remove_by_name(f"/{name}")
+            self._layers[name].remove()
         self._drawn.clear()
         self._stereo_id = None
         if loaded is None:
@@ -188,7 +186,7 @@ class SceneView:
         for name, deps in LAYERS.items():
             if rec is None or loaded is None or LAYER_STAGE[name] not in rec.runs:
                 if name in self._drawn:
-                    self.scene.remove_by_name(f"/{name}")
+                    self._layers[name].remove()
                     del self._drawn[name]
                 continue
             key = tuple(id(rec.runs[d].result) if d in rec.runs else None for d in deps)
@@ -197,7 +195,8 @@ class SceneView:
             if name == "stereo" and self._stereo_id != key[0]:
                 self._stereo_id = key[0]
                 self._recentre(rec)
-            self._draw(name, layer(name, rec, loaded.calib, loaded.ground_truth))
+            nodes = layer(name, rec, loaded.calib, loaded.ground_truth)
+            self._layers[name].draw(nodes, self._base)  # in place when the same nodes
             self._drawn[name] = key
         # the status line once a request's last stage is in (each update re-renders the
         # viewer's panel), or at a watchable pace while a long or streamed run goes on
@@ -218,42 +217,10 @@ class SceneView:
                 ok = np.isfinite(pts).all(axis=1)
                 self._look(np.median(pts[ok], axis=0), float(np.ptp(pts[ok], axis=0).max()))
 
-    def _draw(self, name: str, nodes: dict[str, Points | Segments | Label]) -> None:
-        root = f"/{name}"
-        with self.client.atomic():
-            self.scene.remove_by_name(root)
-            self.scene.add_frame(root, show_axes=False, visible=self._visible[name])
-            for sub, node in nodes.items():
-                path = f"{root}/{sub}"
-                if isinstance(node, Points):
-                    points, colors = decimate_cloud(node.points, node.colors, CLOUD_POINTS)
-                    self.scene.add_point_cloud(
-                        path, points, colors, point_size=self._base * node.size,
-                        precision="float32", point_shape="circle", point_shading="flat",
-                    )  # fmt: skip
-                elif isinstance(node, Segments):
-                    if len(node.points):
-                        color = node.color
-                        if isinstance(color, np.ndarray) and color.ndim == 2:  # per segment
-                            color = np.repeat(color[:, None, :], 2, axis=1)
-                        self.scene.add_line_segments(
-                            path, node.points, color, thickness=node.width,
-                            thickness_units="screen",
-                        )  # fmt: skip
-                else:
-                    self.scene.add_label(
-                        path, node.text, position=node.position, font_screen_scale=0.7,
-                        anchor="bottom-left",
-                    )  # fmt: skip
-
     def _toggle(self, name: str, visible: bool) -> None:
-        self._visible[name] = visible
-        if name in self._drawn:
-            self.scene.add_frame(f"/{name}", show_axes=False, visible=visible)
-            self._drawn.pop(name)  # children were dropped with the frame: redraw them
-            s = self.session
-            with s.draw_lock:
-                self.show(s.rec, s.loaded)
+        with self.session.draw_lock:  # the worker may be replacing the layer
+            self._visible[name] = visible
+            self._layers[name].set_visible(visible)
 
     # --- pixel inspector ----------------------------------------------------------------------
 
@@ -287,23 +254,6 @@ class SceneView:
             + (f"R {rel:.3f} ({'reliable' if info.get('reliable') else 'not reliable'})  \n" if rel is not None else "")
             + (f"depth {info['depth']:.4g}" if info.get("depth") is not None else "depth: none")
         )  # fmt: skip
-
-
-def decimate_cloud(
-    points: np.ndarray, colors: np.ndarray, budget: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """At most ``budget`` of the (N, 3) points, for display: every k-th (the points of a layer
-    follow the pixels of P_L in row-major order, so a stride thins them evenly along the
-    thread), with their colours ((N, 3) per point, or one (3,) colour). The pixel inspector
-    still picks among all points of the stage result."""
-    if budget < 1:
-        raise ValueError(f"budget must be >= 1, got {budget}")
-    n = len(points)
-    if n <= budget:
-        return points, colors
-    k = -(-n // budget)  # ceil
-    per_point = colors.ndim == 2 and len(colors) == n
-    return points[::k], colors[::k] if per_point else colors
 
 
 def _status_line(session: Session, rec: Reconstruction | None) -> str:

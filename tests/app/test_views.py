@@ -236,7 +236,7 @@ def test_overlay_reports_the_full_counts_when_it_decimates(case, monkeypatch):
 
 
 def test_decimated_cloud_keeps_per_point_colours_aligned():
-    from threadrecon.app.scene import decimate_cloud
+    from threadrecon.app.display import decimate_cloud
 
     pts = np.arange(30_000, dtype=np.float32)[:, None] * np.ones(3, np.float32)
     cols = (np.arange(30_000) % 256).astype(np.uint8)[:, None] * np.ones(3, np.uint8)
