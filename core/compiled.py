@@ -1,6 +1,8 @@
 """Compiled kernels that run without numba in the process.
 
-The core's loops over pixels and keypoints (stereo, clustering, the ordering walk) are numba
+The core's loops over pixels and keypoints (the threshold segmentation's histogram, the raw
+segmentation's filters in ``ridge_kernel``, stereo and its continuity set-up, clustering, the
+ordering walk and its gap geodesics in ``walk_kernel``, the check's ``check_kernel``) are numba
 functions. Loading numba costs more than the rest of a 1920x1080 reconstruction: importing it
 maps llvmlite (~62 MB of resident memory) and the first call of a cached kernel builds its
 typing and target contexts and the LLVM JIT (~42 MB, 0.5-1.3 s), against ~40 MB for a
