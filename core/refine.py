@@ -152,12 +152,20 @@ def refine_depth(
         hw_H = 0.5 * (fB / bounds.lower - fB / bounds.upper)  # Eq. (7)'s half-width, px
     use_H = keep & np.isfinite(res_H) & (z0_H > 0) & np.isfinite(hw_H) & (hw_H > 0)
     if use_H.sum() >= MIN_PRIOR_POINTS:
-        sd_H = max(1.4826 * float(np.median(np.abs(res_H[use_H]))), MIN_SD_PX)
+        sd_0 = max(1.4826 * float(np.median(np.abs(res_H[use_H]))), MIN_SD_PX)
         # the MVS is doubted where its bounds are wide: sd in proportion to the half-width
-        sd_H = sd_H * hw_H / float(np.median(hw_H[use_H]))
+        sd_H = sd_0 * hw_H / float(np.median(hw_H[use_H]))
+        # and its ends where Eq. (8) fixed them to a tip matched in both views (deviation 23:
+        # L_{k_1}, L_{k_n} moved off the window lines), at the stereo's typical spread
+        ends = _tip_ends(bounds) & spline.ok & keep[[0, -1]]
+        BE = basis_matrix(np.array([0.0, spline.length])[ends], t, k)
+        BP = np.vstack([BH[use_H], BE])
+        zP0 = BP @ b0
+        dP0 = fB / zP0
+        sdP = np.concatenate([sd_H[use_H], np.full(int(ends.sum()), sd_0)])
     else:
-        use_H[:] = False
-        sd_H = np.ones(len(hw_H))
+        BP = np.zeros((0, len(b0)))
+        zP0 = dP0 = sdP = np.zeros(0)
     b = b0.copy()
     first = int(not remedy)
     for it in range(first, p.iterations + 1):
@@ -183,21 +191,19 @@ def refine_depth(
         if it > first:  # Cauchy weights on the last solve's residuals
             r = (target - d[ok]) / np.sqrt(var)
             w = w / np.sqrt(1.0 + (r / CAUCHY) ** 2)
-        BP = BH[use_H]
         if it == 0:  # linear in depth: reaches the right strand's depth from any start
             wz = w * target**2 / fB  # a depth residual in px of disparity at the target depth
             A = Bm[ok] * wz[:, None]
             rhs = fB / target * wz
-            wp = d0_H[use_H] ** 2 / fB / sd_H[use_H]
-            AP, rP = BP * wp[:, None], z0_H[use_H] * wp
+            wp = dP0**2 / fB / sdP
+            AP, rP = BP * wp[:, None], zP0 * wp
         else:  # Gauss-Newton in disparity, the space of the observation's noise
             J = (-fB / z[ok] ** 2)[:, None] * Bm[ok]  # d disparity / d b
             A = J * w[:, None]
             rhs = (target - d[ok] + J @ b) * w
             zP = BP @ b
             JP = (-fB / zP**2)[:, None] * BP
-            AP = JP / sd_H[use_H, None]
-            rP = (d0_H[use_H] - fB / zP + JP @ b) / sd_H[use_H]
+            AP, rP = JP / sdP[:, None], (dP0 - fB / zP + JP @ b) / sdP
         b_new = _lsi(np.vstack([A, AP, S]), np.concatenate([rhs, rP, np.zeros(len(S))]), G, h)
         if b_new is None:
             return spline  # the bounds cannot be met with this spline: keep the MVS depth
@@ -212,6 +218,15 @@ def refine_depth(
         )
         return replace(spline, ctrl=ctrl, status="ok", message=message, bounds_dropped=dropped)
     return replace(spline, ctrl=ctrl, bounds_dropped=dropped)
+
+
+def _tip_ends(bounds: Bounds) -> np.ndarray:
+    """(2,) bool: whether the start / end value of Eq. (8) came from a tip matched in both
+    views (it differs from the window line's, ``Bounds.line_ends``)."""
+    if bounds.line_ends is None:
+        return np.zeros(2, dtype=bool)
+    line = np.array([bounds.line_ends[0], bounds.line_ends[2]])
+    return np.asarray(bounds.end_values, dtype=np.float64) != line
 
 
 def _off_thread(
