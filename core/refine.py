@@ -513,33 +513,33 @@ def _edge_centres(
     it_l, x_l = _spans(fl_lo, fl_hi)
     it_r, x_r = _spans(fr_lo, fr_hi)
     v_l, v_r = g[row[it_l], x_l].astype(np.float64), g[row[it_r], x_r].astype(np.float64)
-    n_l = np.bincount(it_l, minlength=n)
-    n_r = np.bincount(it_r, minlength=n)
+    n_l, n_r = np.maximum(fl_hi - fl_lo + 1, 0), np.maximum(fr_hi - fr_lo + 1, 0)
     flanked = (n_l > 0) & (n_r > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        b_l = np.bincount(it_l, v_l, minlength=n) / n_l
-        b_r = np.bincount(it_r, v_r, minlength=n) / n_r
-        x0 = np.bincount(it_l, x_l, minlength=n) / n_l
-        x1 = np.bincount(it_r, x_r, minlength=n) / n_r
-    b_l, b_r = np.where(flanked, b_l, background), np.where(flanked, b_r, background)
-    x0, x1 = np.where(flanked, x0, lo - 1.0), np.where(flanked, x1, hi + 1.0)
+        b_l = np.where(flanked, np.bincount(it_l, v_l, minlength=n) / n_l, background)
+        b_r = np.where(flanked, np.bincount(it_r, v_r, minlength=n) / n_r, background)
+    x0 = np.where(flanked, 0.5 * (fl_lo + fl_hi), lo - 1.0)  # the flanks' mean columns
+    x1 = np.where(flanked, 0.5 * (fr_lo + fr_hi), hi + 1.0)
     noise = _noise_var(it_l, x_l, v_l, it_r, x_r, v_r)
     it, x = _spans(lo, hi)
-    tau = (x - x0[it]) / (x1 - x0)[it]  # position between the flanks, 0..1
-    w = b_l[it] + (b_r - b_l)[it] * tau - g[row[it], x]
+    slope = (b_r - b_l) / (x1 - x0)
+    w = b_l[it] + slope[it] * (x - x0[it]) - g[row[it], x]  # contrast, signed
     on_run = (x >= a[it]) & (x <= b[it])
-    sign = np.where(np.bincount(it[on_run], w[on_run], minlength=n) < 0, -1.0, 1.0)
-    w *= sign[it]
-    sw = np.bincount(it, w, minlength=n)
+    lighter = np.bincount(it, np.where(on_run, w, 0.0), minlength=n) < 0  # than its background
+    sign = np.where(lighter, -1.0, 1.0)
+    sw = sign * np.bincount(it, w, minlength=n)
+    swx = sign * np.bincount(it, w * x, minlength=n)
+    # sums over the window's columns: n, sum x, sum x^2 (closed forms)
+    s0 = (hi - lo + 1).astype(np.float64)
+    s1 = 0.5 * s0 * (lo + hi)
+    s2 = (hi * (hi + 1.0) * (2 * hi + 1.0) - (lo - 1.0) * lo * (2 * lo - 1.0)) / 6.0
     with np.errstate(invalid="ignore", divide="ignore"):
-        c = np.bincount(it, w * x, minlength=n) / sw
-        dx = x - c[it]
+        c = swx / sw
+        sdx2 = s2 - 2.0 * c * s1 + s0 * c * c  # sum (x - c)^2
+        sdx_tau = (s2 - (c + x0) * s1 + s0 * c * x0) / (x1 - x0)  # sum (x - c) tau
+        sdx_1mtau = s1 - s0 * c - sdx_tau  # sum (x - c) (1 - tau)
         s_b = noise / FLANK_PX + 0.25 * (b_l - b_r) ** 2  # variance of each flank level
-        var = (
-            noise * np.bincount(it, dx * dx, minlength=n)
-            + s_b * np.bincount(it, dx * (1.0 - tau), minlength=n) ** 2
-            + s_b * np.bincount(it, dx * tau, minlength=n) ** 2
-        ) / sw**2
+        var = (noise * sdx2 + s_b * (sdx_1mtau**2 + sdx_tau**2)) / sw**2
     mid = 0.5 * (a + b)
     var_mask = ((b - a + 1.0) ** 2 + 1.0) / 12.0
     # significant contrast: the centroid's noise below the mask's own uncertainty
