@@ -2,8 +2,8 @@
 
 The MVS spline of Eq. (8) takes its depth from the keypoints' stereo depths and the bounds of
 Eq. (7) only; nothing checks that its projection into the right image lies on the thread. This
-stage (a deviation, ``mode="two_view"``; ``mode="repair"`` only on frames where stereo matched
-a strand to its neighbour, the default; ``mode="off"`` is the paper) refits S_z with S_x, S_y
+stage (a deviation, ``mode="two_view"``, the default; ``mode="repair"`` only on frames where
+stereo matched a strand to its neighbour; ``mode="off"`` is the paper) refits S_z with S_x, S_y
 fixed so that, row by row along the epipolar lines, the curve's disparity d(u) = f B / S_z(u)
 matches the disparity of the thread itself:
 
@@ -65,8 +65,9 @@ MIN_PRIOR_POINTS = 5  # points of H that estimate that spread (a robust scale ne
 @dataclass(frozen=True)
 class RefineParams(Params):
     mode: Literal["repair", "two_view", "off"] = param(
-        "repair",  # two_view everywhere did not carry over to fresh generated or re-imaged
-        # frames (docs/method.md, "Two-view refinement"); the paper presets turn it on
+        "two_view",  # with run centres from the edges and the MVS curve as a measurement it
+        # wins on held-out generated, raw-rig and raw frames (docs/method.md, "Two-view
+        # refinement, second round"); paper-strict turns it off
         label="two-view refinement",
         doc='"two_view": refit S_z so that the curve lies on the thread in both views; '
         '"repair": the same, only on a frame where stereo matched a section of one strand to '
