@@ -31,6 +31,7 @@ rounds; the result is the spline of the previous stage with its S_z replaced.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any, Final, Literal
@@ -338,9 +339,15 @@ def _mismatched(
     return out, shared
 
 
+@functools.cache
+def _leggauss(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre nodes and weights on [-1, 1] (an eigenvalue problem: computed once)."""
+    return np.polynomial.legendre.leggauss(n)
+
+
 def _gauss_nodes(t: np.ndarray, k: int, per_span: int) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Legendre nodes and weights, ``per_span`` per non-empty knot span of (t, k)."""
-    x, w = np.polynomial.legendre.leggauss(per_span)
+    x, w = _leggauss(per_span)
     brk = np.unique(t[k : len(t) - k])
     a, b = brk[:-1, None], brk[1:, None]
     return (0.5 * (b - a) * x + 0.5 * (a + b)).ravel(), (0.5 * (b - a) * w).ravel()
@@ -353,8 +360,8 @@ def _lsi(A: np.ndarray, r: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarr
     ridge = RIDGE * max(float(np.abs(A).max()), 1e-300)
     A = np.vstack([A, ridge * np.eye(n)])
     r = np.concatenate([r, np.zeros(n)])
-    Q, R = np.linalg.qr(A)
-    qr = Q.T @ r
+    Rr = np.linalg.qr(np.column_stack([A, r]), mode="r")  # [[R, Q^T r], [0, |residual|]]
+    R, qr = Rr[:n, :n], Rr[:n, n]  # without forming Q
     E = np.linalg.solve(R.T, G.T).T  # G R^-1
     f = h - E @ qr
     M = np.vstack([E.T, f[None, :]])
