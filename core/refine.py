@@ -153,13 +153,13 @@ def refine_depth(
         res_H = fB / bounds.H[:, 2] - d0_H
         hw_H = 0.5 * (fB / bounds.lower - fB / bounds.upper)  # Eq. (7)'s half-width, px
     use_H = keep & np.isfinite(res_H) & (z0_H > 0) & np.isfinite(hw_H) & (hw_H > 0)
-    if use_H.sum() >= MIN_PRIOR_POINTS:
+    if spline.ok and use_H.sum() >= MIN_PRIOR_POINTS:  # a failed MVS measures nothing
         sd_0 = max(1.4826 * float(np.median(np.abs(res_H[use_H]))), MIN_SD_PX)
         # the MVS is doubted where its bounds are wide: sd in proportion to the half-width
         sd_H = sd_0 * hw_H / float(np.median(hw_H[use_H]))
         # and its ends where Eq. (8) fixed them to a tip matched in both views (deviation 23:
         # L_{k_1}, L_{k_n} moved off the window lines), at the stereo's typical spread
-        ends = _tip_ends(bounds) & spline.ok & keep[[0, -1]]
+        ends = _tip_ends(bounds) & keep[[0, -1]]
         BE = basis_matrix(np.array([0.0, spline.length])[ends], t, k)
         BP = np.vstack([BH[use_H], BE])
         zP0 = BP @ b0
