@@ -2,17 +2,23 @@
 
 The MVS spline of Eq. (8) takes its depth from the keypoints' stereo depths and the bounds of
 Eq. (7) only; nothing checks that its projection into the right image lies on the thread. This
-stage (a deviation, ``mode="two_view"``; ``mode="repair"`` only on frames where stereo matched
-a strand to its neighbour, the default; ``mode="off"`` is the paper) refits S_z with S_x, S_y
+stage (a deviation, ``mode="two_view"``, the default; ``mode="repair"`` only on frames where
+stereo matched a strand to its neighbour; ``mode="off"`` is the paper) refits S_z with S_x, S_y
 fixed so that, row by row along the epipolar lines, the curve's disparity d(u) = f B / S_z(u)
 matches the disparity of the thread itself:
 
 - on image row y(u) the thread crosses the left mask in a run of pixels and the right mask in
-  another; their centres (intensity-weighted, sub-pixel) c_L, c_R give the observed disparity
-  t = c_L - c_R. The run nearest the curve's prediction (x(u), x(u) - d(u)) is taken.
-- a run of length L pins its centre only to +- L / sqrt(12) along the row: where the thread runs
-  along the epipolar lines (long runs), both views agree with many depths and the term fades;
-  the smoothness term then interpolates the depth across the segment.
+  another; their sub-pixel centres c_L, c_R (the centroid of the thread's contrast against the
+  local background, over the run and the pixels beside it that hold its edges' partial
+  coverage) give the observed disparity t = c_L - c_R. The run nearest the curve's prediction
+  (x(u), x(u) - d(u)) is taken; each run is one observation, shared by the samples on it.
+- its variance: each centre's, from the image noise and how well the flanks beside the run
+  fit a line of background (an occluder or another strand beside it: large), plus
+  ``MODEL_PX``^2 each; Cauchy weights on the residuals after the first solve.
+- the MVS curve itself is a measurement of the disparity at the points of H, with the
+  stereo's own spread about it (the robust s.d. of H's stereo disparities about the curve),
+  scaled by the half-width of Eq. (7)'s bounds there (wide bounds: the MVS is in doubt).
+  Where the thread is seen cleanly the runs refine it; where they are doubtful it stays.
 - smoothness: the integral of (d^3 S_z / ds^3)^2 over the image arc length s, the small-slope
   form of Eq. (8)'s Minimum Variation term, weighted by ``smooth_px``^5 (a length in px: depth
   features shorter than it are smoothed);
@@ -25,6 +31,7 @@ rounds; the result is the spline of the previous stage with its S_z replaced.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any, Final, Literal
@@ -50,13 +57,20 @@ OFF_THREAD_PX = 10  # samples (~px of image arc) off the right thread that make 
 BACKGROUND_TOL = 12.0  # grey levels from B that look like bare background (2 x seg_delta)
 ROW_LIMIT = 2.0**31  # px: an ordinate beyond any image (and safe to cast to int64)
 MIN_DISPARITY_PX = 0.5  # the solve linear in depth needs a positive target disparity
+EDGE_PX = 2  # pixels beyond a run's ends that hold its edges' partial coverage and blur
+FLANK_PX = 2  # pixels beyond those whose mean is the background level on that side
+MODEL_PX = 0.05  # s.d. of a centre beyond its noise: a sampled profile's centroid locks to pixels
+CAUCHY = 2.385  # Cauchy scale of the run residuals, in their s.d. (95 % efficiency)
+MIN_SD_PX = 0.01  # floor of the stereo's spread about the MVS curve (noise-free input), px
+MIN_PRIOR_POINTS = 5  # points of H that estimate that spread (a robust scale needs a few)
 
 
 @dataclass(frozen=True)
 class RefineParams(Params):
     mode: Literal["repair", "two_view", "off"] = param(
-        "repair",  # two_view everywhere did not carry over to fresh generated or re-imaged
-        # frames (docs/method.md, "Two-view refinement"); the paper presets turn it on
+        "two_view",  # with run centres from the edges and the MVS curve as a measurement it
+        # wins on held-out generated, raw-rig and raw frames (docs/method.md, "Two-view
+        # refinement, second round"); paper-strict turns it off
         label="two-view refinement",
         doc='"two_view": refit S_z so that the curve lies on the thread in both views; '
         '"repair": the same, only on a frame where stereo matched a section of one strand to '
@@ -132,8 +146,33 @@ def refine_depth(
     lo, hi = bounds.lower[keep], bounds.upper[keep]
     G = np.vstack([BH[keep], -BH[keep]])  # Eq. (7): lower <= S_z(u_H) <= upper
     h = np.concatenate([lo, -hi])
-    b = c0[:, 2].copy()
-    for it in range(int(not remedy), p.iterations + 1):
+    b0 = c0[:, 2]
+    # The MVS curve at the points of H as a measurement of the disparity there, with the
+    # stereo's own noise: the robust spread of H's stereo disparities about it.
+    z0_H = BH @ b0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d0_H = fB / z0_H
+        res_H = fB / bounds.H[:, 2] - d0_H
+        hw_H = 0.5 * (fB / bounds.lower - fB / bounds.upper)  # Eq. (7)'s half-width, px
+    use_H = keep & np.isfinite(res_H) & (z0_H > 0) & np.isfinite(hw_H) & (hw_H > 0)
+    if spline.ok and use_H.sum() >= MIN_PRIOR_POINTS:  # a failed MVS measures nothing
+        sd_0 = max(1.4826 * float(np.median(np.abs(res_H[use_H]))), MIN_SD_PX)
+        # the MVS is doubted where its bounds are wide: sd in proportion to the half-width
+        sd_H = sd_0 * hw_H / float(np.median(hw_H[use_H]))
+        # and its ends where Eq. (8) fixed them to a tip matched in both views (deviation 23:
+        # L_{k_1}, L_{k_n} moved off the window lines), at the stereo's typical spread
+        ends = _tip_ends(bounds) & keep[[0, -1]]
+        BE = basis_matrix(np.array([0.0, spline.length])[ends], t, k)
+        BP = np.vstack([BH[use_H], BE])
+        zP0 = BP @ b0
+        dP0 = fB / zP0
+        sdP = np.concatenate([sd_H[use_H], np.full(int(ends.sum()), sd_0)])
+    else:
+        BP = np.zeros((0, len(b0)))
+        zP0 = dP0 = sdP = np.zeros(0)
+    b = b0.copy()
+    first = int(not remedy)
+    for it in range(first, p.iterations + 1):
         z = Bm @ b
         if np.any(z <= 0) and it > 0:
             return spline
@@ -148,17 +187,28 @@ def refine_depth(
                 ok &= cL - cR > MIN_DISPARITY_PX
         if ok.sum() < 10:
             return spline
-        w = 1.0 / np.sqrt((lL[ok] ** 2 + lR[ok] ** 2) / 12.0)  # 1 / sigma, px
         target = cL[ok] - cR[ok]
+        var = runs_L.var[iL[ok]] + runs_R.var[iR[ok]] + 2.0 * MODEL_PX**2  # px^2
+        # one observation per left run, shared by the samples of the curve on it
+        share = np.bincount(iL[ok], minlength=runs_L.centre.size)[iL[ok]]
+        w = 1.0 / np.sqrt(var * share)  # 1 / sigma, px
+        if it > first:  # Cauchy weights on the last solve's residuals
+            r = (target - d[ok]) / np.sqrt(var)
+            w = w / np.sqrt(1.0 + (r / CAUCHY) ** 2)
         if it == 0:  # linear in depth: reaches the right strand's depth from any start
             wz = w * target**2 / fB  # a depth residual in px of disparity at the target depth
             A = Bm[ok] * wz[:, None]
             rhs = fB / target * wz
+            wp = dP0**2 / fB / sdP
+            AP, rP = BP * wp[:, None], zP0 * wp
         else:  # Gauss-Newton in disparity, the space of the observation's noise
             J = (-fB / z[ok] ** 2)[:, None] * Bm[ok]  # d disparity / d b
             A = J * w[:, None]
             rhs = (target - d[ok] + J @ b) * w
-        b_new = _lsi(np.vstack([A, S]), np.concatenate([rhs, np.zeros(len(S))]), G, h)
+            zP = BP @ b
+            JP = (-fB / zP**2)[:, None] * BP
+            AP, rP = JP / sdP[:, None], (dP0 - fB / zP + JP @ b) / sdP
+        b_new = _lsi(np.vstack([A, AP, S]), np.concatenate([rhs, rP, np.zeros(len(S))]), G, h)
         if b_new is None:
             return spline  # the bounds cannot be met with this spline: keep the MVS depth
         b = b_new
@@ -172,6 +222,15 @@ def refine_depth(
         )
         return replace(spline, ctrl=ctrl, status="ok", message=message, bounds_dropped=dropped)
     return replace(spline, ctrl=ctrl, bounds_dropped=dropped)
+
+
+def _tip_ends(bounds: Bounds) -> np.ndarray:
+    """(2,) bool: whether the start / end value of Eq. (8) came from a tip matched in both
+    views (it differs from the window line's, ``Bounds.line_ends``)."""
+    if bounds.line_ends is None:
+        return np.zeros(2, dtype=bool)
+    line = np.array([bounds.line_ends[0], bounds.line_ends[2]])
+    return np.asarray(bounds.end_values, dtype=np.float64) != line
 
 
 def _off_thread(
@@ -302,9 +361,15 @@ def _rows(y: np.ndarray) -> np.ndarray:
     return np.rint(np.where(inside, y, -1.0)).astype(np.int64)
 
 
+@functools.cache
+def _leggauss(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre nodes and weights on [-1, 1] (an eigenvalue problem: computed once)."""
+    return np.polynomial.legendre.leggauss(n)
+
+
 def _gauss_nodes(t: np.ndarray, k: int, per_span: int) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Legendre nodes and weights, ``per_span`` per non-empty knot span of (t, k)."""
-    x, w = np.polynomial.legendre.leggauss(per_span)
+    x, w = _leggauss(per_span)
     brk = np.unique(t[k : len(t) - k])
     a, b = brk[:-1, None], brk[1:, None]
     return (0.5 * (b - a) * x + 0.5 * (a + b)).ravel(), (0.5 * (b - a) * w).ravel()
@@ -317,8 +382,8 @@ def _lsi(A: np.ndarray, r: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarr
     ridge = RIDGE * max(float(np.abs(A).max()), 1e-300)
     A = np.vstack([A, ridge * np.eye(n)])
     r = np.concatenate([r, np.zeros(n)])
-    Q, R = np.linalg.qr(A)
-    qr = Q.T @ r
+    Rr = np.linalg.qr(np.column_stack([A, r]), mode="r")  # [[R, Q^T r], [0, |residual|]]
+    R, qr = Rr[:n, :n], Rr[:n, n]  # without forming Q
     E = np.linalg.solve(R.T, G.T).T  # G R^-1
     f = h - E @ qr
     M = np.vstack([E.T, f[None, :]])
@@ -358,19 +423,28 @@ def _derived(
 
 
 class _Runs:
-    """Horizontal runs of a mask (one per maximal row segment) with sub-pixel centres."""
+    """Horizontal runs of a mask (one per maximal row segment) with sub-pixel centres.
+
+    A run's centre is the centroid of the thread's contrast against the local background over
+    the run and ``EDGE_PX`` pixels beyond each of its ends: the thread's cross-section (its
+    partial coverage at the edges, its shading, the optics' blur) is symmetric about its axis,
+    and the pixels beside the mask hold the edge's partial coverage (below the mask's 0.5) that
+    the mask alone cuts off (a bias of up to +-0.5 px; see :func:`_edge_centres`). ``var`` is
+    the centre's variance, px^2, from the image noise and the uncertainty of the background.
+    """
 
     def __init__(self, mask: np.ndarray, grey: np.ndarray, background: float) -> None:
         H, W = mask.shape
         ys, xs = _nonzero(mask)  # row-major: a run is a stretch of consecutive x on one row
-        w = np.clip(background - grey[ys, xs].astype(np.float64), 1.0, None)  # darkness
         new = np.ones(len(xs), dtype=bool)
         new[1:] = (np.diff(xs) != 1) | (np.diff(ys) != 0)
         start = np.flatnonzero(new)
-        sw = np.add.reduceat(w, start) if start.size else np.zeros(0)
-        self.centre = np.add.reduceat(w * xs, start) / sw if start.size else np.zeros(0)
-        self.length = np.diff(np.append(start, len(xs))).astype(np.float64)
+        end = np.append(start[1:], len(xs)) - 1
         self.row = ys[start]
+        self.length = (xs[end] - xs[start] + 1).astype(np.float64)
+        self.centre, self.var = _edge_centres(
+            self.row, xs[start], xs[end], grey, float(background), W
+        )
         self.H = H
         self.key_scale = 4.0 * W
         self.key = self.row * self.key_scale + self.centre  # sorted: row-major, then by x
@@ -433,6 +507,104 @@ class _Runs:
         r = rows[use]
         out[use] = other.row_start[r] + (idx[use] - self.row_start[r])
         return out
+
+
+def _edge_centres(
+    row: np.ndarray, a: np.ndarray, b: np.ndarray, grey: np.ndarray, background: float, W: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-pixel centres (R,) px and their variances (R,) px^2 of the runs a..b (inclusive
+    columns) on rows ``row`` of the (H, W) grey image, in row-major order.
+
+    Model of a row's cut through the thread: the background is a line between the mean grey
+    level of the ``FLANK_PX`` pixels beyond each end of the window (the run and ``EDGE_PX``
+    pixels beyond each of its ends, half the gap where another run is nearer); the thread's
+    contrast w(x) = background(x) - I(x) (its sign taken over the run) is symmetric about the
+    axis, so the centre is its centroid sum w x / sum w. Its variance is that of the centroid
+    under pixel noise sigma_n^2 (estimated from neighbouring flank pixels over the whole image)
+    and errors of the two flank levels: sigma_n^2 / FLANK_PX each, plus a quarter of their
+    squared difference (the flanks disagree where the background is not a line: an occluder
+    or another strand beside the run, texture). Where a window lacks a flank (the image
+    border), or its contrast is not significant, the centre is the run's midpoint with the
+    variance of a uniform position over the run, (L^2 + 1) / 12 (the mask alone)."""
+    n = len(a)
+    if n == 0:
+        return np.zeros(0), np.zeros(0)
+    g = grey
+    same_prev = np.zeros(n, dtype=bool)
+    same_prev[1:] = row[1:] == row[:-1]
+    prev_end = np.full(n, -1)
+    prev_end[1:] = np.where(same_prev[1:], b[:-1], -1)
+    next_start = np.full(n, W)
+    next_start[:-1] = np.where(same_prev[1:], a[1:], W)
+    lo = a - np.minimum(EDGE_PX, (a - prev_end - 1) // 2)
+    hi = b + np.minimum(EDGE_PX, (next_start - b - 1) // 2)
+    fl_lo, fl_hi = np.maximum(lo - FLANK_PX, prev_end + 1), lo - 1  # left flank
+    fr_lo, fr_hi = hi + 1, np.minimum(hi + FLANK_PX, next_start - 1)  # right flank
+    it_l, x_l = _spans(fl_lo, fl_hi)
+    it_r, x_r = _spans(fr_lo, fr_hi)
+    v_l, v_r = g[row[it_l], x_l].astype(np.float64), g[row[it_r], x_r].astype(np.float64)
+    n_l, n_r = np.maximum(fl_hi - fl_lo + 1, 0), np.maximum(fr_hi - fr_lo + 1, 0)
+    flanked = (n_l > 0) & (n_r > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        b_l = np.where(flanked, np.bincount(it_l, v_l, minlength=n) / n_l, background)
+        b_r = np.where(flanked, np.bincount(it_r, v_r, minlength=n) / n_r, background)
+    x0 = np.where(flanked, 0.5 * (fl_lo + fl_hi), lo - 1.0)  # the flanks' mean columns
+    x1 = np.where(flanked, 0.5 * (fr_lo + fr_hi), hi + 1.0)
+    noise = _noise_var(it_l, x_l, v_l, it_r, x_r, v_r)
+    it, x = _spans(lo, hi)
+    slope = (b_r - b_l) / (x1 - x0)
+    w = b_l[it] + slope[it] * (x - x0[it]) - g[row[it], x]  # contrast, signed
+    on_run = (x >= a[it]) & (x <= b[it])
+    lighter = np.bincount(it, np.where(on_run, w, 0.0), minlength=n) < 0  # than its background
+    sign = np.where(lighter, -1.0, 1.0)
+    sw = sign * np.bincount(it, w, minlength=n)
+    swx = sign * np.bincount(it, w * x, minlength=n)
+    # sums over the window's columns: n, sum x, sum x^2 (closed forms)
+    s0 = (hi - lo + 1).astype(np.float64)
+    s1 = 0.5 * s0 * (lo + hi)
+    s2 = (hi * (hi + 1.0) * (2 * hi + 1.0) - (lo - 1.0) * lo * (2 * lo - 1.0)) / 6.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = swx / sw
+        sdx2 = s2 - 2.0 * c * s1 + s0 * c * c  # sum (x - c)^2
+        sdx_tau = (s2 - (c + x0) * s1 + s0 * c * x0) / (x1 - x0)  # sum (x - c) tau
+        sdx_1mtau = s1 - s0 * c - sdx_tau  # sum (x - c) (1 - tau)
+        s_b = noise / FLANK_PX + 0.25 * (b_l - b_r) ** 2  # variance of each flank level
+        var = (noise * sdx2 + s_b * (sdx_1mtau**2 + sdx_tau**2)) / sw**2
+    mid = 0.5 * (a + b)
+    var_mask = ((b - a + 1.0) ** 2 + 1.0) / 12.0
+    # significant contrast: the centroid's noise below the mask's own uncertainty
+    good = flanked & (sw > 0) & np.isfinite(c) & (c >= lo) & (c <= hi) & (var < var_mask)
+    return np.where(good, c, mid), np.where(good, var, var_mask)
+
+
+def _spans(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Item index and column of every column of the spans lo..hi (inclusive; empty where
+    hi < lo), item by item."""
+    counts = np.maximum(hi - lo + 1, 0)
+    item = np.repeat(np.arange(len(lo)), counts)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    return item, np.arange(int(counts.sum())) - np.repeat(first - lo, counts)
+
+
+def _noise_var(
+    it_l: np.ndarray,
+    x_l: np.ndarray,
+    v_l: np.ndarray,
+    it_r: np.ndarray,
+    x_r: np.ndarray,
+    v_r: np.ndarray,
+) -> float:
+    """Pixel noise variance sigma_n^2, grey levels^2, from the differences of neighbouring
+    flank pixels (median of their squares / 0.4549, the median of chi^2 with one degree of
+    freedom, / 2 for a difference of two pixels); at least two roundings to 8 bits."""
+    diffs = [
+        v[1:][(it[1:] == it[:-1]) & (x[1:] == x[:-1] + 1)]
+        - v[:-1][(it[1:] == it[:-1]) & (x[1:] == x[:-1] + 1)]
+        for it, x, v in ((it_l, x_l, v_l), (it_r, x_r, v_r))
+    ]
+    d = np.concatenate(diffs)
+    est = float(np.median(d * d)) / 0.4549 / 2.0 if d.size >= 20 else 0.0
+    return max(est, 2.0 / 12.0)
 
 
 def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

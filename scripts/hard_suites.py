@@ -49,6 +49,13 @@ SUITES: dict[str, tuple[str, ThreadParams, RenderParams]] = {
     "leaving": ("--leaves-image", ThreadParams(leaves_image=True), RenderParams()),
     "hairpin": ("--hairpin", ThreadParams(hairpin=True), RenderParams()),
     "spiral": ("--spiral", ThreadParams(spiral=True), RenderParams()),
+    # plain threads (no hard shape): what a change for the hard ones must not break
+    "plain": ("", ThreadParams(), RenderParams()),
+    "plain-tissue": (
+        "--background tissue --noise 2 --blur 0.5",
+        ThreadParams(),
+        RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5),
+    ),
 }
 
 

@@ -243,8 +243,9 @@ def test_paper_dataset_default_curves_are_ok_and_right_or_say_what_is_unknown() 
     """Frames with ground truth: ok and right. Real frames: ok, or suspect for what the
     images cannot show: a thread leaving the view (with border_suspect; all 5 real frames
     have one end at the border and a free end) or depth travel no reliable match supports
-    (thread1_119: about 30 mm where the nearest reliable matches disagree by 3-8 px of
-    disparity)."""
+    (thread1_119 with the MVS curve: about 30 mm where the nearest reliable matches disagree
+    by 3-8 px of disparity; the two-view default follows both views' runs there and stays
+    within the limit)."""
     suspect = []
     for frame in discover(PAPER):
         pair, calib, gt = load_frame(frame)
@@ -258,6 +259,12 @@ def test_paper_dataset_default_curves_are_ok_and_right_or_say_what_is_unknown() 
         if gt is not None:
             e = curve_errors(rec["camera"].points * calib.mm_per_unit, gt * calib.mm_per_unit)
             assert e.e_length < 20 and e.e_S_max < 20, frame.id
+        if frame.id.endswith("thread1_119_final"):  # the MVS curve's unsupported travel
+            mvs = replace(ReconParams(), refine=replace(ReconParams().refine, mode="off"))
+            suspect.append(frame.id.rsplit("/", 1)[-1])
+            rec = Pipeline(pair, calib).run(mvs)
+            assert rec.status == "suspect"
+            assert any("no reliable match" in reason for reason in rec.reasons), rec.reasons
     assert "thread1_119_final" in suspect  # the unsupported depth travel is found
 
 
