@@ -25,6 +25,7 @@ from typing import Final, Literal
 import cv2
 import numpy as np
 
+from threadrecon.core.instrument import drop_attached
 from threadrecon.core.params import Params, param
 from threadrecon.core.segment_raw import drop_specks, segment_raw
 
@@ -395,6 +396,7 @@ def _drop_wide(mask: np.ndarray, view: _Grey, level: float, delta: float) -> np.
     wide = cv2.dilate(core, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (grow, grow)))
     out = mask.copy()
     out[box] &= wide == 0
+    out[box] = drop_attached(out[box], wide > 0, off8 > 0)  # jaws: attached, wider than thread
     return out
 
 
