@@ -67,3 +67,31 @@ def drop_attached(mask: np.ndarray, tool: np.ndarray, body: np.ndarray | None = 
     grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 3, 2 * r + 3))
     wide = cv2.dilate(wide, grow)  # the opening, and its 1 px anti-aliased rim
     return mask & (wide == 0)
+
+
+def grow_into_attached(grey: np.ndarray, tool: np.ndarray, min_width_px: int) -> np.ndarray:
+    """``tool`` (H, W) bool grown by the parts of ``grey`` (H, W) bool (pixels of the
+    instrument's colour) that are at least ``min_width_px`` wide (they hold a disc that wide)
+    and touch it: the jaws of a grasper, attached to its shaft and wider than any thread, but
+    thinner than the shaft-sized opening that found the tool. A thread of the tool's colour
+    (white, black) no wider than ``min_width_px - 1`` holds no such disc and is not grown into.
+    """
+    if grey.shape != tool.shape or grey.ndim != 2:
+        raise ValueError(
+            f"grow_into_attached needs two (H, W) masks, got {grey.shape}, {tool.shape}"
+        )
+    if min_width_px < 1:
+        raise ValueError(f"min_width_px must be >= 1, got {min_width_px}")
+    tool8 = np.ascontiguousarray(tool, dtype=bool).view(np.uint8)
+    if not tool8.any():
+        return tool
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (min_width_px, min_width_px))
+    wide = cv2.morphologyEx(
+        np.ascontiguousarray(grey, dtype=bool).view(np.uint8), cv2.MORPH_OPEN, disc
+    )
+    wide |= tool8
+    n, labels = cv2.connectedComponents(wide, connectivity=8, ltype=cv2.CV_32S)
+    touching = np.zeros(n, bool)
+    touching[labels[tool8 > 0]] = True
+    touching[0] = False
+    return touching[labels] | tool
