@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from threadrecon.core.instrument import drop_attached
+from threadrecon.core.instrument import drop_attached, grow_into_attached
 from threadrecon.core.segmentation import SegmentationParams, StereoPair, segment
 from threadrecon.core.synthetic import RenderParams, SyntheticParams, ThreadParams, generate_frame
 
@@ -75,3 +75,24 @@ def test_without_an_instrument_the_flat_threshold_is_unchanged() -> None:
     auto = segment(pair)
     strict = segment(pair, SegmentationParams(method="threshold"))
     assert np.array_equal(auto.P_L, strict.P_L) and np.array_equal(auto.P_R, strict.P_R)
+
+
+def test_grey_parts_wider_than_a_thread_attached_to_the_tool_join_it() -> None:
+    tool = np.zeros((100, 200), bool)
+    tool[40:60, 80:120] = True
+    grey = tool.copy()
+    grey[10:40, 95:105] = True  # a 10 px jaw on the tool
+    grey[50:52, 10:80] = True  # a 2 px grey (white) thread touching it
+    grey[5:30, 20:30] = True  # a wide grey patch away from the tool
+    grown = grow_into_attached(grey, tool, 7)
+    assert grown[14:40, 96:104].all()  # the opening rounds its free end
+    assert not grown[50:52, 10:78].any()
+    assert not grown[5:30, 20:30].any()
+    assert (grown >= tool).all()
+
+
+def test_grow_into_attached_checks_its_input() -> None:
+    with pytest.raises(ValueError, match="min_width_px"):
+        grow_into_attached(np.zeros((4, 4), bool), np.zeros((4, 4), bool), 0)
+    with pytest.raises(ValueError, match=r"\(4, 5\)"):
+        grow_into_attached(np.zeros((4, 4), bool), np.zeros((4, 5), bool), 3)
