@@ -46,6 +46,8 @@ _WINDOW_PX: Final = 8  # the background's residual within 8 px of the piece's di
 # optimum elsewhere (at the window's edge) is "does not move with the piece"
 _MAX_VOTES: Final = 4  # blocks that vote per piece: enough for a majority, and a bound on the
 # work
+_MIN_VOTES: Final = 2  # a piece is judged on two blocks at least (a frame tests tens of
+# blocks at 3 sigma: one passes by chance now and then)
 _MIN_BLOCK_SAMPLES: Final = 8  # samples a block needs for a disparity of its own
 
 
@@ -113,6 +115,8 @@ class SurfaceTest:
                 vote[b] = bg.matches_at(0, d)
                 if np.count_nonzero(vote >= 0) >= _MAX_VOTES:
                     break
+        if np.count_nonzero(vote >= 0) < _MIN_VOTES:
+            return out  # one block's vote is no evidence: its t-tests pass by chance at times
         at = np.searchsorted(ids, key_all)
         found = (at < len(ids)) & (ids[np.minimum(at, len(ids) - 1)] == key_all)
         out[found] = vote[at[found]]
