@@ -103,13 +103,10 @@ def segment_raw(
             if bound >= _RED_THREAD_GAIN * salience
             else (None, 0.0, 1.0)
         )
-        # A vessel lies on the tissue: a blood-like piece seen in front of it is no vessel,
-        # whatever its hue (a red dye can share haemoglobin's).
-        red_floats = all(v._floats for v in red_views)
         if (
             red is not None
             and red_salience >= _RED_THREAD_GAIN * salience
-            and (red_cos < _VESSEL_HUE_COS or red_floats)
+            and red_cos < _VESSEL_HUE_COS
         ):
             views, found = red_views, red
     if found is None:
@@ -144,7 +141,6 @@ class _View:
     _grey: np.ndarray | None = None
     _far: np.ndarray | None = None
     _surface: SurfaceTest | None = None
-    _floats: bool = False  # the chosen piece is seen in front of the tissue (_select)
 
     def far(self) -> np.ndarray:
         """(H, W) bool: background pixels beyond _BAND_PX of every candidate (lo) pixel, where
@@ -210,7 +206,6 @@ class _View:
     def with_blood(self, p: SegmentationParams) -> _View:
         v = _View(**{k: getattr(self, k) for k in self.__dataclass_fields__ if k != "pieces"})
         v.pieces = _pieces(self.S, self.lo, None, v, p)
-        v._floats = False
         return v
 
 
@@ -307,7 +302,6 @@ def _select(
                 break
             votes = _surface_votes(views, i, lab_on == best, on, D)
             if not _a_mark(votes):
-                v._floats = _floats(votes)
                 break
             k[best] = False
             rank[best] = -1.0
@@ -362,13 +356,6 @@ def _surface_votes(
         v._surface = SurfaceTest(v.grey(), views[1 - i].grey(), v.far(), d, look_left=(i == 0))
     px = on[sel]
     return v._surface.votes(v.rows[px], v.cols[px])
-
-
-def _floats(votes: np.ndarray) -> bool:
-    """Whether a piece is seen in front of the tissue: it has decided votes
-    (:func:`_surface_votes`) and at most 1 - _MARK_SHARE of them say "on the surface"."""
-    decided = np.count_nonzero(votes >= 0)
-    return decided > 0 and np.count_nonzero(votes == 1) <= (1.0 - _MARK_SHARE) * decided
 
 
 def _a_mark(votes: np.ndarray) -> bool:
