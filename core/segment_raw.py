@@ -262,7 +262,8 @@ def _select(
     views: list[_View], p: SegmentationParams, nearest_hue: bool = False
 ) -> tuple[list[np.ndarray] | None, float, float]:
     """Core thread pixels (H, W) bool of both views (None when a view has no piece), the
-    salience (mean S x sqrt(length), summed over the views) of the chosen pieces, and the
+    salience (mean S x sqrt(length), summed over the views) of the chosen pieces (with None:
+    of the most salient marks on the tissue, which a red thread must outshine), and the
     largest (over the views) cosine between the chroma contrast of the chosen piece and the
     mean one of the view's other blood-like pixels (its vessels; 1 when there are too few to
     tell: a lone blood-like line is taken for a vessel).
@@ -295,9 +296,12 @@ def _select(
             return None, 0.0, 1.0
         rank = np.where(k, means * np.sqrt(length), -1.0)
         best = int(np.argmax(rank))
+        top = float(rank[best])  # marks on the tissue count here: a red thread must outshine them
         # A mark on the tissue (vessel, fibre) moves with the texture beside it; a thread in
         # front of the tissue does not: the next most salient piece is tried.
-        for _ in range(_MAX_SURFACE_TESTS):
+        # (Not among blood-like pieces: there the vessels' hue is the evidence, as a vessel
+        # is a mark too and would leave any small leftover the "thread".)
+        for _ in range(0 if nearest_hue else _MAX_SURFACE_TESTS):
             if rank[best] <= 0:
                 break
             votes = _surface_votes(views, i, lab_on == best, on, D)
@@ -307,9 +311,10 @@ def _select(
             rank[best] = -1.0
             best = int(np.argmax(rank))
         else:
-            return None, 0.0, 1.0  # the most salient pieces are all marks on the tissue
+            if not nearest_hue:
+                return None, salience + top, 1.0  # the most salient pieces: marks on tissue
         if rank[best] <= 0:
-            return None, 0.0, 1.0
+            return None, salience + top, 1.0
         salience += float(rank[best])
         # The frame's vessel hue: mean contrast of its blood-like pixels off the chosen piece.
         vessel = v.blood & (lab != best)
@@ -326,9 +331,10 @@ def _select(
         # A joining piece is no mark on the tissue either (a fibre as light as a white thread).
         others = np.flatnonzero(k)
         others = others[np.argsort(-rank[others])][:_MAX_SURFACE_TESTS]
-        k[:] = False
-        for j in others.tolist():
-            k[j] = not _a_mark(_surface_votes(views, i, lab_on == j, on, D))
+        if not nearest_hue:
+            k[:] = False
+            for j in others.tolist():
+                k[j] = not _a_mark(_surface_votes(views, i, lab_on == j, on, D))
         k[best] = True
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
