@@ -299,20 +299,21 @@ def _select(
         top = float(rank[best])  # marks on the tissue count here: a red thread must outshine them
         # A mark on the tissue (vessel, fibre) moves with the texture beside it; a thread in
         # front of the tissue does not: the next most salient piece is tried.
-        # (Not among blood-like pieces: there the vessels' hue is the evidence, as a vessel
-        # is a mark too and would leave any small leftover the "thread".)
-        for _ in range(0 if nearest_hue else _MAX_SURFACE_TESTS):
+        # Among blood-like pieces (vessels are marks too) the one left must be seen in front
+        # of the tissue, not merely undecided (a small leftover).
+        for _ in range(_MAX_SURFACE_TESTS):
             if rank[best] <= 0:
                 break
             votes = _surface_votes(views, i, lab_on == best, on, D)
             if not _a_mark(votes):
+                if nearest_hue and not _floats(votes):
+                    return None, salience + top, 1.0
                 break
             k[best] = False
             rank[best] = -1.0
             best = int(np.argmax(rank))
         else:
-            if not nearest_hue:
-                return None, salience + top, 1.0  # the most salient pieces: marks on tissue
+            return None, salience + top, 1.0  # the most salient pieces are marks on the tissue
         if rank[best] <= 0:
             return None, salience + top, 1.0
         salience += float(rank[best])
@@ -331,10 +332,9 @@ def _select(
         # A joining piece is no mark on the tissue either (a fibre as light as a white thread).
         others = np.flatnonzero(k)
         others = others[np.argsort(-rank[others])][:_MAX_SURFACE_TESTS]
-        if not nearest_hue:
-            k[:] = False
-            for j in others.tolist():
-                k[j] = not _a_mark(_surface_votes(views, i, lab_on == j, on, D))
+        k[:] = False
+        for j in others.tolist():
+            k[j] = not _a_mark(_surface_votes(views, i, lab_on == j, on, D))
         k[best] = True
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
@@ -362,6 +362,13 @@ def _surface_votes(
         v._surface = SurfaceTest(v.grey(), views[1 - i].grey(), v.far(), d, look_left=(i == 0))
     px = on[sel]
     return v._surface.votes(v.rows[px], v.cols[px])
+
+
+def _floats(votes: np.ndarray) -> bool:
+    """Whether a piece is seen in front of the tissue: it has decided votes
+    (:func:`_surface_votes`) and at most 1 - _MARK_SHARE of them say "on the surface"."""
+    decided = np.count_nonzero(votes >= 0)
+    return decided > 0 and np.count_nonzero(votes == 1) <= (1.0 - _MARK_SHARE) * decided
 
 
 def _a_mark(votes: np.ndarray) -> bool:
