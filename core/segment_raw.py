@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Final
 import cv2
 import numpy as np
 
+from threadrecon.core.instrument import grow_into_attached
 from threadrecon.core.ridge_kernel import (
     at_least,
     kth_smallest,
@@ -26,6 +27,7 @@ from threadrecon.core.ridge_kernel import (
     small_components,
     upsample_max,
 )
+from threadrecon.core.segment_surface import SurfaceTest
 
 if TYPE_CHECKING:
     from threadrecon.core.segmentation import SegmentationParams
@@ -52,6 +54,12 @@ _BLOOD_RATIO: Final = 0.25  # haemoglobin absorbs G, B far more than R: a vessel
 _MIN_SNR: Final = 5.0  # a thread piece's mean contrast to its background: >= 5 noise sigmas
 _QUANT_SIGMA: Final = _LOG_SCALE / (255.0 * 12**0.5)  # uint8 quantisation noise, log units
 _SHARED_PX: Final = 1.5  # two pixels sharing less than 1.5 px of coverage: one thread pixel
+_JAW_MIN_PX: Final = 7  # grey parts attached to an instrument and at least 7 px wide (a
+# thread is at most 6) belong to it: its jaws
+_MARK_SHARE: Final = 0.75  # a piece moving with the tissue on 3/4 of it is a mark on it (a
+# block's test errs on ~1 % of blocks; a thread merged with a mark keeps >= 1/4 of its own)
+_MAX_SURFACE_TESTS: Final = 8  # a thread less salient than 8 marks on the tissue is not
+# told from them: the frame's answer is "no thread found" (bounds the work: ~1 ms a test)
 _NOISE_ROW_STEP: Final = 16  # noise estimated on every 16th row: 30 rows x 640 px at 640x480
 
 
@@ -138,6 +146,28 @@ class _View:
     sigma: np.ndarray  # (C,) pixel noise of each log channel (robust), log units
     bg_rgb: np.ndarray  # (h, w, C) float32 local background colour at quarter resolution
     pieces: tuple = ()
+    _grey: np.ndarray | None = None
+    _far: np.ndarray | None = None
+    _surface: SurfaceTest | None = None
+
+    def far(self) -> np.ndarray:
+        """(H, W) bool: background pixels beyond _BAND_PX of every candidate (lo) pixel, where
+        no line, nor its blurred rim, is (computed once, on demand)."""
+        if self._far is None:
+            k = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * _BAND_PX + 1, 2 * _BAND_PX + 1))
+            self._far = cv2.dilate(self.lo, k) == 0
+        return self._far
+
+    def grey(self) -> np.ndarray:
+        """(H, W) float32 grey levels of the view (computed once, on demand)."""
+        if self._grey is None:
+            img = self.img if self.img.ndim == 3 else self.img[:, :, None]
+            if img.dtype != np.uint8:
+                img = np.clip(img, 0, 255).astype(np.uint8)
+            img = np.ascontiguousarray(img[:, :, :3])
+            g = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.shape[2] >= 3 else img[:, :, 0]
+            self._grey = g.astype(np.float32)
+        return self._grey
 
     @classmethod
     def build(cls, img: np.ndarray, p: SegmentationParams) -> _View:
@@ -150,7 +180,16 @@ class _View:
         a_q = _quarter(img if img.ndim == 3 else img[:, :, None])[:, :, :c]
         if c > 1 and len(rows):
             tool = _instrument_mask(_log_of(a_q))
-            on_tool = tool[_qi(rows, tool.shape[0]), _qi(cols, tool.shape[1])]
+            if tool.any():  # its jaws: grey parts wider than a thread, attached to it
+                h, w = lo.shape
+                full = tool[_qi(np.arange(h), tool.shape[0])][:, _qi(np.arange(w), tool.shape[1])]
+                f = _log_channels(img)  # full resolution, on instrument frames only
+                chroma = cv2.max(cv2.absdiff(f[:, :, 1], 0.0), cv2.absdiff(f[:, :, 2], 0.0))
+                achromatic = chroma < _GREY_TOOL * _LOG_SCALE
+                tool = grow_into_attached(achromatic, full, _JAW_MIN_PX)
+                on_tool = tool[rows, cols]
+            else:
+                on_tool = np.zeros(len(rows), bool)
             if on_tool.any():
                 lo[rows[on_tool], cols[on_tool]] = 0
                 rows, cols = rows[~on_tool], cols[~on_tool]
@@ -234,7 +273,8 @@ def _select(
     views: list[_View], p: SegmentationParams, nearest_hue: bool = False
 ) -> tuple[list[np.ndarray] | None, float, float]:
     """Core thread pixels (H, W) bool of both views (None when a view has no piece), the
-    salience (mean S x sqrt(length), summed over the views) of the chosen pieces, and the
+    salience (mean S x sqrt(length), summed over the views) of the chosen pieces (with None:
+    of the most salient marks on the tissue, which a red thread must outshine), and the
     largest (over the views) cosine between the chroma contrast of the chosen piece and the
     mean one of the view's other blood-like pixels (its vessels; 1 when there are too few to
     tell: a lone blood-like line is taken for a vessel).
@@ -267,6 +307,26 @@ def _select(
             return None, 0.0, 1.0
         rank = np.where(k, means * np.sqrt(length), -1.0)
         best = int(np.argmax(rank))
+        top = float(rank[best])  # marks on the tissue count here: a red thread must outshine them
+        # A mark on the tissue (vessel, fibre) moves with the texture beside it; a thread in
+        # front of the tissue does not: the next most salient piece is tried.
+        # Among blood-like pieces (vessels are marks too) the one left must be seen in front
+        # of the tissue, not merely undecided (a small leftover).
+        for _ in range(_MAX_SURFACE_TESTS):
+            if rank[best] <= 0:
+                break
+            votes = _surface_votes(views, i, lab_on == best, on, D)
+            if not _a_mark(votes):
+                if nearest_hue and not _floats(votes):
+                    return None, salience + top, 1.0
+                break
+            k[best] = False
+            rank[best] = -1.0
+            best = int(np.argmax(rank))
+        else:
+            return None, salience + top, 1.0  # the most salient pieces are marks on the tissue
+        if rank[best] <= 0:
+            return None, salience + top, 1.0
         salience += float(rank[best])
         # The frame's vessel hue: mean contrast of its blood-like pixels off the chosen piece.
         vessel = v.blood & (lab != best)
@@ -279,8 +339,14 @@ def _select(
         k = k & (means >= p.keep_ratio * means[best]) & (_same_dye(delta, d_best) >= _SAME_DYE_COS)
         if nearest_hue and d_vessel is not None:
             k &= _same_dye(delta, d_best) > _same_dye(delta, d_vessel)
+        k[0] = k[best] = False
+        # A joining piece is no mark on the tissue either (a fibre as light as a white thread).
+        others = np.flatnonzero(k)
+        others = others[np.argsort(-rank[others])][:_MAX_SURFACE_TESTS]
+        k[:] = False
+        for j in others.tolist():
+            k[j] = not _a_mark(_surface_votes(views, i, lab_on == j, on, D))
         k[best] = True
-        k[0] = False
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
         px = on[k[lab_on]]  # the lo pixels of the kept pieces
@@ -294,6 +360,34 @@ def _select(
         core[v.rows[px], v.cols[px]] = 1
         out.append(core)
     return out, salience, cos_vessels
+
+
+def _surface_votes(
+    views: list[_View], i: int, sel: np.ndarray, on: np.ndarray, d: int
+) -> np.ndarray:
+    """Per pixel ``on[sel]`` (indices of view ``i``'s lo pixels) of a piece: 1 where it moves
+    with the tissue beside it, 0 where not, -1 undecided
+    (:meth:`core.segment_surface.SurfaceTest.votes`)."""
+    v = views[i]
+    if v._surface is None or v._surface.dmax != d:
+        v._surface = SurfaceTest(v.grey(), views[1 - i].grey(), v.far(), d, look_left=(i == 0))
+    px = on[sel]
+    return v._surface.votes(v.rows[px], v.cols[px])
+
+
+def _floats(votes: np.ndarray) -> bool:
+    """Whether a piece is seen in front of the tissue: it has decided votes
+    (:func:`_surface_votes`) and at most 1 - _MARK_SHARE of them say "on the surface"."""
+    decided = np.count_nonzero(votes >= 0)
+    return decided > 0 and np.count_nonzero(votes == 1) <= (1.0 - _MARK_SHARE) * decided
+
+
+def _a_mark(votes: np.ndarray) -> bool:
+    """Whether a piece is a mark on the tissue: >= _MARK_SHARE of its decided votes
+    (:func:`_surface_votes`) say it moves with the tissue. A thread merged with a fibre or a
+    vessel where they cross is a mark only in part, and stays (without that part)."""
+    decided = np.count_nonzero(votes >= 0)
+    return decided > 0 and np.count_nonzero(votes == 1) >= _MARK_SHARE * decided
 
 
 def _cosine(a: np.ndarray, b: np.ndarray) -> float:

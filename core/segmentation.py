@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 
 from threadrecon.core.compiled import kernel
+from threadrecon.core.instrument import drop_attached
 from threadrecon.core.params import Params, param
 from threadrecon.core.segment_raw import drop_specks, segment_raw
 
@@ -354,9 +355,10 @@ def _threshold_auto8(
     y0, y1, x0, x1 = max(y - m, 0), min(y + h + m, H), max(x - m, 0), min(x + w + m, W)
     cb = codes[y0:y1, x0:x1]
     P = cv2.bitwise_and(cb, 1)
-    wide = _wide_parts(cv2.compare(cb, 2, cv2.CMP_GE))  # off8: 255 off the level
-    if wide is not None:
-        P[wide] = 0
+    parts = _wide_parts(cv2.compare(cb, 2, cv2.CMP_GE))  # off8: 255 off the level
+    if parts is not None:  # the shaft, then the jaws attached to it (wider than the thread)
+        wide, body = parts
+        P = drop_attached(P.view(bool) & ~wide, wide, body).view(np.uint8)
     bx, by, bw, bh = cv2.boundingRect(P)
     if bw == 0:
         return out, None
@@ -418,11 +420,12 @@ def _drop_wide(mask: np.ndarray, view: _Grey, level: float, delta: float) -> np.
     box = _box(off, _CLOSE_MARGIN)
     if box is None:
         return mask
-    wide = _wide_parts(np.ascontiguousarray(off[box]).view(np.uint8) * np.uint8(255))
-    if wide is None:
+    parts = _wide_parts(np.ascontiguousarray(off[box]).view(np.uint8) * np.uint8(255))
+    if parts is None:
         return mask
+    wide, body = parts
     out = mask.copy()
-    out[box] &= ~wide
+    out[box] = drop_attached(out[box] & ~wide, wide, body)  # jaws: attached, wider than thread
     return out
 
 
@@ -431,9 +434,11 @@ def _off_level(g: np.ndarray, level: float, delta: float) -> np.ndarray:
     return cv2.compare(cv2.absdiff(g, float(level)), float(delta), cv2.CMP_GT).ravel() > 0
 
 
-def _wide_parts(off8: np.ndarray) -> np.ndarray | None:
+def _wide_parts(off8: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """(h, w) bool: the wide parts (and their rim) of the off-level pixels ``off8`` (uint8, 255
-    off the level) of a box (:func:`_drop_wide`); None when there is none."""
+    off the level) of a box (:func:`_drop_wide`), and those pixels with gaps up to 4 px closed
+    (the body that :func:`core.instrument.drop_attached` measures widths on); None when there
+    is no wide part."""
     off8 = cv2.morphologyEx(off8, cv2.MORPH_CLOSE, _GAP_DISC)  # a shading splits none
     if not cv2.countNonZero(cv2.erode(off8, _INSCRIBED_SQUARE)):
         return None  # the usual case, a thin thread only: no square, so no disc fits (exact)
@@ -443,7 +448,8 @@ def _wide_parts(off8: np.ndarray) -> np.ndarray | None:
     if not core.any():
         return None
     grow = 2 * (r + _WIDE_RIM_PX) + 1
-    return cv2.dilate(core, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (grow, grow))) > 0
+    wide = cv2.dilate(core, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (grow, grow))) > 0
+    return wide, off8 > 0
 
 
 def _threshold_score(grey: np.ndarray, level: float, delta: float) -> np.ndarray:

@@ -4,7 +4,8 @@ withheld (the segmentation finds the thread), in memory, from the generator.
     python scripts/eval_suites.py --seed 7 --count 20 [--suite tissue ...] [--csv out.csv]
 
 Per suite: % good frames (status ok, |length error| <= 20 mm, max error <= 20 mm) without
-masks, mean e_S without / with masks over the frames good in both, mask IoU against the exact
+masks, how many frames came back "ok" but not good (a wrong curve, or one where there is no
+thread), mean e_S without / with masks over the frames good in both, mask IoU against the exact
 mask (thread pixels, both views), median segmentation time and median pipeline time. The
 ``empty-*`` suites hold no thread (a sub-pixel one): good there is "no thread found". Frame k of
 a suite is drawn with ``default_rng([seed, suite_index, k])``: use seeds you did not tune on.
@@ -145,8 +146,8 @@ def main(argv: list[str] | None = None) -> int:
     names = args.suite or list(SUITES)
     rows = []
     print(
-        f"{'suite':<18} {'good raw':>9} {'good mask':>9} {'e_S raw':>8} {'e_S mask':>8} "
-        f"{'IoU':>5} {'IoU min':>7} {'seg ms':>7} {'seg cpu':>7} {'total ms':>8}"
+        f"{'suite':<18} {'good raw':>9} {'ok wrong':>8} {'good mask':>9} {'e_S raw':>8} "
+        f"{'e_S mask':>8} {'IoU':>5} {'IoU min':>7} {'seg ms':>7} {'seg cpu':>7} {'total ms':>8}"
     )
     for name in names:
         si = list(SUITES).index(name)
@@ -173,6 +174,8 @@ def main(argv: list[str] | None = None) -> int:
                     f"{raw['error'][:90]}"
                 )
         good = np.mean([r["good"] for r, _ in res]) * 100
+        # A wrong answer given as "ok" (a curve where there is none, or a bad one): the worst.
+        ok_wrong = sum(r["status"] == "ok" and not r["good"] for r, _ in res)
         good_m = np.mean([m.get("good", False) for _, m in res]) * 100
         both = [(r["e_S"], m["e_S"]) for r, m in res if r["good"] and m.get("good")]
         e_raw = np.mean([b[0] for b in both]) if both else float("nan")
@@ -182,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
         tot = np.median([r["ms_total"] for r, _ in res])
         cpu = np.median([r["ms_seg_cpu"] for r, _ in res])
         print(
-            f"{name:<18} {good:8.0f}% {good_m:8.0f}% {e_raw:8.3f} {e_msk:8.3f} "
+            f"{name:<18} {good:8.0f}% {ok_wrong:8d} {good_m:8.0f}% {e_raw:8.3f} {e_msk:8.3f} "
             f"{np.mean(ious):5.2f} {np.min(ious):7.2f} {seg:7.1f} {cpu:7.1f} {tot:8.1f}",
             flush=True,
         )
