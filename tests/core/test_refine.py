@@ -2,7 +2,10 @@
 brings the curve closer to the truth on seeded synthetic threads, and its parts (row runs, the
 constrained least-squares solver) are exact on small known cases."""
 
+from __future__ import annotations
+
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -13,6 +16,9 @@ from threadrecon.core.metrics import curve_errors
 from threadrecon.core.ordering import OrderingParams
 from threadrecon.core.pipeline import Pipeline, ReconParams
 from threadrecon.core.refine import RefineParams, _lsi, _Runs, refine_depth
+
+if TYPE_CHECKING:
+    from threadrecon.core.synthetic import SyntheticParams
 
 TRIALS = tuple(range(6))
 
@@ -242,17 +248,10 @@ def test_runs_cut_by_an_occluder_do_not_pull_the_curve_off_the_mvs() -> None:
     # instrument's edge in one view over ~40 rows, whose cut runs' centres lie 1-2 px off. With
     # a variance of L^2 / 12 per run and no measurement of the MVS curve, two_view had e_S
     # 0.45-0.83 mm against 0.15 mm off; the flanks' misfit and the MVS curve at H hold it.
-    from threadrecon.core.segmentation import StereoPair
-    from threadrecon.core.synthetic import RenderParams, SyntheticParams, generate_frame
+    from threadrecon.core.synthetic import RenderParams, SyntheticParams
 
     syn = SyntheticParams(render=RenderParams(occlusion=True))
-    frame = generate_frame(syn, np.random.default_rng([7821, 3]))
-    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
-    pipe = Pipeline(pair, syn.camera.calibration())
-    e = {}
-    for mode in ("off", "two_view"):
-        rec = pipe.run(replace(ReconParams(), refine=RefineParams(mode=mode)))
-        e[mode] = curve_errors(rec["camera"].points, frame.truth.centerline).e_S
+    e = _e_S_off_and_two_view(syn, [7821, 3])
     assert e["two_view"] < 1.25 * e["off"], e
 
 
@@ -260,18 +259,27 @@ def test_refinement_is_no_worse_than_the_mvs_on_plain_generated_threads() -> Non
     # Plain generated threads (flat background, exact masks; seed 7811, frames 1-4): the MVS
     # is already within ~0.03 px of disparity; run centres cut by the mask (0.2 px RMS) made
     # two_view lose (median e_S 0.057 -> 0.116 mm on seeds 901-906).
-    from threadrecon.core.segmentation import StereoPair
-    from threadrecon.core.synthetic import SyntheticParams, generate_frame
+    from threadrecon.core.synthetic import SyntheticParams
 
     syn = SyntheticParams()
     ratios = []
     for k in range(1, 5):
-        frame = generate_frame(syn, np.random.default_rng([7811, k]))
-        pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
-        pipe = Pipeline(pair, syn.camera.calibration())
-        e = {}
-        for mode in ("off", "two_view"):
-            rec = pipe.run(replace(ReconParams(), refine=RefineParams(mode=mode)))
-            e[mode] = curve_errors(rec["camera"].points, frame.truth.centerline).e_S
+        e = _e_S_off_and_two_view(syn, [7811, k])
         ratios.append(e["two_view"] / e["off"])
     assert np.median(ratios) <= 1.0 and max(ratios) < 1.3, ratios
+
+
+def _e_S_off_and_two_view(syn: SyntheticParams, seed: list[int]) -> dict[str, float]:
+    """e_S (mm) of the generated frame ``seed`` of ``syn`` (exact masks) with the refinement
+    off and with ``two_view``."""
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import generate_frame
+
+    frame = generate_frame(syn, np.random.default_rng(seed))
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    pipe = Pipeline(pair, syn.camera.calibration())
+    e = {}
+    for mode in ("off", "two_view"):
+        rec = pipe.run(replace(ReconParams(), refine=RefineParams(mode=mode)))
+        e[mode] = curve_errors(rec["camera"].points, frame.truth.centerline).e_S
+    return e
