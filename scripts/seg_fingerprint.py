@@ -28,7 +28,7 @@ from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from stage_fingerprint import compare  # noqa: E402  (scripts/, this folder)
+from stage_fingerprint import compare, parser  # noqa: E402  (scripts/, this folder)
 
 from threadrecon.app.bench import _with_overrides  # noqa: E402
 from threadrecon.app.dataset import discover, load_frame  # noqa: E402
@@ -120,19 +120,9 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    sub = ap.add_subparsers(dest="cmd", required=True)
-    w = sub.add_parser("write")
-    w.add_argument("out")
-    w.add_argument("data", help="dataset folders, comma-separated")
-    w.add_argument("--config", default=None)
-    w.add_argument("--set", action="append", default=[], metavar="STAGE.NAME=VALUE")
+    ap, w = parser(__doc__)
     w.add_argument("--repeat", type=int, default=3)
     w.add_argument("--masks", action="store_true", help="keep the masks (OUT.masks.npz)")
-    c = sub.add_parser("compare")
-    c.add_argument("before")
-    c.add_argument("after")
-    c.add_argument("-v", "--verbose", action="store_true")
     args = ap.parse_args()
     if args.cmd == "write":
         _write(args)

@@ -129,8 +129,11 @@ def compare(args: argparse.Namespace) -> int:
     return 0 if not fields else 1
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def parser(doc: str) -> tuple[argparse.ArgumentParser, argparse.ArgumentParser]:
+    """The fingerprint scripts' command line: ``write OUT DATA[,DATA...] [--config]
+    [--set ...]`` and ``compare BEFORE AFTER [-v]``; returns the parser and its ``write``
+    sub-parser (for a script's own options)."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     w = sub.add_parser("write")
     w.add_argument("out")
@@ -141,6 +144,11 @@ def main() -> int:
     c.add_argument("before")
     c.add_argument("after")
     c.add_argument("-v", "--verbose", action="store_true")
+    return ap, w
+
+
+def main() -> int:
+    ap, _ = parser(__doc__)
     args = ap.parse_args()
     if args.cmd == "write":
         _write(args)
