@@ -33,7 +33,7 @@ import numpy as np
 
 from threadrecon.core import walk_kernel
 from threadrecon.core.clustering import Clusters
-from threadrecon.core.ends import tip_disparity
+from threadrecon.core.ends import seen_in_right, tip_disparity
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.stereo import StereoResult
@@ -89,6 +89,13 @@ class OrderingParams(Params):
     """Radius of the window on each end of the path matched in both views for the end's
     disparity, px (0: paper, the extension copies the end keypoint's depth). The search spans
     the end keypoint's disparity +- this (core/ends.py, deviation 23)."""
+    tip_views: Literal["left", "both"] = param(
+        "both",
+        label="tip seen in",
+        doc='Endpoint extension reaches the farthest pixel seen in "both" views (a right-view '
+        "thread pixel on its row within end_window_px of the end keypoint's disparity; pixels "
+        'only the left view shows have no depth) or in the "left" view alone (paper).',
+    )
     max_turn_deg: float = param(
         60.0,
         lo=0.0,
@@ -255,17 +262,25 @@ def order_keypoints(
 
     # Endpoint extension at both ends, then the geodesic position of every gap pixel.
     gap_size = np.bincount(gap_of[gaps], minlength=n_gaps)
+    cut_tips: dict[int, int] = {}  # end -> tip pixel, where the tip stops short of the gap's end
     for end in (0, -1):
         k = order[end]
         dead = [g for g in sorted(cluster_gaps.get(k, ())) if gap_members.get(g) == [k]]
         n_dead = int(sum(gap_size[g - K + 1] for g in dead))
         if n_dead >= p.extension_min_px:
-            sel = np.flatnonzero(np.isin(pixel_node, dead))
+            every = np.flatnonzero(np.isin(pixel_node, dead))
+            sel = _tip_candidates(every, lifted, stereo, disp[k], p)
+            if not len(sel):
+                continue
             d = geo.distance_from(k, sel)
             far = sel[int(np.argmax(np.where(np.isfinite(d), d, -1.0)))]  # geodesically farthest
+            if len(sel) < len(every):
+                cut_tips[end] = int(far)
         elif p.tip_px > 0 and len(walk) > 1:
             inner = clusters.keypoints_px[walk[1] if end == 0 else walk[-2], :2]
-            sel = np.flatnonzero(pixel_node == k)
+            sel = _tip_candidates(np.flatnonzero(pixel_node == k), lifted, stereo, disp[k], p)
+            if not len(sel):
+                continue
             far = sel[int(np.argmax(np.sum((stereo.pixels[sel] - inner) ** 2, axis=1)))]
             if np.linalg.norm(stereo.pixels[far] - clusters.keypoints_px[k, :2]) < p.tip_px:
                 continue
@@ -281,7 +296,14 @@ def order_keypoints(
             path.append(new)
             order.append(-1)
             links.append(tuple(dead))
-    pixel_t, pixel_link = _link_positions(geo, pixel_node, links, order, K + n_gaps)
+    pixel_t, pixel_link = _link_positions(
+        geo,
+        pixel_node,
+        links,
+        order,
+        K + n_gaps,
+        {(0 if e == 0 else len(links) - 1): px for e, px in cut_tips.items()},
+    )
     end_disparity = _NO_END_DISPARITY.copy()
     if p.end_window_px > 0 and walk:
         r = p.end_window_px
@@ -290,7 +312,7 @@ def order_keypoints(
             own = _window_is_own(
                 stereo.pixels, pixel_node, K, seq, key_px, cluster_gaps, path[e], r, grid
             )
-            if own:
+            if own and e not in cut_tips:  # a cut tip's window holds what only the left sees
                 m = tip_disparity(lifted.I_L, lifted.I_R, path[e][:2], disp[k], r)
                 end_disparity[row] = (m.disparity, m.var)
 
@@ -408,16 +430,32 @@ def _cluster_median(labels: np.ndarray, values: np.ndarray, K: int) -> np.ndarra
     return out
 
 
+def _tip_candidates(
+    sel: np.ndarray, lifted: LiftedPair, stereo: StereoResult, d_ref: float, p: OrderingParams
+) -> np.ndarray:
+    """The pixels of ``sel`` (indices into ``stereo.pixels``) an end may extend to: all of them
+    (``tip_views = "left"``, the paper), or those the right view shows too (:func:`seen_in_right`
+    within ``end_window_px`` of the end keypoint's disparity ``d_ref``)."""
+    if p.tip_views == "left" or not np.isfinite(d_ref):
+        return sel
+    return sel[seen_in_right(stereo.pixels[sel], lifted.P_R, d_ref, max(p.end_window_px, 1))]
+
+
 def _link_positions(
     geo: _GapGeodesics,
     pixel_node: np.ndarray,
     links: list[tuple[int, ...]],
     order: list[int],
     n_nodes: int,
+    tips: dict[int, int] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``pixel_t``, ``pixel_link`` of every gap pixel on a link, from two multi-source geodesic
     searches (from the link's first cluster and from its second, all links at once: gaps are
-    disjoint, and the gap graph has no edge between two gaps)."""
+    disjoint, and the gap graph has no edge between two gaps).
+
+    An extension link runs from its end keypoint (t = 0 at the end, 1 at the start's tip) to
+    the gap's farthest pixel, or to ``tips[link]`` (a pixel index) where the extension stopped
+    short of it: the pixels beyond that tip lie on no link."""
     n = len(pixel_node)
     pixel_t = np.full(n, np.nan)
     pixel_link = np.full(n, -1, dtype=np.int64)
@@ -448,8 +486,18 @@ def _link_positions(
         t = da / (da + db)
         t = np.where(a < 0, 1.0 - db / top_b[lk], t)  # extension at the start: reversed
         t = np.where(b < 0, da / top_a[lk], t)
-    pixel_t[sel] = np.where(np.isfinite(t), t, np.nan)
-    pixel_link[sel] = lk
+    beyond = np.zeros(sel.size, dtype=bool)
+    for link, tip in (tips or {}).items():  # the tip's own distance sets the scale
+        on, at = lk == link, sel == tip
+        if not at.any():
+            continue
+        if b[at][0] < 0:
+            t[on] = da[on] / da[at][0]
+        else:
+            t[on] = 1.0 - db[on] / db[at][0]
+        beyond |= on & ((t < 0.0) | (t > 1.0))
+    pixel_t[sel] = np.where(np.isfinite(t) & ~beyond, t, np.nan)
+    pixel_link[sel] = np.where(beyond, -1, lk)
     return pixel_t, pixel_link
 
 

@@ -4,12 +4,15 @@ window line of Eq. (7) by their variances (deviation 23)."""
 
 import numpy as np
 import pytest
-from support import synthetic_case
+from scipy.spatial import cKDTree
+from support import calibration_for, synthetic_case, synthetic_frame
 
 from threadrecon.core.bounds import _line_variance, _tip_ends, _window_line_fits
-from threadrecon.core.ends import NO_MATCH, QUANT_VAR, fuse_end, tip_disparity
+from threadrecon.core.ends import NO_MATCH, QUANT_VAR, fuse_end, seen_in_right, tip_disparity
+from threadrecon.core.metrics import project
 from threadrecon.core.ordering import OrderingParams, _PixelGrid, _window_is_own
 from threadrecon.core.pipeline import Pipeline, ReconParams
+from threadrecon.core.segmentation import StereoPair
 
 
 def _thread(shape, tip, direction, length=60.0, width=3.0, background=255.0) -> np.ndarray:
@@ -145,3 +148,57 @@ def test_a_tip_window_holding_another_strand_is_not_matched() -> None:
             assert want == got
     assert not _window_is_own(edge_in, np.append(nodes, 3), K, seq, key_px, gaps, tip, 7)
     assert _window_is_own(edge_out, np.append(nodes, 3), K, seq, key_px, gaps, tip, 7)
+
+
+def test_seen_in_right_needs_a_right_thread_pixel_on_the_row_near_the_disparity() -> None:
+    P_R = np.zeros((20, 40), dtype=bool)
+    P_R[10, 12] = True
+    px = np.array([[42 - 30, 10], [42, 10], [42, 11], [42, 9], [42, 12], [46, 10], [47, 10]])
+    # x - d = 12 on rows 9-11 (one row of slack); 3 columns of tolerance: 46 -> 16 is 4 away
+    got = seen_in_right(px, P_R, d_ref=30.0, tol=3)
+    assert got.tolist() == [False, True, True, True, False, False, False]
+    assert seen_in_right(px[[5]], P_R, d_ref=30.0, tol=4).tolist() == [True]
+    assert not seen_in_right(px, P_R, d_ref=float("nan"), tol=3).any()
+    # columns off either side of the image are clipped, not wrapped
+    assert not seen_in_right(np.array([[2, 10], [39, 10]]), P_R, d_ref=-30.0, tol=3).any()
+    assert seen_in_right(np.empty((0, 2), int), P_R, 30.0, 3).shape == (0,)
+
+
+def _hidden_tip_case(hide_px: int):
+    """A generated frame (exact masks) whose right view does not show the last ``hide_px`` px of
+    the thread's first end (painted over with the background and cut from P_R), as a real rig's
+    hand mask or a glint does; (pair, calibration, the right mask)."""
+    frame = synthetic_frame(2)
+    calib = calibration_for(frame.camera)
+    tip = project(frame.truth.centerline[:2], calib.P2)[0]
+    ys, xs = np.mgrid[: frame.mask_right.shape[0], : frame.mask_right.shape[1]]
+    near = np.hypot(xs - tip[0], ys - tip[1]) <= hide_px
+    right, m_R = frame.right.copy(), frame.mask_right.copy()
+    right[near & m_R] = np.median(frame.right[~m_R], axis=0).astype(np.uint8)
+    m_R[near] = False
+    return StereoPair(frame.left, right, frame.mask_left, m_R), calib, m_R
+
+
+def test_an_end_the_right_view_does_not_show_is_not_extended_into() -> None:
+    pair, calib, m_R = _hidden_tip_case(9)
+    both = Pipeline(pair, calib).run(until="camera")
+    left = Pipeline(pair, calib).run(
+        ReconParams(ordering=OrderingParams(tip_views="left")), until="camera"
+    )
+    tips = {n: r["ordering"].path_px[[0, -1], :2] for n, r in (("both", both), ("left", left))}
+    # the left-only extension reaches into the hidden part; the two-view one stops short of it
+    gap = np.linalg.norm(tips["left"] - tips["both"], axis=1)
+    assert gap.max() >= 4.0, gap
+    # and the final curve's projection stays on the right view's thread
+    on = cKDTree(np.argwhere(m_R)[:, ::-1])
+    assert on.query(project(both["camera"].points, calib.P2))[0].max() <= 3.0
+    assert on.query(project(left["camera"].points, calib.P2))[0].max() > 4.0
+
+
+def test_an_end_both_views_show_is_extended_as_before() -> None:
+    pair, calib, _ = synthetic_case(2)
+    o_both = Pipeline(pair, calib).run(until="ordering")["ordering"]
+    o_left = Pipeline(pair, calib).run(
+        ReconParams(ordering=OrderingParams(tip_views="left")), until="ordering"
+    )["ordering"]
+    assert np.array_equal(o_both.path_px, o_left.path_px)
