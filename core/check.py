@@ -596,18 +596,20 @@ def _check(
     if free and bare is None:
         bare = _BareBackground(lifted, (field_l, field_r), p)
     for end in free:  # a free end ends at one 3D point: both views see the thread stop there
-        reach_px = min(p.max_unobserved_mm / mm * f / (z[0] if end == "start" else z[-1]),
-                       p.cut_end_px + CUT_REACH_PX)  # fmt: skip
-        cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach_px, p.cut_end_px,
-                      p.cover_px + BEYOND_COVER_PX, bare, p.bare_share)  # fmt: skip
-        if cut is not None:
-            side, ext = cut
+        z_end = z[0] if end == "start" else z[-1]
+        unobserved_px = p.max_unobserved_mm / mm * f / z_end  # the limit's length at the end
+        cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end,
+                      min(unobserved_px, p.cut_end_px + CUT_REACH_PX), p.cut_end_px,
+                      p.cover_px + BEYOND_COVER_PX, bare, p.bare_share, see_px=unobserved_px)  # fmt: skip
+        if cut is not None and not (cut.seen and max(cut.ext) <= unobserved_px):
             findings.append(
-                ("suspect", f"the {side} view sees the thread {max(ext):.0f} px beyond the "
-                 f"curve's {end}, the other {min(ext):.0f} px, over no bare background: the end "
-                 "is cut by an occluder (a free end stops at one point in both views), the "
-                 "thread may go on hidden under it")
+                ("suspect", f"the {cut.view} view sees the thread {max(cut.ext):.0f} px beyond "
+                 f"the curve's {end}, the other {min(cut.ext):.0f} px, over no bare background: "
+                 "the end is cut by an occluder (a free end stops at one point in both views), "
+                 "the thread may go on hidden under it")
             )  # fmt: skip
+        elif cut is not None:  # the thread's end is seen in one view: the curve misses that much
+            missing = max(missing, max(cut.ext) * z_end / f * mm)
     if free and cov_l < 1.0 and cov_r < 1.0:
         found = beyond_ends(
             (uv_l, uv_r), (lifted.P_L, lifted.P_R), free, {"start": z[0], "end": z[-1]}, f,

@@ -282,12 +282,13 @@ def cut_end(
     cover_px: float,
     bare: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
     bare_share: float,
-) -> tuple[str, tuple[float, float]] | None:
+    see_px: float = 0.0,
+) -> CutEnd | None:
     """Whether the curve's free ``end`` is cut by an occluder in one view: one view sees the
-    thread (``extension``) more than ``cut_px`` farther beyond it than the other, and in the
-    other view the CUT_PROBE_PX px just beyond the end are not bare background (more than
-    ``bare_share`` not bare). Returns the view that sees farther ("left"/"right") and both
-    extensions (px), or None."""
+    thread (``extension`` up to ``reach_px``) more than ``cut_px`` farther beyond it than the
+    other, and in the other view the CUT_PROBE_PX px just beyond the end are not bare
+    background (more than ``bare_share`` not bare). None when not. The view that sees farther
+    is followed up to ``see_px`` (when larger) to find where its thread stops (``seen``)."""
     ext = extension(uv, masks, end, reach_px, cover_px, cut_px)
     if abs(ext[0] - ext[1]) <= cut_px:
         return None
@@ -296,10 +297,47 @@ def cut_end(
     if fr is None:
         return None
     _, tip, way = fr
-    probe = tip + np.arange(2.0, 2.0 + CUT_PROBE_PX)[:, None] * way
-    if float(np.mean(bare(stop, probe, tip, tip))) > bare_share:
+    if _bare_beyond(bare, stop, tip, way, 0.0, bare_share):
         return None  # bare background just beyond the end there: a free end
-    return ("left" if stop == 1 else "right"), ext
+    far = 1 - stop
+    seen = False  # the far view's thread stops inside the search, before bare background
+    fr_far = _end_frame(uv[far], end)
+    reach_far = ext[far]
+    if reach_far + 2.0 > reach_px and see_px > reach_px:  # follow it further in that view
+        reach_far = extension(uv, masks, end, see_px, cover_px, cut_px)[far]
+        ext = (reach_far, ext[1]) if far == 0 else (ext[0], reach_far)
+    if fr_far is not None and reach_far + 2.0 <= max(reach_px, see_px):  # stops in the search
+        _, tip_far, way_far = fr_far
+        seen = _bare_beyond(bare, far, tip_far, way_far, reach_far, bare_share)
+    return CutEnd("left" if stop == 1 else "right", ext, seen)
+
+
+@dataclass(frozen=True)
+class CutEnd:
+    """An end cut by an occluder in one view: ``view`` is the one that sees farther ("left" or
+    "right"), ``ext`` both views' extensions beyond the end (px, left and right), ``seen``
+    whether that view shows the thread's own free end there (bare background just beyond
+    its extension, inside the search): then the thread stops there, and the curve misses the
+    extension only, not an unknown length hidden under the occluder."""
+
+    view: str
+    ext: tuple[float, float]
+    seen: bool
+
+
+def _bare_beyond(
+    bare: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+    side: int,
+    tip: np.ndarray,
+    way: np.ndarray,
+    offset: float,
+    bare_share: float,
+) -> bool:
+    """Whether the CUT_PROBE_PX px beyond ``offset`` px past ``tip`` along ``way`` look like
+    bare background in view ``side`` (more than ``bare_share`` of them)."""
+    at = tip + offset * way
+    probe = at + np.arange(2.0, 2.0 + CUT_PROBE_PX)[:, None] * way
+    return float(np.mean(bare(side, probe, at, at))) > bare_share
 
 
 def _rows_in(px: np.ndarray, part: np.ndarray) -> np.ndarray:

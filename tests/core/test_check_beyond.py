@@ -87,7 +87,8 @@ def test_an_end_the_other_view_sees_further_over_no_bare_background_is_cut() -> 
     ext = extension(uv, masks, "end", 100.0, 5.0, 5.0)
     assert ext[0] == 0.0 and abs(ext[1] - 20.0) < 1.5
     cut = cut_end(uv, masks, "end", 100.0, 5.0, 5.0, _occluder_bare, 0.5)
-    assert cut is not None and cut[0] == "right"
+    assert cut is not None and cut.view == "right"
+    assert not cut.seen  # the right view's thread stops inside its occluder too: it may go on
     everywhere_bare = lambda s, xy, a, b: np.ones(len(xy), bool)  # noqa: E731
     assert cut_end(uv, masks, "end", 100.0, 5.0, 5.0, everywhere_bare, 0.5) is None
     assert cut_end(uv, masks, "start", 100.0, 5.0, 5.0, _occluder_bare, 0.5) is None
@@ -96,3 +97,20 @@ def test_an_end_the_other_view_sees_further_over_no_bare_background_is_cut() -> 
 def test_an_end_both_views_see_stop_at_the_same_point_is_not_cut() -> None:
     masks, uv = _cut_scene(3)  # within the cut tolerance (the thread's rounded tip)
     assert cut_end(uv, masks, "end", 100.0, 5.0, 5.0, _occluder_bare, 0.5) is None
+
+
+def _left_only_occluder(side: int, xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """An occluder over the left view's columns 80-109 only (the right camera sees past it)."""
+    return np.ones(len(xy), bool) if side == 1 else _occluder_bare(side, xy, a, b)
+
+
+def test_an_end_the_other_view_sees_stop_freely_is_cut_but_seen() -> None:
+    # The left view's end is hidden; the right view shows the thread 20 px further and then
+    # bare background: the thread's end is seen there, the curve misses those 20 px only.
+    masks, uv = _cut_scene(20)
+    cut = cut_end(uv, masks, "end", 100.0, 5.0, 5.0, _left_only_occluder, 0.5)
+    assert cut is not None and cut.view == "right" and cut.seen
+    assert abs(cut.ext[1] - 20.0) < 1.5
+    # the search stops before the right view's thread does: its end is not seen
+    cut = cut_end(uv, masks, "end", 15.0, 5.0, 5.0, _left_only_occluder, 0.5)
+    assert cut is not None and not cut.seen
