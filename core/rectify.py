@@ -118,7 +118,12 @@ def rectify_pair(pair: StereoPair, rect: Rectification) -> StereoPair:
         if outside.any():
             out[outside] = np.median(img.reshape(-1, *img.shape[2:]), axis=0).astype(img.dtype)
         views.append(out)
-        masks.append(None if mask is None else rectify_mask(mask, img, out, mx, my))
+        if mask is None:
+            masks.append(None)
+            continue
+        m = rectify_mask(mask, img, out, mx, my)
+        m[outside] = False  # nothing of the raw mask is seen there
+        masks.append(m)
     return StereoPair(views[0], views[1], masks[0], masks[1])
 
 
@@ -144,7 +149,9 @@ def _remap_image(img: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
 EDGE_EPS = 1e-3  # resampled mask values within this of 0 or 1 are sure (float32 weights)
 LEVEL_RADIUS = 2  # px: the thread and background levels are means within this (5 x 5)
 MIN_CONTRAST = 10.0  # grey levels: a band pixel is decided by its grey only above this contrast
-FOLLOWS_COVERAGE = 0.75  # share of the raw mask's edge pixels the half-coverage rule must explain
+# share of the raw mask's edge pixels the half-coverage rule must explain: ~0.9 for generated
+# thread masks (the rule ignores shading and blur), ~0.5 for the same masks a pixel wider/narrower
+FOLLOWS_COVERAGE = 0.75
 
 
 def rectify_mask(
@@ -164,9 +171,10 @@ def rectify_mask(
     ``FOLLOWS_COVERAGE`` of its edge pixels, :func:`_follows_coverage`: a mask drawn wider or
     narrower than the thread is resampled as it is), and only where the band pixel sees both
     levels with ``MIN_CONTRAST`` between them; elsewhere the bilinear value >= 0.5."""
-    m = cv2.remap(mask.astype(np.float32), mx, my, cv2.INTER_LINEAR, borderValue=0.0)
+    inside = np.asarray(mask).astype(bool)
+    m = cv2.remap(inside.astype(np.float32), mx, my, cv2.INTER_LINEAR, borderValue=0.0)
     plain = m >= 0.5
-    if not _follows_coverage(mask.astype(bool), _grey(raw)):
+    if not _follows_coverage(inside, _grey(raw)):
         return plain
     band = (m > EDGE_EPS) & (m < 1.0 - EDGE_EPS)
     half = _half_coverage(_grey(rectified), m >= 1.0 - EDGE_EPS, m <= EDGE_EPS, band)
