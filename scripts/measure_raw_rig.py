@@ -1,6 +1,6 @@
 """Raw calibrated pairs vs rectified input: e_S of each, per generated frame.
 
-    python scripts/measure_raw_rig.py [FIRST_SEED LAST_SEED] [--no-masks] [--blur PX]
+    python scripts/measure_raw_rig.py [FIRST_SEED LAST_SEED] [--no-masks | --both] [--blur PX]
         [--views resample|rectified] [--control-noise SIGMA] [--set STAGE.NAME=VALUE ...] [--pixels]
 
 Each seed's frame is seen by rotated, distorting cameras (tests/rig_support.py): the thread
@@ -33,7 +33,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
-from rig_support import RAW_MARGIN_PX, raw_rig, rectified_views  # noqa: E402
+from rig_support import RAW_MARGIN_PX, RawRig, raw_rig, rectified_views  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 from threadrecon.app.bench import parse_overrides  # noqa: E402
@@ -56,6 +56,9 @@ def main() -> None:
     parser.add_argument("first", type=int, nargs="?", default=50)
     parser.add_argument("last", type=int, nargs="?", default=61)
     parser.add_argument("--no-masks", action="store_true", help="segment the images instead")
+    parser.add_argument(
+        "--both", action="store_true", help="with masks and without, each frame rendered once"
+    )
     parser.add_argument(
         "--views",
         choices=("render", "resample", "rectified"),
@@ -84,55 +87,67 @@ def main() -> None:
     for stage, values in parse_overrides(args.set).items():
         data[stage].update(values)
     params = validate(data)
-    diffs = []
+    modes = (False, True) if args.both else (args.no_masks,)
+    diffs: dict[bool, list[float]] = {m: [] for m in modes}
     for seed in range(args.first, args.last + 1):
         views = "render" if args.views == "rectified" else args.views
         rig = raw_rig(seed, views=views, blur_sigma=args.blur)
-        reference = rig.reference
-        ref = reconstruct(_images_only(reference, args.no_masks), rig.reference_calib, params)
-        if args.control_noise is None:
-            rect = rectification(rig.calib)
-            if args.views == "rectified":  # rendered in the rectified cameras: no remap
-                pair = _images_only(rectified_views(rig, rect, args.blur), args.no_masks)
-            else:
-                pair = rectify_pair(_images_only(rig.pair, args.no_masks), rect)
-            rec = reconstruct(pair, rect.calib, params)
-            points = to_left_frame(rec["camera"].points, rect) if rec.status == "ok" else None
-            truth = rig.truth_left
-            rec_calib, rec_truth = rect.calib, truth @ rect.R1.T  # the rectified left frame
-        else:
-            render = RenderParams(blur_sigma=args.blur, noise_sigma=args.control_noise)
-            thread = ThreadParams(margin_px=RAW_MARGIN_PX)
-            noisy = generate_frame(SyntheticParams(thread=thread, render=render), rng=seed)
-            pair = StereoPair(noisy.left, noisy.right, reference.mask_left, reference.mask_right)
-            rec = reconstruct(_images_only(pair, args.no_masks), rig.reference_calib, params)
-            points = rec["camera"].points if rec.status == "ok" else None
-            truth = rig.frame.truth.centerline
-            rec_calib, rec_truth = rig.reference_calib, truth
-        if ref.status != "ok" or points is None:
-            print(f"seed {seed}: failed ({ref.message or rec.message})")
-            continue
-        e_ref = curve_errors(ref["camera"].points, rig.frame.truth.centerline).e_S
-        e_raw = curve_errors(points, truth).e_S
-        diffs.append(abs(e_raw - e_ref))
-        what = "raw rig" if args.control_noise is None else "noisy input"
+        for no_masks in modes:
+            diff = _measure(rig, seed, no_masks, args, params)
+            if diff is not None:
+                diffs[no_masks].append(diff)
+    for no_masks in modes:
+        d = np.array(diffs[no_masks])
+        label = " (images only)" if no_masks else " (with masks)" if args.both else ""
         print(
-            f"seed {seed}: e_S rectified input {e_ref:.3f} mm, {what} {e_raw:.3f} mm, "
-            f"|difference| {abs(e_raw - e_ref):.3f} mm"
+            f"|difference|{label} median {np.median(d):.3f} mm, max {d.max():.3f} mm, "
+            f"within 0.1 mm on {(d < 0.1).sum()} of {len(d)} frames"
         )
-        if args.pixels:
-            for name, run, calib, centreline in (
-                ("rectified input", ref, rig.reference_calib, rig.frame.truth.centerline),
-                (what, rec, rec_calib, rec_truth),
-            ):
-                print(
-                    f"    {name:15s} disparity RMS error, px, " + _by_angle(run, calib, centreline)
-                )
-    d = np.array(diffs)
+
+
+def _measure(
+    rig: RawRig, seed: int, no_masks: bool, args: argparse.Namespace, params: ReconParams
+) -> float | None:
+    """One frame's |e_S(raw rig) - e_S(rectified input)|, mm, printed; None if a run failed."""
+    tag = " images only" if args.both and no_masks else " with masks" if args.both else ""
+    reference = rig.reference
+    ref = reconstruct(_images_only(reference, no_masks), rig.reference_calib, params)
+    if args.control_noise is None:
+        rect = rectification(rig.calib)
+        if args.views == "rectified":  # rendered in the rectified cameras: no remap
+            pair = _images_only(rectified_views(rig, rect, args.blur), no_masks)
+        else:
+            pair = rectify_pair(_images_only(rig.pair, no_masks), rect)
+        rec = reconstruct(pair, rect.calib, params)
+        points = to_left_frame(rec["camera"].points, rect) if rec.status == "ok" else None
+        truth = rig.truth_left
+        rec_calib, rec_truth = rect.calib, truth @ rect.R1.T  # the rectified left frame
+    else:
+        render = RenderParams(blur_sigma=args.blur, noise_sigma=args.control_noise)
+        thread = ThreadParams(margin_px=RAW_MARGIN_PX)
+        noisy = generate_frame(SyntheticParams(thread=thread, render=render), rng=seed)
+        pair = StereoPair(noisy.left, noisy.right, reference.mask_left, reference.mask_right)
+        rec = reconstruct(_images_only(pair, no_masks), rig.reference_calib, params)
+        points = rec["camera"].points if rec.status == "ok" else None
+        truth = rig.frame.truth.centerline
+        rec_calib, rec_truth = rig.reference_calib, truth
+    if ref.status != "ok" or points is None:
+        print(f"seed {seed}{tag}: failed ({ref.message or rec.message})")
+        return None
+    e_ref = curve_errors(ref["camera"].points, rig.frame.truth.centerline).e_S
+    e_raw = curve_errors(points, truth).e_S
+    what = "raw rig" if args.control_noise is None else "noisy input"
     print(
-        f"|difference| median {np.median(d):.3f} mm, max {d.max():.3f} mm, "
-        f"within 0.1 mm on {(d < 0.1).sum()} of {len(d)} frames"
+        f"seed {seed}{tag}: e_S rectified input {e_ref:.3f} mm, {what} {e_raw:.3f} mm, "
+        f"|difference| {abs(e_raw - e_ref):.3f} mm"
     )
+    if args.pixels:
+        for name, run, calib, centreline in (
+            ("rectified input", ref, rig.reference_calib, rig.frame.truth.centerline),
+            (what, rec, rec_calib, rec_truth),
+        ):
+            print(f"    {name:15s} disparity RMS error, px, " + _by_angle(run, calib, centreline))
+    return abs(e_raw - e_ref)
 
 
 ANGLES = (0.0, 3.0, 6.0, 10.0, 15.0, 30.0, 90.1)  # deg: classes of the thread's angle to the rows

@@ -114,24 +114,21 @@ def test_raw_rig_curve_in_left_frame_matches_rectified_input(masks: bool) -> Non
     step and mapped back to the left camera's frame, has the e_S of the rectified-input curve
     of the same frame within 0.1 mm on every frame.
 
-    Held out (``scripts/measure_raw_rig.py A B --blur 0.7 [--no-masks]``, seeds 50-61, 70-81,
-    90-101, 130-141): with masks 47 of 48 frames (12, 12, 11, 12), images only 47 of 48
-    (12, 12, 11, 12). The miss is seed 98 (images only 0.104 mm; with masks 0.171 mm, 0.827 mm
-    before the refine repair's tolerance grew with its runs' length: it called a correct match
-    on a 57 px run along the rows a mismatch). The raw rig's rectified views rendered directly
-    in the rectified cameras (no resampling) give 0.016 mm on seed 98: the rest is the
-    remap's error near the thread, ~2 grey levels RMS with any interpolator (cv2 Lanczos 2.02,
-    exact-position Lanczos 1.99, order-5 spline 1.98), on a frame where one grey level of noise
-    on the rectified input itself (``--control-noise 1``) moves e_S by 0.09 mm. Earlier, seeds
-    110-121 gave 11 of 11 frames (seed 119 fails the check on both inputs). Without the stereo
-    stage's continuity along near-epipolar runs (``--set stereo.epipolar_deg=0``) 44 and 42
-    of 47. On near-epipolar runs the SSD is flat along the rows and a vertical error e of
-    the rectified pair moves the sub-pixel minimum by e / tan(theta): one grey level of noise on
-    the rectified input itself moved seeds 54, 61, 98 by more than
-    0.1 mm before the change. Without blur a rendered thread (box-filtered coverage, 1 px edges)
-    is not band-limited and no interpolation reproduces it at another sub-pixel position
-    (Lanczos: 5.5 grey levels RMS near the thread): 16 of 24 frames (seeds 50-61, 70-81,
-    measured before the continuity)."""
+    Held out (``scripts/measure_raw_rig.py A B --blur 0.7 --both``, seeds 90-101, 130-141,
+    150-161, 170-181): with masks 48 of 48 frames (worst 0.074 mm, seed 140), images only 47 of
+    48 (seed 160: 0.116 mm, a thread within 3 deg of the rows over ~700 px, where i.i.d. noise
+    of 1-2 grey levels on the rectified input itself moves it by 0.07-0.08 mm; the remap's
+    error near the thread is ~1.5 grey levels RMS). Before the images were sampled at the
+    maps' exact positions and the masks' edges decided by the half-coverage rule
+    (core/remap_kernel.py, ``rectify_mask``): 47 and 47 of 48 (seed 98 with masks 0.185 mm,
+    seed 158 images only 0.145 mm). The raw rig's rectified views rendered directly in the
+    rectified cameras (no resampling): every frame within 0.1 mm. Without the stereo stage's
+    continuity along near-epipolar runs (``--set stereo.epipolar_deg=0``) earlier seeds gave
+    44 and 42 of 47: on near-epipolar runs the SSD is flat along the rows and a vertical error
+    e of the rectified pair moves the sub-pixel minimum by e / tan(theta). Without blur a
+    rendered thread (box-filtered coverage, 1 px edges) is not band-limited and no
+    interpolation reproduces it at another sub-pixel position (Lanczos: 5.5 grey levels RMS
+    near the thread): 16 of 24 frames (seeds 50-61, 70-81, measured before the continuity)."""
     diffs, gaps = [], []
     for seed in SEEDS:
         rig = raw_rig(seed, blur_sigma=OPTICS_BLUR_PX)
