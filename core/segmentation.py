@@ -479,7 +479,7 @@ def _lift(
     if dilate_px > 0:
         k = np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8)
         Pb = cv2.dilate(Pb.view(np.uint8), k).view(bool)
-    out[box] = np.where(Pb, grey[box], np.float32(LIFT_VALUE))
+    np.copyto(out[box], grey[box], where=Pb)  # in place: no box-sized temporary
     return out
 
 

@@ -316,7 +316,8 @@ def match_stereo(
             free = (tan2 < math.tan(math.radians(p.epipolar_deg)) ** 2) & (var > ANCHOR_PX**2)
             if free.any():
                 w = 1.0 / (p.window * var)
-                disparity = _continuity(box.index, disparity, w, free, p.continuity_px)
+                at = box.ry * box.index.shape[1] + box.rx  # = _positions(box.index)
+                disparity = _continuity(box.index, disparity, w, free, p.continuity_px, at)
 
     points = _reproject(cols, rows, disparity, calib.Q)
     return StereoResult(
@@ -334,14 +335,20 @@ def match_stereo(
 
 
 def _continuity(
-    index: np.ndarray, d_hat: np.ndarray, w: np.ndarray, free: np.ndarray, tau: float
+    index: np.ndarray,
+    d_hat: np.ndarray,
+    w: np.ndarray,
+    free: np.ndarray,
+    tau: float,
+    at: np.ndarray | None = None,
 ) -> np.ndarray:
     """Robust membrane MAP of the disparity on the ``free`` pixels (module docstring).
 
     ``index``: (h, w) box image of pixel indices (-1 off P_L, row-major); ``d_hat``: (N,)
     sub-pixel disparities, px; ``w``: (N,) data weights, 1/px^2; ``free``: (N,) bool, the pixels
-    solved for (the others are fixed at ``d_hat``). Returns the (N,) disparities."""
-    at = _positions(index)
+    solved for (the others are fixed at ``d_hat``); ``at``: (N,) int64 flat box positions of
+    the pixels (:func:`_positions`, computed when None). Returns the (N,) disparities."""
+    at = _positions(index) if at is None else at
     a, b = _neighbour_pairs_kernel(index, at)
     touch = free[a] | free[b]
     a, b = a[touch], b[touch]
