@@ -226,7 +226,10 @@ def _grey8(image: np.ndarray) -> np.ndarray | None:
         return np.ascontiguousarray(image)
     if image.shape[2] == 1:
         return np.ascontiguousarray(image[:, :, 0])
-    return cv2.cvtColor(np.ascontiguousarray(image[:, :, :3]), cv2.COLOR_RGB2GRAY)
+    # cv2 reads an (H, W, 3) view with a row stride (a half of a side-by-side pair) in place:
+    # no copy of the colour image first
+    rgb = image if image.shape[2] == 3 else np.ascontiguousarray(image[:, :, :3])
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
 
 
 class _Grey:
