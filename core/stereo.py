@@ -446,16 +446,15 @@ def _energy_kernel(
     ty, tx, I_L_p, index, r, q_ptr, q_col, q_val, q_run, x0, d_lo, d_hi, lift, store
 ):  # noqa: ANN001
     """Eqs. (2)-(3) at the pixels (ty, tx) of P_L: d_min, d_next, E_min, E_next, and with
-        ``store`` the (T, d_hi+1) float32 energy E(d, p) (else a (0, d_hi+1) array, and only
-        d >= d_lo is accumulated). Sums in float64, rounded to float32 per d as stored.
+            ``store`` the (T, d_hi+1) float32 energy E(d, p) (else a (0, d_hi+1) array, and only
+            d >= d_lo is accumulated). Sums in float64, rounded to float32 per d as stored.
 
-        ``ty``, ``tx``: rows and columns in the bounding box (origin row 0, column ``x0``), in
-        row-major order; ``I_L_p``: I_L at every pixel of P_L; ``index``: box image of indices into
-        ``I_L_p``, -1 off P_L; ``q_ptr``, ``q_col``, ``q_val``: the right pixels off the lift value
-        in each box row (CSR by row, columns ascending, absolute), and their I_R; ``q_run``: the end
-    of each one's run of adjacent columns (:attr:`_Box.q_run`). The window slides
-        along a row: moving p one pixel right removes the window's left column and adds a new
-        right column. Each pixel's curve lives in a (d_hi+1) buffer while Eq. (3) reads it."""
+            ``ty``, ``tx``: rows and columns in the bounding box (origin row 0, column ``x0``), in
+            row-major order; ``I_L_p``: I_L at every pixel of P_L; ``index``: box image of indices into
+            ``I_L_p``, -1 off P_L; ``q_ptr``, ``q_col``, ``q_val``: the right pixels off the lift value
+    in each box row (CSR by row, columns ascending, absolute), and their I_R; ``q_run``: the end
+        of each one's run of adjacent columns (:attr:`_Box.q_run`). The window slides along a row: moving p one pixel right removes the window's left column and adds a new
+            right column. Each pixel's curve lives in a (d_hi+1) buffer while Eq. (3) reads it."""
     n = I_L_p.size
     t = ty.size
     h, w = index.shape
@@ -471,18 +470,25 @@ def _energy_kernel(
     E_next = np.empty(t)
     acc = np.zeros(d_hi + 1)
     base = np.zeros(1)
+    # Per box row and side (0 adds the right column, 1 removes the left one): the first right
+    # pixel with d <= d_hi for the column last visited, valid where its stamp is the current
+    # window's. Columns only grow while a window slides, so that pixel only moves right.
+    cursor = np.zeros((2, h), dtype=np.int64)
+    stamp = np.full((2, h), -1, dtype=np.int64)
+    gen = -1
     prev_y, prev_x = -1, -1
     for i in range(t):
         yi, xi = ty[i], tx[i]
         if yi == prev_y and xi - prev_x <= 2 * r:
             for x in range(prev_x + 1, xi + 1):  # slide the window one column at a time
-                _add_column(x - 1 - r, yi, -1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base)  # fmt: skip
-                _add_column(x + r, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base)  # fmt: skip
+                _add_column(x - 1 - r, yi, -1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base, cursor[1], stamp[1], gen)  # fmt: skip
+                _add_column(x + r, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base, cursor[0], stamp[0], gen)  # fmt: skip
         else:
             acc[:] = 0.0
             base[0] = 0.0
+            gen += 1  # a new window: every cursor is stale
             for xx in range(xi - r, xi + r + 1):
-                _add_column(xx, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base)  # fmt: skip
+                _add_column(xx, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base, cursor[0], stamp[0], gen)  # fmt: skip
         d_min[i], d_next[i], E_min[i], E_next[i] = _fill_best_two(
             row, base[0], acc, d_from, d_lo, NEXT_GAP
         )
@@ -494,9 +500,31 @@ def _energy_kernel(
 
 @helper(inline="always")
 def _add_column(
-    xx, yi, sign, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base
+    xx,
+    yi,
+    sign,
+    r,
+    index,
+    h,
+    w,
+    c0,
+    I_L_p,
+    q_ptr,
+    q_col,
+    q_val,
+    q_run,
+    x0,
+    d_from,
+    d_hi,
+    acc,
+    base,
+    cursor,
+    stamp,
+    gen,
 ):  # noqa: ANN001
-    """Add (sign 1) or remove (-1) the window column xx of the pixel in row yi."""
+    """Add (sign 1) or remove (-1) the window column xx of the pixel in row yi. ``cursor``,
+    ``stamp``: this side's per-row first right pixel with d <= d_hi, and the window (``gen``)
+    it was found for (else a binary search finds it)."""
     if xx < 0 or xx >= w:
         return
     xa = xx + x0
@@ -507,7 +535,14 @@ def _add_column(
         base[0] += sign * c0[j]
         vl, cj = I_L_p[j], c0[j]
         q_a, q_b = q_ptr[yy], q_ptr[yy + 1]
-        k = q_a + np.searchsorted(q_col[q_a:q_b], xa - d_hi)  # first q with d <= d_hi
+        if stamp[yy] == gen:  # the same window, one column further right: step on
+            k = cursor[yy]
+            while k < q_b and q_col[k] < xa - d_hi:
+                k += 1
+        else:
+            k = q_a + np.searchsorted(q_col[q_a:q_b], xa - d_hi)  # first q with d <= d_hi
+            stamp[yy] = gen
+        cursor[yy] = k
         while k < q_b and q_col[k] <= xa - d_from:  # d >= d_from
             dk = xa - q_col[k]  # a run of adjacent columns: consecutive disparities from dk down
             e = min(q_run[k], k + dk - d_from + 1)
