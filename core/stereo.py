@@ -8,7 +8,9 @@ Computation (a compiled kernel, ``_energy_kernel``, that scales with the thread,
 I_R^lift is the lift value off P_R (dilated by the lift), so (I_L(p') - I_R(p' - d))^2 is a constant c_0(p') except
 where p' - d falls on a segmented right pixel of the same row. E(., p) is therefore the window
 sum of c_0, plus, for each p' in g_p and each segmented right pixel q of its row within the
-search range, the change at d = x' - q_x. Work: N * |g_p| * (right pixels per row). Eq. (3)
+search range, the change at d = x' - q_x. Work: N * |g_p| * (right pixels per row): a run of
+adjacent right pixels is a run of consecutive disparities (one indexed loop), and each side of
+the sliding window steps its first right pixel in range along the row (no search). Eq. (3)
 reads each pixel's curve while it is in cache, so the (N, alpha+1) energy volume is never
 stored (``StereoResult.energy`` recomputes it on demand); no image-sized temporary either.
 
