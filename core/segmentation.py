@@ -226,7 +226,10 @@ def _grey8(image: np.ndarray) -> np.ndarray | None:
         return np.ascontiguousarray(image)
     if image.shape[2] == 1:
         return np.ascontiguousarray(image[:, :, 0])
-    return cv2.cvtColor(np.ascontiguousarray(image[:, :, :3]), cv2.COLOR_RGB2GRAY)
+    # cv2 reads an (H, W, 3) view with a row stride (a half of a side-by-side pair) in place:
+    # no copy of the colour image first
+    rgb = image if image.shape[2] == 3 else np.ascontiguousarray(image[:, :, :3])
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
 
 
 class _Grey:
@@ -479,7 +482,7 @@ def _lift(
     if dilate_px > 0:
         k = np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8)
         Pb = cv2.dilate(Pb.view(np.uint8), k).view(bool)
-    out[box] = np.where(Pb, grey[box], np.float32(LIFT_VALUE))
+    np.copyto(out[box], grey[box], where=Pb)  # in place: no box-sized temporary
     return out
 
 

@@ -8,7 +8,9 @@ Computation (a compiled kernel, ``_energy_kernel``, that scales with the thread,
 I_R^lift is the lift value off P_R (dilated by the lift), so (I_L(p') - I_R(p' - d))^2 is a constant c_0(p') except
 where p' - d falls on a segmented right pixel of the same row. E(., p) is therefore the window
 sum of c_0, plus, for each p' in g_p and each segmented right pixel q of its row within the
-search range, the change at d = x' - q_x. Work: N * |g_p| * (right pixels per row). Eq. (3)
+search range, the change at d = x' - q_x. Work: N * |g_p| * (right pixels per row): a run of
+adjacent right pixels is a run of consecutive disparities (one indexed loop), and each side of
+the sliding window steps its first right pixel in range along the row (no search). Eq. (3)
 reads each pixel's curve while it is in cache, so the (N, alpha+1) energy volume is never
 stored (``StereoResult.energy`` recomputes it on demand); no image-sized temporary either.
 
@@ -223,7 +225,7 @@ class _EnergySource:
         box = _Box.of(self.lifted, self.d_hi)
         ty, tx = (box.ry, box.rx) if which is None else (box.ry[which], box.rx[which])
         out, *_ = _energy_kernel(
-            ty, tx, box.I_L_p, box.index, self.window // 2, box.q_ptr, box.q_col, box.q_val,
+            ty, tx, box.I_L_p, box.index, self.window // 2, box.q_ptr, box.q_col, box.q_val, box.q_run,
             box.x0, self.d_lo, self.d_hi, LIFT_VALUE, True,
         )  # fmt: skip
         return out
@@ -248,6 +250,9 @@ class _Box:
     q_val: np.ndarray
     """Right pixels off the lift value, per box row (CSR by row: pointers, absolute columns
     ascending, I_R), in the columns a left pixel reaches with d in 0..d_hi."""
+    q_run: np.ndarray
+    """(Q,) int64: for each right pixel, one past the last of its run of adjacent columns in
+    its row (where the energy kernel's inner loop runs over consecutive disparities)."""
 
     @staticmethod
     def of(lifted: LiftedPair, d_hi: int) -> _Box:
@@ -266,9 +271,14 @@ class _Box:
         q_val = lifted.I_R[qy + y0, qx + xr0].astype(np.float64)
         q_ptr = np.searchsorted(qy, np.arange(y1 - y0 + 1)).astype(np.int64)
         q_col = (qx + xr0).astype(np.int64)
-        return _Box(
-            y0, x0, ry.astype(np.int64), rx.astype(np.int64), index, I_L_p, q_ptr, q_col, q_val
+        ends = np.flatnonzero((np.diff(q_col) != 1) | (np.diff(qy) != 0)) + 1
+        q_run = np.repeat(
+            np.append(ends, q_col.size), np.diff(np.concatenate(([0], ends, [q_col.size])))
         )
+        return _Box(
+            y0, x0, ry.astype(np.int64), rx.astype(np.int64), index, I_L_p, q_ptr, q_col, q_val,
+            q_run.astype(np.int64),
+        )  # fmt: skip
 
 
 def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -298,7 +308,7 @@ def match_stereo(
     box = _Box.of(lifted, d_hi)
     rows, cols = box.ry + box.y0, box.rx + box.x0
     _, d_min, d_next, E_min, E_next = _energy_kernel(
-        box.ry, box.rx, box.I_L_p, box.index, r, box.q_ptr, box.q_col, box.q_val, box.x0,
+        box.ry, box.rx, box.I_L_p, box.index, r, box.q_ptr, box.q_col, box.q_val, box.q_run, box.x0,
         d_lo, d_hi, LIFT_VALUE, False,
     )  # Eqs. (2)-(3), fused: the energy volume is never stored  # fmt: skip
 
@@ -316,7 +326,8 @@ def match_stereo(
             free = (tan2 < math.tan(math.radians(p.epipolar_deg)) ** 2) & (var > ANCHOR_PX**2)
             if free.any():
                 w = 1.0 / (p.window * var)
-                disparity = _continuity(box.index, disparity, w, free, p.continuity_px)
+                at = box.ry * box.index.shape[1] + box.rx  # = _positions(box.index)
+                disparity = _continuity(box.index, disparity, w, free, p.continuity_px, at)
 
     points = _reproject(cols, rows, disparity, calib.Q)
     return StereoResult(
@@ -334,14 +345,20 @@ def match_stereo(
 
 
 def _continuity(
-    index: np.ndarray, d_hat: np.ndarray, w: np.ndarray, free: np.ndarray, tau: float
+    index: np.ndarray,
+    d_hat: np.ndarray,
+    w: np.ndarray,
+    free: np.ndarray,
+    tau: float,
+    at: np.ndarray | None = None,
 ) -> np.ndarray:
     """Robust membrane MAP of the disparity on the ``free`` pixels (module docstring).
 
     ``index``: (h, w) box image of pixel indices (-1 off P_L, row-major); ``d_hat``: (N,)
     sub-pixel disparities, px; ``w``: (N,) data weights, 1/px^2; ``free``: (N,) bool, the pixels
-    solved for (the others are fixed at ``d_hat``). Returns the (N,) disparities."""
-    at = _positions(index)
+    solved for (the others are fixed at ``d_hat``); ``at``: (N,) int64 flat box positions of
+    the pixels (:func:`_positions`, computed when None). Returns the (N,) disparities."""
+    at = _positions(index) if at is None else at
     a, b = _neighbour_pairs_kernel(index, at)
     touch = free[a] | free[b]
     a, b = a[touch], b[touch]
@@ -424,20 +441,22 @@ def _reproject(x: np.ndarray, y: np.ndarray, disparity: np.ndarray, Q: np.ndarra
 
 @kernel(
     "Tuple((float32[:, ::1], int64[::1], int64[::1], float64[::1], float64[::1]))(int64[::1], "
-    "int64[::1], float64[::1], int32[:, ::1], int64, int64[::1], int64[::1], float64[::1], int64, "
-    "int64, int64, float64, boolean)"
+    "int64[::1], float64[::1], int32[:, ::1], int64, int64[::1], int64[::1], float64[::1], "
+    "int64[::1], int64, int64, int64, float64, boolean)"
 )
-def _energy_kernel(ty, tx, I_L_p, index, r, q_ptr, q_col, q_val, x0, d_lo, d_hi, lift, store):  # noqa: ANN001
+def _energy_kernel(
+    ty, tx, I_L_p, index, r, q_ptr, q_col, q_val, q_run, x0, d_lo, d_hi, lift, store
+):  # noqa: ANN001
     """Eqs. (2)-(3) at the pixels (ty, tx) of P_L: d_min, d_next, E_min, E_next, and with
-    ``store`` the (T, d_hi+1) float32 energy E(d, p) (else a (0, d_hi+1) array, and only
-    d >= d_lo is accumulated). Sums in float64, rounded to float32 per d as stored.
+            ``store`` the (T, d_hi+1) float32 energy E(d, p) (else a (0, d_hi+1) array, and only
+            d >= d_lo is accumulated). Sums in float64, rounded to float32 per d as stored.
 
-    ``ty``, ``tx``: rows and columns in the bounding box (origin row 0, column ``x0``), in
-    row-major order; ``I_L_p``: I_L at every pixel of P_L; ``index``: box image of indices into
-    ``I_L_p``, -1 off P_L; ``q_ptr``, ``q_col``, ``q_val``: the right pixels off the lift value
-    in each box row (CSR by row, columns ascending, absolute), and their I_R. The window slides
-    along a row: moving p one pixel right removes the window's left column and adds a new
-    right column. Each pixel's curve lives in a (d_hi+1) buffer while Eq. (3) reads it."""
+            ``ty``, ``tx``: rows and columns in the bounding box (origin row 0, column ``x0``), in
+            row-major order; ``I_L_p``: I_L at every pixel of P_L; ``index``: box image of indices into
+            ``I_L_p``, -1 off P_L; ``q_ptr``, ``q_col``, ``q_val``: the right pixels off the lift value
+    in each box row (CSR by row, columns ascending, absolute), and their I_R; ``q_run``: the end
+        of each one's run of adjacent columns (:attr:`_Box.q_run`). The window slides along a row: moving p one pixel right removes the window's left column and adds a new
+            right column. Each pixel's curve lives in a (d_hi+1) buffer while Eq. (3) reads it."""
     n = I_L_p.size
     t = ty.size
     h, w = index.shape
@@ -453,18 +472,25 @@ def _energy_kernel(ty, tx, I_L_p, index, r, q_ptr, q_col, q_val, x0, d_lo, d_hi,
     E_next = np.empty(t)
     acc = np.zeros(d_hi + 1)
     base = np.zeros(1)
+    # Per box row and side (0 adds the right column, 1 removes the left one): the first right
+    # pixel with d <= d_hi for the column last visited, valid where its stamp is the current
+    # window's. Columns only grow while a window slides, so that pixel only moves right.
+    cursor = np.zeros((2, h), dtype=np.int64)
+    stamp = np.full((2, h), -1, dtype=np.int64)
+    gen = -1
     prev_y, prev_x = -1, -1
     for i in range(t):
         yi, xi = ty[i], tx[i]
         if yi == prev_y and xi - prev_x <= 2 * r:
             for x in range(prev_x + 1, xi + 1):  # slide the window one column at a time
-                _add_column(x - 1 - r, yi, -1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_from, d_hi, acc, base)  # fmt: skip
-                _add_column(x + r, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_from, d_hi, acc, base)  # fmt: skip
+                _add_column(x - 1 - r, yi, -1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base, cursor[1], stamp[1], gen)  # fmt: skip
+                _add_column(x + r, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base, cursor[0], stamp[0], gen)  # fmt: skip
         else:
             acc[:] = 0.0
             base[0] = 0.0
+            gen += 1  # a new window: every cursor is stale
             for xx in range(xi - r, xi + r + 1):
-                _add_column(xx, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_from, d_hi, acc, base)  # fmt: skip
+                _add_column(xx, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base, cursor[0], stamp[0], gen)  # fmt: skip
         d_min[i], d_next[i], E_min[i], E_next[i] = _fill_best_two(
             row, base[0], acc, d_from, d_lo, NEXT_GAP
         )
@@ -476,9 +502,31 @@ def _energy_kernel(ty, tx, I_L_p, index, r, q_ptr, q_col, q_val, x0, d_lo, d_hi,
 
 @helper(inline="always")
 def _add_column(
-    xx, yi, sign, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, x0, d_from, d_hi, acc, base
+    xx,
+    yi,
+    sign,
+    r,
+    index,
+    h,
+    w,
+    c0,
+    I_L_p,
+    q_ptr,
+    q_col,
+    q_val,
+    q_run,
+    x0,
+    d_from,
+    d_hi,
+    acc,
+    base,
+    cursor,
+    stamp,
+    gen,
 ):  # noqa: ANN001
-    """Add (sign 1) or remove (-1) the window column xx of the pixel in row yi."""
+    """Add (sign 1) or remove (-1) the window column xx of the pixel in row yi. ``cursor``,
+    ``stamp``: this side's per-row first right pixel with d <= d_hi, and the window (``gen``)
+    it was found for (else a binary search finds it)."""
     if xx < 0 or xx >= w:
         return
     xa = xx + x0
@@ -489,10 +537,20 @@ def _add_column(
         base[0] += sign * c0[j]
         vl, cj = I_L_p[j], c0[j]
         q_a, q_b = q_ptr[yy], q_ptr[yy + 1]
-        k = q_a + np.searchsorted(q_col[q_a:q_b], xa - d_hi)  # first q with d <= d_hi
-        while k < q_b and q_col[k] <= xa - d_from:
-            acc[xa - q_col[k]] += sign * ((vl - q_val[k]) ** 2 - cj)
-            k += 1
+        if stamp[yy] == gen:  # the same window, one column further right: step on
+            k = cursor[yy]
+            while k < q_b and q_col[k] < xa - d_hi:
+                k += 1
+        else:
+            k = q_a + np.searchsorted(q_col[q_a:q_b], xa - d_hi)  # first q with d <= d_hi
+            stamp[yy] = gen
+        cursor[yy] = k
+        while k < q_b and q_col[k] <= xa - d_from:  # d >= d_from
+            dk = xa - q_col[k]  # a run of adjacent columns: consecutive disparities from dk down
+            e = min(q_run[k], k + dk - d_from + 1)
+            for i in range(e - k):  # each d once: the same sums in the same order per d
+                acc[dk - i] += sign * ((vl - q_val[k + i]) ** 2 - cj)
+            k = e
 
 
 @helper(inline="always")

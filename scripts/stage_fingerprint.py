@@ -10,6 +10,10 @@ and keypoints, the order, path, edges, dropped keypoints, node of every pixel, l
 pixel_link, the ordering graph (pieces, junctions, decisions with their costs: exact and to 9
 significant digits) and the camera-frame curve. Gap ids are names only (their numbering is not
 part of the result): each gap is named by its first pixel.
+
+``write --front`` adds, bit for bit, the front stages' results: the lifted pair (I_L, I_R,
+P_L, P_R, grey levels, background, scores), stereo (pixels, d_min, d_next, E_min, E_next,
+disparity, points) and reliability (R, reliable); ``compare`` then checks those fields too.
 """
 
 from __future__ import annotations
@@ -50,6 +54,34 @@ def _rounded(x: Any) -> Any:
     return x
 
 
+def _front(rec: Any) -> dict[str, Any]:
+    """Hashes of the segment, stereo and reliability results (``write --front``)."""
+    d: dict[str, Any] = {}
+    if rec is None:
+        return d
+    if "segment" in rec.runs:
+        s = rec["segment"]
+        d["segment"] = (
+            "".join(
+                _h(a) if a is not None else "none"
+                for a in (s.I_L, s.I_R, s.P_L, s.P_R, s.grey_L, s.grey_R, s.score_L, s.score_R)
+            )
+            + f"{s.background}{s.method}"
+        )
+    if "stereo" in rec.runs:
+        st = rec["stereo"]
+        d["stereo"] = (
+            "".join(
+                _h(getattr(st, k))
+                for k in ("pixels", "d_min", "d_next", "E_min", "E_next", "disparity", "points")
+            )
+            + f"{st.d_range}"
+        )
+    if "reliability" in rec.runs:
+        d["reliability"] = _h(rec["reliability"].R) + _h(rec["reliability"].reliable)
+    return d
+
+
 def _fingerprint(row: dict[str, Any], rec: Any) -> dict[str, Any]:
     d: dict[str, Any] = {
         k: (round(float(row[k]), 6) if isinstance(row.get(k), float) else row.get(k))
@@ -88,6 +120,8 @@ def _write(args: argparse.Namespace) -> None:
             for frame in discover(root):
                 row, rec = evaluate_frame(frame, params)
                 out[f"{root}:{frame.id}"] = _fingerprint(row, rec)
+                if getattr(args, "front", False):
+                    out[f"{root}:{frame.id}"].update(_front(rec))
     Path(args.out).write_text(json.dumps(out, indent=1, sort_keys=True))
     print(f"{len(out)} frames -> {args.out}")
 
@@ -148,7 +182,8 @@ def parser(doc: str) -> tuple[argparse.ArgumentParser, argparse.ArgumentParser]:
 
 
 def main() -> int:
-    ap, _ = parser(__doc__)
+    ap, w = parser(__doc__)
+    w.add_argument("--front", action="store_true", help="also the front stages' results")
     args = ap.parse_args()
     if args.cmd == "write":
         _write(args)

@@ -150,3 +150,15 @@ def test_neighbour_graph_links_pixels_within_manhattan_radius(radius: int) -> No
     ).tocsr()
     assert (graph != expected).nnz == 0
     assert np.all(np.diff(graph.indices[graph.indptr[0] : graph.indptr[1]]) > 0)  # sorted
+
+
+@pytest.mark.parametrize("radius", [1, 2, 4])
+def test_neighbour_lists_are_each_pixels_neighbours_in_ascending_order(radius: int) -> None:
+    rng = np.random.default_rng(10 + radius)
+    ys, xs = np.nonzero(rng.random((30, 45)) < 0.4)
+    pixels = np.stack([xs, ys], axis=1)
+    indptr, indices = _neighbour_lists(pixels, radius)
+    for i, (x, y) in enumerate(pixels):
+        dist = np.abs(pixels[:, 0] - x) + np.abs(pixels[:, 1] - y)
+        expected = np.flatnonzero((dist <= radius) & (dist > 0))
+        np.testing.assert_array_equal(indices[indptr[i] : indptr[i + 1]], expected)

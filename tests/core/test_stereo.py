@@ -9,12 +9,14 @@ from scipy.spatial import cKDTree
 from support import assert_close, calibration_for, synthetic_case, synthetic_frame
 
 from threadrecon.core.metrics import resample
-from threadrecon.core.segmentation import LiftedPair, StereoPair, segment
+from threadrecon.core.segmentation import LIFT_VALUE, LiftedPair, StereoPair, segment
 from threadrecon.core.stereo import (
     NEXT_GAP,
     ROBUST_PX,
     StereoParams,
+    _Box,
     _continuity,
+    _energy_kernel,
     match_stereo,
     reproject,
 )
@@ -147,6 +149,36 @@ def test_energy_kernel_equals_the_definition_on_random_masks(seed: int) -> None:
     ref = _energy_reference(lifted, alpha, window)
     assert_close(st.energy.astype(np.float64), ref, rtol=1e-6)
     assert_close(st.d_min, np.argmin(ref.astype(np.float32), axis=1))
+
+
+@pytest.mark.parametrize("seed", [3, 4, 5, 6])
+def test_energy_kernel_on_a_disparity_window_equals_the_definition(seed: int) -> None:
+    # Runs of adjacent right pixels (a dense P_R), windows that slide, and d searched from
+    # d_lo > 0: d_min, d_next, E_min, E_next of the kernel without the energy volume are those
+    # of the brute-force curves (Eq. (3) with the first index on ties), bit for bit.
+    rng = np.random.default_rng(seed)
+    H, W = 20, 48
+    P_L = rng.random((H, W)) < 0.5
+    P_R = rng.random((H, W)) < 0.7
+    grey_L = rng.integers(0, 256, (H, W)).astype(np.float32)
+    grey_R = rng.integers(0, 256, (H, W)).astype(np.float32)
+    I_L = np.where(P_L, grey_L, 255).astype(np.float32)
+    I_R = np.where(P_R, grey_R, 255).astype(np.float32)
+    lifted = LiftedPair(I_L, I_R, P_L, P_R, grey_L, grey_R, background=(255.0, 255.0))
+    d_lo, d_hi, window = int(rng.integers(1, 6)), 16, 5
+    box = _Box.of(lifted, d_hi)
+    _, d_min, d_next, E_min, E_next = _energy_kernel(
+        box.ry, box.rx, box.I_L_p, box.index, window // 2, box.q_ptr, box.q_col, box.q_val,
+        box.q_run, box.x0, d_lo, d_hi, LIFT_VALUE, False,
+    )  # fmt: skip
+    E = _energy_reference(lifted, d_hi, window).astype(np.float32)
+    for i in range(E.shape[0]):
+        best = d_lo + int(np.argmin(E[i, d_lo:]))
+        far = np.abs(np.arange(d_hi + 1) - best) > NEXT_GAP
+        far[:d_lo] = False
+        nxt = int(np.flatnonzero(far)[np.argmin(E[i, far])])
+        assert (d_min[i], E_min[i]) == (best, E[i, best])
+        assert (d_next[i], E_next[i]) == (nxt, E[i, nxt])
 
 
 def test_search_range_follows_depth_through_f_times_b() -> None:
