@@ -60,6 +60,10 @@ _MARK_SHARE: Final = 0.75  # a piece moving with the tissue on 3/4 of it is a ma
 # block's test errs on ~1 % of blocks; a thread merged with a mark keeps >= 1/4 of its own)
 _MAX_SURFACE_TESTS: Final = 8  # a thread less salient than 8 marks on the tissue is not
 # told from them: the frame's answer is "no thread found" (bounds the work: ~1 ms a test)
+_GLINT_APART_DEG: Final = 25.0  # a thread's contrast and white closer than 25 degrees: grey,
+# a highlight on it is not told from its body (the fit's noise gain 1/sin^2 stays <= 5.6)
+_GLINT_APART_SIN2: Final = float(np.sin(np.radians(_GLINT_APART_DEG)) ** 2)
+_SQUARE3: Final = np.ones((3, 3), np.uint8)
 _NOISE_ROW_STEP: Final = 16  # noise estimated on every 16th row: 30 rows x 640 px at 640x480
 
 
@@ -125,7 +129,11 @@ def segment_raw(
         )
     out = []
     for v, core in zip(views, found, strict=True):
-        mask = drop_specks(_grow_mask(v, core), max(int(p.min_length_px), 1))
+        # Specks are judged on the mask joined with its core: a thread 1-2 px wide is cut
+        # where its axis passes between pixel centres (coverage < 0.5 on both sides), and its
+        # parts stay one piece through the core's pixels there.
+        mask = _grow_mask(v, core)
+        mask &= drop_specks(mask | core.view(bool), max(int(p.min_length_px), 1))
         score = cv2.min(v.S, 2.0 * p.ridge_hi * v.level) * (1.0 / (2.0 * p.ridge_hi * v.level))
         out.append((mask, score))
     return out[0][0], out[1][0], out[0][1], out[1][1]
@@ -659,9 +667,12 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     background.
 
     A pixel blending thread colour T over local background B with coverage c has
-    I - B = c (T - B), so c^2 = |I - B|^2 / |T - B|^2; |T - B|^2 is the largest |I - B|^2 of a
-    core pixel within the band (a box of radius _BAND_PX; the thread's axis is there). B is
-    the candidate-free average of the view (:func:`_background`). Sparse: band pixels only,
+    I - B = c (T - B): c is its contrast along the thread's own contrast direction u (the
+    summed contrast of the core pixels within the band, :func:`_body_contrast`) over |T - B|,
+    the largest such contrast of a core pixel within the band (a box of radius _BAND_PX; the
+    thread's axis is there). Projected on u, texture and noise across it no longer widen
+    the mask (the length |I - B| adds them all). B is the candidate-free average of the view
+    (:func:`_background`). Sparse: band pixels only,
     and the two dilations run on the core's bounding box grown by the band (exact: a dilation
     reaches no further than its radius).
     """
@@ -684,13 +695,29 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     bg = v.bg_rgb
     diff = a[rows, cols].astype(np.float32) - bg[_qi(rows + r0, bg.shape[0]),
                                                  _qi(cols + c0, bg.shape[1])]  # fmt: skip
-    c2 = np.einsum("ij,ij->i", diff, diff)
     on_core = core_b[rows, cols] > 0
-    dense = np.zeros(core_b.shape, np.float32)
-    dense[rows[on_core], cols[on_core]] = c2[on_core]
     box = np.ones((2 * _BAND_PX + 1, 2 * _BAND_PX + 1), np.uint8)
-    peak = cv2.dilate(dense, box)[rows, cols]
-    keep = (c2 >= 0.25 * peak) & (peak > 0)
+    body, glint = _body_contrast(diff, core_b, rows, cols, on_core)
+
+    def half_peak(contrast: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Squared contrast, squared peak of the core pixels within the band, and c >= 0.5."""
+        c2 = np.square(np.maximum(contrast, 0.0))
+        dense = np.zeros(core_b.shape, np.float32)
+        dense[rows[on_core], cols[on_core]] = c2[on_core]
+        peak = cv2.dilate(dense, box)[rows, cols]
+        return c2, peak, (c2 >= 0.25 * peak) & (peak > 0)
+
+    c2, peak, keep = half_peak(body[0])
+    if glint.any():
+        # A highlight lies inside the thread: only pixels enclosed by thread pixels (a 3 x 3
+        # closing of the mask) take their coverage net of a highlight; beside the thread the
+        # same fit would take the colour bleeding out of it (JPEG chroma) for thread.
+        dense = np.zeros(core_b.shape, np.uint8)
+        dense[rows[keep], cols[keep]] = 1
+        inside = cv2.morphologyEx(dense, cv2.MORPH_CLOSE, _SQUARE3)[rows, cols] > 0
+        glint &= inside
+        if glint.any():
+            c2, peak, keep = half_peak(np.where(glint, body[1], body[0]))
     # Coverage is conserved: a cross-section of two pixels (its outer neighbours below 0.5)
     # whose coverages sum to < _SHARED_PX holds less than that much thread (a 1-2 px thread
     # crossing from one pixel row or column to the next); coverage 0.5 takes the larger only.
@@ -708,6 +735,38 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
         keep &= ~((nb > c) & (nb + c < _SHARED_PX) & alone)
     out[rows[keep] + r0, cols[keep] + c0] = True
     return out
+
+
+def _body_contrast(
+    diff: np.ndarray, core: np.ndarray, rows: np.ndarray, cols: np.ndarray, on_core: np.ndarray
+) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """Contrast of the band pixels (rows, cols) of a box along the thread's own colour contrast:
+    ((M,) projected, (M,) net of a highlight) and (M,) bool where the highlight fit applies.
+
+    ``diff`` (M, C) is I - B, ``core`` the box's core (uint8), ``on_core`` (M,) its pixels. The
+    direction u at a pixel: the summed contrast of the core pixels within the band around it
+    (one dye, locally one background). Dichromatic reflection: a thread's highlight adds the
+    illuminant's colour W (white) to its body colour, I - B = c (T - B) + s W, s >= 0; where
+    u and W differ (a coloured thread: by > _GLINT_APART_DEG) the least-squares c of the
+    pixels with s > 0 is the body contrast net of the highlight. A grey thread's contrast is
+    along W itself: a highlight cannot be told apart there (no fit).
+    """
+    n = 2 * _BAND_PX + 1
+    c = diff.shape[1]
+    dense = np.zeros((core.shape[0], core.shape[1], c), np.float32)
+    dense[rows[on_core], cols[on_core]] = diff[on_core]
+    u = cv2.boxFilter(dense, -1, (n, n), normalize=False).reshape(dense.shape)[rows, cols]
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-6)
+    proj = np.einsum("ij,ij->i", diff, u)
+    if c != 3:
+        return (proj, proj), np.zeros(len(proj), bool)
+    uw = u.sum(axis=1) * np.float32(3**-0.5)  # u . W, W = (1, 1, 1) / sqrt(3)
+    dw = diff.sum(axis=1) * np.float32(3**-0.5)
+    den = 1.0 - uw * uw
+    fit = den >= _GLINT_APART_SIN2
+    den = np.maximum(den, _GLINT_APART_SIN2)
+    glint = fit & ((dw - proj * uw) / den > 0)  # s > 0
+    return (proj, (proj - dw * uw) / den), glint
 
 
 def drop_specks(mask: np.ndarray, min_px: int) -> np.ndarray:
