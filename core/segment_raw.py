@@ -101,24 +101,26 @@ def segment_raw(
     Raises ``ValueError("no thread found ...")`` when no piece survives in a view.
     """
     views = [_View.build(img, p) for img in (left, right)]
-    found, salience, _ = _select(views, p)
+    found, salience, _, floating = _select(views, p)
     if any(v.blood.any() for v in views):
         # A red thread is blood-like too: it wins back when it stands out far more than
         # anything left without the blood-like pixels, and when its hue differs from the
-        # frame's other blood-like pixels (a frame's vessels share one hue, haemoglobin's).
+        # frame's other blood-like pixels (a frame's vessels share one hue, haemoglobin's);
+        # or, whatever its hue, when it is seen in front of the tissue in both views (a
+        # vessel is a mark on it) and what was chosen without it is not.
         red_views = [v.with_blood(p) for v in views]
         # The most salient shape-ok piece of each view bounds what a red thread can reach.
         bound = sum(float(np.max(v.pieces[2] * np.sqrt(v.pieces[3]), where=v.pieces[4],
                                  initial=0.0)) for v in red_views)  # fmt: skip
-        red, red_salience, red_cos = (
+        red, red_salience, red_cos, _ = (
             _select(red_views, p, nearest_hue=True)
-            if bound >= _RED_THREAD_GAIN * salience
-            else (None, 0.0, 1.0)
+            if bound >= _RED_THREAD_GAIN * salience or not floating
+            else (None, 0.0, 1.0, False)
         )
-        if (
-            red is not None
-            and red_salience >= _RED_THREAD_GAIN * salience
-            and red_cos < _VESSEL_HUE_COS
+        # With nearest_hue, a piece is chosen only when seen in front of the tissue.
+        if red is not None and (
+            not floating
+            or (red_salience >= _RED_THREAD_GAIN * salience and red_cos < _VESSEL_HUE_COS)
         ):
             views, found = red_views, red
     if found is None:
@@ -279,13 +281,14 @@ def _background(a_q: np.ndarray, free: np.ndarray) -> np.ndarray:
 
 def _select(
     views: list[_View], p: SegmentationParams, nearest_hue: bool = False
-) -> tuple[list[np.ndarray] | None, float, float]:
+) -> tuple[list[np.ndarray] | None, float, float, bool]:
     """Core thread pixels (H, W) bool of both views (None when a view has no piece), the
     salience (mean S x sqrt(length), summed over the views) of the chosen pieces (with None:
     of the most salient marks on the tissue, which a red thread must outshine), and the
     largest (over the views) cosine between the chroma contrast of the chosen piece and the
     mean one of the view's other blood-like pixels (its vessels; 1 when there are too few to
-    tell: a lone blood-like line is taken for a vessel).
+    tell: a lone blood-like line is taken for a vessel), and whether the chosen pieces are seen
+    in front of the tissue in both views (:func:`_floats`; False with None).
 
     ``nearest_hue`` (a blood-like thread among vessels): pieces and pixels join the thread only
     when their hue is nearer the thread's than the vessels'."""
@@ -295,6 +298,7 @@ def _select(
     out = []
     salience = 0.0
     cos_vessels = -1.0
+    floating = True
     for i, v in enumerate(views):
         lab, _, means, length, ok = v.pieces  # lab: piece of each lo pixel (0: none), sparse
         # Only the pixels of shape-ok pieces can join (the rest of the lo pixels is skipped).
@@ -312,7 +316,7 @@ def _select(
         # Is it there at all: its mean contrast to the background stands out of the pixel noise.
         k &= np.linalg.norm(delta / v.sigma, axis=1) >= _MIN_SNR
         if not k.any():
-            return None, 0.0, 1.0
+            return None, 0.0, 1.0, False
         rank = np.where(k, means * np.sqrt(length), -1.0)
         best = int(np.argmax(rank))
         top = float(rank[best])  # marks on the tissue count here: a red thread must outshine them
@@ -326,15 +330,21 @@ def _select(
             votes = _surface_votes(views, i, lab_on == best, on, D)
             if not _a_mark(votes):
                 if nearest_hue and not _floats(votes):
-                    return None, salience + top, 1.0
+                    return None, salience + top, 1.0, False
+                floating &= _floats(votes)
                 break
             k[best] = False
             rank[best] = -1.0
             best = int(np.argmax(rank))
         else:
-            return None, salience + top, 1.0  # the most salient pieces are marks on the tissue
+            return (
+                None,
+                salience + top,
+                1.0,
+                False,
+            )  # the most salient pieces are marks on the tissue
         if rank[best] <= 0:
-            return None, salience + top, 1.0
+            return None, salience + top, 1.0, False
         salience += float(rank[best])
         # The frame's vessel hue: mean contrast of its blood-like pixels off the chosen piece.
         vessel = v.blood & (lab != best)
@@ -367,7 +377,7 @@ def _select(
         core = np.zeros(v.lo.shape, np.uint8)
         core[v.rows[px], v.cols[px]] = 1
         out.append(core)
-    return out, salience, cos_vessels
+    return out, salience, cos_vessels, floating
 
 
 def _surface_votes(

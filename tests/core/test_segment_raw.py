@@ -40,7 +40,7 @@ def test_grow_mask_on_the_box_equals_the_mask_of_a_padded_image() -> None:
     )
     p = SegmentationParams(method="raw")
     views = [sr._View.build(img, p) for img in (frame.left, frame.right)]
-    found, _, _ = sr._select(views, p)
+    found, _, _, _ = sr._select(views, p)
     assert found is not None
     v, core = views[0], found[0]
     mask = sr._grow_mask(v, core)
