@@ -353,24 +353,33 @@ def _select(
             cos_vessels, 1.0 if d_vessel is None else _cosine(d_vessel[1:], delta[best, 1:])
         )
         d_best = delta[best]
+        # A blood-like thread is told from the vessels by its hue only where the two differ
+        # (beyond ~8 degrees); of the vessels' own hue, by being in front of the tissue only.
+        by_hue = (
+            nearest_hue
+            and d_vessel is not None
+            and _cosine(d_vessel[1:], d_best[1:]) < _VESSEL_HUE_COS
+        )
         # Other pieces of the same thread (split by an occluder or a crossing) share its dye.
         k = k & (means >= p.keep_ratio * means[best]) & (_same_dye(delta, d_best) >= _SAME_DYE_COS)
-        if nearest_hue and d_vessel is not None:
+        if by_hue:
             k &= _same_dye(delta, d_best) > _same_dye(delta, d_vessel)
         k[0] = k[best] = False
-        # A joining piece is no mark on the tissue either (a fibre as light as a white thread).
+        # A joining piece is no mark on the tissue either (a fibre as light as a white thread);
+        # among blood-like pieces it is seen in front of the tissue, as the chosen one.
         others = np.flatnonzero(k)
         others = others[np.argsort(-rank[others])][:_MAX_SURFACE_TESTS]
         k[:] = False
         for j in others.tolist():
-            k[j] = not _a_mark(_surface_votes(views, i, lab_on == j, on, D))
+            votes = _surface_votes(views, i, lab_on == j, on, D)
+            k[j] = _floats(votes) if nearest_hue else not _a_mark(votes)
         k[best] = True
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
         px = on[k[lab_on]]  # the lo pixels of the kept pieces
         hue = _same_dye(v.delta[px], d_best)
         other = hue < _SAME_DYE_COS_PX
-        if nearest_hue and d_vessel is not None:
+        if by_hue:
             other |= hue <= _same_dye(v.delta[px], d_vessel)
         sel = ~other & (v.S[v.rows[px], v.cols[px]] >= _CORE_FRACTION * means[lab[px]])
         px = px[sel] if sel.any() else np.flatnonzero(lab == best)
