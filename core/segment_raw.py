@@ -715,28 +715,26 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     diff = a[rows, cols].astype(np.float32) - bg[_qi(rows + r0, bg.shape[0]),
                                                  _qi(cols + c0, bg.shape[1])]  # fmt: skip
     on_core = core_b[rows, cols] > 0
+    body, glint = _body_contrast(diff, rows + r0, cols + c0, on_core, bg.shape[:2])
+    # |T - B| is the largest body contrast of a core pixel within the band (the thread's axis
+    # is there), net of a highlight (a core pixel is thread: no enclosure needed).
+    c2 = np.square(np.maximum(body[0], 0.0))
+    net2 = np.square(np.maximum(body[1], 0.0))
+    dense = np.zeros(core_b.shape, np.float32)
+    dense[rows[on_core], cols[on_core]] = np.where(glint, np.maximum(net2, c2), c2)[on_core]
     box = np.ones((2 * _BAND_PX + 1, 2 * _BAND_PX + 1), np.uint8)
-    body, glint = _body_contrast(diff, core_b, rows, cols, on_core)
-
-    def half_peak(contrast: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Squared contrast, squared peak of the core pixels within the band, and c >= 0.5."""
-        c2 = np.square(np.maximum(contrast, 0.0))
-        dense = np.zeros(core_b.shape, np.float32)
-        dense[rows[on_core], cols[on_core]] = c2[on_core]
-        peak = cv2.dilate(dense, box)[rows, cols]
-        return c2, peak, (c2 >= 0.25 * peak) & (peak > 0)
-
-    c2, peak, keep = half_peak(body[0])
+    peak = cv2.dilate(dense, box)[rows, cols]
+    keep = (c2 >= 0.25 * peak) & (peak > 0)
+    # Elsewhere a highlight lies inside the thread: only pixels enclosed by thread pixels (a
+    # 3 x 3 closing of the mask) take their coverage net of one; beside the thread the same
+    # fit would take the colour bleeding out of it (JPEG chroma) for thread.
+    glint &= ~keep & (net2 >= 0.25 * peak) & (peak > 0)
     if glint.any():
-        # A highlight lies inside the thread: only pixels enclosed by thread pixels (a 3 x 3
-        # closing of the mask) take their coverage net of a highlight; beside the thread the
-        # same fit would take the colour bleeding out of it (JPEG chroma) for thread.
         dense = np.zeros(core_b.shape, np.uint8)
         dense[rows[keep], cols[keep]] = 1
-        inside = cv2.morphologyEx(dense, cv2.MORPH_CLOSE, _SQUARE3)[rows, cols] > 0
-        glint &= inside
-        if glint.any():
-            c2, peak, keep = half_peak(np.where(glint, body[1], body[0]))
+        glint &= cv2.morphologyEx(dense, cv2.MORPH_CLOSE, _SQUARE3)[rows, cols] > 0
+        keep |= glint
+        c2 = np.where(glint, net2, c2)
     # Coverage is conserved: a cross-section of two pixels (its outer neighbours below 0.5)
     # whose coverages sum to < _SHARED_PX holds less than that much thread (a 1-2 px thread
     # crossing from one pixel row or column to the next); coverage 0.5 takes the larger only.
@@ -757,24 +755,32 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
 
 
 def _body_contrast(
-    diff: np.ndarray, core: np.ndarray, rows: np.ndarray, cols: np.ndarray, on_core: np.ndarray
+    diff: np.ndarray, rows: np.ndarray, cols: np.ndarray, on_core: np.ndarray, shape_q: tuple
 ) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
-    """Contrast of the band pixels (rows, cols) of a box along the thread's own colour contrast:
-    ((M,) projected, (M,) net of a highlight) and (M,) bool where the highlight fit applies.
+    """Contrast of pixels (rows, cols) (M,) along the thread's own colour contrast: ((M,)
+    projected, (M,) net of a highlight) and (M,) bool where the highlight fit applies.
 
-    ``diff`` (M, C) is I - B, ``core`` the box's core (uint8), ``on_core`` (M,) its pixels. The
-    direction u at a pixel: the summed contrast of the core pixels within the band around it
-    (one dye, locally one background). Dichromatic reflection: a thread's highlight adds the
-    illuminant's colour W (white) to its body colour, I - B = c (T - B) + s W, s >= 0; where
-    u and W differ (a coloured thread: by > _GLINT_APART_DEG) the least-squares c of the
-    pixels with s > 0 is the body contrast net of the highlight. A grey thread's contrast is
-    along W itself: a highlight cannot be told apart there (no fit).
+    ``diff`` (M, C) is I - B, ``on_core`` (M,) marks the core pixels, ``shape_q`` the quarter
+    resolution (h, w) of the view. The direction u at a pixel: the summed contrast of the core
+    pixels in its _Q x _Q block and the 8 blocks around (one dye, locally one background).
+    Dichromatic reflection: a thread's highlight adds the illuminant's colour W (white) to its
+    body colour, I - B = c (T - B) + s W, s >= 0; where u and W differ (a coloured thread: by
+    > _GLINT_APART_DEG) the least-squares c of the pixels with s > 0 is the body contrast net
+    of the highlight. A grey thread's contrast is along W itself: a highlight cannot be told
+    apart there (no fit).
     """
-    n = 2 * _BAND_PX + 1
     c = diff.shape[1]
-    dense = np.zeros((core.shape[0], core.shape[1], c), np.float32)
-    dense[rows[on_core], cols[on_core]] = diff[on_core]
-    u = cv2.boxFilter(dense, -1, (n, n), normalize=False).reshape(dense.shape)[rows, cols]
+    qr, qc = _qi(rows, shape_q[0]), _qi(cols, shape_q[1])
+    r0, c0 = int(qr.min()), int(qc.min())
+    hq, wq = int(qr.max()) - r0 + 1, int(qc.max()) - c0 + 1
+    flat = (qr - r0) * wq + (qc - c0)
+    sums = np.stack(
+        [np.bincount(flat[on_core], weights=diff[on_core, j], minlength=hq * wq)
+         for j in range(c)],
+        1,
+    ).astype(np.float32).reshape(hq, wq, c)  # fmt: skip
+    sums = cv2.boxFilter(sums, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    u = sums.reshape(hq * wq, c)[flat]
     u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-6)
     proj = np.einsum("ij,ij->i", diff, u)
     if c != 3:

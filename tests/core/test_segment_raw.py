@@ -102,7 +102,7 @@ def test_body_contrast_is_the_blend_coverage_net_of_a_white_highlight() -> None:
     diff[40] = t_b  # the core pixel: the thread's own contrast, no highlight
     c[40], s[40] = 1.0, 0.0
     on_core = core[rows, cols] > 0
-    (proj, net), glint = sr._body_contrast(diff, core, rows, cols, on_core)
+    (proj, net), glint = sr._body_contrast(diff, rows, cols, on_core, (3, 3))
     norm = float(np.linalg.norm(t_b))
     assert glint[s > 0].all()  # (without a highlight the fit's s is 0 up to rounding)
     np.testing.assert_allclose(net[glint] / norm, c[glint], atol=1e-4)
@@ -116,7 +116,7 @@ def test_body_contrast_fits_no_highlight_on_a_grey_thread() -> None:
     rows, cols = (a.ravel() for a in np.indices(core.shape))
     diff = np.tile(np.array([-50.0, -48.0, -52.0], np.float32), (9, 1))
     diff[::2] += 30.0  # brighter pixels: a highlight or less coverage, undecidable
-    (proj, _), glint = sr._body_contrast(diff, core, rows, cols, core.ravel() > 0)
+    (proj, _), glint = sr._body_contrast(diff, rows, cols, core.ravel() > 0, (1, 1))
     assert not glint.any()  # the mask takes the projected contrast everywhere
     assert np.all(proj[::2] < proj[1::2][0])
 
