@@ -719,22 +719,27 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     # |T - B| is the largest body contrast of a core pixel within the band (the thread's axis
     # is there), net of a highlight (a core pixel is thread: no enclosure needed).
     c2 = np.square(np.maximum(body[0], 0.0))
-    net2 = np.square(np.maximum(body[1], 0.0))
+    g = np.flatnonzero(glint)  # the pixels a highlight fit applies to (few)
+    net2 = np.square(np.maximum(body[1][g], 0.0))
     dense = np.zeros(core_b.shape, np.float32)
-    dense[rows[on_core], cols[on_core]] = np.where(glint, np.maximum(net2, c2), c2)[on_core]
+    dense[rows[on_core], cols[on_core]] = c2[on_core]
+    axis = on_core[g]
+    dense[rows[g[axis]], cols[g[axis]]] = np.maximum(net2[axis], c2[g[axis]])
     box = np.ones((2 * _BAND_PX + 1, 2 * _BAND_PX + 1), np.uint8)
     peak = cv2.dilate(dense, box)[rows, cols]
     keep = (c2 >= 0.25 * peak) & (peak > 0)
     # Elsewhere a highlight lies inside the thread: only pixels enclosed by thread pixels (a
     # 3 x 3 closing of the mask) take their coverage net of one; beside the thread the same
     # fit would take the colour bleeding out of it (JPEG chroma) for thread.
-    glint &= ~keep & (net2 >= 0.25 * peak) & (peak > 0)
-    if glint.any():
+    add = ~keep[g] & (net2 >= 0.25 * peak[g]) & (peak[g] > 0)
+    if add.any():
+        g, net2 = g[add], net2[add]
         dense = np.zeros(core_b.shape, np.uint8)
         dense[rows[keep], cols[keep]] = 1
-        glint &= cv2.morphologyEx(dense, cv2.MORPH_CLOSE, _SQUARE3)[rows, cols] > 0
-        keep |= glint
-        c2 = np.where(glint, net2, c2)
+        inside = cv2.morphologyEx(dense, cv2.MORPH_CLOSE, _SQUARE3)[rows[g], cols[g]] > 0
+        g, net2 = g[inside], net2[inside]
+        keep[g] = True
+        c2[g] = net2
     # Coverage is conserved: a cross-section of two pixels (its outer neighbours below 0.5)
     # whose coverages sum to < _SHARED_PX holds less than that much thread (a 1-2 px thread
     # crossing from one pixel row or column to the next); coverage 0.5 takes the larger only.
@@ -780,18 +785,18 @@ def _body_contrast(
         1,
     ).astype(np.float32).reshape(hq, wq, c)  # fmt: skip
     sums = cv2.boxFilter(sums, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    u = sums.reshape(hq * wq, c)[flat]
-    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-6)
-    proj = np.einsum("ij,ij->i", diff, u)
+    sums = sums.reshape(hq * wq, c)
+    sums *= (1.0 / np.sqrt(np.maximum(np.einsum("ij,ij->i", sums, sums), 1e-12)))[:, None]
+    proj = np.einsum("ij,ij->i", diff, sums[flat])  # along u, per block
     if c != 3:
         return (proj, proj), np.zeros(len(proj), bool)
-    uw = u.sum(axis=1) * np.float32(3**-0.5)  # u . W, W = (1, 1, 1) / sqrt(3)
+    uw_b = sums.sum(axis=1) * np.float32(3**-0.5)  # u . W per block, W = (1, 1, 1) / sqrt(3)
+    den_b = np.float32(1.0) - uw_b * uw_b
+    uw, den = uw_b[flat], den_b[flat]
     dw = diff.sum(axis=1) * np.float32(3**-0.5)
-    den = 1.0 - uw * uw
-    fit = den >= _GLINT_APART_SIN2
-    den = np.maximum(den, _GLINT_APART_SIN2)
-    glint = fit & ((dw - proj * uw) / den > 0)  # s > 0
-    return (proj, (proj - dw * uw) / den), glint
+    glint = (den >= _GLINT_APART_SIN2) & (dw > proj * uw)  # s > 0
+    net = (proj - dw * uw) / np.maximum(den, np.float32(_GLINT_APART_SIN2))
+    return (proj, net), glint
 
 
 def drop_specks(mask: np.ndarray, min_px: int) -> np.ndarray:
