@@ -60,6 +60,10 @@ _MARK_SHARE: Final = 0.75  # a piece moving with the tissue on 3/4 of it is a ma
 # block's test errs on ~1 % of blocks; a thread merged with a mark keeps >= 1/4 of its own)
 _MAX_SURFACE_TESTS: Final = 8  # a thread less salient than 8 marks on the tissue is not
 # told from them: the frame's answer is "no thread found" (bounds the work: ~1 ms a test)
+_GLINT_APART_DEG: Final = 25.0  # a thread's contrast and white closer than 25 degrees: grey,
+# a highlight on it is not told from its body (the fit's noise gain 1/sin^2 stays <= 5.6)
+_GLINT_APART_SIN2: Final = float(np.sin(np.radians(_GLINT_APART_DEG)) ** 2)
+_SQUARE3: Final = np.ones((3, 3), np.uint8)
 _NOISE_ROW_STEP: Final = 16  # noise estimated on every 16th row: 30 rows x 640 px at 640x480
 
 
@@ -97,24 +101,26 @@ def segment_raw(
     Raises ``ValueError("no thread found ...")`` when no piece survives in a view.
     """
     views = [_View.build(img, p) for img in (left, right)]
-    found, salience, _ = _select(views, p)
+    found, salience, _, floating = _select(views, p)
     if any(v.blood.any() for v in views):
         # A red thread is blood-like too: it wins back when it stands out far more than
         # anything left without the blood-like pixels, and when its hue differs from the
-        # frame's other blood-like pixels (a frame's vessels share one hue, haemoglobin's).
+        # frame's other blood-like pixels (a frame's vessels share one hue, haemoglobin's);
+        # or, whatever its hue, when it is seen in front of the tissue in both views (a
+        # vessel is a mark on it) and what was chosen without it is not.
         red_views = [v.with_blood(p) for v in views]
         # The most salient shape-ok piece of each view bounds what a red thread can reach.
         bound = sum(float(np.max(v.pieces[2] * np.sqrt(v.pieces[3]), where=v.pieces[4],
                                  initial=0.0)) for v in red_views)  # fmt: skip
-        red, red_salience, red_cos = (
+        red, red_salience, red_cos, _ = (
             _select(red_views, p, nearest_hue=True)
-            if bound >= _RED_THREAD_GAIN * salience
-            else (None, 0.0, 1.0)
+            if bound >= _RED_THREAD_GAIN * salience or not floating
+            else (None, 0.0, 1.0, False)
         )
-        if (
-            red is not None
-            and red_salience >= _RED_THREAD_GAIN * salience
-            and red_cos < _VESSEL_HUE_COS
+        # With nearest_hue, a piece is chosen only when seen in front of the tissue.
+        if red is not None and (
+            not floating
+            or (red_salience >= _RED_THREAD_GAIN * salience and red_cos < _VESSEL_HUE_COS)
         ):
             views, found = red_views, red
     if found is None:
@@ -125,7 +131,11 @@ def segment_raw(
         )
     out = []
     for v, core in zip(views, found, strict=True):
-        mask = drop_specks(_grow_mask(v, core), max(int(p.min_length_px), 1))
+        # Specks are judged on the mask joined with its core: a thread 1-2 px wide is cut
+        # where its axis passes between pixel centres (coverage < 0.5 on both sides), and its
+        # parts stay one piece through the core's pixels there.
+        mask = _grow_mask(v, core)
+        mask &= drop_specks(mask | core.view(bool), max(int(p.min_length_px), 1))
         score = cv2.min(v.S, 2.0 * p.ridge_hi * v.level) * (1.0 / (2.0 * p.ridge_hi * v.level))
         out.append((mask, score))
     return out[0][0], out[1][0], out[0][1], out[1][1]
@@ -271,13 +281,14 @@ def _background(a_q: np.ndarray, free: np.ndarray) -> np.ndarray:
 
 def _select(
     views: list[_View], p: SegmentationParams, nearest_hue: bool = False
-) -> tuple[list[np.ndarray] | None, float, float]:
+) -> tuple[list[np.ndarray] | None, float, float, bool]:
     """Core thread pixels (H, W) bool of both views (None when a view has no piece), the
     salience (mean S x sqrt(length), summed over the views) of the chosen pieces (with None:
     of the most salient marks on the tissue, which a red thread must outshine), and the
     largest (over the views) cosine between the chroma contrast of the chosen piece and the
     mean one of the view's other blood-like pixels (its vessels; 1 when there are too few to
-    tell: a lone blood-like line is taken for a vessel).
+    tell: a lone blood-like line is taken for a vessel), and whether the chosen pieces are seen
+    in front of the tissue in both views (:func:`_floats`; False with None).
 
     ``nearest_hue`` (a blood-like thread among vessels): pieces and pixels join the thread only
     when their hue is nearer the thread's than the vessels'."""
@@ -287,6 +298,7 @@ def _select(
     out = []
     salience = 0.0
     cos_vessels = -1.0
+    floating = True
     for i, v in enumerate(views):
         lab, _, means, length, ok = v.pieces  # lab: piece of each lo pixel (0: none), sparse
         # Only the pixels of shape-ok pieces can join (the rest of the lo pixels is skipped).
@@ -304,7 +316,7 @@ def _select(
         # Is it there at all: its mean contrast to the background stands out of the pixel noise.
         k &= np.linalg.norm(delta / v.sigma, axis=1) >= _MIN_SNR
         if not k.any():
-            return None, 0.0, 1.0
+            return None, 0.0, 1.0, False
         rank = np.where(k, means * np.sqrt(length), -1.0)
         best = int(np.argmax(rank))
         top = float(rank[best])  # marks on the tissue count here: a red thread must outshine them
@@ -318,15 +330,21 @@ def _select(
             votes = _surface_votes(views, i, lab_on == best, on, D)
             if not _a_mark(votes):
                 if nearest_hue and not _floats(votes):
-                    return None, salience + top, 1.0
+                    return None, salience + top, 1.0, False
+                floating &= _floats(votes)
                 break
             k[best] = False
             rank[best] = -1.0
             best = int(np.argmax(rank))
         else:
-            return None, salience + top, 1.0  # the most salient pieces are marks on the tissue
+            return (
+                None,
+                salience + top,
+                1.0,
+                False,
+            )  # the most salient pieces are marks on the tissue
         if rank[best] <= 0:
-            return None, salience + top, 1.0
+            return None, salience + top, 1.0, False
         salience += float(rank[best])
         # The frame's vessel hue: mean contrast of its blood-like pixels off the chosen piece.
         vessel = v.blood & (lab != best)
@@ -335,31 +353,40 @@ def _select(
             cos_vessels, 1.0 if d_vessel is None else _cosine(d_vessel[1:], delta[best, 1:])
         )
         d_best = delta[best]
+        # A blood-like thread is told from the vessels by its hue only where the two differ
+        # (beyond ~8 degrees); of the vessels' own hue, by being in front of the tissue only.
+        by_hue = (
+            nearest_hue
+            and d_vessel is not None
+            and _cosine(d_vessel[1:], d_best[1:]) < _VESSEL_HUE_COS
+        )
         # Other pieces of the same thread (split by an occluder or a crossing) share its dye.
         k = k & (means >= p.keep_ratio * means[best]) & (_same_dye(delta, d_best) >= _SAME_DYE_COS)
-        if nearest_hue and d_vessel is not None:
+        if by_hue:
             k &= _same_dye(delta, d_best) > _same_dye(delta, d_vessel)
         k[0] = k[best] = False
-        # A joining piece is no mark on the tissue either (a fibre as light as a white thread).
+        # A joining piece is no mark on the tissue either (a fibre as light as a white thread);
+        # among blood-like pieces it is seen in front of the tissue, as the chosen one.
         others = np.flatnonzero(k)
         others = others[np.argsort(-rank[others])][:_MAX_SURFACE_TESTS]
         k[:] = False
         for j in others.tolist():
-            k[j] = not _a_mark(_surface_votes(views, i, lab_on == j, on, D))
+            votes = _surface_votes(views, i, lab_on == j, on, D)
+            k[j] = _floats(votes) if nearest_hue else not _a_mark(votes)
         k[best] = True
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
         px = on[k[lab_on]]  # the lo pixels of the kept pieces
         hue = _same_dye(v.delta[px], d_best)
         other = hue < _SAME_DYE_COS_PX
-        if nearest_hue and d_vessel is not None:
+        if by_hue:
             other |= hue <= _same_dye(v.delta[px], d_vessel)
         sel = ~other & (v.S[v.rows[px], v.cols[px]] >= _CORE_FRACTION * means[lab[px]])
         px = px[sel] if sel.any() else np.flatnonzero(lab == best)
         core = np.zeros(v.lo.shape, np.uint8)
         core[v.rows[px], v.cols[px]] = 1
         out.append(core)
-    return out, salience, cos_vessels
+    return out, salience, cos_vessels, floating
 
 
 def _surface_votes(
@@ -659,9 +686,12 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     background.
 
     A pixel blending thread colour T over local background B with coverage c has
-    I - B = c (T - B), so c^2 = |I - B|^2 / |T - B|^2; |T - B|^2 is the largest |I - B|^2 of a
-    core pixel within the band (a box of radius _BAND_PX; the thread's axis is there). B is
-    the candidate-free average of the view (:func:`_background`). Sparse: band pixels only,
+    I - B = c (T - B): c is its contrast along the thread's own contrast direction u (the
+    summed contrast of the core pixels within the band, :func:`_body_contrast`) over |T - B|,
+    the largest such contrast of a core pixel within the band (a box of radius _BAND_PX; the
+    thread's axis is there). Projected on u, texture and noise across it no longer widen
+    the mask (the length |I - B| adds them all). B is the candidate-free average of the view
+    (:func:`_background`). Sparse: band pixels only,
     and the two dilations run on the core's bounding box grown by the band (exact: a dilation
     reaches no further than its radius).
     """
@@ -684,13 +714,32 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     bg = v.bg_rgb
     diff = a[rows, cols].astype(np.float32) - bg[_qi(rows + r0, bg.shape[0]),
                                                  _qi(cols + c0, bg.shape[1])]  # fmt: skip
-    c2 = np.einsum("ij,ij->i", diff, diff)
     on_core = core_b[rows, cols] > 0
+    body, glint = _body_contrast(diff, rows + r0, cols + c0, on_core, bg.shape[:2])
+    # |T - B| is the largest body contrast of a core pixel within the band (the thread's axis
+    # is there), net of a highlight (a core pixel is thread: no enclosure needed).
+    c2 = np.square(np.maximum(body[0], 0.0))
+    g = np.flatnonzero(glint)  # the pixels a highlight fit applies to (few)
+    net2 = np.square(np.maximum(body[1][g], 0.0))
     dense = np.zeros(core_b.shape, np.float32)
     dense[rows[on_core], cols[on_core]] = c2[on_core]
+    axis = on_core[g]
+    dense[rows[g[axis]], cols[g[axis]]] = np.maximum(net2[axis], c2[g[axis]])
     box = np.ones((2 * _BAND_PX + 1, 2 * _BAND_PX + 1), np.uint8)
     peak = cv2.dilate(dense, box)[rows, cols]
     keep = (c2 >= 0.25 * peak) & (peak > 0)
+    # Elsewhere a highlight lies inside the thread: only pixels enclosed by thread pixels (a
+    # 3 x 3 closing of the mask) take their coverage net of one; beside the thread the same
+    # fit would take the colour bleeding out of it (JPEG chroma) for thread.
+    add = ~keep[g] & (net2 >= 0.25 * peak[g]) & (peak[g] > 0)
+    if add.any():
+        g, net2 = g[add], net2[add]
+        dense = np.zeros(core_b.shape, np.uint8)
+        dense[rows[keep], cols[keep]] = 1
+        inside = cv2.morphologyEx(dense, cv2.MORPH_CLOSE, _SQUARE3)[rows[g], cols[g]] > 0
+        g, net2 = g[inside], net2[inside]
+        keep[g] = True
+        c2[g] = net2
     # Coverage is conserved: a cross-section of two pixels (its outer neighbours below 0.5)
     # whose coverages sum to < _SHARED_PX holds less than that much thread (a 1-2 px thread
     # crossing from one pixel row or column to the next); coverage 0.5 takes the larger only.
@@ -708,6 +757,46 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
         keep &= ~((nb > c) & (nb + c < _SHARED_PX) & alone)
     out[rows[keep] + r0, cols[keep] + c0] = True
     return out
+
+
+def _body_contrast(
+    diff: np.ndarray, rows: np.ndarray, cols: np.ndarray, on_core: np.ndarray, shape_q: tuple
+) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """Contrast of pixels (rows, cols) (M,) along the thread's own colour contrast: ((M,)
+    projected, (M,) net of a highlight) and (M,) bool where the highlight fit applies.
+
+    ``diff`` (M, C) is I - B, ``on_core`` (M,) marks the core pixels, ``shape_q`` the quarter
+    resolution (h, w) of the view. The direction u at a pixel: the summed contrast of the core
+    pixels in its _Q x _Q block and the 8 blocks around (one dye, locally one background).
+    Dichromatic reflection: a thread's highlight adds the illuminant's colour W (white) to its
+    body colour, I - B = c (T - B) + s W, s >= 0; where u and W differ (a coloured thread: by
+    > _GLINT_APART_DEG) the least-squares c of the pixels with s > 0 is the body contrast net
+    of the highlight. A grey thread's contrast is along W itself: a highlight cannot be told
+    apart there (no fit).
+    """
+    c = diff.shape[1]
+    qr, qc = _qi(rows, shape_q[0]), _qi(cols, shape_q[1])
+    r0, c0 = int(qr.min()), int(qc.min())
+    hq, wq = int(qr.max()) - r0 + 1, int(qc.max()) - c0 + 1
+    flat = (qr - r0) * wq + (qc - c0)
+    sums = np.stack(
+        [np.bincount(flat[on_core], weights=diff[on_core, j], minlength=hq * wq)
+         for j in range(c)],
+        1,
+    ).astype(np.float32).reshape(hq, wq, c)  # fmt: skip
+    sums = cv2.boxFilter(sums, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    sums = sums.reshape(hq * wq, c)
+    sums *= (1.0 / np.sqrt(np.maximum(np.einsum("ij,ij->i", sums, sums), 1e-12)))[:, None]
+    proj = np.einsum("ij,ij->i", diff, sums[flat])  # along u, per block
+    if c != 3:
+        return (proj, proj), np.zeros(len(proj), bool)
+    uw_b = sums.sum(axis=1) * np.float32(3**-0.5)  # u . W per block, W = (1, 1, 1) / sqrt(3)
+    den_b = np.float32(1.0) - uw_b * uw_b
+    uw, den = uw_b[flat], den_b[flat]
+    dw = diff.sum(axis=1) * np.float32(3**-0.5)
+    glint = (den >= _GLINT_APART_SIN2) & (dw > proj * uw)  # s > 0
+    net = (proj - dw * uw) / np.maximum(den, np.float32(_GLINT_APART_SIN2))
+    return (proj, net), glint
 
 
 def drop_specks(mask: np.ndarray, min_px: int) -> np.ndarray:
