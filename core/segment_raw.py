@@ -2,10 +2,9 @@
 consistency. :func:`segment_raw` is the ``method="raw"`` of :func:`core.segmentation.segment`.
 
 Speed: every full-resolution pass costs ~0.2-0.5 ms at 640x480, so full-image work is kept to
-the line response, one threshold and the labellings of the pieces per view; the rest runs on the
-candidate pixels (a few %, sparse), on bounding boxes (the distance transform of each piece that
-can be long enough, the grown mask, its specks), or at quarter resolution (the local background,
-the instrument mask). Percentiles are exact selections on a histogram of float bits; stereo
+the line response and one threshold per view; the rest runs on the candidate pixels (a few %,
+sparse: the pieces are labelled and measured on their pixel lists), on bounding boxes (the
+grown mask, its specks), or at quarter resolution (the local background, the instrument mask). Percentiles are exact selections on a histogram of float bits; stereo
 partners are a sorted-key search. Every shortcut gives the same masks as the plain computation
 (tests/core/test_segment_raw.py; scripts/seg_fingerprint.py on whole suites).
 """
@@ -19,6 +18,7 @@ import cv2
 import numpy as np
 
 from threadrecon.core.instrument import grow_into_attached
+from threadrecon.core.piece_kernel import half_widths, label_pixels, piece_boxes
 from threadrecon.core.ridge_kernel import (
     at_least,
     kth_smallest,
@@ -206,17 +206,12 @@ class _View:
             blood = np.zeros(len(rows), bool)
         sigma = noise_sigma(_log_channels(img[::_NOISE_ROW_STEP]), row_step=1)
         v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb)
-        if blood.any():
-            mask = lo.copy()
-            mask[rows[blood], cols[blood]] = 0
-            v.pieces = _pieces(S, mask, ~blood, v, p)
-        else:
-            v.pieces = _pieces(S, lo, None, v, p)
+        v.pieces = _pieces(S, ~blood if blood.any() else None, v, p)
         return v
 
     def with_blood(self, p: SegmentationParams) -> _View:
         v = _View(**{k: getattr(self, k) for k in self.__dataclass_fields__ if k != "pieces"})
-        v.pieces = _pieces(self.S, self.lo, None, v, p)
+        v.pieces = _pieces(self.S, None, v, p)
         return v
 
 
@@ -544,16 +539,15 @@ def _kth_smallest(x: np.ndarray, k: int) -> float:
     return float(kth_smallest(x if x.ndim == 2 else x[None], k))
 
 
-def _pieces(
-    s: np.ndarray, mask: np.ndarray, sub: np.ndarray | None, v: _View, p: SegmentationParams
-) -> tuple:
-    """Hysteresis pieces of ``mask`` (uint8, a subset of the view's lo pixels: those where
-    ``sub`` (M,) is True, all when None): the piece of each lo pixel (M,) (0: none), rows and
-    columns of the shape-ok pieces' pixels, per-piece mean S, length (exact where shape ok),
-    shape ok."""
-    n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+def _pieces(s: np.ndarray, sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
+    """Hysteresis pieces of the view's lo pixels where ``sub`` (M,) is True (all when None),
+    8-connected: the piece of each lo pixel (M,) (0: none), rows and columns of the shape-ok
+    pieces' pixels, per-piece mean S, length (exact where shape ok), shape ok. Labelled and
+    measured on the pixel lists (:mod:`threadrecon.core.piece_kernel`): cv2.connectedComponents'
+    labels and cv2.distanceTransform's half-widths (to float32 rounding), no label image."""
     rows, cols = (v.rows, v.cols) if sub is None else (v.rows[sub], v.cols[sub])
-    lab = labels[rows, cols]
+    lab = np.empty(len(rows), np.int64)
+    n = label_pixels(rows, cols, lab)
     s_px = s[rows, cols]
     area = np.bincount(lab, minlength=n).astype(np.float64)
     means = np.bincount(lab, weights=s_px, minlength=n) / np.maximum(area, 1.0)
@@ -566,11 +560,13 @@ def _pieces(
     # sides are <= its area). Those are few (a few % of the pieces); each is measured alone.
     cands = seeded & (np.sqrt(2.0) * area >= p.min_length_px)
     cands[0] = False
-    on = cands[lab]
-    r0, r1, c0, c1 = _boxes(lab[on], rows[on], cols[on], n)
+    boxes = piece_boxes(lab, rows, cols, n)
+    boxes *= cands  # the other pieces' boxes are not needed (0, as their length)
+    r0, r1, c0, c1 = boxes
     diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
     cands &= np.maximum(diag, area / (2.0 * _CHAMFER_A)) >= p.min_length_px
-    half = _half_widths(labels, np.flatnonzero(cands), (r0, r1, c0, c1))
+    h, w = v.lo.shape
+    half = half_widths(lab, rows, cols, np.flatnonzero(cands), boxes, h, w)
     length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
     ok = cands & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
     means[0] = 0.0
@@ -580,43 +576,6 @@ def _pieces(
 
 
 _CHAMFER_A: Final = 0.95  # below cv2's DIST_L2 3x3 step (0.955): no piece is thinner
-
-
-def _boxes(lab: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
-    """Per label (n,): first and last row, first and last column of its pixels (given in
-    row-major order), 0 for labels without pixels: one stable sort and reduceats."""
-    out = [np.zeros(n, np.intp) for _ in range(4)]
-    if lab.size == 0:
-        return tuple(out)
-    order = np.argsort(lab, kind="stable")
-    lab_s = lab[order]
-    starts = np.flatnonzero(np.concatenate([[True], lab_s[1:] != lab_s[:-1]]))
-    ends = np.append(starts[1:], len(lab_s)) - 1
-    ids = lab_s[starts]
-    r_s, c_s = rows[order], cols[order]
-    out[0][ids] = r_s[starts]  # row-major order: a label's rows ascend
-    out[1][ids] = r_s[ends]
-    out[2][ids] = np.minimum.reduceat(c_s, starts)
-    out[3][ids] = np.maximum.reduceat(c_s, starts)
-    return tuple(out)
-
-
-def _half_widths(labels: np.ndarray, ids: np.ndarray, boxes: tuple[np.ndarray, ...]) -> np.ndarray:
-    """(n,) largest distance (cv2 DIST_L2, 3x3 chamfer) of the pixels of the pieces ``ids`` to
-    the outside of their mask, 0 for the other pieces. A piece's own pixels in its box
-    (``boxes``: first and last row and column per label), with a 1 px margin of zeros where
-    the box is not at the image edge (cv2 takes the outside of the image as far), give the
-    distances of the whole mask: a path leaving a piece meets a zero of its 8-neighbourhood
-    (no other piece) first."""
-    half = np.zeros(len(boxes[0]))
-    h, w = labels.shape
-    r0, r1, c0, c1 = (b.tolist() for b in boxes)
-    for i in ids.tolist():
-        piece = cv2.compare(labels[r0[i] : r1[i] + 1, c0[i] : c1[i] + 1], i, cv2.CMP_EQ)
-        piece = cv2.copyMakeBorder(piece, int(r0[i] > 0), int(r1[i] < h - 1), int(c0[i] > 0),
-                                   int(c1[i] < w - 1), cv2.BORDER_CONSTANT, value=0)  # fmt: skip
-        half[i] = float(cv2.distanceTransform(piece, cv2.DIST_L2, 3).max())
-    return half
 
 
 def _scatter(values: np.ndarray, where: np.ndarray) -> np.ndarray:
