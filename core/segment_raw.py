@@ -164,8 +164,13 @@ class _View:
             img = self.img if self.img.ndim == 3 else self.img[:, :, None]
             if img.dtype != np.uint8:
                 img = np.clip(img, 0, 255).astype(np.uint8)
-            img = np.ascontiguousarray(img[:, :, :3])
-            g = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.shape[2] >= 3 else img[:, :, 0]
+            img = img[:, :, :3]
+            if img.shape[2] < 3:
+                g = img[:, :, 0]
+            elif (bgr := _reversed(img)) is not None:  # RGB as loaded: a view of BGR
+                g = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+            else:  # cv2 takes a row-strided array (half a side-by-side frame) as it is
+                g = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
             self._grey = g.astype(np.float32)
         return self._grey
 
@@ -233,8 +238,22 @@ def _quarter(a: np.ndarray) -> np.ndarray:
     """(h, w, C) float32 block means of ``a`` (H, W, C) over _Q x _Q blocks (uint8 means are
     rounded: 0.5 grey levels at most)."""
     h, w = a.shape[:2]
-    small = cv2.resize(a, (max(w // _Q, 1), max(h // _Q, 1)), interpolation=cv2.INTER_AREA)
+    size = (max(w // _Q, 1), max(h // _Q, 1))
+    if (rev := _reversed(a)) is not None:  # channel by channel: the reversed array's means
+        small = cv2.resize(rev, size, interpolation=cv2.INTER_AREA)[:, :, ::-1]
+    else:
+        small = cv2.resize(a, size, interpolation=cv2.INTER_AREA)
     return small.reshape(small.shape[0], small.shape[1], -1).astype(np.float32, copy=False)
+
+
+def _reversed(a: np.ndarray) -> np.ndarray | None:
+    """``a[:, :, ::-1]`` when that is C-contiguous (an RGB image as loaded is a view of the
+    file's BGR array), else None: cv2 copies a strided array first (~1 ms at 640x480), and a
+    per-channel operation (or BGR2GRAY for RGB2GRAY) on the reversed array gives the same."""
+    if a.ndim != 3 or a.shape[2] < 2 or a.strides[2] >= 0:
+        return None
+    rev = a[:, :, ::-1]
+    return rev if rev.flags.c_contiguous else None
 
 
 def _log_of(a: np.ndarray) -> np.ndarray:

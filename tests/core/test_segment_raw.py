@@ -86,3 +86,19 @@ def test_drop_specks_keeps_exactly_the_components_of_at_least_min_px(trial: int)
         big[0] = False
         expected = big[labels] if min_px > 1 else mask
         assert np.array_equal(sr.drop_specks(mask, min_px), expected)
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (37, 51), (3, 2)])
+def test_grey_and_quarter_of_an_rgb_view_of_bgr_equal_those_of_a_contiguous_copy(
+    shape: tuple[int, int],
+) -> None:
+    rng = np.random.default_rng(shape[0])
+    bgr = rng.integers(0, 256, (*shape, 3), dtype=np.uint8)
+    rgb = bgr[:, :, ::-1]  # as images are loaded: a view, no copy
+    assert sr._reversed(rgb) is not None and sr._reversed(np.ascontiguousarray(rgb)) is None
+    np.testing.assert_array_equal(sr._quarter(rgb), sr._quarter(np.ascontiguousarray(rgb)))
+    if min(shape) >= 8:
+        p = SegmentationParams()
+        a, b = (sr._View.build(x, p) for x in (rgb, np.ascontiguousarray(rgb)))
+        np.testing.assert_array_equal(a.grey(), b.grey())
+        np.testing.assert_array_equal(a.bg_rgb, b.bg_rgb)
