@@ -384,3 +384,32 @@ def at_least(s, t, lo):  # noqa: ANN001
                 out[1, i] = x
                 i += 1
     return out
+
+
+@kernel("uint8[:, ::1](uint8[:, :, :], int64[::1], int64[::1])")
+def pixels_at(img, rows, cols):  # noqa: ANN001
+    """(M, c) values of ``img`` (H, W, c) uint8 (any strides) at the pixels (rows, cols) (M,):
+    ``img[rows, cols]`` without numpy's fancy indexing of a strided image."""
+    m = len(rows)
+    c = img.shape[2]
+    out = np.empty((m, c), np.uint8)
+    for i in range(m):
+        for j in range(c):
+            out[i, j] = img[rows[i], cols[i], j]
+    return out
+
+
+@kernel("float32[:, ::1](float32[:, :, ::1], int64[::1], int64[::1], int64)")
+def blocks_at(a, rows, cols, q):  # noqa: ANN001
+    """(M, c) values of the block image ``a`` (h, w, c) at the blocks of the full-resolution
+    pixels (rows, cols) (M,), ``q`` pixels a block, the last block taking the rest:
+    ``a[min(rows // q, h - 1), min(cols // q, w - 1)]``."""
+    h, w, c = a.shape
+    m = len(rows)
+    out = np.empty((m, c), np.float32)
+    for i in range(m):
+        r = min(rows[i] // q, h - 1)
+        k = min(cols[i] // q, w - 1)
+        for j in range(c):
+            out[i, j] = a[r, k, j]
+    return out

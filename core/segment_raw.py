@@ -21,9 +21,11 @@ from threadrecon.core.instrument import grow_into_attached
 from threadrecon.core.piece_kernel import half_widths, label_pixels, piece_boxes
 from threadrecon.core.ridge_kernel import (
     at_least,
+    blocks_at,
     kth_smallest,
     line_response,
     log_planes,
+    pixels_at,
     small_components,
     upsample_max,
 )
@@ -201,7 +203,7 @@ class _View:
         free = _free_blocks(rows, cols, a_q.shape[:2])
         bg_rgb = _background(a_q, free)
         bg = _log_of(bg_rgb)
-        delta = _log_at(img, rows, cols) - bg[_qi(rows, bg.shape[0]), _qi(cols, bg.shape[1])]
+        delta = _log_at(img, rows, cols) - blocks_at(bg, rows, cols, _Q)
         if c > 1:
             redder = (delta[:, 1] > p.blood_rg * _LOG_SCALE) | (
                 delta[:, 1] >= -_BLOOD_RATIO * delta[:, 0]
@@ -417,7 +419,8 @@ def noise_sigma(f: np.ndarray, row_step: int = _NOISE_ROW_STEP) -> np.ndarray:
     sub = f[::row_step]
     d = cv2.absdiff(sub[:, 1:], sub[:, :-1]).reshape(-1, f.shape[2])  # (N, C)
     mid = d.shape[0] // 2
-    mad = np.array([_kth_smallest(d[:, j : j + 1], mid) for j in range(d.shape[1])], np.float32)
+    d = np.ascontiguousarray(d.T)  # (C, N): each channel's row is read without a copy
+    mad = np.array([_kth_smallest(d[j : j + 1], mid) for j in range(d.shape[0])], np.float32)
     return np.maximum(1.4826 * mad / np.sqrt(2.0), _QUANT_SIGMA)
 
 
@@ -498,7 +501,9 @@ def _log_planes(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _log_at(img: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """(M, C) channels of :func:`_log_channels` at the pixels (rows, cols) only."""
-    px = _uint8(img)[rows, cols]  # (M, C)
+    px = pixels_at(
+        _uint8(img), np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64)
+    )  # (M, C)
     if len(rows) == 0:
         return np.zeros((0, px.shape[1]), np.float32)
     return _log_channels(px[None]).reshape(len(rows), -1)

@@ -193,3 +193,15 @@ def test_at_least_is_cv2_compare_and_find_non_zero(shape: tuple[int, int]) -> No
         want_rows, want_cols = _points(want)
         np.testing.assert_array_equal(rows, want_rows)
         np.testing.assert_array_equal(cols, want_cols)
+
+
+@pytest.mark.parametrize("m", [0, 1, 500])
+def test_pixels_and_blocks_at_are_numpy_indexing(m: int) -> None:
+    rng = np.random.default_rng(m)
+    side = rng.integers(0, 256, (37, 2 * 51, 3), dtype=np.uint8)
+    for img in (side[:, :51], side[:, 51:, ::-1], side[:, :51, :1]):  # strided views
+        rows, cols = rng.integers(0, 37, m), rng.integers(0, 51, m)
+        np.testing.assert_array_equal(rk.pixels_at(img, rows, cols), img[rows, cols])
+    a = rng.random((9, 12, 3)).astype(np.float32)  # 37 // 4 = 9 rows: the last takes 4 + 1
+    got = rk.blocks_at(a, rows, cols, 4)
+    np.testing.assert_array_equal(got, a[np.minimum(rows // 4, 8), np.minimum(cols // 4, 11)])
