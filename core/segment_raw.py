@@ -179,7 +179,7 @@ class _View:
     @classmethod
     def build(cls, img: np.ndarray, p: SegmentationParams) -> _View:
         grey, half = _log_planes(img)
-        c = half.shape[2]
+        c = half.shape[0]
         S = _line_response(grey, half)
         level = _robust_level(S)
         lo = np.empty(S.shape, np.uint8)  # cv2.compare(S, ridge_lo level, CMP_GE) and its points
@@ -488,15 +488,16 @@ def _uint8(img: np.ndarray) -> np.ndarray:
 def _log_planes(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The channels of :func:`_log_channels` as the line response reads them: the first
     (brightness) at full resolution (H, W) float32, and all C of them at half resolution as
-    cv2.pyrDown gives them (h, w, C) float32, h = (H + 1) // 2, w = (W + 1) // 2; one compiled
+    cv2.pyrDown gives them, channel by channel (C, h, w) float32 (planes: each filter pass
+    reads one contiguous row of a channel), h = (H + 1) // 2, w = (W + 1) // 2; one compiled
     pass (:func:`threadrecon.core.ridge_kernel.log_planes`), no (H, W, C) image."""
     u8 = _uint8(img)
     h, w, c = u8.shape
     grey = np.empty((h, w), np.float32)
-    half = np.empty(((h + 1) // 2, ((w + 1) // 2) * c), np.float32)
+    half = np.empty((c * ((h + 1) // 2), (w + 1) // 2), np.float32)
     mix = _LOG_MIX if c == 3 else np.ones((1, 1), np.float32)
     log_planes(u8, _LOG_LUT, mix, grey, half)
-    return grey, half.reshape(half.shape[0], -1, c)
+    return grey, half.reshape(c, -1, half.shape[1])
 
 
 def _log_at(img: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -511,7 +512,7 @@ def _log_at(img: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
 
 def _line_response(grey: np.ndarray, half: np.ndarray) -> np.ndarray:
     """(H, W) float32 multi-scale line strength of the channels of :func:`_log_planes`: the
-    brightness ``grey`` (H, W) and all C channels at half resolution ``half`` (h, w, C), both
+    brightness ``grey`` (H, W) and all C channels at half resolution ``half`` (C, h, w), both
     overwritten.
 
     The fine scale sees the grey channel only (a 1-2 px thread differs from tissue mostly in
@@ -527,21 +528,23 @@ def _line_at(f: np.ndarray, sigma: float, norm: float) -> np.ndarray:
     """Line strength at Gaussian scale ``sigma`` px of this image (overwritten: it is blurred
     in place, and one channel becomes the response), normalised as scale ``norm``: one
     compiled pass over the smoothed image (:func:`threadrecon.core.ridge_kernel.line_response`;
-    the same formula as fifteen cv2 calls, to float32 rounding, without their buffers)."""
-    h, w = f.shape[:2]
-    c = 1 if f.ndim == 2 else f.shape[2]
-    g = cv2.GaussianBlur(f, (0, 0), sigma, dst=f)
+    the same formula as fifteen cv2 calls, to float32 rounding, without their buffers).
+    ``f``: (H, W), or C planes (C, H, W)."""
+    planes = f if f.ndim == 3 else f[None]
+    c, h, w = planes.shape
+    for plane in planes:  # cv2 blurs the channels of an (H, W, C) image alike, one by one
+        cv2.GaussianBlur(plane, (0, 0), sigma, dst=plane)
     r = sigma / norm  # derivatives per original pixel: a half-resolution pixel is 2 px
     # Sobel 3x3 sums 4 (first) or 16 (second derivative) times the derivative; the response
     # is 2 norm^2 min(|l1 + l2| / 2, |l1 - l2| / 2) - _EDGE_K norm |gradient|, at least 0.
     return line_response(
-        g.reshape(h, w * c),
+        planes.reshape(c * h, w),
         c,
         np.float32(0.125 * r),
         np.float32(0.25 * r * r),
         np.float32(2.0 * norm * norm),
         np.float32(_EDGE_K * norm),
-        g if c == 1 else np.empty((h, w), np.float32),  # one channel: in place
+        planes[0] if c == 1 else np.empty((h, w), np.float32),  # one channel: in place
     )
 
 

@@ -39,8 +39,9 @@ def test_line_response_is_the_cv2_sobel_formula(shape: tuple[int, int], c: int) 
     g = _image(shape if c == 1 else (*shape, c), seed=shape[0] * 7 + c)
     r, norm, edge_k = 0.5, 2.0, 2.0
     out = np.full(shape, -1.0, np.float32)
+    planes = g if c == 1 else np.ascontiguousarray(np.moveaxis(g, 2, 0))  # (c, H, W)
     got = rk.line_response(
-        g.reshape(shape[0], -1), c, np.float32(0.125 * r), np.float32(0.25 * r * r),
+        planes.reshape(-1, shape[1]), c, np.float32(0.125 * r), np.float32(0.25 * r * r),
         np.float32(2 * norm * norm), np.float32(edge_k * norm), out,
     )  # fmt: skip
     assert got is out
@@ -79,10 +80,10 @@ def test_log_planes_are_the_log_channels_and_their_pyrdown(
     img = img[:, :, 0] if channels == 0 else img[:, :, ::-1]  # a strided view, as loaded
     grey, half = _log_planes(img)
     f = _log_channels(img if channels != 4 else img[:, :, :3])
-    assert grey.shape == shape and half.shape == ((shape[0] + 1) // 2, (shape[1] + 1) // 2,
-                                                  f.shape[2])  # fmt: skip
+    assert grey.shape == shape and half.shape == (f.shape[2], (shape[0] + 1) // 2,
+                                                  (shape[1] + 1) // 2)  # fmt: skip
     np.testing.assert_allclose(grey, f[:, :, 0], rtol=0, atol=1e-4)
-    want = cv2.pyrDown(f).reshape(half.shape)
+    want = np.moveaxis(cv2.pyrDown(f).reshape(half.shape[1:] + half.shape[:1]), 2, 0)
     np.testing.assert_allclose(half, want, rtol=0, atol=1e-4)
 
 
