@@ -4,8 +4,9 @@ consistency. :func:`segment_raw` is the ``method="raw"`` of :func:`core.segmenta
 Speed: every full-resolution pass costs ~0.2-0.5 ms at 640x480, so full-image work is kept to
 the line response and one threshold per view; the rest runs on the candidate pixels (a few %,
 sparse: the pieces are labelled and measured on their pixel lists), on bounding boxes (the
-grown mask, its specks), or at quarter resolution (the local background, the instrument mask). Percentiles are exact selections on a histogram of float bits; stereo
-partners are a sorted-key search. Every shortcut gives the same masks as the plain computation
+grown mask, its specks), or at quarter resolution (the local background, the instrument
+mask). Percentiles are exact selections on a histogram of float bits; stereo partners are a
+sorted-key search. Every shortcut gives the same masks as the plain computation
 (tests/core/test_segment_raw.py; scripts/seg_fingerprint.py on whole suites).
 """
 
