@@ -416,3 +416,31 @@ def blocks_at(a, rows, cols, q):  # noqa: ANN001
         for j in range(c):
             out[i, j] = a[r, k, j]
     return out
+
+
+@kernel("float32[:, ::1](uint8[:, :, :], float32[:, ::1])")
+def block_means(img, out):  # noqa: ANN001
+    """``out`` (H // 4, (W // 4) * 3) = the means of the 4 x 4 blocks of the three channels of
+    ``img`` (H, W, 3) uint8 (any strides; H and W multiples of 4), interleaved, rounded half
+    to even as cv2.resize's INTER_AREA rounds them; returns ``out``."""
+    h2, wc = out.shape
+    w2 = wc // 3
+    acc = np.zeros(wc, np.int64)
+    for y2 in range(h2):
+        acc[:] = 0
+        for k in range(4):
+            row = img[4 * y2 + k]
+            for x in range(w2):
+                b, p = 3 * x, 4 * x
+                for j in range(3):
+                    acc[b + j] += (
+                        np.int64(row[p, j]) + row[p + 1, j] + row[p + 2, j] + row[p + 3, j]
+                    )
+        o = out[y2]
+        for i in range(wc):
+            q = acc[i] >> 4
+            r = acc[i] & 15
+            if r > 8 or (r == 8 and (q & 1) == 1):  # exactly half: to the even neighbour
+                q += 1
+            o[i] = q
+    return out

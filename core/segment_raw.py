@@ -22,6 +22,7 @@ from threadrecon.core.instrument import grow_into_attached
 from threadrecon.core.piece_kernel import half_widths, label_pixels, piece_boxes
 from threadrecon.core.ridge_kernel import (
     at_least,
+    block_means,
     blocks_at,
     kth_smallest,
     line_response,
@@ -241,6 +242,9 @@ def _quarter(a: np.ndarray) -> np.ndarray:
     """(h, w, C) float32 block means of ``a`` (H, W, C) over _Q x _Q blocks (uint8 means are
     rounded: 0.5 grey levels at most)."""
     h, w = a.shape[:2]
+    if a.dtype == np.uint8 and a.shape[2] == 3 and h % _Q == 0 and w % _Q == 0 and h * w > 0:
+        out = np.empty((h // _Q, (w // _Q) * 3), np.float32)  # cv2's values, 2x faster
+        return block_means(a, out).reshape(h // _Q, w // _Q, 3)
     size = (max(w // _Q, 1), max(h // _Q, 1))
     if (rev := _reversed(a)) is not None:  # channel by channel: the reversed array's means
         small = cv2.resize(rev, size, interpolation=cv2.INTER_AREA)[:, :, ::-1]

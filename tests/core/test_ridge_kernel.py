@@ -206,3 +206,25 @@ def test_pixels_and_blocks_at_are_numpy_indexing(m: int) -> None:
     a = rng.random((9, 12, 3)).astype(np.float32)  # 37 // 4 = 9 rows: the last takes 4 + 1
     got = rk.blocks_at(a, rows, cols, 4)
     np.testing.assert_array_equal(got, a[np.minimum(rows // 4, 8), np.minimum(cols // 4, 11)])
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (8, 12), (4, 4)])
+def test_block_means_are_cv2_inter_area(shape: tuple[int, int]) -> None:
+    rng = np.random.default_rng(shape[1])
+    side = rng.integers(0, 256, (shape[0], 2 * shape[1], 3), dtype=np.uint8)
+    img = side[:, : shape[1]]  # a strided view, as a side-by-side frame's half
+    h, w = shape[0] // 4, shape[1] // 4
+    got = rk.block_means(img, np.empty((h, 3 * w), np.float32))
+    want = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA).reshape(h, 3 * w)
+    np.testing.assert_array_equal(got, want)
+    # Sums of exactly half a grey level round to the even neighbour, as cv2's do.
+    flat = np.zeros((4, 4, 3), np.uint8)
+    flat[0, :2] = 1  # 2 / 16 -> 0; 8 / 16 -> 0 (even); 24 / 16 -> 2 (even)
+    flat[:, :, 1] = 0
+    flat[:2, :, 1] = 1
+    flat[:, :, 2] = 1
+    flat[:2, :, 2] = 2
+    got = rk.block_means(flat, np.empty((1, 3), np.float32))
+    want = cv2.resize(flat, (1, 1), interpolation=cv2.INTER_AREA).reshape(1, 3)
+    np.testing.assert_array_equal(got, want)
+    assert got.tolist() == [[0.0, 0.0, 2.0]]
