@@ -27,16 +27,16 @@ from threadrecon.core.compiled import helper, kernel
     "float32[:, ::1](float32[:, ::1], int64, float32, float32, float32, float32, float32[:, ::1])"
 )
 def line_response(g, c, k1, k2, w_line, w_grad, out):  # noqa: ANN001
-    """Line strength of the smoothed channels ``g`` (H, W * c), ``c`` interleaved channels,
-    into ``out`` (H, W), returned; ``out`` may be ``g`` itself (one channel). Per channel, with
-    the 3x3 Sobel filters of cv2 (border: reflect-101) scaled to derivatives, gx = k1 Sobel_x,
-    gy, hxx = k2 Sobel_xx, hyy, hxy:
+    """Line strength of the smoothed channels ``g`` (c * H, W), ``c`` planes one below the
+    other (channel j in rows j H .. (j + 1) H - 1), into ``out`` (H, W), returned; ``out``
+    may be ``g`` itself (one channel). Per channel, with the 3x3 Sobel filters of cv2 (border:
+    reflect-101) scaled to derivatives, gx = k1 Sobel_x, gy, hxx = k2 Sobel_xx, hyy, hxy:
 
         line = max(w_line min(|hxx + hyy| / 2, |(hxx - hyy, 2 hxy)| / 2) - w_grad |(gx, gy)|, 0)
 
     and the response is line (one channel) or the Euclidean norm of the channels' lines."""
-    h = g.shape[0]
-    w = g.shape[1] // c
+    h = g.shape[0] // c
+    w = g.shape[1]
     two = np.float32(2.0)
     # Rows filtered vertically, one per channel, padded by a reflect-101 column on each side:
     # s = [1 2 1], t = [-1 0 1], q = [1 -2 1] down the column.
@@ -44,24 +44,26 @@ def line_response(g, c, k1, k2, w_line, w_grad, out):  # noqa: ANN001
     t = np.empty((c, w + 2), np.float32)
     q = np.empty((c, w + 2), np.float32)
     line = np.empty(w, np.float32)
-    prev = np.empty(g.shape[1], np.float32)  # row y - 1 as it was (``out`` may overwrite it)
+    prev = np.empty((c, w), np.float32)  # row y - 1 as it was (``out`` may overwrite it)
     lo = 1 if w > 1 else 0  # reflect-101 columns: -1 -> 1, W -> W - 2 (one column: itself)
     hi = w - 2 if w > 1 else 0
     for y in range(h):
-        mid = g[y]
-        up = prev if y > 0 else g[min(1, h - 1)]
-        dn = g[y + 1] if y < h - 1 else (prev if h > 1 else mid)
         for j in range(c):
+            base = j * h
+            mid = g[base + y]
+            up = prev[j] if y > 0 else g[base + min(1, h - 1)]
+            dn = g[base + y + 1] if y < h - 1 else (prev[j] if h > 1 else mid)
             sj, tj, qj = s[j], t[j], q[j]
             for x in range(w):
-                u, m, d = up[x * c + j], mid[x * c + j], dn[x * c + j]
+                u, m, d = up[x], mid[x], dn[x]
                 sj[x + 1] = u + two * m + d
                 tj[x + 1] = d - u
                 qj[x + 1] = u - two * m + d
             sj[0], tj[0], qj[0] = sj[lo + 1], tj[lo + 1], qj[lo + 1]
             sj[w + 1], tj[w + 1], qj[w + 1] = sj[hi + 1], tj[hi + 1], qj[hi + 1]
-        for x in range(g.shape[1]):
-            prev[x] = mid[x]
+            pj = prev[j]
+            for x in range(w):
+                pj[x] = mid[x]
         row = out[y]
         for j in range(c):
             _row_line(s[j], t[j], q[j], w, k1, k2, w_line, w_grad, line)
@@ -144,12 +146,13 @@ def _mixed_row(src, c, w, lut, mix, logs, row):  # noqa: ANN001
 def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
     """Log channels of ``img`` (H, W, c) uint8 (any strides), c = 1 or 3 channels: their
     first channel at full resolution into ``grey`` (H, W), and all of them at half resolution
-    into ``half`` (h, w * c), h = (H + 1) // 2, w = (W + 1) // 2, as cv2.pyrDown takes them
+    into ``half`` (c * h, w), one plane below the other, h = (H + 1) // 2, w = (W + 1) // 2,
+    as cv2.pyrDown takes them
     (5 x 5 binomial filter [1 4 6 4 1] / 16 each way, reflect-101, even pixels); returns
     ``half``. A channel is ``mix`` (c, c) of lut[value] of the pixel's values."""
     h_in, w, c = img.shape
-    h2 = half.shape[0]
-    w2 = half.shape[1] // c
+    h2 = half.shape[0] // c
+    w2 = half.shape[1]
     # The mixed rows of the last five input rows (each row is mixed once): slot r % 5.
     cache = np.empty((5, c, w + 4), np.float32)
     cached = np.full(5, -1, np.int64)
@@ -179,13 +182,13 @@ def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
                 else:
                     for x in range(w + 4):
                         aj[x] += tk * rj[x]
-        out = half[y2]
         for j in range(c):
             aj = acc[j]
+            out = half[j * h2 + y2]
             for x2 in range(w2):
                 p = 2 * x2
                 v = aj[p] + four * aj[p + 1] + six * aj[p + 2] + four * aj[p + 3] + aj[p + 4]
-                out[x2 * c + j] = v * scale
+                out[x2] = v * scale
     return half
 
 
@@ -383,4 +386,61 @@ def at_least(s, t, lo):  # noqa: ANN001
                 out[0, i] = y
                 out[1, i] = x
                 i += 1
+    return out
+
+
+@kernel("uint8[:, ::1](uint8[:, :, :], int64[::1], int64[::1])")
+def pixels_at(img, rows, cols):  # noqa: ANN001
+    """(M, c) values of ``img`` (H, W, c) uint8 (any strides) at the pixels (rows, cols) (M,):
+    ``img[rows, cols]`` without numpy's fancy indexing of a strided image."""
+    m = len(rows)
+    c = img.shape[2]
+    out = np.empty((m, c), np.uint8)
+    for i in range(m):
+        for j in range(c):
+            out[i, j] = img[rows[i], cols[i], j]
+    return out
+
+
+@kernel("float32[:, ::1](float32[:, :, ::1], int64[::1], int64[::1], int64)")
+def blocks_at(a, rows, cols, q):  # noqa: ANN001
+    """(M, c) values of the block image ``a`` (h, w, c) at the blocks of the full-resolution
+    pixels (rows, cols) (M,), ``q`` pixels a block, the last block taking the rest:
+    ``a[min(rows // q, h - 1), min(cols // q, w - 1)]``."""
+    h, w, c = a.shape
+    m = len(rows)
+    out = np.empty((m, c), np.float32)
+    for i in range(m):
+        r = min(rows[i] // q, h - 1)
+        k = min(cols[i] // q, w - 1)
+        for j in range(c):
+            out[i, j] = a[r, k, j]
+    return out
+
+
+@kernel("float32[:, ::1](uint8[:, :, :], float32[:, ::1])")
+def block_means(img, out):  # noqa: ANN001
+    """``out`` (H // 4, (W // 4) * 3) = the means of the 4 x 4 blocks of the three channels of
+    ``img`` (H, W, 3) uint8 (any strides; H and W multiples of 4), interleaved, rounded half
+    to even as cv2.resize's INTER_AREA rounds them; returns ``out``."""
+    h2, wc = out.shape
+    w2 = wc // 3
+    acc = np.zeros(wc, np.int64)
+    for y2 in range(h2):
+        acc[:] = 0
+        for k in range(4):
+            row = img[4 * y2 + k]
+            for x in range(w2):
+                b, p = 3 * x, 4 * x
+                for j in range(3):
+                    acc[b + j] += (
+                        np.int64(row[p, j]) + row[p + 1, j] + row[p + 2, j] + row[p + 3, j]
+                    )
+        o = out[y2]
+        for i in range(wc):
+            q = acc[i] >> 4
+            r = acc[i] & 15
+            if r > 8 or (r == 8 and (q & 1) == 1):  # exactly half: to the even neighbour
+                q += 1
+            o[i] = q
     return out

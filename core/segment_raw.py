@@ -2,11 +2,11 @@
 consistency. :func:`segment_raw` is the ``method="raw"`` of :func:`core.segmentation.segment`.
 
 Speed: every full-resolution pass costs ~0.2-0.5 ms at 640x480, so full-image work is kept to
-the line response, one threshold and the labellings of the pieces per view; the rest runs on the
-candidate pixels (a few %, sparse), on bounding boxes (the distance transform of each piece that
-can be long enough, the grown mask, its specks), or at quarter resolution (the local background,
-the instrument mask). Percentiles are exact selections on a histogram of float bits; stereo
-partners are a sorted-key search. Every shortcut gives the same masks as the plain computation
+the line response and one threshold per view; the rest runs on the candidate pixels (a few %,
+sparse: the pieces are labelled and measured on their pixel lists), on bounding boxes (the
+grown mask, its specks), or at quarter resolution (the local background, the instrument
+mask). Percentiles are exact selections on a histogram of float bits; stereo partners are a
+sorted-key search. Every shortcut gives the same masks as the plain computation
 (tests/core/test_segment_raw.py; scripts/seg_fingerprint.py on whole suites).
 """
 
@@ -19,11 +19,15 @@ import cv2
 import numpy as np
 
 from threadrecon.core.instrument import grow_into_attached
+from threadrecon.core.piece_kernel import half_widths, label_pixels, piece_boxes
 from threadrecon.core.ridge_kernel import (
     at_least,
+    block_means,
+    blocks_at,
     kth_smallest,
     line_response,
     log_planes,
+    pixels_at,
     small_components,
     upsample_max,
 )
@@ -174,15 +178,20 @@ class _View:
             img = self.img if self.img.ndim == 3 else self.img[:, :, None]
             if img.dtype != np.uint8:
                 img = np.clip(img, 0, 255).astype(np.uint8)
-            img = np.ascontiguousarray(img[:, :, :3])
-            g = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.shape[2] >= 3 else img[:, :, 0]
+            img = img[:, :, :3]
+            if img.shape[2] < 3:
+                g = img[:, :, 0]
+            elif (bgr := _reversed(img)) is not None:  # RGB as loaded: a view of BGR
+                g = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+            else:  # cv2 takes a row-strided array (half a side-by-side frame) as it is
+                g = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
             self._grey = g.astype(np.float32)
         return self._grey
 
     @classmethod
     def build(cls, img: np.ndarray, p: SegmentationParams) -> _View:
         grey, half = _log_planes(img)
-        c = half.shape[2]
+        c = half.shape[0]
         S = _line_response(grey, half)
         level = _robust_level(S)
         lo = np.empty(S.shape, np.uint8)  # cv2.compare(S, ridge_lo level, CMP_GE) and its points
@@ -206,7 +215,7 @@ class _View:
         free = _free_blocks(rows, cols, a_q.shape[:2])
         bg_rgb = _background(a_q, free)
         bg = _log_of(bg_rgb)
-        delta = _log_at(img, rows, cols) - bg[_qi(rows, bg.shape[0]), _qi(cols, bg.shape[1])]
+        delta = _log_at(img, rows, cols) - blocks_at(bg, rows, cols, _Q)
         if c > 1:
             redder = (delta[:, 1] > p.blood_rg * _LOG_SCALE) | (
                 delta[:, 1] >= -_BLOOD_RATIO * delta[:, 0]
@@ -216,17 +225,12 @@ class _View:
             blood = np.zeros(len(rows), bool)
         sigma = noise_sigma(_log_channels(img[::_NOISE_ROW_STEP]), row_step=1)
         v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb)
-        if blood.any():
-            mask = lo.copy()
-            mask[rows[blood], cols[blood]] = 0
-            v.pieces = _pieces(S, mask, ~blood, v, p)
-        else:
-            v.pieces = _pieces(S, lo, None, v, p)
+        v.pieces = _pieces(S, ~blood if blood.any() else None, v, p)
         return v
 
     def with_blood(self, p: SegmentationParams) -> _View:
         v = _View(**{k: getattr(self, k) for k in self.__dataclass_fields__ if k != "pieces"})
-        v.pieces = _pieces(self.S, self.lo, None, v, p)
+        v.pieces = _pieces(self.S, None, v, p)
         return v
 
 
@@ -248,8 +252,25 @@ def _quarter(a: np.ndarray) -> np.ndarray:
     """(h, w, C) float32 block means of ``a`` (H, W, C) over _Q x _Q blocks (uint8 means are
     rounded: 0.5 grey levels at most)."""
     h, w = a.shape[:2]
-    small = cv2.resize(a, (max(w // _Q, 1), max(h // _Q, 1)), interpolation=cv2.INTER_AREA)
+    if a.dtype == np.uint8 and a.shape[2] == 3 and h % _Q == 0 and w % _Q == 0 and h * w > 0:
+        out = np.empty((h // _Q, (w // _Q) * 3), np.float32)  # cv2's values, 2x faster
+        return block_means(a, out).reshape(h // _Q, w // _Q, 3)
+    size = (max(w // _Q, 1), max(h // _Q, 1))
+    if (rev := _reversed(a)) is not None:  # channel by channel: the reversed array's means
+        small = cv2.resize(rev, size, interpolation=cv2.INTER_AREA)[:, :, ::-1]
+    else:
+        small = cv2.resize(a, size, interpolation=cv2.INTER_AREA)
     return small.reshape(small.shape[0], small.shape[1], -1).astype(np.float32, copy=False)
+
+
+def _reversed(a: np.ndarray) -> np.ndarray | None:
+    """``a[:, :, ::-1]`` when that is C-contiguous (an RGB image as loaded is a view of the
+    file's BGR array), else None: cv2 copies a strided array first (~1 ms at 640x480), and a
+    per-channel operation (or BGR2GRAY for RGB2GRAY) on the reversed array gives the same."""
+    if a.ndim != 3 or a.shape[2] < 2 or a.strides[2] >= 0:
+        return None
+    rev = a[:, :, ::-1]
+    return rev if rev.flags.c_contiguous else None
 
 
 def _log_of(a: np.ndarray) -> np.ndarray:
@@ -430,7 +451,8 @@ def noise_sigma(f: np.ndarray, row_step: int = _NOISE_ROW_STEP) -> np.ndarray:
     sub = f[::row_step]
     d = cv2.absdiff(sub[:, 1:], sub[:, :-1]).reshape(-1, f.shape[2])  # (N, C)
     mid = d.shape[0] // 2
-    mad = np.array([_kth_smallest(d[:, j : j + 1], mid) for j in range(d.shape[1])], np.float32)
+    d = np.ascontiguousarray(d.T)  # (C, N): each channel's row is read without a copy
+    mad = np.array([_kth_smallest(d[j : j + 1], mid) for j in range(d.shape[0])], np.float32)
     return np.maximum(1.4826 * mad / np.sqrt(2.0), _QUANT_SIGMA)
 
 
@@ -498,20 +520,23 @@ def _uint8(img: np.ndarray) -> np.ndarray:
 def _log_planes(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The channels of :func:`_log_channels` as the line response reads them: the first
     (brightness) at full resolution (H, W) float32, and all C of them at half resolution as
-    cv2.pyrDown gives them (h, w, C) float32, h = (H + 1) // 2, w = (W + 1) // 2; one compiled
+    cv2.pyrDown gives them, channel by channel (C, h, w) float32 (planes: each filter pass
+    reads one contiguous row of a channel), h = (H + 1) // 2, w = (W + 1) // 2; one compiled
     pass (:func:`threadrecon.core.ridge_kernel.log_planes`), no (H, W, C) image."""
     u8 = _uint8(img)
     h, w, c = u8.shape
     grey = np.empty((h, w), np.float32)
-    half = np.empty(((h + 1) // 2, ((w + 1) // 2) * c), np.float32)
+    half = np.empty((c * ((h + 1) // 2), (w + 1) // 2), np.float32)
     mix = _LOG_MIX if c == 3 else np.ones((1, 1), np.float32)
     log_planes(u8, _LOG_LUT, mix, grey, half)
-    return grey, half.reshape(half.shape[0], -1, c)
+    return grey, half.reshape(c, -1, half.shape[1])
 
 
 def _log_at(img: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """(M, C) channels of :func:`_log_channels` at the pixels (rows, cols) only."""
-    px = _uint8(img)[rows, cols]  # (M, C)
+    px = pixels_at(
+        _uint8(img), np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64)
+    )  # (M, C)
     if len(rows) == 0:
         return np.zeros((0, px.shape[1]), np.float32)
     return _log_channels(px[None]).reshape(len(rows), -1)
@@ -519,7 +544,7 @@ def _log_at(img: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
 
 def _line_response(grey: np.ndarray, half: np.ndarray) -> np.ndarray:
     """(H, W) float32 multi-scale line strength of the channels of :func:`_log_planes`: the
-    brightness ``grey`` (H, W) and all C channels at half resolution ``half`` (h, w, C), both
+    brightness ``grey`` (H, W) and all C channels at half resolution ``half`` (C, h, w), both
     overwritten.
 
     The fine scale sees the grey channel only (a 1-2 px thread differs from tissue mostly in
@@ -535,21 +560,23 @@ def _line_at(f: np.ndarray, sigma: float, norm: float) -> np.ndarray:
     """Line strength at Gaussian scale ``sigma`` px of this image (overwritten: it is blurred
     in place, and one channel becomes the response), normalised as scale ``norm``: one
     compiled pass over the smoothed image (:func:`threadrecon.core.ridge_kernel.line_response`;
-    the same formula as fifteen cv2 calls, to float32 rounding, without their buffers)."""
-    h, w = f.shape[:2]
-    c = 1 if f.ndim == 2 else f.shape[2]
-    g = cv2.GaussianBlur(f, (0, 0), sigma, dst=f)
+    the same formula as fifteen cv2 calls, to float32 rounding, without their buffers).
+    ``f``: (H, W), or C planes (C, H, W)."""
+    planes = f if f.ndim == 3 else f[None]
+    c, h, w = planes.shape
+    for plane in planes:  # cv2 blurs the channels of an (H, W, C) image alike, one by one
+        cv2.GaussianBlur(plane, (0, 0), sigma, dst=plane)
     r = sigma / norm  # derivatives per original pixel: a half-resolution pixel is 2 px
     # Sobel 3x3 sums 4 (first) or 16 (second derivative) times the derivative; the response
     # is 2 norm^2 min(|l1 + l2| / 2, |l1 - l2| / 2) - _EDGE_K norm |gradient|, at least 0.
     return line_response(
-        g.reshape(h, w * c),
+        planes.reshape(c * h, w),
         c,
         np.float32(0.125 * r),
         np.float32(0.25 * r * r),
         np.float32(2.0 * norm * norm),
         np.float32(_EDGE_K * norm),
-        g if c == 1 else np.empty((h, w), np.float32),  # one channel: in place
+        planes[0] if c == 1 else np.empty((h, w), np.float32),  # one channel: in place
     )
 
 
@@ -571,16 +598,15 @@ def _kth_smallest(x: np.ndarray, k: int) -> float:
     return float(kth_smallest(x if x.ndim == 2 else x[None], k))
 
 
-def _pieces(
-    s: np.ndarray, mask: np.ndarray, sub: np.ndarray | None, v: _View, p: SegmentationParams
-) -> tuple:
-    """Hysteresis pieces of ``mask`` (uint8, a subset of the view's lo pixels: those where
-    ``sub`` (M,) is True, all when None): the piece of each lo pixel (M,) (0: none), rows and
-    columns of the shape-ok pieces' pixels, per-piece mean S, length (exact where shape ok),
-    shape ok."""
-    n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+def _pieces(s: np.ndarray, sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
+    """Hysteresis pieces of the view's lo pixels where ``sub`` (M,) is True (all when None),
+    8-connected: the piece of each lo pixel (M,) (0: none), rows and columns of the shape-ok
+    pieces' pixels, per-piece mean S, length (exact where shape ok), shape ok. Labelled and
+    measured on the pixel lists (:mod:`threadrecon.core.piece_kernel`): cv2.connectedComponents'
+    labels and cv2.distanceTransform's half-widths (to float32 rounding), no label image."""
     rows, cols = (v.rows, v.cols) if sub is None else (v.rows[sub], v.cols[sub])
-    lab = labels[rows, cols]
+    lab = np.empty(len(rows), np.int64)
+    n = label_pixels(rows, cols, lab)
     s_px = s[rows, cols]
     area = np.bincount(lab, minlength=n).astype(np.float64)
     means = np.bincount(lab, weights=s_px, minlength=n) / np.maximum(area, 1.0)
@@ -593,11 +619,13 @@ def _pieces(
     # sides are <= its area). Those are few (a few % of the pieces); each is measured alone.
     cands = seeded & (np.sqrt(2.0) * area >= p.min_length_px)
     cands[0] = False
-    on = cands[lab]
-    r0, r1, c0, c1 = _boxes(lab[on], rows[on], cols[on], n)
+    boxes = piece_boxes(lab, rows, cols, n)
+    boxes *= cands  # the other pieces' boxes are not needed (0, as their length)
+    r0, r1, c0, c1 = boxes
     diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
     cands &= np.maximum(diag, area / (2.0 * _CHAMFER_A)) >= p.min_length_px
-    half = _half_widths(labels, np.flatnonzero(cands), (r0, r1, c0, c1))
+    h, w = v.lo.shape
+    half = half_widths(lab, rows, cols, np.flatnonzero(cands), boxes, h, w)
     length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
     ok = cands & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
     means[0] = 0.0
@@ -607,43 +635,6 @@ def _pieces(
 
 
 _CHAMFER_A: Final = 0.95  # below cv2's DIST_L2 3x3 step (0.955): no piece is thinner
-
-
-def _boxes(lab: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
-    """Per label (n,): first and last row, first and last column of its pixels (given in
-    row-major order), 0 for labels without pixels: one stable sort and reduceats."""
-    out = [np.zeros(n, np.intp) for _ in range(4)]
-    if lab.size == 0:
-        return tuple(out)
-    order = np.argsort(lab, kind="stable")
-    lab_s = lab[order]
-    starts = np.flatnonzero(np.concatenate([[True], lab_s[1:] != lab_s[:-1]]))
-    ends = np.append(starts[1:], len(lab_s)) - 1
-    ids = lab_s[starts]
-    r_s, c_s = rows[order], cols[order]
-    out[0][ids] = r_s[starts]  # row-major order: a label's rows ascend
-    out[1][ids] = r_s[ends]
-    out[2][ids] = np.minimum.reduceat(c_s, starts)
-    out[3][ids] = np.maximum.reduceat(c_s, starts)
-    return tuple(out)
-
-
-def _half_widths(labels: np.ndarray, ids: np.ndarray, boxes: tuple[np.ndarray, ...]) -> np.ndarray:
-    """(n,) largest distance (cv2 DIST_L2, 3x3 chamfer) of the pixels of the pieces ``ids`` to
-    the outside of their mask, 0 for the other pieces. A piece's own pixels in its box
-    (``boxes``: first and last row and column per label), with a 1 px margin of zeros where
-    the box is not at the image edge (cv2 takes the outside of the image as far), give the
-    distances of the whole mask: a path leaving a piece meets a zero of its 8-neighbourhood
-    (no other piece) first."""
-    half = np.zeros(len(boxes[0]))
-    h, w = labels.shape
-    r0, r1, c0, c1 = (b.tolist() for b in boxes)
-    for i in ids.tolist():
-        piece = cv2.compare(labels[r0[i] : r1[i] + 1, c0[i] : c1[i] + 1], i, cv2.CMP_EQ)
-        piece = cv2.copyMakeBorder(piece, int(r0[i] > 0), int(r1[i] < h - 1), int(c0[i] > 0),
-                                   int(c1[i] < w - 1), cv2.BORDER_CONSTANT, value=0)  # fmt: skip
-        half[i] = float(cv2.distanceTransform(piece, cv2.DIST_L2, 3).max())
-    return half
 
 
 def _scatter(values: np.ndarray, where: np.ndarray) -> np.ndarray:

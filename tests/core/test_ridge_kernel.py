@@ -39,8 +39,9 @@ def test_line_response_is_the_cv2_sobel_formula(shape: tuple[int, int], c: int) 
     g = _image(shape if c == 1 else (*shape, c), seed=shape[0] * 7 + c)
     r, norm, edge_k = 0.5, 2.0, 2.0
     out = np.full(shape, -1.0, np.float32)
+    planes = g if c == 1 else np.ascontiguousarray(np.moveaxis(g, 2, 0))  # (c, H, W)
     got = rk.line_response(
-        g.reshape(shape[0], -1), c, np.float32(0.125 * r), np.float32(0.25 * r * r),
+        planes.reshape(-1, shape[1]), c, np.float32(0.125 * r), np.float32(0.25 * r * r),
         np.float32(2 * norm * norm), np.float32(edge_k * norm), out,
     )  # fmt: skip
     assert got is out
@@ -79,10 +80,10 @@ def test_log_planes_are_the_log_channels_and_their_pyrdown(
     img = img[:, :, 0] if channels == 0 else img[:, :, ::-1]  # a strided view, as loaded
     grey, half = _log_planes(img)
     f = _log_channels(img if channels != 4 else img[:, :, :3])
-    assert grey.shape == shape and half.shape == ((shape[0] + 1) // 2, (shape[1] + 1) // 2,
-                                                  f.shape[2])  # fmt: skip
+    assert grey.shape == shape and half.shape == (f.shape[2], (shape[0] + 1) // 2,
+                                                  (shape[1] + 1) // 2)  # fmt: skip
     np.testing.assert_allclose(grey, f[:, :, 0], rtol=0, atol=1e-4)
-    want = cv2.pyrDown(f).reshape(half.shape)
+    want = np.moveaxis(cv2.pyrDown(f).reshape(half.shape[1:] + half.shape[:1]), 2, 0)
     np.testing.assert_allclose(half, want, rtol=0, atol=1e-4)
 
 
@@ -193,3 +194,37 @@ def test_at_least_is_cv2_compare_and_find_non_zero(shape: tuple[int, int]) -> No
         want_rows, want_cols = _points(want)
         np.testing.assert_array_equal(rows, want_rows)
         np.testing.assert_array_equal(cols, want_cols)
+
+
+@pytest.mark.parametrize("m", [0, 1, 500])
+def test_pixels_and_blocks_at_are_numpy_indexing(m: int) -> None:
+    rng = np.random.default_rng(m)
+    side = rng.integers(0, 256, (37, 2 * 51, 3), dtype=np.uint8)
+    for img in (side[:, :51], side[:, 51:, ::-1], side[:, :51, :1]):  # strided views
+        rows, cols = rng.integers(0, 37, m), rng.integers(0, 51, m)
+        np.testing.assert_array_equal(rk.pixels_at(img, rows, cols), img[rows, cols])
+    a = rng.random((9, 12, 3)).astype(np.float32)  # 37 // 4 = 9 rows: the last takes 4 + 1
+    got = rk.blocks_at(a, rows, cols, 4)
+    np.testing.assert_array_equal(got, a[np.minimum(rows // 4, 8), np.minimum(cols // 4, 11)])
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (8, 12), (4, 4)])
+def test_block_means_are_cv2_inter_area(shape: tuple[int, int]) -> None:
+    rng = np.random.default_rng(shape[1])
+    side = rng.integers(0, 256, (shape[0], 2 * shape[1], 3), dtype=np.uint8)
+    img = side[:, : shape[1]]  # a strided view, as a side-by-side frame's half
+    h, w = shape[0] // 4, shape[1] // 4
+    got = rk.block_means(img, np.empty((h, 3 * w), np.float32))
+    want = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA).reshape(h, 3 * w)
+    np.testing.assert_array_equal(got, want)
+    # Sums of exactly half a grey level round to the even neighbour, as cv2's do.
+    flat = np.zeros((4, 4, 3), np.uint8)
+    flat[0, :2] = 1  # 2 / 16 -> 0; 8 / 16 -> 0 (even); 24 / 16 -> 2 (even)
+    flat[:, :, 1] = 0
+    flat[:2, :, 1] = 1
+    flat[:, :, 2] = 1
+    flat[:2, :, 2] = 2
+    got = rk.block_means(flat, np.empty((1, 3), np.float32))
+    want = cv2.resize(flat, (1, 1), interpolation=cv2.INTER_AREA).reshape(1, 3)
+    np.testing.assert_array_equal(got, want)
+    assert got.tolist() == [[0.0, 0.0, 2.0]]

@@ -144,3 +144,19 @@ def test_a_highlight_along_the_thread_stays_in_its_mask() -> None:
     render = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, specular=0.4)
     for P, M in _raw_masks(render, ThreadParams(), 2):  # without the highlight fit: 0.88, 0.90
         assert (P & M).sum() / (P | M).sum() >= 0.92
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (37, 51), (3, 2)])
+def test_grey_and_quarter_of_an_rgb_view_of_bgr_equal_those_of_a_contiguous_copy(
+    shape: tuple[int, int],
+) -> None:
+    rng = np.random.default_rng(shape[0])
+    bgr = rng.integers(0, 256, (*shape, 3), dtype=np.uint8)
+    rgb = bgr[:, :, ::-1]  # as images are loaded: a view, no copy
+    assert sr._reversed(rgb) is not None and sr._reversed(np.ascontiguousarray(rgb)) is None
+    np.testing.assert_array_equal(sr._quarter(rgb), sr._quarter(np.ascontiguousarray(rgb)))
+    if min(shape) >= 8:
+        p = SegmentationParams()
+        a, b = (sr._View.build(x, p) for x in (rgb, np.ascontiguousarray(rgb)))
+        np.testing.assert_array_equal(a.grey(), b.grey())
+        np.testing.assert_array_equal(a.bg_rgb, b.bg_rgb)

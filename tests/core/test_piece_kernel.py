@@ -1,0 +1,98 @@
+"""Tests of core/piece_kernel.py: labels and boxes of pixel lists are those of
+cv2.connectedComponents on the mask image, bit for bit, and half-widths those of
+cv2.distanceTransform to float32 rounding."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from threadrecon.core import piece_kernel as pk
+
+_SIZES = [(1, 1), (1, 9), (9, 1), (2, 2), (37, 51), (120, 160), (480, 640)]
+
+
+def _mask(shape: tuple[int, int], seed: int) -> np.ndarray:
+    """A random uint8 mask: speckle, or blobs and lines (a closing of speckle), by seed."""
+    rng = np.random.default_rng(seed)
+    m = (rng.random(shape) < rng.uniform(0.05, 0.7)).astype(np.uint8)
+    if seed % 2 and min(shape) > 2:
+        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    return m
+
+
+def _pixels(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    rows, cols = np.nonzero(m)  # row-major order
+    return rows.astype(np.int64), cols.astype(np.int64)
+
+
+def _cv2_half_width(piece: np.ndarray) -> float:
+    """The largest cv2 distance (DIST_L2, 3x3) of a piece (H, W) bool to its outside, on its
+    bounding box grown by one pixel within the image (the image's edge is far)."""
+    r, c = np.nonzero(piece)
+    h, w = piece.shape
+    box = piece[max(r.min() - 1, 0) : r.max() + 2, max(c.min() - 1, 0) : c.max() + 2]
+    return float(cv2.distanceTransform(box.astype(np.uint8), cv2.DIST_L2, 3).max())
+
+
+@pytest.mark.parametrize("shape", _SIZES)
+@pytest.mark.parametrize("seed", range(4))
+def test_labels_of_the_pixels_are_cv2_connected_components(
+    shape: tuple[int, int], seed: int
+) -> None:
+    m = _mask(shape, seed + shape[0])
+    n, labels = cv2.connectedComponents(m, connectivity=8, ltype=cv2.CV_32S)
+    rows, cols = _pixels(m)
+    lab = np.empty(len(rows), np.int64)
+    assert pk.label_pixels(rows, cols, lab) == n
+    np.testing.assert_array_equal(lab, labels[rows, cols])  # the same numbering too
+
+
+def test_labels_of_no_pixel_count_the_background_only() -> None:
+    empty = np.zeros(0, np.int64)
+    assert pk.label_pixels(empty, empty, empty.copy()) == 1
+
+
+@pytest.mark.parametrize("shape", _SIZES)
+@pytest.mark.parametrize("seed", range(4))
+def test_boxes_and_half_widths_are_those_of_each_piece_alone(
+    shape: tuple[int, int], seed: int
+) -> None:
+    m = _mask(shape, 100 + seed + shape[1])
+    n, labels = cv2.connectedComponents(m, connectivity=8, ltype=cv2.CV_32S)
+    rows, cols = _pixels(m)
+    lab = labels[rows, cols].astype(np.int64)
+    boxes = pk.piece_boxes(lab, rows, cols, n)
+    ids = np.arange(1, n, 2, dtype=np.int64)  # every second piece
+    half = pk.half_widths(lab, rows, cols, ids, boxes, *shape)
+    expected = np.zeros(n)
+    for k in range(1, n):
+        r, c = np.nonzero(labels == k)
+        assert tuple(boxes[:, k]) == (r.min(), r.max(), c.min(), c.max())
+        expected[k] = _cv2_half_width(labels == k) if k in ids else 0.0
+    # float32 sums of the same steps along another path: the last bits (of ~100 steps) differ.
+    np.testing.assert_allclose(half, expected, rtol=2e-6, atol=0)
+    assert half[0] == 0.0 and tuple(boxes[:, 0]) == (0, 0, 0, 0)
+
+
+def test_a_piece_filling_the_image_is_as_far_as_cv2_says() -> None:
+    m = np.ones((5, 7), np.uint8)
+    rows, cols = _pixels(m)
+    lab = np.ones(len(rows), np.int64)
+    boxes = pk.piece_boxes(lab, rows, cols, 2)
+    half = pk.half_widths(lab, rows, cols, np.array([1]), boxes, 5, 7)
+    assert half[1] == _cv2_half_width(m.astype(bool))
+
+
+def test_half_width_of_a_bar_grows_with_its_width() -> None:
+    widths = []
+    for wide in (1, 3, 5, 9):
+        m = np.zeros((40, 60), np.uint8)
+        m[10 : 10 + wide, 5:55] = 1
+        rows, cols = _pixels(m)
+        lab = np.ones(len(rows), np.int64)
+        boxes = pk.piece_boxes(lab, rows, cols, 2)
+        widths.append(pk.half_widths(lab, rows, cols, np.array([1]), boxes, 40, 60)[1])
+    assert widths[0] == pytest.approx(0.955, abs=1e-6)
+    assert np.all(np.diff(widths) > 0.9)
