@@ -17,8 +17,6 @@ import numpy as np
 
 from threadrecon.core.compiled import helper, kernel
 
-RUNS_START = 256  # initial capacity of the run arrays (doubled when full)
-
 
 # Compiled ahead of time once per machine (core/compiled.py), so that numba is not loaded.
 @kernel(
@@ -30,40 +28,46 @@ def mask_runs(mask, words, y0, y1, x0, x1):  # noqa: ANN001
     ``mask`` (H, W) inside rows y0..y1-1 and columns x0..x1-1, in row-major order. ``words``
     is the same mask seen as (H, W / 8) int64 (W a multiple of 8) to skip empty stretches
     eight pixels at a time, or a (0, 0) array (pixel by pixel)."""
-    cap = RUNS_START
-    row = np.empty(cap, np.int64)
-    first = np.empty(cap, np.int64)
-    last = np.empty(cap, np.int64)
+    if words.shape[0] > 0:  # whole words: x0 = 0, x1 = W
+        w0, w1, step = 0, words.shape[1], 8
+    else:
+        w0, w1, step = x0, x1, 1
     n = 0
-    fast = words.shape[0] > 0
-    for y in range(y0, y1):
-        x = x0
-        while x < x1:
-            if fast and (x & 7) == 0:
-                while x + 8 <= x1 and words[y, x >> 3] == 0:
-                    x += 8
-                if x >= x1:
-                    break
-            if mask[y, x] == 0:
-                x += 1
+    for y in range(y0, y1):  # pass 1: count the runs
+        prev = False
+        for wi in range(w0, w1):
+            if step == 8 and words[y, wi] == 0:
+                prev = False
                 continue
-            a = x
-            while x < x1 and mask[y, x] != 0:
-                x += 1
-            if n == cap:
-                cap *= 2
-                row2 = np.empty(cap, np.int64)
-                first2 = np.empty(cap, np.int64)
-                last2 = np.empty(cap, np.int64)
-                row2[:n] = row[:n]
-                first2[:n] = first[:n]
-                last2[:n] = last[:n]
-                row, first, last = row2, first2, last2
-            row[n] = y
-            first[n] = a
-            last[n] = x - 1
-            n += 1
-    return row[:n].copy(), first[:n].copy(), last[:n].copy()
+            for x in range(step * wi, step * wi + step):
+                on = mask[y, x] != 0
+                if on and not prev:
+                    n += 1
+                prev = on
+    row = np.empty(n, np.int64)
+    first = np.empty(n, np.int64)
+    last = np.empty(n, np.int64)
+    k = 0
+    for y in range(y0, y1):  # pass 2: record them
+        prev = False
+        for wi in range(w0, w1):
+            if step == 8 and words[y, wi] == 0:
+                if prev:
+                    last[k - 1] = step * wi - 1
+                prev = False
+                continue
+            for x in range(step * wi, step * wi + step):
+                on = mask[y, x] != 0
+                if on and not prev:
+                    row[k] = y
+                    first[k] = x
+                    k += 1
+                elif prev and not on:
+                    last[k - 1] = x - 1
+                prev = on
+        if prev:
+            last[k - 1] = step * w1 - 1
+    return row, first, last
 
 
 @kernel(
@@ -249,19 +253,21 @@ def nearest_runs(key, centre, row_start, key_scale, rows, x):  # noqa: ANN001
 
 
 @helper()
-def _givens_row(R, qr, vals, f, rhs):  # noqa: ANN001
+def _givens_row(R, qr, vals, f, rhs, w):  # noqa: ANN001
     """Rotate one row (``vals`` at columns f .. f + K - 1, right-hand side ``rhs``) into the
     banded triangular factor ``R`` (m, K) (R[j, c] is column j + c of row j) and ``qr``
-    (Q^T r). Rows must come in nondecreasing order of ``f``: the factor's rows at and after
-    ``f`` then end by column f + K - 1, and K rotations finish the row."""
+    (Q^T r); ``w`` (K,) is scratch. Rows must come in nondecreasing order of ``f``: the
+    factor's rows at and after ``f`` then end by column f + K - 1, and K rotations finish the
+    row."""
     m, K = R.shape
-    w = vals.copy()
+    for t in range(K):
+        w[t] = vals[t]
     rh = rhs
     for j in range(f, min(f + K, m)):
         x = w[0]
         if x != 0.0:
             rjj = R[j, 0]
-            h = np.hypot(rjj, x)
+            h = np.sqrt(rjj * rjj + x * x)  # no overflow: |entries| << 1e150
             c = rjj / h
             s = x / h
             R[j, 0] = h
@@ -269,12 +275,13 @@ def _givens_row(R, qr, vals, f, rhs):  # noqa: ANN001
                 rt = R[j, t]
                 wt = w[t]
                 R[j, t] = c * rt + s * wt
-                w[t] = c * wt - s * rt
+                w[t - 1] = c * wt - s * rt
             q = qr[j]
             qr[j] = c * q + s * rh
             rh = c * rh - s * q
-        for t in range(K - 1):
-            w[t] = w[t + 1]
+        else:
+            for t in range(1, K):
+                w[t - 1] = w[t]
         w[K - 1] = 0.0
 
 
@@ -421,7 +428,7 @@ def _nnls(Mt, maxiter):  # noqa: ANN001
 @helper()
 def _lsi(vals, first, rhs, n_rows, ridge, band_g, first_g, h, m, maxiter):  # noqa: ANN001
     """min ||A x - r|| subject to G x >= h (Lawson and Hanson: LSI -> LDP -> NNLS) for the
-    banded rows ``vals[:n_rows]`` at columns ``first`` (nondecreasing) with right-hand sides
+    banded rows ``vals[:n_rows]`` at columns ``first`` (any order) with right-hand sides
     ``rhs``, plus ``ridge`` times the identity; the rows of G are banded too (``band_g`` at
     ``first_g``). Returns x (m,) and a status: 0, 3 (the constraints cannot be met), 4
     (NNLS iteration limit) or 5 (a value of the system is not finite)."""
@@ -430,18 +437,31 @@ def _lsi(vals, first, rhs, n_rows, ridge, band_g, first_g, h, m, maxiter):  # no
     qr = np.zeros(m)
     x = np.zeros(m)
     one = np.zeros(K)
-    # Q R of [A; ridge I] by rotations, rows in order of their first column (merged)
+    w = np.empty(K)
+    # Q R of [A; ridge I] by rotations, rows in order of their first column (a counting sort;
+    # the ridge's row j after the rows that start at j)
+    start = np.zeros(m + 1, np.int64)
+    for i in range(n_rows):
+        start[first[i] + 1] += 1
+    for j in range(m):
+        start[j + 1] += start[j]
+    order = np.empty(n_rows, np.int64)
+    for i in range(n_rows):
+        order[start[first[i]]] = i
+        start[first[i]] += 1
     i = 0
     for j in range(m):
-        while i < n_rows and first[i] <= j:
-            _givens_row(R, qr, vals[i], first[i], rhs[i])
+        while i < n_rows and first[order[i]] <= j:
+            o = order[i]
+            _givens_row(R, qr, vals[o], first[o], rhs[o], w)
             i += 1
         fj = min(j, m - K)
         one[:] = 0.0
         one[j - fj] = ridge
-        _givens_row(R, qr, one, fj, 0.0)
+        _givens_row(R, qr, one, fj, 0.0, w)
     while i < n_rows:
-        _givens_row(R, qr, vals[i], first[i], rhs[i])
+        o = order[i]
+        _givens_row(R, qr, vals[o], first[o], rhs[o], w)
         i += 1
     for j in range(m):
         if not (np.isfinite(R[j, 0]) and np.isfinite(qr[j]) and R[j, 0] != 0.0):
@@ -489,7 +509,7 @@ def _lsi(vals, first, rhs, n_rows, ridge, band_g, first_g, h, m, maxiter):  # no
     "float64[:, ::1], int64[::1], float64[::1], int64, int64)"
 )
 def lsi(vals, first, rhs, ridge, band_g, first_g, h, m, maxiter):  # noqa: ANN001
-    """:func:`_lsi` of every row (``first`` nondecreasing)."""
+    """:func:`_lsi` of every row."""
     return _lsi(vals, first, rhs, len(rhs), ridge, band_g, first_g, h, m, maxiter)
 
 
@@ -661,16 +681,8 @@ def gauss_newton(  # noqa: ANN201
                 amax = max(amax, abs(band_s[i, c]))
             rhs[q] = 0.0
             q += 1
-        order = np.argsort(first[:q], kind="mergesort")
-        v2 = np.empty((q, K))
-        f2 = np.empty(q, np.int64)
-        r2 = np.empty(q)
-        for k in range(q):
-            v2[k] = vals[order[k]]
-            f2[k] = first[order[k]]
-            r2[k] = rhs[order[k]]
         ridge = ridge_rel * max(amax, 1e-300)
-        x, status = _lsi(v2, f2, r2, q, ridge, band_g, first_g, h, m, maxiter)
+        x, status = _lsi(vals, first, rhs, q, ridge, band_g, first_g, h, m, maxiter)
         if status:
             return b0.copy(), status
         b = x
