@@ -47,7 +47,8 @@ from threadrecon.core.lru import LRU
 from threadrecon.core.params import Params, param
 from threadrecon.core.refine_kernel import (
     GN_CONSTANTS,
-    bands,
+    band_dot,
+    basis_bands,
     edge_centres,
     gauss_newton,
     lsi,
@@ -55,7 +56,7 @@ from threadrecon.core.refine_kernel import (
     nearest_runs,
 )
 from threadrecon.core.segmentation import LiftedPair
-from threadrecon.core.spline import SplineResult, basis_matrix
+from threadrecon.core.spline import SplineResult
 
 QUAD_PER_SPAN = 4  # Gauss-Legendre nodes per knot span: exact for the squared 3rd derivative
 RIDGE = 1e-9  # relative ridge that keeps the least-squares matrix of full column rank
@@ -132,8 +133,11 @@ def refine_depth(
     xy_len = float(np.linalg.norm(np.diff(spline.curve(200)[:, :2], axis=0), axis=1).sum())
     n = int(np.clip(xy_len, 50, 3000))  # about one sample per px of image arc length
     u = np.linspace(0.0, spline.length, n)
-    Bm = basis_matrix(u, t, k)
-    xy = Bm @ c0[:, :2]
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    c0 = np.ascontiguousarray(c0, dtype=np.float64)
+    Bm = _basis(t, k, u)  # the samples' basis rows, banded
+    xyz = Bm.dot(c0)
+    xy, z_c0 = xyz[:, :2], np.ascontiguousarray(xyz[:, 2])
     runs_L = _runs(lifted.P_L, lifted.grey_L, lifted.background[0])
     runs_R = _runs(lifted.P_R, lifted.grey_R, lifted.background[1])
     rows = _rows(xy[:, 1])
@@ -141,7 +145,7 @@ def refine_depth(
     cL, lL = runs_L.at(iL)
     okL = np.isfinite(cL) & (np.abs(cL - xy[:, 0]) <= 0.5 * lL + GATE_PX)
 
-    d_run = _run_disparity(Bm @ c0[:, 2], iL, okL, runs_L.centre.size, fB)
+    d_run = _run_disparity(z_c0, iL, okL, runs_L.centre.size, fB)
     mismatched, shared = _mismatched(bounds, runs_L, runs_R, fB, d_run)
     keep = ~mismatched
     # Stereo matched another strand somewhere: pair runs by rank on rows where the two views
@@ -154,28 +158,28 @@ def refine_depth(
     if (
         p.mode == "repair"
         and not remedy
-        and not _off_thread(xy, Bm @ c0[:, 2], rows, okL, runs_R, lifted, fB)
+        and not _off_thread(xy, z_c0, rows, okL, runs_R, lifted, fB)
     ):
         return spline  # the MVS curve lies on the thread in both views: nothing to repair
     # Smoothness: third derivative over image arc length s = u * xy_len / length.
     uq, wq = _gauss_nodes(t, k, QUAD_PER_SPAN)
-    D3 = basis_matrix(uq, t, k, 3)  # d^3 S_z / du^3 per control value
+    D3 = _basis(t, k, uq, 3)  # d^3 S_z / du^3 per control value
     ds_du = xy_len / spline.length
-    z_mean = float(np.mean(Bm @ c0[:, 2]))
+    z_mean = float(np.mean(z_c0))
     to_px = fB / z_mean**2  # depth -> disparity px at the mean depth
-    S = D3 * (to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))[:, None]
+    S = D3.scaled(to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))
 
-    BH = basis_matrix(np.clip(spline.u_H, 0, spline.length), t, k)
+    BH = _basis(t, k, np.clip(spline.u_H, 0, spline.length))
     iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1), shared)
     if not remedy:
         iR_rank[:] = -1
     lo, hi = bounds.lower[keep], bounds.upper[keep]
-    G = np.vstack([BH[keep], -BH[keep]])  # Eq. (7): lower <= S_z(u_H) <= upper
+    G = BH[keep].stack(BH[keep].scaled(-1.0))  # Eq. (7): lower <= S_z(u_H) <= upper
     h = np.concatenate([lo, -hi])
-    b0 = c0[:, 2]
+    b0 = np.ascontiguousarray(c0[:, 2])
     # The MVS curve at the points of H as a measurement of the disparity there, with the
     # stereo's own noise: the robust spread of H's stereo disparities about it.
-    z0_H = BH @ b0
+    z0_H = BH.dot(b0)
     with np.errstate(divide="ignore", invalid="ignore"):
         d0_H = fB / z0_H
         res_H = fB / bounds.H[:, 2] - d0_H
@@ -188,21 +192,17 @@ def refine_depth(
         # and its ends where Eq. (8) fixed them to a tip matched in both views (deviation 23:
         # L_{k_1}, L_{k_n} moved off the window lines), at the stereo's typical spread
         ends = _tip_ends(bounds) & keep[[0, -1]]
-        BE = basis_matrix(np.array([0.0, spline.length])[ends], t, k)
-        BP = np.vstack([BH[use_H], BE])
-        zP0 = BP @ b0
+        BE = _basis(t, k, np.array([0.0, spline.length])[ends])
+        BP = BH[use_H].stack(BE)
+        zP0 = BP.dot(b0)
         dP0 = fB / zP0
         sdP = np.concatenate([sd_H[use_H], np.full(int(ends.sum()), sd_0)])
     else:
-        BP = np.zeros((0, len(b0)))
+        BP = BH[np.zeros(len(BH.first), dtype=bool)]
         zP0 = dP0 = sdP = np.zeros(0)
-    band_m, first_m = _bands(Bm, k)
-    band_p, first_p = _bands(BP, k)
-    band_s, first_s = _bands(S, k)
-    band_g, first_g = _bands(G, k)
     b, status = gauss_newton(
-        band_m,
-        first_m,
+        Bm.vals,
+        Bm.first,
         np.ascontiguousarray(xy[:, 0]),
         rows,
         iL,
@@ -216,15 +216,15 @@ def refine_depth(
         runs_R.var,
         runs_R.row_start,
         runs_R.key_scale,
-        band_p,
-        first_p,
+        BP.vals,
+        BP.first,
         zP0,
         dP0,
         sdP,
-        band_s,
-        first_s,
-        band_g,
-        first_g,
+        S.vals,
+        S.first,
+        G.vals,
+        G.first,
         np.ascontiguousarray(h, dtype=np.float64),
         np.ascontiguousarray(b0),
         float(fB),
@@ -429,15 +429,46 @@ def _lsi(A: np.ndarray, r: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarr
     return None if status else x
 
 
-def _bands(A: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Rows of a B-spline basis matrix A (N, m) of degree k as ``vals`` (N, k + 1) at columns
-    ``first`` (N,) .. first + k (the kernels' banded form)."""
-    if A.shape[1] < k + 1:
+@dataclass(frozen=True)
+class _Basis:
+    """Rows of a B-spline basis matrix in banded form: row i is ``vals[i]`` (k + 1,) at
+    columns first[i] .. first[i] + k (:func:`_basis`)."""
+
+    vals: np.ndarray
+    first: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.first)
+
+    def __getitem__(self, rows: np.ndarray) -> _Basis:
+        return _Basis(np.ascontiguousarray(self.vals[rows]), self.first[rows])
+
+    def scaled(self, w: float | np.ndarray) -> _Basis:
+        """Rows times ``w`` (a number, or one per row)."""
+        w = np.asarray(w, dtype=np.float64)
+        return _Basis(self.vals * (w[:, None] if w.ndim else w), self.first)
+
+    def stack(self, other: _Basis) -> _Basis:
+        return _Basis(
+            np.concatenate([self.vals, other.vals]), np.concatenate([self.first, other.first])
+        )
+
+    def dot(self, c: np.ndarray) -> np.ndarray:
+        """The rows times c (m,) or (m, d)."""
+        c = np.asarray(c, dtype=np.float64)
+        out = band_dot(self.vals, self.first, np.ascontiguousarray(c.reshape(len(c), -1)))
+        return out[:, 0] if c.ndim == 1 else out
+
+
+def _basis(t: np.ndarray, k: int, x: np.ndarray, nu: int = 0) -> _Basis:
+    """The B-splines of degree k on knots t (float64, C order) at points x, or their nu-th
+    derivatives, as banded rows."""
+    if len(t) < 2 * k + 2:
         raise ValueError(f"a spline of degree {k} needs at least {k + 1} control points")
-    vals, first = bands(np.ascontiguousarray(A, dtype=np.float64), k + 1)
-    if (first < 0).any():
-        raise ValueError(f"basis rows wider than degree {k} + 1 columns")
-    return vals, first
+    inner = t[k + 1 : len(t) - k - 1]
+    if nu and inner.size and np.any(np.diff(inner) == 0):
+        raise ValueError(f"repeated inner knots: the spline is not {nu} times differentiable")
+    return _Basis(*basis_bands(t, int(k), np.ascontiguousarray(x, dtype=np.float64), nu))
 
 
 def _spread(grey: np.ndarray) -> float:

@@ -183,35 +183,6 @@ def edge_centres(row, a, b, grey, background, edge_px, flank_px):  # noqa: ANN00
     return centre, var
 
 
-@kernel("Tuple((float64[:, ::1], int64[::1]))(float64[:, ::1], int64)")
-def bands(A, K):  # noqa: ANN001
-    """The rows of ``A`` (n, m) whose nonzeros lie within ``K`` consecutive columns (a B-spline
-    basis matrix: K = degree + 1) as ``vals`` (n, K) and ``first`` (n,): row i is
-    ``vals[i]`` at columns first[i] .. first[i] + K - 1 (first <= m - K). A row with nonzeros
-    spread wider has first = -1."""
-    n, m = A.shape
-    vals = np.zeros((n, K))
-    first = np.zeros(n, np.int64)
-    for i in range(n):
-        f0 = -1
-        l0 = -1
-        for j in range(m):
-            if A[i, j] != 0.0:
-                if f0 < 0:
-                    f0 = j
-                l0 = j
-        if f0 < 0:
-            continue
-        if l0 - f0 >= K or m < K:
-            first[i] = -1
-            continue
-        f = min(f0, m - K)
-        first[i] = f
-        for c in range(K):
-            vals[i, c] = A[i, f + c]
-    return vals, first
-
-
 @helper()
 def _nearest(key, centre, row_start, key_scale, r, x):  # noqa: ANN001
     """Index of the run nearest column ``x`` on row ``r`` (``refine._Runs.nearest_index``:
@@ -687,3 +658,83 @@ def gauss_newton(  # noqa: ANN201
             return b0.copy(), status
         b = x
     return b, 0
+
+
+@kernel("Tuple((float64[:, ::1], int64[::1]))(float64[::1], int64, float64[::1], int64)")
+def basis_bands(t, k, x, nu):  # noqa: ANN001
+    """The ``nu``-th derivatives (0: the values) of the k + 1 B-splines of degree ``k`` on
+    knots ``t`` that are nonzero at each of ``x`` (n,): ``vals`` (n, k + 1) of the basis
+    functions first .. first + k (``first`` (n,)). The knot span of x is the last nonempty
+    one starting at or before it (x beyond the ends: the end spans, extrapolated), as
+    scipy's BSpline takes it. Values by the triangular Cox-de Boor recursion on degree
+    k - nu, then nu times d/dx N_{i,p} = p (N_{i,p-1} / (t_{i+p} - t_i) - N_{i+1,p-1} /
+    (t_{i+p+1} - t_{i+1}))."""
+    n = len(x)
+    m = len(t) - k - 1  # basis functions
+    K = k + 1
+    vals = np.zeros((n, K))
+    first = np.zeros(n, np.int64)
+    N = np.zeros(K + 1)
+    left = np.zeros(K + 1)
+    right = np.zeros(K + 1)
+    p0 = k - nu
+    for q in range(n):
+        xq = x[q]
+        lo = k
+        hi = m - 1
+        while lo < hi:  # the largest span index ell in [k, m - 1] with t[ell] <= x
+            mid = (lo + hi + 1) >> 1
+            if t[mid] <= xq:
+                lo = mid
+            else:
+                hi = mid - 1
+        ell = lo
+        while ell > k and t[ell] == t[ell + 1]:  # an empty span (repeated knot)
+            ell -= 1
+        # degree p0: N[0..p0] are N_{ell-p0+r, p0}
+        N[0] = 1.0
+        for j in range(1, p0 + 1):
+            left[j] = xq - t[ell + 1 - j]
+            right[j] = t[ell + j] - xq
+            saved = 0.0
+            for r in range(j):
+                temp = N[r] / (right[r + 1] + left[j - r])
+                N[r] = saved + right[r + 1] * temp
+                saved = left[j - r] * temp
+            N[j] = saved
+        # raise to degree k through the derivative recurrence: N[r] is function ell - p + r
+        for p in range(p0 + 1, k + 1):
+            N[p] = 0.0
+            for r in range(p, -1, -1):
+                i = ell - p + r  # the function of degree p
+                a = N[r - 1] if r >= 1 else 0.0  # N_{i, p-1} (index r - 1 at degree p - 1)
+                b = N[r] if r <= p - 1 else 0.0  # N_{i+1, p-1}
+                da = t[i + p] - t[i]
+                db = t[i + p + 1] - t[i + 1]
+                v = 0.0
+                if da != 0.0:
+                    v += a / da
+                if db != 0.0:
+                    v -= b / db
+                N[r] = p * v
+        first[q] = ell - k
+        for r in range(K):
+            vals[q, r] = N[r]
+    return vals, first
+
+
+@kernel("float64[:, ::1](float64[:, ::1], int64[::1], float64[:, ::1])")
+def band_dot(vals, first, c):  # noqa: ANN001
+    """(n, d) products of the banded rows (``vals`` (n, K) at columns ``first``) with ``c``
+    (m, d)."""
+    n, K = vals.shape
+    d = c.shape[1]
+    out = np.zeros((n, d))
+    for i in range(n):
+        f = first[i]
+        for j in range(d):
+            s = 0.0
+            for r in range(K):
+                s += vals[i, r] * c[f + r, j]
+            out[i, j] = s
+    return out

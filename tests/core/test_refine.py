@@ -129,7 +129,7 @@ def _dense_lsi(A: np.ndarray, r: np.ndarray, G: np.ndarray, h: np.ndarray) -> np
 def test_banded_constrained_least_squares_equals_the_dense_solve(seed: int) -> None:
     """The kernel's solve on banded B-spline rows (Givens rotations, LDP by its own NNLS)
     gives the dense QR + scipy NNLS solution to rounding, with bounds active on both sides."""
-    from threadrecon.core.refine import RIDGE, _bands
+    from threadrecon.core.refine import RIDGE, _basis
     from threadrecon.core.refine_kernel import lsi
     from threadrecon.core.spline import basis_matrix
 
@@ -138,7 +138,8 @@ def test_banded_constrained_least_squares_equals_the_dense_solve(seed: int) -> N
     m = 12 + 3 * seed
     t = np.concatenate([np.zeros(k), np.linspace(0.0, 1.0, m - k + 1), np.ones(k)])
     u = np.sort(rng.uniform(0, 1, 8 * m))
-    A = basis_matrix(u, t, k) * rng.uniform(0.5, 2.0, len(u))[:, None]
+    w = rng.uniform(0.5, 2.0, len(u))
+    A = basis_matrix(u, t, k) * w[:, None]
     x_free = np.cumsum(rng.normal(0, 1, m))
     r = A @ x_free + rng.normal(0, 0.3, len(u))
     BH = basis_matrix(np.linspace(0, 1, 3 * m), t, k)
@@ -148,10 +149,11 @@ def test_banded_constrained_least_squares_equals_the_dense_solve(seed: int) -> N
     h = np.concatenate([lo, -hi])
     want = _dense_lsi(A, r, G, h)
     assert np.any(G @ want - h < 1e-9)  # some bounds are active
-    vals, first = _bands(A, k)
-    gv, gf = _bands(G, k)
+    rows = _basis(t, k, u).scaled(w)
+    BHb = _basis(t, k, np.linspace(0, 1, 3 * m))
+    Gb = BHb.stack(BHb.scaled(-1.0))
     ridge = RIDGE * float(np.abs(A).max())
-    got, status = lsi(vals, first, r, ridge, gv, gf, h, m, 50 * len(G))
+    got, status = lsi(rows.vals, rows.first, r, ridge, Gb.vals, Gb.first, h, m, 50 * len(G))
     assert status == 0
     assert_close(got, want, rtol=1e-9, atol=1e-9 * float(np.abs(want).max()))
     assert np.all(G @ got - h > -1e-9)
