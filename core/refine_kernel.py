@@ -17,6 +17,8 @@ import numpy as np
 
 from threadrecon.core.compiled import helper, kernel
 
+NORMAL_MIN_ANGLE = 1e-3  # sine: the normal equations lose ~(1 / this)^2 eps, ~1e-10
+
 
 # Compiled ahead of time once per machine (core/compiled.py), so that numba is not loaded.
 @kernel(
@@ -397,20 +399,57 @@ def _nnls(Mt, maxiter):  # noqa: ANN001
 
 
 @helper()
-def _lsi(vals, first, rhs, n_rows, ridge, band_g, first_g, h, m, maxiter):  # noqa: ANN001
-    """min ||A x - r|| subject to G x >= h (Lawson and Hanson: LSI -> LDP -> NNLS) for the
-    banded rows ``vals[:n_rows]`` at columns ``first`` (any order) with right-hand sides
-    ``rhs``, plus ``ridge`` times the identity; the rows of G are banded too (``band_g`` at
-    ``first_g``). Returns x (m,) and a status: 0, 3 (the constraints cannot be met), 4
-    (NNLS iteration limit) or 5 (a value of the system is not finite)."""
-    K = vals.shape[1]
-    R = np.zeros((m, K))
-    qr = np.zeros(m)
-    x = np.zeros(m)
+def _normal_factor(vals, first, rhs, n_rows, ridge, R, qr):  # noqa: ANN001
+    """R (m, K) banded upper triangular and Q^T r (m,) of the least-squares problem
+    [A; ridge I] x ~ [r; 0] (rows ``vals[:n_rows]`` at columns ``first``) from the Cholesky
+    factor of its normal matrix A^T A + ridge^2 I (the same R as a QR gives, up to the
+    rows' signs). Its error grows with the square of A's condition: False (R unusable)
+    where a column lies within ``NORMAL_MIN_ANGLE`` of the span of the columns before it
+    (relative to its norm: a condition of 1 / that at least), then the caller rotates."""
+    m, K = R.shape
+    N = np.zeros((m, K))  # N[j, c] = (A^T A)[j, j + c]
+    g = np.zeros(m)  # A^T r
+    for i in range(n_rows):
+        f = first[i]
+        for a in range(K):
+            va = vals[i, a]
+            if va == 0.0:
+                continue
+            g[f + a] += va * rhs[i]
+            for b in range(a, K):
+                N[f + a, b - a] += va * vals[i, b]
+    for j in range(m):
+        N[j, 0] += ridge * ridge
+    for j in range(m):  # banded Cholesky, R^T R = N
+        s = N[j, 0]
+        for i in range(max(0, j - K + 1), j):
+            s -= R[i, j - i] * R[i, j - i]
+        if not (s > 0.0 and s >= NORMAL_MIN_ANGLE * NORMAL_MIN_ANGLE * N[j, 0]):
+            return False
+        rjj = np.sqrt(s)
+        R[j, 0] = rjj
+        for c in range(1, K):
+            if j + c >= m:
+                break
+            s2 = N[j, c]
+            for i in range(max(0, j + c - K + 1), j):
+                s2 -= R[i, j - i] * R[i, j + c - i]
+            R[j, c] = s2 / rjj
+    for j in range(m):  # Q^T r = R^-T A^T r
+        s = g[j]
+        for i in range(max(0, j - K + 1), j):
+            s -= R[i, j - i] * qr[i]
+        qr[j] = s / R[j, 0]
+    return True
+
+
+@helper()
+def _givens_factor(vals, first, rhs, n_rows, ridge, R, qr):  # noqa: ANN001
+    """R and Q^T r of [A; ridge I] x ~ [r; 0] by Givens rotations, rows in order of their
+    first column (a counting sort; the ridge's row j after the rows that start at j)."""
+    m, K = R.shape
     one = np.zeros(K)
     w = np.empty(K)
-    # Q R of [A; ridge I] by rotations, rows in order of their first column (a counting sort;
-    # the ridge's row j after the rows that start at j)
     start = np.zeros(m + 1, np.int64)
     for i in range(n_rows):
         start[first[i] + 1] += 1
@@ -434,6 +473,25 @@ def _lsi(vals, first, rhs, n_rows, ridge, band_g, first_g, h, m, maxiter):  # no
         o = order[i]
         _givens_row(R, qr, vals[o], first[o], rhs[o], w)
         i += 1
+
+
+@helper()
+def _lsi(vals, first, rhs, n_rows, ridge, band_g, first_g, h, m, maxiter):  # noqa: ANN001
+    """min ||A x - r|| subject to G x >= h (Lawson and Hanson: LSI -> LDP -> NNLS) for the
+    banded rows ``vals[:n_rows]`` at columns ``first`` (any order) with right-hand sides
+    ``rhs``, plus ``ridge`` times the identity; the rows of G are banded too (``band_g`` at
+    ``first_g``). Returns x (m,) and a status: 0, 3 (the constraints cannot be met), 4
+    (NNLS iteration limit) or 5 (a value of the system is not finite)."""
+    K = vals.shape[1]
+    R = np.zeros((m, K))
+    qr = np.zeros(m)
+    x = np.zeros(m)
+    # R and Q^T r of [A; ridge I]: from the normal equations where they are well
+    # conditioned (O(rows K^2) multiply-adds), else by rotations
+    if not _normal_factor(vals, first, rhs, n_rows, ridge, R, qr):
+        R[:, :] = 0.0
+        qr[:] = 0.0
+        _givens_factor(vals, first, rhs, n_rows, ridge, R, qr)
     for j in range(m):
         if not (np.isfinite(R[j, 0]) and np.isfinite(qr[j]) and R[j, 0] != 0.0):
             return x, 5

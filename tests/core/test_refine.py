@@ -160,6 +160,23 @@ def test_banded_constrained_least_squares_equals_the_dense_solve(seed: int) -> N
     assert_close(_lsi(A, r, G, h), want, rtol=1e-9, atol=1e-9 * float(np.abs(want).max()))
 
 
+def test_an_ill_conditioned_solve_is_rotated_not_taken_from_the_normal_equations() -> None:
+    """Two columns that differ by 1e-7 (a condition of ~1e8: the normal equations would lose
+    ~1e16 eps): the solve falls back to rotations and keeps the dense QR's accuracy."""
+    rng = np.random.default_rng(11)
+    A = rng.normal(size=(40, 5))
+    A[:, 3] = A[:, 2] + 1e-7 * rng.normal(size=40)
+    x_true = np.array([1.0, -2.0, 0.5, 3.0, -1.0])
+    r = A @ x_true
+    G = np.zeros((1, 5))
+    G[0, 0] = 1.0
+    x = _lsi(A, r, G, np.array([-10.0]))  # inactive: the least-squares solution
+    want = _dense_lsi(A, r, G, np.array([-10.0]))
+    assert_close(x, want, rtol=1e-7, atol=1e-7)
+    # the ridge (1e-9 of the largest entry) moves it by far less than the columns' split
+    assert_close(x, x_true, rtol=1e-2, atol=1e-2)
+
+
 def test_runs_pair_by_rank_only_where_both_views_hold_equally_many() -> None:
     left = np.zeros((3, 30), dtype=bool)
     right = np.zeros((3, 30), dtype=bool)
