@@ -312,19 +312,34 @@ def _ls_columns(Mt, cols, p, e_row):  # noqa: ANN001
 
 
 @helper()
-def _nnls(Mt, maxiter):  # noqa: ANN001
+def _nnls(Mt, maxiter, cols, n_warm):  # noqa: ANN001
     """min ||M u - e|| over u >= 0, M = Mt.T (r, N), e the last unit vector of length r
     (Lawson and Hanson's active-set algorithm, ch. 23: a column joins the passive set only if
-    independent of it and with a positive coefficient). Returns u (N,) and a status: 0, or 4
-    when ``maxiter`` inner steps did not suffice."""
+    independent of it and with a positive coefficient). ``cols`` (>= r,) holds a passive set
+    to start from in its first ``n_warm`` entries (the last solve's: the constraints active
+    there; taken where its least-squares coefficients are all positive, else a cold start)
+    and the final passive set on return. Returns u (N,), a status (0, or 4 when ``maxiter``
+    inner steps did not suffice) and the size of the passive set."""
     N, r = Mt.shape
     u = np.zeros(N)
     passive = np.zeros(N, np.bool_)
     rejected = np.zeros(N, np.bool_)
-    cols = np.empty(r, np.int64)
     p = 0
     resid = np.zeros(r)
     resid[r - 1] = 1.0
+    if 0 < n_warm <= r:  # warm start: the last passive set, if feasible here
+        z, rel = _ls_columns(Mt, cols, n_warm, r - 1)
+        feasible = True
+        for k in range(n_warm):
+            if not (z[k] > 0.0 and np.isfinite(z[k])):
+                feasible = False
+        if feasible:
+            p = n_warm
+            for k in range(p):
+                passive[cols[k]] = True
+                u[cols[k]] = z[k]
+                for i in range(r):
+                    resid[i] -= Mt[cols[k], i] * z[k]
     w = np.empty(N)
     scale = 0.0
     for j in range(N):
@@ -346,7 +361,7 @@ def _nnls(Mt, maxiter):  # noqa: ANN001
                     wmax = w[j]
                     t = j
             if t < 0 or p == r:
-                return u, 0
+                return u, 0, p
             cols[p] = t
             z, rel = _ls_columns(Mt, cols, p + 1, r - 1)
             if rel > 1e-10 and z[p] > 0.0:
@@ -364,7 +379,7 @@ def _nnls(Mt, maxiter):  # noqa: ANN001
                 break
             steps += 1
             if steps > maxiter:
-                return u, 4
+                return u, 4, p
             alpha = 1.0
             for k in range(p):
                 if z[k] <= 0.0:
@@ -388,7 +403,7 @@ def _nnls(Mt, maxiter):  # noqa: ANN001
             u[cols[k]] = z[k]
         steps += 1
         if steps > maxiter:
-            return u, 4
+            return u, 4, p
         for i in range(r):
             resid[i] = 0.0
         resid[r - 1] = 1.0
@@ -476,12 +491,13 @@ def _givens_factor(vals, first, rhs, n_rows, ridge, R, qr):  # noqa: ANN001
 
 
 @helper()
-def _lsi(vals, first, rhs, n_rows, ridge, band_g, first_g, h, m, maxiter):  # noqa: ANN001
+def _lsi(vals, first, rhs, n_rows, ridge, band_g, first_g, h, m, maxiter, warm, n_warm):  # noqa: ANN001, E501
     """min ||A x - r|| subject to G x >= h (Lawson and Hanson: LSI -> LDP -> NNLS) for the
     banded rows ``vals[:n_rows]`` at columns ``first`` (any order) with right-hand sides
     ``rhs``, plus ``ridge`` times the identity; the rows of G are banded too (``band_g`` at
-    ``first_g``). Returns x (m,) and a status: 0, 3 (the constraints cannot be met), 4
-    (NNLS iteration limit) or 5 (a value of the system is not finite)."""
+    ``first_g``); ``warm``, ``n_warm``: the NNLS's passive set to start from (:func:`_nnls`).
+    Returns x (m,), a status: 0, 3 (the constraints cannot be met), 4 (NNLS iteration limit)
+    or 5 (a value of the system is not finite), and the size of the final passive set."""
     K = vals.shape[1]
     R = np.zeros((m, K))
     qr = np.zeros(m)
@@ -494,7 +510,7 @@ def _lsi(vals, first, rhs, n_rows, ridge, band_g, first_g, h, m, maxiter):  # no
         _givens_factor(vals, first, rhs, n_rows, ridge, R, qr)
     for j in range(m):
         if not (np.isfinite(R[j, 0]) and np.isfinite(qr[j]) and R[j, 0] != 0.0):
-            return x, 5
+            return x, 5, 0
     # LDP: min ||y|| subject to E y >= f, E = G R^-1 (rows e with e R = g: forward
     # substitution), f = h - E Q^T r; by NNLS on M = [E^T; f^T]
     P = len(h)
@@ -512,10 +528,10 @@ def _lsi(vals, first, rhs, n_rows, ridge, band_g, first_g, h, m, maxiter):  # no
             eq += e * qr[j]
         Mt[p, m] = h[p] - eq
         if not np.isfinite(Mt[p, m]):
-            return x, 5
-    u, status = _nnls(Mt, maxiter)
+            return x, 5, 0
+    u, status, n_passive = _nnls(Mt, maxiter, warm, n_warm)
     if status:
-        return x, status
+        return x, status, 0
     res = np.zeros(r)  # M u - e
     res[m] = -1.0
     for j in range(P):
@@ -523,14 +539,14 @@ def _lsi(vals, first, rhs, n_rows, ridge, band_g, first_g, h, m, maxiter):  # no
             for i2 in range(r):
                 res[i2] += Mt[j, i2] * u[j]
     if abs(res[m]) < 1e-12:
-        return x, 3
+        return x, 3, 0
     for j in range(m - 1, -1, -1):  # x = R^-1 (y + Q^T r), y = -res[:m] / res[m]
         s = -res[j] / res[m] + qr[j]
         for t in range(1, K):
             if j + t < m:
                 s -= R[j, t] * x[j + t]
         x[j] = s / R[j, 0]
-    return x, 0
+    return x, 0, n_passive
 
 
 @kernel(
@@ -539,7 +555,9 @@ def _lsi(vals, first, rhs, n_rows, ridge, band_g, first_g, h, m, maxiter):  # no
 )
 def lsi(vals, first, rhs, ridge, band_g, first_g, h, m, maxiter):  # noqa: ANN001
     """:func:`_lsi` of every row."""
-    return _lsi(vals, first, rhs, len(rhs), ridge, band_g, first_g, h, m, maxiter)
+    warm = np.empty(m + 1, np.int64)
+    x, status, _ = _lsi(vals, first, rhs, len(rhs), ridge, band_g, first_g, h, m, maxiter, warm, 0)
+    return x, status
 
 
 # float64 constants of gauss_newton, in this order
@@ -617,6 +635,8 @@ def gauss_newton(  # noqa: ANN201
     first = np.empty(n_max, np.int64)
     rhs = np.empty(n_max)
     maxiter = int(consts[5] * len(h))
+    warm = np.empty(m + 1, np.int64)
+    n_warm = 0
     for it in range(first_it, iterations + 1):
         nonpos = False
         for i in range(n):
@@ -711,7 +731,9 @@ def gauss_newton(  # noqa: ANN201
             rhs[q] = 0.0
             q += 1
         ridge = ridge_rel * max(amax, 1e-300)
-        x, status = _lsi(vals, first, rhs, q, ridge, band_g, first_g, h, m, maxiter)
+        x, status, n_warm = _lsi(
+            vals, first, rhs, q, ridge, band_g, first_g, h, m, maxiter, warm, n_warm
+        )  # NNLS from the last round's active bounds
         if status:
             return b0.copy(), status
         b = x
