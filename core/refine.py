@@ -26,7 +26,9 @@ matches the disparity of the thread itself:
   linear inequalities, solved by Lawson and Hanson's reduction to NNLS).
 
 Gauss-Newton over the control values of S_z with re-association of the runs, ``iterations``
-rounds; the result is the spline of the previous stage with its S_z replaced.
+rounds; the result is the spline of the previous stage with its S_z replaced. The runs and
+the rounds are compiled kernels (core/refine_kernel.py); the rounds work on the B-spline basis
+in banded form (k + 1 nonzeros a row), so a solve costs O(samples k^2), not a dense QR.
 """
 
 from __future__ import annotations
@@ -38,14 +40,23 @@ from typing import Any, Final, Literal
 
 import cv2
 import numpy as np
-from scipy import optimize
 
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.lru import LRU
 from threadrecon.core.params import Params, param
+from threadrecon.core.refine_kernel import (
+    GN_CONSTANTS,
+    band_dot,
+    basis_bands,
+    edge_centres,
+    gauss_newton,
+    lsi,
+    mask_runs,
+    nearest_runs,
+)
 from threadrecon.core.segmentation import LiftedPair
-from threadrecon.core.spline import SplineResult, basis_matrix
+from threadrecon.core.spline import SplineResult
 
 QUAD_PER_SPAN = 4  # Gauss-Legendre nodes per knot span: exact for the squared 3rd derivative
 RIDGE = 1e-9  # relative ridge that keeps the least-squares matrix of full column rank
@@ -63,6 +74,22 @@ MODEL_PX = 0.05  # s.d. of a centre beyond its noise: a sampled profile's centro
 CAUCHY = 2.385  # Cauchy scale of the run residuals, in their s.d. (95 % efficiency)
 MIN_SD_PX = 0.01  # floor of the stereo's spread about the MVS curve (noise-free input), px
 MIN_PRIOR_POINTS = 5  # points of H that estimate that spread (a robust scale needs a few)
+NNLS_ITER = 50  # NNLS steps per column of the LDP problem before it gives up (scipy's 3)
+GN_NOT_FINITE = 5  # status of refine_kernel.gauss_newton / lsi: a value is not finite
+_GN_CONSTANTS = np.array(
+    [
+        {
+            "gate_px": GATE_PX,
+            "min_disparity_px": MIN_DISPARITY_PX,
+            "model_px": MODEL_PX,
+            "cauchy": CAUCHY,
+            "ridge": RIDGE,
+            "nnls_iter": NNLS_ITER,
+        }[name]
+        for name in GN_CONSTANTS
+    ],
+    dtype=np.float64,
+)
 
 
 @dataclass(frozen=True)
@@ -106,8 +133,11 @@ def refine_depth(
     xy_len = float(np.linalg.norm(np.diff(spline.curve(200)[:, :2], axis=0), axis=1).sum())
     n = int(np.clip(xy_len, 50, 3000))  # about one sample per px of image arc length
     u = np.linspace(0.0, spline.length, n)
-    Bm = basis_matrix(u, t, k)
-    xy = Bm @ c0[:, :2]
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    c0 = np.ascontiguousarray(c0, dtype=np.float64)
+    Bm = _basis(t, k, u)  # the samples' basis rows, banded
+    xyz = Bm.dot(c0)
+    xy, z_c0 = xyz[:, :2], np.ascontiguousarray(xyz[:, 2])
     runs_L = _runs(lifted.P_L, lifted.grey_L, lifted.background[0])
     runs_R = _runs(lifted.P_R, lifted.grey_R, lifted.background[1])
     rows = _rows(xy[:, 1])
@@ -115,7 +145,7 @@ def refine_depth(
     cL, lL = runs_L.at(iL)
     okL = np.isfinite(cL) & (np.abs(cL - xy[:, 0]) <= 0.5 * lL + GATE_PX)
 
-    d_run = _run_disparity(Bm @ c0[:, 2], iL, okL, runs_L.centre.size, fB)
+    d_run = _run_disparity(z_c0, iL, okL, runs_L.centre.size, fB)
     mismatched, shared = _mismatched(bounds, runs_L, runs_R, fB, d_run)
     keep = ~mismatched
     # Stereo matched another strand somewhere: pair runs by rank on rows where the two views
@@ -128,28 +158,28 @@ def refine_depth(
     if (
         p.mode == "repair"
         and not remedy
-        and not _off_thread(xy, Bm @ c0[:, 2], rows, okL, runs_R, lifted, fB)
+        and not _off_thread(xy, z_c0, rows, okL, runs_R, lifted, fB)
     ):
         return spline  # the MVS curve lies on the thread in both views: nothing to repair
     # Smoothness: third derivative over image arc length s = u * xy_len / length.
     uq, wq = _gauss_nodes(t, k, QUAD_PER_SPAN)
-    D3 = basis_matrix(uq, t, k, 3)  # d^3 S_z / du^3 per control value
+    D3 = _basis(t, k, uq, 3)  # d^3 S_z / du^3 per control value
     ds_du = xy_len / spline.length
-    z_mean = float(np.mean(Bm @ c0[:, 2]))
+    z_mean = float(np.mean(z_c0))
     to_px = fB / z_mean**2  # depth -> disparity px at the mean depth
-    S = D3 * (to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))[:, None]
+    S = D3.scaled(to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))
 
-    BH = basis_matrix(np.clip(spline.u_H, 0, spline.length), t, k)
+    BH = _basis(t, k, np.clip(spline.u_H, 0, spline.length))
     iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1), shared)
     if not remedy:
         iR_rank[:] = -1
     lo, hi = bounds.lower[keep], bounds.upper[keep]
-    G = np.vstack([BH[keep], -BH[keep]])  # Eq. (7): lower <= S_z(u_H) <= upper
+    G = BH[keep].stack(BH[keep].scaled(-1.0))  # Eq. (7): lower <= S_z(u_H) <= upper
     h = np.concatenate([lo, -hi])
-    b0 = c0[:, 2]
+    b0 = np.ascontiguousarray(c0[:, 2])
     # The MVS curve at the points of H as a measurement of the disparity there, with the
     # stereo's own noise: the robust spread of H's stereo disparities about it.
-    z0_H = BH @ b0
+    z0_H = BH.dot(b0)
     with np.errstate(divide="ignore", invalid="ignore"):
         d0_H = fB / z0_H
         res_H = fB / bounds.H[:, 2] - d0_H
@@ -162,56 +192,53 @@ def refine_depth(
         # and its ends where Eq. (8) fixed them to a tip matched in both views (deviation 23:
         # L_{k_1}, L_{k_n} moved off the window lines), at the stereo's typical spread
         ends = _tip_ends(bounds) & keep[[0, -1]]
-        BE = basis_matrix(np.array([0.0, spline.length])[ends], t, k)
-        BP = np.vstack([BH[use_H], BE])
-        zP0 = BP @ b0
+        BE = _basis(t, k, np.array([0.0, spline.length])[ends])
+        BP = BH[use_H].stack(BE)
+        zP0 = BP.dot(b0)
         dP0 = fB / zP0
         sdP = np.concatenate([sd_H[use_H], np.full(int(ends.sum()), sd_0)])
     else:
-        BP = np.zeros((0, len(b0)))
+        BP = BH[np.zeros(len(BH.first), dtype=bool)]
         zP0 = dP0 = sdP = np.zeros(0)
-    b = b0.copy()
-    first = int(not remedy)
-    for it in range(first, p.iterations + 1):
-        z = Bm @ b
-        if np.any(z <= 0) and it > 0:
-            return spline
-        with np.errstate(divide="ignore", invalid="ignore"):  # the linear start needs no d
-            d = np.where(z > 0, fB / z, np.nan)  # there: rows paired by rank only
-        iR = np.where(iR_rank >= 0, iR_rank, runs_R.nearest_index(rows, xy[:, 0] - d))
-        cR, lR = runs_R.at(iR)
-        gate = np.abs(cR - (xy[:, 0] - d)) <= 0.5 * lR + GATE_PX
-        ok = okL & np.isfinite(cR) & ((iR_rank >= 0) | gate)
-        if it == 0:
-            with np.errstate(invalid="ignore"):  # no run (inf - inf): not ok
-                ok &= cL - cR > MIN_DISPARITY_PX
-        if ok.sum() < 10:
-            return spline
-        target = cL[ok] - cR[ok]
-        var = runs_L.var[iL[ok]] + runs_R.var[iR[ok]] + 2.0 * MODEL_PX**2  # px^2
-        # one observation per left run, shared by the samples of the curve on it
-        share = np.bincount(iL[ok], minlength=runs_L.centre.size)[iL[ok]]
-        w = 1.0 / np.sqrt(var * share)  # 1 / sigma, px
-        if it > first:  # Cauchy weights on the last solve's residuals
-            r = (target - d[ok]) / np.sqrt(var)
-            w = w / np.sqrt(1.0 + (r / CAUCHY) ** 2)
-        if it == 0:  # linear in depth: reaches the right strand's depth from any start
-            wz = w * target**2 / fB  # a depth residual in px of disparity at the target depth
-            A = Bm[ok] * wz[:, None]
-            rhs = fB / target * wz
-            wp = dP0**2 / fB / sdP
-            AP, rP = BP * wp[:, None], zP0 * wp
-        else:  # Gauss-Newton in disparity, the space of the observation's noise
-            J = (-fB / z[ok] ** 2)[:, None] * Bm[ok]  # d disparity / d b
-            A = J * w[:, None]
-            rhs = (target - d[ok] + J @ b) * w
-            zP = BP @ b
-            JP = (-fB / zP**2)[:, None] * BP
-            AP, rP = JP / sdP[:, None], (dP0 - fB / zP + JP @ b) / sdP
-        b_new = _lsi(np.vstack([A, AP, S]), np.concatenate([rhs, rP, np.zeros(len(S))]), G, h)
-        if b_new is None:
-            return spline  # the bounds cannot be met with this spline: keep the MVS depth
-        b = b_new
+    b, status = gauss_newton(
+        Bm.vals,
+        Bm.first,
+        np.ascontiguousarray(xy[:, 0]),
+        rows,
+        iL,
+        cL,
+        okL,
+        runs_L.var,
+        iR_rank,
+        runs_R.key,
+        runs_R.centre,
+        runs_R.length,
+        runs_R.var,
+        runs_R.row_start,
+        runs_R.key_scale,
+        BP.vals,
+        BP.first,
+        zP0,
+        dP0,
+        sdP,
+        S.vals,
+        S.first,
+        G.vals,
+        G.first,
+        np.ascontiguousarray(h, dtype=np.float64),
+        np.ascontiguousarray(b0),
+        float(fB),
+        int(not remedy),  # rounds 1..: Gauss-Newton in disparity; round 0: linear in depth
+        p.iterations,
+        _GN_CONSTANTS,
+    )
+    if status == GN_NOT_FINITE:
+        raise ValueError(
+            "two-view refinement: a depth bound of Eq. (7) or the MVS curve is not finite"
+        )
+    if status:
+        return spline  # a depth <= 0, too few samples on the thread in both views, or the
+        # bounds cannot be met with this spline: keep the MVS depth
     ctrl = c0.copy()
     ctrl[:, 2] = b
     dropped = mismatched if remedy else None  # for the check: these bounds no longer hold
@@ -376,25 +403,72 @@ def _gauss_nodes(t: np.ndarray, k: int, per_span: int) -> tuple[np.ndarray, np.n
 
 
 def _lsi(A: np.ndarray, r: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarray | None:
-    """min ||A x - r|| subject to G x >= h (Lawson and Hanson, LSI -> LDP -> NNLS).
-    None when the constraints are infeasible."""
+    """min ||A x - r|| subject to G x >= h for dense A (N, n), G (P, n) (Lawson and Hanson,
+    LSI -> LDP -> NNLS; the kernel's solve with a band as wide as the matrix, A kept of full
+    column rank by a ridge of ``RIDGE`` times its largest entry). None when the constraints
+    are infeasible."""
+    A = np.ascontiguousarray(A, dtype=np.float64)
+    G = np.ascontiguousarray(G, dtype=np.float64)
     n = A.shape[1]
-    ridge = RIDGE * max(float(np.abs(A).max()), 1e-300)
-    A = np.vstack([A, ridge * np.eye(n)])
-    r = np.concatenate([r, np.zeros(n)])
-    Rr = np.linalg.qr(np.column_stack([A, r]), mode="r")  # [[R, Q^T r], [0, |residual|]]
-    R, qr = Rr[:n, :n], Rr[:n, n]  # without forming Q
-    E = np.linalg.solve(R.T, G.T).T  # G R^-1
-    f = h - E @ qr
-    M = np.vstack([E.T, f[None, :]])
-    e = np.zeros(n + 1)
-    e[-1] = 1.0
-    u, _ = optimize.nnls(M, e, maxiter=50 * M.shape[1])
-    res = M @ u - e
-    if abs(res[-1]) < 1e-12:
-        return None
-    y = -res[:n] / res[-1]
-    return np.linalg.solve(R, y + qr)
+    if A.ndim != 2 or G.ndim != 2 or G.shape[1] != n or len(r) != len(A) or len(h) != len(G):
+        raise ValueError(f"A {A.shape}, r {np.shape(r)}, G {G.shape}, h {np.shape(h)} mismatch")
+    ridge = RIDGE * max(float(np.abs(A).max(initial=0.0)), 1e-300)
+    x, status = lsi(
+        A,
+        np.zeros(len(A), np.int64),
+        np.ascontiguousarray(r, dtype=np.float64),
+        ridge,
+        G,
+        np.zeros(len(G), np.int64),
+        np.ascontiguousarray(h, dtype=np.float64),
+        n,
+        int(NNLS_ITER * len(G)),
+    )
+    if status == GN_NOT_FINITE:
+        raise ValueError("least squares with inequalities: a value is not finite")
+    return None if status else x
+
+
+@dataclass(frozen=True)
+class _Basis:
+    """Rows of a B-spline basis matrix in banded form: row i is ``vals[i]`` (k + 1,) at
+    columns first[i] .. first[i] + k (:func:`_basis`)."""
+
+    vals: np.ndarray
+    first: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.first)
+
+    def __getitem__(self, rows: np.ndarray) -> _Basis:
+        return _Basis(np.ascontiguousarray(self.vals[rows]), self.first[rows])
+
+    def scaled(self, w: float | np.ndarray) -> _Basis:
+        """Rows times ``w`` (a number, or one per row)."""
+        w = np.asarray(w, dtype=np.float64)
+        return _Basis(self.vals * (w[:, None] if w.ndim else w), self.first)
+
+    def stack(self, other: _Basis) -> _Basis:
+        return _Basis(
+            np.concatenate([self.vals, other.vals]), np.concatenate([self.first, other.first])
+        )
+
+    def dot(self, c: np.ndarray) -> np.ndarray:
+        """The rows times c (m,) or (m, d)."""
+        c = np.asarray(c, dtype=np.float64)
+        out = band_dot(self.vals, self.first, np.ascontiguousarray(c.reshape(len(c), -1)))
+        return out[:, 0] if c.ndim == 1 else out
+
+
+def _basis(t: np.ndarray, k: int, x: np.ndarray, nu: int = 0) -> _Basis:
+    """The B-splines of degree k on knots t (float64, C order) at points x, or their nu-th
+    derivatives, as banded rows."""
+    if len(t) < 2 * k + 2:
+        raise ValueError(f"a spline of degree {k} needs at least {k + 1} control points")
+    inner = t[k + 1 : len(t) - k - 1]
+    if nu and inner.size and np.any(np.diff(inner) == 0):
+        raise ValueError(f"repeated inner knots: the spline is not {nu} times differentiable")
+    return _Basis(*basis_bands(t, int(k), np.ascontiguousarray(x, dtype=np.float64), nu))
 
 
 def _spread(grey: np.ndarray) -> float:
@@ -429,21 +503,25 @@ class _Runs:
     the run and ``EDGE_PX`` pixels beyond each of its ends: the thread's cross-section (its
     partial coverage at the edges, its shading, the optics' blur) is symmetric about its axis,
     and the pixels beside the mask hold the edge's partial coverage (below the mask's 0.5) that
-    the mask alone cuts off (a bias of up to +-0.5 px; see :func:`_edge_centres`). ``var`` is
-    the centre's variance, px^2, from the image noise and the uncertainty of the background.
+    the mask alone cuts off (a bias of up to +-0.5 px; see ``refine_kernel.edge_centres``).
+    ``var`` is the centre's variance, px^2, from the image noise and the uncertainty of the
+    background.
     """
 
     def __init__(self, mask: np.ndarray, grey: np.ndarray, background: float) -> None:
         H, W = mask.shape
-        ys, xs = _nonzero(mask)  # row-major: a run is a stretch of consecutive x on one row
-        new = np.ones(len(xs), dtype=bool)
-        new[1:] = (np.diff(xs) != 1) | (np.diff(ys) != 0)
-        start = np.flatnonzero(new)
-        end = np.append(start[1:], len(xs)) - 1
-        self.row = ys[start]
-        self.length = (xs[end] - xs[start] + 1).astype(np.float64)
-        self.centre, self.var = _edge_centres(
-            self.row, xs[start], xs[end], grey, float(background), W
+        if grey.shape != mask.shape:
+            raise ValueError(f"grey image {grey.shape} and mask {mask.shape} differ in shape")
+        self.row, a, b = _mask_runs(mask)
+        self.length = (b - a + 1).astype(np.float64)
+        self.centre, self.var = edge_centres(
+            self.row,
+            a,
+            b,
+            np.ascontiguousarray(grey, dtype=np.float32),
+            float(background),
+            EDGE_PX,
+            FLANK_PX,
         )
         self.H = H
         self.key_scale = 4.0 * W
@@ -470,24 +548,16 @@ class _Runs:
         return np.where(valid, self.row_start[r + 1] - self.row_start[r], 0)
 
     def nearest_index(self, rows: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Index of the run nearest ``x`` on each row; -1 where the row has none."""
-        best = np.full(len(x), -1)
-        valid = (rows >= 0) & (rows < self.H)
-        r = np.where(valid, rows, 0)
-        lo, hi = self.row_start[r], self.row_start[r + 1]
-        has = valid & (hi > lo)
-        if not has.any() or self.centre.size == 0:
-            return best
-        pos = np.searchsorted(self.key, self.key_scale * r + x)
-        best_d = np.full(len(x), np.inf)
-        for cand in (pos - 1, pos):
-            ok = has & (cand >= lo) & (cand < hi)
-            cc = np.clip(cand, 0, self.centre.size - 1)
-            dist = np.where(ok, np.abs(self.centre[cc] - x), np.inf)
-            better = dist < best_d
-            best = np.where(better, cc, best)
-            best_d = np.where(better, dist, best_d)
-        return best
+        """Index of the run nearest ``x`` on each row (of the two either side of it); -1 where
+        the row has none or ``x`` is not finite."""
+        return nearest_runs(
+            self.key,
+            self.centre,
+            self.row_start,
+            self.key_scale,
+            np.ascontiguousarray(rows, dtype=np.int64),
+            np.ascontiguousarray(x, dtype=np.float64),
+        )
 
     def same_rank(
         self, other: _Runs, rows: np.ndarray, idx: np.ndarray, shared: np.ndarray | None = None
@@ -509,110 +579,12 @@ class _Runs:
         return out
 
 
-def _edge_centres(
-    row: np.ndarray, a: np.ndarray, b: np.ndarray, grey: np.ndarray, background: float, W: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Sub-pixel centres (R,) px and their variances (R,) px^2 of the runs a..b (inclusive
-    columns) on rows ``row`` of the (H, W) grey image, in row-major order.
-
-    Model of a row's cut through the thread: the background is a line between the mean grey
-    level of the ``FLANK_PX`` pixels beyond each end of the window (the run and ``EDGE_PX``
-    pixels beyond each of its ends, half the gap where another run is nearer); the thread's
-    contrast w(x) = background(x) - I(x) (its sign taken over the run) is symmetric about the
-    axis, so the centre is its centroid sum w x / sum w. Its variance is that of the centroid
-    under pixel noise sigma_n^2 (estimated from neighbouring flank pixels over the whole image)
-    and errors of the two flank levels: sigma_n^2 / FLANK_PX each, plus a quarter of their
-    squared difference (the flanks disagree where the background is not a line: an occluder
-    or another strand beside the run, texture). Where a window lacks a flank (the image
-    border), or its contrast is not significant, the centre is the run's midpoint with the
-    variance of a uniform position over the run, (L^2 + 1) / 12 (the mask alone)."""
-    n = len(a)
-    if n == 0:
-        return np.zeros(0), np.zeros(0)
-    g = grey
-    same_prev = np.zeros(n, dtype=bool)
-    same_prev[1:] = row[1:] == row[:-1]
-    prev_end = np.full(n, -1)
-    prev_end[1:] = np.where(same_prev[1:], b[:-1], -1)
-    next_start = np.full(n, W)
-    next_start[:-1] = np.where(same_prev[1:], a[1:], W)
-    lo = a - np.minimum(EDGE_PX, (a - prev_end - 1) // 2)
-    hi = b + np.minimum(EDGE_PX, (next_start - b - 1) // 2)
-    fl_lo, fl_hi = np.maximum(lo - FLANK_PX, prev_end + 1), lo - 1  # left flank
-    fr_lo, fr_hi = hi + 1, np.minimum(hi + FLANK_PX, next_start - 1)  # right flank
-    it_l, x_l = _spans(fl_lo, fl_hi)
-    it_r, x_r = _spans(fr_lo, fr_hi)
-    v_l, v_r = g[row[it_l], x_l].astype(np.float64), g[row[it_r], x_r].astype(np.float64)
-    n_l, n_r = np.maximum(fl_hi - fl_lo + 1, 0), np.maximum(fr_hi - fr_lo + 1, 0)
-    flanked = (n_l > 0) & (n_r > 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        b_l = np.where(flanked, np.bincount(it_l, v_l, minlength=n) / n_l, background)
-        b_r = np.where(flanked, np.bincount(it_r, v_r, minlength=n) / n_r, background)
-    x0 = np.where(flanked, 0.5 * (fl_lo + fl_hi), lo - 1.0)  # the flanks' mean columns
-    x1 = np.where(flanked, 0.5 * (fr_lo + fr_hi), hi + 1.0)
-    noise = _noise_var(it_l, x_l, v_l, it_r, x_r, v_r)
-    it, x = _spans(lo, hi)
-    slope = (b_r - b_l) / (x1 - x0)
-    w = b_l[it] + slope[it] * (x - x0[it]) - g[row[it], x]  # contrast, signed
-    on_run = (x >= a[it]) & (x <= b[it])
-    lighter = np.bincount(it, np.where(on_run, w, 0.0), minlength=n) < 0  # than its background
-    sign = np.where(lighter, -1.0, 1.0)
-    sw = sign * np.bincount(it, w, minlength=n)
-    swx = sign * np.bincount(it, w * x, minlength=n)
-    # sums over the window's columns: n, sum x, sum x^2 (closed forms)
-    s0 = (hi - lo + 1).astype(np.float64)
-    s1 = 0.5 * s0 * (lo + hi)
-    s2 = (hi * (hi + 1.0) * (2 * hi + 1.0) - (lo - 1.0) * lo * (2 * lo - 1.0)) / 6.0
-    with np.errstate(invalid="ignore", divide="ignore"):
-        c = swx / sw
-        sdx2 = s2 - 2.0 * c * s1 + s0 * c * c  # sum (x - c)^2
-        sdx_tau = (s2 - (c + x0) * s1 + s0 * c * x0) / (x1 - x0)  # sum (x - c) tau
-        sdx_1mtau = s1 - s0 * c - sdx_tau  # sum (x - c) (1 - tau)
-        s_b = noise / FLANK_PX + 0.25 * (b_l - b_r) ** 2  # variance of each flank level
-        var = (noise * sdx2 + s_b * (sdx_1mtau**2 + sdx_tau**2)) / sw**2
-    mid = 0.5 * (a + b)
-    var_mask = ((b - a + 1.0) ** 2 + 1.0) / 12.0
-    # significant contrast: the centroid's noise below the mask's own uncertainty
-    good = flanked & (sw > 0) & np.isfinite(c) & (c >= lo) & (c <= hi) & (var < var_mask)
-    return np.where(good, c, mid), np.where(good, var, var_mask)
-
-
-def _spans(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Item index and column of every column of the spans lo..hi (inclusive; empty where
-    hi < lo), item by item."""
-    counts = np.maximum(hi - lo + 1, 0)
-    item = np.repeat(np.arange(len(lo)), counts)
-    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    return item, np.arange(int(counts.sum())) - np.repeat(first - lo, counts)
-
-
-def _noise_var(
-    it_l: np.ndarray,
-    x_l: np.ndarray,
-    v_l: np.ndarray,
-    it_r: np.ndarray,
-    x_r: np.ndarray,
-    v_r: np.ndarray,
-) -> float:
-    """Pixel noise variance sigma_n^2, grey levels^2, from the differences of neighbouring
-    flank pixels (median of their squares / 0.4549, the median of chi^2 with one degree of
-    freedom, / 2 for a difference of two pixels); at least two roundings to 8 bits."""
-    diffs = [
-        v[1:][(it[1:] == it[:-1]) & (x[1:] == x[:-1] + 1)]
-        - v[:-1][(it[1:] == it[:-1]) & (x[1:] == x[:-1] + 1)]
-        for it, x, v in ((it_l, x_l, v_l), (it_r, x_r, v_r))
-    ]
-    d = np.concatenate(diffs)
-    est = float(np.median(d * d)) / 0.4549 / 2.0 if d.size >= 20 else 0.0
-    return max(est, 2.0 / 12.0)
-
-
-def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``np.nonzero`` of an (H, W) mask (row-major), found by cv2 on its bounding box."""
+def _mask_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Row, first and last column (inclusive) of the horizontal runs of an (H, W) mask, in
+    row-major order (a run is a maximal stretch of mask pixels on one row)."""
     m = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
-    x, y, w, h = cv2.boundingRect(m)
-    pts = cv2.findNonZero(m[y : y + h, x : x + w]) if w else None
-    if pts is None:
-        return np.zeros(0, np.intp), np.zeros(0, np.intp)
-    pts = pts.reshape(-1, 2)
-    return pts[:, 1].astype(np.intp) + y, pts[:, 0].astype(np.intp) + x
+    H, W = m.shape
+    if W % 8 == 0 and W:  # eight pixels a word: empty stretches are skipped a word at a time
+        return mask_runs(m, m.view(np.int64), 0, H, 0, W)
+    x, y, w, h = cv2.boundingRect(m)  # else pixel by pixel, inside the mask's bounding box
+    return mask_runs(m, np.zeros((0, 0), np.int64), y, y + h, x, x + w)

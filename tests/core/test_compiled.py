@@ -71,6 +71,7 @@ def test_a_reconstruction_loads_aot_kernels_without_numba(aot_run: dict) -> None
         "threadrecon.core.ridge_kernel": "aot",
         "threadrecon.core.piece_kernel": "aot",
         "threadrecon.core.segmentation": "aot",
+        "threadrecon.core.refine_kernel": "aot",
     }
     assert not aot_run["numba"]
 

@@ -102,6 +102,81 @@ def test_constrained_least_squares_matches_known_solutions() -> None:
     assert _lsi(A, r, G, np.array([1.0, 0.0])) is None
 
 
+def _dense_lsi(A: np.ndarray, r: np.ndarray, G: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """The dense form the kernel replaced: QR of [A, r] (ridge rows below), LDP by scipy's
+    NNLS."""
+    from scipy import optimize
+
+    from threadrecon.core.refine import RIDGE
+
+    n = A.shape[1]
+    ridge = RIDGE * max(float(np.abs(A).max()), 1e-300)
+    Rr = np.linalg.qr(
+        np.column_stack([np.vstack([A, ridge * np.eye(n)]), np.concatenate([r, np.zeros(n)])]),
+        mode="r",
+    )
+    R, qr = Rr[:n, :n], Rr[:n, n]
+    E = np.linalg.solve(R.T, G.T).T
+    M = np.vstack([E.T, (h - E @ qr)[None, :]])
+    e = np.zeros(n + 1)
+    e[-1] = 1.0
+    u, _ = optimize.nnls(M, e, maxiter=50 * M.shape[1])
+    res = M @ u - e
+    return np.linalg.solve(R, -res[:n] / res[-1] + qr)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_banded_constrained_least_squares_equals_the_dense_solve(seed: int) -> None:
+    """The kernel's solve on banded B-spline rows (Givens rotations, LDP by its own NNLS)
+    gives the dense QR + scipy NNLS solution to rounding, with bounds active on both sides."""
+    from threadrecon.core.refine import RIDGE, _basis
+    from threadrecon.core.refine_kernel import lsi
+    from threadrecon.core.spline import basis_matrix
+
+    rng = np.random.default_rng(seed)
+    k = 3 + seed % 2
+    m = 12 + 3 * seed
+    t = np.concatenate([np.zeros(k), np.linspace(0.0, 1.0, m - k + 1), np.ones(k)])
+    u = np.sort(rng.uniform(0, 1, 8 * m))
+    w = rng.uniform(0.5, 2.0, len(u))
+    A = basis_matrix(u, t, k) * w[:, None]
+    x_free = np.cumsum(rng.normal(0, 1, m))
+    r = A @ x_free + rng.normal(0, 0.3, len(u))
+    BH = basis_matrix(np.linspace(0, 1, 3 * m), t, k)
+    mid = BH @ (x_free + rng.normal(0, 0.5, m))  # bounds about another spline: feasible
+    lo, hi = mid - rng.uniform(0.05, 0.6, len(BH)), mid + rng.uniform(0.05, 0.6, len(BH))
+    G = np.vstack([BH, -BH])
+    h = np.concatenate([lo, -hi])
+    want = _dense_lsi(A, r, G, h)
+    assert np.any(G @ want - h < 1e-9)  # some bounds are active
+    rows = _basis(t, k, u).scaled(w)
+    BHb = _basis(t, k, np.linspace(0, 1, 3 * m))
+    Gb = BHb.stack(BHb.scaled(-1.0))
+    ridge = RIDGE * float(np.abs(A).max())
+    got, status = lsi(rows.vals, rows.first, r, ridge, Gb.vals, Gb.first, h, m, 50 * len(G))
+    assert status == 0
+    assert_close(got, want, rtol=1e-9, atol=1e-9 * float(np.abs(want).max()))
+    assert np.all(G @ got - h > -1e-9)
+    assert_close(_lsi(A, r, G, h), want, rtol=1e-9, atol=1e-9 * float(np.abs(want).max()))
+
+
+def test_an_ill_conditioned_solve_is_rotated_not_taken_from_the_normal_equations() -> None:
+    """Two columns that differ by 1e-7 (a condition of ~1e8: the normal equations would lose
+    ~1e16 eps): the solve falls back to rotations and keeps the dense QR's accuracy."""
+    rng = np.random.default_rng(11)
+    A = rng.normal(size=(40, 5))
+    A[:, 3] = A[:, 2] + 1e-7 * rng.normal(size=40)
+    x_true = np.array([1.0, -2.0, 0.5, 3.0, -1.0])
+    r = A @ x_true
+    G = np.zeros((1, 5))
+    G[0, 0] = 1.0
+    x = _lsi(A, r, G, np.array([-10.0]))  # inactive: the least-squares solution
+    want = _dense_lsi(A, r, G, np.array([-10.0]))
+    assert_close(x, want, rtol=1e-7, atol=1e-7)
+    # the ridge (1e-9 of the largest entry) moves it by far less than the columns' split
+    assert_close(x, x_true, rtol=1e-2, atol=1e-2)
+
+
 def test_runs_pair_by_rank_only_where_both_views_hold_equally_many() -> None:
     left = np.zeros((3, 30), dtype=bool)
     right = np.zeros((3, 30), dtype=bool)
@@ -221,18 +296,14 @@ def test_repair_fixes_a_coil_turn_matched_to_its_neighbour(frame: int, mvs_faile
     assert rec.status == "ok", rec["check"].reasons
 
 
-def test_runs_scan_the_bounding_box_only_and_are_cached_per_mask() -> None:
-    """The runs of a mask equal those of np.nonzero over the whole image; the same mask and
-    grey objects give the same cached runs, a new mask object (a new segmentation) new ones."""
-    from threadrecon.core.refine import _nonzero, _runs
+def test_runs_are_cached_per_mask() -> None:
+    """The same mask and grey objects give the same cached runs, a new mask object (a new
+    segmentation) or another background level new ones."""
+    from threadrecon.core.refine import _runs
 
     rng = np.random.default_rng(3)
     mask = np.zeros((40, 60), bool)
     mask[5:30, 12:50] = rng.random((25, 38)) < 0.3
-    for m in (mask, np.zeros_like(mask), np.ones_like(mask)):
-        ys, xs = _nonzero(m)
-        ye, xe = np.nonzero(m)
-        assert np.array_equal(ys, ye) and np.array_equal(xs, xe)
     grey = rng.uniform(0, 200, mask.shape).astype(np.float32)
     a = _runs(mask, grey, 200.0)
     assert _runs(mask, grey, 200.0) is a

@@ -5,7 +5,7 @@ centres' spread under noise, and a run beside something that is not background i
 import numpy as np
 import pytest
 
-from threadrecon.core.refine import _Runs, _spans
+from threadrecon.core.refine import EDGE_PX, FLANK_PX, _mask_runs, _Runs
 from threadrecon.core.synthetic import StereoCamera, _render_tube
 
 ROWS = 40
@@ -93,3 +93,171 @@ def test_spans_enumerate_every_column_of_each_span() -> None:
     item, col = _spans(np.array([3, 7, 5, 0]), np.array([5, 6, 5, 1]))  # the second is empty
     np.testing.assert_array_equal(item, [0, 0, 0, 2, 3, 3])
     np.testing.assert_array_equal(col, [3, 4, 5, 5, 0, 1])
+
+
+def _runs_by_nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Row, first and last column of each run, from np.nonzero (row-major)."""
+    ys, xs = np.nonzero(mask)
+    if not len(xs):
+        return ys, xs, xs
+    new = np.ones(len(xs), dtype=bool)
+    new[1:] = (np.diff(xs) != 1) | (np.diff(ys) != 0)
+    start = np.flatnonzero(new)
+    end = np.append(start[1:], len(xs)) - 1
+    return ys[start], xs[start], xs[end]
+
+
+@pytest.mark.parametrize("width", [64, 61, 8, 1])
+def test_mask_runs_are_those_of_nonzero(width: int) -> None:
+    """The kernel's runs (a word at a time where the width is a multiple of 8, else inside
+    the bounding box) are the maximal row segments of np.nonzero, for random, empty and full
+    masks and runs touching the image's borders."""
+    rng = np.random.default_rng(width)
+    masks = [
+        rng.random((30, width)) < 0.3,
+        np.zeros((30, width), bool),
+        np.ones((30, width), bool),
+        np.pad(rng.random((20, max(width - 6, 1))) < 0.5, ((4, 6), (3, 3)))[:, :width],
+    ]
+    for mask in masks:
+        got = _mask_runs(mask)
+        want = _runs_by_nonzero(mask)
+        for g, w in zip(got, want, strict=True):
+            np.testing.assert_array_equal(g, w)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_run_centres_are_the_numpy_models_bit_for_bit(seed: int) -> None:
+    """The compiled centres and variances equal the numpy form of the model (below) to the
+    last bit: random masks of several strands on a noisy, textured grey image, a dark and a
+    light thread, runs at the image borders and close together (their windows share the gap)."""
+    rng = np.random.default_rng(seed)
+    H, W = 40, 72 if seed % 2 else 67
+    grey = 150.0 + 30.0 * np.sin(np.arange(W) / 5.0)[None, :] + rng.normal(0, 3, (H, W))
+    mask = rng.random((H, W)) < 0.15 + 0.05 * seed
+    mask[:, :2] |= seed == 3  # runs at the left border
+    grey = np.where(mask, grey + (60.0 if seed == 4 else -70.0), grey)
+    grey = np.clip(np.rint(grey), 0, 255).astype(np.float32)
+    runs = _Runs(mask, grey, 200.0)
+    row, a, b = _runs_by_nonzero(mask)
+    c, v = _edge_centres(row, a, b, grey, 200.0, W)
+    assert runs.centre.size == len(a) > 50
+    np.testing.assert_array_equal(runs.centre.view(np.uint64), c.view(np.uint64))
+    np.testing.assert_array_equal(runs.var.view(np.uint64), v.view(np.uint64))
+    assert (runs.centre != 0.5 * (a + b)).mean() > 0.3  # mostly from the contrast, not the mask
+
+
+# The numpy form of the run centres that core/refine_kernel.py's edge_centres replaced (its
+# floating-point operations in the same order): the reference of the bit-for-bit test above.
+def _edge_centres(
+    row: np.ndarray, a: np.ndarray, b: np.ndarray, grey: np.ndarray, background: float, W: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (R,) px and variances (R,) px^2 of the runs a..b on rows ``row``: the model
+    of ``refine_kernel.edge_centres`` in numpy."""
+    n = len(a)
+    if n == 0:
+        return np.zeros(0), np.zeros(0)
+    g = grey
+    same_prev = np.zeros(n, dtype=bool)
+    same_prev[1:] = row[1:] == row[:-1]
+    prev_end = np.full(n, -1)
+    prev_end[1:] = np.where(same_prev[1:], b[:-1], -1)
+    next_start = np.full(n, W)
+    next_start[:-1] = np.where(same_prev[1:], a[1:], W)
+    lo = a - np.minimum(EDGE_PX, (a - prev_end - 1) // 2)
+    hi = b + np.minimum(EDGE_PX, (next_start - b - 1) // 2)
+    fl_lo, fl_hi = np.maximum(lo - FLANK_PX, prev_end + 1), lo - 1  # left flank
+    fr_lo, fr_hi = hi + 1, np.minimum(hi + FLANK_PX, next_start - 1)  # right flank
+    it_l, x_l = _spans(fl_lo, fl_hi)
+    it_r, x_r = _spans(fr_lo, fr_hi)
+    v_l, v_r = g[row[it_l], x_l].astype(np.float64), g[row[it_r], x_r].astype(np.float64)
+    n_l, n_r = np.maximum(fl_hi - fl_lo + 1, 0), np.maximum(fr_hi - fr_lo + 1, 0)
+    flanked = (n_l > 0) & (n_r > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        b_l = np.where(flanked, np.bincount(it_l, v_l, minlength=n) / n_l, background)
+        b_r = np.where(flanked, np.bincount(it_r, v_r, minlength=n) / n_r, background)
+    x0 = np.where(flanked, 0.5 * (fl_lo + fl_hi), lo - 1.0)  # the flanks' mean columns
+    x1 = np.where(flanked, 0.5 * (fr_lo + fr_hi), hi + 1.0)
+    noise = _noise_var(it_l, x_l, v_l, it_r, x_r, v_r)
+    it, x = _spans(lo, hi)
+    slope = (b_r - b_l) / (x1 - x0)
+    w = b_l[it] + slope[it] * (x - x0[it]) - g[row[it], x]  # contrast, signed
+    on_run = (x >= a[it]) & (x <= b[it])
+    lighter = np.bincount(it, np.where(on_run, w, 0.0), minlength=n) < 0  # than its background
+    sign = np.where(lighter, -1.0, 1.0)
+    sw = sign * np.bincount(it, w, minlength=n)
+    swx = sign * np.bincount(it, w * x, minlength=n)
+    # sums over the window's columns: n, sum x, sum x^2 (closed forms)
+    s0 = (hi - lo + 1).astype(np.float64)
+    s1 = 0.5 * s0 * (lo + hi)
+    s2 = (hi * (hi + 1.0) * (2 * hi + 1.0) - (lo - 1.0) * lo * (2 * lo - 1.0)) / 6.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = swx / sw
+        sdx2 = s2 - 2.0 * c * s1 + s0 * c * c  # sum (x - c)^2
+        sdx_tau = (s2 - (c + x0) * s1 + s0 * c * x0) / (x1 - x0)  # sum (x - c) tau
+        sdx_1mtau = s1 - s0 * c - sdx_tau  # sum (x - c) (1 - tau)
+        s_b = noise / FLANK_PX + 0.25 * (b_l - b_r) ** 2  # variance of each flank level
+        var = (noise * sdx2 + s_b * (sdx_1mtau**2 + sdx_tau**2)) / sw**2
+    mid = 0.5 * (a + b)
+    var_mask = ((b - a + 1.0) ** 2 + 1.0) / 12.0
+    # significant contrast: the centroid's noise below the mask's own uncertainty
+    good = flanked & (sw > 0) & np.isfinite(c) & (c >= lo) & (c <= hi) & (var < var_mask)
+    return np.where(good, c, mid), np.where(good, var, var_mask)
+
+
+def _spans(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Item index and column of every column of the spans lo..hi (inclusive; empty where
+    hi < lo), item by item."""
+    counts = np.maximum(hi - lo + 1, 0)
+    item = np.repeat(np.arange(len(lo)), counts)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    return item, np.arange(int(counts.sum())) - np.repeat(first - lo, counts)
+
+
+def _noise_var(
+    it_l: np.ndarray,
+    x_l: np.ndarray,
+    v_l: np.ndarray,
+    it_r: np.ndarray,
+    x_r: np.ndarray,
+    v_r: np.ndarray,
+) -> float:
+    """Pixel noise variance sigma_n^2, grey levels^2, from the differences of neighbouring
+    flank pixels (median of their squares / 0.4549, the median of chi^2 with one degree of
+    freedom, / 2 for a difference of two pixels); at least two roundings to 8 bits."""
+    diffs = [
+        v[1:][(it[1:] == it[:-1]) & (x[1:] == x[:-1] + 1)]
+        - v[:-1][(it[1:] == it[:-1]) & (x[1:] == x[:-1] + 1)]
+        for it, x, v in ((it_l, x_l, v_l), (it_r, x_r, v_r))
+    ]
+    d = np.concatenate(diffs)
+    est = float(np.median(d * d)) / 0.4549 / 2.0 if d.size >= 20 else 0.0
+    return max(est, 2.0 / 12.0)
+
+
+def _spans(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Item index and column of every column of the spans lo..hi (inclusive; empty where
+    hi < lo), item by item."""
+    counts = np.maximum(hi - lo + 1, 0)
+    item = np.repeat(np.arange(len(lo)), counts)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    return item, np.arange(int(counts.sum())) - np.repeat(first - lo, counts)
+
+
+def _noise_var(
+    it_l: np.ndarray,
+    x_l: np.ndarray,
+    v_l: np.ndarray,
+    it_r: np.ndarray,
+    x_r: np.ndarray,
+    v_r: np.ndarray,
+) -> float:
+    """Pixel noise variance from the differences of neighbouring flank pixels."""
+    diffs = [
+        v[1:][(it[1:] == it[:-1]) & (x[1:] == x[:-1] + 1)]
+        - v[:-1][(it[1:] == it[:-1]) & (x[1:] == x[:-1] + 1)]
+        for it, x, v in ((it_l, x_l, v_l), (it_r, x_r, v_r))
+    ]
+    d = np.concatenate(diffs)
+    est = float(np.median(d * d)) / 0.4549 / 2.0 if d.size >= 20 else 0.0
+    return max(est, 2.0 / 12.0)
