@@ -43,14 +43,13 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 from scipy.interpolate import BSpline
-from scipy.spatial import cKDTree
 
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check_beyond import beyond_ends, cut_end
 from threadrecon.core.check_field import MaskField, derived, mask_field
-from threadrecon.core.check_kernel import overlap_hits
+from threadrecon.core.check_kernel import nearest_residual, overlap_hits
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.reliability import ReliabilityResult
@@ -1194,24 +1193,35 @@ def _disparity_residual(
     support_px: float,
 ) -> np.ndarray:
     """|curve disparity - disparity of the nearest reliable pixel| + distance / support_px."""
-    tree, disp_rel = derived(
-        (stereo.pixels, stereo.disparity, rel.reliable), "reliable_tree", lambda: _tree(stereo, rel)
+    xs, row_ptr, y0, disp_rel = derived(
+        (stereo.pixels, stereo.disparity, rel.reliable), "reliable_rows", lambda: _rows(stereo, rel)
     )
-    if tree is None:
-        return np.full(len(uv_l), 1e3)
-    ok = np.all(np.isfinite(uv_l), axis=1)
-    q = np.where(ok[:, None], uv_l, 0.0)
-    dist, j = tree.query(q)
-    r = np.abs(disp_curve - disp_rel[j]) + dist / support_px
-    return np.where(ok & np.isfinite(r), r, 1e3)
+    uv = np.ascontiguousarray(uv_l, dtype=np.float64)
+    r = nearest_residual(
+        xs, row_ptr, y0, disp_rel, uv[:, 0].copy(), uv[:, 1].copy(),
+        np.ascontiguousarray(disp_curve, dtype=np.float64), float(support_px),
+    )  # fmt: skip
+    return np.where(np.isfinite(r), r, 1e3)
 
 
-def _tree(stereo: StereoResult, rel: ReliabilityResult) -> tuple[cKDTree | None, np.ndarray]:
-    """The k-d tree of the reliable pixels P_L^R and their disparities (per stereo result)."""
+def _rows(
+    stereo: StereoResult, rel: ReliabilityResult
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+    """The reliable pixels P_L^R by rows (CSR: x ascending per row, ``row_ptr`` from row
+    ``y0``) and their disparities (per stereo result)."""
     sel = np.flatnonzero(rel.reliable)
     if sel.size == 0:
-        return None, np.zeros(0)
-    return cKDTree(stereo.pixels[sel].astype(np.float64)), stereo.disparity[sel]
+        return np.zeros(0, np.int64), np.zeros(1, np.int64), 0, np.zeros(0)
+    xs = stereo.pixels[sel, 0].astype(np.int64)
+    ys = stereo.pixels[sel, 1].astype(np.int64)
+    disp = np.asarray(stereo.disparity, dtype=np.float64)[sel]
+    key = ys * (int(xs.max()) + 1) + xs
+    if np.any(np.diff(key) < 0):  # P_L comes in raster order; sort otherwise
+        order = np.argsort(key, kind="stable")
+        xs, ys, disp = xs[order], ys[order], disp[order]
+    y0 = int(ys[0])
+    row_ptr = np.searchsorted(ys, np.arange(y0, int(ys[-1]) + 2)).astype(np.int64)
+    return xs, row_ptr, y0, np.ascontiguousarray(disp)
 
 
 def _expected_error(

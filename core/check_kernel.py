@@ -64,3 +64,67 @@ def field_at(dist, x0, y0, reach, uv):  # noqa: ANN001
         v = np.float64(dist[int(cy), int(cx)]) + math.hypot(qx - cx, qy - cy)
         out[k] = v if v < reach else reach
     return out
+
+
+@kernel(
+    "float64[::1](int64[::1], int64[::1], int64, float64[::1], float64[::1], float64[::1], "
+    "float64[::1], float64)"
+)
+def nearest_residual(xs, row_ptr, y0, disp, qx, qy, qdisp, support_px):  # noqa: ANN001
+    """``check._disparity_residual`` over the curve's points: per point (qx, qy) with disparity
+    qdisp, |qdisp - disp[j]| + dist / support_px for its nearest pixel j (Euclidean) of a set
+    given by rows (CSR: the pixels of row y0 + k are xs[row_ptr[k]:row_ptr[k + 1]], x
+    ascending); 1e3 where the point is not finite or the set is empty. The search visits the
+    rows outwards from the point's and stops when a row lies farther than the best pixel."""
+    n = len(qx)
+    n_rows = len(row_ptr) - 1
+    out = np.empty(n)
+    for k in range(n):
+        x, y = qx[k], qy[k]
+        if not (np.isfinite(x) and np.isfinite(y)) or n_rows <= 0:
+            out[k] = 1e3
+            continue
+        r0 = min(max(int(np.rint(y)) - y0, 0), n_rows - 1)
+        best = np.inf
+        bj = -1
+        step = 0
+        while True:
+            active = False
+            for sgn in range(2):
+                if step == 0 and sgn == 1:
+                    continue
+                r = r0 - step if sgn == 0 else r0 + step
+                if r < 0 or r >= n_rows:
+                    continue
+                dy = (y0 + r) - y
+                dy2 = dy * dy
+                if dy2 > best:
+                    continue
+                active = True
+                lo, hi = row_ptr[r], row_ptr[r + 1]
+                if lo == hi:
+                    continue
+                a, b = lo, hi  # first pixel with x >= the point's
+                while a < b:
+                    m = (a + b) // 2
+                    if xs[m] < x:
+                        a = m + 1
+                    else:
+                        b = m
+                for j in (a - 1, a):
+                    if lo <= j < hi:
+                        dx = xs[j] - x
+                        d2 = dx * dx + dy2
+                        if d2 < best:
+                            best = d2
+                            bj = j
+            if not active and step > 0:
+                break
+            step += 1
+            if step > n_rows:
+                break
+        if bj < 0:
+            out[k] = 1e3
+        else:
+            out[k] = abs(qdisp[k] - disp[bj]) + math.sqrt(best) / support_px
+    return out
