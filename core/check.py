@@ -1004,7 +1004,7 @@ class _BareBackground:
         x, y = int(round(xy[0])), int(round(xy[1]))
         if (side, x, y) not in self._cache:
             g, _, field = self.views[side]
-            d, rows, cols = field.window(x, y, self.REACH_PX)
+            d, rows, cols = field.window(x, y, self.REACH_PX, self.RING_PX[1])
             ring = (d > self.RING_PX[0]) & (d <= self.RING_PX[1])
             vals = g[rows, cols][ring].astype(np.float64)
             level = None

@@ -46,22 +46,35 @@ def overlap_hits(x, y, s, r2, gap, disp, strand, dtol):  # noqa: ANN001
     return hit
 
 
-@kernel("float64[::1](float32[:, ::1], float64, float64, float64, float64[:, ::1])")
-def field_at(dist, x0, y0, reach, uv):  # noqa: ANN001
-    """``MaskField.at`` over (N, 2) points: the field at each point's nearest pixel of the box
-    plus the point's distance to that pixel, saturated at ``reach``; ``reach`` where not
-    finite."""
-    h, w = dist.shape
-    out = np.empty(len(uv))
+@kernel("int64[:, ::1](float64, float64, int64, int64, float64[:, ::1])")
+def field_pixels(x0, y0, w, h, uv):  # noqa: ANN001
+    """The pixel (column, row) of the field's (h, w) box nearest to each (x, y) of ``uv``
+    (rounded, clamped to the box); (-1, -1) where the point is not finite."""
+    out = np.empty((len(uv), 2), dtype=np.int64)
     for k in range(len(uv)):
         x, y = uv[k, 0], uv[k, 1]
         if not (np.isfinite(x) and np.isfinite(y)):
+            out[k, 0] = -1
+            out[k, 1] = -1
+            continue
+        out[k, 0] = int(min(max(np.rint(x - x0), 0.0), w - 1.0))
+        out[k, 1] = int(min(max(np.rint(y - y0), 0.0), h - 1.0))
+    return out
+
+
+@kernel("float64[::1](float32[::1], float64, float64, float64, float64[:, ::1], int64[:, ::1])")
+def field_at(d, x0, y0, reach, uv, pix):  # noqa: ANN001
+    """``MaskField.at`` over (N, 2) points: ``d`` (the field at each point's pixel ``pix`` of
+    the box, ``field_pixels``) plus the point's distance to that pixel, saturated at
+    ``reach``; ``reach`` where not finite."""
+    out = np.empty(len(uv))
+    for k in range(len(uv)):
+        if pix[k, 0] < 0:
             out[k] = reach
             continue
-        qx, qy = x - x0, y - y0
-        cx = min(max(np.rint(qx), 0.0), w - 1.0)
-        cy = min(max(np.rint(qy), 0.0), h - 1.0)
-        v = np.float64(dist[int(cy), int(cx)]) + math.hypot(qx - cx, qy - cy)
+        qx, qy = uv[k, 0] - x0, uv[k, 1] - y0
+        cx, cy = float(pix[k, 0]), float(pix[k, 1])
+        v = np.float64(d[k]) + math.hypot(qx - cx, qy - cy)
         out[k] = v if v < reach else reach
     return out
 
@@ -127,4 +140,37 @@ def nearest_residual(xs, row_ptr, y0, disp, qx, qy, qdisp, support_px):  # noqa:
             out[k] = 1e3
         else:
             out[k] = abs(qdisp[k] - disp[bj]) + math.sqrt(best) / support_px
+    return out
+
+
+@kernel("float32[::1](uint8[:, ::1], int64, int64, int64[:, ::1])")
+def near_values(mask, x0, y0, pix):  # noqa: ANN001
+    """The distance transform's value (3x3 L2 mask) at each box pixel ``pix`` (column, row;
+    box origin x0, y0 in the (H, W) image ``mask``) that lies on or next to a thread pixel:
+    0 on one, 0.955 (one step) next to one along a row or column, else 1.3693 (one diagonal
+    step; any other path is at least two steps, 1.91); -1 for a pixel farther (or none)."""
+    h, w = mask.shape
+    out = np.empty(len(pix), dtype=np.float32)
+    for k in range(len(pix)):
+        out[k] = -1.0
+        if pix[k, 0] < 0:
+            continue
+        x, y = pix[k, 0] + x0, pix[k, 1] + y0
+        if mask[y, x]:
+            out[k] = 0.0
+            continue
+        hv = False
+        diag = False
+        for dy in range(-1, 2):
+            for dx in range(-1, 2):
+                yy, xx = y + dy, x + dx
+                if (dy != 0 or dx != 0) and 0 <= yy < h and 0 <= xx < w and mask[yy, xx]:
+                    if dy == 0 or dx == 0:
+                        hv = True
+                    else:
+                        diag = True
+        if hv:
+            out[k] = np.float32(0.955)
+        elif diag:
+            out[k] = np.float32(1.3693)
     return out
