@@ -30,12 +30,11 @@ DERIVED_CACHE = 16  # other per-segmentation values kept (a few kinds for a few 
 T = TypeVar("T")
 
 
-CHUNK = 64  # curve points per crop of the field's first round (consecutive points: a compact crop)
+CHUNK = 32  # curve points per crop of the first round (consecutive points: a compact crop)
 NEAR_PX = 8  # px of margin around them in the first round (a point on or near the thread)
-SIMD_PX = 4  # the distance transform's values depend on a crop's column modulo this (see below)
-HV = (
-    0.955  # the 3x3 L2 mask's horizontal/vertical step (cv2.DIST_MASK_3): chamfer >= HV x Chebyshev
-)
+SIMD_PX = 4  # the transform's values depend on a crop's column modulo this (MaskField)
+CROPS_SHARE = 0.5  # crops covering more than this share of the box: the whole box instead
+HV = 0.955  # the 3x3 L2 mask's straight step (DIST_MASK_3): its distance >= HV x Chebyshev's
 
 
 @dataclass(frozen=True)
@@ -53,7 +52,8 @@ class MaskField:
     crop value is an upper bound and the box's value at least HV e. tests/core/test_check_field
     checks this against the whole box on random masks. A point of the curve is read from a
     crop around its run of CHUNK points (NEAR_PX margin), else from a crop reaching ``reach``
-    px around it, else from the whole box. Most points of a curve lie on or next to a thread
+    px around it, else from the whole box (also when the crops would cover more than
+    CROPS_SHARE of it: many points far off the thread). Most points of a curve lie on or next to a thread
     pixel, where the value is one of three constants (``check_kernel.near_values``): only the
     others need a crop."""
 
@@ -129,19 +129,27 @@ class MaskField:
             if todo.size == 0:
                 return out
             todo = todo[~self._chunks(pix[todo], margin, out, todo)]
-        out[todo] = self.dist[pix[todo, 1], pix[todo, 0]]
+        if todo.size:  # not certain from the crops (none, normally): the whole box
+            out[todo] = self.dist[pix[todo, 1], pix[todo, 0]]
         return out
 
     def _chunks(self, p: np.ndarray, margin: int, out: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """Read the pixels ``p`` (k, 2) into ``out[idx]`` from one crop around each run of
-        CHUNK of them; which were certain (exact, or saturated: at least ``reach``)."""
+        """Read the pixels ``p`` (k, 2) of the curve points ``idx`` (ascending) into ``out[idx]``
+        from one crop around each run of up to CHUNK consecutive points; which were certain
+        (exact, or saturated: at least ``reach``)."""
         h, w = self.shape
-        starts = np.arange(0, len(p), CHUNK)
+        brk = np.r_[True, np.diff(idx) > 1]  # a run of consecutive curve points: a compact crop
+        run_start = np.flatnonzero(brk)
+        pos = np.arange(len(p)) - run_start[np.cumsum(brk) - 1]
+        starts = np.flatnonzero(pos % CHUNK == 0)  # at most CHUNK points per crop
         x0 = np.maximum(np.minimum.reduceat(p[:, 0], starts) - margin, 0)
         x0 -= x0 % SIMD_PX
         y0 = np.maximum(np.minimum.reduceat(p[:, 1], starts) - margin, 0)
         x1 = np.minimum(np.maximum.reduceat(p[:, 0], starts) + margin + 1, w)
         y1 = np.minimum(np.maximum.reduceat(p[:, 1], starts) + margin + 1, h)
+        if np.sum((x1 - x0) * (y1 - y0)) > CROPS_SHARE * h * w:  # crops cost more than the box
+            out[idx] = self.dist[p[:, 1], p[:, 0]]
+            return np.ones(len(p), dtype=bool)
         c = np.empty(len(p), np.float32)
         for a, b, c0, r0, c1, r1 in zip(
             starts.tolist(), [*starts[1:].tolist(), len(p)], x0.tolist(), y0.tolist(),
