@@ -37,6 +37,7 @@ computed once per segmentation and cached with it), so the stage costs a few mil
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -559,8 +560,8 @@ def _check(
                  f"(at least {100 * p.coverage_min:.0f} % expected)")
             )  # fmt: skip
     one_view = (in_l & ~in_r) | hidden_l | hidden_r
-    unseen_px = float(np.sum(np.where(one_view, np.r_[step, 0.0], 0.0)))
-    unseen_mm = float(np.sum(np.where(one_view, np.r_[step3, 0.0], 0.0)))
+    unseen_px = float(np.sum(np.where(one_view, np.append(step, 0.0), 0.0)))
+    unseen_mm = float(np.sum(np.where(one_view, np.append(step3, 0.0), 0.0)))
     if unseen_mm > p.max_unobserved_mm:
         findings.append(
             ("suspect", f"{unseen_mm:.1f} mm ({unseen_px:.0f} px) of the curve lie outside the "
@@ -790,9 +791,11 @@ def _in_image(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 def _border_distance(a: np.ndarray, b: np.ndarray, shape: tuple[int, int]) -> float:
     """Smallest distance (px) of two image points to the image border (negative outside)."""
     H, W = shape
-    xs, ys = np.array([a[0], b[0]]), np.array([a[1], b[1]])
-    d = min(xs.min(), ys.min(), W - 1 - xs.max(), H - 1 - ys.max())
-    return float(d) if np.isfinite(d) else -np.inf
+    ax, ay, bx, by = float(a[0]), float(a[1]), float(b[0]), float(b[1])
+    if math.isnan(ax + ay + bx + by):
+        return -np.inf
+    d = min(min(ax, bx), min(ay, by), W - 1 - max(ax, bx), H - 1 - max(ay, by))
+    return d if math.isfinite(d) else -np.inf
 
 
 @dataclass(frozen=True)
@@ -1009,8 +1012,8 @@ class _BareBackground:
             vals = g[rows, cols][ring].astype(np.float64)
             level = None
             if vals.size >= 10:
-                med = float(np.median(vals))
-                level = med, max(1.4826 * float(np.median(np.abs(vals - med))), 4.0)
+                med = _median(vals)
+                level = med, max(1.4826 * _median(np.abs(vals - med)), 4.0)
             self._cache[side, x, y] = level
         return self._cache[side, x, y]
 
@@ -1093,6 +1096,15 @@ def _surface_behind(
     far = cost[(np.abs(delta - delta[k]) >= FAR_PX) & np.isfinite(cost)]
     distinct = far.size > 0 and float(np.median(far)) >= cost[k] + TEXTURE_LEVELS
     return distinct and delta[k] <= NEAR_PX
+
+
+def _median(v: np.ndarray) -> float:
+    """``np.median`` of a finite 1-D float64 array, the same value without its overhead."""
+    k = len(v) // 2
+    if len(v) % 2:
+        return float(np.partition(v, k)[k])
+    part = np.partition(v, (k - 1, k))
+    return float((part[k - 1] + part[k]) / 2.0)
 
 
 def _sample(grey: np.ndarray, uv: np.ndarray) -> np.ndarray:

@@ -174,3 +174,19 @@ def near_values(mask, x0, y0, pix):  # noqa: ANN001
         elif diag:
             out[k] = np.float32(1.3693)
     return out
+
+
+@kernel("boolean[::1](float64[:, ::1], float64[:, ::1], float64)")
+def covered_by(px, curve, r2):  # noqa: ANN001
+    """(k,) bool: pixel i of ``px`` (k, 2) lies within sqrt(r2) of a point of ``curve`` (m, 2)
+    (squared distance <= r2, the same sums as numpy's (a - b) ** 2 + (c - d) ** 2)."""
+    out = np.zeros(len(px), dtype=np.bool_)
+    for i in range(len(px)):
+        x, y = px[i, 0], px[i, 1]
+        for j in range(len(curve)):
+            dx = x - curve[j, 0]
+            dy = y - curve[j, 1]
+            if dx * dx + dy * dy <= r2:
+                out[i] = True
+                break
+    return out
