@@ -54,7 +54,7 @@ class MaskField:
     crop around its run of CHUNK points (NEAR_PX margin), else from a crop reaching ``reach``
     px around it, else from the whole box (also when the crops would cover more than
     CROPS_SHARE of it: many points far off the thread). Most points of a curve lie on or next to a thread
-    pixel, where the value is one of three constants (``check_kernel.near_values``): only the
+    pixel, where the value is one of a few constants (``check_kernel.near_values``): only the
     others need a crop."""
 
     mask: np.ndarray

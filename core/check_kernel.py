@@ -145,34 +145,42 @@ def nearest_residual(xs, row_ptr, y0, disp, qx, qy, qdisp, support_px):  # noqa:
 
 @kernel("float32[::1](uint8[:, ::1], int64, int64, int64[:, ::1])")
 def near_values(mask, x0, y0, pix):  # noqa: ANN001
-    """The distance transform's value (3x3 L2 mask) at each box pixel ``pix`` (column, row;
-    box origin x0, y0 in the (H, W) image ``mask``) that lies on or next to a thread pixel:
-    0 on one, 0.955 (one step) next to one along a row or column, else 1.3693 (one diagonal
-    step; any other path is at least two steps, 1.91); -1 for a pixel farther (or none)."""
+    """The distance transform's value (3x3 L2 mask, steps a = 0.955 and b = 1.3693) at each
+    box pixel ``pix`` (column, row; box origin x0, y0 in the (H, W) image ``mask``) whose
+    nearest thread pixel lies within two steps: 0 on one; a or b for one in the 3x3
+    neighbourhood; else 2a, a + b or 2b for one two columns/rows away (straight, a knight's
+    move, diagonal; every path of three steps is at least 3a = 2.865 > 2b); -1 farther (or no
+    pixel). Each value is one float32 sum, whatever the order of its steps."""
     h, w = mask.shape
+    a = np.float32(0.955)
+    b = np.float32(1.3693)
     out = np.empty(len(pix), dtype=np.float32)
     for k in range(len(pix)):
         out[k] = -1.0
         if pix[k, 0] < 0:
             continue
         x, y = pix[k, 0] + x0, pix[k, 1] + y0
-        if mask[y, x]:
-            out[k] = 0.0
-            continue
-        hv = False
-        diag = False
-        for dy in range(-1, 2):
-            for dx in range(-1, 2):
+        best = np.float32(np.inf)
+        for dy in range(-2, 3):
+            for dx in range(-2, 3):
                 yy, xx = y + dy, x + dx
-                if (dy != 0 or dx != 0) and 0 <= yy < h and 0 <= xx < w and mask[yy, xx]:
-                    if dy == 0 or dx == 0:
-                        hv = True
-                    else:
-                        diag = True
-        if hv:
-            out[k] = np.float32(0.955)
-        elif diag:
-            out[k] = np.float32(1.3693)
+                if not (0 <= yy < h and 0 <= xx < w and mask[yy, xx]):
+                    continue
+                m, n = max(abs(dx), abs(dy)), min(abs(dx), abs(dy))
+                if m == 0:
+                    v = np.float32(0.0)
+                elif m == 1:
+                    v = a if n == 0 else b
+                elif n == 0:
+                    v = a + a
+                elif n == 1:
+                    v = a + b
+                else:
+                    v = b + b
+                if v < best:
+                    best = v
+        if best < np.inf:
+            out[k] = best
     return out
 
 

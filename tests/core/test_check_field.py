@@ -9,7 +9,7 @@ from scipy.ndimage import distance_transform_edt
 
 from threadrecon.core.check_field import clear_fields, mask_field
 
-TRIALS = 10
+TRIALS = 30
 
 
 def _mask(rng: np.random.Generator) -> np.ndarray:
