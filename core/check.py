@@ -32,7 +32,8 @@ the depth it was no sign of a larger error (docs/method.md, the check's fifth ro
 crossing-ambiguity finding uses it.
 
 All image measurements use one distance field per view of the thread masks (``check_field``:
-computed once per segmentation and cached with it), so the stage costs a few milliseconds.
+cached with the segmentation, its values computed only where the curve reads them), so the
+stage costs a few milliseconds.
 """
 
 from __future__ import annotations
