@@ -32,25 +32,26 @@ the depth it was no sign of a larger error (docs/method.md, the check's fifth ro
 crossing-ambiguity finding uses it.
 
 All image measurements use one distance field per view of the thread masks (``check_field``:
-computed once per segmentation and cached with it), so the stage costs a few milliseconds.
+cached with the segmentation, its values computed only where the curve reads them), so the
+stage costs a few milliseconds.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import cv2
 import numpy as np
 from scipy.interpolate import BSpline
-from scipy.spatial import cKDTree
 
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check_beyond import beyond_ends, cut_end
 from threadrecon.core.check_field import MaskField, derived, mask_field
-from threadrecon.core.check_kernel import overlap_hits
+from threadrecon.core.check_kernel import nearest_residual, overlap_hits
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.reliability import ReliabilityResult
@@ -560,8 +561,8 @@ def _check(
                  f"(at least {100 * p.coverage_min:.0f} % expected)")
             )  # fmt: skip
     one_view = (in_l & ~in_r) | hidden_l | hidden_r
-    unseen_px = float(np.sum(np.where(one_view, np.r_[step, 0.0], 0.0)))
-    unseen_mm = float(np.sum(np.where(one_view, np.r_[step3, 0.0], 0.0)))
+    unseen_px = float(np.sum(np.where(one_view, np.append(step, 0.0), 0.0)))
+    unseen_mm = float(np.sum(np.where(one_view, np.append(step3, 0.0), 0.0)))
     if unseen_mm > p.max_unobserved_mm:
         findings.append(
             ("suspect", f"{unseen_mm:.1f} mm ({unseen_px:.0f} px) of the curve lie outside the "
@@ -793,9 +794,11 @@ def _in_image(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 def _border_distance(a: np.ndarray, b: np.ndarray, shape: tuple[int, int]) -> float:
     """Smallest distance (px) of two image points to the image border (negative outside)."""
     H, W = shape
-    xs, ys = np.array([a[0], b[0]]), np.array([a[1], b[1]])
-    d = min(xs.min(), ys.min(), W - 1 - xs.max(), H - 1 - ys.max())
-    return float(d) if np.isfinite(d) else -np.inf
+    ax, ay, bx, by = float(a[0]), float(a[1]), float(b[0]), float(b[1])
+    if math.isnan(ax + ay + bx + by):
+        return -np.inf
+    d = min(min(ax, bx), min(ay, by), W - 1 - max(ax, bx), H - 1 - max(ay, by))
+    return d if math.isfinite(d) else -np.inf
 
 
 @dataclass(frozen=True)
@@ -1007,13 +1010,13 @@ class _BareBackground:
         x, y = int(round(xy[0])), int(round(xy[1]))
         if (side, x, y) not in self._cache:
             g, _, field = self.views[side]
-            d, rows, cols = field.window(x, y, self.REACH_PX)
+            d, rows, cols = field.window(x, y, self.REACH_PX, self.RING_PX[1])
             ring = (d > self.RING_PX[0]) & (d <= self.RING_PX[1])
             vals = g[rows, cols][ring].astype(np.float64)
             level = None
             if vals.size >= 10:
-                med = float(np.median(vals))
-                level = med, max(1.4826 * float(np.median(np.abs(vals - med))), 4.0)
+                med = _median(vals)
+                level = med, max(1.4826 * _median(np.abs(vals - med)), 4.0)
             self._cache[side, x, y] = level
         return self._cache[side, x, y]
 
@@ -1096,6 +1099,15 @@ def _surface_behind(
     far = cost[(np.abs(delta - delta[k]) >= FAR_PX) & np.isfinite(cost)]
     distinct = far.size > 0 and float(np.median(far)) >= cost[k] + TEXTURE_LEVELS
     return distinct and delta[k] <= NEAR_PX
+
+
+def _median(v: np.ndarray) -> float:
+    """``np.median`` of a finite 1-D float64 array, the same value without its overhead."""
+    k = len(v) // 2
+    if len(v) % 2:
+        return float(np.partition(v, k)[k])
+    part = np.partition(v, (k - 1, k))
+    return float((part[k - 1] + part[k]) / 2.0)
 
 
 def _sample(grey: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -1196,24 +1208,35 @@ def _disparity_residual(
     support_px: float,
 ) -> np.ndarray:
     """|curve disparity - disparity of the nearest reliable pixel| + distance / support_px."""
-    tree, disp_rel = derived(
-        (stereo.pixels, stereo.disparity, rel.reliable), "reliable_tree", lambda: _tree(stereo, rel)
+    xs, row_ptr, y0, disp_rel = derived(
+        (stereo.pixels, stereo.disparity, rel.reliable), "reliable_rows", lambda: _rows(stereo, rel)
     )
-    if tree is None:
-        return np.full(len(uv_l), 1e3)
-    ok = np.all(np.isfinite(uv_l), axis=1)
-    q = np.where(ok[:, None], uv_l, 0.0)
-    dist, j = tree.query(q)
-    r = np.abs(disp_curve - disp_rel[j]) + dist / support_px
-    return np.where(ok & np.isfinite(r), r, 1e3)
+    uv = np.ascontiguousarray(uv_l, dtype=np.float64)
+    r = nearest_residual(
+        xs, row_ptr, y0, disp_rel, uv[:, 0].copy(), uv[:, 1].copy(),
+        np.ascontiguousarray(disp_curve, dtype=np.float64), float(support_px),
+    )  # fmt: skip
+    return np.where(np.isfinite(r), r, 1e3)
 
 
-def _tree(stereo: StereoResult, rel: ReliabilityResult) -> tuple[cKDTree | None, np.ndarray]:
-    """The k-d tree of the reliable pixels P_L^R and their disparities (per stereo result)."""
+def _rows(
+    stereo: StereoResult, rel: ReliabilityResult
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+    """The reliable pixels P_L^R by rows (CSR: x ascending per row, ``row_ptr`` from row
+    ``y0``) and their disparities (per stereo result)."""
     sel = np.flatnonzero(rel.reliable)
     if sel.size == 0:
-        return None, np.zeros(0)
-    return cKDTree(stereo.pixels[sel].astype(np.float64)), stereo.disparity[sel]
+        return np.zeros(0, np.int64), np.zeros(1, np.int64), 0, np.zeros(0)
+    xs = stereo.pixels[sel, 0].astype(np.int64)
+    ys = stereo.pixels[sel, 1].astype(np.int64)
+    disp = np.asarray(stereo.disparity, dtype=np.float64)[sel]
+    key = ys * (int(xs.max()) + 1) + xs
+    if np.any(np.diff(key) < 0):  # P_L comes in raster order; sort otherwise
+        order = np.argsort(key, kind="stable")
+        xs, ys, disp = xs[order], ys[order], disp[order]
+    y0 = int(ys[0])
+    row_ptr = np.searchsorted(ys, np.arange(y0, int(ys[-1]) + 2)).astype(np.int64)
+    return xs, row_ptr, y0, np.ascontiguousarray(disp)
 
 
 def _expected_error(

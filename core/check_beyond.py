@@ -19,15 +19,14 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
 from threadrecon.core.check_field import derived
+from threadrecon.core.check_kernel import covered_by
 
 END_SAMPLES = 8  # curve samples over which an end's outward direction is taken
 MIN_PIECE_PX = 12  # a piece spans at least this many px (smaller: segmentation speckle)
 PIECE_SAMPLES = 64  # pixels per piece tested against the curve (evenly spread over it)
 GAP_SAMPLES = 24  # samples along the gap between an end and a piece (occluder test)
-BRUTE_PAIRS = 20000  # pixel-sample pairs up to which distances are taken directly (no tree)
 FAN_MARGIN_PX = 4  # px around the cone's sampled outline (its arc bulges between samples)
 MAX_TURN_COS = float(np.cos(np.radians(45.0)))  # the piece lies within 45 deg of the end's way
 
@@ -173,12 +172,7 @@ def _cone(
     near = curve[np.hypot(*(curve - tip).T) <= radius + cover_px]
     if not len(near):
         return px, along
-    if len(px) * len(near) <= BRUTE_PAIRS:
-        d2 = (px[:, None, 0] - near[None, :, 0]) ** 2 + (px[:, None, 1] - near[None, :, 1]) ** 2
-        free = d2.min(axis=1) > cover_px**2  # no curve sample within cover_px
-    else:
-        d, _ = cKDTree(near).query(px, distance_upper_bound=cover_px * (1 + 1e-9))
-        free = ~np.isfinite(d)
+    free = ~covered_by(px, np.ascontiguousarray(near), float(cover_px) ** 2)
     return px[free], along[free]
 
 
@@ -229,9 +223,8 @@ def _covered(px: np.ndarray, curve: np.ndarray, cover_px: float) -> bool:
     """Whether any of (up to PIECE_SAMPLES of) the piece's pixels lies within ``cover_px`` of a
     curve sample (the piece is the curve's own)."""
     step = max(1, len(px) // PIECE_SAMPLES)
-    sub = px[::step]
-    d2 = (sub[:, None, 0] - curve[None, :, 0]) ** 2 + (sub[:, None, 1] - curve[None, :, 1]) ** 2
-    return bool(d2.min() <= cover_px**2)
+    sub = np.ascontiguousarray(px[::step], dtype=np.float64)
+    return bool(covered_by(sub, np.ascontiguousarray(curve, dtype=np.float64), cover_px**2).any())
 
 
 CUT_PROBE_PX = 8  # px beyond an end where the view that stops is probed for an occluder

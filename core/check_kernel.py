@@ -46,21 +46,155 @@ def overlap_hits(x, y, s, r2, gap, disp, strand, dtol):  # noqa: ANN001
     return hit
 
 
-@kernel("float64[::1](float32[:, ::1], float64, float64, float64, float64[:, ::1])")
-def field_at(dist, x0, y0, reach, uv):  # noqa: ANN001
-    """``MaskField.at`` over (N, 2) points: the field at each point's nearest pixel of the box
-    plus the point's distance to that pixel, saturated at ``reach``; ``reach`` where not
-    finite."""
-    h, w = dist.shape
-    out = np.empty(len(uv))
+@kernel("int64[:, ::1](float64, float64, int64, int64, float64[:, ::1])")
+def field_pixels(x0, y0, w, h, uv):  # noqa: ANN001
+    """The pixel (column, row) of the field's (h, w) box nearest to each (x, y) of ``uv``
+    (rounded, clamped to the box); (-1, -1) where the point is not finite."""
+    out = np.empty((len(uv), 2), dtype=np.int64)
     for k in range(len(uv)):
         x, y = uv[k, 0], uv[k, 1]
         if not (np.isfinite(x) and np.isfinite(y)):
+            out[k, 0] = -1
+            out[k, 1] = -1
+            continue
+        out[k, 0] = int(min(max(np.rint(x - x0), 0.0), w - 1.0))
+        out[k, 1] = int(min(max(np.rint(y - y0), 0.0), h - 1.0))
+    return out
+
+
+@kernel("float64[::1](float32[::1], float64, float64, float64, float64[:, ::1], int64[:, ::1])")
+def field_at(d, x0, y0, reach, uv, pix):  # noqa: ANN001
+    """``MaskField.at`` over (N, 2) points: ``d`` (the field at each point's pixel ``pix`` of
+    the box, ``field_pixels``) plus the point's distance to that pixel, saturated at
+    ``reach``; ``reach`` where not finite."""
+    out = np.empty(len(uv))
+    for k in range(len(uv)):
+        if pix[k, 0] < 0:
             out[k] = reach
             continue
-        qx, qy = x - x0, y - y0
-        cx = min(max(np.rint(qx), 0.0), w - 1.0)
-        cy = min(max(np.rint(qy), 0.0), h - 1.0)
-        v = np.float64(dist[int(cy), int(cx)]) + math.hypot(qx - cx, qy - cy)
+        qx, qy = uv[k, 0] - x0, uv[k, 1] - y0
+        cx, cy = float(pix[k, 0]), float(pix[k, 1])
+        v = np.float64(d[k]) + math.hypot(qx - cx, qy - cy)
         out[k] = v if v < reach else reach
+    return out
+
+
+@kernel(
+    "float64[::1](int64[::1], int64[::1], int64, float64[::1], float64[::1], float64[::1], "
+    "float64[::1], float64)"
+)
+def nearest_residual(xs, row_ptr, y0, disp, qx, qy, qdisp, support_px):  # noqa: ANN001
+    """``check._disparity_residual`` over the curve's points: per point (qx, qy) with disparity
+    qdisp, |qdisp - disp[j]| + dist / support_px for its nearest pixel j (Euclidean) of a set
+    given by rows (CSR: the pixels of row y0 + k are xs[row_ptr[k]:row_ptr[k + 1]], x
+    ascending); 1e3 where the point is not finite or the set is empty. The search visits the
+    rows outwards from the point's and stops when a row lies farther than the best pixel."""
+    n = len(qx)
+    n_rows = len(row_ptr) - 1
+    out = np.empty(n)
+    for k in range(n):
+        x, y = qx[k], qy[k]
+        if not (np.isfinite(x) and np.isfinite(y)) or n_rows <= 0:
+            out[k] = 1e3
+            continue
+        r0 = min(max(int(np.rint(y)) - y0, 0), n_rows - 1)
+        best = np.inf
+        bj = -1
+        step = 0
+        while True:
+            active = False
+            for sgn in range(2):
+                if step == 0 and sgn == 1:
+                    continue
+                r = r0 - step if sgn == 0 else r0 + step
+                if r < 0 or r >= n_rows:
+                    continue
+                dy = (y0 + r) - y
+                dy2 = dy * dy
+                if dy2 > best:
+                    continue
+                active = True
+                lo, hi = row_ptr[r], row_ptr[r + 1]
+                if lo == hi:
+                    continue
+                a, b = lo, hi  # first pixel with x >= the point's
+                while a < b:
+                    m = (a + b) // 2
+                    if xs[m] < x:
+                        a = m + 1
+                    else:
+                        b = m
+                for j in (a - 1, a):
+                    if lo <= j < hi:
+                        dx = xs[j] - x
+                        d2 = dx * dx + dy2
+                        if d2 < best:
+                            best = d2
+                            bj = j
+            if not active and step > 0:
+                break
+            step += 1
+            if step > n_rows:
+                break
+        if bj < 0:
+            out[k] = 1e3
+        else:
+            out[k] = abs(qdisp[k] - disp[bj]) + math.sqrt(best) / support_px
+    return out
+
+
+@kernel("float32[::1](uint8[:, ::1], int64, int64, int64[:, ::1])")
+def near_values(mask, x0, y0, pix):  # noqa: ANN001
+    """The distance transform's value (3x3 L2 mask, steps a = 0.955 and b = 1.3693) at each
+    box pixel ``pix`` (column, row; box origin x0, y0 in the (H, W) image ``mask``) whose
+    nearest thread pixel lies within two steps: 0 on one; a or b for one in the 3x3
+    neighbourhood; else 2a, a + b or 2b for one two columns/rows away (straight, a knight's
+    move, diagonal; every path of three steps is at least 3a = 2.865 > 2b); -1 farther (or no
+    pixel). Each value is one float32 sum, whatever the order of its steps."""
+    h, w = mask.shape
+    a = np.float32(0.955)
+    b = np.float32(1.3693)
+    out = np.empty(len(pix), dtype=np.float32)
+    for k in range(len(pix)):
+        out[k] = -1.0
+        if pix[k, 0] < 0:
+            continue
+        x, y = pix[k, 0] + x0, pix[k, 1] + y0
+        best = np.float32(np.inf)
+        for dy in range(-2, 3):
+            for dx in range(-2, 3):
+                yy, xx = y + dy, x + dx
+                if not (0 <= yy < h and 0 <= xx < w and mask[yy, xx]):
+                    continue
+                m, n = max(abs(dx), abs(dy)), min(abs(dx), abs(dy))
+                if m == 0:
+                    v = np.float32(0.0)
+                elif m == 1:
+                    v = a if n == 0 else b
+                elif n == 0:
+                    v = a + a
+                elif n == 1:
+                    v = a + b
+                else:
+                    v = b + b
+                if v < best:
+                    best = v
+        if best < np.inf:
+            out[k] = best
+    return out
+
+
+@kernel("boolean[::1](float64[:, ::1], float64[:, ::1], float64)")
+def covered_by(px, curve, r2):  # noqa: ANN001
+    """(k,) bool: pixel i of ``px`` (k, 2) lies within sqrt(r2) of a point of ``curve`` (m, 2)
+    (squared distance <= r2, the same sums as numpy's (a - b) ** 2 + (c - d) ** 2)."""
+    out = np.zeros(len(px), dtype=np.bool_)
+    for i in range(len(px)):
+        x, y = px[i, 0], px[i, 1]
+        for j in range(len(curve)):
+            dx = x - curve[j, 0]
+            dy = y - curve[j, 1]
+            if dx * dx + dy * dy <= r2:
+                out[i] = True
+                break
     return out

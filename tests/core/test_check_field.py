@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from scipy.ndimage import distance_transform_edt
 
 from threadrecon.core.check_field import clear_fields, mask_field
 
-TRIALS = 10
+TRIALS = 30
 
 
 def _mask(rng: np.random.Generator) -> np.ndarray:
@@ -17,6 +18,18 @@ def _mask(rng: np.random.Generator) -> np.ndarray:
         y, x = rng.integers(30, 90), rng.integers(40, 120)
         mask[y - 1 : y + 2, x - 30 : x + 30] = True
     return mask
+
+
+def _thread(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
+    """A few random polylines 1-5 px wide (curved strokes, crossings, gaps)."""
+    h, w = shape
+    canvas = np.zeros(shape, np.uint8)
+    for _ in range(rng.integers(1, 5)):
+        pts = np.cumsum(rng.normal(0, 8, (rng.integers(3, 30), 2)), axis=0)
+        pts += [rng.integers(0, w), rng.integers(0, h)]
+        cv2.polylines(canvas, [pts.astype(np.int32).reshape(-1, 1, 2)], False, 1,
+                      int(rng.integers(1, 6)))  # fmt: skip
+    return canvas.astype(bool)
 
 
 @pytest.mark.parametrize("seed", range(TRIALS))
@@ -38,6 +51,44 @@ def test_field_is_the_distance_to_the_thread_saturated_at_its_reach(seed: int) -
     assert np.all(off == 12.0)
 
 
+@pytest.mark.parametrize("seed", range(TRIALS))
+def test_field_read_from_crops_equals_the_whole_box_transform_bit_for_bit(seed: int) -> None:
+    rng = np.random.default_rng(100 + seed)
+    shape = (int(rng.integers(60, 300)), int(rng.integers(60, 400)))
+    mask = _thread(rng, shape)
+    if not mask.any():
+        mask[shape[0] // 2, shape[1] // 2] = True
+    reach = float(rng.uniform(5.0, 45.0))
+    # a curve: a random walk near and across the thread, some points off the image
+    ys, xs = np.nonzero(mask)
+    k = rng.integers(0, len(xs), 40)
+    walk = np.column_stack([xs[k], ys[k]]).astype(float)
+    pts = (
+        np.repeat(walk, 10, axis=0)
+        + rng.normal(0, 1, (400, 2)) * rng.choice([0.5, 3, 15], 400)[:, None]
+    )
+    pts[::37] += 60.0
+    field = mask_field(mask, reach)
+    got = field.at(pts)
+    # the same reading from the transform of the whole box, computed as before
+    box = np.ascontiguousarray(mask[field.y0 : field.y0 + field.shape[0],
+                                    field.x0 : field.x0 + field.shape[1]]).view(np.uint8)  # fmt: skip
+    dist = cv2.distanceTransform(cv2.compare(box, 0, cv2.CMP_EQ), cv2.DIST_L2, cv2.DIST_MASK_3)
+    h, w = dist.shape
+    q = pts - [field.x0, field.y0]
+    c = np.clip(np.rint(q), 0, [w - 1, h - 1])
+    want = dist[c[:, 1].astype(int), c[:, 0].astype(int)] + np.hypot(*(q - c).T)
+    want = np.where(want < reach, want, reach)
+    assert np.array_equal(got, want)
+    assert np.array_equal(field.dist, dist)
+    for x, y in pts[::25].astype(int):  # the background ring's windows (exact up to 9 px)
+        d, rows, cols = field.window(int(x), int(y), 25, 9.0)
+        full = dist[rows.start - field.y0 : rows.stop - field.y0,
+                    cols.start - field.x0 : cols.stop - field.x0]  # fmt: skip
+        assert d.shape == full.shape
+        assert np.array_equal(d[full <= 9.0], full[full <= 9.0]) and np.all(d[full > 9.0] > 9.0)
+
+
 def test_field_is_cached_by_the_mask_object_not_its_content() -> None:
     clear_fields()
     mask = _mask(np.random.default_rng(0))
@@ -54,10 +105,10 @@ def test_window_is_clipped_to_the_field_box() -> None:
     mask = np.zeros((50, 60), dtype=bool)
     mask[20, 10:40] = True
     field = mask_field(mask, 5.0)
-    d, rows, cols = field.window(12, 21, 4)
+    d, rows, cols = field.window(12, 21, 4, 5.0)
     assert d.shape == (9, 9) and (rows.start, cols.start) == (17, 8)
     assert d[20 - 17, 12 - 8] == 0.0 and abs(d[21 - 17, 12 - 8] - 1.0) < 0.05  # 3x3 mask
-    d, rows, cols = field.window(0, 0, 3)  # outside the box (rows 15..25, cols 5..44)
+    d, rows, cols = field.window(0, 0, 3, 5.0)  # outside the box (rows 15..25, cols 5..44)
     assert d.size == 0
     empty = mask_field(np.zeros((8, 8), dtype=bool), 5.0)
     assert empty.total == 0 and np.all(empty.at(np.array([[1.0, 1.0]])) == 5.0)
