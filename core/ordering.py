@@ -393,19 +393,14 @@ def _cluster_median(labels: np.ndarray, values: np.ndarray, K: int) -> np.ndarra
     """(K,) median of ``values`` over each cluster's pixels (finite values only; NaN if none).
 
     A single pixel matched at the wrong disparity (e.g. 0.09 px among 31 px: 50 m deep) moves a
-    cluster's mean depth by metres; its median not at all."""
-    sel = (labels >= 0) & np.isfinite(values)
-    lab, val = labels[sel], values[sel]
-    order = np.lexsort((val, lab))
-    lab, val = lab[order], val[order]
-    count = np.bincount(lab, minlength=K)
-    start = np.concatenate([[0], np.cumsum(count)[:-1]])
-    out = np.full(K, np.nan)
-    has = count > 0
-    lo = start[has] + (count[has] - 1) // 2
-    hi = start[has] + count[has] // 2
-    out[has] = 0.5 * (val[lo] + val[hi])
-    return out
+    cluster's mean depth by metres; its median not at all. Compiled
+    (:func:`walk_kernel.cluster_medians`: the order of ``np.lexsort((values, labels))``, 1.2 ms
+    of it at 1920x1080)."""
+    if values.dtype != np.float64:
+        raise ValueError(f"cluster medians need float64 values, got {values.dtype}")
+    return walk_kernel.cluster_medians(
+        np.ascontiguousarray(labels, dtype=np.int64), np.ascontiguousarray(values), K
+    )
 
 
 def _link_positions(
@@ -537,13 +532,15 @@ def _solidify(grid: _PixelGrid, labels: np.ndarray, radius: int) -> np.ndarray:
 def _touching_pairs(pixel_node: np.ndarray, nb_node: np.ndarray) -> np.ndarray:
     """(P, 2) unique pairs (a < b, sorted) of different nodes that are 8-neighbours somewhere."""
     m = int(pixel_node.max()) + 1 if pixel_node.size else 1
-    key = np.unique(
-        walk_kernel.touching_keys(
-            np.ascontiguousarray(pixel_node, dtype=np.int64),
-            np.ascontiguousarray(nb_node, dtype=np.int64),
-            m,
-        )
+    key = walk_kernel.touching_keys(
+        np.ascontiguousarray(pixel_node, dtype=np.int64),
+        np.ascontiguousarray(nb_node, dtype=np.int64),
+        m,
     )
+    # Neighbouring pixels repeat a pair: dropping a key equal to the one before leaves the same
+    # set for np.unique, 4-6 times smaller (0.6 ms of sorting at 1920x1080).
+    if key.size:
+        key = np.unique(key[np.concatenate([[True], key[1:] != key[:-1]])])
     return np.stack([key // m, key % m], axis=1)
 
 

@@ -17,11 +17,13 @@ from threadrecon.core.ordering import (
     OrderingParams,
     _adjacency,
     _bending_walk,
+    _cluster_median,
     _continuations,
     _explain,
     _GapGeodesics,
     _normalised,
     _PixelGrid,
+    _touching_pairs,
     _walk_from,
     _WalkGraph,
 )
@@ -159,6 +161,47 @@ def test_gap_distances_equal_scipys_dijkstra_on_the_gap_graph_bit_for_bit(seed: 
     got = geo.distances(src)
     assert np.isfinite(got).sum() > 50
     assert np.array_equal(got, expected)
+
+
+@pytest.mark.parametrize("seed", TRIALS)
+def test_cluster_medians_equal_the_lexsort_medians_bit_for_bit(seed: int) -> None:
+    # The compiled medians against the numpy definition (lexsort by cluster, then value; the
+    # mean of the two middle values): ties, signed zeros, NaN and inf, empty clusters.
+    rng = np.random.default_rng(seed)
+    n, K = 400, 30
+    labels = rng.integers(-1, K - 3, n)  # clusters K-3.. have no pixel
+    values = np.round(rng.normal(20.0, 3.0, n), 1)
+    values[rng.random(n) < 0.1] = np.nan
+    values[rng.random(n) < 0.05] = np.inf
+    values[rng.random(n) < 0.05] = 0.0
+    values[rng.random(n) < 0.05] = -0.0
+    sel = (labels >= 0) & np.isfinite(values)
+    lab, val = labels[sel], values[sel]
+    order = np.lexsort((val, lab))
+    lab, val = lab[order], val[order]
+    count = np.bincount(lab, minlength=K)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    expected = np.full(K, np.nan)
+    has = count > 0
+    lo, hi = start[has] + (count[has] - 1) // 2, start[has] + count[has] // 2
+    expected[has] = 0.5 * (val[lo] + val[hi])
+    got = _cluster_median(labels, values, K)
+    assert np.array_equal(np.signbit(got), np.signbit(expected))
+    assert np.array_equal(got, expected, equal_nan=True)
+
+
+@pytest.mark.parametrize("seed", TRIALS[:4])
+def test_touching_pairs_are_every_pair_of_different_neighbouring_nodes(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    node = rng.integers(-1, 12, 500)
+    nb_node = np.where(rng.random((500, 8)) < 0.3, -1, rng.integers(0, 12, (500, 8)))
+    nb_node[::7] = node[::7, None]  # runs of repeats
+    a = np.repeat(node, 8)
+    b = nb_node.ravel()
+    ok = (a >= 0) & (b >= 0) & (a != b)
+    expected = np.unique(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)[ok], axis=0)
+    assert np.array_equal(_touching_pairs(node, nb_node), expected)
+    assert _touching_pairs(np.full(3, -1), np.full((3, 8), -1)).shape == (0, 2)
 
 
 @pytest.mark.parametrize("seed", TRIALS[:4])
