@@ -417,8 +417,10 @@ def _link_positions(
     pixel_t = np.full(n, np.nan)
     pixel_link = np.full(n, -1, dtype=np.int64)
     link_of = np.full(n_nodes, -1, dtype=np.int64)
-    for i, gap_ids in enumerate(links):
-        link_of[list(gap_ids)] = i
+    if links:  # a gap on two links (it touches three clusters) belongs to the later one
+        n_ids = [len(g) for g in links]
+        ids = np.fromiter((g for gap_ids in links for g in gap_ids), np.int64, sum(n_ids))
+        np.maximum.at(link_of, ids, np.repeat(np.arange(len(links)), n_ids))
     sel = np.flatnonzero((pixel_node >= 0) & (link_of[np.maximum(pixel_node, 0)] >= 0))
     if sel.size == 0:
         return pixel_t, pixel_link
@@ -671,10 +673,16 @@ class _WalkGraph:
     indices: np.ndarray
     pos: np.ndarray  # (K, 2) float64, contiguous
     disp: np.ndarray  # (K,) float64
+    scratch: tuple[np.ndarray, np.ndarray, np.ndarray] = field(
+        default_factory=lambda: (np.empty(0, np.int64), np.empty(0), np.empty(0))
+    )
+    """(K,) int64, float64, float64 buffers that :func:`_continuations` hands to the kernel
+    (one walk at a time uses them; what it returns is copied out)."""
 
     @classmethod
     def of(cls, adj: list[list[int]], pos: np.ndarray, disp: np.ndarray) -> _WalkGraph:
-        indptr = np.zeros(len(adj) + 1, dtype=np.int64)
+        K = len(adj)
+        indptr = np.zeros(K + 1, dtype=np.int64)
         indptr[1:] = np.cumsum([len(a) for a in adj])
         indices = np.array([v for a in adj for v in a], dtype=np.int64)
         return cls(
@@ -683,6 +691,7 @@ class _WalkGraph:
             indices,
             np.ascontiguousarray(pos, dtype=np.float64),
             np.ascontiguousarray(disp, dtype=np.float64),
+            (np.empty(K, np.int64), np.empty(K), np.empty(K)),
         )
 
 
@@ -699,7 +708,7 @@ def _walk_from(
     Steps to neighbours and through crossings run in :func:`walk_kernel.walk_on`; a jump across
     a gap (a few per walk) here."""
     K = len(g.adj)
-    cos_max = float(np.cos(np.radians(p.max_turn_deg)))
+    cos_max = _cos_deg(p.max_turn_deg)
     visited = np.zeros(K, dtype=bool)
     visited[prefix] = True
     walk = np.zeros(K, dtype=np.int64)
@@ -742,6 +751,12 @@ def _walk_from(
 _TIERS = ("neighbour", "crossing", "jump")
 
 
+@functools.lru_cache(maxsize=8)
+def _cos_deg(deg: float) -> float:
+    """cos of ``deg`` degrees (``max_turn_deg``: computed once, not at every step)."""
+    return float(np.cos(np.radians(deg)))
+
+
 def _continuations(
     walk: np.ndarray, n: int, visited: np.ndarray, g: _WalkGraph, p: OrderingParams
 ) -> tuple[list[int], np.ndarray, int, list[str]]:
@@ -759,9 +774,11 @@ def _continuations(
 
     ``walk[:n]``: the path so far ((K,) int64 buffer). Tiers 0 and 1 are computed by
     :func:`walk_kernel.step_costs` (the walk's own kernel), tier 2 here."""
-    cand_buf = np.empty(len(g.adj), dtype=np.int64)
-    cost_buf, cos_buf = np.empty(len(g.adj)), np.empty(len(g.adj))
-    cos_max = float(np.cos(np.radians(p.max_turn_deg)))
+    cand_buf, cost_buf, cos_buf = g.scratch
+    if len(cand_buf) != len(g.adj):  # a graph built without its buffers
+        cand_buf = np.empty(len(g.adj), dtype=np.int64)
+        cost_buf, cos_buf = np.empty(len(g.adj)), np.empty(len(g.adj))
+    cos_max = _cos_deg(p.max_turn_deg)
     m, tier = walk_kernel.step_costs(
         walk, n, visited, g.indptr, g.indices, g.pos, g.disp,
         float(p.bend_weight), float(p.disparity_weight), cos_max, cand_buf, cost_buf, cos_buf,
@@ -799,7 +816,13 @@ def _continuations(
     cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(disp[c] - ref)
     # across a gap: turn in + turn out <= 2 max_turn_deg, each <= 90 deg
     turn_in = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
-    turn_out = np.array([_turn_out(v, chord[i], adj, visited, pos) for i, v in enumerate(cand)])
+    # the turn out only where the turn in leaves the jump possible (else it decides nothing)
+    turn_out = np.array(
+        [
+            _turn_out(v, chord[i], adj, visited, pos) if turn_in[i] <= 90.0 else 0.0
+            for i, v in enumerate(cand)
+        ]
+    )
     ok = (turn_in <= 90.0) & (turn_out <= 90.0) & (turn_in + turn_out <= 2 * p.max_turn_deg)
     cost = np.where(ok, cost, np.inf)
     why = ["" if k else "turn across the gap" for k in ok]
