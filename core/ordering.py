@@ -26,7 +26,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -646,18 +646,20 @@ def _bending_walk(g: _WalkGraph, p: OrderingParams) -> list[int]:
     best_alts: list[tuple[int, int]] = []
     best_key = (-1, 0.0)
     tried = 0
-    queue: list[tuple[list[int], list[float], int | None]] = [([s], [], None) for s in starts]
+    queue: list[tuple[Any, Any, int | None]] = [([s], [], None) for s in starts]
     while queue and tried < MAX_WALKS:
         prefix, prefix_steps, forced = queue.pop(0)
-        walk, steps, alts = _walk_from(prefix, prefix_steps, forced, g, p)
+        walk, steps, alts = _walk_from(prefix, prefix_steps, forced, g, p, max_alts=MAX_WALKS)
         tried += 1
         key = (len(walk), -sum(steps))
         if key > best_key:
             best_walk, best_steps, best_alts, best_key = walk, steps, alts, key
         if not queue and len(best_walk) < K and best_alts:
-            # Branch at each decision of the best walk so far, in path order.
+            # Branch at each decision of the best walk so far, in path order (the prefixes as
+            # views of one array each: no list of hundreds of keypoints per branch)
+            walk_a, steps_a = np.array(best_walk, np.int64), np.array(best_steps, np.float64)
             queue = [
-                (best_walk[: i + 1], best_steps[:i], alt)
+                (walk_a[: i + 1], steps_a[:i], alt)
                 for i, alt in best_alts[: MAX_WALKS - tried]  # the rest would never be tried
             ]
             best_alts = []
@@ -696,15 +698,17 @@ class _WalkGraph:
 
 
 def _walk_from(
-    prefix: list[int],
-    prefix_steps: list[float],
+    prefix: list[int] | np.ndarray,
+    prefix_steps: list[float] | np.ndarray,
     forced: int | None,
     g: _WalkGraph,
     p: OrderingParams,
+    max_alts: int | None = None,
 ) -> tuple[list[int], list[float], list[tuple[int, int]]]:
     """Walk A on from ``prefix`` (its first step ``forced`` when given), each step to the
     continuation of least cost of :func:`_continuations`. Returns the walk, the cost of each
-    step and the runner-up at each step that had one (as (index in the walk, keypoint)).
+    step and the runner-up at each step that had one (as (index in the walk, keypoint); the
+    first ``max_alts`` of them when given). ``prefix``, ``prefix_steps``: lists or arrays.
     Steps to neighbours and through crossings run in :func:`walk_kernel.walk_on`; a jump across
     a gap (a few per walk) here."""
     K = len(g.adj)
@@ -744,6 +748,7 @@ def _walk_from(
         walk[n] = cand[j]
         steps[n - 1] = cost[j]
         n += 1
+    n_alt = n_alt if max_alts is None else min(n_alt, max_alts)
     alts = list(zip(alt_at[:n_alt].tolist(), alt_kp[:n_alt].tolist(), strict=True))
     return walk[:n].tolist(), steps[: n - 1].tolist(), alts
 
