@@ -19,10 +19,12 @@ from threadrecon.core.ordering import (
     _bending_walk,
     _cluster_median,
     _continuations,
+    _decision_steps,
     _explain,
     _GapGeodesics,
     _normalised,
     _PixelGrid,
+    _single_steps,
     _touching_pairs,
     _walk_from,
     _WalkGraph,
@@ -188,6 +190,21 @@ def test_cluster_medians_equal_the_lexsort_medians_bit_for_bit(seed: int) -> Non
     got = _cluster_median(labels, values, K)
     assert np.array_equal(np.signbit(got), np.signbit(expected))
     assert np.array_equal(got, expected, equal_nan=True)
+
+
+@pytest.mark.parametrize("seed", TRIALS)
+def test_decision_steps_of_the_loop_and_of_numpy_agree(seed: int) -> None:
+    # Random graphs and random walks on them (repeated keypoints too): the steps where the walk
+    # had a choice, by the loop (short walks) and by numpy (long ones), are the same.
+    rng = np.random.default_rng(seed)
+    K = int(rng.integers(2, 60))
+    edges = np.unique(np.sort(rng.integers(0, K, (2 * K, 2)), axis=1), axis=0)
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    g = _WalkGraph.of(_adjacency(K, edges), rng.random((K, 2)), rng.random(K))
+    for walk in (rng.permutation(K)[: int(rng.integers(1, K + 1))], rng.integers(0, K, K)):
+        path = np.asarray(walk, dtype=np.int64)
+        loop = _decision_steps(path, g)  # K < LONG_WALK: the loop
+        assert loop == np.flatnonzero(~_single_steps(path, g)).tolist()
 
 
 @pytest.mark.parametrize("seed", TRIALS[:4])
