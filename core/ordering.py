@@ -26,7 +26,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 import cv2
 import numpy as np
@@ -34,6 +34,7 @@ import numpy as np
 from threadrecon.core import walk_kernel
 from threadrecon.core.clustering import Clusters
 from threadrecon.core.ends import tip_disparity
+from threadrecon.core.lru import LRU
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.stereo import StereoResult
@@ -205,12 +206,12 @@ def order_keypoints(
             f"({len(clusters.labels)} labels) do not belong to this {(H, W)} pair"
         )
     # Everything works on the pixel list of P_L and its bounding box: the thread, not the image.
-    grid = _PixelGrid(stereo.pixels, max(1, p.solidify_radius))
+    grid, nb = _pixel_grid(stereo.pixels, max(1, p.solidify_radius))
     cluster_of = _solidify(grid, clusters.labels, p.solidify_radius)
     gaps = cluster_of < 0
     n_gaps, gap_of = grid.components(gaps)
     pixel_node = np.where(gaps, K + gap_of - 1, cluster_of)
-    geo = _GapGeodesics(stereo, pixel_node, K, nb=grid.neighbours())
+    geo = _GapGeodesics(stereo, pixel_node, K, nb=nb)
 
     pairs = _touching_pairs(pixel_node, geo.nb_node)
     cc = pairs[pairs[:, 1] < K]  # pairs are sorted: (a < b)
@@ -504,6 +505,23 @@ class _PixelGrid:
         rank = np.zeros(n, dtype=np.int64)
         rank[np.argsort(first[1:], kind="stable") + 1] = np.arange(1, n)
         return n, np.where(member, rank[lab], 0)
+
+
+GRID_CACHE: Final = 4  # pixel grids kept: a few frames' stereo results in the debugger
+_GRIDS: LRU[tuple, Any] = LRU(GRID_CACHE)
+
+
+def _pixel_grid(pixels: np.ndarray, pad: int) -> tuple[_PixelGrid, np.ndarray]:
+    """The :class:`_PixelGrid` of P_L's pixel list and its neighbour table, cached with the
+    pixel list (a weak reference to it: the stereo result's): a re-run of the ordering after a
+    reliability, clustering or ordering parameter changed (a slider) finds them. Shared: read
+    only."""
+
+    def build() -> tuple[_PixelGrid, np.ndarray]:
+        grid = _PixelGrid(pixels, pad)
+        return grid, grid.neighbours()
+
+    return _GRIDS.cached((pixels,), ("grid", pad), build)
 
 
 _OFFSETS_8 = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))

@@ -207,6 +207,23 @@ def test_decision_steps_of_the_loop_and_of_numpy_agree(seed: int) -> None:
         assert loop == np.flatnonzero(~_single_steps(path, g)).tolist()
 
 
+def test_a_rerun_on_the_same_stereo_result_reuses_its_pixel_grid_and_orders_the_same() -> None:
+    from threadrecon.core import ordering
+
+    pair, calib, _ = synthetic_case(2)
+    rec = Pipeline(pair, calib).run(until="ordering")
+    args = (rec["segment"], rec["stereo"], rec["clustering"])
+    ordering._GRIDS.clear()
+    first = ordering.order_keypoints(*args, OrderingParams())
+    assert len(ordering._GRIDS) == 1
+    again = ordering.order_keypoints(*args, OrderingParams(bend_weight=2.0))
+    assert len(ordering._GRIDS) == 1  # a hit
+    ordering.order_keypoints(*args, OrderingParams(solidify_radius=2))
+    assert len(ordering._GRIDS) == 2  # another padding
+    for name in ("order", "pixel_node", "pixel_t", "pixel_link", "path_px", "edges"):
+        assert getattr(first, name).tobytes() == getattr(again, name).tobytes(), name
+
+
 @pytest.mark.parametrize("seed", TRIALS[:4])
 def test_touching_pairs_are_every_pair_of_different_neighbouring_nodes(seed: int) -> None:
     rng = np.random.default_rng(seed)
