@@ -18,8 +18,10 @@ from threadrecon.core.ordering import (
     _adjacency,
     _bending_walk,
     _cluster_median,
+    _ClusterGaps,
     _continuations,
     _decision_steps,
+    _edges,
     _explain,
     _GapGeodesics,
     _normalised,
@@ -222,6 +224,42 @@ def test_a_rerun_on_the_same_stereo_result_reuses_its_pixel_grid_and_orders_the_
     assert len(ordering._GRIDS) == 2  # another padding
     for name in ("order", "pixel_node", "pixel_t", "pixel_link", "path_px", "edges"):
         assert getattr(first, name).tobytes() == getattr(again, name).tobytes(), name
+
+
+@pytest.mark.parametrize("seed", TRIALS)
+def test_edges_links_and_dead_ends_from_the_gap_table_equal_the_set_definitions(seed: int) -> None:
+    # A: clusters that touch, and every two clusters touching one gap; a link's gaps: those
+    # both its clusters touch; a dead end: a gap touching one cluster only. Against dicts of
+    # sets built pair by pair, on random (cluster, gap) tables (empty ones too).
+    rng = np.random.default_rng(seed)
+    K, n_gaps = int(rng.integers(1, 40)), int(rng.integers(0, 30))
+    n_pairs = int(rng.integers(0, 3 * K)) if n_gaps else 0
+    cg = np.unique(
+        np.stack([rng.integers(0, K, n_pairs), K + rng.integers(0, max(n_gaps, 1), n_pairs)], 1),
+        axis=0,
+    ).reshape(-1, 2)
+    cc = np.unique(np.sort(rng.integers(0, K, (K, 2)), axis=1), axis=0)
+    cc = cc[cc[:, 0] != cc[:, 1]]
+    members: dict[int, list[int]] = {}
+    gaps_of: dict[int, set[int]] = {}
+    for c, g in cg.tolist():
+        members.setdefault(g, []).append(c)
+        gaps_of.setdefault(c, set()).add(g)
+    expected = set(map(tuple, cc.tolist()))
+    for m in members.values():
+        expected |= {(a, b) for i, a in enumerate(m) for b in m[i + 1 :]}
+    got = _edges(cc, cg)
+    assert got.dtype == np.int64 and got.shape == (len(expected), 2)
+    assert got.tolist() == sorted(map(list, expected))
+    table = _ClusterGaps(cg, K)
+    walk = rng.permutation(K).tolist()
+    assert table.shared(walk) == [
+        tuple(sorted(gaps_of.get(a, set()) & gaps_of.get(b, set())))
+        for a, b in zip(walk[:-1], walk[1:], strict=True)
+    ]
+    for k in range(K):
+        assert table.get(k, set()) == gaps_of.get(k, set())
+        assert table.dead_ends(k) == [g for g in sorted(gaps_of.get(k, ())) if members[g] == [k]]
 
 
 @pytest.mark.parametrize("seed", TRIALS[:4])
