@@ -208,9 +208,9 @@ def order_keypoints(
         )
     # Everything works on the pixel list of P_L and its bounding box: the thread, not the image.
     grid, nb = _pixel_grid(stereo.pixels, max(1, p.solidify_radius))
-    cluster_of = _solidify(grid, clusters.labels, p.solidify_radius)
+    cluster_of = _solidify(grid, clusters.labels, p.solidify_radius, nb)
     gaps = cluster_of < 0
-    n_gaps, gap_of = grid.components(gaps)
+    n_gaps, gap_of = grid.components(gaps, nb)
     pixel_node = np.where(gaps, K + gap_of - 1, cluster_of)
     geo = _GapGeodesics(stereo, pixel_node, K, nb=nb)
 
@@ -537,11 +537,20 @@ class _PixelGrid:
         """(N, 8) index of each pixel's 8-neighbours in P_L (order ``_OFFSETS_8``), -1 if none."""
         return np.stack([self.index[self.y + dy, self.x + dx] for dy, dx in _OFFSETS_8], axis=1)
 
-    def components(self, member: np.ndarray) -> tuple[int, np.ndarray]:
-        """8-connected components of the pixels where ``member``: their count + 1 (cv2's, with
-        the background) and (N,) label 1.. in the order of each component's first pixel in the
-        pixel list (0 where not ``member``). cv2's own numbering follows its 2x2 blocks and its
-        threads' stripes: it changes with the box and with cv2.setNumThreads."""
+    def components(
+        self, member: np.ndarray, nb: np.ndarray | None = None
+    ) -> tuple[int, np.ndarray]:
+        """8-connected components of the pixels where ``member``: their count + 1 (as cv2
+        counts, with the background) and (N,) label 1.. in the order of each component's first
+        pixel in the pixel list (0 where not ``member``). ``nb``: :meth:`neighbours`, if known
+        (then no image of the box: :func:`walk_kernel.member_components`)."""
+        if nb is not None:
+            lab = walk_kernel.member_components(
+                np.ascontiguousarray(nb, dtype=np.int32), np.ascontiguousarray(member, dtype=bool)
+            )
+            return int(lab.max(initial=0)) + 1, lab
+        # cv2's own numbering follows its 2x2 blocks and its threads' stripes (it changes with
+        # the box and with cv2.setNumThreads): renumbered by first pixel
         h, w = self.index.shape
         img = np.zeros((h, w), np.uint8)
         img[self.y[member], self.x[member]] = 1
@@ -575,12 +584,21 @@ _OFFSETS_8 = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx
 _STEPS_8 = np.array([np.hypot(dy, dx) for dy, dx in _OFFSETS_8])  # their lengths, px
 
 
-def _solidify(grid: _PixelGrid, labels: np.ndarray, radius: int) -> np.ndarray:
+def _solidify(
+    grid: _PixelGrid, labels: np.ndarray, radius: int, nb: np.ndarray | None = None
+) -> np.ndarray:
     """(N,) cluster of each pixel of P_L after solidification: an unclustered pixel within
     ``radius`` px (8-neighbourhood steps) of a cluster joins it; where two clusters are in reach
-    the higher id wins (the grey dilation of the label image, on the pixel list)."""
+    the higher id wins (the grey dilation of the label image, on the pixel list). ``nb``: the
+    grid's neighbour table, if known (radius 1: read from it, no image of the box)."""
     out = labels.copy()
     if radius == 0 or not (labels >= 0).any():
+        return out
+    if radius == 1 and nb is not None:
+        free = np.flatnonzero(labels < 0)
+        near = nb[free]
+        grown = np.where(near >= 0, labels[np.maximum(near, 0)] + 1, 0).max(axis=1, initial=0)
+        out[free] = grown - 1
         return out
     if radius > grid.pad:
         raise ValueError(f"the pixel grid is padded by {grid.pad} px, not {radius}")

@@ -294,3 +294,46 @@ def cluster_medians(labels, values, K):  # noqa: ANN001
         if n > 0:
             out[c] = 0.5 * (buf[lo + (n - 1) // 2] + buf[lo + n // 2])
     return out
+
+
+@kernel("int64[::1](int32[:, ::1], boolean[::1])")
+def member_components(nb, member):  # noqa: ANN001
+    """(N,) label of the connected component (over the neighbour table ``nb``, -1: none) of
+    each pixel where ``member``, numbered 1.. in the order of each component's first pixel, 0
+    elsewhere: union-find over the pixel list (the components of P_L's gaps without an image of
+    their bounding box)."""
+    n = member.size
+    parent = np.arange(n)
+    for i in range(n):
+        if not member[i]:
+            continue
+        for k in range(nb.shape[1]):
+            j = nb[i, k]
+            if j < 0 or not member[j]:
+                continue
+            a, b = i, j  # union(i, j): find both roots (path halving), link the larger id
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            while parent[b] != b:
+                parent[b] = parent[parent[b]]
+                b = parent[b]
+            if a != b:
+                if a < b:
+                    parent[b] = a
+                else:
+                    parent[a] = b
+    label = np.zeros(n, dtype=np.int64)
+    root_label = np.zeros(n, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        if not member[i]:
+            continue
+        r = i
+        while parent[r] != r:
+            r = parent[r]
+        if root_label[r] == 0:
+            count += 1
+            root_label[r] = count
+        label[i] = root_label[r]
+    return label

@@ -27,6 +27,7 @@ from threadrecon.core.ordering import (
     _normalised,
     _PixelGrid,
     _single_steps,
+    _solidify,
     _touching_pairs,
     _walk_from,
     _WalkGraph,
@@ -260,6 +261,31 @@ def test_edges_links_and_dead_ends_from_the_gap_table_equal_the_set_definitions(
     for k in range(K):
         assert table.get(k, set()) == gaps_of.get(k, set())
         assert table.dead_ends(k) == [g for g in sorted(gaps_of.get(k, ())) if members[g] == [k]]
+
+
+@pytest.mark.parametrize("seed", TRIALS)
+def test_gap_components_by_union_find_equal_cv2s_renumbered(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    img = rng.random((50, 70)) < 0.5
+    ys, xs = np.nonzero(img)
+    grid = _PixelGrid(np.column_stack([xs, ys]) + 5, 1)
+    for member in (rng.random(len(ys)) < 0.6, np.zeros(len(ys), bool), np.ones(len(ys), bool)):
+        n_cv2, lab_cv2 = grid.components(member)
+        n_uf, lab_uf = grid.components(member, grid.neighbours())
+        assert n_uf == n_cv2 and lab_uf.dtype == np.int64
+        assert np.array_equal(lab_uf, lab_cv2)
+
+
+@pytest.mark.parametrize("seed", TRIALS[:5])
+def test_solidification_from_the_neighbour_table_equals_the_label_image_dilation(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    img = rng.random((40, 60)) < 0.6
+    ys, xs = np.nonzero(img)
+    grid = _PixelGrid(np.column_stack([xs, ys]), 1)
+    labels = np.where(rng.random(len(ys)) < 0.3, rng.integers(0, 9, len(ys)), -1)
+    expected = _solidify(grid, labels, 1)
+    assert (expected != labels).any()
+    assert np.array_equal(_solidify(grid, labels, 1, grid.neighbours()), expected)
 
 
 @pytest.mark.parametrize("seed", TRIALS[:4])
