@@ -108,7 +108,7 @@ class _Refit:
         return np.linalg.lstsq(self.B, y, rcond=None)[0]
 
 
-REFIT_CACHE: Final = 8  # knot vectors kept: a few frames' camera stage in the debugger
+REFIT_CACHE: Final = 2  # knot vectors kept: the debugger's current frame (0.4 MB each at HD)
 _REFITS: LRU[tuple, _Refit] = LRU(REFIT_CACHE)
 
 

@@ -25,9 +25,10 @@ from __future__ import annotations
 
 import functools
 import math
+import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Final, Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -35,7 +36,6 @@ import numpy as np
 from threadrecon.core import walk_kernel
 from threadrecon.core.clustering import Clusters
 from threadrecon.core.ends import tip_disparity
-from threadrecon.core.lru import LRU
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.stereo import StereoResult
@@ -563,21 +563,26 @@ class _PixelGrid:
         return n, np.where(member, rank[lab], 0)
 
 
-GRID_CACHE: Final = 4  # pixel grids kept: a few frames' stereo results in the debugger
-_GRIDS: LRU[tuple, Any] = LRU(GRID_CACHE)
+_GRID_LAST: list[tuple] = []  # at most one: (weak reference to a pixel list, pad, grid, nb)
 
 
 def _pixel_grid(pixels: np.ndarray, pad: int) -> tuple[_PixelGrid, np.ndarray]:
-    """The :class:`_PixelGrid` of P_L's pixel list and its neighbour table, cached with the
-    pixel list (a weak reference to it: the stereo result's): a re-run of the ordering after a
-    reliability, clustering or ordering parameter changed (a slider) finds them. Shared: read
-    only."""
+    """The :class:`_PixelGrid` of P_L's pixel list and its neighbour table, kept for the last
+    pixel list while it lives (the stereo result's; 4 MB at 1920x1080, dropped with it): a
+    re-run of the ordering after a reliability, clustering or ordering parameter changed (a
+    slider) finds them. Shared: read only."""
+    last = next(iter(_GRID_LAST), None)
+    if last is not None and last[0]() is pixels and last[1] == pad:
+        return last[2], last[3]
+    grid = _PixelGrid(pixels, pad)
+    nb = grid.neighbours()
 
-    def build() -> tuple[_PixelGrid, np.ndarray]:
-        grid = _PixelGrid(pixels, pad)
-        return grid, grid.neighbours()
+    def drop(ref: weakref.ref) -> None:  # the pixel list was freed: so are its grid and table
+        if _GRID_LAST and _GRID_LAST[0][0] is ref:
+            _GRID_LAST.clear()
 
-    return _GRIDS.cached((pixels,), ("grid", pad), build)
+    _GRID_LAST[:] = [(weakref.ref(pixels, drop), pad, grid, nb)]
+    return grid, nb
 
 
 _OFFSETS_8 = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))

@@ -216,15 +216,20 @@ def test_a_rerun_on_the_same_stereo_result_reuses_its_pixel_grid_and_orders_the_
     pair, calib, _ = synthetic_case(2)
     rec = Pipeline(pair, calib).run(until="ordering")
     args = (rec["segment"], rec["stereo"], rec["clustering"])
-    ordering._GRIDS.clear()
+    ordering._GRID_LAST.clear()
     first = ordering.order_keypoints(*args, OrderingParams())
-    assert len(ordering._GRIDS) == 1
-    again = ordering.order_keypoints(*args, OrderingParams(bend_weight=2.0))
-    assert len(ordering._GRIDS) == 1  # a hit
-    ordering.order_keypoints(*args, OrderingParams(solidify_radius=2))
-    assert len(ordering._GRIDS) == 2  # another padding
+    grid = ordering._GRID_LAST[0][2]
+    again = ordering.order_keypoints(*args, OrderingParams(bend_weight=3.0))
+    assert ordering._GRID_LAST[0][2] is grid  # a hit
     for name in ("order", "pixel_node", "pixel_t", "pixel_link", "path_px", "edges"):
         assert getattr(first, name).tobytes() == getattr(again, name).tobytes(), name
+    ordering.order_keypoints(*args, OrderingParams(solidify_radius=2))
+    assert ordering._GRID_LAST[0][2] is not grid  # another padding
+    pixels = np.array(rec["stereo"].pixels)  # a pixel list that is then freed
+    ordering._pixel_grid(pixels, 1)
+    assert ordering._GRID_LAST[0][0]() is pixels
+    del pixels
+    assert not ordering._GRID_LAST  # dropped with it
 
 
 @pytest.mark.parametrize("seed", TRIALS)
