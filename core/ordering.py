@@ -320,7 +320,9 @@ def _edges(cc: np.ndarray, cg: np.ndarray) -> np.ndarray:
     first = np.repeat(np.arange(g.size), after)  # each pair (i, j > i) of a gap's members
     j = np.arange(first.size) - np.repeat(np.cumsum(after) - after, after) + first + 1
     both = np.concatenate([cc, np.stack([c[first], c[j]], axis=1)]).astype(np.int64)
-    return np.unique(both, axis=0).reshape(-1, 2)
+    m = int(both.max()) + 1 if both.size else 1
+    key = np.unique(both[:, 0] * m + both[:, 1])  # rows sorted: (a, b) as one integer
+    return np.stack([key // m, key % m], axis=1)
 
 
 class _ClusterGaps:
