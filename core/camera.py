@@ -10,13 +10,14 @@ curve with the same knots. ``mode="paper"`` maps the control points as Eq. (9) d
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Final, Literal
 
 import numpy as np
 import scipy.linalg
 from scipy.interpolate import BSpline
 
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.lru import LRU
 from threadrecon.core.params import Params, param
 from threadrecon.core.spline import SplineResult, basis_matrix
 
@@ -73,8 +74,7 @@ def to_camera(
         n_fit = max(p.n_points, 8 * len(spline.ctrl))
         u = np.linspace(0.0, 1.0, n_fit)
         dense = image_to_camera(BSpline.construct_fast(knots, spline.ctrl, k)(u), calib.G)
-        B = basis_matrix(u, knots, k)
-        ctrl = _least_squares(B, dense)
+        ctrl = _refit(knots, k, u).solve(dense)
         if n_fit == p.n_points:  # the same samples
             points = dense
         else:
@@ -90,17 +90,58 @@ def to_camera(
     )
 
 
+@dataclass(frozen=True)
+class _Refit:
+    """The least-squares refit's matrices for one knot vector and sample count: they depend on
+    the knots alone, so a change of the solver's parameters (the same knots, new control
+    points) reuses them. Read-only."""
+
+    B: np.ndarray
+    """(n, m) basis at the samples."""
+    factor: tuple[np.ndarray, bool] | None
+    """Cholesky factor of B^T B (``cho_factor``'s), or None: SVD least squares instead."""
+
+    def solve(self, y: np.ndarray) -> np.ndarray:
+        """argmin |B c - y| (:func:`_least_squares`, the same operations)."""
+        if self.factor is not None:
+            return scipy.linalg.cho_solve(self.factor, self.B.T @ y, check_finite=False)
+        return np.linalg.lstsq(self.B, y, rcond=None)[0]
+
+
+REFIT_CACHE: Final = 2  # knot vectors kept: the debugger's current frame (0.4 MB each at HD)
+_REFITS: LRU[tuple, _Refit] = LRU(REFIT_CACHE)
+
+
+def _refit(knots: np.ndarray, k: int, u: np.ndarray) -> _Refit:
+    """The (cached) :class:`_Refit` of ``knots``, ``k`` at the samples ``u`` (by value: the
+    spline stage hands each run a new copy of the same knots)."""
+    key = (knots.tobytes(), int(k), u.tobytes())
+    hit = _REFITS.get(key)
+    if isinstance(hit, _Refit):
+        return hit
+    B = basis_matrix(u, knots, k)
+    B.setflags(write=False)
+    out = _Refit(B, _cholesky(B))
+    _REFITS.put(key, out)
+    return out
+
+
+def _cholesky(B: np.ndarray) -> tuple[np.ndarray, bool] | None:
+    """``cho_factor`` of B^T B when it succeeds and is well conditioned, else None."""
+    try:
+        c, low = scipy.linalg.cho_factor(B.T @ B, check_finite=False)
+    except np.linalg.LinAlgError:
+        return None
+    d = np.diag(c)
+    if not d.min() > COND_FLOOR * d.max():  # a rough condition estimate: sqrt of cond(G)
+        return None
+    c.setflags(write=False)
+    return c, low
+
+
 def _least_squares(B: np.ndarray, y: np.ndarray) -> np.ndarray:
     """argmin |B c - y| for a B-spline collocation matrix B (n >> m, full column rank): the
     normal equations by Cholesky (0.2 ms against SVD's 1.5-2.3 ms for m' = 60-80 at 1920x1080;
     B^T B is banded and well conditioned, >= 8 samples per control point); SVD when the
     factorisation fails or the system is ill-conditioned."""
-    G = B.T @ B
-    try:
-        c, low = scipy.linalg.cho_factor(G, check_finite=False)
-        d = np.diag(c)
-        if d.min() > COND_FLOOR * d.max():  # a rough condition estimate: sqrt of cond(G)
-            return scipy.linalg.cho_solve((c, low), B.T @ y, check_finite=False)
-    except np.linalg.LinAlgError:
-        pass
-    return np.linalg.lstsq(B, y, rcond=None)[0]
+    return _Refit(B, _cholesky(B)).solve(y)

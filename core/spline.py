@@ -36,6 +36,7 @@ import daqp
 import numpy as np
 from scipy.interpolate import BSpline, splprep
 
+from threadrecon.core import spline_kernel
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.lru import LRU
@@ -405,8 +406,18 @@ def basis_matrix(x: np.ndarray, t: np.ndarray, k: int, nu: int = 0) -> np.ndarra
     derivatives) at x in [t[k], t[-k-1]]: one evaluation of the spline with identity
     coefficients."""
     if not nu:
-        return BSpline.construct_fast(t, np.eye(len(t) - k - 1), k)(_as_points(x))
+        return _basis_values(_as_points(x), t, k)
     return basis_derivatives(x, t, k, nu)[-1]
+
+
+def _basis_values(x: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
+    """``basis_matrix(x, t, k)``: compiled for points in a 1-D array
+    (:func:`spline_kernel.basis_dense`, the same matrix to the last bit)."""
+    m = len(t) - k - 1
+    if x.ndim != 1 or m < 1 or k < 0:
+        return BSpline.construct_fast(t, np.eye(m), k)(x)
+    x, t = (np.require(a, np.float64, ("C", "W")) for a in (x, t))  # read-only: a copy
+    return spline_kernel.basis_dense(x, t, int(k))
 
 
 def basis_derivatives(x: np.ndarray, t: np.ndarray, k: int, nu: int) -> list[np.ndarray]:

@@ -259,3 +259,81 @@ def touching_keys(node, nb_node, m):  # noqa: ANN001
                 out[c] = min(a, b) * m + max(a, b)
                 c += 1
     return out[:c].copy()
+
+
+@kernel("float64[::1](int64[::1], float64[::1], int64)")
+def cluster_medians(labels, values, K):  # noqa: ANN001
+    """(K,) median of the finite ``values`` of each cluster (``labels`` 0..K-1, < 0: none;
+    NaN for a cluster with none): each cluster's values in pixel order, sorted by a stable
+    insertion sort (clusters hold tens of pixels), the mean of the two middle ones. The same
+    order as ``np.lexsort((values, labels))`` (ties in pixel order), so the same floats."""
+    count = np.zeros(K + 1, dtype=np.int64)
+    for i in range(labels.size):
+        if labels[i] >= 0 and math.isfinite(values[i]):
+            count[labels[i] + 1] += 1
+    for c in range(K):
+        count[c + 1] += count[c]  # count[c]: start of cluster c
+    fill = count[:K].copy()
+    buf = np.empty(count[K])
+    for i in range(labels.size):
+        c = labels[i]
+        if c >= 0 and math.isfinite(values[i]):
+            buf[fill[c]] = values[i]
+            fill[c] += 1
+    out = np.full(K, np.nan)
+    for c in range(K):
+        lo, hi = count[c], count[c + 1]
+        for j in range(lo + 1, hi):  # stable: an equal value stays after the earlier one
+            v = buf[j]
+            i = j - 1
+            while i >= lo and buf[i] > v:
+                buf[i + 1] = buf[i]
+                i -= 1
+            buf[i + 1] = v
+        n = hi - lo
+        if n > 0:
+            out[c] = 0.5 * (buf[lo + (n - 1) // 2] + buf[lo + n // 2])
+    return out
+
+
+@kernel("int64[::1](int32[:, ::1], boolean[::1])")
+def member_components(nb, member):  # noqa: ANN001
+    """(N,) label of the connected component (over the neighbour table ``nb``, -1: none) of
+    each pixel where ``member``, numbered 1.. in the order of each component's first pixel, 0
+    elsewhere: union-find over the pixel list (the components of P_L's gaps without an image of
+    their bounding box)."""
+    n = member.size
+    parent = np.arange(n)
+    for i in range(n):
+        if not member[i]:
+            continue
+        for k in range(nb.shape[1]):
+            j = nb[i, k]
+            if j < 0 or not member[j]:
+                continue
+            a, b = i, j  # union(i, j): find both roots (path halving), link the larger id
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            while parent[b] != b:
+                parent[b] = parent[parent[b]]
+                b = parent[b]
+            if a != b:
+                if a < b:
+                    parent[b] = a
+                else:
+                    parent[a] = b
+    label = np.zeros(n, dtype=np.int64)
+    root_label = np.zeros(n, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        if not member[i]:
+            continue
+        r = i
+        while parent[r] != r:
+            r = parent[r]
+        if root_label[r] == 0:
+            count += 1
+            root_label[r] = count
+        label[i] = root_label[r]
+    return label

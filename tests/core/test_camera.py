@@ -27,3 +27,28 @@ def test_rank_deficient_refit_falls_back_to_the_minimum_norm_solution() -> None:
     B = np.column_stack([B, B[:, 0]])  # a repeated column: B^T B is singular
     y = rng.normal(size=(50, 3))
     assert_close(_least_squares(B, y), np.linalg.lstsq(B, y, rcond=None)[0], rtol=1e-9)
+
+
+def test_a_rerun_on_the_same_knots_reuses_the_refit_and_gives_the_same_curve() -> None:
+    # A solver parameter's re-run: new control points on a new copy of the same knots. The
+    # refit's basis and factor come from the cache; the result is the uncached computation's.
+    from dataclasses import replace
+
+    from support import synthetic_case
+
+    from threadrecon.core import camera
+    from threadrecon.core.pipeline import Pipeline
+
+    pair, calib, _ = synthetic_case(0)
+    sp = Pipeline(pair, calib).run(until="refine")["refine"]
+    camera._REFITS.clear()
+    first = camera.to_camera(sp, calib)
+    assert len(camera._REFITS) == 1
+    moved = replace(sp, knots=sp.knots.copy(), ctrl=sp.ctrl + 0.5)
+    second = camera.to_camera(moved, calib)
+    assert len(camera._REFITS) == 1  # a hit
+    camera._REFITS.clear()
+    fresh = camera.to_camera(moved, calib)
+    assert second.ctrl.tobytes() == fresh.ctrl.tobytes()
+    assert second.points.tobytes() == fresh.points.tobytes()
+    assert not np.array_equal(first.ctrl, second.ctrl)

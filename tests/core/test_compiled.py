@@ -67,6 +67,7 @@ def test_a_reconstruction_loads_aot_kernels_without_numba(aot_run: dict) -> None
         "threadrecon.core.stereo": "aot",
         "threadrecon.core.clustering": "aot",
         "threadrecon.core.walk_kernel": "aot",
+        "threadrecon.core.spline_kernel": "aot",
         "threadrecon.core.check_kernel": "aot",
         "threadrecon.core.ridge_kernel": "aot",
         "threadrecon.core.piece_kernel": "aot",

@@ -17,11 +17,18 @@ from threadrecon.core.ordering import (
     OrderingParams,
     _adjacency,
     _bending_walk,
+    _cluster_median,
+    _ClusterGaps,
     _continuations,
+    _decision_steps,
+    _edges,
     _explain,
     _GapGeodesics,
     _normalised,
     _PixelGrid,
+    _single_steps,
+    _solidify,
+    _touching_pairs,
     _walk_from,
     _WalkGraph,
 )
@@ -159,6 +166,145 @@ def test_gap_distances_equal_scipys_dijkstra_on_the_gap_graph_bit_for_bit(seed: 
     got = geo.distances(src)
     assert np.isfinite(got).sum() > 50
     assert np.array_equal(got, expected)
+
+
+@pytest.mark.parametrize("seed", TRIALS)
+def test_cluster_medians_equal_the_lexsort_medians_bit_for_bit(seed: int) -> None:
+    # The compiled medians against the numpy definition (lexsort by cluster, then value; the
+    # mean of the two middle values): ties, signed zeros, NaN and inf, empty clusters.
+    rng = np.random.default_rng(seed)
+    n, K = 400, 30
+    labels = rng.integers(-1, K - 3, n)  # clusters K-3.. have no pixel
+    values = np.round(rng.normal(20.0, 3.0, n), 1)
+    values[rng.random(n) < 0.1] = np.nan
+    values[rng.random(n) < 0.05] = np.inf
+    values[rng.random(n) < 0.05] = 0.0
+    values[rng.random(n) < 0.05] = -0.0
+    sel = (labels >= 0) & np.isfinite(values)
+    lab, val = labels[sel], values[sel]
+    order = np.lexsort((val, lab))
+    lab, val = lab[order], val[order]
+    count = np.bincount(lab, minlength=K)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    expected = np.full(K, np.nan)
+    has = count > 0
+    lo, hi = start[has] + (count[has] - 1) // 2, start[has] + count[has] // 2
+    expected[has] = 0.5 * (val[lo] + val[hi])
+    got = _cluster_median(labels, values, K)
+    assert np.array_equal(np.signbit(got), np.signbit(expected))
+    assert np.array_equal(got, expected, equal_nan=True)
+
+
+@pytest.mark.parametrize("seed", TRIALS)
+def test_decision_steps_of_the_loop_and_of_numpy_agree(seed: int) -> None:
+    # Random graphs and random walks on them (repeated keypoints too): the steps where the walk
+    # had a choice, by the loop (short walks) and by numpy (long ones), are the same.
+    rng = np.random.default_rng(seed)
+    K = int(rng.integers(2, 60))
+    edges = np.unique(np.sort(rng.integers(0, K, (2 * K, 2)), axis=1), axis=0)
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    g = _WalkGraph.of(_adjacency(K, edges), rng.random((K, 2)), rng.random(K))
+    for walk in (rng.permutation(K)[: int(rng.integers(1, K + 1))], rng.integers(0, K, K)):
+        path = np.asarray(walk, dtype=np.int64)
+        loop = _decision_steps(path, g)  # K < LONG_WALK: the loop
+        assert loop == np.flatnonzero(~_single_steps(path, g)).tolist()
+
+
+def test_a_rerun_on_the_same_stereo_result_reuses_its_pixel_grid_and_orders_the_same() -> None:
+    from threadrecon.core import ordering
+
+    pair, calib, _ = synthetic_case(2)
+    rec = Pipeline(pair, calib).run(until="ordering")
+    args = (rec["segment"], rec["stereo"], rec["clustering"])
+    ordering._GRID_LAST.clear()
+    first = ordering.order_keypoints(*args, OrderingParams())
+    grid = ordering._GRID_LAST[0][2]
+    again = ordering.order_keypoints(*args, OrderingParams(bend_weight=3.0))
+    assert ordering._GRID_LAST[0][2] is grid  # a hit
+    for name in ("order", "pixel_node", "pixel_t", "pixel_link", "path_px", "edges"):
+        assert getattr(first, name).tobytes() == getattr(again, name).tobytes(), name
+    ordering.order_keypoints(*args, OrderingParams(solidify_radius=2))
+    assert ordering._GRID_LAST[0][2] is not grid  # another padding
+    pixels = np.array(rec["stereo"].pixels)  # a pixel list that is then freed
+    ordering._pixel_grid(pixels, 1)
+    assert ordering._GRID_LAST[0][0]() is pixels
+    del pixels
+    assert not ordering._GRID_LAST  # dropped with it
+
+
+@pytest.mark.parametrize("seed", TRIALS)
+def test_edges_links_and_dead_ends_from_the_gap_table_equal_the_set_definitions(seed: int) -> None:
+    # A: clusters that touch, and every two clusters touching one gap; a link's gaps: those
+    # both its clusters touch; a dead end: a gap touching one cluster only. Against dicts of
+    # sets built pair by pair, on random (cluster, gap) tables (empty ones too).
+    rng = np.random.default_rng(seed)
+    K, n_gaps = int(rng.integers(1, 40)), int(rng.integers(0, 30))
+    n_pairs = int(rng.integers(0, 3 * K)) if n_gaps else 0
+    cg = np.unique(
+        np.stack([rng.integers(0, K, n_pairs), K + rng.integers(0, max(n_gaps, 1), n_pairs)], 1),
+        axis=0,
+    ).reshape(-1, 2)
+    cc = np.unique(np.sort(rng.integers(0, K, (K, 2)), axis=1), axis=0)
+    cc = cc[cc[:, 0] != cc[:, 1]]
+    members: dict[int, list[int]] = {}
+    gaps_of: dict[int, set[int]] = {}
+    for c, g in cg.tolist():
+        members.setdefault(g, []).append(c)
+        gaps_of.setdefault(c, set()).add(g)
+    expected = set(map(tuple, cc.tolist()))
+    for m in members.values():
+        expected |= {(a, b) for i, a in enumerate(m) for b in m[i + 1 :]}
+    got = _edges(cc, cg)
+    assert got.dtype == np.int64 and got.shape == (len(expected), 2)
+    assert got.tolist() == sorted(map(list, expected))
+    table = _ClusterGaps(cg, K)
+    walk = rng.permutation(K).tolist()
+    assert table.shared(walk) == [
+        tuple(sorted(gaps_of.get(a, set()) & gaps_of.get(b, set())))
+        for a, b in zip(walk[:-1], walk[1:], strict=True)
+    ]
+    for k in range(K):
+        assert table.get(k, set()) == gaps_of.get(k, set())
+        assert table.dead_ends(k) == [g for g in sorted(gaps_of.get(k, ())) if members[g] == [k]]
+
+
+@pytest.mark.parametrize("seed", TRIALS)
+def test_gap_components_by_union_find_equal_cv2s_renumbered(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    img = rng.random((50, 70)) < 0.5
+    ys, xs = np.nonzero(img)
+    grid = _PixelGrid(np.column_stack([xs, ys]) + 5, 1)
+    for member in (rng.random(len(ys)) < 0.6, np.zeros(len(ys), bool), np.ones(len(ys), bool)):
+        n_cv2, lab_cv2 = grid.components(member)
+        n_uf, lab_uf = grid.components(member, grid.neighbours())
+        assert n_uf == n_cv2 and lab_uf.dtype == np.int64
+        assert np.array_equal(lab_uf, lab_cv2)
+
+
+@pytest.mark.parametrize("seed", TRIALS[:5])
+def test_solidification_from_the_neighbour_table_equals_the_label_image_dilation(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    img = rng.random((40, 60)) < 0.6
+    ys, xs = np.nonzero(img)
+    grid = _PixelGrid(np.column_stack([xs, ys]), 1)
+    labels = np.where(rng.random(len(ys)) < 0.3, rng.integers(0, 9, len(ys)), -1)
+    expected = _solidify(grid, labels, 1)
+    assert (expected != labels).any()
+    assert np.array_equal(_solidify(grid, labels, 1, grid.neighbours()), expected)
+
+
+@pytest.mark.parametrize("seed", TRIALS[:4])
+def test_touching_pairs_are_every_pair_of_different_neighbouring_nodes(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    node = rng.integers(-1, 12, 500)
+    nb_node = np.where(rng.random((500, 8)) < 0.3, -1, rng.integers(0, 12, (500, 8)))
+    nb_node[::7] = node[::7, None]  # runs of repeats
+    a = np.repeat(node, 8)
+    b = nb_node.ravel()
+    ok = (a >= 0) & (b >= 0) & (a != b)
+    expected = np.unique(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)[ok], axis=0)
+    assert np.array_equal(_touching_pairs(node, nb_node), expected)
+    assert _touching_pairs(np.full(3, -1), np.full((3, 8), -1)).shape == (0, 2)
 
 
 @pytest.mark.parametrize("seed", TRIALS[:4])
