@@ -1,9 +1,10 @@
 """Compiled kernels that run without numba in the process.
 
 The core's loops over pixels and keypoints (the threshold segmentation's histogram, the raw
-segmentation's filters in ``ridge_kernel``, stereo and its continuity set-up, clustering, the
-ordering walk and its gap geodesics in ``walk_kernel``, the check's ``check_kernel``) are numba
-functions. Loading numba costs more than the rest of a 1920x1080 reconstruction: importing it
+segmentation's filters and pieces in ``ridge_kernel``, stereo and its continuity set-up,
+clustering, the ordering walk and its gap geodesics in ``walk_kernel``, the spline's basis in
+``spline_kernel``, the two-view refinement's runs and rounds in ``refine_kernel``, the check's
+``check_kernel``, a raw rig's resampling in ``remap_kernel``) are numba functions. Loading numba costs more than the rest of a 1920x1080 reconstruction: importing it
 maps llvmlite (~62 MB of resident memory) and the first call of a cached kernel builds its
 typing and target contexts and the LLVM JIT (~42 MB, 0.5-1.3 s), against ~40 MB for a
 frame's images and ~37 MB for its lifted pair (issue #13, "peak RSS <= 300 MB").

@@ -19,14 +19,16 @@ import cv2
 import numpy as np
 
 from threadrecon.core.instrument import grow_into_attached
-from threadrecon.core.piece_kernel import half_widths, label_pixels, piece_boxes
 from threadrecon.core.ridge_kernel import (
     at_least,
     block_means,
     blocks_at,
+    half_widths,
     kth_smallest,
+    label_pixels,
     line_response,
     log_planes,
+    piece_boxes,
     pixels_at,
     small_components,
     upsample_max,
@@ -602,7 +604,7 @@ def _pieces(s: np.ndarray, sub: np.ndarray | None, v: _View, p: SegmentationPara
     """Hysteresis pieces of the view's lo pixels where ``sub`` (M,) is True (all when None),
     8-connected: the piece of each lo pixel (M,) (0: none), rows and columns of the shape-ok
     pieces' pixels, per-piece mean S, length (exact where shape ok), shape ok. Labelled and
-    measured on the pixel lists (:mod:`threadrecon.core.piece_kernel`): cv2.connectedComponents'
+    measured on the pixel lists (:mod:`threadrecon.core.ridge_kernel`): cv2.connectedComponents'
     labels and cv2.distanceTransform's half-widths (to float32 rounding), no label image."""
     rows, cols = (v.rows, v.cols) if sub is None else (v.rows[sub], v.cols[sub])
     lab = np.empty(len(rows), np.int64)

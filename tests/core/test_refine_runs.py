@@ -233,31 +233,3 @@ def _noise_var(
     d = np.concatenate(diffs)
     est = float(np.median(d * d)) / 0.4549 / 2.0 if d.size >= 20 else 0.0
     return max(est, 2.0 / 12.0)
-
-
-def _spans(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Item index and column of every column of the spans lo..hi (inclusive; empty where
-    hi < lo), item by item."""
-    counts = np.maximum(hi - lo + 1, 0)
-    item = np.repeat(np.arange(len(lo)), counts)
-    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    return item, np.arange(int(counts.sum())) - np.repeat(first - lo, counts)
-
-
-def _noise_var(
-    it_l: np.ndarray,
-    x_l: np.ndarray,
-    v_l: np.ndarray,
-    it_r: np.ndarray,
-    x_r: np.ndarray,
-    v_r: np.ndarray,
-) -> float:
-    """Pixel noise variance from the differences of neighbouring flank pixels."""
-    diffs = [
-        v[1:][(it[1:] == it[:-1]) & (x[1:] == x[:-1] + 1)]
-        - v[:-1][(it[1:] == it[:-1]) & (x[1:] == x[:-1] + 1)]
-        for it, x, v in ((it_l, x_l, v_l), (it_r, x_r, v_r))
-    ]
-    d = np.concatenate(diffs)
-    est = float(np.median(d * d)) / 0.4549 / 2.0 if d.size >= 20 else 0.0
-    return max(est, 2.0 / 12.0)

@@ -1,4 +1,4 @@
-"""Tests of core/piece_kernel.py: labels and boxes of pixel lists are those of
+"""Tests of core/ridge_kernel.py's piece kernels: labels and boxes of pixel lists are those of
 cv2.connectedComponents on the mask image, bit for bit, and half-widths those of
 cv2.distanceTransform to float32 rounding."""
 
@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from threadrecon.core import piece_kernel as pk
+from threadrecon.core import ridge_kernel as pk
 
 _SIZES = [(1, 1), (1, 9), (9, 1), (2, 2), (37, 51), (120, 160), (480, 640)]
 
