@@ -53,9 +53,13 @@ def open_study(store: Path, cfg: TuneConfig, create: bool = True) -> Any:
     # SQLite lets one writer in at a time; a reader (the debugger's tune page, a second process
     # reading the study) holds the lock briefly. Wait for it rather than fail the trial with
     # "database is locked" after sqlite's default 5 s on a loaded machine.
+    # Only the tuner creates the schema: a reader creating it too (optuna's create_all, a check
+    # then a CREATE) races the tuner's own on a new store ("table ... already exists"), and the
+    # tuner dies. A reader of a store whose schema is not there yet gets an error instead.
     storage = optuna.storages.RDBStorage(
         f"sqlite:///{store / _STORE_DB}",
         engine_kwargs={"connect_args": {"timeout": _LOCK_WAIT_S}},
+        skip_table_creation=not create,
     )
     if create:
         return optuna.create_study(

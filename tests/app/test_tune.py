@@ -349,6 +349,23 @@ def test_several_objectives_are_kept_per_trial_and_the_first_picks_the_best(
     assert result.best is min(result.trials, key=lambda t: t.objectives["reprojection"])
 
 
+def test_a_reader_never_creates_the_schema_the_tuner_creates(dataset: Path, tmp_path: Path) -> None:
+    # A reader that opened a new store while the tuner was starting used to create the tables
+    # too: two processes' CREATE TABLE raced and the tuner died ("table ... already exists").
+    import sqlite3
+
+    cfg = _grid_cfg(dataset, trials=1)
+    store = tmp_path / "store"
+    store.mkdir()
+    with pytest.raises(Exception):  # noqa: B017 - optuna/sqlalchemy: no schema, no study
+        open_study(store, cfg, create=False)
+    db = store / "study.sqlite3"
+    tables = sqlite3.connect(db).execute("SELECT name FROM sqlite_master").fetchall()
+    assert tables == [], tables  # the reader left the schema to the tuner
+    tune(cfg, store, log=lambda _: None)  # which creates it without a clash
+    assert len(open_study(store, cfg, create=False).get_trials()) == 1
+
+
 def test_a_trial_cut_short_inside_ask_leaves_no_duplicate_grid_point(
     dataset: Path, tmp_path: Path
 ) -> None:
