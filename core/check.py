@@ -602,7 +602,8 @@ def _check(
         cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end,
                       min(unobserved_px, p.cut_end_px + CUT_REACH_PX), p.cut_end_px,
                       p.cover_px + BEYOND_COVER_PX, bare, p.bare_share, see_px=unobserved_px)  # fmt: skip
-        if cut is not None and not (cut.seen and max(cut.ext) <= unobserved_px):
+        # seen: the far view's thread stops inside see_px = unobserved_px (core/check_beyond)
+        if cut is not None and not cut.seen:
             findings.append(
                 ("suspect", f"the {cut.view} view sees the thread {max(cut.ext):.0f} px beyond "
                  f"the curve's {end}, the other {min(cut.ext):.0f} px, over no bare background: "
