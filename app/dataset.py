@@ -25,6 +25,12 @@ error naming both files.
 Units: a calibration's ``Units`` key; without it the paper's Blender calibrations
 (``blend_calibration*.yaml``) are centimetres (its README), OpenCV files millimetres, Kalibr
 and ROS files metres.
+
+Pixel origin: the paper's Blender calibrations put the principal point at the image's
+geometric centre, (W / 2, H / 2), measured from the first pixel's outer corner (Blender's
+convention); OpenCV and this pipeline measure from the first pixel's centre, so it is moved
+by ``BLENDER_PIXEL_ORIGIN`` to (W / 2 - 0.5, H / 2 - 0.5) on load (docs/method.md, "The
+Blender frames' pixel origin").
 """
 
 from __future__ import annotations
@@ -39,7 +45,7 @@ import numpy as np
 
 from threadrecon.app.export import InputFile
 from threadrecon.app.io import load_calibration, load_ground_truth, load_pair, prepare_pair
-from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.calibration import StereoCalibration, make_calibration
 from threadrecon.core.corrections import Correction
 from threadrecon.core.lru import LRU, MISSING
 from threadrecon.core.metrics import (
@@ -54,6 +60,7 @@ from threadrecon.core.segmentation import LiftedPair, StereoPair
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 PAPER_OLD_GROUPS = 4  # the paper's blend1..4 use blend_calibration.yaml (1 mm baseline)
+BLENDER_PIXEL_ORIGIN = 0.5  # px: a pixel's centre lies half a pixel from its outer corner
 FOLDER_CALIBRATIONS = ("calibration.yaml", "camera_calibration.yaml", "camchain.yaml")
 ROS_PAIR = ("left.yaml", "right.yaml")
 _LR_TOKEN = re.compile(r"(left|right)", re.IGNORECASE)
@@ -244,7 +251,27 @@ def _sim_calibration(sim: Path, group: Path) -> Path:
 
 def frame_unit(calibration: Path) -> str | None:
     """Default unit when the file has no Units key: cm for the paper's Blender calibrations."""
-    return "cm" if calibration.name.startswith("blend_calibration") else None
+    return "cm" if _blender(calibration) else None
+
+
+def _blender(calibration: Path) -> bool:
+    """Whether ``calibration`` is one of the paper's Blender calibrations."""
+    return calibration.name.startswith("blend_calibration")
+
+
+def pixel_centred(
+    calib: StereoCalibration, origin: float = BLENDER_PIXEL_ORIGIN
+) -> StereoCalibration:
+    """``calib`` with both cameras' principal points moved by ``-origin`` px in x and y: a
+    principal point measured from the first pixel's outer corner (Blender) measured from its
+    centre (OpenCV), the rectification recomputed."""
+    K1, K2 = calib.K1.copy(), calib.K2.copy()
+    for K in (K1, K2):
+        K[:2, 2] -= origin
+    return make_calibration(
+        K1, calib.D1, K2, calib.D2, calib.R, calib.T, calib.image_size, unit=calib.unit,
+        source="pixel-centred calibration", rectified=calib.rectified,
+    )  # fmt: skip
 
 
 def load_frame(frame: Frame) -> tuple[StereoPair, StereoCalibration, np.ndarray | None]:
@@ -268,10 +295,12 @@ def load_frame(frame: Frame) -> tuple[StereoPair, StereoCalibration, np.ndarray 
 
 
 def frame_calibration(frame: Frame) -> StereoCalibration:
-    """The frame's calibration as its file(s) say (before any rectification)."""
-    return load_calibration(
+    """The frame's calibration as its file(s) say (before any rectification), with the
+    principal point of the paper's Blender calibrations measured from a pixel's centre."""
+    calib = load_calibration(
         frame.calibration, unit=frame_unit(frame.calibration), right=frame.calibration_right
     )
+    return pixel_centred(calib) if _blender(frame.calibration) else calib
 
 
 def frame_rectification(frame: Frame) -> Rectification:

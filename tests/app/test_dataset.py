@@ -218,3 +218,30 @@ def test_reprojections_remember_errors_by_the_pixels_and_the_mask() -> None:
     assert reprojections(pts, calib, Lifted)["left"][1] == reprojection_errors(
         project(pts, calib.P1), masks[1]
     )
+
+
+def test_blender_calibrations_are_pixel_centred_and_others_are_read_as_written(
+    tmp_path: Path,
+) -> None:
+    """The paper's Blender calibration (``blend_calibration*.yaml``) measures its principal
+    point from the first pixel's outer corner: on load both cameras' principal points move by
+    half a pixel (OpenCV counts from the pixel's centre); focal length, baseline and every
+    other calibration are untouched."""
+    from dataclasses import replace
+
+    from threadrecon.app.dataset import frame_calibration
+    from threadrecon.app.io import load_calibration
+
+    _write_pair(tmp_path, "a_L.png", "a_R.png")
+    write_calibration(tmp_path)
+    (frame,) = discover(tmp_path)
+    for name in ("blend_calibration_new.yaml", "calibration.yaml"):
+        written = write_calibration(tmp_path, name)
+        loaded = frame_calibration(replace(frame, calibration=written))
+        raw = load_calibration(written, unit=loaded.unit)
+        shift = 0.5 if name.startswith("blend") else 0.0
+        for P, P_raw in ((loaded.P1, raw.P1), (loaded.P2, raw.P2)):
+            np.testing.assert_allclose(P[:2, 2], P_raw[:2, 2] - shift, atol=1e-4)
+            assert P[0, 0] == P_raw[0, 0] and P[1, 1] == P_raw[1, 1]
+        assert_close(loaded.baseline, raw.baseline)
+        assert rectification(loaded).identity  # still a rectified pair: nothing resampled
