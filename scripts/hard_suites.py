@@ -26,8 +26,9 @@ from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from threadrecon.app.bench import _with_overrides  # noqa: E402
 from threadrecon.app.dataset import evaluate_reconstruction  # noqa: E402
-from threadrecon.app.presets import resolve_preset, validate  # noqa: E402
+from threadrecon.app.presets import resolve_preset  # noqa: E402
 from threadrecon.core.pipeline import Pipeline  # noqa: E402
 from threadrecon.core.segmentation import StereoPair  # noqa: E402
 from threadrecon.core.synthetic import (  # noqa: E402
@@ -58,21 +59,6 @@ SUITES: dict[str, tuple[str, ThreadParams, RenderParams]] = {
         RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5),
     ),
 }
-
-
-def _params(config: str | None, sets: list[str]):
-    params = resolve_preset(config)
-    if not sets:
-        return params
-    data = params.to_dict()
-    for item in sets:
-        key, _, value = item.partition("=")
-        stage, _, name = key.partition(".")
-        if stage not in data or name not in data[stage] or not value:
-            raise SystemExit(f"--set {item!r}: expected stage.name=value of a known parameter")
-        old = data[stage][name]
-        data[stage][name] = type(old)(value) if isinstance(old, int | float) else value
-    return validate(data)
 
 
 def run_suite(name: str, seed: int, count: int, params) -> list[dict]:
@@ -116,7 +102,7 @@ def main() -> int:
     ap.add_argument("--suite", action="append", choices=sorted(SUITES), default=None)
     ap.add_argument("--csv", default=None, help="write every frame's row here")
     args = ap.parse_args()
-    params = _params(args.config, args.set)
+    params = _with_overrides(resolve_preset(args.config), args.set)
     all_rows = []
     print("suite           right  good  mean e_S  median e_S  mean cpu ms  frames not good")
     with threadpool_limits(1):
