@@ -347,15 +347,21 @@ def _select(
         # front of the tissue does not: the next most salient piece is tried.
         # Among blood-like pieces (vessels are marks too) the one left must be seen in front
         # of the tissue, not merely undecided (a small leftover).
+        marks: list[int] = []  # pieces found to be marks on the tissue, most salient first
         for _ in range(_MAX_SURFACE_TESTS):
             if rank[best] <= 0:
                 break
             votes = _surface_votes(views, i, lab_on == best, on, D)
-            if not _a_mark(votes):
+            # A piece too short for the test to decide, continuing a mark of its own dye, is
+            # a part of that mark (one line cut in two by a faint stretch of it).
+            if not _a_mark(votes) and not (
+                np.all(votes < 0) and _continues(v, on, lab_on, best, marks, delta)
+            ):
                 if nearest_hue and not _floats(votes):
                     return None, salience + top, 1.0, False
                 floating &= _floats(votes)
                 break
+            marks.append(best)
             k[best] = False
             rank[best] = -1.0
             best = int(np.argmax(rank))
@@ -423,6 +429,34 @@ def _surface_votes(
         v._surface = SurfaceTest(v.grey(), views[1 - i].grey(), v.far(), d, look_left=(i == 0))
     px = on[sel]
     return v._surface.votes(v.rows[px], v.cols[px])
+
+
+def _continues(
+    v: _View, on: np.ndarray, lab_on: np.ndarray, piece: int, marks: list[int], delta: np.ndarray
+) -> bool:
+    """Whether ``piece`` continues one of the ``marks`` (pieces found to be marks on the
+    tissue): it shares that mark's dye (:func:`_same_dye` >= _SAME_DYE_COS of the pieces' mean
+    contrasts ``delta`` (n, C)) and comes within _BAND_PX of it. ``on`` (M,) indexes the view's
+    lo pixels of the shape-ok pieces, ``lab_on`` (M,) their pieces."""
+    if not marks:
+        return False
+    marks_a = np.asarray(marks)
+    marks_a = marks_a[_same_dye(delta[marks_a], delta[piece]) >= _SAME_DYE_COS]
+    if len(marks_a) == 0:
+        return False
+    px = on[lab_on == piece]
+    rows, cols = v.rows[px], v.cols[px]
+    r0, c0 = int(rows.min()) - _BAND_PX, int(cols.min()) - _BAND_PX
+    h, w = int(rows.max()) + _BAND_PX + 1 - r0, int(cols.max()) + _BAND_PX + 1 - c0
+    mk = on[np.isin(lab_on, marks_a)]
+    mr, mc = v.rows[mk] - r0, v.cols[mk] - c0
+    near = (mr >= 0) & (mr < h) & (mc >= 0) & (mc < w)
+    if not near.any():
+        return False
+    box = np.zeros((h, w), np.uint8)  # the piece's box grown by the band (may pass the edge)
+    box[mr[near], mc[near]] = 1
+    box = cv2.dilate(box, np.ones((2 * _BAND_PX + 1, 2 * _BAND_PX + 1), np.uint8))
+    return bool(box[rows - r0, cols - c0].any())
 
 
 def _floats(votes: np.ndarray) -> bool:

@@ -1,0 +1,47 @@
+"""Tests of the raw segmentation's decisions about marks on the tissue (core/segment_raw.py)."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from threadrecon.core import segment_raw as sr
+
+LIGHT = np.array([11.0, -10.0, -2.5])  # a light fibre's contrast (brightness, log R/G, log B/G)
+DARK_BLUE = np.array([-4.0, -9.0, 8.0])  # a dark blue thread's
+
+
+def _two_pieces(gap: int) -> tuple[SimpleNamespace, np.ndarray, np.ndarray]:
+    """A vertical line of rows 10..59 (piece 1, the mark) and its continuation below after
+    ``gap`` empty rows (piece 2), 3 px wide: the view's lo pixels, ``on`` and ``lab_on``."""
+    rows1, cols1 = np.mgrid[10:60, 40:43]
+    rows2, cols2 = np.mgrid[60 + gap : 100 + gap, 41:44]
+    rows = np.concatenate([rows1.ravel(), rows2.ravel()])
+    cols = np.concatenate([cols1.ravel(), cols2.ravel()])
+    lab = np.r_[np.full(rows1.size, 1), np.full(rows2.size, 2)]
+    return SimpleNamespace(rows=rows, cols=cols), np.arange(len(rows)), lab
+
+
+@pytest.mark.parametrize("gap", [0, 2, sr._BAND_PX - 1])
+def test_a_piece_continuing_a_mark_of_its_dye_is_part_of_it(gap: int) -> None:
+    v, on, lab = _two_pieces(gap)
+    delta = np.stack([np.zeros(3), LIGHT, LIGHT * 0.7])  # one dye, weaker where it fades
+    assert sr._continues(v, on, lab, 2, [1], delta)
+
+
+def test_a_piece_far_from_every_mark_does_not_continue_one() -> None:
+    v, on, lab = _two_pieces(sr._BAND_PX + 6)
+    delta = np.stack([np.zeros(3), LIGHT, LIGHT])
+    assert not sr._continues(v, on, lab, 2, [1], delta)
+
+
+def test_a_piece_of_another_dye_beside_a_mark_does_not_continue_it() -> None:
+    v, on, lab = _two_pieces(1)  # a dark thread ending at a light fibre
+    delta = np.stack([np.zeros(3), LIGHT, DARK_BLUE])
+    assert not sr._continues(v, on, lab, 2, [1], delta)
+
+
+def test_without_marks_nothing_continues_one() -> None:
+    v, on, lab = _two_pieces(0)
+    delta = np.stack([np.zeros(3), LIGHT, LIGHT])
+    assert not sr._continues(v, on, lab, 2, [], delta)
