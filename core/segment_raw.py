@@ -129,6 +129,8 @@ def segment_raw(
             or (red_salience >= _RED_THREAD_GAIN * salience and red_cos < _VESSEL_HUE_COS)
         ):
             views, found = red_views, red
+    if found is not None and not _one_object(found, int(p.max_disparity_px)):
+        found = None  # each view chose another line: neither is seen in both (no thread)
     if found is None:
         raise ValueError(
             "no thread found: no long thin piece with a partner in the other view stands out "
@@ -416,6 +418,24 @@ def _select(
         core[v.rows[px], v.cols[px]] = 1
         out.append(core)
     return out, salience, cos_vessels, floating
+
+
+def _one_object(cores: list[np.ndarray], d: int) -> bool:
+    """Whether the core pixels (H, W) uint8 chosen in the two views are one object seen twice:
+    at least half of one view's core pixels have a core pixel of the other view on the same
+    row within [0, d] of disparity (:func:`_has_partner`; the view where more of the thread is
+    hidden holds the fewer pixels, and those have their partners)."""
+    pts = [_points(c) for c in cores]
+    width = cores[0].shape[1]
+    for i in range(2):
+        rows, cols = pts[i]
+        if len(rows) == 0:
+            continue
+        keys = _row_keys(*pts[1 - i], width, d)
+        hits = _has_partner(rows, cols, keys, width, d, look_left=(i == 0))
+        if np.count_nonzero(hits) >= 0.5 * len(rows):
+            return True
+    return False
 
 
 def _surface_votes(

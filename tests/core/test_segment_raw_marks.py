@@ -45,3 +45,28 @@ def test_without_marks_nothing_continues_one() -> None:
     v, on, lab = _two_pieces(0)
     delta = np.stack([np.zeros(3), LIGHT, LIGHT])
     assert not sr._continues(v, on, lab, 2, [], delta)
+
+
+def _core(rows: slice, cols: slice, shape: tuple[int, int] = (120, 200)) -> np.ndarray:
+    core = np.zeros(shape, np.uint8)
+    core[rows, cols] = 1
+    return core
+
+
+def test_one_line_seen_in_both_views_is_one_object() -> None:
+    left = _core(slice(10, 100), slice(80, 83))
+    right = _core(slice(10, 100), slice(60, 63))  # 20 px of disparity
+    assert sr._one_object([left, right], 40)
+
+
+def test_a_line_partly_hidden_in_one_view_is_one_object() -> None:
+    left = _core(slice(10, 100), slice(80, 83))
+    right = _core(slice(70, 100), slice(60, 63))  # the upper 2/3 hidden in the right view
+    assert sr._one_object([left, right], 40)
+
+
+def test_two_lines_on_other_rows_or_beyond_the_disparity_range_are_not_one_object() -> None:
+    left = _core(slice(10, 50), slice(80, 83))
+    assert not sr._one_object([left, _core(slice(60, 110), slice(60, 63))], 40)
+    assert not sr._one_object([left, _core(slice(10, 50), slice(20, 23))], 40)  # 60 px
+    assert not sr._one_object([left, _core(slice(10, 50), slice(90, 93))], 40)  # negative
