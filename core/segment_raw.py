@@ -409,7 +409,7 @@ def _select(
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
         px = on[k[lab_on]]  # the lo pixels of the kept pieces
         hue = _same_dye(v.delta[px], d_best)
-        other = hue < _SAME_DYE_COS_PX
+        other = _other_dye_px(v.delta[px], d_best, hue)
         if by_hue:
             other |= hue <= _same_dye(v.delta[px], d_vessel)
         sel = ~other & (v.S[v.rows[px], v.cols[px]] >= _CORE_FRACTION * means[lab[px]])
@@ -525,6 +525,28 @@ def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
         return np.where(np.linalg.norm(d, axis=1) < 2 * _GREY_CHROMA, sign, -1.0)
     cos = (d @ r) / np.maximum(np.linalg.norm(d, axis=1) * nr, 1e-9)
     return np.minimum(cos, sign)
+
+
+def _other_dye_px(delta: np.ndarray, ref: np.ndarray, hue: np.ndarray) -> np.ndarray:
+    """(M,) bool: pixels of contrasts ``delta`` (M, C) not of the dye of contrast ``ref`` (C,);
+    ``hue`` (M,) is :func:`_same_dye` of them.
+
+    A grey dye is told by the brightness sign and small chroma (``hue``). A coloured dye is
+    told by its hue (chroma cosine >= _SAME_DYE_COS_PX) and by the direction of the whole
+    contrast (brightness and chroma, cosine >= _SAME_DYE_COS), not by the brightness sign: a
+    thread that differs from the tissue in hue only (green on pink) has a brightness contrast
+    near 0 whose sign is noise and shading, and a light fibre merged into its piece (the same
+    hue, less red than tissue) differs from it in how much brighter than its chroma it is. A
+    blend of one dye over the background keeps that direction at any coverage (to first order
+    in the log contrast)."""
+    if delta.shape[1] == 1 or float(np.linalg.norm(ref[1:])) < _GREY_CHROMA:
+        return hue < _SAME_DYE_COS_PX
+    d, r = delta[:, 1:], ref[1:]
+    chroma = (d @ r) / np.maximum(np.linalg.norm(d, axis=1) * float(np.linalg.norm(r)), 1e-9)
+    whole = (delta @ ref) / np.maximum(
+        np.linalg.norm(delta, axis=1) * float(np.linalg.norm(ref)), 1e-9
+    )
+    return (chroma < _SAME_DYE_COS_PX) | (whole < _SAME_DYE_COS)
 
 
 def _instrument_mask(f_q: np.ndarray) -> np.ndarray:

@@ -70,3 +70,27 @@ def test_two_lines_on_other_rows_or_beyond_the_disparity_range_are_not_one_objec
     assert not sr._one_object([left, _core(slice(60, 110), slice(60, 63))], 40)
     assert not sr._one_object([left, _core(slice(10, 50), slice(20, 23))], 40)  # 60 px
     assert not sr._one_object([left, _core(slice(10, 50), slice(90, 93))], 40)  # negative
+
+
+def test_a_hue_only_thread_keeps_its_pixels_of_either_brightness_sign_but_not_a_light_fibre() -> (
+    None
+):
+    green = np.array([0.4, -26.0, -7.0])  # green on pink: a hue contrast, brightness ~0
+    rng = np.random.default_rng(3)
+    thread = (
+        green * rng.uniform(0.3, 1.0, (50, 1)) + np.c_[rng.uniform(-8, 8, 50), np.zeros((50, 2))]
+    )
+    fibre = LIGHT * rng.uniform(0.5, 1.0, (50, 1))
+    px = np.vstack([thread, fibre])
+    other = sr._other_dye_px(px, green, sr._same_dye(px, green))
+    assert not other[:50].any()
+    assert other[50:].all()
+
+
+def test_a_dark_thread_drops_its_lighter_pixels() -> None:
+    px = np.array([DARK_BLUE * 0.5, -DARK_BLUE * 0.5, [6.0, -9.0, 8.0]])
+    assert sr._other_dye_px(px, DARK_BLUE, sr._same_dye(px, DARK_BLUE)).tolist() == [
+        False,
+        True,
+        True,
+    ]
