@@ -357,7 +357,7 @@ def _select(
             # A piece too short for the test to decide, continuing a mark of its own dye, is
             # a part of that mark (one line cut in two by a faint stretch of it).
             if not _a_mark(votes) and not (
-                np.all(votes < 0) and _continues(v, on, lab_on, best, marks, delta)
+                np.all(votes < 0) and _continues(v, on, lab_on, best, marks, delta, length)
             ):
                 if nearest_hue and not _floats(votes):
                     return None, salience + top, 1.0, False
@@ -452,16 +452,27 @@ def _surface_votes(
 
 
 def _continues(
-    v: _View, on: np.ndarray, lab_on: np.ndarray, piece: int, marks: list[int], delta: np.ndarray
+    v: _View,
+    on: np.ndarray,
+    lab_on: np.ndarray,
+    piece: int,
+    marks: list[int],
+    delta: np.ndarray,
+    length: np.ndarray,
 ) -> bool:
-    """Whether ``piece`` continues one of the ``marks`` (pieces found to be marks on the
-    tissue): it shares that mark's dye (:func:`_same_dye` >= _SAME_DYE_COS of the pieces' mean
-    contrasts ``delta`` (n, C)) and comes within _BAND_PX of it. ``on`` (M,) indexes the view's
-    lo pixels of the shape-ok pieces, ``lab_on`` (M,) their pieces."""
+    """Whether ``piece`` is a fragment of one of the ``marks`` (pieces found to be marks on the
+    tissue): it is no longer than that mark (``length`` (n,) px: the mark was long enough for
+    the surface test to decide, the fragment too short), shares its dye (:func:`_same_dye` >=
+    _SAME_DYE_COS of the pieces' mean contrasts ``delta`` (n, C)) and comes within _BAND_PX of
+    it. ``on`` (M,) indexes the view's lo pixels of the shape-ok pieces, ``lab_on`` (M,) their
+    pieces. (A long piece left undecided is so for want of texture around it, not of length.)"""
     if not marks:
         return False
     marks_a = np.asarray(marks)
-    marks_a = marks_a[_same_dye(delta[marks_a], delta[piece]) >= _SAME_DYE_COS]
+    marks_a = marks_a[
+        (_same_dye(delta[marks_a], delta[piece]) >= _SAME_DYE_COS)
+        & (length[marks_a] >= length[piece])
+    ]
     if len(marks_a) == 0:
         return False
     px = on[lab_on == piece]
@@ -476,7 +487,33 @@ def _continues(
     box = np.zeros((h, w), np.uint8)  # the piece's box grown by the band (may pass the edge)
     box[mr[near], mc[near]] = 1
     box = cv2.dilate(box, np.ones((2 * _BAND_PX + 1, 2 * _BAND_PX + 1), np.uint8))
-    return bool(box[rows - r0, cols - c0].any())
+    meet = box[rows - r0, cols - c0] > 0  # the piece's pixels within the band of a mark
+    if not meet.any():
+        return False
+    # One line: where they meet, the piece runs on in the mark's direction (a thread passing
+    # under an instrument meets its edge, a line as well, at an angle).
+    at = np.array([rows[meet].mean(), cols[meet].mean()])
+    mine = np.hypot(rows - at[0], cols - at[1]) <= _MEET_PX
+    theirs = np.hypot(v.rows[mk] - at[0], v.cols[mk] - at[1]) <= _MEET_PX
+    return _direction_cos(rows[mine], cols[mine], v.rows[mk][theirs], v.cols[mk][theirs]) >= (
+        _ONE_LINE_COS
+    )
+
+
+_MEET_PX: Final = 4 * _BAND_PX  # a line's direction where two pieces meet: within 16 px
+_ONE_LINE_COS: Final = float(np.cos(np.radians(30.0)))  # one line bends < 30 deg over that
+
+
+def _direction_cos(r1: np.ndarray, c1: np.ndarray, r2: np.ndarray, c2: np.ndarray) -> float:
+    """|cos| of the angle between the principal axes of two pixel sets (0 when either has
+    fewer than 3 pixels: no direction)."""
+    axes = []
+    for r, c in ((r1, c1), (r2, c2)):
+        if len(r) < 3:
+            return 0.0
+        cov = np.cov(np.stack([r, c]).astype(np.float64))
+        axes.append(np.linalg.eigh(cov)[1][:, -1])
+    return float(abs(axes[0] @ axes[1]))
 
 
 def _floats(votes: np.ndarray) -> bool:

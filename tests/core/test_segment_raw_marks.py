@@ -9,6 +9,7 @@ from threadrecon.core import segment_raw as sr
 
 LIGHT = np.array([11.0, -10.0, -2.5])  # a light fibre's contrast (brightness, log R/G, log B/G)
 DARK_BLUE = np.array([-4.0, -9.0, 8.0])  # a dark blue thread's
+LENGTH = np.array([0.0, 50.0, 40.0])  # of no piece, the mark (piece 1), the other (piece 2)
 
 
 def _two_pieces(gap: int) -> tuple[SimpleNamespace, np.ndarray, np.ndarray]:
@@ -26,25 +27,42 @@ def _two_pieces(gap: int) -> tuple[SimpleNamespace, np.ndarray, np.ndarray]:
 def test_a_piece_continuing_a_mark_of_its_dye_is_part_of_it(gap: int) -> None:
     v, on, lab = _two_pieces(gap)
     delta = np.stack([np.zeros(3), LIGHT, LIGHT * 0.7])  # one dye, weaker where it fades
-    assert sr._continues(v, on, lab, 2, [1], delta)
+    assert sr._continues(v, on, lab, 2, [1], delta, LENGTH)
 
 
 def test_a_piece_far_from_every_mark_does_not_continue_one() -> None:
     v, on, lab = _two_pieces(sr._BAND_PX + 6)
     delta = np.stack([np.zeros(3), LIGHT, LIGHT])
-    assert not sr._continues(v, on, lab, 2, [1], delta)
+    assert not sr._continues(v, on, lab, 2, [1], delta, LENGTH)
 
 
 def test_a_piece_of_another_dye_beside_a_mark_does_not_continue_it() -> None:
     v, on, lab = _two_pieces(1)  # a dark thread ending at a light fibre
     delta = np.stack([np.zeros(3), LIGHT, DARK_BLUE])
-    assert not sr._continues(v, on, lab, 2, [1], delta)
+    assert not sr._continues(v, on, lab, 2, [1], delta, LENGTH)
+
+
+def test_a_piece_meeting_a_mark_at_an_angle_does_not_continue_it() -> None:
+    rows1, cols1 = np.mgrid[10:80, 40:43]  # the mark: vertical (an instrument's edge)
+    rows2, cols2 = np.mgrid[44:47, 45:85]  # a thread leaving it at a right angle
+    v = SimpleNamespace(
+        rows=np.r_[rows1.ravel(), rows2.ravel()], cols=np.r_[cols1.ravel(), cols2.ravel()]
+    )
+    lab = np.r_[np.full(rows1.size, 1), np.full(rows2.size, 2)]
+    delta = np.stack([np.zeros(3), LIGHT, LIGHT])
+    assert not sr._continues(v, np.arange(len(lab)), lab, 2, [1], delta, LENGTH)
+
+
+def test_a_piece_longer_than_the_mark_beside_it_is_no_fragment_of_it() -> None:
+    v, on, lab = _two_pieces(0)  # a long undecided line (on untextured ground) beside a mark
+    delta = np.stack([np.zeros(3), LIGHT, LIGHT])
+    assert not sr._continues(v, on, lab, 2, [1], delta, np.array([0.0, 50.0, 120.0]))
 
 
 def test_without_marks_nothing_continues_one() -> None:
     v, on, lab = _two_pieces(0)
     delta = np.stack([np.zeros(3), LIGHT, LIGHT])
-    assert not sr._continues(v, on, lab, 2, [], delta)
+    assert not sr._continues(v, on, lab, 2, [], delta, LENGTH)
 
 
 def _core(rows: slice, cols: slice, shape: tuple[int, int] = (120, 200)) -> np.ndarray:
