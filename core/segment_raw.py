@@ -392,9 +392,14 @@ def _select(
             and _cosine(d_vessel[1:], d_best[1:]) < _VESSEL_HUE_COS
         )
         # Other pieces of the same thread (split by an occluder or a crossing) share its dye.
-        k = k & (means >= p.keep_ratio * means[best]) & (_same_dye(delta, d_best) >= _SAME_DYE_COS)
+        # A piece merged with a mark where they cross (a fibre) is judged by its part of the
+        # thread's dye, when that part is as long as a piece must be (at the thread's width).
+        part = _dye_part(v.delta[on], lab_on, d_best, n)
+        long_part = part[1] * (length[best] / area[best]) >= p.min_length_px
+        dye = np.where(long_part[:, None], part[0], delta)
+        k = k & (means >= p.keep_ratio * means[best]) & (_same_dye(dye, d_best) >= _SAME_DYE_COS)
         if by_hue:
-            k &= _same_dye(delta, d_best) > _same_dye(delta, d_vessel)
+            k &= _same_dye(dye, d_best) > _same_dye(dye, d_vessel)
         k[0] = k[best] = False
         # A joining piece is no mark on the tissue either (a fibre as light as a white thread);
         # among blood-like pieces it is seen in front of the tissue, as the chosen one.
@@ -562,6 +567,20 @@ def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
         return np.where(np.linalg.norm(d, axis=1) < 2 * _GREY_CHROMA, sign, -1.0)
     cos = (d @ r) / np.maximum(np.linalg.norm(d, axis=1) * nr, 1e-9)
     return np.minimum(cos, sign)
+
+
+def _dye_part(
+    delta: np.ndarray, lab: np.ndarray, ref: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per piece (n,): the mean contrast (n, C) of its pixels of the dye of contrast ``ref``
+    (C,) (:func:`_other_dye_px`) and their count (n,); ``delta`` (M, C) the pixels'
+    contrasts, ``lab`` (M,) their pieces."""
+    mine = ~_other_dye_px(delta, ref, _same_dye(delta, ref))
+    count = np.bincount(lab[mine], minlength=n).astype(np.float64)
+    sums = np.stack(
+        [np.bincount(lab[mine], weights=delta[mine, j], minlength=n) for j in range(len(ref))], 1
+    )
+    return sums / np.maximum(count, 1.0)[:, None], count
 
 
 def _other_dye_px(delta: np.ndarray, ref: np.ndarray, hue: np.ndarray) -> np.ndarray:

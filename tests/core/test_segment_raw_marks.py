@@ -112,3 +112,13 @@ def test_a_dark_thread_drops_its_lighter_pixels() -> None:
         True,
         True,
     ]
+
+
+def test_the_dye_part_of_a_piece_merged_with_a_fibre_is_the_thread_s() -> None:
+    # piece 1: 40 thread pixels and 60 fibre pixels; piece 2: fibre only
+    px = np.vstack([np.tile(DARK_BLUE, (40, 1)), np.tile(LIGHT, (60, 1)), np.tile(LIGHT, (30, 1))])
+    lab = np.r_[np.full(100, 1), np.full(30, 2)]
+    mean, count = sr._dye_part(px, lab, DARK_BLUE, 3)
+    assert count.tolist() == [0.0, 40.0, 0.0]
+    np.testing.assert_allclose(mean[1], DARK_BLUE)
+    assert sr._same_dye(px[lab == 1].mean(axis=0)[None], DARK_BLUE)[0] < sr._SAME_DYE_COS
