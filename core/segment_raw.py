@@ -33,6 +33,8 @@ from threadrecon.core.ridge_kernel import (
     small_components,
     upsample_max,
 )
+from threadrecon.core.segment_surface import _BLOCK_PX as SURFACE_BLOCK_PX
+from threadrecon.core.segment_surface import _MIN_VOTES as SURFACE_MIN_VOTES
 from threadrecon.core.segment_surface import SurfaceTest
 
 if TYPE_CHECKING:
@@ -355,9 +357,15 @@ def _select(
                 break
             votes = _surface_votes(views, i, lab_on == best, on, D)
             # A piece too short for the test to decide, continuing a mark of its own dye, is
-            # a part of that mark (one line cut in two by a faint stretch of it).
+            # a part of that mark (one line cut in two by a faint stretch of it); one too short
+            # for the test to ever decide (fewer blocks than it needs) is taken for one more
+            # of the marks of its dye found in the frame.
             if not _a_mark(votes) and not (
-                np.all(votes < 0) and _continues(v, on, lab_on, best, marks, delta, length)
+                np.all(votes < 0)
+                and (
+                    _continues(v, on, lab_on, best, marks, delta, length)
+                    or _like_a_mark(v, on[lab_on == best], best, marks, delta)
+                )
             ):
                 if nearest_hue and not _floats(votes):
                     return None, salience + top, 1.0, False
@@ -454,6 +462,21 @@ def _surface_votes(
         v._surface = SurfaceTest(v.grey(), views[1 - i].grey(), v.far(), d, look_left=(i == 0))
     px = on[sel]
     return v._surface.votes(v.rows[px], v.cols[px])
+
+
+def _like_a_mark(v: _View, px: np.ndarray, piece: int, marks: list[int], delta: np.ndarray) -> bool:
+    """Whether ``piece`` (its lo pixels ``px``) lies in fewer blocks than the surface test
+    needs to decide (:mod:`core.segment_surface`: it can never be decided) and shares the dye
+    (:func:`_same_dye` >= _SAME_DYE_COS of the mean contrasts ``delta`` (n, C)) of one of the
+    ``marks`` found in the view: a fragment of the frame's fibres or vessels, not a thread."""
+    if not marks:
+        return False
+    m = np.asarray(marks)
+    if not np.any(_same_dye(delta[m], delta[piece]) >= _SAME_DYE_COS):
+        return False
+    nb = (v.lo.shape[1] + SURFACE_BLOCK_PX - 1) // SURFACE_BLOCK_PX
+    blocks = np.unique(v.rows[px] // SURFACE_BLOCK_PX * nb + v.cols[px] // SURFACE_BLOCK_PX)
+    return len(blocks) < SURFACE_MIN_VOTES
 
 
 def _continues(

@@ -122,3 +122,23 @@ def test_the_dye_part_of_a_piece_merged_with_a_fibre_is_the_thread_s() -> None:
     assert count.tolist() == [0.0, 40.0, 0.0]
     np.testing.assert_allclose(mean[1], DARK_BLUE)
     assert sr._same_dye(px[lab == 1].mean(axis=0)[None], DARK_BLUE)[0] < sr._SAME_DYE_COS
+
+
+def _short_piece(r0: int, c0: int) -> tuple[SimpleNamespace, np.ndarray]:
+    rows, cols = np.mgrid[r0 : r0 + 3, c0 : c0 + 40]  # 40 px long, horizontal
+    v = SimpleNamespace(lo=np.zeros((480, 640), np.uint8), rows=rows.ravel(), cols=cols.ravel())
+    return v, np.arange(rows.size)
+
+
+def test_a_piece_too_short_for_the_surface_test_of_a_mark_s_dye_is_taken_for_a_mark() -> None:
+    delta = np.stack([np.zeros(3), LIGHT, LIGHT * 0.8])
+    v, px = _short_piece(10, 70)  # inside one 64 px block
+    assert sr._like_a_mark(v, px, 2, [1], delta)
+    v, px = _short_piece(10, 110)  # across two blocks: the test could have decided it
+    assert not sr._like_a_mark(v, px, 2, [1], delta)
+
+
+def test_a_short_piece_of_another_dye_than_the_marks_is_not_taken_for_one() -> None:
+    v, px = _short_piece(10, 70)
+    assert not sr._like_a_mark(v, px, 2, [1], np.stack([np.zeros(3), LIGHT, DARK_BLUE]))
+    assert not sr._like_a_mark(v, px, 2, [], np.stack([np.zeros(3), LIGHT, LIGHT]))
