@@ -100,8 +100,11 @@ def segment_raw(
        frame's own pixel noise (per channel, robust): on a thread-free frame nothing passes
        and the answer is "no thread found", not a vessel or a texture line.
     5. Selection: the most salient piece (mean S x sqrt(length)) is the thread; other pieces
-       and pixels join it when they share its dye (direction of the colour contrast) and their
-       mean S is >= keep_ratio of its.
+       and pixels join it when they share its dye (direction of the colour contrast; a piece
+       merged with a fibre by its part of that dye) and their mean S is >= keep_ratio of its.
+       Pieces moving with the tissue are marks on it (:mod:`core.segment_surface`), and so
+       are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`). The
+       cores chosen in the two views must be one object (:func:`_one_object`).
     6. Mask: within _BAND_PX of the kept pixels, those with coverage >= 0.5 of a thread colour
        blended over the local background colour (see :func:`_grow_mask`).
 
