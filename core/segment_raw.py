@@ -405,10 +405,16 @@ def _select(
         # Other pieces of the same thread (split by an occluder or a crossing) share its dye.
         # A piece merged with a mark where they cross (a fibre) is judged by its part of the
         # thread's dye, when that part is as long as a piece must be (at the thread's width).
-        part = _dye_part(v.delta[on], lab_on, d_best, n)
-        long_part = part[1] * (length[best] / area[best]) >= p.min_length_px
-        dye = np.where(long_part[:, None], part[0], delta)
-        k = k & (means >= p.keep_ratio * means[best]) & (_same_dye(dye, d_best) >= _SAME_DYE_COS)
+        k &= means >= p.keep_ratio * means[best]
+        dye = delta
+        retry = k & (_same_dye(delta, d_best) < _SAME_DYE_COS)  # (only those: their pixels)
+        retry[0] = retry[best] = False
+        if retry.any():
+            sel = retry[lab_on]
+            part, count = _dye_part(v.delta[on[sel]], lab_on[sel], d_best, n)
+            long_part = retry & (count * (length[best] / area[best]) >= p.min_length_px)
+            dye = np.where(long_part[:, None], part, delta)
+        k &= _same_dye(dye, d_best) >= _SAME_DYE_COS
         if by_hue:
             k &= _same_dye(dye, d_best) > _same_dye(dye, d_vessel)
         k[0] = k[best] = False
@@ -441,7 +447,11 @@ def _one_object(cores: list[np.ndarray], d: int) -> bool:
     at least half of one view's core pixels have a core pixel of the other view on the same
     row within [0, d] of disparity (:func:`_has_partner`; the view where more of the thread is
     hidden holds the fewer pixels, and those have their partners)."""
-    pts = [_points(c) for c in cores]
+    pts = []
+    for c in cores:  # on each core's bounding box: a few % of the image
+        x, y, w, h = cv2.boundingRect(c)
+        rows, cols = _points(c[y : y + h, x : x + w])
+        pts.append((rows + y, cols + x))
     width = cores[0].shape[1]
     for i in range(2):
         rows, cols = pts[i]
@@ -601,7 +611,7 @@ def _dye_part(
     """Per piece (n,): the mean contrast (n, C) of its pixels of the dye of contrast ``ref``
     (C,) (:func:`_other_dye_px`) and their count (n,); ``delta`` (M, C) the pixels'
     contrasts, ``lab`` (M,) their pieces."""
-    mine = ~_other_dye_px(delta, ref, _same_dye(delta, ref))
+    mine = ~_other_dye_px(delta, ref, None)
     count = np.bincount(lab[mine], minlength=n).astype(np.float64)
     sums = np.stack(
         [np.bincount(lab[mine], weights=delta[mine, j], minlength=n) for j in range(len(ref))], 1
@@ -609,9 +619,9 @@ def _dye_part(
     return sums / np.maximum(count, 1.0)[:, None], count
 
 
-def _other_dye_px(delta: np.ndarray, ref: np.ndarray, hue: np.ndarray) -> np.ndarray:
+def _other_dye_px(delta: np.ndarray, ref: np.ndarray, hue: np.ndarray | None) -> np.ndarray:
     """(M,) bool: pixels of contrasts ``delta`` (M, C) not of the dye of contrast ``ref`` (C,);
-    ``hue`` (M,) is :func:`_same_dye` of them.
+    ``hue`` (M,) is :func:`_same_dye` of them (None: computed here when needed).
 
     A grey dye is told by the brightness sign and small chroma (``hue``). A coloured dye is
     told by its hue (chroma cosine >= _SAME_DYE_COS_PX) and by the direction of the whole
@@ -622,13 +632,17 @@ def _other_dye_px(delta: np.ndarray, ref: np.ndarray, hue: np.ndarray) -> np.nda
     blend of one dye over the background keeps that direction at any coverage (to first order
     in the log contrast)."""
     if delta.shape[1] == 1 or float(np.linalg.norm(ref[1:])) < _GREY_CHROMA:
-        return hue < _SAME_DYE_COS_PX
-    d, r = delta[:, 1:], ref[1:]
-    chroma = (d @ r) / np.maximum(np.linalg.norm(d, axis=1) * float(np.linalg.norm(r)), 1e-9)
-    whole = (delta @ ref) / np.maximum(
-        np.linalg.norm(delta, axis=1) * float(np.linalg.norm(ref)), 1e-9
-    )
-    return (chroma < _SAME_DYE_COS_PX) | (whole < _SAME_DYE_COS)
+        return (_same_dye(delta, ref) if hue is None else hue) < _SAME_DYE_COS_PX
+    # cos >= t as dot >= 0 and dot^2 >= t^2 |a|^2 |b|^2: no square roots per pixel
+    b, d1, d2 = (delta[:, j].astype(np.float64) for j in range(3))
+    dot_c = d1 * ref[1] + d2 * ref[2]
+    n_c = d1 * d1 + d2 * d2
+    dot = dot_c + b * ref[0]
+    r_c = float(ref[1] ** 2 + ref[2] ** 2)
+    r_all = r_c + float(ref[0] ** 2)
+    chroma_ok = (n_c > 0) & (dot_c >= 0) & (dot_c * dot_c >= _SAME_DYE_COS_PX**2 * n_c * r_c)
+    whole_ok = (dot >= 0) & (dot * dot >= _SAME_DYE_COS**2 * (n_c + b * b) * r_all)
+    return ~(chroma_ok & whole_ok)
 
 
 def _instrument_mask(f_q: np.ndarray) -> np.ndarray:
