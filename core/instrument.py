@@ -5,9 +5,7 @@ background, ``segment_raw._instrument_mask`` on tissue); its jaws are as thin as
 widths and stay in the thread mask as stubs attached to the shaft. One thread has one width
 along its length, so a piece attached to the instrument that is markedly wider than the
 frame's longest piece (the thread, or the longest of its visible parts) belongs to the
-instrument, and so do the wide parts of that longest piece when it touches the instrument (the
-thread in one piece with a jaw where it passes over its tip). A thread passing under the
-instrument touches it too, but keeps its own width.
+instrument. A thread passing under the instrument touches it too, but keeps its own width.
 """
 
 from __future__ import annotations
@@ -25,10 +23,10 @@ _CROSS: Final = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 def drop_attached(mask: np.ndarray, tool: np.ndarray, body: np.ndarray | None = None) -> np.ndarray:
     """``mask`` (H, W) bool without the wide part of the pieces that touch ``tool`` (H, W)
     bool, the instrument found so far, and are more than WIDER_THAN_THREAD times as wide as the
-    longest piece, or are that piece (the wide part: what a disc WIDER_THAN_THREAD times as
-    wide as that piece covers inside it). Pieces are those of ``body`` (H, W) bool outside ``tool``
-    (default ``mask``): the pixels off the background level, dark or bright, so that a jaw's
-    highlight is part of the jaw and its width is the jaw's, not that of its dark rims.
+    longest piece (the wide part: what a disc WIDER_THAN_THREAD times as wide as that piece
+    covers inside it). Pieces are those of ``body`` (H, W) bool outside ``tool`` (default ``mask``): the
+    pixels off the background level, dark or bright, so that a jaw's highlight is part of the
+    jaw and its width is the jaw's, not that of its dark rims.
 
     A piece's mean width is 2 area / perimeter (perimeter: its pixels with a 4-neighbour
     outside it, which counts both sides of a strip); its length is half that perimeter. When the
@@ -59,9 +57,8 @@ def drop_attached(mask: np.ndarray, tool: np.ndarray, body: np.ndarray | None = 
     width = 2.0 * area / np.maximum(perimeter, 1.0)
     ref = int(np.argmax(perimeter))  # the longest piece: the thread or its longest part
     drop = touching & (width > WIDER_THAN_THREAD * width[ref])
-    # The thread in one piece with a jaw (passing over its tip) is as thin as the thread on
-    # average: when that piece is the longest, it loses its wide part (below) all the same.
-    drop[ref] |= touching[ref]
+    if not drop.any():
+        return mask
     # Only the wide part of such a piece: a thread end touching a jaw is in the same piece,
     # thinner than the disc that fits in the jaw (radius WIDER_THAN_THREAD thread half-widths).
     r = max(int(np.ceil(0.5 * WIDER_THAN_THREAD * width[ref])), 1)
