@@ -33,6 +33,8 @@ from threadrecon.core.ridge_kernel import (
     small_components,
     upsample_max,
 )
+from threadrecon.core.segment_surface import _BLOCK_PX as SURFACE_BLOCK_PX
+from threadrecon.core.segment_surface import _MIN_VOTES as SURFACE_MIN_VOTES
 from threadrecon.core.segment_surface import SurfaceTest
 
 if TYPE_CHECKING:
@@ -98,8 +100,11 @@ def segment_raw(
        frame's own pixel noise (per channel, robust): on a thread-free frame nothing passes
        and the answer is "no thread found", not a vessel or a texture line.
     5. Selection: the most salient piece (mean S x sqrt(length)) is the thread; other pieces
-       and pixels join it when they share its dye (direction of the colour contrast) and their
-       mean S is >= keep_ratio of its.
+       and pixels join it when they share its dye (direction of the colour contrast; a piece
+       merged with a fibre by its part of that dye) and their mean S is >= keep_ratio of its.
+       Pieces moving with the tissue are marks on it (:mod:`core.segment_surface`), and so
+       are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`). The
+       cores chosen in the two views must be one object (:func:`_one_object`).
     6. Mask: within _BAND_PX of the kept pixels, those with coverage >= 0.5 of a thread colour
        blended over the local background colour (see :func:`_grow_mask`).
 
@@ -129,6 +134,8 @@ def segment_raw(
             or (red_salience >= _RED_THREAD_GAIN * salience and red_cos < _VESSEL_HUE_COS)
         ):
             views, found = red_views, red
+    if found is not None and not _one_object(found, int(p.max_disparity_px)):
+        found = None  # each view chose another line: neither is seen in both (no thread)
     if found is None:
         raise ValueError(
             "no thread found: no long thin piece with a partner in the other view stands out "
@@ -347,15 +354,27 @@ def _select(
         # front of the tissue does not: the next most salient piece is tried.
         # Among blood-like pieces (vessels are marks too) the one left must be seen in front
         # of the tissue, not merely undecided (a small leftover).
+        marks: list[int] = []  # pieces found to be marks on the tissue, most salient first
         for _ in range(_MAX_SURFACE_TESTS):
             if rank[best] <= 0:
                 break
             votes = _surface_votes(views, i, lab_on == best, on, D)
-            if not _a_mark(votes):
+            # A piece too short for the test to decide, continuing a mark of its own dye, is
+            # a part of that mark (one line cut in two by a faint stretch of it); one too short
+            # for the test to ever decide (fewer blocks than it needs) is taken for one more
+            # of the marks of its dye found in the frame.
+            if not _a_mark(votes) and not (
+                np.all(votes < 0)
+                and (
+                    _continues(v, on, lab_on, best, marks, delta, length)
+                    or _like_a_mark(v, on[lab_on == best], best, marks, delta)
+                )
+            ):
                 if nearest_hue and not _floats(votes):
                     return None, salience + top, 1.0, False
                 floating &= _floats(votes)
                 break
+            marks.append(best)
             k[best] = False
             rank[best] = -1.0
             best = int(np.argmax(rank))
@@ -384,9 +403,20 @@ def _select(
             and _cosine(d_vessel[1:], d_best[1:]) < _VESSEL_HUE_COS
         )
         # Other pieces of the same thread (split by an occluder or a crossing) share its dye.
-        k = k & (means >= p.keep_ratio * means[best]) & (_same_dye(delta, d_best) >= _SAME_DYE_COS)
+        # A piece merged with a mark where they cross (a fibre) is judged by its part of the
+        # thread's dye, when that part is as long as a piece must be (at the thread's width).
+        k &= means >= p.keep_ratio * means[best]
+        dye = delta
+        retry = k & (_same_dye(delta, d_best) < _SAME_DYE_COS)  # (only those: their pixels)
+        retry[0] = retry[best] = False
+        if retry.any():
+            sel = retry[lab_on]
+            part, count = _dye_part(v.delta[on[sel]], lab_on[sel], d_best, n)
+            long_part = retry & (count * (length[best] / area[best]) >= p.min_length_px)
+            dye = np.where(long_part[:, None], part, delta)
+        k &= _same_dye(dye, d_best) >= _SAME_DYE_COS
         if by_hue:
-            k &= _same_dye(delta, d_best) > _same_dye(delta, d_vessel)
+            k &= _same_dye(dye, d_best) > _same_dye(dye, d_vessel)
         k[0] = k[best] = False
         # A joining piece is no mark on the tissue either (a fibre as light as a white thread);
         # among blood-like pieces it is seen in front of the tissue, as the chosen one.
@@ -401,7 +431,7 @@ def _select(
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
         px = on[k[lab_on]]  # the lo pixels of the kept pieces
         hue = _same_dye(v.delta[px], d_best)
-        other = hue < _SAME_DYE_COS_PX
+        other = _other_dye_px(v.delta[px], d_best, hue)
         if by_hue:
             other |= hue <= _same_dye(v.delta[px], d_vessel)
         sel = ~other & (v.S[v.rows[px], v.cols[px]] >= _CORE_FRACTION * means[lab[px]])
@@ -410,6 +440,28 @@ def _select(
         core[v.rows[px], v.cols[px]] = 1
         out.append(core)
     return out, salience, cos_vessels, floating
+
+
+def _one_object(cores: list[np.ndarray], d: int) -> bool:
+    """Whether the core pixels (H, W) uint8 chosen in the two views are one object seen twice:
+    at least half of one view's core pixels have a core pixel of the other view on the same
+    row within [0, d] of disparity (:func:`_has_partner`; the view where more of the thread is
+    hidden holds the fewer pixels, and those have their partners)."""
+    pts = []
+    for c in cores:  # on each core's bounding box: a few % of the image
+        x, y, w, h = cv2.boundingRect(c)
+        rows, cols = _points(c[y : y + h, x : x + w])
+        pts.append((rows + y, cols + x))
+    width = cores[0].shape[1]
+    for i in range(2):
+        rows, cols = pts[i]
+        if len(rows) == 0:
+            continue
+        keys = _row_keys(*pts[1 - i], width, d)
+        hits = _has_partner(rows, cols, keys, width, d, look_left=(i == 0))
+        if np.count_nonzero(hits) >= 0.5 * len(rows):
+            return True
+    return False
 
 
 def _surface_votes(
@@ -423,6 +475,86 @@ def _surface_votes(
         v._surface = SurfaceTest(v.grey(), views[1 - i].grey(), v.far(), d, look_left=(i == 0))
     px = on[sel]
     return v._surface.votes(v.rows[px], v.cols[px])
+
+
+def _like_a_mark(v: _View, px: np.ndarray, piece: int, marks: list[int], delta: np.ndarray) -> bool:
+    """Whether ``piece`` (its lo pixels ``px``) lies in fewer blocks than the surface test
+    needs to decide (:mod:`core.segment_surface`: it can never be decided) and shares the dye
+    (:func:`_same_dye` >= _SAME_DYE_COS of the mean contrasts ``delta`` (n, C)) of one of the
+    ``marks`` found in the view: a fragment of the frame's fibres or vessels, not a thread."""
+    if not marks:
+        return False
+    m = np.asarray(marks)
+    if not np.any(_same_dye(delta[m], delta[piece]) >= _SAME_DYE_COS):
+        return False
+    nb = (v.lo.shape[1] + SURFACE_BLOCK_PX - 1) // SURFACE_BLOCK_PX
+    blocks = np.unique(v.rows[px] // SURFACE_BLOCK_PX * nb + v.cols[px] // SURFACE_BLOCK_PX)
+    return len(blocks) < SURFACE_MIN_VOTES
+
+
+def _continues(
+    v: _View,
+    on: np.ndarray,
+    lab_on: np.ndarray,
+    piece: int,
+    marks: list[int],
+    delta: np.ndarray,
+    length: np.ndarray,
+) -> bool:
+    """Whether ``piece`` is a fragment of one of the ``marks`` (pieces found to be marks on the
+    tissue): it is no longer than that mark (``length`` (n,) px: the mark was long enough for
+    the surface test to decide, the fragment too short), shares its dye (:func:`_same_dye` >=
+    _SAME_DYE_COS of the pieces' mean contrasts ``delta`` (n, C)) and comes within _BAND_PX of
+    it. ``on`` (M,) indexes the view's lo pixels of the shape-ok pieces, ``lab_on`` (M,) their
+    pieces. (A long piece left undecided is so for want of texture around it, not of length.)"""
+    if not marks:
+        return False
+    marks_a = np.asarray(marks)
+    marks_a = marks_a[
+        (_same_dye(delta[marks_a], delta[piece]) >= _SAME_DYE_COS)
+        & (length[marks_a] >= length[piece])
+    ]
+    if len(marks_a) == 0:
+        return False
+    px = on[lab_on == piece]
+    rows, cols = v.rows[px], v.cols[px]
+    r0, c0 = int(rows.min()) - _BAND_PX, int(cols.min()) - _BAND_PX
+    h, w = int(rows.max()) + _BAND_PX + 1 - r0, int(cols.max()) + _BAND_PX + 1 - c0
+    mk = on[np.isin(lab_on, marks_a)]
+    mr, mc = v.rows[mk] - r0, v.cols[mk] - c0
+    near = (mr >= 0) & (mr < h) & (mc >= 0) & (mc < w)
+    if not near.any():
+        return False
+    box = np.zeros((h, w), np.uint8)  # the piece's box grown by the band (may pass the edge)
+    box[mr[near], mc[near]] = 1
+    box = cv2.dilate(box, np.ones((2 * _BAND_PX + 1, 2 * _BAND_PX + 1), np.uint8))
+    meet = box[rows - r0, cols - c0] > 0  # the piece's pixels within the band of a mark
+    if not meet.any():
+        return False
+    # One line: where they meet, the piece runs on in the mark's direction (a thread passing
+    # under an instrument meets its edge, a line as well, at an angle).
+    at = np.array([rows[meet].mean(), cols[meet].mean()])
+    mine = np.hypot(rows - at[0], cols - at[1]) <= _MEET_PX
+    theirs = np.hypot(v.rows[mk] - at[0], v.cols[mk] - at[1]) <= _MEET_PX
+    return _direction_cos(rows[mine], cols[mine], v.rows[mk][theirs], v.cols[mk][theirs]) >= (
+        _ONE_LINE_COS
+    )
+
+
+_MEET_PX: Final = 4 * _BAND_PX  # a line's direction where two pieces meet: within 16 px
+_ONE_LINE_COS: Final = float(np.cos(np.radians(30.0)))  # one line bends < 30 deg over that
+
+
+def _direction_cos(r1: np.ndarray, c1: np.ndarray, r2: np.ndarray, c2: np.ndarray) -> float:
+    """|cos| of the angle between the principal axes of two pixel sets (0 when either has
+    fewer than 3 pixels: no direction)."""
+    axes = []
+    for r, c in ((r1, c1), (r2, c2)):
+        if len(r) < 3:
+            return 0.0
+        cov = np.cov(np.stack([r, c]).astype(np.float64))
+        axes.append(np.linalg.eigh(cov)[1][:, -1])
+    return float(abs(axes[0] @ axes[1]))
 
 
 def _floats(votes: np.ndarray) -> bool:
@@ -471,6 +603,46 @@ def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
         return np.where(np.linalg.norm(d, axis=1) < 2 * _GREY_CHROMA, sign, -1.0)
     cos = (d @ r) / np.maximum(np.linalg.norm(d, axis=1) * nr, 1e-9)
     return np.minimum(cos, sign)
+
+
+def _dye_part(
+    delta: np.ndarray, lab: np.ndarray, ref: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per piece (n,): the mean contrast (n, C) of its pixels of the dye of contrast ``ref``
+    (C,) (:func:`_other_dye_px`) and their count (n,); ``delta`` (M, C) the pixels'
+    contrasts, ``lab`` (M,) their pieces."""
+    mine = ~_other_dye_px(delta, ref, None)
+    count = np.bincount(lab[mine], minlength=n).astype(np.float64)
+    sums = np.stack(
+        [np.bincount(lab[mine], weights=delta[mine, j], minlength=n) for j in range(len(ref))], 1
+    )
+    return sums / np.maximum(count, 1.0)[:, None], count
+
+
+def _other_dye_px(delta: np.ndarray, ref: np.ndarray, hue: np.ndarray | None) -> np.ndarray:
+    """(M,) bool: pixels of contrasts ``delta`` (M, C) not of the dye of contrast ``ref`` (C,);
+    ``hue`` (M,) is :func:`_same_dye` of them (None: computed here when needed).
+
+    A grey dye is told by the brightness sign and small chroma (``hue``). A coloured dye is
+    told by its hue (chroma cosine >= _SAME_DYE_COS_PX) and by the direction of the whole
+    contrast (brightness and chroma, cosine >= _SAME_DYE_COS), not by the brightness sign: a
+    thread that differs from the tissue in hue only (green on pink) has a brightness contrast
+    near 0 whose sign is noise and shading, and a light fibre merged into its piece (the same
+    hue, less red than tissue) differs from it in how much brighter than its chroma it is. A
+    blend of one dye over the background keeps that direction at any coverage (to first order
+    in the log contrast)."""
+    if delta.shape[1] == 1 or float(np.linalg.norm(ref[1:])) < _GREY_CHROMA:
+        return (_same_dye(delta, ref) if hue is None else hue) < _SAME_DYE_COS_PX
+    # cos >= t as dot >= 0 and dot^2 >= t^2 |a|^2 |b|^2: no square roots per pixel
+    b, d1, d2 = (delta[:, j].astype(np.float64) for j in range(3))
+    dot_c = d1 * ref[1] + d2 * ref[2]
+    n_c = d1 * d1 + d2 * d2
+    dot = dot_c + b * ref[0]
+    r_c = float(ref[1] ** 2 + ref[2] ** 2)
+    r_all = r_c + float(ref[0] ** 2)
+    chroma_ok = (n_c > 0) & (dot_c >= 0) & (dot_c * dot_c >= _SAME_DYE_COS_PX**2 * n_c * r_c)
+    whole_ok = (dot >= 0) & (dot * dot >= _SAME_DYE_COS**2 * (n_c + b * b) * r_all)
+    return ~(chroma_ok & whole_ok)
 
 
 def _instrument_mask(f_q: np.ndarray) -> np.ndarray:

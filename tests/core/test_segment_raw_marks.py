@@ -1,0 +1,144 @@
+"""Tests of the raw segmentation's decisions about marks on the tissue (core/segment_raw.py)."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from threadrecon.core import segment_raw as sr
+
+LIGHT = np.array([11.0, -10.0, -2.5])  # a light fibre's contrast (brightness, log R/G, log B/G)
+DARK_BLUE = np.array([-4.0, -9.0, 8.0])  # a dark blue thread's
+LENGTH = np.array([0.0, 50.0, 40.0])  # of no piece, the mark (piece 1), the other (piece 2)
+
+
+def _two_pieces(gap: int) -> tuple[SimpleNamespace, np.ndarray, np.ndarray]:
+    """A vertical line of rows 10..59 (piece 1, the mark) and its continuation below after
+    ``gap`` empty rows (piece 2), 3 px wide: the view's lo pixels, ``on`` and ``lab_on``."""
+    rows1, cols1 = np.mgrid[10:60, 40:43]
+    rows2, cols2 = np.mgrid[60 + gap : 100 + gap, 41:44]
+    rows = np.concatenate([rows1.ravel(), rows2.ravel()])
+    cols = np.concatenate([cols1.ravel(), cols2.ravel()])
+    lab = np.r_[np.full(rows1.size, 1), np.full(rows2.size, 2)]
+    return SimpleNamespace(rows=rows, cols=cols), np.arange(len(rows)), lab
+
+
+@pytest.mark.parametrize("gap", [0, 2, sr._BAND_PX - 1])
+def test_a_piece_continuing_a_mark_of_its_dye_is_part_of_it(gap: int) -> None:
+    v, on, lab = _two_pieces(gap)
+    delta = np.stack([np.zeros(3), LIGHT, LIGHT * 0.7])  # one dye, weaker where it fades
+    assert sr._continues(v, on, lab, 2, [1], delta, LENGTH)
+
+
+def test_a_piece_far_from_every_mark_does_not_continue_one() -> None:
+    v, on, lab = _two_pieces(sr._BAND_PX + 6)
+    delta = np.stack([np.zeros(3), LIGHT, LIGHT])
+    assert not sr._continues(v, on, lab, 2, [1], delta, LENGTH)
+
+
+def test_a_piece_of_another_dye_beside_a_mark_does_not_continue_it() -> None:
+    v, on, lab = _two_pieces(1)  # a dark thread ending at a light fibre
+    delta = np.stack([np.zeros(3), LIGHT, DARK_BLUE])
+    assert not sr._continues(v, on, lab, 2, [1], delta, LENGTH)
+
+
+def test_a_piece_meeting_a_mark_at_an_angle_does_not_continue_it() -> None:
+    rows1, cols1 = np.mgrid[10:80, 40:43]  # the mark: vertical (an instrument's edge)
+    rows2, cols2 = np.mgrid[44:47, 45:85]  # a thread leaving it at a right angle
+    v = SimpleNamespace(
+        rows=np.r_[rows1.ravel(), rows2.ravel()], cols=np.r_[cols1.ravel(), cols2.ravel()]
+    )
+    lab = np.r_[np.full(rows1.size, 1), np.full(rows2.size, 2)]
+    delta = np.stack([np.zeros(3), LIGHT, LIGHT])
+    assert not sr._continues(v, np.arange(len(lab)), lab, 2, [1], delta, LENGTH)
+
+
+def test_a_piece_longer_than_the_mark_beside_it_is_no_fragment_of_it() -> None:
+    v, on, lab = _two_pieces(0)  # a long undecided line (on untextured ground) beside a mark
+    delta = np.stack([np.zeros(3), LIGHT, LIGHT])
+    assert not sr._continues(v, on, lab, 2, [1], delta, np.array([0.0, 50.0, 120.0]))
+
+
+def test_without_marks_nothing_continues_one() -> None:
+    v, on, lab = _two_pieces(0)
+    delta = np.stack([np.zeros(3), LIGHT, LIGHT])
+    assert not sr._continues(v, on, lab, 2, [], delta, LENGTH)
+
+
+def _core(rows: slice, cols: slice, shape: tuple[int, int] = (120, 200)) -> np.ndarray:
+    core = np.zeros(shape, np.uint8)
+    core[rows, cols] = 1
+    return core
+
+
+def test_one_line_seen_in_both_views_is_one_object() -> None:
+    left = _core(slice(10, 100), slice(80, 83))
+    right = _core(slice(10, 100), slice(60, 63))  # 20 px of disparity
+    assert sr._one_object([left, right], 40)
+
+
+def test_a_line_partly_hidden_in_one_view_is_one_object() -> None:
+    left = _core(slice(10, 100), slice(80, 83))
+    right = _core(slice(70, 100), slice(60, 63))  # the upper 2/3 hidden in the right view
+    assert sr._one_object([left, right], 40)
+
+
+def test_two_lines_on_other_rows_or_beyond_the_disparity_range_are_not_one_object() -> None:
+    left = _core(slice(10, 50), slice(80, 83))
+    assert not sr._one_object([left, _core(slice(60, 110), slice(60, 63))], 40)
+    assert not sr._one_object([left, _core(slice(10, 50), slice(20, 23))], 40)  # 60 px
+    assert not sr._one_object([left, _core(slice(10, 50), slice(90, 93))], 40)  # negative
+
+
+def test_a_hue_only_thread_keeps_its_pixels_of_either_brightness_sign_but_not_a_light_fibre() -> (
+    None
+):
+    green = np.array([0.4, -26.0, -7.0])  # green on pink: a hue contrast, brightness ~0
+    rng = np.random.default_rng(3)
+    thread = (
+        green * rng.uniform(0.3, 1.0, (50, 1)) + np.c_[rng.uniform(-8, 8, 50), np.zeros((50, 2))]
+    )
+    fibre = LIGHT * rng.uniform(0.5, 1.0, (50, 1))
+    px = np.vstack([thread, fibre])
+    other = sr._other_dye_px(px, green, sr._same_dye(px, green))
+    assert not other[:50].any()
+    assert other[50:].all()
+
+
+def test_a_dark_thread_drops_its_lighter_pixels() -> None:
+    px = np.array([DARK_BLUE * 0.5, -DARK_BLUE * 0.5, [6.0, -9.0, 8.0]])
+    assert sr._other_dye_px(px, DARK_BLUE, sr._same_dye(px, DARK_BLUE)).tolist() == [
+        False,
+        True,
+        True,
+    ]
+
+
+def test_the_dye_part_of_a_piece_merged_with_a_fibre_is_the_thread_s() -> None:
+    # piece 1: 40 thread pixels and 60 fibre pixels; piece 2: fibre only
+    px = np.vstack([np.tile(DARK_BLUE, (40, 1)), np.tile(LIGHT, (60, 1)), np.tile(LIGHT, (30, 1))])
+    lab = np.r_[np.full(100, 1), np.full(30, 2)]
+    mean, count = sr._dye_part(px, lab, DARK_BLUE, 3)
+    assert count.tolist() == [0.0, 40.0, 0.0]
+    np.testing.assert_allclose(mean[1], DARK_BLUE)
+    assert sr._same_dye(px[lab == 1].mean(axis=0)[None], DARK_BLUE)[0] < sr._SAME_DYE_COS
+
+
+def _short_piece(r0: int, c0: int) -> tuple[SimpleNamespace, np.ndarray]:
+    rows, cols = np.mgrid[r0 : r0 + 3, c0 : c0 + 40]  # 40 px long, horizontal
+    v = SimpleNamespace(lo=np.zeros((480, 640), np.uint8), rows=rows.ravel(), cols=cols.ravel())
+    return v, np.arange(rows.size)
+
+
+def test_a_piece_too_short_for_the_surface_test_of_a_mark_s_dye_is_taken_for_a_mark() -> None:
+    delta = np.stack([np.zeros(3), LIGHT, LIGHT * 0.8])
+    v, px = _short_piece(10, 70)  # inside one 64 px block
+    assert sr._like_a_mark(v, px, 2, [1], delta)
+    v, px = _short_piece(10, 110)  # across two blocks: the test could have decided it
+    assert not sr._like_a_mark(v, px, 2, [1], delta)
+
+
+def test_a_short_piece_of_another_dye_than_the_marks_is_not_taken_for_one() -> None:
+    v, px = _short_piece(10, 70)
+    assert not sr._like_a_mark(v, px, 2, [1], np.stack([np.zeros(3), LIGHT, DARK_BLUE]))
+    assert not sr._like_a_mark(v, px, 2, [], np.stack([np.zeros(3), LIGHT, LIGHT]))
