@@ -52,6 +52,7 @@ from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check_beyond import beyond_ends, cut_end
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_kernel import nearest_residual, overlap_hits
+from threadrecon.core.check_support import contradicted
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.reliability import ReliabilityResult
@@ -66,6 +67,7 @@ _SCORE_STEPS = (1.0, 2.0, 4.0, 8.0)  # score 5..1 edges, in multiples of score_m
 CUT_REACH_PX = 35.0  # px searched past cut_end_px (an occluder shifts a cut by 10-25 px)
 BEYOND_COVER_PX = 2.0  # px: a thread's half-width, added to cover_px for the pieces beyond
 _R_CAP_PX = 10.0  # a residual counts at most this (px) in the local mean: no reliable match near
+CONTRA_PX = 1  # px: the reliable pixels under a curve point (its pixel and 8 neighbours)
 
 
 @dataclass(frozen=True)
@@ -359,6 +361,7 @@ class CheckResult:
     longest_bridge_mm: float = 0.0
     unsupported_mm: float = 0.0
     unmeasured_mm: float = 0.0
+    contradicted_mm: float = 0.0
     ambiguous_mm: float = 0.0
     ends_at_border: tuple[str, ...] = ()
     beyond_mm: float = 0.0
@@ -395,6 +398,7 @@ class CheckResult:
             "longest_bridge_mm": self.longest_bridge_mm,
             "unsupported_mm": self.unsupported_mm,
             "unmeasured_mm": self.unmeasured_mm,
+            "contradicted_mm": self.contradicted_mm,
             "ambiguous_mm": self.ambiguous_mm,
             "ends_at_border": list(self.ends_at_border),
             "beyond_mm": self.beyond_mm,
@@ -696,6 +700,17 @@ def _check(
              f"length where no reliable match supports it (limit {p.max_unmeasured_mm:g} mm): "
              "the strands' order or depth may be mixed up")
         )  # fmt: skip
+    # Depth change where the reliable matches under the curve all give another depth (by
+    # crossing_disparity_px or more): the curve runs at one strand's depth over another's
+    # pixels, or between two strands (a wrong branch at a crossing no keypoint shows).
+    against_pts = contradicted(stereo, rel, uv_l, f * B / z_pos, CONTRA_PX, p.crossing_disparity_px)
+    against = _unmeasured_length(step3, step, z_pos, ~against_pts, f / mm)
+    if against > p.max_unmeasured_mm:
+        findings.append(
+            ("suspect", f"the curve's depth change adds {against:.1f} mm to its length over "
+             "thread pixels whose reliable matches all give another depth (limit "
+             f"{p.max_unmeasured_mm:g} mm): it may join two strands at different depths")
+        )  # fmt: skip
     unsupported_exc = _excursion(spline, bounds, zs, ~supported)
     if unsupported_exc > p.bound_tol:
         findings.append(
@@ -752,6 +767,7 @@ def _check(
         longest_bridge_mm=longest_bridge,
         unsupported_mm=unsupported,
         unmeasured_mm=unmeasured,
+        contradicted_mm=against,
         ambiguous_mm=ambiguous,
         ends_at_border=at_border,
         beyond_mm=missing,

@@ -142,6 +142,7 @@ REASON_KINDS = {  # a keyword of each kind of reason (core/check.py) -> a short 
     "deg at its": "bridge turn",
     "depth travels": "unsupported depth",
     "depth change adds": "crossing ambiguity",
+    "give another depth": "contradicted depth",
     "depth bounds by": "bounds",
     "stops short": "piece beyond an end",
     "cut by an occluder": "cut end",
