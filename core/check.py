@@ -703,7 +703,12 @@ def _check(
     # Depth change where the reliable matches under the curve all give another depth (by
     # crossing_disparity_px or more): the curve runs at one strand's depth over another's
     # pixels, or between two strands (a wrong branch at a crossing no keypoint shows).
-    against_pts = contradicted(stereo, rel, uv_l, f * B / z_pos, CONTRA_PX, p.crossing_disparity_px)
+    # (a point a reliable match supports has an agreeing match near it: tested on the others)
+    free_pts = np.flatnonzero(~supported)
+    against_pts = np.zeros(n, dtype=bool)
+    against_pts[free_pts] = contradicted(
+        stereo, rel, uv_l[free_pts], f * B / z_pos[free_pts], CONTRA_PX, p.crossing_disparity_px
+    )
     against = _unmeasured_length(step3, step, z_pos, ~against_pts, f / mm)
     if against > p.max_unmeasured_mm:
         findings.append(
