@@ -141,7 +141,7 @@ REASON_KINDS = {  # a keyword of each kind of reason (core/check.py) -> a short 
     "a loop, not a continuation": "bridge loop",
     "deg at its": "bridge turn",
     "depth travels": "unsupported depth",
-    "depth change adds": "crossing ambiguity",
+    "order or depth may be mixed": "crossing ambiguity",
     "give another depth": "contradicted depth",
     "depth bounds by": "bounds",
     "stops short": "piece beyond an end",
