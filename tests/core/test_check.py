@@ -521,3 +521,20 @@ def test_unmeasured_length_counts_depth_change_only_where_no_match_supports_it()
     flat = np.full(n, 100.0)
     flat3 = step * flat[:-1] / f_mm
     assert _unmeasured_length(flat3, step, flat, ~supported, f_mm) == pytest.approx(0.0, abs=1e-12)
+
+
+def _step_in_depth(points: np.ndarray, rise_mm: float) -> np.ndarray:
+    """The same left projection, depth raised by ``rise_mm`` over 20 samples in the middle and
+    kept raised to the end (one wrong join between two depths)."""
+    n = len(points)
+    ramp = np.clip((np.arange(n) - n // 2) / 20.0, 0.0, 1.0) * rise_mm
+    return points * ((points[:, 2] + ramp) / points[:, 2])[:, None]
+
+
+def test_depth_change_over_matches_that_give_another_depth_is_suspect() -> None:
+    chk = _recheck(0, lambda p: _step_in_depth(p, 15.0))
+    limit = CheckParams().max_unmeasured_mm
+    assert chk.contradicted_mm > limit
+    assert any("give another depth" in r for r in chk.reasons), chk.reasons
+    good = _recheck(0, lambda p: p)  # the curve as reconstructed
+    assert good.status == "ok" and good.contradicted_mm < 1.0
