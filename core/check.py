@@ -28,8 +28,8 @@ sigma_d the matching precision (``sigma_disparity_px``); a_i the distance to the
 (an end is fitted from one side); rho_i the larger of the two reprojection distances to the
 thread pixels; g_i the distance into a bridge (its shape is interpolated). The confidence is
 exp(-e_i / ``conf_mm``). The bound half-width h_i of Eq. (7) is left out: where no match pins
-the depth it was no sign of a larger error (docs/method.md, the check's fifth round); the
-crossing-ambiguity finding uses it.
+the depth it was no sign of a larger error (docs/method.md, the check's fifth round); it only
+marks the ambiguous length of the evidence (``ambiguous_mm``).
 
 All image measurements use one distance field per view of the thread masks (``check_field``:
 cached with the segmentation, its values computed only where the curve reads them), so the
@@ -52,6 +52,7 @@ from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check_beyond import beyond_ends, cut_end
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_kernel import nearest_residual, overlap_hits
+from threadrecon.core.check_support import contradicted
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.reliability import ReliabilityResult
@@ -66,6 +67,7 @@ _SCORE_STEPS = (1.0, 2.0, 4.0, 8.0)  # score 5..1 edges, in multiples of score_m
 CUT_REACH_PX = 35.0  # px searched past cut_end_px (an occluder shifts a cut by 10-25 px)
 BEYOND_COVER_PX = 2.0  # px: a thread's half-width, added to cover_px for the pieces beyond
 _R_CAP_PX = 10.0  # a residual counts at most this (px) in the local mean: no reliable match near
+CONTRA_PX = 1  # px: the reliable pixels under a curve point (its pixel and 8 neighbours)
 
 
 @dataclass(frozen=True)
@@ -193,6 +195,15 @@ class CheckParams(Params):
         "reliable match supports it (beyond the straight depth change between supported "
         "points): length the evidence does not show. Default: the wrong-length limit.",
     )  # fmt: skip
+    max_unmeasured_mm: float = param(
+        10.0, lo=0.0, unit="mm", slider=(0.0, 100.0, 1.0), label="unmeasured length",
+        doc="With a crossing (of the thread pixels, or of the curve's left projection with "
+        "itself), suspect when the curve's depth change adds more than this to its length "
+        "where no reliable match supports it (over each such step, the 3D step less the same "
+        "2D step at constant depth): the effect of the crossing's ambiguity, a wrong branch "
+        "joining two strands at different depths. Default: half the wrong-length limit "
+        "(a wrong branch enters and leaves the other strand: two such joins).",
+    )  # fmt: skip
     loop_px: float = param(
         1.5, lo=0.0, unit="px", slider=(0.0, 10.0, 0.5), label="loop distance",
         doc="Two curve samples this close in the left image, but far apart along the curve, "
@@ -284,13 +295,8 @@ class CheckParams(Params):
         10.0, lo=0.0, unit="mm", slider=(0.0, 50.0, 0.5), label="ambiguous error",
         doc="A curve point whose expected error e_i exceeds this, its bound half-width h_i "
         "left out where an agreeing reliable match supports it (r_i <= support_tol_px), is "
-        "ambiguous.",
-    )  # fmt: skip
-    max_ambiguous_mm: float = param(
-        20.0, lo=0.0, unit="mm", slider=(0.0, 200.0, 1.0), label="ambiguous length",
-        doc="With a crossing (of the thread pixels, or of the curve's left projection with "
-        "itself), suspect when more than this length of the curve is ambiguous (the "
-        "strands' depths were mixed up near the crossing).",
+        "ambiguous (evidence ``ambiguous_mm``: the length of such points; no finding of its "
+        "own, its effect on the length is ``max_unmeasured_mm``'s).",
     )  # fmt: skip
 
 
@@ -354,6 +360,8 @@ class CheckResult:
     unseen_mm: float = 0.0
     longest_bridge_mm: float = 0.0
     unsupported_mm: float = 0.0
+    unmeasured_mm: float = 0.0
+    contradicted_mm: float = 0.0
     ambiguous_mm: float = 0.0
     ends_at_border: tuple[str, ...] = ()
     beyond_mm: float = 0.0
@@ -389,6 +397,8 @@ class CheckResult:
             "unseen_mm": self.unseen_mm,
             "longest_bridge_mm": self.longest_bridge_mm,
             "unsupported_mm": self.unsupported_mm,
+            "unmeasured_mm": self.unmeasured_mm,
+            "contradicted_mm": self.contradicted_mm,
             "ambiguous_mm": self.ambiguous_mm,
             "ends_at_border": list(self.ends_at_border),
             "beyond_mm": self.beyond_mm,
@@ -673,6 +683,39 @@ def _check(
              f"no reliable match supports it (limit {p.max_unsupported_mm:g} mm): length the "
              "images do not show")
         )  # fmt: skip
+    # A crossing (a keypoint of high degree in A, or the curve's own left projection running
+    # over itself: the segmentation may merge the strands so that no keypoint shows it) makes
+    # order and depth ambiguous between the strands. The ambiguity's effect on the curve is the
+    # length its depth change adds where no reliable match measures it: a wrong branch joins
+    # two strands at different depths through such a stretch. Without a crossing, unsupported
+    # depth change is a tilted thread (the paper's frames: up to 29 mm on right curves).
+    unmeasured = _unmeasured_length(step3, step, z_pos, supported, f / mm)
+    if (crossings or overlap > 0) and unmeasured > p.max_unmeasured_mm:
+        where = (
+            f"the thread pixels cross or branch at {crossings} keypoint(s)" if crossings
+            else f"the curve crosses itself in the left image ({overlap:.0f} px overlap)"
+        )  # fmt: skip
+        findings.append(
+            ("suspect", f"{where} and the curve's depth change adds {unmeasured:.1f} mm to its "
+             f"length where no reliable match supports it (limit {p.max_unmeasured_mm:g} mm): "
+             "the strands' order or depth may be mixed up")
+        )  # fmt: skip
+    # Depth change where the reliable matches under the curve all give another depth (by
+    # crossing_disparity_px or more): the curve runs at one strand's depth over another's
+    # pixels, or between two strands (a wrong branch at a crossing no keypoint shows).
+    # (a point a reliable match supports has an agreeing match near it: tested on the others)
+    free_pts = np.flatnonzero(~supported)
+    against_pts = np.zeros(n, dtype=bool)
+    against_pts[free_pts] = contradicted(
+        stereo, rel, uv_l[free_pts], f * B / z_pos[free_pts], CONTRA_PX, p.crossing_disparity_px
+    )
+    against = _unmeasured_length(step3, step, z_pos, ~against_pts, f / mm)
+    if against > p.max_unmeasured_mm:
+        findings.append(
+            ("suspect", f"the curve's depth change adds {against:.1f} mm to its length over "
+             "thread pixels whose reliable matches all give another depth (limit "
+             f"{p.max_unmeasured_mm:g} mm): it may join two strands at different depths")
+        )  # fmt: skip
     unsupported_exc = _excursion(spline, bounds, zs, ~supported)
     if unsupported_exc > p.bound_tol:
         findings.append(
@@ -690,27 +733,14 @@ def _check(
     e_mm[(z <= 0) | (z_right <= 0)] = np.inf
     conf = np.exp(-e_mm / p.conf_mm)
 
-    # Ambiguous depth: a wide bound where no agreeing reliable match pins the depth (where one
-    # does, the strands' depths are measured there, however wide the bounds).
+    # Ambiguous depth (evidence only): a wide bound where no agreeing reliable match pins the
+    # depth (where one does, the strands' depths are measured there, however wide the bounds).
+    # Whether an ambiguity matters is its effect on the curve: the unmeasured length above.
     h_free = np.where(supported, 0.0, h)
     e_free = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h_free**2) * mm
     e_free = np.where(np.isfinite(e_mm), e_free + lateral, np.inf)
-    seg_mm = np.linalg.norm(np.diff(pts, axis=0), axis=1) * mm
     amb = e_free > p.ambiguous_mm
-    ambiguous = float(np.sum(seg_mm * (amb[1:] | amb[:-1])))
-    # A crossing: a keypoint of high degree in A, or the curve's own left projection running
-    # over itself (the segmentation may merge the strands so that no keypoint shows it).
-    if (crossings or overlap > 0) and ambiguous > p.max_ambiguous_mm:
-        where = (
-            f"the thread pixels cross or branch at {crossings} keypoint(s)" if crossings
-            else f"the curve crosses itself in the left image ({overlap:.0f} px overlap)"
-        )  # fmt: skip
-        findings.append(
-            ("suspect", f"{where} and "
-             f"{ambiguous:.0f} mm of the curve have an expected error above "
-             f"{p.ambiguous_mm:g} mm (limit {p.max_ambiguous_mm:g} mm): the strands' order or "
-             "depth may be mixed up")
-        )  # fmt: skip
+    ambiguous = float(np.sum(step3 * (amb[1:] | amb[:-1])))
     status: Status = max((s for s, _ in findings), key=_RANK.__getitem__, default="ok")
     score = _score(_typical(e_mm), status, p.score_mm)
     grasp = _grasp(pts, conf, uv_l, uv_r, (H, W), mm, p)
@@ -741,6 +771,8 @@ def _check(
         unseen_mm=unseen_mm,
         longest_bridge_mm=longest_bridge,
         unsupported_mm=unsupported,
+        unmeasured_mm=unmeasured,
+        contradicted_mm=against,
         ambiguous_mm=ambiguous,
         ends_at_border=at_border,
         beyond_mm=missing,
@@ -930,6 +962,21 @@ def _unsupported_travel(z: np.ndarray, supported: np.ndarray) -> float:
     net = np.abs(z[edges[1:]] - z[edges[:-1]])
     net[[0, -1]] = 0.0  # the ends (empty when the curve's first or last point is supported)
     return float(np.sum(travel - net))
+
+
+def _unmeasured_length(
+    step3: np.ndarray, step: np.ndarray, z: np.ndarray, supported: np.ndarray, f_mm: float
+) -> float:
+    """Length (mm) the curve's depth change adds where no reliable match supports it: over
+    each step with an unsupported sample, the 3D step ``step3`` (mm) less the same 2D step
+    ``step`` (px) at constant depth (px * z / f, ``f_mm`` = f per mm of depth). A step between
+    two supported samples is measured at both ends and left out."""
+    free = ~(supported[1:] & supported[:-1])
+    if not free.any():
+        return 0.0
+    flat = step[free] * (0.5 / f_mm) * (z[1:][free] + z[:-1][free])  # the step at constant depth
+    extra = step3[free] - flat
+    return float(np.sum(extra, where=np.isfinite(extra) & (extra > 0.0)))
 
 
 def _strand_samples(

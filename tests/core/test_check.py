@@ -24,6 +24,7 @@ from threadrecon.core.check import (
     _strand_samples,
     _surface_behind,
     _typical,
+    _unmeasured_length,
     _unsupported_travel,
     check_curve,
 )
@@ -498,3 +499,42 @@ def test_surface_behind_tells_background_from_an_occluder_in_front(seed: int) ->
     assert not _surface_behind(shaft, shaft, uv_l, uv_r)  # along the rows: depth unknown
     flat = np.full((80, 120), 120.0, np.float32) + rng.normal(0, 1.0, (80, 120)).astype(np.float32)
     assert _surface_behind(flat, flat, uv_l, uv_r)  # untextured: left to the grey levels
+
+
+def test_unmeasured_length_counts_depth_change_only_where_no_match_supports_it() -> None:
+    """A step in depth across unsupported samples adds its 3D length less the 2D step at
+    constant depth; the same step between supported samples, or a flat stretch, adds none."""
+    f_mm = 500.0  # f per mm of depth: 1 px at z = 100 mm is 0.2 mm
+    n = 11
+    step = np.full(n - 1, 5.0)  # px: 1 mm at 100 mm
+    z = np.full(n, 100.0)
+    z[6:] = 110.0  # a 10 mm depth step between samples 5 and 6
+    step3 = np.hypot(step * z[:-1] / f_mm, np.diff(z))
+    partly = np.ones(n, dtype=bool)
+    partly[4:8] = False  # samples 4..7 have no agreeing reliable match
+    got = _unmeasured_length(step3, step, z, partly, f_mm)
+    lateral = 5.0 * 105.0 / 500.0
+    assert got == pytest.approx(step3[5] - lateral, rel=1e-9)
+    assert got > 8.9
+    supported = np.ones(n, dtype=bool)
+    assert _unmeasured_length(step3, step, z, supported, f_mm) == 0.0
+    flat = np.full(n, 100.0)
+    flat3 = step * flat[:-1] / f_mm
+    assert _unmeasured_length(flat3, step, flat, ~supported, f_mm) == pytest.approx(0.0, abs=1e-12)
+
+
+def _step_in_depth(points: np.ndarray, rise_mm: float) -> np.ndarray:
+    """The same left projection, depth raised by ``rise_mm`` over 20 samples in the middle and
+    kept raised to the end (one wrong join between two depths)."""
+    n = len(points)
+    ramp = np.clip((np.arange(n) - n // 2) / 20.0, 0.0, 1.0) * rise_mm
+    return points * ((points[:, 2] + ramp) / points[:, 2])[:, None]
+
+
+def test_depth_change_over_matches_that_give_another_depth_is_suspect() -> None:
+    chk = _recheck(0, lambda p: _step_in_depth(p, 15.0))
+    limit = CheckParams().max_unmeasured_mm
+    assert chk.contradicted_mm > limit
+    assert any("give another depth" in r for r in chk.reasons), chk.reasons
+    good = _recheck(0, lambda p: p)  # the curve as reconstructed
+    assert good.status == "ok" and good.contradicted_mm < 1.0
