@@ -32,8 +32,6 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
-from scipy import sparse
-from scipy.sparse import csgraph
 
 from threadrecon.core import walk_kernel
 from threadrecon.core.clustering import Clusters
@@ -46,8 +44,6 @@ OUTLIER_PX = 2.0  # a pixel > 2 px of disparity from its cluster's median is ano
 MAX_WALKS = 24  # walks tried per frame (ends, then runner-up turns of the best): bounded time
 _NO_END_DISPARITY = np.array([[np.nan, np.inf], [np.nan, np.inf]])  # no end matched
 MAX_REJECTED = 4  # rejected continuations kept per decision: a jump may see dozens, few matter
-AGREE_PX, AGREE_SLOPE = 1.0, 0.1  # disparities agree within 1 px + 0.1 px/px (slope <= B/Z)
-MAX_ISLAND = 3  # keypoints: a longer section matched elsewhere is a strand to the walk (repair)
 
 
 @dataclass(frozen=True)
@@ -237,8 +233,7 @@ def order_keypoints(
     if p.walk == "greedy":
         walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
     else:
-        xy = clusters.keypoints_px[:, :2]
-        wg = _WalkGraph.of(adj, xy, _island_disparity(edges, xy, disp))
+        wg = _WalkGraph.of(adj, clusters.keypoints_px[:, :2], disp)
         walk = _bending_walk(wg, p)
 
     links = cluster_gaps.shared(walk)
@@ -955,7 +950,7 @@ def _continuations(
         free = np.flatnonzero(~visited)
         d = np.linalg.norm(pos[free] - pos[cur], axis=1)
         near = d <= p.bridge_px
-        near &= _agrees(disp[free], ref, d)
+        near &= np.abs(disp[free] - ref) <= 1.0 + 0.1 * d  # depth agrees (slope <= B/Z)
         cand = [int(v) for v in free[near]]
     if not cand:
         return [], np.zeros(0), tier, []
@@ -987,47 +982,6 @@ def _ref_disparity(walk: np.ndarray, n: int, disp: np.ndarray) -> float:
     v = np.sort(disp[walk[max(0, n - walk_kernel.REF_KEYPOINTS) : n]])
     v = v[~np.isnan(v)]
     return float(0.5 * (v[(len(v) - 1) // 2] + v[len(v) // 2])) if len(v) else math.nan
-
-
-def _agrees(d_a: np.ndarray, d_b: np.ndarray | float, dist: np.ndarray) -> np.ndarray:
-    """Disparities ``d_a``, ``d_b`` px of two points ``dist`` px apart in the image can lie on
-    one thread: within ``AGREE_PX`` + ``AGREE_SLOPE`` ``dist`` (a thread's depth changes by at
-    most its length, and the disparity of a point at depth Z by B/Z per px)."""
-    return np.abs(d_a - d_b) <= AGREE_PX + AGREE_SLOPE * dist
-
-
-def _island_disparity(edges: np.ndarray, xy: np.ndarray, disp: np.ndarray) -> np.ndarray:
-    """(K,) the keypoints' disparities for the walk: a keypoint of a mismatched island takes
-    the median disparity of the keypoints around it.
-
-    Split A's edges into those whose keypoints' disparities agree (:func:`_agrees`) and the
-    rest. A component of agreeing edges of at most ``MAX_ISLAND`` keypoints next to one of
-    more keypoints (the thread's own depth) is an island matched elsewhere (a section of the
-    thread matched to another strand on its rows: 20.8 px among 43.3 px on a generated spiral,
-    3.3 among 38 px on a crossing): its disparity would turn the walk away from it, and it
-    would be visited out of its place along the thread. A crossing's keypoints are no island:
-    they agree with the other strand's arms. ``xy``: (K, 2) px, ``edges``: (E, 2) of A."""
-    K = len(disp)
-    if K == 0 or not len(edges):
-        return disp
-    a, b = edges[:, 0], edges[:, 1]
-    ok = _agrees(disp[a], disp[b], np.hypot(*(xy[a] - xy[b]).T))
-    n_g, comp = csgraph.connected_components(_sym(K, a[ok], b[ok]), directed=False)
-    small = np.bincount(comp, minlength=n_g)[comp] <= MAX_ISLAND  # (K,)
-    src, dst = np.concatenate([a, b]), np.concatenate([b, a])
-    m = small[src] & ~small[dst] & np.isfinite(disp[src]) & np.isfinite(disp[dst])
-    if not m.any():
-        return disp
-    out = disp.copy()
-    g_of, d_nb = comp[src[m]], disp[dst[m]]
-    for g in np.unique(g_of).tolist():  # a handful of islands
-        out[comp == g] = np.median(d_nb[g_of == g])
-    return out
-
-
-def _sym(K: int, a: np.ndarray, b: np.ndarray) -> sparse.csr_array:
-    """The undirected K x K graph of the edges (a, b)."""
-    return sparse.csr_array((np.ones(len(a), np.int8), (a, b)), shape=(K, K))
 
 
 def _explain(

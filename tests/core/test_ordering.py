@@ -8,7 +8,7 @@ import pytest
 from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
-from support import assert_close, calibration_for, synthetic_case, synthetic_frame
+from support import calibration_for, synthetic_case, synthetic_frame
 
 from threadrecon.core.metrics import curve_errors, polyline_length, resample
 from threadrecon.core.ordering import (
@@ -24,7 +24,6 @@ from threadrecon.core.ordering import (
     _edges,
     _explain,
     _GapGeodesics,
-    _island_disparity,
     _normalised,
     _PixelGrid,
     _single_steps,
@@ -550,27 +549,3 @@ def test_walk_passes_straight_through_a_crossing_split_over_two_junctions() -> N
         "a0", "a1", "a2", "a3", "e0", "e1", "l1", "l2", "l3", "l4", "n1", "n0", "s0", "s1",
     ]  # fmt: skip
     assert len(best) == len(ids)
-
-
-def test_a_small_island_matched_elsewhere_takes_its_surroundings_disparity_for_the_walk() -> None:
-    # A strand at 43 px with two keypoints matched to another strand (20.8 px; generated spiral
-    # 8115 #17) and a crossing whose keypoints agree with the other strand's arm: only the
-    # island's disparity is replaced, by the median of its neighbours'.
-
-    x = np.arange(12) * 5.0  # a strand along x, keypoints 5 px apart
-    xy = np.vstack([np.column_stack([x, 0 * x]), [[30, 5], [30, 10], [30, 15], [30, 20]]])
-    disp = np.r_[np.full(12, 43.0), np.full(4, 30.0)]  # the other strand crosses at x = 30
-    edges = np.array([(i, i + 1) for i in range(11)] + [(6, 12), (12, 13), (13, 14), (14, 15)])
-    island = disp.copy()
-    island[[4, 5]] = [20.8, 20.9]
-    out = _island_disparity(edges, xy, island)
-    assert_close(out[[4, 5]], np.full(2, 43.0))  # the median of its neighbours 3 and 6
-    assert_close(np.delete(out, [4, 5]), np.delete(island, [4, 5]))
-    # the crossing's keypoint 6 with the other strand's disparity agrees with its arm: kept
-    crossing = disp.copy()
-    crossing[6] = 30.5
-    assert_close(_island_disparity(edges, xy, crossing), crossing)
-    # a section longer than MAX_ISLAND keypoints is a strand of its own
-    long = disp.copy()
-    long[4:8] = 20.8
-    assert_close(_island_disparity(edges, xy, long), long)
