@@ -908,8 +908,8 @@ def _continuations(
         distance * (1 + bend_weight * (1 - cos turn)) + disparity_weight * |disparity change|,
 
     the tier they come from and, per candidate, why it is excluded ("" if it is not; its cost
-    is then inf; the disparity change is from the median of the walk's last five keypoints,
-    which a crossing's one or two keypoints of the other strand's disparity do not move).
+    is then inf; the disparity change is from the mean of the walk's last three keypoints that
+    are no junction: a crossing's keypoints carry the other strand's disparity).
     Tiers, in this order of preference: 0, unvisited neighbours in A (at a junction also the
     unvisited neighbours of an unvisited adjacent junction: a crossing split over two three-way
     junctions is passed straight through, the junction passed over left for the other strand);
@@ -944,7 +944,7 @@ def _continuations(
     heading = pos[cur] - pos[back]
     hn = float(np.hypot(*heading))
     heading = heading / hn if hn > 0 else None
-    ref = _ref_disparity(walk, n, disp)
+    ref = _ref_disparity(walk, n, g)
     cand: list[int] = []
     if heading is not None:
         free = np.flatnonzero(~visited)
@@ -976,12 +976,18 @@ def _continuations(
     return cand, cost, 2, why
 
 
-def _ref_disparity(walk: np.ndarray, n: int, disp: np.ndarray) -> float:
-    """The walk's disparity reference of :func:`walk_kernel.step_costs`, in numpy: the median
-    of the finite disparities of its last ``REF_KEYPOINTS`` keypoints, NaN if none."""
-    v = np.sort(disp[walk[max(0, n - walk_kernel.REF_KEYPOINTS) : n]])
-    v = v[~np.isnan(v)]
-    return float(0.5 * (v[(len(v) - 1) // 2] + v[len(v) // 2])) if len(v) else math.nan
+def _ref_disparity(walk: np.ndarray, n: int, g: _WalkGraph) -> float:
+    """The walk's disparity reference of :func:`walk_kernel.step_costs`, in numpy: the mean
+    disparity of the last ``REF_KEYPOINTS`` keypoints of ``walk[:n]`` that are no junction,
+    among its last ``REF_LOOKBACK``; of its last ``REF_KEYPOINTS`` where there is none."""
+    last = walk[max(0, n - walk_kernel.REF_LOOKBACK) : n]
+    own = last[np.diff(g.indptr)[last] < 3][-walk_kernel.REF_KEYPOINTS :]
+    if not len(own):
+        own = walk[max(0, n - walk_kernel.REF_KEYPOINTS) : n]
+    ref = 0.0
+    for d in g.disp[own].tolist():  # oldest first, as the kernel sums
+        ref += d
+    return ref / len(own)
 
 
 def _explain(

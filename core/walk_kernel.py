@@ -30,30 +30,37 @@ def _before(a: float, b: float) -> bool:
     return a < b or (math.isnan(b) and not math.isnan(a))
 
 
-REF_KEYPOINTS = 5  # the walk's disparity reference: the median of its last five keypoints
+REF_KEYPOINTS = 3  # the walk's disparity reference: the mean of its last three keypoints ...
+REF_LOOKBACK = 8  # ... that are not junctions, among its last eight (a crossing spans a few)
 
 
 @helper()
-def _ref_disparity(walk, n, disp):  # noqa: ANN001
-    """Median of the finite disparities of the last ``REF_KEYPOINTS`` keypoints of ``walk[:n]``
-    (the mean of the two middle ones for an even count), NaN if none. A crossing's one or two
-    keypoints carry the other strand's disparity (its pixels are both strands'); the median of
-    five ignores them where a mean would follow them."""
-    buf = np.empty(REF_KEYPOINTS)
+def _ref_disparity(walk, n, disp, indptr):  # noqa: ANN001
+    """Mean disparity of the last ``REF_KEYPOINTS`` keypoints of ``walk[:n]`` that are no
+    junction (degree < 3 in A), looking back at most ``REF_LOOKBACK`` keypoints; of the last
+    ``REF_KEYPOINTS`` keypoints where there is none. A crossing's keypoints carry the other
+    strand's disparity (their pixels are both strands'), and would turn the walk onto the
+    other strand at the crossing. Summed oldest first (the paper-era reference, bit for bit,
+    where no junction is near)."""
+    lo = n - REF_LOOKBACK if n >= REF_LOOKBACK else 0
+    start = n
     c = 0
-    lo = n - REF_KEYPOINTS if n >= REF_KEYPOINTS else 0
-    for i in range(lo, n):
-        v = disp[walk[i]]
-        if not math.isnan(v):
-            j = c - 1  # insertion sort of at most five values
-            while j >= 0 and buf[j] > v:
-                buf[j + 1] = buf[j]
-                j -= 1
-            buf[j + 1] = v
+    while start > lo and c < REF_KEYPOINTS:
+        start -= 1
+        k = walk[start]
+        if indptr[k + 1] - indptr[k] < 3:
             c += 1
+    ref = 0.0
     if c == 0:
-        return np.nan
-    return 0.5 * (buf[(c - 1) // 2] + buf[c // 2])
+        start = n - REF_KEYPOINTS if n >= REF_KEYPOINTS else 0
+        for i in range(start, n):
+            ref += disp[walk[i]]
+        return ref / (n - start)
+    for i in range(start, n):
+        k = walk[i]
+        if indptr[k + 1] - indptr[k] < 3:
+            ref += disp[k]
+    return ref / c
 
 
 @helper(inline="always")
@@ -107,7 +114,7 @@ def step_costs(
     hx = pos[cur, 0] - pos[back, 0]
     hy = pos[cur, 1] - pos[back, 1]
     hn = math.hypot(hx, hy)
-    ref = _ref_disparity(walk, n, disp)
+    ref = _ref_disparity(walk, n, disp, indptr)
     m = 0
     for e in range(indptr[cur], indptr[cur + 1]):
         v = indices[e]

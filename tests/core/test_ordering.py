@@ -393,8 +393,8 @@ def _reference_step(
     cur, back = walk[-1], walk[-3] if len(walk) >= 3 else walk[0]
     heading = pos[cur] - pos[back]
     hn = float(np.hypot(*heading))
-    last = disp[walk[-5:]]  # the median of the last five keypoints' finite disparities
-    ref = float(np.median(last[~np.isnan(last)])) if (~np.isnan(last)).any() else np.nan
+    own = [k for k in walk[-8:] if len(adj[k]) < 3][-3:] or walk[-3:]  # no junctions
+    ref = float(np.mean(disp[own]))
     cand = [v for v in adj[cur] if not visited[v]]
     if len(adj[cur]) >= 3:  # a crossing split over two junctions: the other one's arms too
         for u in list(cand):
