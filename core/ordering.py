@@ -910,9 +910,9 @@ def _continuations(
     the tier they come from and, per candidate, why it is excluded ("" if it is not; its cost
     is then inf; the disparity change is from the mean of the walk's last three keypoints that
     are no junction: a crossing's keypoints carry the other strand's disparity).
-    Tiers, in this order of preference: 0, unvisited neighbours in A (at a junction also the
-    unvisited neighbours of an unvisited adjacent junction: a crossing split over two three-way
-    junctions is passed straight through, the junction passed over left for the other strand);
+    Tiers, in this order of preference: 0, unvisited neighbours in A (at a three-way junction
+    also the unvisited neighbours of an unvisited adjacent three-way junction: a crossing split
+    in two is passed straight through, the junction passed over left for the other strand);
     1, unvisited keypoints two steps away through a keypoint already on the path (the other
     strand of a crossing; a turn of more than ``max_turn_deg`` only when nothing else is left:
     a touching turn); 2, unvisited keypoints within ``bridge_px`` whose disparity agrees and whose piece

@@ -64,9 +64,11 @@ def _ref_disparity(walk, n, disp, indptr):  # noqa: ANN001
 
 
 @helper(inline="always")
-def _is_junction(v, indptr):  # noqa: ANN001
-    """Keypoint v has degree >= 3 in A (a crossing, a touching turn, a side branch)."""
-    return indptr[v + 1] - indptr[v] >= 3
+def _is_split(v, indptr):  # noqa: ANN001
+    """Keypoint v has degree 3 in A: with an adjacent one of degree 3, the two are a four-arm
+    crossing split in two (a junction of higher degree is a knot of touching strands, whose
+    arms are no continuation of each other)."""
+    return indptr[v + 1] - indptr[v] == 3
 
 
 @helper()
@@ -102,13 +104,13 @@ def step_costs(
     bend_w (1 - cos turn)) + disp_w |disparity change from :func:`_ref_disparity`|; at tier 1
     a turn with cos < ``cos_max`` is inf unless every candidate turns that much.
 
-    Tier 0: the unvisited neighbours of the current keypoint and, when it is a junction (degree
-    >= 3), the unvisited neighbours of its unvisited junction neighbours: the clusters of a
+    Tier 0: the unvisited neighbours of the current keypoint and, when it has degree 3, the
+    unvisited neighbours of its unvisited neighbours of degree 3: the clusters of a
     crossing often split it into two adjacent three-way junctions, each holding one arm of
     either strand, and the strand goes on from the other one's arm (the junction passed over
     stays for the second strand). Tier 1: the unvisited neighbours of the visited neighbours,
-    and through a visited junction those of its adjacent junctions too (the other half of a
-    split crossing)."""
+    and through a visited one of degree 3 those of its neighbours of degree 3 too (the other
+    half of a split crossing)."""
     cur = walk[n - 1]
     back = walk[n - 3] if n >= 3 else walk[0]
     hx = pos[cur, 0] - pos[back, 0]
@@ -121,9 +123,9 @@ def step_costs(
         if not visited[v]:
             cand[m] = v
             m += 1
-    if _is_junction(cur, indptr):  # a crossing split over two adjacent junctions
+    if _is_split(cur, indptr):  # a crossing split over two adjacent three-way junctions
         for i in range(m):
-            if _is_junction(cand[i], indptr):
+            if _is_split(cand[i], indptr):
                 m = _add_free(cand[i], cur, visited, indptr, indices, cand, m)
     tier = 0
     if m == 0:
@@ -133,10 +135,10 @@ def step_costs(
             if not visited[u]:
                 continue
             m = _add_free(u, cur, visited, indptr, indices, cand, m)
-            if _is_junction(u, indptr):  # the other junction of a split crossing
+            if _is_split(u, indptr):  # the other junction of a split crossing
                 for f in range(indptr[u], indptr[u + 1]):
                     w = indices[f]
-                    if w != cur and _is_junction(w, indptr):
+                    if w != cur and _is_split(w, indptr):
                         m = _add_free(w, cur, visited, indptr, indices, cand, m)
         cand[:m].sort()
     if m == 0:

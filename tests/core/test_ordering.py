@@ -396,15 +396,15 @@ def _reference_step(
     own = [k for k in walk[-8:] if len(adj[k]) < 3][-3:] or walk[-3:]  # no junctions
     ref = float(np.mean(disp[own]))
     cand = [v for v in adj[cur] if not visited[v]]
-    if len(adj[cur]) >= 3:  # a crossing split over two junctions: the other one's arms too
+    if len(adj[cur]) == 3:  # a crossing split over two junctions: the other one's arms too
         for u in list(cand):
-            for w in adj[u] if len(adj[u]) >= 3 else []:
+            for w in adj[u] if len(adj[u]) == 3 else []:
                 if w != cur and not visited[w] and w not in cand:
                     cand.append(w)
     tier = 0
     if not cand:
         via = [u for u in adj[cur] if visited[u]]  # and a visited junction's junctions
-        via += [w for u in via if len(adj[u]) >= 3 for w in adj[u] if len(adj[w]) >= 3]
+        via += [w for u in via if len(adj[u]) == 3 for w in adj[u] if len(adj[w]) == 3]
         cand = sorted({w for u in via if u != cur for w in adj[u] if not visited[w]})
         tier = 1
     if not cand:
