@@ -1039,8 +1039,8 @@ LONG_WALK = 150  # keypoints: from here on numpy finds the decision steps faster
 
 def _decision_steps(path: np.ndarray, g: _WalkGraph) -> list[int]:
     """The steps i of the walk ``path`` that are not a single step (:func:`_single_steps`; a
-    step from a junction always counts, for its candidates include the arms of an adjacent
-    junction, see :func:`walk_kernel.step_costs`):
+    step from a three-way junction always counts, for its candidates include the arms of an
+    adjacent one, see :func:`walk_kernel.step_costs`):
     by a loop over a short walk, in numpy over a long one (0.7 against 1.1 ms at 1920x1080)."""
     if len(path) >= LONG_WALK:
         return np.flatnonzero(~_single_steps(path, g)).tolist()
@@ -1050,7 +1050,7 @@ def _decision_steps(path: np.ndarray, g: _WalkGraph) -> list[int]:
     for i, at in enumerate(walk):
         on_path[at] = True
         free = [v for v in adj[at] if not on_path[v]]
-        if len(adj[at]) >= 3 or not (
+        if len(adj[at]) == 3 or not (
             len(free) == 1 and i + 1 < len(walk) and walk[i + 1] == free[0]
         ):
             out.append(i)
@@ -1059,7 +1059,7 @@ def _decision_steps(path: np.ndarray, g: _WalkGraph) -> list[int]:
 
 def _single_steps(path: np.ndarray, g: _WalkGraph) -> np.ndarray:
     """(n,) bool over the steps of the walk ``path``: step i went to the only neighbour of
-    ``path[i]`` in A not on ``path[: i + 1]``, and ``path[i]`` is no junction (most steps; no
+    ``path[i]`` in A not on ``path[: i + 1]``, and ``path[i]`` has no degree 3 (most steps; no
     decision to replay there). All
     steps at once, from each neighbour's first position on the path."""
     n = len(path)
@@ -1075,8 +1075,8 @@ def _single_steps(path: np.ndarray, g: _WalkGraph) -> np.ndarray:
     nxt = np.append(path[1:], -1)
     to_next = np.zeros(n, dtype=bool)
     to_next[step[free & (nb == nxt[step])]] = True
-    junction = (hi - lo) >= 3  # a junction's step may also go to a next junction's arm
-    return (n_free == 1) & to_next & ~junction
+    split = (hi - lo) == 3  # a three-way junction's step may go to the next one's arm
+    return (n_free == 1) & to_next & ~split
 
 
 def _pieces(adj: list[list[int]]) -> tuple[tuple[int, ...], ...]:
