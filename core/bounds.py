@@ -48,6 +48,12 @@ class BoundsParams(Params):
         0.25, lo=0, hi=100, unit="px", slider=(0.0, 3.0, 0.05), label="widen threshold"
     )
     """Smallest bound half-width, px of disparity."""
+    depth_ratio: float = param(
+        2.0, lo=0, hi=100, slider=(0.0, 5.0, 0.1), label="extra point depth ratio"
+    )
+    """Extra points deeper than this many times, or nearer than its inverse of, the keypoints'
+    depth interpolated at them leave the window lines of Eq. (7) (0: off, the paper): another
+    strand's match or none (docs/method.md, deviation 26)."""
     drop_outliers: bool = False
     """Leave extra points whose disparity lies > ``OUTLIER_PX`` from the keypoints' out of the
     window lines of Eq. (7) (docs/method.md, deviation 21; measured better on held-out
@@ -108,7 +114,8 @@ def depth_bounds(
     n_kp = int(np.sum(ordering.order >= 0))
     r_k = max(p.r_k_min, int(round(p.r_k_frac * n_kp)))
     z_rel = _fit_depths(H, is_key, s, key_idx, fB)  # extra points matched elsewhere: NaN
-    z_fit = z_rel if p.drop_outliers else H[:, 2]
+    z_fit = _off_by_ratio(H, is_key, s, key_idx, p.depth_ratio)
+    z_fit = np.where(np.isnan(z_rel), np.nan, z_fit) if p.drop_outliers else z_fit
     line_at_key, slopes = _window_line_fits(s, z_fit, key_idx, r_k)
     paper_ends = (line_at_key[0], slopes[0], line_at_key[-1], slopes[-1])
     line_at_key, slopes = _tip_ends(
@@ -207,6 +214,29 @@ def _fit_depths(
         d_key = np.interp(s, s[key_idx], d[key_idx])
         other = ~is_key & ~(np.abs(d - d_key) <= OUTLIER_PX)
     return np.where(other, np.nan, z)
+
+
+def _off_by_ratio(
+    H: np.ndarray, is_key: np.ndarray, s: np.ndarray, key_idx: np.ndarray, ratio: float
+) -> np.ndarray:
+    """(P,) depths of H for the window lines of Eq. (7): an extra point deeper than ``ratio``
+    times the keypoints' depth interpolated at it (in disparity, along s), or nearer than
+    1 / ``ratio`` of it, is left out (NaN); ``ratio`` 0: none. Unlike :func:`_fit_depths`'
+    fixed 2 px, a ratio keeps extra points that lie off the keypoints along a long link (their
+    depth is the only one there: the development split's blend6_4 has links of 160 px whose
+    extra points lie 15 px of disparity off the keypoints' line, and right), and leaves out
+    a gap matched to nothing or to another strand (910 mm among 110 mm on generated crossing
+    8114 #4: a window line metres off, bounds of +-200 mm, a curve 135 mm too long)."""
+    z = H[:, 2]
+    if ratio <= 0:
+        return z
+    if ratio < 1:
+        raise ValueError(f"depth_ratio must be 0 (off) or >= 1, got {ratio}")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(z > 0, 1.0 / z, np.nan)  # disparity / (f B)
+        z_key = 1.0 / np.interp(s, s[key_idx], d[key_idx])
+        off = ~is_key & np.isfinite(z_key) & ~((z <= ratio * z_key) & (z * ratio >= z_key))
+    return np.where(off, np.nan, z)
 
 
 def _window_line_fits(

@@ -908,10 +908,14 @@ def _continuations(
         distance * (1 + bend_weight * (1 - cos turn)) + disparity_weight * |disparity change|,
 
     the tier they come from and, per candidate, why it is excluded ("" if it is not; its cost
-    is then inf). Tiers, in this order of preference: 0, unvisited neighbours in A; 1, unvisited
-    keypoints two steps away through a keypoint already on the path (the other strand of a
-    crossing; a turn of more than ``max_turn_deg`` only when nothing else is left: a touching
-    turn); 2, unvisited keypoints within ``bridge_px`` whose disparity agrees and whose piece
+    is then inf; the disparity change is from the mean of the walk's last three keypoints that
+    are no junction: a crossing's keypoints carry the other strand's disparity).
+    Tiers, in this order of preference: 0, unvisited neighbours in A (at a three-way junction
+    also the unvisited neighbours of an unvisited adjacent three-way junction: a crossing split
+    in two is passed straight through, the junction passed over left for the other strand);
+    1, unvisited keypoints two steps away through a keypoint already on the path (the other
+    strand of a crossing; a turn of more than ``max_turn_deg`` only when nothing else is left:
+    a touching turn); 2, unvisited keypoints within ``bridge_px`` whose disparity agrees and whose piece
     continues the same way (across an occlusion or a break in the segmentation): the turn into
     the jump and the turn out of it at most 90 deg each and ``2 max_turn_deg`` together.
 
@@ -940,7 +944,7 @@ def _continuations(
     heading = pos[cur] - pos[back]
     hn = float(np.hypot(*heading))
     heading = heading / hn if hn > 0 else None
-    ref = float(np.mean(disp[walk[max(0, n - 3) : n]]))
+    ref = _ref_disparity(walk, n, g)
     cand: list[int] = []
     if heading is not None:
         free = np.flatnonzero(~visited)
@@ -970,6 +974,20 @@ def _continuations(
     cost = np.where(ok, cost, np.inf)
     why = ["" if k else "turn across the gap" for k in ok]
     return cand, cost, 2, why
+
+
+def _ref_disparity(walk: np.ndarray, n: int, g: _WalkGraph) -> float:
+    """The walk's disparity reference of :func:`walk_kernel.step_costs`, in numpy: the mean
+    disparity of the last ``REF_KEYPOINTS`` keypoints of ``walk[:n]`` that are no junction,
+    among its last ``REF_LOOKBACK``; of its last ``REF_KEYPOINTS`` where there is none."""
+    last = walk[max(0, n - walk_kernel.REF_LOOKBACK) : n]
+    own = last[np.diff(g.indptr)[last] < 3][-walk_kernel.REF_KEYPOINTS :]
+    if not len(own):
+        own = walk[max(0, n - walk_kernel.REF_KEYPOINTS) : n]
+    ref = 0.0
+    for d in g.disp[own].tolist():  # oldest first, as the kernel sums
+        ref += d
+    return ref / len(own)
 
 
 def _explain(
@@ -1020,7 +1038,9 @@ LONG_WALK = 150  # keypoints: from here on numpy finds the decision steps faster
 
 
 def _decision_steps(path: np.ndarray, g: _WalkGraph) -> list[int]:
-    """The steps i of the walk ``path`` that are not a single step (:func:`_single_steps`):
+    """The steps i of the walk ``path`` that are not a single step (:func:`_single_steps`; a
+    step from a three-way junction always counts, for its candidates include the arms of an
+    adjacent one, see :func:`walk_kernel.step_costs`):
     by a loop over a short walk, in numpy over a long one (0.7 against 1.1 ms at 1920x1080)."""
     if len(path) >= LONG_WALK:
         return np.flatnonzero(~_single_steps(path, g)).tolist()
@@ -1030,14 +1050,17 @@ def _decision_steps(path: np.ndarray, g: _WalkGraph) -> list[int]:
     for i, at in enumerate(walk):
         on_path[at] = True
         free = [v for v in adj[at] if not on_path[v]]
-        if not (len(free) == 1 and i + 1 < len(walk) and walk[i + 1] == free[0]):
+        if len(adj[at]) == 3 or not (
+            len(free) == 1 and i + 1 < len(walk) and walk[i + 1] == free[0]
+        ):
             out.append(i)
     return out
 
 
 def _single_steps(path: np.ndarray, g: _WalkGraph) -> np.ndarray:
     """(n,) bool over the steps of the walk ``path``: step i went to the only neighbour of
-    ``path[i]`` in A not on ``path[: i + 1]`` (most steps; no decision to replay there). All
+    ``path[i]`` in A not on ``path[: i + 1]``, and ``path[i]`` has no degree 3 (most steps; no
+    decision to replay there). All
     steps at once, from each neighbour's first position on the path."""
     n = len(path)
     first = np.full(len(g.adj), n, dtype=np.int64)  # first position on the path, n: never
@@ -1052,7 +1075,8 @@ def _single_steps(path: np.ndarray, g: _WalkGraph) -> np.ndarray:
     nxt = np.append(path[1:], -1)
     to_next = np.zeros(n, dtype=bool)
     to_next[step[free & (nb == nxt[step])]] = True
-    return (n_free == 1) & to_next
+    split = (hi - lo) == 3  # a three-way junction's step may go to the next one's arm
+    return (n_free == 1) & to_next & ~split
 
 
 def _pieces(adj: list[list[int]]) -> tuple[tuple[int, ...], ...]:

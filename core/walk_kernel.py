@@ -30,6 +30,66 @@ def _before(a: float, b: float) -> bool:
     return a < b or (math.isnan(b) and not math.isnan(a))
 
 
+REF_KEYPOINTS = 3  # the walk's disparity reference: the mean of its last three keypoints ...
+REF_LOOKBACK = 8  # ... that are not junctions, among its last eight (a crossing spans a few)
+
+
+@helper()
+def _ref_disparity(walk, n, disp, indptr):  # noqa: ANN001
+    """Mean disparity of the last ``REF_KEYPOINTS`` keypoints of ``walk[:n]`` that are no
+    junction (degree < 3 in A), looking back at most ``REF_LOOKBACK`` keypoints; of the last
+    ``REF_KEYPOINTS`` keypoints where there is none. A crossing's keypoints carry the other
+    strand's disparity (their pixels are both strands'), and would turn the walk onto the
+    other strand at the crossing. Summed oldest first (the paper-era reference, bit for bit,
+    where no junction is near)."""
+    lo = n - REF_LOOKBACK if n >= REF_LOOKBACK else 0
+    start = n
+    c = 0
+    while start > lo and c < REF_KEYPOINTS:
+        start -= 1
+        k = walk[start]
+        if indptr[k + 1] - indptr[k] < 3:
+            c += 1
+    ref = 0.0
+    if c == 0:
+        start = n - REF_KEYPOINTS if n >= REF_KEYPOINTS else 0
+        for i in range(start, n):
+            ref += disp[walk[i]]
+        return ref / (n - start)
+    for i in range(start, n):
+        k = walk[i]
+        if indptr[k + 1] - indptr[k] < 3:
+            ref += disp[k]
+    return ref / c
+
+
+@helper(inline="always")
+def _is_split(v, indptr):  # noqa: ANN001
+    """Keypoint v has degree 3 in A: with an adjacent one of degree 3, the two are a four-arm
+    crossing split in two (a junction of higher degree is a knot of touching strands, whose
+    arms are no continuation of each other)."""
+    return indptr[v + 1] - indptr[v] == 3
+
+
+@helper()
+def _add_free(u, cur, visited, indptr, indices, cand, m):  # noqa: ANN001
+    """Append the unvisited neighbours of u other than ``cur`` that ``cand[:m]`` does not hold
+    yet to it; returns the new count."""
+    for f in range(indptr[u], indptr[u + 1]):
+        w = indices[f]
+        if w == cur or visited[w]:
+            continue
+        seen = False
+        for i in range(m):
+            if cand[i] == w:
+                seen = True
+                break
+        if not seen:
+            cand[m] = w
+            m += 1
+    return m
+
+
 @kernel(
     "UniTuple(int64, 2)(int64[::1], int64, boolean[::1], int64[::1], int64[::1], "
     "float64[:, ::1], float64[::1], float64, float64, float64, int64[::1], float64[::1], "
@@ -40,25 +100,33 @@ def step_costs(
 ):  # noqa: ANN001
     """Candidates of tiers 0 and 1 of ``_continuations`` for the walk ``walk[:n]``, their
     costs and the cosines of their turns, written to ``cand``, ``cost``, ``cos_t``; returns
-    (count, tier). Count 0: neither tier has one (tier 2 is the caller's). Cost = dist (1 + bend_w (1 - cos turn)) + disp_w |disparity
-    change from the mean of the last three keypoints|; at tier 1 a turn with cos < ``cos_max``
-    is inf unless every candidate turns that much."""
+    (count, tier). Count 0: neither tier has one (tier 2 is the caller's). Cost = dist (1 +
+    bend_w (1 - cos turn)) + disp_w |disparity change from :func:`_ref_disparity`|; at tier 1
+    a turn with cos < ``cos_max`` is inf unless every candidate turns that much.
+
+    Tier 0: the unvisited neighbours of the current keypoint and, when it has degree 3, the
+    unvisited neighbours of its unvisited neighbours of degree 3: the clusters of a
+    crossing often split it into two adjacent three-way junctions, each holding one arm of
+    either strand, and the strand goes on from the other one's arm (the junction passed over
+    stays for the second strand). Tier 1: the unvisited neighbours of the visited neighbours,
+    and through a visited one of degree 3 those of its neighbours of degree 3 too (the other
+    half of a split crossing)."""
     cur = walk[n - 1]
     back = walk[n - 3] if n >= 3 else walk[0]
     hx = pos[cur, 0] - pos[back, 0]
     hy = pos[cur, 1] - pos[back, 1]
     hn = math.hypot(hx, hy)
-    ref = 0.0
-    lo = n - 3 if n >= 3 else 0
-    for i in range(lo, n):
-        ref += disp[walk[i]]
-    ref /= n - lo
+    ref = _ref_disparity(walk, n, disp, indptr)
     m = 0
     for e in range(indptr[cur], indptr[cur + 1]):
         v = indices[e]
         if not visited[v]:
             cand[m] = v
             m += 1
+    if _is_split(cur, indptr):  # a crossing split over two adjacent three-way junctions
+        for i in range(m):
+            if _is_split(cand[i], indptr):
+                m = _add_free(cand[i], cur, visited, indptr, indices, cand, m)
     tier = 0
     if m == 0:
         tier = 1
@@ -66,18 +134,12 @@ def step_costs(
             u = indices[e]
             if not visited[u]:
                 continue
-            for f in range(indptr[u], indptr[u + 1]):
-                w = indices[f]
-                if visited[w]:
-                    continue
-                seen = False
-                for i in range(m):
-                    if cand[i] == w:
-                        seen = True
-                        break
-                if not seen:
-                    cand[m] = w
-                    m += 1
+            m = _add_free(u, cur, visited, indptr, indices, cand, m)
+            if _is_split(u, indptr):  # the other junction of a split crossing
+                for f in range(indptr[u], indptr[u + 1]):
+                    w = indices[f]
+                    if w != cur and _is_split(w, indptr):
+                        m = _add_free(w, cur, visited, indptr, indices, cand, m)
         cand[:m].sort()
     if m == 0:
         return 0, 2

@@ -395,10 +395,14 @@ def test_dropping_outlying_extra_points_keeps_a_spirals_end_on_the_thread() -> N
     )
     err = {}
     no_tip = OrderingParams(end_window_px=0)  # the end value from the window line alone
-    for drop in (False, True):
-        rec = pipe.run(replace(ReconParams(), ordering=no_tip, bounds=BP(drop_outliers=drop)))
+    for drop in (False, True):  # depth_ratio 0: only the 2 px rule leaves them out
+        bp = BP(drop_outliers=drop, depth_ratio=0.0)
+        rec = pipe.run(replace(ReconParams(), ordering=no_tip, bounds=bp))
         err[drop] = curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max
     assert err[False] > 100.0 and err[True] < 2.0
+    # 2 px instead of 42 px is 21 times as deep: the default depth_ratio leaves them out too
+    rec = pipe.run(replace(ReconParams(), ordering=no_tip))
+    assert curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max < 2.0
 
     # The tip matched in both views (deviation 23) doubts the line there on its own: the
     # line lies metres from the end keypoint's depth.
@@ -505,3 +509,21 @@ def test_solver_parameter_changes_reuse_the_setup_and_give_the_fresh_fit(monkeyp
     calls.clear()
     fit_spline(bounds, calib, replace(base, n_ctrl=base.n_ctrl - 1))
     assert calls
+
+
+def test_extra_points_beyond_the_depth_ratio_leave_the_window_lines() -> None:
+    # Keypoints at 100 mm (s = 0, 30, 60) and extra points between them: 180 mm (1.8 x) stays,
+    # 910 mm (a gap matched to nothing, generated crossing 8114 #4) and 45 mm (< 1 / 2) leave;
+    # keypoints always stay; ratio 0 keeps everything, a ratio below 1 is an error.
+    from threadrecon.core.bounds import _off_by_ratio
+
+    H = np.array([[0, 0, 100.0], [10, 0, 180.0], [20, 0, 910.0], [30, 0, 100.0], [40, 0, 45.0]])
+    H = np.vstack([H, [60, 0, 100.0]])
+    is_key = np.array([True, False, False, True, False, True])
+    s, key_idx = H[:, 0].copy(), np.flatnonzero(is_key)
+    z = _off_by_ratio(H, is_key, s, key_idx, 2.0)
+    assert np.isnan(z[[2, 4]]).all()
+    assert_close(np.delete(z, [2, 4]), np.delete(H[:, 2], [2, 4]))
+    assert_close(_off_by_ratio(H, is_key, s, key_idx, 0.0), H[:, 2])
+    with pytest.raises(ValueError, match="depth_ratio"):
+        _off_by_ratio(H, is_key, s, key_idx, 0.5)

@@ -393,11 +393,19 @@ def _reference_step(
     cur, back = walk[-1], walk[-3] if len(walk) >= 3 else walk[0]
     heading = pos[cur] - pos[back]
     hn = float(np.hypot(*heading))
-    ref = float(np.mean(disp[walk[-3:]]))
+    own = [k for k in walk[-8:] if len(adj[k]) < 3][-3:] or walk[-3:]  # no junctions
+    ref = float(np.mean(disp[own]))
     cand = [v for v in adj[cur] if not visited[v]]
+    if len(adj[cur]) == 3:  # a crossing split over two junctions: the other one's arms too
+        for u in list(cand):
+            for w in adj[u] if len(adj[u]) == 3 else []:
+                if w != cur and not visited[w] and w not in cand:
+                    cand.append(w)
     tier = 0
     if not cand:
-        cand = sorted({w for u in adj[cur] if visited[u] for w in adj[u] if not visited[w]})
+        via = [u for u in adj[cur] if visited[u]]  # and a visited junction's junctions
+        via += [w for u in via if len(adj[u]) == 3 for w in adj[u] if len(adj[w]) == 3]
+        cand = sorted({w for u in via if u != cur for w in adj[u] if not visited[w]})
         tier = 1
     if not cand:
         cand, cost, tier, _ = _continuations(np.array(walk), len(walk), visited, g, p)
@@ -486,3 +494,58 @@ def test_compiled_walk_takes_the_steps_of_the_numpy_rule_exactly(seed: int) -> N
             prefix, steps = ref[0][: i + 1], ref[1][:i]
             forced = _reference_walk(prefix, steps, alt, graph, p)
             assert _walk_from(prefix, steps, alt, graph, p) == forced
+
+
+def _split_crossing() -> tuple[dict[str, int], _WalkGraph]:
+    """A thread that comes in from the west, crosses itself at a crossing whose clusters split
+    it into two adjacent three-way junctions J1 (west and north arms) and J2 (east and south
+    arms; generated crossing 8114 #4), runs a small loop from the east arm round to the north
+    arm and leaves to the south. The crossing's keypoints carry the loop strand's disparity."""
+    xy = {
+        "a0": (-20, 0), "a1": (-15, 0), "a2": (-10, 0), "a3": (-5, 0), "J1": (0, 0),
+        "J2": (0, 4), "e0": (8, 0), "e1": (13, -2), "l1": (18, -8), "l2": (15, -16),
+        "l3": (8, -20), "l4": (3, -16), "n1": (1, -10), "n0": (0, -5), "s0": (0, 10),
+        "s1": (0, 15),
+    }  # fmt: skip
+    d = {"a0": 43, "a1": 43, "a2": 43, "a3": 43, "e0": 43, "e1": 42.8, "l1": 42.5, "l2": 42}
+    d |= {"l3": 41.5, "l4": 41, "n1": 40.6, "n0": 40.5, "J1": 40.5, "J2": 40.5, "s0": 40.5}
+    d["s1"] = 40.5
+    chain = ["a0", "a1", "a2", "a3", "J1", "J2", "e0", "e1", "l1", "l2", "l3", "l4", "n1", "n0"]
+    pairs = list(zip(chain[:-1], chain[1:], strict=True))
+    pairs += [("n0", "J1"), ("J2", "s0"), ("s0", "s1")]
+    pairs.remove(("J2", "e0"))
+    pairs.append(("e0", "J2"))
+    ids = {name: i for i, name in enumerate(xy)}
+    edges = np.array(sorted((min(ids[a], ids[b]), max(ids[a], ids[b])) for a, b in pairs))
+    adj = _adjacency(len(ids), edges)
+    pos = np.array([xy[n] for n in ids], dtype=np.float64)
+    disp = np.array([d[n] for n in ids], dtype=np.float64)
+    return ids, _WalkGraph.of(adj, pos, disp)
+
+
+def test_walk_passes_straight_through_a_crossing_split_over_two_junctions() -> None:
+    # J1 holds the west and north arms, J2 the east and south ones: the strand from the west
+    # goes on east (from J2's arm), round the loop, and the loop strand takes J2 on its way
+    # south. Before, the walk stepped J1 -> J2 (the closest, at the crossing's disparity) and
+    # the loop came back through the crossing the wrong way.
+    ids, g = _split_crossing()
+    name = {i: n for n, i in ids.items()}
+    p = OrderingParams()
+    west, _, _ = _walk_from([ids["a0"]], [], None, g, p)
+    assert [name[k] for k in west] == [
+        "a0", "a1", "a2", "a3", "J1", "e0", "e1", "l1", "l2", "l3", "l4", "n1", "n0", "J2",
+        "s0", "s1",
+    ]  # fmt: skip
+    decision = next(d for d in _explain(west, g, p, 0) if d.at == ids["J1"])
+    assert decision.chosen == ids["e0"] and decision.kind == "neighbour"
+    assert {c.keypoint for c in decision.rejected} >= {ids["J2"], ids["n0"]}
+    # From the south end the loop strand takes both junctions, and the west arm is reached
+    # through them (tier 1), not by a jump: either way every strand runs straight through.
+    walk = _bending_walk(g, p)
+    assert all(d.kind != "jump" for d in _explain(walk, g, p, 0))
+    best = [name[k] for k in walk]
+    best = best if best[0] == "a0" else best[::-1]
+    assert [k for k in best if k[0] != "J"] == [
+        "a0", "a1", "a2", "a3", "e0", "e1", "l1", "l2", "l3", "l4", "n1", "n0", "s0", "s1",
+    ]  # fmt: skip
+    assert len(best) == len(ids)
