@@ -25,4 +25,14 @@ if [[ ! -x /usr/bin/chromium ]]; then
     fi
 fi
 
-.venv/bin/python -m pytest "$@"
+# The core's kernels are compiled once per checkout (core/compiled.py, ~95 s of CPU on a fresh
+# one): built here with every core instead of one after the other by the first test.
+.venv/bin/python scripts/build_kernels.py
+
+# The suite on every core (pytest-xdist; TEST_WORKERS=0 runs it in this process): a test file
+# runs whole on one worker (--dist loadfile), so a module's server, browser or generated data
+# set is made once. While one worker waits on a server or a browser, the other computes.
+# Files go out in collection order (--no-loadscope-reorder), not largest first: the browser
+# and server files (one slow test each) start early and the core's many short files fill the
+# end, instead of the slowest single tests coming last with one worker left idle.
+.venv/bin/python -m pytest -n "${TEST_WORKERS:-auto}" --dist loadfile --no-loadscope-reorder "$@"

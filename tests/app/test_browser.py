@@ -25,7 +25,6 @@ from browser_support import (
     TISSUE,
     VIEWPORT,
     Server,
-    browser,
     missing_browser,
     png_stats,
     wait_idle,
@@ -150,12 +149,11 @@ def server():
 
 
 @pytest.fixture(scope="module")
-def context(server):
-    with browser() as b:
-        ctx = b.new_context(viewport=VIEWPORT)
-        ctx.set_default_timeout(60_000)
-        yield ctx
-        ctx.close()
+def context(server, chromium):
+    ctx = chromium.new_context(viewport=VIEWPORT)
+    ctx.set_default_timeout(60_000)
+    yield ctx
+    ctx.close()
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import shutil
 from typing import Any
 
 import pytest
-from browser_support import SAMPLE, VIEWPORT, Server, browser, missing_browser, send_json
+from browser_support import SAMPLE, VIEWPORT, Server, missing_browser, send_json
 
 pytestmark = pytest.mark.browser
 
@@ -36,11 +36,11 @@ def _wait_text(page: Any, selector: str, text: str) -> None:
     )  # fmt: skip
 
 
-def test_status_panel_overlays_and_agreement_render(tmp_path):
+def test_status_panel_overlays_and_agreement_render(tmp_path, new_context):
     data = tmp_path / "data"
     shutil.copytree(SAMPLE / "simulated" / "flat", data / "simulated" / "flat")
-    with browser() as b, Server(data_dir=data) as server:
-        page = b.new_context(viewport=VIEWPORT).new_page()
+    with Server(data_dir=data) as server:
+        page = new_context(viewport=VIEWPORT).new_page()
         errors: list[str] = []
         page.on("pageerror", lambda exc: errors.append(str(exc)))
         page.goto(server.url + "/")

@@ -10,7 +10,7 @@ import shutil
 import urllib.parse
 
 import pytest
-from browser_support import SAMPLE, Server, browser, get_json, missing_browser, send_json, wait_idle
+from browser_support import SAMPLE, Server, get_json, missing_browser, send_json, wait_idle
 
 pytestmark = pytest.mark.browser
 
@@ -35,16 +35,14 @@ def server(tmp_path_factory):
 
 
 @pytest.fixture()
-def page(server):
-    with browser() as b:
-        page = b.new_page()
-        dialogs: list[str] = []
-        page.on("dialog", lambda d: (dialogs.append(d.message), d.dismiss()))
-        page.goto(server.url + "/", wait_until="load")
-        page.wait_for_function("window.threadrecon && window.threadrecon.state", timeout=60_000)
-        page.dialogs = dialogs  # type: ignore[attr-defined]
-        yield page
-        page.close()
+def page(server, new_context):
+    page = new_context().new_page()
+    dialogs: list[str] = []
+    page.on("dialog", lambda d: (dialogs.append(d.message), d.dismiss()))
+    page.goto(server.url + "/", wait_until="load")
+    page.wait_for_function("window.threadrecon && window.threadrecon.state", timeout=60_000)
+    page.dialogs = dialogs  # type: ignore[attr-defined]
+    return page
 
 
 def _rating(server: Server, frame_id: str) -> dict:
@@ -103,13 +101,11 @@ def test_a_note_stays_with_the_frame_it_was_typed_on(server, page):
     assert _rating(server, A)["latest"]["note"] == "only about flat_1"
 
 
-def test_the_api_docs_render_with_no_request_leaving_the_machine(server):
-    with browser() as b:
-        page = b.new_page()
-        hosts: list[str] = []
-        page.on("request", lambda r: hosts.append(urllib.parse.urlsplit(r.url).hostname or ""))
-        page.goto(server.url + "/docs", wait_until="networkidle")
-        page.wait_for_selector(".swagger-ui .opblock", timeout=30_000)
-        assert page.locator(".swagger-ui .opblock").count() > 20
-        assert hosts and set(hosts) <= {"127.0.0.1"}, sorted(set(hosts))
-        page.close()
+def test_the_api_docs_render_with_no_request_leaving_the_machine(server, new_context):
+    page = new_context().new_page()
+    hosts: list[str] = []
+    page.on("request", lambda r: hosts.append(urllib.parse.urlsplit(r.url).hostname or ""))
+    page.goto(server.url + "/docs", wait_until="networkidle")
+    page.wait_for_selector(".swagger-ui .opblock", timeout=30_000)
+    assert page.locator(".swagger-ui .opblock").count() > 20
+    assert hosts and set(hosts) <= {"127.0.0.1"}, sorted(set(hosts))

@@ -12,7 +12,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from browser_support import VIEWPORT, Server, browser, missing_browser, wait_idle
+from browser_support import VIEWPORT, Server, missing_browser, wait_idle
 
 from threadrecon.app.cli import main
 
@@ -36,28 +36,27 @@ def _spline(page: Any, frame_id: str) -> list:
     return page.evaluate("() => window.threadrecon.overlay.spline.left")
 
 
-def test_slider_and_plot_move_through_a_generated_sequence(tmp_path):
+def test_slider_and_plot_move_through_a_generated_sequence(tmp_path, new_context):
     data = tmp_path / "data"
     assert main(["generate", str(data), "--count", "1", "--seed", "3"]) == 0
     assert main(["generate", str(data), "--sequence", str(N_FRAMES), "--motion", "drag",
                  "--seed", "23", "--speed-mm", "2.0"]) == 0  # fmt: skip
     recording = tmp_path / "recording.html"
-    with browser() as b:
-        with Server(data_dir=data) as server:
-            _walk_the_timeline(b, server, recording)
-        # The recording saved from the page opens with the server stopped and shows the curve.
-        page = b.new_context(viewport=VIEWPORT).new_page()
-        requests: list[str] = []
-        page.on("request", lambda r: requests.append(r.url))
-        page.goto(recording.as_uri())
-        magenta = 0
-        for _ in range(30):  # the viewer decodes the embedded scene, then draws
-            page.wait_for_timeout(500)
-            magenta = _magenta_pixels(page.screenshot())
-            if magenta > 150:
-                break
-        assert magenta > 150, "the tracked curve (magenta) is not drawn"
-        assert not [u for u in requests if u.startswith(("http://", "https://", "ws://"))]
+    with Server(data_dir=data) as server:
+        _walk_the_timeline(new_context, server, recording)
+    # The recording saved from the page opens with the server stopped and shows the curve.
+    page = new_context(viewport=VIEWPORT).new_page()
+    requests: list[str] = []
+    page.on("request", lambda r: requests.append(r.url))
+    page.goto(recording.as_uri())
+    magenta = 0
+    for _ in range(60):  # the viewer decodes the embedded scene, then draws
+        page.wait_for_timeout(250)
+        magenta = _magenta_pixels(page.screenshot())
+        if magenta > 150:
+            break
+    assert magenta > 150, "the tracked curve (magenta) is not drawn"
+    assert not [u for u in requests if u.startswith(("http://", "https://", "ws://"))]
 
 
 def _magenta_pixels(png: bytes) -> int:
@@ -66,9 +65,9 @@ def _magenta_pixels(png: bytes) -> int:
     return int(((r > 200) & (g < 120) & (b > 120)).sum())
 
 
-def _walk_the_timeline(b: Any, server: Server, recording: Path) -> None:
+def _walk_the_timeline(new_context: Any, server: Server, recording: Path) -> None:
     """Open the sequence, move the slider, click the plot, play, save the recording."""
-    page = b.new_context(viewport=VIEWPORT, accept_downloads=True).new_page()
+    page = new_context(viewport=VIEWPORT, accept_downloads=True).new_page()
     errors: list[str] = []
     page.on("pageerror", lambda exc: errors.append(str(exc)))
     page.goto(server.url + "/")

@@ -8,7 +8,7 @@ import time
 from typing import Any
 
 import pytest
-from browser_support import VIEWPORT, Server, browser, missing_browser
+from browser_support import VIEWPORT, Server, missing_browser
 
 pytestmark = pytest.mark.browser
 
@@ -47,9 +47,9 @@ def vary(page: Any, key: str) -> Any:
     return page.locator(f'#tune-space tr[data-key="{key}"]')
 
 
-def test_a_tune_started_from_the_page_loads_its_best_trial_into_the_sliders():
-    with Server() as server, browser() as b:
-        page = b.new_context(viewport=VIEWPORT).new_page()
+def test_a_tune_started_from_the_page_loads_its_best_trial_into_the_sliders(new_context):
+    with Server() as server:
+        page = new_context(viewport=VIEWPORT).new_page()
         errors: list[str] = []
         page.on("pageerror", lambda exc: errors.append(str(exc)))
         page.goto(server.url + "/")

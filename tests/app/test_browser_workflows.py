@@ -15,7 +15,6 @@ from browser_support import (
     TISSUE,
     VIEWPORT,
     Server,
-    browser,
     missing_browser,
     send_json,
     wait_idle,
@@ -34,8 +33,8 @@ CHANGED = {  # viser folder -> (slider index in the folder, value) set through t
 }
 
 
-def open_page(b: Any, server: Server) -> Any:
-    page = b.new_context(viewport=VIEWPORT).new_page()
+def open_page(new_context: Any, server: Server) -> Any:
+    page = new_context(viewport=VIEWPORT).new_page()
     errors: list[str] = []
     page.on("pageerror", lambda exc: errors.append(str(exc)))
     page.goto(server.url + "/")
@@ -71,65 +70,64 @@ def wait_slider(page: Any, folder: str, index: int, value: float, timeout: float
     raise AssertionError(f"{folder} slider {index} shows {got}, expected {value}")
 
 
-def test_rating_and_preset_survive_a_restart(tmp_path):
+def test_rating_and_preset_survive_a_restart(tmp_path, new_context):
     db = tmp_path / "ratings.sqlite3"
     configs = tmp_path / "configs"
     shutil.copytree(CONFIGS, configs)
     args = ("--configs", str(configs))
-    with browser() as b:
-        with Server(db=db, extra_args=args) as server:
-            page = open_page(b, server)
-            select(page, TISSUE)
-            page.locator("#rating-note").fill("tip a little short")
-            page.locator('.star[data-score="4"]').click()
-            page.wait_for_selector('#rating-latest[data-score="4"]', state="attached")
-            page.locator("#stepper").click()  # focus out of the note: keys rate
-            page.keyboard.press("3")
-            page.wait_for_selector('#rating-latest[data-score="3"]', state="attached")
-            got = server.api(f"/api/frames/{TISSUE}/rating")
-            assert [h["score"] for h in got["history"]] == [3, 4]
-            assert got["latest"]["note"] == "tip a little short"
+    with Server(db=db, extra_args=args) as server:
+        page = open_page(new_context, server)
+        select(page, TISSUE)
+        page.locator("#rating-note").fill("tip a little short")
+        page.locator('.star[data-score="4"]').click()
+        page.wait_for_selector('#rating-latest[data-score="4"]', state="attached")
+        page.locator("#stepper").click()  # focus out of the note: keys rate
+        page.keyboard.press("3")
+        page.wait_for_selector('#rating-latest[data-score="3"]', state="attached")
+        got = server.api(f"/api/frames/{TISSUE}/rating")
+        assert [h["score"] for h in got["history"]] == [3, 4]
+        assert got["latest"]["note"] == "tip a little short"
 
-            sid = page.evaluate("window.threadrecon.session")
-            patch = {"reliability": {"eps1": 6.5}, "spline": {"n_ctrl": 18}}
-            send_json("PATCH", f"{server.url}/api/sessions/{sid}/params?wait=true", patch)
-            for folder, (index, value) in CHANGED.items():  # the panel follows the API
-                wait_slider(page, folder, index, value)
-            page.locator("#preset-name").fill("browser-1")
-            page.locator("#preset-save").click()
-            page.wait_for_selector("#preset-msg:has-text('saved browser-1')")
-            saved = (configs / "browser-1.toml").read_text()
-            assert "eps1 = 6.5" in saved and "n_ctrl = 18" in saved
-            assert not page.errors
+        sid = page.evaluate("window.threadrecon.session")
+        patch = {"reliability": {"eps1": 6.5}, "spline": {"n_ctrl": 18}}
+        send_json("PATCH", f"{server.url}/api/sessions/{sid}/params?wait=true", patch)
+        for folder, (index, value) in CHANGED.items():  # the panel follows the API
+            wait_slider(page, folder, index, value)
+        page.locator("#preset-name").fill("browser-1")
+        page.locator("#preset-save").click()
+        page.wait_for_selector("#preset-msg:has-text('saved browser-1')")
+        saved = (configs / "browser-1.toml").read_text()
+        assert "eps1 = 6.5" in saved and "n_ctrl = 18" in saved
+        assert not page.errors
 
-        with Server(db=db, extra_args=args) as server:  # restart, same database and presets
-            page = open_page(b, server)
-            row = page.locator(f'#frames tr[data-id="{TISSUE}"] td.rating')
-            assert row.inner_text() == "★★★"
-            select(page, TISSUE)
-            page.wait_for_selector('#rating-latest[data-score="3"]', state="attached")
-            for folder, (index, value) in CHANGED.items():
-                assert slider_value(page, folder, index) != pytest.approx(value)
-            page.locator("#preset-select").select_option("browser-1")
-            page.locator("#preset-load").click()
-            page.wait_for_function(
-                "() => window.threadrecon.state.preset === 'browser-1'", timeout=30_000
-            )
-            for folder, (index, value) in CHANGED.items():
-                wait_slider(page, folder, index, value)
-            diff = page.locator("#preset-diff").inner_text()
-            assert "reliability.eps1" in diff and "spline.n_ctrl" in diff
+    with Server(db=db, extra_args=args) as server:  # restart, same database and presets
+        page = open_page(new_context, server)
+        row = page.locator(f'#frames tr[data-id="{TISSUE}"] td.rating')
+        assert row.inner_text() == "★★★"
+        select(page, TISSUE)
+        page.wait_for_selector('#rating-latest[data-score="3"]', state="attached")
+        for folder, (index, value) in CHANGED.items():
+            assert slider_value(page, folder, index) != pytest.approx(value)
+        page.locator("#preset-select").select_option("browser-1")
+        page.locator("#preset-load").click()
+        page.wait_for_function(
+            "() => window.threadrecon.state.preset === 'browser-1'", timeout=30_000
+        )
+        for folder, (index, value) in CHANGED.items():
+            wait_slider(page, folder, index, value)
+        diff = page.locator("#preset-diff").inner_text()
+        assert "reliability.eps1" in diff and "spline.n_ctrl" in diff
 
-            before = (configs / "browser-1.toml").read_text()
-            page.on("dialog", lambda d: d.dismiss())  # "overwrite?" -> no
-            sid = page.evaluate("window.threadrecon.session")
-            send_json(
-                "PATCH",
-                f"{server.url}/api/sessions/{sid}/params?wait=true",
-                {"spline": {"n_ctrl": 9}},
-            )
-            page.locator("#preset-name").fill("browser-1")
-            page.locator("#preset-save").click()
-            page.wait_for_selector("#preset-msg:has-text('not saved')")
-            assert (configs / "browser-1.toml").read_text() == before
-            assert not page.errors
+        before = (configs / "browser-1.toml").read_text()
+        page.on("dialog", lambda d: d.dismiss())  # "overwrite?" -> no
+        sid = page.evaluate("window.threadrecon.session")
+        send_json(
+            "PATCH",
+            f"{server.url}/api/sessions/{sid}/params?wait=true",
+            {"spline": {"n_ctrl": 9}},
+        )
+        page.locator("#preset-name").fill("browser-1")
+        page.locator("#preset-save").click()
+        page.wait_for_selector("#preset-msg:has-text('not saved')")
+        assert (configs / "browser-1.toml").read_text() == before
+        assert not page.errors

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.app.browser_support import CHROMIUM, CHROMIUM_ARGS, missing_browser
 from threadrecon.app.recording import RecordedFrame, save_recording
 
 
@@ -28,35 +27,26 @@ def test_a_recording_is_one_self_contained_html_file(tmp_path):
 
 
 @pytest.mark.browser
-def test_a_saved_recording_shows_the_curve_in_chromium_without_a_server(tmp_path):
-    reason = missing_browser()
-    if reason:
-        pytest.skip(reason)
+def test_a_saved_recording_shows_the_curve_in_chromium_without_a_server(tmp_path, new_context):
     import cv2
-    from playwright.sync_api import sync_playwright
 
     path = tmp_path / "rec.html"
     save_recording([RecordedFrame({"tracked": _curve(k)}) for k in range(3)], path, baseline=5.0)
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        try:
-            page = browser.new_page(viewport={"width": 1000, "height": 700})
-            errors: list[str] = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            requests: list[str] = []
-            page.on("request", lambda r: requests.append(r.url))
-            page.goto(path.as_uri())
-            magenta = 0
-            for _ in range(20):  # the viewer decodes the embedded scene, then draws
-                page.wait_for_timeout(500)
-                png = page.screenshot()
-                img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
-                b, g, r = (img[:, :, c].astype(int) for c in range(3))
-                magenta = int(((r > 200) & (g < 120) & (b > 120)).sum())
-                if magenta > 150:
-                    break
-        finally:
-            browser.close()
+    page = new_context(viewport={"width": 1000, "height": 700}).new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    requests: list[str] = []
+    page.on("request", lambda r: requests.append(r.url))
+    page.goto(path.as_uri())
+    magenta = 0
+    for _ in range(40):  # the viewer decodes the embedded scene, then draws
+        page.wait_for_timeout(250)
+        png = page.screenshot()
+        img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+        b, g, r = (img[:, :, c].astype(int) for c in range(3))
+        magenta = int(((r > 200) & (g < 120) & (b > 120)).sum())
+        if magenta > 150:
+            break
     assert not errors
     assert magenta > 150, "the tracked curve (magenta) is not drawn"
     assert not [u for u in requests if u.startswith(("http://", "https://", "ws://"))]

@@ -7,6 +7,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from threadrecon.core import ridge_kernel as pk
 
@@ -67,10 +68,16 @@ def test_boxes_and_half_widths_are_those_of_each_piece_alone(
     ids = np.arange(1, n, 2, dtype=np.int64)  # every second piece
     half = pk.half_widths(lab, rows, cols, ids, boxes, *shape)
     expected = np.zeros(n)
-    for k in range(1, n):
-        r, c = np.nonzero(labels == k)
-        assert tuple(boxes[:, k]) == (r.min(), r.max(), c.min(), c.max())
-        expected[k] = _cv2_half_width(labels == k) if k in ids else 0.0
+    chosen = set(ids.tolist())
+    # each piece seen through its bounding box (scipy) grown by one pixel within the image:
+    # the window _cv2_half_width takes of the whole image, without n passes over the image
+    objects = ndimage.find_objects(labels)
+    assert len(objects) == n - 1
+    for k, (rs, cs) in enumerate(objects, start=1):
+        assert tuple(boxes[:, k]) == (rs.start, rs.stop - 1, cs.start, cs.stop - 1)
+        if k in chosen:
+            window = labels[max(rs.start - 1, 0) : rs.stop + 1, max(cs.start - 1, 0) : cs.stop + 1]
+            expected[k] = _cv2_half_width(window == k)
     # float32 sums of the same steps along another path: the last bits (of ~100 steps) differ.
     np.testing.assert_allclose(half, expected, rtol=2e-6, atol=0)
     assert half[0] == 0.0 and tuple(boxes[:, 0]) == (0, 0, 0, 0)
