@@ -23,6 +23,9 @@ the pieces from the same lists. The boxes are exact; the half-width is cv2's 3x3
 distance (DIST_L2, mask 3) with its float32 steps; cv2 (IPP) reaches some pixels along another
 path of the same steps, so its float32 sum can differ in the last bit: on the 36,470 pieces of
 >= 10 px of 105 raw frames of 15 suites, 2 differed, by one ulp, and the masks were identical.
+
+:func:`residuals_at` gathers the surface test's grey residuals (core/segment_surface.py) at
+a piece's pixels and a range of disparities: exactly numpy's clipped fancy index.
 """
 
 from __future__ import annotations
@@ -599,3 +602,26 @@ def half_widths(lab, rows, cols, ids, boxes, h, w):  # noqa: ANN001
             best = max(best, d)
         out[k] = best
     return out
+
+
+@kernel(
+    "Tuple((float32[:, ::1], boolean[:, ::1]))(float32[:, ::1], float32[:, ::1], int64[::1], "
+    "int64[::1], int64, int64, boolean)"
+)
+def residuals_at(this, other, r, c, d0, nd, look_left):  # noqa: ANN001
+    """(N, nd) grey residuals |this[r, c] - other[r, c -+ d]| of the pixels (r, c) (N,) at
+    the disparities d = d0 .. d0 + nd - 1 (minus: ``look_left``), and (N, nd) whether the
+    partner column is inside the image (outside: the residual of the edge column, as numpy's
+    clipped index gives it)."""
+    n = len(r)
+    w = this.shape[1]
+    diff = np.empty((n, nd), np.float32)
+    inside = np.empty((n, nd), np.bool_)
+    for i in range(n):
+        a = this[r[i], c[i]]
+        row = other[r[i]]
+        for k in range(nd):
+            cc = c[i] - (d0 + k) if look_left else c[i] + (d0 + k)
+            inside[i, k] = 0 <= cc < w
+            diff[i, k] = abs(a - row[min(max(cc, 0), w - 1)])
+    return diff, inside

@@ -4,7 +4,8 @@ import cv2
 import numpy as np
 import pytest
 
-from threadrecon.core.segment_surface import SurfaceTest
+from threadrecon.core.ridge_kernel import residuals_at
+from threadrecon.core.segment_surface import _BLOCK_PX, SurfaceTest, _unique
 
 H, W, D_BG, D_MAX = 120, 200, 12, 40
 
@@ -64,3 +65,41 @@ def test_shapes_are_checked() -> None:
     a = np.zeros((H, W), np.float32)
     with pytest.raises(ValueError, match=r"\(120, 199\)"):
         SurfaceTest(a, a[:, 1:], a > 0, D_MAX, True)
+
+
+@pytest.mark.parametrize("trial", range(20))
+def test_residuals_kernel_equals_the_clipped_fancy_index(trial: int) -> None:
+    rng = np.random.default_rng([41, trial])
+    h, w = int(rng.integers(1, 40)), int(rng.integers(1, 60))
+    this = rng.normal(100, 30, (h, w)).astype(np.float32)
+    other = rng.normal(100, 30, (h, w)).astype(np.float32)
+    n = int(rng.integers(0, 50))
+    r, c = rng.integers(0, h, n), rng.integers(0, w, n)
+    d0, nd, look_left = int(rng.integers(0, 10)), int(rng.integers(1, 20)), bool(trial % 2)
+    ds = np.arange(d0, d0 + nd)
+    cc = c[:, None] - ds[None, :] if look_left else c[:, None] + ds[None, :]
+    want_inside = (cc >= 0) & (cc < w)
+    want = np.abs(this[r, c][:, None] - np.take(other, (r * w)[:, None] + np.clip(cc, 0, w - 1)))
+    diff, inside = residuals_at(this, other, r, c, d0, nd, look_left)
+    assert np.array_equal(inside, want_inside)
+    assert np.array_equal(diff, want)
+
+
+def test_unique_and_the_block_grid_equal_numpys() -> None:
+    rng = np.random.default_rng(42)
+    for n in (1, 7, 80):
+        key = rng.integers(0, n, int(rng.integers(1, 300)))
+        ids, inv = _unique(key, n)
+        want_ids, want_inv = np.unique(key, return_inverse=True)
+        assert np.array_equal(ids, want_ids) and np.array_equal(inv, want_inv)
+    # Every block of an image whose size is no multiple of the block: the grid of np.mgrid.
+    h, w = 150, 200
+    free = rng.random((h, w)) < 0.7
+    t = SurfaceTest(np.zeros((h, w), np.float32), np.zeros((h, w), np.float32), free, 8, True)
+    for key in range(t.nb * 3):
+        r0, c0 = key // t.nb * _BLOCK_PX, key % t.nb * _BLOCK_PX
+        rr, cc = np.mgrid[r0 + 1 : min(r0 + _BLOCK_PX, h) : 2, c0 + 1 : min(c0 + _BLOCK_PX, w) : 2]
+        rr, cc = rr.ravel(), cc.ravel()
+        ok = free[rr, cc] & ((rr // 2 + cc // 2) % 2 == 0)
+        got = t._background(key)
+        assert np.array_equal(got[0], rr[ok]) and np.array_equal(got[1], cc[ok])
