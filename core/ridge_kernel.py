@@ -625,3 +625,13 @@ def residuals_at(this, other, r, c, d0, nd, look_left):  # noqa: ANN001
             inside[i, k] = 0 <= cc < w
             diff[i, k] = abs(a - row[min(max(cc, 0), w - 1)])
     return diff, inside
+
+
+@kernel("float32[::1](float32[:, ::1], int64[::1], int64[::1])")
+def values_at(a, rows, cols):  # noqa: ANN001
+    """(M,) values of ``a`` (H, W) at the pixels (rows, cols) (M,): ``a[rows, cols]``."""
+    m = len(rows)
+    out = np.empty(m, np.float32)
+    for i in range(m):
+        out[i] = a[rows[i], cols[i]]
+    return out

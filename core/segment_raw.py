@@ -33,6 +33,7 @@ from threadrecon.core.ridge_kernel import (
     pixels_at,
     small_components,
     upsample_max,
+    values_at,
 )
 from threadrecon.core.segment_surface import SurfaceTest
 
@@ -161,6 +162,7 @@ class _View:
     blood: np.ndarray  # (M,) bool, darker and redder than the tissue around
     sigma: np.ndarray  # (C,) pixel noise of each log channel (robust), log units
     bg_rgb: np.ndarray  # (h, w, C) float32 local background colour at quarter resolution
+    s_lo: np.ndarray  # (M,) float32 S at the lo pixels
     pieces: tuple = ()
     _grey: np.ndarray | None = None
     _far: np.ndarray | None = None
@@ -226,13 +228,14 @@ class _View:
         else:
             blood = np.zeros(len(rows), bool)
         sigma = noise_sigma(_log_channels(img[::_NOISE_ROW_STEP]), row_step=1)
-        v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb)
-        v.pieces = _pieces(S, ~blood if blood.any() else None, v, p)
+        s_lo = values_at(S, rows, cols)
+        v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb, s_lo)
+        v.pieces = _pieces(~blood if blood.any() else None, v, p)
         return v
 
     def with_blood(self, p: SegmentationParams) -> _View:
         v = _View(**{k: getattr(self, k) for k in self.__dataclass_fields__ if k != "pieces"})
-        v.pieces = _pieces(self.S, None, v, p)
+        v.pieces = _pieces(None, v, p)
         return v
 
 
@@ -600,7 +603,7 @@ def _kth_smallest(x: np.ndarray, k: int) -> float:
     return float(kth_smallest(x if x.ndim == 2 else x[None], k))
 
 
-def _pieces(s: np.ndarray, sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
+def _pieces(sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
     """Hysteresis pieces of the view's lo pixels where ``sub`` (M,) is True (all when None),
     8-connected: the piece of each lo pixel (M,) (0: none), rows and columns of the shape-ok
     pieces' pixels, per-piece mean S, length (exact where shape ok), shape ok. Labelled and
@@ -609,7 +612,7 @@ def _pieces(s: np.ndarray, sub: np.ndarray | None, v: _View, p: SegmentationPara
     rows, cols = (v.rows, v.cols) if sub is None else (v.rows[sub], v.cols[sub])
     lab = np.empty(len(rows), np.int64)
     n = label_pixels(rows, cols, lab)
-    s_px = s[rows, cols]
+    s_px = v.s_lo if sub is None else v.s_lo[sub]
     area = np.bincount(lab, minlength=n).astype(np.float64)
     means = np.bincount(lab, weights=s_px, minlength=n) / np.maximum(area, 1.0)
     seeded = np.zeros(n, bool)

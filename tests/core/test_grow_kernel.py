@@ -99,7 +99,7 @@ def _view(img: np.ndarray, rng: np.random.Generator) -> sr._View:
                     interpolation=cv2.INTER_AREA).reshape(max(h // sr._Q, 1), -1, c)  # fmt: skip
     bg = bg + rng.normal(0, 3, bg.shape).astype(np.float32)
     none = np.zeros(0)
-    return sr._View(img, none, 1.0, none, none, none, none, none, none, bg)
+    return sr._View(img, none, 1.0, none, none, none, none, none, none, bg, none)
 
 
 @pytest.mark.parametrize("trial", range(24))
