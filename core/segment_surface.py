@@ -28,7 +28,7 @@ from typing import Final
 
 import numpy as np
 
-from threadrecon.core.ridge_kernel import residuals_at
+from threadrecon.core.ridge_kernel import block_residuals
 
 SAME_DISPARITY_PX: Final = 1.5  # two disparities within 1.5 px: one surface (the sampling
 # of a 1-6 px line blurs its optimum by ~1 px)
@@ -157,28 +157,18 @@ class _Residuals:
         look_left: bool,
     ) -> None:
         self.ds = ds
-        order = np.argsort(block, kind="stable")
-        r, c, self.block = r[order], c[order], block[order]
-        diff, inside = residuals_at(
+        self.diff, self.inside, self.size, self.mean = block_residuals(
             this,
             other,
             np.ascontiguousarray(r, np.int64),
             np.ascontiguousarray(c, np.int64),
+            np.ascontiguousarray(block, np.int64),
+            n_blocks,
             int(ds[0]) if len(ds) else 0,
             len(ds),
             look_left,
-        )
-        self.diff, self.inside = diff, inside
-        self.size = np.bincount(self.block, minlength=n_blocks)
-        self.starts = np.concatenate([[0], np.cumsum(self.size)[:-1]])
-        total = np.zeros((n_blocks, len(ds)), np.float32)
-        count = np.zeros((n_blocks, len(ds)), np.float32)
-        seen = np.flatnonzero(self.size)
-        if len(seen):
-            total[seen] = np.add.reduceat(diff * inside, self.starts[seen], axis=0)
-            count[seen] = np.add.reduceat(inside.astype(np.float32), self.starts[seen], axis=0)
-        valid = count >= np.maximum(0.5 * self.size, 1.0)[:, None]
-        self.mean = np.where(valid, total / np.maximum(count, 1.0), np.inf)
+        )  # the pixels grouped by block; means as np.add.reduceat gives them
+        self.starts = np.cumsum(self.size) - self.size
         self.best = np.argmin(self.mean, axis=1)
         self.best_d = ds[self.best]
         self.least = self.mean[np.arange(n_blocks), self.best]

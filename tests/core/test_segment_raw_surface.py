@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from threadrecon.core.ridge_kernel import residuals_at
+from threadrecon.core.ridge_kernel import block_residuals
 from threadrecon.core.segment_surface import _BLOCK_PX, SurfaceTest, _unique
 
 H, W, D_BG, D_MAX = 120, 200, 12, 40
@@ -67,22 +67,42 @@ def test_shapes_are_checked() -> None:
         SurfaceTest(a, a[:, 1:], a > 0, D_MAX, True)
 
 
-@pytest.mark.parametrize("trial", range(20))
-def test_residuals_kernel_equals_the_clipped_fancy_index(trial: int) -> None:
+@pytest.mark.parametrize("trial", range(30))
+def test_block_residuals_equal_the_fancy_index_and_reduceat(trial: int) -> None:
+    """The kernel's residuals, grouping and block means are numpy's to the last bit (the
+    plain computation it replaces), with blocks of up to ~1000 pixels (pairwise sums split)."""
     rng = np.random.default_rng([41, trial])
     h, w = int(rng.integers(1, 40)), int(rng.integers(1, 60))
-    this = rng.normal(100, 30, (h, w)).astype(np.float32)
-    other = rng.normal(100, 30, (h, w)).astype(np.float32)
-    n = int(rng.integers(0, 50))
+    this = (rng.normal(100, 30, (h, w)) * rng.choice([1e-3, 1.0, 1e3])).astype(np.float32)
+    other = (rng.normal(100, 30, (h, w)) * rng.choice([1e-3, 1.0, 1e3])).astype(np.float32)
+    n = int(rng.integers(1, [50, 400, 2500][trial % 3]))
     r, c = rng.integers(0, h, n), rng.integers(0, w, n)
+    n_blocks = int(rng.integers(1, 6))
+    block = rng.integers(0, n_blocks, n)
     d0, nd, look_left = int(rng.integers(0, 10)), int(rng.integers(1, 20)), bool(trial % 2)
     ds = np.arange(d0, d0 + nd)
+    # The plain computation.
+    order = np.argsort(block, kind="stable")
+    r, c, blk = r[order], c[order], block[order]
     cc = c[:, None] - ds[None, :] if look_left else c[:, None] + ds[None, :]
     want_inside = (cc >= 0) & (cc < w)
     want = np.abs(this[r, c][:, None] - np.take(other, (r * w)[:, None] + np.clip(cc, 0, w - 1)))
-    diff, inside = residuals_at(this, other, r, c, d0, nd, look_left)
+    size = np.bincount(blk, minlength=n_blocks)
+    starts = np.concatenate([[0], np.cumsum(size)[:-1]])
+    total = np.zeros((n_blocks, nd), np.float32)
+    count = np.zeros((n_blocks, nd), np.float32)
+    seen = np.flatnonzero(size)
+    total[seen] = np.add.reduceat(want * want_inside, starts[seen], axis=0)
+    count[seen] = np.add.reduceat(want_inside.astype(np.float32), starts[seen], axis=0)
+    valid = count >= np.maximum(0.5 * size, 1.0)[:, None]
+    want_mean = np.where(valid, total / np.maximum(count, 1.0), np.inf)
+    diff, inside, got_size, mean = block_residuals(
+        this, other, r[np.argsort(order)], c[np.argsort(order)], block, n_blocks, d0, nd, look_left
+    )
     assert np.array_equal(inside, want_inside)
     assert np.array_equal(diff, want)
+    assert np.array_equal(got_size, size)
+    assert np.array_equal(mean, want_mean)
 
 
 def test_unique_and_the_block_grid_equal_numpys() -> None:
