@@ -664,39 +664,97 @@ def block_residuals(this, other, r, c, block, n_blocks, d0, nd, look_left):  # n
     return diff, inside, size, mean
 
 
+@kernel(
+    "UniTuple(float64, 3)(float32[:, ::1], boolean[:, ::1], int64, int64, int64, int64, float32)"
+)
+def excess_stats(diff, inside, start, size, at, own, cap):  # noqa: ANN001
+    """(n, mean, standard deviation) of the excess residuals x = diff[i, at] - diff[i, own]
+    of the rows i = start .. start + size - 1 where both columns are ``inside``, clipped to
+    [-cap, cap]: np.mean(x) and np.std(x) of float32 x to the last bit (numpy's pairwise
+    sums of the whole array, its float32 divisions by n)."""
+    x = np.empty((size, 1), np.float32)
+    n = 0
+    for i in range(start, start + size):
+        if inside[i, at] and inside[i, own]:
+            x[n, 0] = min(max(diff[i, at] - diff[i, own], -cap), cap)
+            n += 1
+    if n == 0:
+        return 0.0, 0.0, 0.0
+    nf = np.float32(n)
+    mean = _pairwise(x, 0, 0, n) / nf
+    for i in range(n):
+        d = x[i, 0] - mean
+        x[i, 0] = d * d
+    std = np.sqrt(_pairwise(x, 0, 0, n) / nf)
+    return float(n), float(mean), float(std)
+
+
 @helper()
 def _pairwise(x, j, lo, n):  # noqa: ANN001
-    """Sum of x[lo : lo + n, j] in float32 as numpy's pairwise summation adds it (blocks of
-    at most 128 values summed in 8 interleaved partial sums, halves of longer runs at a
-    multiple of 8 summed apart)."""
+    """Sum of x[lo : lo + n, j] in float32 as numpy's pairwise summation adds it: runs of at
+    most 128 values (:func:`_pairwise_leaf`); a longer run is the sum of its halves, split at
+    a multiple of 8 (numpy recurses; here a stack: the AOT compiler takes no recursion)."""
+    if n <= 128:
+        return _pairwise_leaf(x, j, lo, n)
+    los = np.empty(64, np.int64)
+    ns = np.empty(64, np.int64)
+    state = np.empty(64, np.int64)  # 1: the left half is being summed, 2: the right half
+    left = np.empty(64, np.float32)  # the left half's sum, in state 2
+    top = 0
+    los[0], ns[0] = lo, n
+    while True:
+        m = ns[top]
+        if m > 128:  # split: sum the left half first
+            half = m // 2
+            half -= half % 8
+            state[top] = 1
+            los[top + 1], ns[top + 1] = los[top], half
+            top += 1
+            continue
+        v = _pairwise_leaf(x, j, los[top], m)
+        while True:  # return v to the parents
+            if top == 0:
+                return v
+            top -= 1
+            if state[top] == 1:  # the left half is done: sum the right half
+                left[top] = v
+                state[top] = 2
+                half = ns[top] // 2
+                half -= half % 8
+                los[top + 1], ns[top + 1] = los[top] + half, ns[top] - half
+                top += 1
+                break
+            v = left[top] + v
+
+
+@helper(inline="always")
+def _pairwise_leaf(x, j, lo, n):  # noqa: ANN001
+    """numpy's pairwise sum of a run of at most 128 values x[lo : lo + n, j]: below 8 one by
+    one, else 8 interleaved partial sums, combined as a tree, then the rest one by one."""
     if n < 8:
         res = np.float32(0.0)
         for i in range(lo, lo + n):
             res += x[i, j]
         return res
-    if n <= 128:
-        r0, r1, r2, r3 = x[lo, j], x[lo + 1, j], x[lo + 2, j], x[lo + 3, j]
-        r4, r5, r6, r7 = x[lo + 4, j], x[lo + 5, j], x[lo + 6, j], x[lo + 7, j]
-        i = 8
-        while i < n - n % 8:
-            b = lo + i
-            r0 += x[b, j]
-            r1 += x[b + 1, j]
-            r2 += x[b + 2, j]
-            r3 += x[b + 3, j]
-            r4 += x[b + 4, j]
-            r5 += x[b + 5, j]
-            r6 += x[b + 6, j]
-            r7 += x[b + 7, j]
-            i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        while i < n:
-            res += x[lo + i, j]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pairwise(x, j, lo, n2) + _pairwise(x, j, lo + n2, n - n2)
+    r0, r1, r2, r3 = x[lo, j], x[lo + 1, j], x[lo + 2, j], x[lo + 3, j]
+    r4, r5, r6, r7 = x[lo + 4, j], x[lo + 5, j], x[lo + 6, j], x[lo + 7, j]
+    i = 8
+    while i < n - n % 8:
+        b = lo + i
+        r0 += x[b, j]
+        r1 += x[b + 1, j]
+        r2 += x[b + 2, j]
+        r3 += x[b + 3, j]
+        r4 += x[b + 4, j]
+        r5 += x[b + 5, j]
+        r6 += x[b + 6, j]
+        r7 += x[b + 7, j]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += x[lo + i, j]
+        i += 1
+    return res
 
 
 @kernel("float32[::1](float32[:, ::1], int64[::1], int64[::1])")

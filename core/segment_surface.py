@@ -28,7 +28,7 @@ from typing import Final
 
 import numpy as np
 
-from threadrecon.core.ridge_kernel import block_residuals
+from threadrecon.core.ridge_kernel import block_residuals, excess_stats
 
 SAME_DISPARITY_PX: Final = 1.5  # two disparities within 1.5 px: one surface (the sampling
 # of a 1-6 px line blurs its optimum by ~1 px)
@@ -219,18 +219,18 @@ class _Residuals:
     def _worse(self, b: int, at: int) -> bool:
         """Whether block ``b`` matches significantly worse at index ``at`` of ``ds`` than at
         its best: the mean per-pixel excess residual is >= _T_SAME standard errors."""
-        sl = slice(self.starts[b], self.starts[b] + self.size[b])
         own = int(self.best[b])
-        x = self.diff[sl, at] - self.diff[sl, own]
-        x = x[self.inside[sl, at] & self.inside[sl, own]]
-        if len(x) < _MIN_BLOCK_SAMPLES:
-            return False
         # The pixels whose partner meets a line (a heavy tail) clipped to _TAIL times the
-        # block's least mean residual (its noise and texture level).
+        # block's least mean residual (its noise and texture level); np.mean and np.std of
+        # those (float32) by the kernel, to the last bit.
         cap = _TAIL * float(self.least[b]) + 1.0
-        x = np.clip(x, -cap, cap)
-        se = float(np.std(x)) / np.sqrt(len(x)) + 1e-6
-        return float(np.mean(x)) >= _T_SAME * se
+        n, mean, std = excess_stats(
+            self.diff, self.inside, int(self.starts[b]), int(self.size[b]), at, own, np.float32(cap)
+        )
+        if n < _MIN_BLOCK_SAMPLES:
+            return False
+        se = std / np.sqrt(n) + 1e-6
+        return mean >= _T_SAME * se
 
 
 def _quincunx() -> tuple[np.ndarray, np.ndarray]:

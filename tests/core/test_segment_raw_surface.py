@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from threadrecon.core.ridge_kernel import block_residuals
+from threadrecon.core.ridge_kernel import block_residuals, excess_stats
 from threadrecon.core.segment_surface import _BLOCK_PX, SurfaceTest, _unique
 
 H, W, D_BG, D_MAX = 120, 200, 12, 40
@@ -123,3 +123,21 @@ def test_unique_and_the_block_grid_equal_numpys() -> None:
         ok = free[rr, cc] & ((rr // 2 + cc // 2) % 2 == 0)
         got = t._background(key)
         assert np.array_equal(got[0], rr[ok]) and np.array_equal(got[1], cc[ok])
+
+
+@pytest.mark.parametrize("trial", range(30))
+def test_excess_stats_equal_numpys_mean_and_std(trial: int) -> None:
+    rng = np.random.default_rng([43, trial])
+    n, nd = int(rng.integers(1, [20, 300, 1500][trial % 3])), 9
+    diff = (np.abs(rng.normal(0, 1, (n, nd))) * rng.uniform(0.1, 100)).astype(np.float32)
+    inside = rng.random((n, nd)) < [1.0, 0.9, 0.3][trial % 3]
+    start = int(rng.integers(0, n))
+    size = int(rng.integers(0, n - start + 1))
+    at, own = int(rng.integers(0, nd)), int(rng.integers(0, nd))
+    cap = float(rng.uniform(1, 200))
+    sl = slice(start, start + size)
+    x = diff[sl, at] - diff[sl, own]
+    x = np.clip(x[inside[sl, at] & inside[sl, own]], -cap, cap)
+    got = excess_stats(diff, inside, start, size, at, own, np.float32(cap))
+    want = (len(x), float(np.mean(x)), float(np.std(x))) if len(x) else (0, 0.0, 0.0)
+    assert got == want
