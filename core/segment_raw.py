@@ -745,7 +745,9 @@ def _body_contrast(
     body colour, I - B = c (T - B) + s W, s >= 0; where u and W differ (a coloured thread: by
     > _GLINT_APART_DEG) the least-squares c of the pixels with s > 0 is the body contrast net
     of the highlight. A grey thread's contrast is along W itself: a highlight cannot be told
-    apart there (no fit).
+    apart there (no fit). This is the plain form of the step: :func:`_grow_mask` computes it
+    within its compiled pass (core/grow_kernel.py), bit for bit (tests/core/test_grow_kernel.py
+    compares the two).
     """
     c = diff.shape[1]
     qr, qc = _qi(rows, shape_q[0]), _qi(cols, shape_q[1])
