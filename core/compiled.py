@@ -1,7 +1,8 @@
 """Compiled kernels that run without numba in the process.
 
 The core's loops over pixels and keypoints (the threshold segmentation's histogram, the raw
-segmentation's filters and pieces in ``ridge_kernel``, stereo and its continuity set-up,
+segmentation's filters and pieces in ``ridge_kernel`` and its mask growth in
+``grow_kernel``, stereo and its continuity set-up,
 clustering, the ordering walk and its gap geodesics in ``walk_kernel``, the spline's basis in
 ``spline_kernel``, the two-view refinement's runs and rounds in ``refine_kernel``, the check's
 ``check_kernel``, a raw rig's resampling in ``remap_kernel``) are numba functions. Loading numba costs more than the rest of a 1920x1080 reconstruction: importing it

@@ -23,6 +23,10 @@ the pieces from the same lists. The boxes are exact; the half-width is cv2's 3x3
 distance (DIST_L2, mask 3) with its float32 steps; cv2 (IPP) reaches some pixels along another
 path of the same steps, so its float32 sum can differ in the last bit: on the 36,470 pieces of
 >= 10 px of 105 raw frames of 15 suites, 2 differed, by one ulp, and the masks were identical.
+
+:func:`block_residuals` gives the surface test's grey residuals (core/segment_surface.py) at
+a piece's pixels and a range of disparities and their mean per block: exactly numpy's clipped
+fancy index and np.add.reduceat (its pairwise summation, in its order).
 """
 
 from __future__ import annotations
@@ -598,4 +602,166 @@ def half_widths(lab, rows, cols, ids, boxes, h, w):  # noqa: ANN001
                 row[x] = d
             best = max(best, d)
         out[k] = best
+    return out
+
+
+@kernel(
+    "Tuple((float32[:, ::1], boolean[:, ::1], int64[::1], float32[:, ::1]))(float32[:, ::1], "
+    "float32[:, ::1], int64[::1], int64[::1], int64[::1], int64, int64, int64, boolean)"
+)
+def block_residuals(this, other, r, c, block, n_blocks, d0, nd, look_left):  # noqa: ANN001
+    """Grey residuals |this[r, c] - other[r, c -+ d]| of the pixels (r, c) (N,) at the
+    disparities d = d0 .. d0 + nd - 1 (minus: ``look_left``), grouped by their ``block`` (N,)
+    in 0 .. n_blocks - 1 (a stable sort: np.argsort(block, kind="stable")): (N, nd) residuals
+    and (N, nd) whether the partner column is inside the image (outside: the edge column's
+    residual, as a clipped index gives it), (n_blocks,) pixels per block, and (n_blocks, nd)
+    the mean residual over the inside pixels per block, inf where fewer than half of the
+    block's pixels (or none) are inside. The sums are np.add.reduceat's, to the last bit: the
+    block's first row plus numpy's pairwise sum of the others."""
+    n = len(r)
+    w = this.shape[1]
+    size = np.zeros(n_blocks, np.int64)
+    for i in range(n):
+        size[block[i]] += 1
+    fill = np.empty(n_blocks, np.int64)
+    at = 0
+    for b in range(n_blocks):
+        fill[b] = at
+        at += size[b]
+    diff = np.empty((n, nd), np.float32)
+    inside = np.empty((n, nd), np.bool_)
+    masked = np.empty((n, nd), np.float32)  # diff * inside
+    counted = np.empty((n, nd), np.float32)  # inside as 0.0 / 1.0
+    for i in range(n):
+        o = fill[block[i]]
+        fill[block[i]] += 1
+        a = this[r[i], c[i]]
+        row = other[r[i]]
+        for k in range(nd):
+            cc = c[i] - (d0 + k) if look_left else c[i] + (d0 + k)
+            ok = 0 <= cc < w
+            v = abs(a - row[min(max(cc, 0), w - 1)])
+            diff[o, k] = v
+            inside[o, k] = ok
+            masked[o, k] = v if ok else np.float32(0.0)
+            counted[o, k] = np.float32(1.0) if ok else np.float32(0.0)
+    mean = np.empty((n_blocks, nd), np.float32)
+    inf = np.float32(np.inf)
+    at = 0
+    for b in range(n_blocks):
+        m = size[b]
+        for k in range(nd):
+            if m == 0:
+                mean[b, k] = inf
+                continue
+            total = masked[at, k] + _pairwise(masked, k, at + 1, m - 1)
+            count = counted[at, k] + _pairwise(counted, k, at + 1, m - 1)
+            if count >= max(0.5 * m, 1.0):
+                mean[b, k] = total / max(count, np.float32(1.0))
+            else:
+                mean[b, k] = inf
+        at += m
+    return diff, inside, size, mean
+
+
+@kernel(
+    "UniTuple(float64, 3)(float32[:, ::1], boolean[:, ::1], int64, int64, int64, int64, float32)"
+)
+def excess_stats(diff, inside, start, size, at, own, cap):  # noqa: ANN001
+    """(n, mean, standard deviation) of the excess residuals x = diff[i, at] - diff[i, own]
+    of the rows i = start .. start + size - 1 where both columns are ``inside``, clipped to
+    [-cap, cap]: np.mean(x) and np.std(x) of float32 x to the last bit (numpy's pairwise
+    sums of the whole array, its float32 divisions by n)."""
+    x = np.empty((size, 1), np.float32)
+    n = 0
+    for i in range(start, start + size):
+        if inside[i, at] and inside[i, own]:
+            x[n, 0] = min(max(diff[i, at] - diff[i, own], -cap), cap)
+            n += 1
+    if n == 0:
+        return 0.0, 0.0, 0.0
+    nf = np.float32(n)
+    mean = _pairwise(x, 0, 0, n) / nf
+    for i in range(n):
+        d = x[i, 0] - mean
+        x[i, 0] = d * d
+    std = np.sqrt(_pairwise(x, 0, 0, n) / nf)
+    return float(n), float(mean), float(std)
+
+
+@helper()
+def _pairwise(x, j, lo, n):  # noqa: ANN001
+    """Sum of x[lo : lo + n, j] in float32 as numpy's pairwise summation adds it: runs of at
+    most 128 values (:func:`_pairwise_leaf`); a longer run is the sum of its halves, split at
+    a multiple of 8 (numpy recurses; here a stack: the AOT compiler takes no recursion)."""
+    if n <= 128:
+        return _pairwise_leaf(x, j, lo, n)
+    los = np.empty(64, np.int64)
+    ns = np.empty(64, np.int64)
+    state = np.empty(64, np.int64)  # 1: the left half is being summed, 2: the right half
+    left = np.empty(64, np.float32)  # the left half's sum, in state 2
+    top = 0
+    los[0], ns[0] = lo, n
+    while True:
+        m = ns[top]
+        if m > 128:  # split: sum the left half first
+            half = m // 2
+            half -= half % 8
+            state[top] = 1
+            los[top + 1], ns[top + 1] = los[top], half
+            top += 1
+            continue
+        v = _pairwise_leaf(x, j, los[top], m)
+        while True:  # return v to the parents
+            if top == 0:
+                return v
+            top -= 1
+            if state[top] == 1:  # the left half is done: sum the right half
+                left[top] = v
+                state[top] = 2
+                half = ns[top] // 2
+                half -= half % 8
+                los[top + 1], ns[top + 1] = los[top] + half, ns[top] - half
+                top += 1
+                break
+            v = left[top] + v
+
+
+@helper(inline="always")
+def _pairwise_leaf(x, j, lo, n):  # noqa: ANN001
+    """numpy's pairwise sum of a run of at most 128 values x[lo : lo + n, j]: below 8 one by
+    one, else 8 interleaved partial sums, combined as a tree, then the rest one by one."""
+    if n < 8:
+        res = np.float32(0.0)
+        for i in range(lo, lo + n):
+            res += x[i, j]
+        return res
+    r0, r1, r2, r3 = x[lo, j], x[lo + 1, j], x[lo + 2, j], x[lo + 3, j]
+    r4, r5, r6, r7 = x[lo + 4, j], x[lo + 5, j], x[lo + 6, j], x[lo + 7, j]
+    i = 8
+    while i < n - n % 8:
+        b = lo + i
+        r0 += x[b, j]
+        r1 += x[b + 1, j]
+        r2 += x[b + 2, j]
+        r3 += x[b + 3, j]
+        r4 += x[b + 4, j]
+        r5 += x[b + 5, j]
+        r6 += x[b + 6, j]
+        r7 += x[b + 7, j]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += x[lo + i, j]
+        i += 1
+    return res
+
+
+@kernel("float32[::1](float32[:, ::1], int64[::1], int64[::1])")
+def values_at(a, rows, cols):  # noqa: ANN001
+    """(M,) values of ``a`` (H, W) at the pixels (rows, cols) (M,): ``a[rows, cols]``."""
+    m = len(rows)
+    out = np.empty(m, np.float32)
+    for i in range(m):
+        out[i] = a[rows[i], cols[i]]
     return out

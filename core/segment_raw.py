@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Final
 import cv2
 import numpy as np
 
+from threadrecon.core.grow_kernel import grow_mask_f32, grow_mask_u8
 from threadrecon.core.instrument import grow_into_attached
 from threadrecon.core.ridge_kernel import (
     at_least,
@@ -32,6 +33,7 @@ from threadrecon.core.ridge_kernel import (
     pixels_at,
     small_components,
     upsample_max,
+    values_at,
 )
 from threadrecon.core.segment_surface import _BLOCK_PX as SURFACE_BLOCK_PX
 from threadrecon.core.segment_surface import _MIN_VOTES as SURFACE_MIN_VOTES
@@ -71,7 +73,6 @@ _MAX_SURFACE_TESTS: Final = 8  # a thread less salient than 8 marks on the tissu
 _GLINT_APART_DEG: Final = 25.0  # a thread's contrast and white closer than 25 degrees: grey,
 # a highlight on it is not told from its body (the fit's noise gain 1/sin^2 stays <= 5.6)
 _GLINT_APART_SIN2: Final = float(np.sin(np.radians(_GLINT_APART_DEG)) ** 2)
-_SQUARE3: Final = np.ones((3, 3), np.uint8)
 _NOISE_ROW_STEP: Final = 16  # noise estimated on every 16th row: 30 rows x 640 px at 640x480
 
 
@@ -168,6 +169,7 @@ class _View:
     blood: np.ndarray  # (M,) bool, darker and redder than the tissue around
     sigma: np.ndarray  # (C,) pixel noise of each log channel (robust), log units
     bg_rgb: np.ndarray  # (h, w, C) float32 local background colour at quarter resolution
+    s_lo: np.ndarray  # (M,) float32 S at the lo pixels
     pieces: tuple = ()
     _grey: np.ndarray | None = None
     _far: np.ndarray | None = None
@@ -233,13 +235,14 @@ class _View:
         else:
             blood = np.zeros(len(rows), bool)
         sigma = noise_sigma(_log_channels(img[::_NOISE_ROW_STEP]), row_step=1)
-        v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb)
-        v.pieces = _pieces(S, ~blood if blood.any() else None, v, p)
+        s_lo = values_at(S, rows, cols)
+        v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb, s_lo)
+        v.pieces = _pieces(~blood if blood.any() else None, v, p)
         return v
 
     def with_blood(self, p: SegmentationParams) -> _View:
         v = _View(**{k: getattr(self, k) for k in self.__dataclass_fields__ if k != "pieces"})
-        v.pieces = _pieces(self.S, None, v, p)
+        v.pieces = _pieces(None, v, p)
         return v
 
 
@@ -772,7 +775,7 @@ def _kth_smallest(x: np.ndarray, k: int) -> float:
     return float(kth_smallest(x if x.ndim == 2 else x[None], k))
 
 
-def _pieces(s: np.ndarray, sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
+def _pieces(sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
     """Hysteresis pieces of the view's lo pixels where ``sub`` (M,) is True (all when None),
     8-connected: the piece of each lo pixel (M,) (0: none), rows and columns of the shape-ok
     pieces' pixels, per-piece mean S, length (exact where shape ok), shape ok. Labelled and
@@ -781,7 +784,7 @@ def _pieces(s: np.ndarray, sub: np.ndarray | None, v: _View, p: SegmentationPara
     rows, cols = (v.rows, v.cols) if sub is None else (v.rows[sub], v.cols[sub])
     lab = np.empty(len(rows), np.int64)
     n = label_pixels(rows, cols, lab)
-    s_px = s[rows, cols]
+    s_px = v.s_lo if sub is None else v.s_lo[sub]
     area = np.bincount(lab, minlength=n).astype(np.float64)
     means = np.bincount(lab, weights=s_px, minlength=n) / np.maximum(area, 1.0)
     seeded = np.zeros(n, bool)
@@ -856,72 +859,49 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     the largest such contrast of a core pixel within the band (a box of radius _BAND_PX; the
     thread's axis is there). Projected on u, texture and noise across it no longer widen
     the mask (the length |I - B| adds them all). B is the candidate-free average of the view
-    (:func:`_background`). Sparse: band pixels only,
-    and the two dilations run on the core's bounding box grown by the band (exact: a dilation
-    reaches no further than its radius).
+    (:func:`_background`). Where a highlight lies inside the thread (pixels enclosed by
+    thread pixels: a 3 x 3 closing of the mask), a pixel takes its coverage net of it; beside
+    the thread the same fit would take the colour bleeding out of it (JPEG chroma) for thread.
+    Coverage is conserved: a cross-section of two pixels (its outer neighbours below 0.5)
+    whose coverages sum to < _SHARED_PX holds less than that much thread (a 1-2 px thread
+    crossing from one pixel row or column to the next); coverage 0.5 takes the larger only.
+
+    Computed on the core's bounding box grown by the band and by the 2 px the coverage test
+    looks at (zeros there, as in the full image; exact: the band reaches no further), clipped
+    to the image, by one compiled pass (:func:`threadrecon.core.grow_kernel.grow_mask`, the
+    same arithmetic as the numpy and cv2 steps, bit for bit).
     """
     h, w = core.shape
     out = np.zeros(core.shape, bool)
-    pts = cv2.findNonZero(core)
-    if pts is None:
+    x0, y0, bw, bh = cv2.boundingRect(np.ascontiguousarray(core, np.uint8))
+    if bw == 0:
         return out
-    x0, y0, bw, bh = cv2.boundingRect(pts)
-    # The box: the core's bounding box grown by the band and by the 2 px the coverage test
-    # looks at (zeros there, as in the full image), clipped to the image.
     m = _BAND_PX + 2
     r0, r1, c0, c1 = max(y0 - m, 0), min(y0 + bh + m, h), max(x0 - m, 0), min(x0 + bw + m, w)
-    core_b = core[r0:r1, c0:c1]
     a = v.img if v.img.ndim == 3 else v.img[:, :, None]
     a = a[r0:r1, c0:c1, : v.bg_rgb.shape[2]]
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * _BAND_PX + 1, 2 * _BAND_PX + 1))
-    band = cv2.dilate(core_b, k)
-    rows, cols = _points(band)  # in the box
-    bg = v.bg_rgb
-    diff = a[rows, cols].astype(np.float32) - bg[_qi(rows + r0, bg.shape[0]),
-                                                 _qi(cols + c0, bg.shape[1])]  # fmt: skip
-    on_core = core_b[rows, cols] > 0
-    body, glint = _body_contrast(diff, rows + r0, cols + c0, on_core, bg.shape[:2])
-    # |T - B| is the largest body contrast of a core pixel within the band (the thread's axis
-    # is there), net of a highlight (a core pixel is thread: no enclosure needed).
-    c2 = np.square(np.maximum(body[0], 0.0))
-    g = np.flatnonzero(glint)  # the pixels a highlight fit applies to (few)
-    net2 = np.square(np.maximum(body[1][g], 0.0))
-    dense = np.zeros(core_b.shape, np.float32)
-    dense[rows[on_core], cols[on_core]] = c2[on_core]
-    axis = on_core[g]
-    dense[rows[g[axis]], cols[g[axis]]] = np.maximum(net2[axis], c2[g[axis]])
-    box = np.ones((2 * _BAND_PX + 1, 2 * _BAND_PX + 1), np.uint8)
-    peak = cv2.dilate(dense, box)[rows, cols]
-    keep = (c2 >= 0.25 * peak) & (peak > 0)
-    # Elsewhere a highlight lies inside the thread: only pixels enclosed by thread pixels (a
-    # 3 x 3 closing of the mask) take their coverage net of one; beside the thread the same
-    # fit would take the colour bleeding out of it (JPEG chroma) for thread.
-    add = ~keep[g] & (net2 >= 0.25 * peak[g]) & (peak[g] > 0)
-    if add.any():
-        g, net2 = g[add], net2[add]
-        dense = np.zeros(core_b.shape, np.uint8)
-        dense[rows[keep], cols[keep]] = 1
-        inside = cv2.morphologyEx(dense, cv2.MORPH_CLOSE, _SQUARE3)[rows[g], cols[g]] > 0
-        g, net2 = g[inside], net2[inside]
-        keep[g] = True
-        c2[g] = net2
-    # Coverage is conserved: a cross-section of two pixels (its outer neighbours below 0.5)
-    # whose coverages sum to < _SHARED_PX holds less than that much thread (a 1-2 px thread
-    # crossing from one pixel row or column to the next); coverage 0.5 takes the larger only.
-    cov = np.zeros(core_b.shape, np.float32)
-    cov[rows[keep], cols[keep]] = np.sqrt(c2[keep] / peak[keep])
-    # Neighbours up to 2 px away by flat index into a copy padded by replicating the edge: the
-    # box's own 2 px margin inside the image, the image's edge pixel outside it (clipping).
-    cov = cv2.copyMakeBorder(cov, 2, 2, 2, 2, cv2.BORDER_REPLICATE).ravel()
-    stride = core_b.shape[1] + 4
-    at0 = (rows + 2) * stride + (cols + 2)
-    c = cov[at0]
-    for step in (stride, -stride, 1, -1):
-        nb = cov[at0 + step]
-        alone = (cov[at0 + 2 * step] < 0.5) & (cov[at0 - step] < 0.5)
-        keep &= ~((nb > c) & (nb + c < _SHARED_PX) & alone)
-    out[rows[keep] + r0, cols[keep] + c0] = True
+    grow = grow_mask_u8
+    if a.dtype != np.uint8:
+        a, grow = a.astype(np.float32), grow_mask_f32
+    box = grow(
+        a,
+        np.ascontiguousarray(v.bg_rgb, np.float32),
+        core[r0:r1, c0:c1],
+        _DISC,
+        r0,
+        c0,
+        _Q,
+        _BAND_PX,
+        np.float32(_GLINT_APART_SIN2),
+        np.float32(_SHARED_PX),
+    )
+    out[r0:r1, c0:c1] = box.view(bool)
     return out
+
+
+_DISC: Final = cv2.getStructuringElement(
+    cv2.MORPH_ELLIPSE, (2 * _BAND_PX + 1, 2 * _BAND_PX + 1)
+)  # the band around the core
 
 
 def _body_contrast(
@@ -937,7 +917,9 @@ def _body_contrast(
     body colour, I - B = c (T - B) + s W, s >= 0; where u and W differ (a coloured thread: by
     > _GLINT_APART_DEG) the least-squares c of the pixels with s > 0 is the body contrast net
     of the highlight. A grey thread's contrast is along W itself: a highlight cannot be told
-    apart there (no fit).
+    apart there (no fit). This is the plain form of the step: :func:`_grow_mask` computes it
+    within its compiled pass (core/grow_kernel.py), bit for bit (tests/core/test_grow_kernel.py
+    compares the two).
     """
     c = diff.shape[1]
     qr, qc = _qi(rows, shape_q[0]), _qi(cols, shape_q[1])

@@ -28,6 +28,8 @@ from typing import Final
 
 import numpy as np
 
+from threadrecon.core.ridge_kernel import block_residuals, excess_stats
+
 SAME_DISPARITY_PX: Final = 1.5  # two disparities within 1.5 px: one surface (the sampling
 # of a 1-6 px line blurs its optimum by ~1 px)
 _TEXTURED: Final = 0.6  # the piece's least residual below 60 % of its median over d: its
@@ -71,7 +73,10 @@ class SurfaceTest:
                 f"SurfaceTest needs three (H, W) images of one size, got {this.shape}, "
                 f"{other.shape}, {free.shape}"
             )
-        self.this, self.other, self.free = this, other, free
+        # (the residual kernel reads C-ordered float32 images)
+        self.this = np.ascontiguousarray(this, np.float32)
+        self.other = np.ascontiguousarray(other, np.float32)
+        self.free = free
         self.dmax, self.look_left = int(max_disparity), look_left
         self.nb = (this.shape[1] + _BLOCK_PX - 1) // _BLOCK_PX
         self._grid: dict[int, tuple[np.ndarray, np.ndarray]] = {}
@@ -92,7 +97,7 @@ class SurfaceTest:
         key_all = rows // _BLOCK_PX * self.nb + cols // _BLOCK_PX
         step = max(len(rows) // _MAX_SAMPLES, 1)
         r, c, key = rows[::step], cols[::step], key_all[::step]
-        ids, block = np.unique(key, return_inverse=True)
+        ids, block = _unique(key, self.nb * ((self.this.shape[0] + _BLOCK_PX - 1) // _BLOCK_PX))
         piece = _Residuals(
             self.this, self.other, r, c, block, len(ids), np.arange(self.dmax + 1), self.look_left
         )
@@ -127,12 +132,10 @@ class SurfaceTest:
         if key not in self._grid:
             r0, c0 = key // self.nb * _BLOCK_PX, key % self.nb * _BLOCK_PX
             h, w = self.this.shape
-            rr, cc = np.mgrid[
-                r0 + _GRID_PX // 2 : min(r0 + _BLOCK_PX, h) : _GRID_PX,
-                c0 + _GRID_PX // 2 : min(c0 + _BLOCK_PX, w) : _GRID_PX,
-            ]
-            rr, cc = rr.ravel(), cc.ravel()
-            ok = self.free[rr, cc] & ((rr // _GRID_PX + cc // _GRID_PX) % 2 == 0)  # quincunx
+            rr, cc = _GRID_R + r0, _GRID_C + c0
+            ok = (rr < h) & (cc < w)  # the last blocks may be cut by the image's edge
+            rr, cc = rr[ok], cc[ok]
+            ok = self.free[rr, cc]
             self._grid[key] = (rr[ok], cc[ok])
         return self._grid[key]
 
@@ -154,24 +157,18 @@ class _Residuals:
         look_left: bool,
     ) -> None:
         self.ds = ds
-        w = this.shape[1]
-        order = np.argsort(block, kind="stable")
-        r, c, self.block = r[order], c[order], block[order]
-        cc = c[:, None] - ds[None, :] if look_left else c[:, None] + ds[None, :]
-        inside = (cc >= 0) & (cc < w)
-        flat = (r * w)[:, None] + np.clip(cc, 0, w - 1)
-        diff = np.abs(this[r, c][:, None] - np.take(other, flat))
-        self.diff, self.inside = diff, inside
-        self.size = np.bincount(self.block, minlength=n_blocks)
-        self.starts = np.concatenate([[0], np.cumsum(self.size)[:-1]])
-        total = np.zeros((n_blocks, len(ds)), np.float32)
-        count = np.zeros((n_blocks, len(ds)), np.float32)
-        seen = np.flatnonzero(self.size)
-        if len(seen):
-            total[seen] = np.add.reduceat(diff * inside, self.starts[seen], axis=0)
-            count[seen] = np.add.reduceat(inside.astype(np.float32), self.starts[seen], axis=0)
-        valid = count >= np.maximum(0.5 * self.size, 1.0)[:, None]
-        self.mean = np.where(valid, total / np.maximum(count, 1.0), np.inf)
+        self.diff, self.inside, self.size, self.mean = block_residuals(
+            this,
+            other,
+            np.ascontiguousarray(r, np.int64),
+            np.ascontiguousarray(c, np.int64),
+            np.ascontiguousarray(block, np.int64),
+            n_blocks,
+            int(ds[0]) if len(ds) else 0,
+            len(ds),
+            look_left,
+        )  # the pixels grouped by block; means as np.add.reduceat gives them
+        self.starts = np.cumsum(self.size) - self.size
         self.best = np.argmin(self.mean, axis=1)
         self.best_d = ds[self.best]
         self.least = self.mean[np.arange(n_blocks), self.best]
@@ -222,15 +219,36 @@ class _Residuals:
     def _worse(self, b: int, at: int) -> bool:
         """Whether block ``b`` matches significantly worse at index ``at`` of ``ds`` than at
         its best: the mean per-pixel excess residual is >= _T_SAME standard errors."""
-        sl = slice(self.starts[b], self.starts[b] + self.size[b])
         own = int(self.best[b])
-        x = self.diff[sl, at] - self.diff[sl, own]
-        x = x[self.inside[sl, at] & self.inside[sl, own]]
-        if len(x) < _MIN_BLOCK_SAMPLES:
-            return False
         # The pixels whose partner meets a line (a heavy tail) clipped to _TAIL times the
-        # block's least mean residual (its noise and texture level).
+        # block's least mean residual (its noise and texture level); np.mean and np.std of
+        # those (float32) by the kernel, to the last bit.
         cap = _TAIL * float(self.least[b]) + 1.0
-        x = np.clip(x, -cap, cap)
-        se = float(np.std(x)) / np.sqrt(len(x)) + 1e-6
-        return float(np.mean(x)) >= _T_SAME * se
+        n, mean, std = excess_stats(
+            self.diff, self.inside, int(self.starts[b]), int(self.size[b]), at, own, np.float32(cap)
+        )
+        if n < _MIN_BLOCK_SAMPLES:
+            return False
+        se = std / np.sqrt(n) + 1e-6
+        return mean >= _T_SAME * se
+
+
+def _quincunx() -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns (n,) within a block of the background samples: every _GRID_PX-th
+    pixel from _GRID_PX // 2 on, where (row // _GRID_PX + col // _GRID_PX) is even, row-major
+    (the order of np.mgrid over a block)."""
+    rr, cc = np.mgrid[_GRID_PX // 2 : _BLOCK_PX : _GRID_PX, _GRID_PX // 2 : _BLOCK_PX : _GRID_PX]
+    rr, cc = rr.ravel(), cc.ravel()
+    ok = (rr // _GRID_PX + cc // _GRID_PX) % 2 == 0
+    return rr[ok], cc[ok]
+
+
+_GRID_R, _GRID_C = _quincunx()  # a block's sample offsets, computed once
+
+
+def _unique(key: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(key, return_inverse=True)`` of keys (M,) in 0 .. n - 1 (a counting sort)."""
+    present = np.bincount(key, minlength=n) > 0
+    ids = np.flatnonzero(present)
+    rank = np.cumsum(present) - 1
+    return ids, rank[key]

@@ -70,6 +70,7 @@ def test_a_reconstruction_loads_aot_kernels_without_numba(aot_run: dict) -> None
         "threadrecon.core.spline_kernel": "aot",
         "threadrecon.core.check_kernel": "aot",
         "threadrecon.core.ridge_kernel": "aot",
+        "threadrecon.core.grow_kernel": "aot",
         "threadrecon.core.segmentation": "aot",
         "threadrecon.core.refine_kernel": "aot",
     }

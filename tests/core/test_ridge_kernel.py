@@ -228,3 +228,10 @@ def test_block_means_are_cv2_inter_area(shape: tuple[int, int]) -> None:
     want = cv2.resize(flat, (1, 1), interpolation=cv2.INTER_AREA).reshape(1, 3)
     np.testing.assert_array_equal(got, want)
     assert got.tolist() == [[0.0, 0.0, 2.0]]
+
+
+def test_values_at_equals_the_fancy_index() -> None:
+    rng = np.random.default_rng(3)
+    a = rng.random((30, 40), dtype=np.float32)
+    rows, cols = rng.integers(0, 30, 100), rng.integers(0, 40, 100)
+    assert np.array_equal(rk.values_at(a, rows, cols), a[rows, cols])

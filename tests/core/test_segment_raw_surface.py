@@ -4,7 +4,8 @@ import cv2
 import numpy as np
 import pytest
 
-from threadrecon.core.segment_surface import SurfaceTest
+from threadrecon.core.ridge_kernel import block_residuals, excess_stats
+from threadrecon.core.segment_surface import _BLOCK_PX, SurfaceTest, _unique
 
 H, W, D_BG, D_MAX = 120, 200, 12, 40
 
@@ -64,3 +65,79 @@ def test_shapes_are_checked() -> None:
     a = np.zeros((H, W), np.float32)
     with pytest.raises(ValueError, match=r"\(120, 199\)"):
         SurfaceTest(a, a[:, 1:], a > 0, D_MAX, True)
+
+
+@pytest.mark.parametrize("trial", range(30))
+def test_block_residuals_equal_the_fancy_index_and_reduceat(trial: int) -> None:
+    """The kernel's residuals, grouping and block means are numpy's to the last bit (the
+    plain computation it replaces), with blocks of up to ~1000 pixels (pairwise sums split)."""
+    rng = np.random.default_rng([41, trial])
+    h, w = int(rng.integers(1, 40)), int(rng.integers(1, 60))
+    this = (rng.normal(100, 30, (h, w)) * rng.choice([1e-3, 1.0, 1e3])).astype(np.float32)
+    other = (rng.normal(100, 30, (h, w)) * rng.choice([1e-3, 1.0, 1e3])).astype(np.float32)
+    n = int(rng.integers(1, [50, 400, 2500][trial % 3]))
+    r, c = rng.integers(0, h, n), rng.integers(0, w, n)
+    n_blocks = int(rng.integers(1, 6))
+    block = rng.integers(0, n_blocks, n)
+    d0, nd, look_left = int(rng.integers(0, 10)), int(rng.integers(1, 20)), bool(trial % 2)
+    ds = np.arange(d0, d0 + nd)
+    # The plain computation.
+    order = np.argsort(block, kind="stable")
+    r, c, blk = r[order], c[order], block[order]
+    cc = c[:, None] - ds[None, :] if look_left else c[:, None] + ds[None, :]
+    want_inside = (cc >= 0) & (cc < w)
+    want = np.abs(this[r, c][:, None] - np.take(other, (r * w)[:, None] + np.clip(cc, 0, w - 1)))
+    size = np.bincount(blk, minlength=n_blocks)
+    starts = np.concatenate([[0], np.cumsum(size)[:-1]])
+    total = np.zeros((n_blocks, nd), np.float32)
+    count = np.zeros((n_blocks, nd), np.float32)
+    seen = np.flatnonzero(size)
+    total[seen] = np.add.reduceat(want * want_inside, starts[seen], axis=0)
+    count[seen] = np.add.reduceat(want_inside.astype(np.float32), starts[seen], axis=0)
+    valid = count >= np.maximum(0.5 * size, 1.0)[:, None]
+    want_mean = np.where(valid, total / np.maximum(count, 1.0), np.inf)
+    diff, inside, got_size, mean = block_residuals(
+        this, other, r[np.argsort(order)], c[np.argsort(order)], block, n_blocks, d0, nd, look_left
+    )
+    assert np.array_equal(inside, want_inside)
+    assert np.array_equal(diff, want)
+    assert np.array_equal(got_size, size)
+    assert np.array_equal(mean, want_mean)
+
+
+def test_unique_and_the_block_grid_equal_numpys() -> None:
+    rng = np.random.default_rng(42)
+    for n in (1, 7, 80):
+        key = rng.integers(0, n, int(rng.integers(1, 300)))
+        ids, inv = _unique(key, n)
+        want_ids, want_inv = np.unique(key, return_inverse=True)
+        assert np.array_equal(ids, want_ids) and np.array_equal(inv, want_inv)
+    # Every block of an image whose size is no multiple of the block: the grid of np.mgrid.
+    h, w = 150, 200
+    free = rng.random((h, w)) < 0.7
+    t = SurfaceTest(np.zeros((h, w), np.float32), np.zeros((h, w), np.float32), free, 8, True)
+    for key in range(t.nb * 3):
+        r0, c0 = key // t.nb * _BLOCK_PX, key % t.nb * _BLOCK_PX
+        rr, cc = np.mgrid[r0 + 1 : min(r0 + _BLOCK_PX, h) : 2, c0 + 1 : min(c0 + _BLOCK_PX, w) : 2]
+        rr, cc = rr.ravel(), cc.ravel()
+        ok = free[rr, cc] & ((rr // 2 + cc // 2) % 2 == 0)
+        got = t._background(key)
+        assert np.array_equal(got[0], rr[ok]) and np.array_equal(got[1], cc[ok])
+
+
+@pytest.mark.parametrize("trial", range(30))
+def test_excess_stats_equal_numpys_mean_and_std(trial: int) -> None:
+    rng = np.random.default_rng([43, trial])
+    n, nd = int(rng.integers(1, [20, 300, 1500][trial % 3])), 9
+    diff = (np.abs(rng.normal(0, 1, (n, nd))) * rng.uniform(0.1, 100)).astype(np.float32)
+    inside = rng.random((n, nd)) < [1.0, 0.9, 0.3][trial % 3]
+    start = int(rng.integers(0, n))
+    size = int(rng.integers(0, n - start + 1))
+    at, own = int(rng.integers(0, nd)), int(rng.integers(0, nd))
+    cap = float(rng.uniform(1, 200))
+    sl = slice(start, start + size)
+    x = diff[sl, at] - diff[sl, own]
+    x = np.clip(x[inside[sl, at] & inside[sl, own]], -cap, cap)
+    got = excess_stats(diff, inside, start, size, at, own, np.float32(cap))
+    want = (len(x), float(np.mean(x)), float(np.std(x))) if len(x) else (0, 0.0, 0.0)
+    assert got == want
