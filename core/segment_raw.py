@@ -35,9 +35,7 @@ from threadrecon.core.ridge_kernel import (
     upsample_max,
     values_at,
 )
-from threadrecon.core.segment_surface import _BLOCK_PX as SURFACE_BLOCK_PX
-from threadrecon.core.segment_surface import _MIN_VOTES as SURFACE_MIN_VOTES
-from threadrecon.core.segment_surface import SurfaceTest
+from threadrecon.core.segment_surface import SurfaceTest, undecidable
 
 if TYPE_CHECKING:
     from threadrecon.core.segmentation import SegmentationParams
@@ -490,9 +488,7 @@ def _like_a_mark(v: _View, px: np.ndarray, piece: int, marks: list[int], delta: 
     m = np.asarray(marks)
     if not np.any(_same_dye(delta[m], delta[piece]) >= _SAME_DYE_COS):
         return False
-    nb = (v.lo.shape[1] + SURFACE_BLOCK_PX - 1) // SURFACE_BLOCK_PX
-    blocks = np.unique(v.rows[px] // SURFACE_BLOCK_PX * nb + v.cols[px] // SURFACE_BLOCK_PX)
-    return len(blocks) < SURFACE_MIN_VOTES
+    return undecidable(v.rows[px], v.cols[px], v.lo.shape[1])
 
 
 def _continues(

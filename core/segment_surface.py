@@ -53,6 +53,22 @@ _MIN_VOTES: Final = 2  # a piece is judged on two blocks at least (a frame tests
 _MIN_BLOCK_SAMPLES: Final = 8  # samples a block needs for a disparity of its own
 
 
+def undecidable(rows: np.ndarray, cols: np.ndarray, width: int) -> bool:
+    """Whether a piece of pixels (``rows``, ``cols``) in an image ``width`` px wide lies in
+    fewer blocks than :class:`SurfaceTest` needs to judge it (it can never be decided)."""
+    nb = _blocks_across(width)
+    return len(np.unique(_block_keys(rows, cols, nb))) < _MIN_VOTES
+
+
+def _blocks_across(width: int) -> int:
+    return (width + _BLOCK_PX - 1) // _BLOCK_PX
+
+
+def _block_keys(rows: np.ndarray, cols: np.ndarray, nb: int) -> np.ndarray:
+    """Each pixel's block, numbered row by row over ``nb`` blocks across."""
+    return rows // _BLOCK_PX * nb + cols // _BLOCK_PX
+
+
 class SurfaceTest:
     """Asks whether pieces of the grey view ``this`` (H, W) float32 move with the tissue
     between ``this`` and the grey other view ``other`` (H, W) float32 (module docstring).
@@ -78,7 +94,7 @@ class SurfaceTest:
         self.other = np.ascontiguousarray(other, np.float32)
         self.free = free
         self.dmax, self.look_left = int(max_disparity), look_left
-        self.nb = (this.shape[1] + _BLOCK_PX - 1) // _BLOCK_PX
+        self.nb = _blocks_across(this.shape[1])
         self._grid: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def on_surface(self, rows: np.ndarray, cols: np.ndarray) -> bool:
@@ -94,7 +110,7 @@ class SurfaceTest:
         out = np.full(len(rows), -1, np.int8)
         if len(rows) == 0 or self.dmax < 1:
             return out
-        key_all = rows // _BLOCK_PX * self.nb + cols // _BLOCK_PX
+        key_all = _block_keys(rows, cols, self.nb)
         step = max(len(rows) // _MAX_SAMPLES, 1)
         r, c, key = rows[::step], cols[::step], key_all[::step]
         ids, block = _unique(key, self.nb * ((self.this.shape[0] + _BLOCK_PX - 1) // _BLOCK_PX))
