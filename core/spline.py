@@ -255,7 +255,8 @@ def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) ->
     s = bounds.s
     if P < 2 or s[-1] <= 0:
         raise ValueError("H spans no length: cannot fit a spline")
-    z_mean = float(np.nanmean(bounds.centre))
+    c = bounds.centre  # np.nanmean's sum and count are np.mean's when no value is NaN
+    z_mean = float(np.nanmean(c) if np.isnan(c).any() else np.mean(c))
     length = float(s[-1] * z_mean / calib.focal)  # l: lateral arc length, calib units
     u = np.clip(s * (length / s[-1]), 0.0, length)
     u[-1] = length
@@ -274,11 +275,12 @@ def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) ->
     du_ds = length / s[-1]
     lo_c, hi_c, u_c = _constraint_points(u, bounds.lower, bounds.upper)
     half_c = 0.5 * (hi_c - lo_c)
-    mvs = _Mvs(t, k, length, p.quad_per_span)
+    derivs = _derivative_coefficients(t, k, 3)  # shared by Eq. (8)'s quadrature and its ends
+    mvs = _Mvs(t, k, length, p.quad_per_span, derivs)
     b0 = ctrl_init[:, 2].copy()
     f0 = mvs.value(b0)
     A = basis_matrix(u_c, t, k)  # rows: u of H, then the midpoints
-    E = _end_rows(t, k, length)
+    E = _end_rows(t, k, length, derivs[0])
     e_rhs = np.array(
         [
             bounds.end_values[0],
@@ -353,7 +355,7 @@ def _refine_xy(
     for _ in range(XY_ROUNDS):
         c, B = _penalised_fit(xy, u, t_xy, k)
         miss = np.linalg.norm(B @ c - xy, axis=1)
-        edges = np.unique(t_xy)
+        edges = _distinct(t_xy)
         span = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, len(edges) - 2)
         worst = np.zeros(len(edges) - 1)
         np.maximum.at(worst, span, miss)
@@ -395,10 +397,15 @@ def _reexpress_matrix(t: np.ndarray, k: int, t_new: np.ndarray) -> np.ndarray:
     """(m', m) matrix taking coefficients on t to coefficients on t_new (a refinement of t) of
     the same spline: exact, as the spline lies in the refined space; least squares at a few
     points per span of t_new."""
-    edges = np.unique(t_new)
+    edges = _distinct(t_new)
     xs = np.linspace(0.0, 1.0, k + 2)
     uq = (edges[:-1, None] + np.diff(edges)[:, None] * xs[None, :]).ravel()
     return np.linalg.lstsq(basis_matrix(uq, t_new, k), basis_matrix(uq, t, k), rcond=None)[0]
+
+
+def _distinct(t: np.ndarray) -> np.ndarray:
+    """The distinct values of a sorted knot vector: ``np.unique(t)`` without its sort."""
+    return t[np.concatenate(([True], t[1:] != t[:-1]))]
 
 
 def basis_matrix(x: np.ndarray, t: np.ndarray, k: int, nu: int = 0) -> np.ndarray:
@@ -473,10 +480,15 @@ def _violation(z: np.ndarray, lo: np.ndarray, hi: np.ndarray, half: np.ndarray) 
     return float(max(0.0, np.max(out / np.maximum(half, 1e-12))))
 
 
-def _end_rows(t: np.ndarray, k: int, length: float) -> np.ndarray:
-    """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z."""
+def _end_rows(
+    t: np.ndarray, k: int, length: float, first: tuple[np.ndarray, np.ndarray, int] | None = None
+) -> np.ndarray:
+    """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z; ``first``: the first
+    derivatives' ``_derivative_coefficients(t, k, 1)[0]``, if the caller has them."""
     ends = np.array([0.0, length])
-    v, d1 = basis_matrix(ends, t, k), basis_matrix(ends, t, k, 1)
+    v = basis_matrix(ends, t, k)
+    first = first if first is not None else _derivative_coefficients(t, k, 1)[0]
+    d1 = BSpline.construct_fast(*first)(ends)  # basis_matrix(ends, t, k, 1)
     return np.stack([v[0], d1[0], v[1], d1[1]])
 
 
@@ -489,13 +501,24 @@ def _leggauss(n: int) -> tuple[np.ndarray, np.ndarray]:
 class _Mvs:
     """Eq. (8) by Gauss-Legendre quadrature, with its analytic gradient in b_z."""
 
-    def __init__(self, t: np.ndarray, k: int, length: float, n_per_span: int) -> None:
+    def __init__(
+        self,
+        t: np.ndarray,
+        k: int,
+        length: float,
+        n_per_span: int,
+        derivs: list[tuple[np.ndarray, np.ndarray, int]] | None = None,
+    ) -> None:
+        """``derivs``: ``_derivative_coefficients(t, k, 3)``, if the caller has them."""
         xg, wg = _leggauss(n_per_span)
-        edges = np.unique(t)
+        edges = _distinct(t)
         a, b = edges[:-1], edges[1:]
         self.uq = (0.5 * (b - a)[:, None] * (xg[None, :] + 1.0) + a[:, None]).ravel()
         self.wq = (0.5 * (b - a)[:, None] * wg[None, :]).ravel()
-        self.B = basis_derivatives(self.uq, t, k, 3)  # (nq, m) each, orders 1, 2, 3
+        if derivs is None:
+            derivs = _derivative_coefficients(t, k, 3)
+        uq = _as_points(self.uq)  # (nq, m) each, orders 1, 2, 3 (basis_derivatives)
+        self.B = [BSpline.construct_fast(*tck)(uq) for tck in derivs]
         self.sqrt_wq = np.sqrt(self.wq)
 
     def _terms(self, b: np.ndarray) -> tuple[np.ndarray, ...]:
