@@ -4,7 +4,9 @@ operations (the check's results are bit-identical to the numpy forms they replac
 
 ``overlap_hits``: the pairs of curve samples within a distance in the image and far apart along
 the curve (``check._overlap``), by a sweep over the samples sorted by x. ``field_at``: the
-distance field of a thread mask read at the curve's points (``MaskField.at``).
+distance field of a thread mask read at the curve's points (``MaskField.at``). ``band_d2``:
+the thread pixels' distances to the projected curve for the coverage (``check._coverage``:
+the geometric band, no longer drawn as a thick polyline, so not bit-identical to the drawing).
 """
 
 from __future__ import annotations
@@ -197,4 +199,67 @@ def covered_by(px, curve, r2):  # noqa: ANN001
             if dx * dx + dy * dy <= r2:
                 out[i] = True
                 break
+    return out
+
+
+@kernel("float64[::1](uint8[:, ::1], float64, float64, float64[:, ::1], float64)")
+def band_d2(mask, ox, oy, xy, r):  # noqa: ANN001
+    """Squared distances to the polyline ``xy`` (m, 2) of the thread pixels within ``r`` of it:
+    pixel (i, j) of ``mask`` (h, w, nonzero = thread) is the point (j + ox, i + oy). Per
+    segment, only the pixels of its bounding box grown by ``r`` are measured (the geometric
+    band that a polyline drawn 2 r wide approximates)."""
+    h, w = mask.shape
+    m = len(xy)
+    inf = np.inf
+    if m == 0 or h == 0 or w == 0:
+        return np.empty(0, np.float64)
+    lo_x, hi_x, lo_y, hi_y = inf, -inf, inf, -inf
+    for k in range(m):
+        lo_x = min(lo_x, xy[k, 0])
+        hi_x = max(hi_x, xy[k, 0])
+        lo_y = min(lo_y, xy[k, 1])
+        hi_y = max(hi_y, xy[k, 1])
+    j0 = max(0, int(math.floor(lo_x - r - ox)))
+    j1 = min(w, int(math.ceil(hi_x + r - ox)) + 1)
+    i0 = max(0, int(math.floor(lo_y - r - oy)))
+    i1 = min(h, int(math.ceil(hi_y + r - oy)) + 1)
+    if j0 >= j1 or i0 >= i1:
+        return np.empty(0, np.float64)
+    best = np.full((i1 - i0, j1 - j0), inf)
+    r2 = r * r
+    for k in range(max(m - 1, 1)):
+        ax, ay = xy[k, 0], xy[k, 1]
+        bx, by = xy[min(k + 1, m - 1), 0], xy[min(k + 1, m - 1), 1]
+        dx, dy = bx - ax, by - ay
+        ll = dx * dx + dy * dy
+        sj0 = max(j0, int(math.floor(min(ax, bx) - r - ox)))
+        sj1 = min(j1, int(math.ceil(max(ax, bx) + r - ox)) + 1)
+        si0 = max(i0, int(math.floor(min(ay, by) - r - oy)))
+        si1 = min(i1, int(math.ceil(max(ay, by) + r - oy)) + 1)
+        for i in range(si0, si1):
+            py = i + oy - ay
+            for j in range(sj0, sj1):
+                if mask[i, j] == 0:
+                    continue
+                px = j + ox - ax
+                t = 0.0
+                if ll > 0.0:
+                    t = min(max((px * dx + py * dy) / ll, 0.0), 1.0)
+                ex = px - t * dx
+                ey = py - t * dy
+                d2 = ex * ex + ey * ey
+                if d2 < best[i - i0, j - j0]:
+                    best[i - i0, j - j0] = d2
+    n = 0
+    for i in range(i1 - i0):
+        for j in range(j1 - j0):
+            if best[i, j] <= r2:
+                n += 1
+    out = np.empty(n, np.float64)
+    n = 0
+    for i in range(i1 - i0):
+        for j in range(j1 - j0):
+            if best[i, j] <= r2:
+                out[n] = best[i, j]
+                n += 1
     return out
