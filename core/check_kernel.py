@@ -205,9 +205,9 @@ def covered_by(px, curve, r2):  # noqa: ANN001
 @kernel("float64[::1](uint8[:, ::1], float64, float64, float64[:, ::1], float64)")
 def band_d2(mask, ox, oy, xy, r):  # noqa: ANN001
     """Squared distances to the polyline ``xy`` (m, 2) of the thread pixels within ``r`` of it:
-    pixel (i, j) of ``mask`` (h, w, nonzero = thread) is the point (j + ox, i + oy). Per
-    segment, only the pixels of its bounding box grown by ``r`` are measured (the geometric
-    band that a polyline drawn 2 r wide approximates)."""
+    pixel (i, j) of ``mask`` (h, w, nonzero = thread) is the point (j + ox, i + oy). Per run
+    of 8 consecutive segments, only the thread pixels of the run's bounding box grown by ``r``
+    are measured (the geometric band that a polyline drawn 2 r wide approximates)."""
     h, w = mask.shape
     m = len(xy)
     inf = np.inf
@@ -226,30 +226,44 @@ def band_d2(mask, ox, oy, xy, r):  # noqa: ANN001
     if j0 >= j1 or i0 >= i1:
         return np.empty(0, np.float64)
     best = np.full((i1 - i0, j1 - j0), inf)
-    r2 = r * r
-    for k in range(max(m - 1, 1)):
-        ax, ay = xy[k, 0], xy[k, 1]
-        bx, by = xy[min(k + 1, m - 1), 0], xy[min(k + 1, m - 1), 1]
-        dx, dy = bx - ax, by - ay
+    nseg = max(m - 1, 1)
+    seg = np.empty((nseg, 5))  # per segment: start, direction, 1 / squared length (0: a point)
+    for k in range(nseg):
+        k1 = min(k + 1, m - 1)
+        dx, dy = xy[k1, 0] - xy[k, 0], xy[k1, 1] - xy[k, 1]
         ll = dx * dx + dy * dy
-        sj0 = max(j0, int(math.floor(min(ax, bx) - r - ox)))
-        sj1 = min(j1, int(math.ceil(max(ax, bx) + r - ox)) + 1)
-        si0 = max(i0, int(math.floor(min(ay, by) - r - oy)))
-        si1 = min(i1, int(math.ceil(max(ay, by) + r - oy)) + 1)
+        seg[k, 0], seg[k, 1], seg[k, 2], seg[k, 3] = xy[k, 0], xy[k, 1], dx, dy
+        seg[k, 4] = 1.0 / ll if ll > 0.0 else 0.0
+    for c0 in range(0, nseg, 8):  # runs of 8 segments: a pixel is visited once per run
+        c1 = min(c0 + 8, nseg)
+        cx0, cx1, cy0, cy1 = inf, -inf, inf, -inf
+        for k in range(c0, min(c1 + 1, m)):
+            cx0 = min(cx0, xy[k, 0])
+            cx1 = max(cx1, xy[k, 0])
+            cy0 = min(cy0, xy[k, 1])
+            cy1 = max(cy1, xy[k, 1])
+        sj0 = max(j0, int(math.floor(cx0 - r - ox)))
+        sj1 = min(j1, int(math.ceil(cx1 + r - ox)) + 1)
+        si0 = max(i0, int(math.floor(cy0 - r - oy)))
+        si1 = min(i1, int(math.ceil(cy1 + r - oy)) + 1)
         for i in range(si0, si1):
-            py = i + oy - ay
+            y = i + oy
             for j in range(sj0, sj1):
                 if mask[i, j] == 0:
                     continue
-                px = j + ox - ax
-                t = 0.0
-                if ll > 0.0:
-                    t = min(max((px * dx + py * dy) / ll, 0.0), 1.0)
-                ex = px - t * dx
-                ey = py - t * dy
-                d2 = ex * ex + ey * ey
-                if d2 < best[i - i0, j - j0]:
-                    best[i - i0, j - j0] = d2
+                x = j + ox
+                b = best[i - i0, j - j0]
+                for k in range(c0, c1):
+                    px, py = x - seg[k, 0], y - seg[k, 1]
+                    dx, dy = seg[k, 2], seg[k, 3]
+                    t = min(max((px * dx + py * dy) * seg[k, 4], 0.0), 1.0)
+                    ex = px - t * dx
+                    ey = py - t * dy
+                    d2 = ex * ex + ey * ey
+                    if d2 < b:
+                        b = d2
+                best[i - i0, j - j0] = b
+    r2 = r * r
     n = 0
     for i in range(i1 - i0):
         for j in range(j1 - j0):

@@ -395,12 +395,13 @@ def _third_difference_gram(m: int) -> np.ndarray:
 
 def _reexpress_matrix(t: np.ndarray, k: int, t_new: np.ndarray) -> np.ndarray:
     """(m', m) matrix taking coefficients on t to coefficients on t_new (a refinement of t) of
-    the same spline: exact, as the spline lies in the refined space; least squares at a few
-    points per span of t_new."""
-    edges = _distinct(t_new)
-    xs = np.linspace(0.0, 1.0, k + 2)
-    uq = (edges[:-1, None] + np.diff(edges)[:, None] * xs[None, :]).ravel()
-    return np.linalg.lstsq(basis_matrix(uq, t_new, k), basis_matrix(uq, t, k), rcond=None)[0]
+    the same spline: exact, as the spline lies in the refined space; the interpolation of the
+    basis on t at the Greville abscissae of t_new (the collocation matrix there is square and
+    nonsingular: Schoenberg-Whitney holds for a clamped knot vector of simple interior knots)."""
+    m_new = len(t_new) - k - 1
+    idx = np.arange(m_new)[:, None] + np.arange(1, k + 1)[None, :]
+    g = t_new[idx].mean(axis=1) if k > 0 else 0.5 * (t_new[:-1] + t_new[1:])
+    return np.linalg.solve(basis_matrix(g, t_new, k), basis_matrix(g, t, k))
 
 
 def _distinct(t: np.ndarray) -> np.ndarray:
