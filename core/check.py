@@ -815,6 +815,8 @@ class _View:
     by: int
     total: int
     shape: tuple[int, int]
+    cols: np.ndarray  # the thread pixels' columns of the crop, row by row (ascending)
+    row_ptr: np.ndarray  # row i's columns: cols[row_ptr[i]:row_ptr[i + 1]]
 
 
 def _view(mask: np.ndarray, field: MaskField) -> _View:
@@ -826,7 +828,11 @@ def _crop(mask: np.ndarray, field: MaskField) -> _View:
     bx, by, bw, bh = field.bbox
     crop = np.ascontiguousarray(mask[by : by + bh, bx : bx + bw]).view(np.uint8)
     crop.setflags(write=False)
-    return _View(crop, field.x0, field.y0, bx, by, field.total, mask.shape)
+    rows, cols = np.nonzero(crop)  # row-major: by rows, columns ascending
+    row_ptr = np.searchsorted(rows, np.arange(crop.shape[0] + 1)).astype(np.int64)
+    return _View(
+        crop, field.x0, field.y0, bx, by, field.total, mask.shape, cols.astype(np.int64), row_ptr
+    )
 
 
 def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> float:
@@ -844,7 +850,7 @@ def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> 
     poly = np.rint(xy * 4) / 4  # as drawn with 2 fractional bits
     length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
     widest = int(np.ceil(cover_px + BAND_PX)) + 1.0
-    d2 = band_d2(v.mask, float(v.bx - v.x0), float(v.by - v.y0), poly, widest)
+    d2 = band_d2(v.cols, v.row_ptr, float(v.bx - v.x0), float(v.by - v.y0), poly, widest)
     band = float(np.count_nonzero(d2 <= (BAND_PX + 1) ** 2))
     half = min(0.5 * band / max(length, 1.0), BAND_PX)
     reach = int(np.ceil(cover_px + half))

@@ -202,30 +202,18 @@ def covered_by(px, curve, r2):  # noqa: ANN001
     return out
 
 
-@kernel("float64[::1](uint8[:, ::1], float64, float64, float64[:, ::1], float64)")
-def band_d2(mask, ox, oy, xy, r):  # noqa: ANN001
-    """Squared distances to the polyline ``xy`` (m, 2) of the thread pixels within ``r`` of it:
-    pixel (i, j) of ``mask`` (h, w, nonzero = thread) is the point (j + ox, i + oy). Per run
-    of 8 consecutive segments, only the thread pixels of the run's bounding box grown by ``r``
-    are measured (the geometric band that a polyline drawn 2 r wide approximates)."""
-    h, w = mask.shape
+@kernel("float64[::1](int64[::1], int64[::1], float64, float64, float64[:, ::1], float64)")
+def band_d2(cols, row_ptr, ox, oy, xy, r):  # noqa: ANN001
+    """Squared distances to the polyline ``xy`` (m, 2) of the thread pixels within ``r`` of it.
+    The thread pixels by rows: row i holds the columns ``cols[row_ptr[i]:row_ptr[i + 1]]``
+    (ascending); pixel (i, j) is the point (j + ox, i + oy). Per run of 8 consecutive segments,
+    only the thread pixels of the run's bounding box grown by ``r`` are measured (the geometric
+    band that a polyline drawn 2 r wide approximates)."""
+    h = len(row_ptr) - 1
     m = len(xy)
     inf = np.inf
-    if m == 0 or h == 0 or w == 0:
+    if m == 0 or h <= 0 or len(cols) == 0:
         return np.empty(0, np.float64)
-    lo_x, hi_x, lo_y, hi_y = inf, -inf, inf, -inf
-    for k in range(m):
-        lo_x = min(lo_x, xy[k, 0])
-        hi_x = max(hi_x, xy[k, 0])
-        lo_y = min(lo_y, xy[k, 1])
-        hi_y = max(hi_y, xy[k, 1])
-    j0 = max(0, int(math.floor(lo_x - r - ox)))
-    j1 = min(w, int(math.ceil(hi_x + r - ox)) + 1)
-    i0 = max(0, int(math.floor(lo_y - r - oy)))
-    i1 = min(h, int(math.ceil(hi_y + r - oy)) + 1)
-    if j0 >= j1 or i0 >= i1:
-        return np.empty(0, np.float64)
-    best = np.full((i1 - i0, j1 - j0), inf)
     nseg = max(m - 1, 1)
     seg = np.empty((nseg, 5))  # per segment: start, direction, 1 / squared length (0: a point)
     for k in range(nseg):
@@ -234,6 +222,7 @@ def band_d2(mask, ox, oy, xy, r):  # noqa: ANN001
         ll = dx * dx + dy * dy
         seg[k, 0], seg[k, 1], seg[k, 2], seg[k, 3] = xy[k, 0], xy[k, 1], dx, dy
         seg[k, 4] = 1.0 / ll if ll > 0.0 else 0.0
+    best = np.full(len(cols), inf)
     for c0 in range(0, nseg, 8):  # runs of 8 segments: a pixel is visited once per run
         c1 = min(c0 + 8, nseg)
         cx0, cx1, cy0, cy1 = inf, -inf, inf, -inf
@@ -242,17 +231,18 @@ def band_d2(mask, ox, oy, xy, r):  # noqa: ANN001
             cx1 = max(cx1, xy[k, 0])
             cy0 = min(cy0, xy[k, 1])
             cy1 = max(cy1, xy[k, 1])
-        sj0 = max(j0, int(math.floor(cx0 - r - ox)))
-        sj1 = min(j1, int(math.ceil(cx1 + r - ox)) + 1)
-        si0 = max(i0, int(math.floor(cy0 - r - oy)))
-        si1 = min(i1, int(math.ceil(cy1 + r - oy)) + 1)
+        jlo = cx0 - r - ox
+        jhi = cx1 + r - ox
+        si0 = max(0, int(math.floor(cy0 - r - oy)))
+        si1 = min(h, int(math.ceil(cy1 + r - oy)) + 1)
         for i in range(si0, si1):
             y = i + oy
-            for j in range(sj0, sj1):
-                if mask[i, j] == 0:
-                    continue
-                x = j + ox
-                b = best[i - i0, j - j0]
+            a = np.searchsorted(cols[row_ptr[i] : row_ptr[i + 1]], jlo) + row_ptr[i]
+            for q in range(a, row_ptr[i + 1]):
+                if cols[q] > jhi:
+                    break
+                x = cols[q] + ox
+                b = best[q]
                 for k in range(c0, c1):
                     px, py = x - seg[k, 0], y - seg[k, 1]
                     dx, dy = seg[k, 2], seg[k, 3]
@@ -262,18 +252,16 @@ def band_d2(mask, ox, oy, xy, r):  # noqa: ANN001
                     d2 = ex * ex + ey * ey
                     if d2 < b:
                         b = d2
-                best[i - i0, j - j0] = b
+                best[q] = b
     r2 = r * r
     n = 0
-    for i in range(i1 - i0):
-        for j in range(j1 - j0):
-            if best[i, j] <= r2:
-                n += 1
+    for q in range(len(best)):
+        if best[q] <= r2:
+            n += 1
     out = np.empty(n, np.float64)
     n = 0
-    for i in range(i1 - i0):
-        for j in range(j1 - j0):
-            if best[i, j] <= r2:
-                out[n] = best[i, j]
-                n += 1
+    for q in range(len(best)):
+        if best[q] <= r2:
+            out[n] = best[q]
+            n += 1
     return out

@@ -5,7 +5,15 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from threadrecon.core.check_kernel import band_d2
+from threadrecon.core import check_kernel
+
+
+def band_d2(mask: np.ndarray, ox: float, oy: float, xy: np.ndarray, r: float) -> np.ndarray:
+    """The kernel on a mask's thread pixels by rows (as check._crop lists them)."""
+    rows, cols = np.nonzero(mask)
+    row_ptr = np.searchsorted(rows, np.arange(mask.shape[0] + 1)).astype(np.int64)
+    xy = np.ascontiguousarray(xy, dtype=np.float64)
+    return check_kernel.band_d2(cols.astype(np.int64), row_ptr, ox, oy, xy, r)
 
 
 def _direct(mask: np.ndarray, ox: float, oy: float, xy: np.ndarray, r: float) -> np.ndarray:
