@@ -840,21 +840,22 @@ def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> 
 
     The half-width is the thread area in a band around the curve divided by twice the curve's
     2D length (a wrong curve over background gets a thin band: stricter, never looser).
-    A band ``2 r + 1`` px wide holds the thread pixels whose centre lies within ``r + 1`` of
-    the polyline through the curve's points at 1/4 px (the rectangles' half-width and the
-    discs' radius of OpenCV's thick polyline of that width, the band this replaces); the
-    distances are measured once, out to the widest band."""
+    A band ``2 r + 1`` px wide holds the thread pixels whose centre lies within ``r + 1.5`` of
+    the polyline through the curve's points at 1/4 px: the rectangles' half-width and the
+    discs' radius of OpenCV's thick polyline of that width (``r + 1``, the drawn band this
+    replaces) and the half pixel by which its filling rounds the edges outwards. The distances
+    are measured once, out to the widest band."""
     if inside.sum() < 2 or v.total == 0:
         return 0.0
     xy = uv[inside] - [v.x0, v.y0]
     poly = np.rint(xy * 4) / 4  # as drawn with 2 fractional bits
     length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
-    widest = int(np.ceil(cover_px + BAND_PX)) + 1.0
+    widest = int(np.ceil(cover_px + BAND_PX)) + 1.5
     d2 = band_d2(v.cols, v.row_ptr, float(v.bx - v.x0), float(v.by - v.y0), poly, widest)
-    band = float(np.count_nonzero(d2 <= (BAND_PX + 1) ** 2))
+    band = float(np.count_nonzero(d2 <= (BAND_PX + 1.5) ** 2))
     half = min(0.5 * band / max(length, 1.0), BAND_PX)
     reach = int(np.ceil(cover_px + half))
-    return float(np.count_nonzero(d2 <= (reach + 1) ** 2)) / v.total
+    return float(np.count_nonzero(d2 <= (reach + 1.5) ** 2)) / v.total
 
 
 def _spline_z(spline: SplineResult) -> np.ndarray:
