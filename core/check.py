@@ -42,7 +42,6 @@ import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
-import cv2
 import numpy as np
 from scipy.interpolate import BSpline
 
@@ -51,7 +50,7 @@ from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check_beyond import beyond_ends, cut_end
 from threadrecon.core.check_field import MaskField, derived, mask_field
-from threadrecon.core.check_kernel import nearest_residual, overlap_hits
+from threadrecon.core.check_kernel import band_d2, nearest_residual, overlap_hits
 from threadrecon.core.check_support import contradicted
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
@@ -848,6 +847,8 @@ class _View:
     by: int
     total: int
     shape: tuple[int, int]
+    cols: np.ndarray  # the thread pixels' columns of the crop, row by row (ascending)
+    row_ptr: np.ndarray  # row i's columns: cols[row_ptr[i]:row_ptr[i + 1]]
 
 
 def _view(mask: np.ndarray, field: MaskField) -> _View:
@@ -859,7 +860,11 @@ def _crop(mask: np.ndarray, field: MaskField) -> _View:
     bx, by, bw, bh = field.bbox
     crop = np.ascontiguousarray(mask[by : by + bh, bx : bx + bw]).view(np.uint8)
     crop.setflags(write=False)
-    return _View(crop, field.x0, field.y0, bx, by, field.total, mask.shape)
+    rows, cols = np.nonzero(crop)  # row-major: by rows, columns ascending
+    row_ptr = np.searchsorted(rows, np.arange(crop.shape[0] + 1)).astype(np.int64)
+    return _View(
+        crop, field.x0, field.y0, bx, by, field.total, mask.shape, cols.astype(np.int64), row_ptr
+    )
 
 
 def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> float:
@@ -867,32 +872,22 @@ def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> 
 
     The half-width is the thread area in a band around the curve divided by twice the curve's
     2D length (a wrong curve over background gets a thin band: stricter, never looser).
-    A band is drawn as 0 over a copy of the thread mask: the thread pixels it covers are the
-    ones that no longer count."""
+    A band ``2 r + 1`` px wide holds the thread pixels whose centre lies within ``r + 1.5`` of
+    the polyline through the curve's points at 1/4 px: the rectangles' half-width and the
+    discs' radius of OpenCV's thick polyline of that width (``r + 1``, the drawn band this
+    replaces) and the half pixel by which its filling rounds the edges outwards. The distances
+    are measured once, out to the widest band."""
     if inside.sum() < 2 or v.total == 0:
         return 0.0
     xy = uv[inside] - [v.x0, v.y0]
-    poly = np.rint(xy * 4).astype(np.int32).reshape(-1, 1, 2)  # 2 fractional bits
+    poly = np.rint(xy * 4) / 4  # as drawn with 2 fractional bits
     length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
-    half = min(0.5 * _in_band(v, poly, 2 * BAND_PX + 1) / max(length, 1.0), BAND_PX)
+    widest = int(np.ceil(cover_px + BAND_PX)) + 1.5
+    d2 = band_d2(v.cols, v.row_ptr, float(v.bx - v.x0), float(v.by - v.y0), poly, widest)
+    band = float(np.count_nonzero(d2 <= (BAND_PX + 1.5) ** 2))
+    half = min(0.5 * band / max(length, 1.0), BAND_PX)
     reach = int(np.ceil(cover_px + half))
-    return _in_band(v, poly, 2 * reach + 1) / v.total
-
-
-def _in_band(v: _View, poly: np.ndarray, thickness: int) -> float:
-    """Thread pixels under the polyline ``poly`` (fixed point, 2 bits, from the field's box)
-    drawn ``thickness`` px wide."""
-    if thickness < 3:  # a thin line is clipped to the canvas: draw it on the field's box
-        H, W = v.shape
-        canvas = np.zeros((H - v.y0, W - v.x0), np.uint8)
-        canvas[v.by - v.y0 : v.by - v.y0 + v.mask.shape[0],
-               v.bx - v.x0 : v.bx - v.x0 + v.mask.shape[1]] = v.mask  # fmt: skip
-        cv2.polylines(canvas, [poly], False, 0, thickness, cv2.LINE_8, 2)
-        return float(v.total - cv2.countNonZero(canvas))
-    canvas = v.mask.copy()  # a thick line is a union of polygons and discs: shift-invariant
-    shifted = poly - np.array([4 * (v.bx - v.x0), 4 * (v.by - v.y0)], np.int32)
-    cv2.polylines(canvas, [shifted], False, 0, thickness, cv2.LINE_8, 2)
-    return float(v.total - cv2.countNonZero(canvas))
+    return float(np.count_nonzero(d2 <= (reach + 1.5) ** 2)) / v.total
 
 
 def _spline_z(spline: SplineResult) -> np.ndarray:

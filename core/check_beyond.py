@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from threadrecon.core.check_field import derived
+from threadrecon.core.check_field import derived, piece_index
 from threadrecon.core.check_kernel import covered_by
 
 END_SAMPLES = 8  # curve samples over which an end's outward direction is taken
@@ -257,10 +257,10 @@ def extension(
         return out[0], out[1]
     for side, (tip, px, along) in enumerate(cones):
         out[side] = 0.0
-        for part in pieces(masks[side]):
-            if np.min(np.hypot(*(part - tip).T)) > 2.0:
-                continue  # the end's projection is not on this piece
-            on = _rows_in(px, part)
+        index = piece_index(masks[side], lambda m=masks[side]: pieces(m))
+        number = index.at(px)  # the piece of each cone pixel (_rows_in per piece, by lookup)
+        for i in index.near(tip, 2.0):  # the pieces the end's projection lies on
+            on = number == i
             if on.any():
                 out[side] = max(out[side], float(along[on].max()))
     return out[0], out[1]
@@ -331,9 +331,3 @@ def _bare_beyond(
     at = tip + offset * way
     probe = at + np.arange(2.0, 2.0 + CUT_PROBE_PX)[:, None] * way
     return float(np.mean(bare(side, probe, at, at))) > bare_share
-
-
-def _rows_in(px: np.ndarray, part: np.ndarray) -> np.ndarray:
-    """Which pixels of ``px`` (k, 2) belong to ``part`` (m, 2) (integer coordinates)."""
-    key = lambda a: a[:, 1].astype(np.int64) * 1_000_003 + a[:, 0].astype(np.int64)  # noqa: E731
-    return np.isin(key(px), key(part))

@@ -15,6 +15,7 @@ segmentation, and so the mask object, is unchanged.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
@@ -170,6 +171,69 @@ class MaskField:
         out[idx] = c
         # exact: c <= HV (e - 1); saturated: the box's value is at least HV e >= reach
         return (c <= HV * (e - 1)) | (HV * e * (1 - 1e-4) >= self.reach)
+
+
+class PieceIndex:
+    """Which of a list of pixel sets (a mask's pieces, each (k, 2) float64 integer (x, y)
+    pixels, disjoint) holds a pixel: an (h, w) image of piece numbers (-1: none) on the
+    pieces' bounding box. Pixel lookups instead of sorting a piece's pixels for each query
+    (``np.isin``: ~3 ms a piece at 1920x1080, against microseconds)."""
+
+    def __init__(self, parts: list[np.ndarray]) -> None:
+        self.n = len(parts)
+        if not parts:
+            self.x0 = self.y0 = 0
+            self.index = np.full((0, 0), -1, np.int32)
+            return
+        xy = np.concatenate(parts).astype(np.int64)
+        self.x0, self.y0 = int(xy[:, 0].min()), int(xy[:, 1].min())
+        h = int(xy[:, 1].max()) - self.y0 + 1
+        w = int(xy[:, 0].max()) - self.x0 + 1
+        dtype = np.int8 if len(parts) <= 127 else np.int16 if len(parts) <= 32767 else np.int32
+        self.index = np.full((h, w), -1, dtype)  # the smallest: ~2 MB a view at 1920x1080
+        number = np.repeat(np.arange(len(parts), dtype=dtype), [len(a) for a in parts])
+        self.index[xy[:, 1] - self.y0, xy[:, 0] - self.x0] = number
+        self.index.setflags(write=False)
+
+    def at(self, px: np.ndarray) -> np.ndarray:
+        """(k,) int32 piece number of each pixel of ``px`` (k, 2) (x, y; coordinates truncated
+        to integers, as ``astype(int64)`` does), -1 where no piece holds it."""
+        h, w = self.index.shape
+        x = px[:, 0].astype(np.int64) - self.x0
+        y = px[:, 1].astype(np.int64) - self.y0
+        inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+        out = np.full(len(px), -1, np.int32)
+        out[inside] = self.index[y[inside], x[inside]]
+        return out
+
+    def near(self, xy: np.ndarray, r: float) -> list[int]:
+        """The pieces (ascending numbers) with a pixel p such that ``np.hypot(*(p - xy))`` <=
+        ``r``: the test ``np.min(np.hypot(*(part - xy).T)) <= r`` for each piece, on the pixels
+        of the window around ``xy`` only (the same differences and hypot, so the same
+        decisions); every piece when ``xy`` is not finite (the comparison with NaN is False:
+        no piece is then excluded)."""
+        if not (math.isfinite(xy[0]) and math.isfinite(xy[1])):
+            return list(range(self.n))
+        h, w = self.index.shape
+        m = int(math.ceil(r)) + 1  # a window of the integer pixels within r, and a margin
+        cx, cy = int(math.floor(xy[0])) - self.x0, int(math.floor(xy[1])) - self.y0
+        c0, c1 = max(cx - m, 0), min(cx + m + 1, w)
+        r0, r1 = max(cy - m, 0), min(cy + m + 1, h)
+        if c1 <= c0 or r1 <= r0:
+            return []
+        win = self.index[r0:r1, c0:c1]
+        ys, xs = np.nonzero(win >= 0)
+        if not ys.size:
+            return []
+        p = np.column_stack([xs + (c0 + self.x0), ys + (r0 + self.y0)]).astype(np.float64)
+        close = np.hypot(*(p - xy).T) <= r
+        return sorted({int(i) for i in win[ys[close], xs[close]]})
+
+
+def piece_index(mask: np.ndarray, parts: Callable[[], list[np.ndarray]]) -> PieceIndex:
+    """The (cached) :class:`PieceIndex` of ``parts()``, the pieces of ``mask`` (cached with
+    it, as :func:`derived`)."""
+    return derived((mask,), "piece_index", lambda: PieceIndex(parts()))
 
 
 def mask_field(mask: np.ndarray, reach: float) -> MaskField:

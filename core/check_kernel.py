@@ -4,7 +4,9 @@ operations (the check's results are bit-identical to the numpy forms they replac
 
 ``overlap_hits``: the pairs of curve samples within a distance in the image and far apart along
 the curve (``check._overlap``), by a sweep over the samples sorted by x. ``field_at``: the
-distance field of a thread mask read at the curve's points (``MaskField.at``).
+distance field of a thread mask read at the curve's points (``MaskField.at``). ``band_d2``:
+the thread pixels' distances to the projected curve for the coverage (``check._coverage``:
+the geometric band, no longer drawn as a thick polyline, so not bit-identical to the drawing).
 """
 
 from __future__ import annotations
@@ -197,4 +199,69 @@ def covered_by(px, curve, r2):  # noqa: ANN001
             if dx * dx + dy * dy <= r2:
                 out[i] = True
                 break
+    return out
+
+
+@kernel("float64[::1](int64[::1], int64[::1], float64, float64, float64[:, ::1], float64)")
+def band_d2(cols, row_ptr, ox, oy, xy, r):  # noqa: ANN001
+    """Squared distances to the polyline ``xy`` (m, 2) of the thread pixels within ``r`` of it.
+    The thread pixels by rows: row i holds the columns ``cols[row_ptr[i]:row_ptr[i + 1]]``
+    (ascending); pixel (i, j) is the point (j + ox, i + oy). Per run of 8 consecutive segments,
+    only the thread pixels of the run's bounding box grown by ``r`` are measured (the geometric
+    band that a polyline drawn 2 r wide approximates)."""
+    h = len(row_ptr) - 1
+    m = len(xy)
+    inf = np.inf
+    if m == 0 or h <= 0 or len(cols) == 0:
+        return np.empty(0, np.float64)
+    nseg = max(m - 1, 1)
+    seg = np.empty((nseg, 5))  # per segment: start, direction, 1 / squared length (0: a point)
+    for k in range(nseg):
+        k1 = min(k + 1, m - 1)
+        dx, dy = xy[k1, 0] - xy[k, 0], xy[k1, 1] - xy[k, 1]
+        ll = dx * dx + dy * dy
+        seg[k, 0], seg[k, 1], seg[k, 2], seg[k, 3] = xy[k, 0], xy[k, 1], dx, dy
+        seg[k, 4] = 1.0 / ll if ll > 0.0 else 0.0
+    best = np.full(len(cols), inf)
+    for c0 in range(0, nseg, 8):  # runs of 8 segments: a pixel is visited once per run
+        c1 = min(c0 + 8, nseg)
+        cx0, cx1, cy0, cy1 = inf, -inf, inf, -inf
+        for k in range(c0, min(c1 + 1, m)):
+            cx0 = min(cx0, xy[k, 0])
+            cx1 = max(cx1, xy[k, 0])
+            cy0 = min(cy0, xy[k, 1])
+            cy1 = max(cy1, xy[k, 1])
+        jlo = cx0 - r - ox
+        jhi = cx1 + r - ox
+        si0 = max(0, int(math.floor(cy0 - r - oy)))
+        si1 = min(h, int(math.ceil(cy1 + r - oy)) + 1)
+        for i in range(si0, si1):
+            y = i + oy
+            a = np.searchsorted(cols[row_ptr[i] : row_ptr[i + 1]], jlo) + row_ptr[i]
+            for q in range(a, row_ptr[i + 1]):
+                if cols[q] > jhi:
+                    break
+                x = cols[q] + ox
+                b = best[q]
+                for k in range(c0, c1):
+                    px, py = x - seg[k, 0], y - seg[k, 1]
+                    dx, dy = seg[k, 2], seg[k, 3]
+                    t = min(max((px * dx + py * dy) * seg[k, 4], 0.0), 1.0)
+                    ex = px - t * dx
+                    ey = py - t * dy
+                    d2 = ex * ex + ey * ey
+                    if d2 < b:
+                        b = d2
+                best[q] = b
+    r2 = r * r
+    n = 0
+    for q in range(len(best)):
+        if best[q] <= r2:
+            n += 1
+    out = np.empty(n, np.float64)
+    n = 0
+    for q in range(len(best)):
+        if best[q] <= r2:
+            out[n] = best[q]
+            n += 1
     return out

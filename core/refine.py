@@ -347,17 +347,48 @@ def _mismatched(
     two strands; where strands cross and swap their order, the other strand's depth does
     not agree with the rank pairing, and nothing is flagged). Over at least ``MISMATCH_RUN``
     consecutive points. Their bounds of Eq. (7), built on that depth, are dropped."""
-    H = bounds.H
-    rows = np.rint(H[:, 1]).astype(np.int64)
-    iL = runs_L.nearest_index(rows, H[:, 0])
-    iR = runs_L.same_rank(runs_R, rows, iL)
-    cL, lL = runs_L.at(iL)
-    cR, lR = runs_R.at(iR)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        d_H = fB / bounds.centre
-        bad = (iR >= 0) & (np.abs(cL - cR - d_H) > _tolerance(lL, lR))  # NaN depth: not bad
+    pre = _DERIVED.cached(
+        (bounds, runs_L, runs_R),
+        ("mismatch", float(fB)),
+        lambda: _Stereo(bounds, runs_L, runs_R, fB),
+    )
+    if pre.result is not None:  # no row of three runs: d_run is not read (a spline re-run)
+        return pre.result[0].copy(), pre.result[1].copy()
+    return _sections(pre, runs_L, runs_R, d_run)
+
+
+class _Stereo:
+    """What :func:`_mismatched` reads of H's stereo depths and the runs of both views: the
+    same for every spline on one segmentation and one set of bounds, so cached with them
+    (:data:`_DERIVED`) while a spline slider re-runs the refinement. ``result``: the
+    finished (out, shared) when no row holds three runs (``d_run`` is then not read)."""
+
+    def __init__(self, bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float) -> None:
+        H = bounds.H
+        self.rows = rows = np.rint(H[:, 1]).astype(np.int64)
+        self.iL = iL = runs_L.nearest_index(rows, H[:, 0])
+        iR = runs_L.same_rank(runs_R, rows, iL)
+        self.cL, self.lL = cL, lL = runs_L.at(iL)
+        cR, lR = runs_R.at(iR)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            self.d_H = d_H = fB / bounds.centre
+            # NaN depth: not bad
+            self.bad = (iR >= 0) & (np.abs(cL - cR - d_H) > _tolerance(lL, lR))
+        self.n_L = runs_L.count(rows)  # same_rank requires as many in the right view
+        self.result: tuple[np.ndarray, np.ndarray] | None = None
+        if not (self.n_L >= 3).any():  # no coil point, whatever d_run (exact)
+            out, shared = _sections(self, runs_L, runs_R, None)
+            out.setflags(write=False)
+            shared.setflags(write=False)
+            self.result = (out, shared)
+
+
+def _sections(
+    pre: _Stereo, runs_L: _Runs, runs_R: _Runs, d_run: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_mismatched` from its cached part ``pre``."""
+    rows, iL, cL, lL, d_H, bad, n_L = pre.rows, pre.iL, pre.cL, pre.lL, pre.d_H, pre.bad, pre.n_L
     coil = np.zeros_like(bad)
-    n_L = runs_L.count(rows)  # same_rank requires as many in the right view
     if d_run is not None and d_run.size and (n_L >= 3).any():  # else no coil point (exact)
         many = np.ones(runs_R.H, dtype=bool)
         iR_n = runs_L.same_rank(runs_R, rows, iL, many)
@@ -502,7 +533,7 @@ def _runs(mask: np.ndarray, grey: np.ndarray, background: float) -> _Runs:
     return _derived("runs", (mask, grey), (float(background),), _Runs, background)
 
 
-DERIVED_CACHE: Final = 12  # runs of both views and a spread: the debugger's few frames
+DERIVED_CACHE: Final = 16  # runs of both views, a spread, H's stereo match: a few frames
 _DERIVED: LRU[tuple, Any] = LRU(DERIVED_CACHE)  # LRU.cached entries
 
 

@@ -255,7 +255,8 @@ def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) ->
     s = bounds.s
     if P < 2 or s[-1] <= 0:
         raise ValueError("H spans no length: cannot fit a spline")
-    z_mean = float(np.nanmean(bounds.centre))
+    c = bounds.centre  # np.nanmean's sum and count are np.mean's when no value is NaN
+    z_mean = float(np.nanmean(c) if np.isnan(c).any() else np.mean(c))
     length = float(s[-1] * z_mean / calib.focal)  # l: lateral arc length, calib units
     u = np.clip(s * (length / s[-1]), 0.0, length)
     u[-1] = length
@@ -274,11 +275,12 @@ def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) ->
     du_ds = length / s[-1]
     lo_c, hi_c, u_c = _constraint_points(u, bounds.lower, bounds.upper)
     half_c = 0.5 * (hi_c - lo_c)
-    mvs = _Mvs(t, k, length, p.quad_per_span)
+    derivs = _derivative_coefficients(t, k, 3)  # shared by Eq. (8)'s quadrature and its ends
+    mvs = _Mvs(t, k, length, p.quad_per_span, derivs)
     b0 = ctrl_init[:, 2].copy()
     f0 = mvs.value(b0)
     A = basis_matrix(u_c, t, k)  # rows: u of H, then the midpoints
-    E = _end_rows(t, k, length)
+    E = _end_rows(t, k, length, derivs[0])
     e_rhs = np.array(
         [
             bounds.end_values[0],
@@ -353,7 +355,7 @@ def _refine_xy(
     for _ in range(XY_ROUNDS):
         c, B = _penalised_fit(xy, u, t_xy, k)
         miss = np.linalg.norm(B @ c - xy, axis=1)
-        edges = np.unique(t_xy)
+        edges = _distinct(t_xy)
         span = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, len(edges) - 2)
         worst = np.zeros(len(edges) - 1)
         np.maximum.at(worst, span, miss)
@@ -393,12 +395,18 @@ def _third_difference_gram(m: int) -> np.ndarray:
 
 def _reexpress_matrix(t: np.ndarray, k: int, t_new: np.ndarray) -> np.ndarray:
     """(m', m) matrix taking coefficients on t to coefficients on t_new (a refinement of t) of
-    the same spline: exact, as the spline lies in the refined space; least squares at a few
-    points per span of t_new."""
-    edges = np.unique(t_new)
-    xs = np.linspace(0.0, 1.0, k + 2)
-    uq = (edges[:-1, None] + np.diff(edges)[:, None] * xs[None, :]).ravel()
-    return np.linalg.lstsq(basis_matrix(uq, t_new, k), basis_matrix(uq, t, k), rcond=None)[0]
+    the same spline: exact, as the spline lies in the refined space; the interpolation of the
+    basis on t at the Greville abscissae of t_new (the collocation matrix there is square and
+    nonsingular: Schoenberg-Whitney holds for a clamped knot vector of simple interior knots)."""
+    m_new = len(t_new) - k - 1
+    idx = np.arange(m_new)[:, None] + np.arange(1, k + 1)[None, :]
+    g = t_new[idx].mean(axis=1) if k > 0 else 0.5 * (t_new[:-1] + t_new[1:])
+    return np.linalg.solve(basis_matrix(g, t_new, k), basis_matrix(g, t, k))
+
+
+def _distinct(t: np.ndarray) -> np.ndarray:
+    """The distinct values of a sorted knot vector: ``np.unique(t)`` without its sort."""
+    return t[np.concatenate(([True], t[1:] != t[:-1]))]
 
 
 def basis_matrix(x: np.ndarray, t: np.ndarray, k: int, nu: int = 0) -> np.ndarray:
@@ -473,10 +481,15 @@ def _violation(z: np.ndarray, lo: np.ndarray, hi: np.ndarray, half: np.ndarray) 
     return float(max(0.0, np.max(out / np.maximum(half, 1e-12))))
 
 
-def _end_rows(t: np.ndarray, k: int, length: float) -> np.ndarray:
-    """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z."""
+def _end_rows(
+    t: np.ndarray, k: int, length: float, first: tuple[np.ndarray, np.ndarray, int] | None = None
+) -> np.ndarray:
+    """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z; ``first``: the first
+    derivatives' ``_derivative_coefficients(t, k, 1)[0]``, if the caller has them."""
     ends = np.array([0.0, length])
-    v, d1 = basis_matrix(ends, t, k), basis_matrix(ends, t, k, 1)
+    v = basis_matrix(ends, t, k)
+    first = first if first is not None else _derivative_coefficients(t, k, 1)[0]
+    d1 = BSpline.construct_fast(*first)(ends)  # basis_matrix(ends, t, k, 1)
     return np.stack([v[0], d1[0], v[1], d1[1]])
 
 
@@ -489,41 +502,54 @@ def _leggauss(n: int) -> tuple[np.ndarray, np.ndarray]:
 class _Mvs:
     """Eq. (8) by Gauss-Legendre quadrature, with its analytic gradient in b_z."""
 
-    def __init__(self, t: np.ndarray, k: int, length: float, n_per_span: int) -> None:
+    def __init__(
+        self,
+        t: np.ndarray,
+        k: int,
+        length: float,
+        n_per_span: int,
+        derivs: list[tuple[np.ndarray, np.ndarray, int]] | None = None,
+    ) -> None:
+        """``derivs``: ``_derivative_coefficients(t, k, 3)``, if the caller has them."""
         xg, wg = _leggauss(n_per_span)
-        edges = np.unique(t)
+        edges = _distinct(t)
         a, b = edges[:-1], edges[1:]
         self.uq = (0.5 * (b - a)[:, None] * (xg[None, :] + 1.0) + a[:, None]).ravel()
         self.wq = (0.5 * (b - a)[:, None] * wg[None, :]).ravel()
-        self.B = basis_derivatives(self.uq, t, k, 3)  # (nq, m) each, orders 1, 2, 3
+        if derivs is None:
+            derivs = _derivative_coefficients(t, k, 3)
+        uq = _as_points(self.uq)  # (nq, m) each, orders 1, 2, 3 (basis_derivatives)
+        self.B = [BSpline.construct_fast(*tck)(uq) for tck in derivs]
         self.sqrt_wq = np.sqrt(self.wq)
 
     def _terms(self, b: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The derivatives z1, z2, z3 of S_z at the nodes, g = 1 + z1^2, kp = d kappa / du, and
+        g^-1.5, g^-2.5 (the Jacobian reuses them)."""
         z1, z2, z3 = (B @ b for B in self.B)
         g = 1.0 + z1 * z1
-        kp = z3 * g**-1.5 - 3.0 * z1 * z2 * z2 * g**-2.5  # d kappa / du
-        return z1, z2, z3, g, kp
+        g15, g25 = g**-1.5, g**-2.5
+        kp = z3 * g15 - 3.0 * z1 * z2 * z2 * g25  # d kappa / du
+        return z1, z2, z3, g, kp, g15, g25
 
     def value(self, b: np.ndarray) -> float:
-        _, _, _, g, kp = self._terms(b)
+        g, kp = self._terms(b)[3:5]
         return float(np.sum(self.wq * kp * kp / np.sqrt(g)))
 
     def residual_jac(self, b: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
         """rho, d rho / d b with scale * Eq. (8) = rho^T rho: rho_q = sqrt(w_q) kappa' g^-1/4."""
-        z1, z2, z3, g, kp = self._terms(b)
+        z1, z2, z3, g, kp, dk3, g25 = self._terms(b)  # dk3 = g^-1.5
         sw = np.sqrt(scale) * self.sqrt_wq
         q = g**-0.25
-        g25, g35 = g**-2.5, g**-3.5
+        g35 = g**-3.5
         dk1 = -3.0 * z1 * z3 * g25 - 3.0 * z2 * z2 * g25 + 15.0 * z1 * z1 * z2 * z2 * g35
         dk2 = -6.0 * z1 * z2 * g25
-        dk3 = g**-1.5
         j1 = sw * (dk1 * q - 0.5 * kp * z1 * q / g)
         J = j1[:, None] * self.B[0] + (sw * dk2 * q)[:, None] * self.B[1]
         J += (sw * dk3 * q)[:, None] * self.B[2]
         return sw * kp * q, J
 
     def value_grad(self, b: np.ndarray, scale: float) -> tuple[float, np.ndarray]:
-        z1, z2, z3, g, kp = self._terms(b)
+        z1, z2, z3, g, kp = self._terms(b)[:5]
         r = g**-0.5
         f = float(np.sum(self.wq * kp * kp * r))
         dk1 = (
@@ -644,9 +670,10 @@ class _Problem:
         JtJ = J.T @ J
         scale_h = np.trace(JtJ) / m + 1e-12
         mu, nu = LM_MU0 * scale_h, 2.0
+        eye = np.eye(m)
         for it in range(1, max_iter + 1):
             g = J.T @ r
-            d, flag = self._qp(2.0 * (JtJ + mu * np.eye(m)), 2.0 * g, b, E, e, C, sense)
+            d, flag = self._qp(2.0 * (JtJ + mu * eye), 2.0 * g, b, E, e, C, sense)
             if flag not in (1, 2):
                 word = _DAQP_FLAGS.get(flag, f"exit flag {flag}")
                 return _Solution(b, "solver_failed", f"QP (DAQP) {word} at step {it}", it)

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from scipy.ndimage import distance_transform_edt
 
-from threadrecon.core.check_field import clear_fields, mask_field
+from threadrecon.core.check_beyond import pieces
+from threadrecon.core.check_field import PieceIndex, clear_fields, mask_field
 
 TRIALS = 30
 
@@ -117,3 +118,37 @@ def test_window_is_clipped_to_the_field_box() -> None:
 def test_field_rejects_a_mask_that_is_not_boolean_2d() -> None:
     with pytest.raises(ValueError, match="bool"):
         mask_field(np.zeros((4, 4), dtype=np.uint8), 3.0)
+
+
+def _in_piece(px: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """Membership by keys (the search PieceIndex replaces)."""
+    key = lambda a: a[:, 1].astype(np.int64) * 1_000_003 + a[:, 0].astype(np.int64)  # noqa: E731
+    return np.isin(key(px), key(part))
+
+
+@pytest.mark.parametrize("seed", range(TRIALS))
+def test_piece_index_finds_each_pixels_piece_and_the_pieces_near_a_point(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    mask = _thread(rng, (90, 130))
+    parts = pieces(mask)
+    index = PieceIndex(parts)
+    # pixels in and around the image (integers, as the end search's cone gives them)
+    px = np.column_stack([rng.integers(-5, 136, 400), rng.integers(-5, 96, 400)]).astype(float)
+    number = index.at(px)
+    for i, part in enumerate(parts):
+        np.testing.assert_array_equal(number == i, _in_piece(px, part))
+    assert np.all((number >= 0) == np.any([_in_piece(px, q) for q in parts] or [False], axis=0))
+    for _ in range(40):  # points off the pixel grid, near and far from the pieces
+        xy = rng.uniform([-4.0, -4.0], [134.0, 94.0])
+        if rng.random() < 0.3 and parts:  # on a piece's pixel, or 2 px from it exactly
+            q = parts[rng.integers(len(parts))]
+            xy = q[rng.integers(len(q))] + [0.0, rng.choice([0.0, 2.0, -2.0])]
+        want = [i for i, q in enumerate(parts) if not np.min(np.hypot(*(q - xy).T)) > 2.0]
+        assert index.near(xy, 2.0) == want
+    assert index.near(np.array([np.nan, 3.0]), 2.0) == list(range(len(parts)))
+
+
+def test_piece_index_of_no_piece_holds_no_pixel() -> None:
+    index = PieceIndex([])
+    assert index.at(np.array([[0.0, 0.0], [5.0, 7.0]])).tolist() == [-1, -1]
+    assert index.near(np.array([1.0, 1.0]), 2.0) == []
