@@ -20,7 +20,7 @@ from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruct
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    params = _with_overrides(resolve_preset(args.config), args.set)
+    params = with_overrides(resolve_preset(args.config), args.set)
     frames = _bench_frames(Path(args.dataset))
     if args.limit is not None:
         if args.limit < 1:
@@ -127,7 +127,7 @@ def parse_overrides(items: list[str]) -> dict[str, dict[str, Any]]:
     return out
 
 
-def _with_overrides(params: ReconParams, items: list[str]) -> ReconParams:
+def with_overrides(params: ReconParams, items: list[str]) -> ReconParams:
     """``STAGE.NAME=VALUE`` overrides on top of a preset, checked like a preset."""
     if not items:
         return params

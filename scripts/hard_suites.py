@@ -26,7 +26,7 @@ from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from threadrecon.app.bench import _with_overrides  # noqa: E402
+from threadrecon.app.bench import with_overrides  # noqa: E402
 from threadrecon.app.dataset import evaluate_reconstruction  # noqa: E402
 from threadrecon.app.presets import resolve_preset  # noqa: E402
 from threadrecon.core.pipeline import Pipeline  # noqa: E402
@@ -102,7 +102,7 @@ def main() -> int:
     ap.add_argument("--suite", action="append", choices=sorted(SUITES), default=None)
     ap.add_argument("--csv", default=None, help="write every frame's row here")
     args = ap.parse_args()
-    params = _with_overrides(resolve_preset(args.config), args.set)
+    params = with_overrides(resolve_preset(args.config), args.set)
     all_rows = []
     print("suite           right  good  mean e_S  median e_S  mean cpu ms  frames not good")
     with threadpool_limits(1):

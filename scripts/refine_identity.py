@@ -28,7 +28,7 @@ sys.path.append(str(Path(__file__).resolve().parent))  # stage_fingerprint; PYTH
 
 from stage_fingerprint import _fingerprint, _flat, _same, parser  # noqa: E402
 
-from threadrecon.app.bench import _with_overrides  # noqa: E402
+from threadrecon.app.bench import with_overrides  # noqa: E402
 from threadrecon.app.dataset import discover, load_frame  # noqa: E402
 from threadrecon.app.evaluation import evaluate_frame  # noqa: E402
 from threadrecon.app.presets import resolve_preset  # noqa: E402
@@ -37,7 +37,7 @@ ROUNDED_MM = 2e-6  # e_S and length are stored to 6 decimals: a rounding apart
 
 
 def _write(out_path: str, data: str, config: str | None, overrides: list[str]) -> None:
-    params = _with_overrides(resolve_preset(config), overrides)
+    params = with_overrides(resolve_preset(config), overrides)
     out: dict[str, Any] = {}
     with threadpool_limits(1):
         for root in data.split(","):

@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # stage_fingerprint (t
 
 from stage_fingerprint import compare, parser  # noqa: E402
 
-from threadrecon.app.bench import _with_overrides  # noqa: E402
+from threadrecon.app.bench import with_overrides  # noqa: E402
 from threadrecon.app.dataset import discover, load_frame  # noqa: E402
 from threadrecon.app.presets import resolve_preset  # noqa: E402
 from threadrecon.core.pipeline import Pipeline  # noqa: E402
@@ -79,7 +79,7 @@ def _result(rec: Any) -> dict[str, Any]:
 
 
 def _write(out_path: str, data: str, config: str | None, overrides: list[str]) -> None:
-    params = _with_overrides(resolve_preset(config), overrides)
+    params = with_overrides(resolve_preset(config), overrides)
     sp = params.spline
     variants = {
         "run": params,

@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from stage_fingerprint import compare, parser  # noqa: E402  (scripts/, this folder)
 
-from threadrecon.app.bench import _with_overrides  # noqa: E402
+from threadrecon.app.bench import with_overrides  # noqa: E402
 from threadrecon.app.dataset import discover, load_frame  # noqa: E402
 from threadrecon.app.presets import resolve_preset  # noqa: E402
 from threadrecon.core.segmentation import segment  # noqa: E402
@@ -42,7 +42,7 @@ def _h(a: Any) -> str:
 
 
 def _write(args: argparse.Namespace) -> None:
-    params = _with_overrides(resolve_preset(args.config), args.set).segment
+    params = with_overrides(resolve_preset(args.config), args.set).segment
     out: dict[str, Any] = {}
     masks: dict[str, np.ndarray] = {}
     cpu: list[float] = []

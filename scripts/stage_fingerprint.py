@@ -31,7 +31,7 @@ from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from threadrecon.app.bench import _with_overrides  # noqa: E402
+from threadrecon.app.bench import with_overrides  # noqa: E402
 from threadrecon.app.dataset import discover  # noqa: E402
 from threadrecon.app.evaluation import evaluate_frame  # noqa: E402
 from threadrecon.app.presets import resolve_preset  # noqa: E402
@@ -113,7 +113,7 @@ def _fingerprint(row: dict[str, Any], rec: Any) -> dict[str, Any]:
 
 
 def _write(args: argparse.Namespace) -> None:
-    params = _with_overrides(resolve_preset(args.config), args.set)
+    params = with_overrides(resolve_preset(args.config), args.set)
     out = {}
     with threadpool_limits(1):
         for root in args.data.split(","):
