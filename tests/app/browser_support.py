@@ -202,3 +202,18 @@ def png_stats(png: bytes) -> tuple[float, int]:
     assert img is not None, "not a PNG"
     colours = np.unique(img.reshape(-1, 3), axis=0)
     return float(img.std()), len(colours)
+
+
+def wait_for_magenta(page: Any, tries: int = 60, at_least: int = 150) -> int:
+    """Screenshot ``page`` every 250 ms until more than ``at_least`` pixels are magenta (the
+    tracked curve's colour; a recording's viewer decodes its embedded scene, then draws) or
+    ``tries`` run out; the last count."""
+    magenta = 0
+    for _ in range(tries):
+        page.wait_for_timeout(250)
+        img = cv2.imdecode(np.frombuffer(page.screenshot(), np.uint8), cv2.IMREAD_COLOR)
+        b, g, r = (img[:, :, c].astype(int) for c in range(3))
+        magenta = int(((r > 200) & (g < 120) & (b > 120)).sum())
+        if magenta > at_least:
+            break
+    return magenta

@@ -9,10 +9,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import cv2
-import numpy as np
 import pytest
-from browser_support import VIEWPORT, Server, missing_browser, wait_idle
+from browser_support import VIEWPORT, Server, missing_browser, wait_for_magenta, wait_idle
 
 from threadrecon.app.cli import main
 
@@ -49,20 +47,9 @@ def test_slider_and_plot_move_through_a_generated_sequence(tmp_path, new_context
     requests: list[str] = []
     page.on("request", lambda r: requests.append(r.url))
     page.goto(recording.as_uri())
-    magenta = 0
-    for _ in range(60):  # the viewer decodes the embedded scene, then draws
-        page.wait_for_timeout(250)
-        magenta = _magenta_pixels(page.screenshot())
-        if magenta > 150:
-            break
+    magenta = wait_for_magenta(page, tries=60)
     assert magenta > 150, "the tracked curve (magenta) is not drawn"
     assert not [u for u in requests if u.startswith(("http://", "https://", "ws://"))]
-
-
-def _magenta_pixels(png: bytes) -> int:
-    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
-    b, g, r = (img[:, :, c].astype(int) for c in range(3))
-    return int(((r > 200) & (g < 120) & (b > 120)).sum())
 
 
 def _walk_the_timeline(new_context: Any, server: Server, recording: Path) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from browser_support import wait_for_magenta
 
 from threadrecon.app.recording import RecordedFrame, save_recording
 
@@ -28,8 +29,6 @@ def test_a_recording_is_one_self_contained_html_file(tmp_path):
 
 @pytest.mark.browser
 def test_a_saved_recording_shows_the_curve_in_chromium_without_a_server(tmp_path, new_context):
-    import cv2
-
     path = tmp_path / "rec.html"
     save_recording([RecordedFrame({"tracked": _curve(k)}) for k in range(3)], path, baseline=5.0)
     page = new_context(viewport={"width": 1000, "height": 700}).new_page()
@@ -38,15 +37,7 @@ def test_a_saved_recording_shows_the_curve_in_chromium_without_a_server(tmp_path
     requests: list[str] = []
     page.on("request", lambda r: requests.append(r.url))
     page.goto(path.as_uri())
-    magenta = 0
-    for _ in range(40):  # the viewer decodes the embedded scene, then draws
-        page.wait_for_timeout(250)
-        png = page.screenshot()
-        img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
-        b, g, r = (img[:, :, c].astype(int) for c in range(3))
-        magenta = int(((r > 200) & (g < 120) & (b > 120)).sum())
-        if magenta > 150:
-            break
+    magenta = wait_for_magenta(page, tries=40)
     assert not errors
     assert magenta > 150, "the tracked curve (magenta) is not drawn"
     assert not [u for u in requests if u.startswith(("http://", "https://", "ws://"))]

@@ -13,19 +13,8 @@ _SQUARE3 = np.ones((3, 3), np.uint8)
 
 
 def _plain_grow_mask(v: sr._View, core: np.ndarray) -> np.ndarray:
-    """Thread pixels near ``core`` (uint8): coverage >= 0.5 of a linear blend thread over
-    background.
-
-    A pixel blending thread colour T over local background B with coverage c has
-    I - B = c (T - B): c is its contrast along the thread's own contrast direction u (the
-    summed contrast of the core pixels within the band, :func:`_body_contrast`) over |T - B|,
-    the largest such contrast of a core pixel within the band (a box of radius _BAND_PX; the
-    thread's axis is there). Projected on u, texture and noise across it no longer widen
-    the mask (the length |I - B| adds them all). B is the candidate-free average of the view
-    (:func:`_background`). Sparse: band pixels only,
-    and the two dilations run on the core's bounding box grown by the band (exact: a dilation
-    reaches no further than its radius).
-    """
+    """:func:`segment_raw._grow_mask` as numpy and cv2 steps, before it became one compiled
+    pass: the reference the kernel must match bit for bit (its docstring says what it does)."""
     h, w = core.shape
     out = np.zeros(core.shape, bool)
     pts = cv2.findNonZero(core)
