@@ -60,7 +60,10 @@ def _image(stereo: StereoResult, rel: ReliabilityResult) -> tuple[int, int, np.n
         return 0, 0, np.zeros((0, 0))
     xy = np.asarray(stereo.pixels)[sel].astype(np.int64)
     x0, y0 = int(xy[:, 0].min()), int(xy[:, 1].min())
-    img = np.full((int(xy[:, 1].max()) - y0 + 1, int(xy[:, 0].max()) - x0 + 1), np.nan)
-    img[xy[:, 1] - y0, xy[:, 0] - x0] = np.asarray(stereo.disparity, dtype=np.float64)[sel]
+    # float32: a 1920x1080 thread's box is ~10 MB in float64, kept for a few frames; the
+    # disparities are compared at tol_px (~1 px), far above float32's 1e-5 px at 200 px
+    shape = (int(xy[:, 1].max()) - y0 + 1, int(xy[:, 0].max()) - x0 + 1)
+    img = np.full(shape, np.nan, dtype=np.float32)
+    img[xy[:, 1] - y0, xy[:, 0] - x0] = np.asarray(stereo.disparity, dtype=np.float32)[sel]
     img.setflags(write=False)
     return x0, y0, img
