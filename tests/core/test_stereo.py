@@ -125,23 +125,25 @@ def _energy_reference(lifted, alpha: int, window: int) -> np.ndarray:  # noqa: A
     return E
 
 
+def _random_lifted(
+    rng: np.random.Generator, shape: tuple[int, int], share_L: float, share_R: float
+) -> LiftedPair:
+    """Random masks (about ``share_L`` / ``share_R`` of the pixels) over random grey levels,
+    lifted to 255 off the masks (Eq. (1))."""
+    P_L = rng.random(shape) < share_L
+    P_R = rng.random(shape) < share_R
+    grey_L = rng.integers(0, 256, shape).astype(np.float32)
+    grey_R = rng.integers(0, 256, shape).astype(np.float32)
+    I_L = np.where(P_L, grey_L, 255).astype(np.float32)
+    I_R = np.where(P_R, grey_R, 255).astype(np.float32)
+    return LiftedPair(I_L, I_R, P_L, P_R, grey_L, grey_R, background=(255.0, 255.0))
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_energy_kernel_equals_the_definition_on_random_masks(seed: int) -> None:
     rng = np.random.default_rng(seed)
     H, W = 24, 40
-    P_L = rng.random((H, W)) < 0.3
-    P_R = rng.random((H, W)) < 0.3
-    grey_L = rng.integers(0, 256, (H, W)).astype(np.float32)
-    grey_R = rng.integers(0, 256, (H, W)).astype(np.float32)
-    lifted = LiftedPair(
-        I_L=np.where(P_L, grey_L, 255).astype(np.float32),
-        I_R=np.where(P_R, grey_R, 255).astype(np.float32),
-        P_L=P_L,
-        P_R=P_R,
-        grey_L=grey_L,
-        grey_R=grey_R,
-        background=(255.0, 255.0),
-    )
+    lifted = _random_lifted(rng, (H, W), 0.3, 0.3)
     _, calib, _ = synthetic_case(0)
     calib = replace(calib, image_size=(H, W))
     alpha, window = 12, 5
@@ -158,13 +160,7 @@ def test_energy_kernel_on_a_disparity_window_equals_the_definition(seed: int) ->
     # of the brute-force curves (Eq. (3) with the first index on ties), bit for bit.
     rng = np.random.default_rng(seed)
     H, W = 20, 48
-    P_L = rng.random((H, W)) < 0.5
-    P_R = rng.random((H, W)) < 0.7
-    grey_L = rng.integers(0, 256, (H, W)).astype(np.float32)
-    grey_R = rng.integers(0, 256, (H, W)).astype(np.float32)
-    I_L = np.where(P_L, grey_L, 255).astype(np.float32)
-    I_R = np.where(P_R, grey_R, 255).astype(np.float32)
-    lifted = LiftedPair(I_L, I_R, P_L, P_R, grey_L, grey_R, background=(255.0, 255.0))
+    lifted = _random_lifted(rng, (H, W), 0.5, 0.7)
     d_lo, d_hi, window = int(rng.integers(1, 6)), 16, 5
     box = _Box.of(lifted, d_hi)
     _, d_min, d_next, E_min, E_next = _energy_kernel(
