@@ -864,7 +864,7 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
 
     Computed on the core's bounding box grown by the band and by the 2 px the coverage test
     looks at (zeros there, as in the full image; exact: the band reaches no further), clipped
-    to the image, by one compiled pass (:func:`threadrecon.core.grow_kernel.grow_mask`, the
+    to the image, by one compiled pass (:mod:`threadrecon.core.grow_kernel`, the
     same arithmetic as the numpy and cv2 steps, bit for bit).
     """
     h, w = core.shape
