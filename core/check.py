@@ -51,6 +51,13 @@ from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check_beyond import beyond_ends, cut_end
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_kernel import band_d2, nearest_residual, overlap_hits
+from threadrecon.core.check_score import (
+    GraspPoint,
+    bound_halfwidth_px,
+    grasp_point,
+    point_errors,
+    quality_score,
+)
 from threadrecon.core.check_support import contradicted
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
@@ -62,10 +69,8 @@ from threadrecon.core.stereo import StereoResult
 Status = Literal["ok", "suspect", "failed"]
 _RANK = {"ok": 0, "suspect": 1, "failed": 2}
 BAND_PX = 8  # band around the curve in which the thread width is measured, px
-_SCORE_STEPS = (1.0, 2.0, 4.0, 8.0)  # score 5..1 edges, in multiples of score_mm
 CUT_REACH_PX = 35.0  # px searched past cut_end_px (an occluder shifts a cut by 10-25 px)
 BEYOND_COVER_PX = 2.0  # px: a thread's half-width, added to cover_px for the pieces beyond
-_R_CAP_PX = 10.0  # a residual counts at most this (px) in the local mean: no reliable match near
 CONTRA_PX = 1  # px: the reliable pixels under a curve point (its pixel and 8 neighbours)
 
 
@@ -297,20 +302,6 @@ class CheckParams(Params):
         "ambiguous (evidence ``ambiguous_mm``: the length of such points; no finding of its "
         "own, its effect on the length is ``max_unmeasured_mm``'s).",
     )  # fmt: skip
-
-
-@dataclass(frozen=True)
-class GraspPoint:
-    """``point``: (3,) left camera frame, calib units; ``tangent``: (3,) unit vector along the
-    curve (start -> end); ``index`` into ``CameraCurve.points``; ``confidence`` in [0, 1];
-    ``from_end``: "start" or "end", the end taken as free; ``distance``: arc length to it."""
-
-    point: np.ndarray
-    confidence: float
-    tangent: np.ndarray
-    index: int
-    from_end: str
-    distance: float
 
 
 @dataclass(frozen=True)
@@ -721,16 +712,15 @@ def _check(
             ("suspect", f"the curve leaves its depth bounds by {unsupported_exc:.2f} of the "
              f"bound half-width where no reliable match supports it (limit {p.bound_tol:g})")
         )  # fmt: skip
-    h = _bound_halfwidth_px(spline, bounds, n, f * B)
+    h = bound_halfwidth_px(spline, bounds, n, f * B)
     rho = np.maximum(
         np.where(bridge_l | hidden_l, 0.0, rho_l),
         np.where(in_r & ~bridge_r & ~hidden_r, rho_r, 0.0),
     )
-    lateral = z_pos / f * rho * mm + p.bridge_error * bridge_gap  # bridges: interpolated
-    e_mm = _expected_error(z_pos, r, step, s3, spline, f * B, p)
-    e_mm = e_mm * mm + lateral
-    e_mm[(z <= 0) | (z_right <= 0)] = np.inf
-    conf = np.exp(-e_mm / p.conf_mm)
+    pe = point_errors(
+        z_pos, (z <= 0) | (z_right <= 0), r, rho, bridge_gap, step, s3, spline, f, f * B, mm, p
+    )
+    e_mm, lateral, conf = pe.e_mm, pe.lateral_mm, pe.confidence
 
     # Ambiguous depth (evidence only): a wide bound where no agreeing reliable match pins the
     # depth (where one does, the strands' depths are measured there, however wide the bounds).
@@ -741,8 +731,8 @@ def _check(
     amb = e_free > p.ambiguous_mm
     ambiguous = float(np.sum(step3 * (amb[1:] | amb[:-1])))
     status: Status = max((s for s, _ in findings), key=_RANK.__getitem__, default="ok")
-    score = _score(_typical(e_mm), status, p.score_mm)
-    grasp = _grasp(pts, conf, uv_l, uv_r, (H, W), mm, p)
+    score = quality_score(e_mm, status, p)
+    grasp = grasp_point(pts, conf, uv_l, uv_r, (H, W), mm, p)
     return CheckResult(
         status=status,
         reasons=tuple(msg for _, msg in sorted(findings, key=lambda x: -_RANK[x[0]])),
@@ -1280,118 +1270,3 @@ def _rows(
     y0 = int(ys[0])
     row_ptr = np.searchsorted(ys, np.arange(y0, int(ys[-1]) + 2)).astype(np.int64)
     return xs, row_ptr, y0, np.ascontiguousarray(disp)
-
-
-def _expected_error(
-    z: np.ndarray,
-    r: np.ndarray,
-    step: np.ndarray,
-    s3: np.ndarray,
-    spline: SplineResult,
-    fB: float,
-    p: CheckParams,
-) -> np.ndarray:
-    """Depth part of the expected error e_i (calib units): the depth size of a pixel of
-    disparity z^2 / (f B) times the local disparity error sqrt(sigma_d^2 + rbar_i^2), rbar_i
-    the mean residual r of the reliable matches over one knot span of the spline around the
-    point (the stretch whose matches the spline averages; r capped at _R_CAP_PX); doubled at
-    an end of the curve (fitted from one side only), falling back over ``end_mm``."""
-    n_spans = max(len(spline.ctrl) - int(spline.degree), 1)
-    s2 = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))])
-    r_local = _local_mean(np.minimum(r, _R_CAP_PX), s2, s2[-1] / n_spans)
-    d = np.sqrt(p.sigma_disparity_px**2 + r_local**2)
-    end = np.minimum(s3, s3[-1] - s3)  # mm to the nearer end
-    return z**2 / fB * d * (1.0 + np.exp(-end / p.end_mm))
-
-
-def _local_mean(x: np.ndarray, s: np.ndarray, width: float) -> np.ndarray:
-    """Mean of x over the samples within width / 2 of each sample along the arc length s."""
-    c = np.concatenate([[0.0], np.cumsum(x)])
-    lo = np.searchsorted(s, s - 0.5 * width)
-    hi = np.searchsorted(s, s + 0.5 * width, side="right")
-    return (c[hi] - c[lo]) / np.maximum(hi - lo, 1)
-
-
-def _bound_halfwidth_px(spline: SplineResult, bounds: Bounds, n: int, fB: float) -> np.ndarray:
-    """Bound half-width of Eq. (7) at each curve point, in px of disparity (|dd/dz| = fB/z^2)."""
-    u = np.linspace(0.0, 1.0, n)
-    uh = spline.u_H / spline.length if spline.length > 0 else np.linspace(0, 1, len(spline.u_H))
-    half = np.interp(u, uh, 0.5 * (bounds.upper - bounds.lower))
-    centre = np.maximum(np.interp(u, uh, bounds.centre), 1e-12)
-    return half * fB / centre**2
-
-
-def _typical(e_mm: np.ndarray) -> float:
-    """The typical expected error of a curve (mm): the geometric mean of e_i (a few points of
-    large e_i, e.g. an interpolated stretch, do not swamp it; 1e6 for a non-finite one)."""
-    with np.errstate(divide="ignore"):
-        return float(np.exp(np.mean(np.log(np.clip(e_mm, 1e-9, 1e6)))))
-
-
-def _score(error_mm: float, status: Status, score_mm: float) -> int:
-    """The paper's 1-5 rating from the typical expected error, capped by the status."""
-    score = 5 - int(np.searchsorted(np.array(_SCORE_STEPS) * score_mm, error_mm))
-    if status == "failed":
-        return 1
-    if status == "suspect":
-        return min(score, 2)
-    return max(1, score)
-
-
-def _grasp(
-    pts: np.ndarray,
-    conf: np.ndarray,
-    uv_l: np.ndarray,
-    uv_r: np.ndarray,
-    shape: tuple[int, int],
-    mm: float,
-    p: CheckParams,
-) -> GraspPoint | None:
-    """The most confident point within ``grasp_window_mm`` of ``grasp_mm`` from the free end."""
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))]) * mm
-    if not np.isfinite(s[-1]):
-        return None
-    from_start, from_end = s, s[-1] - s
-    lo, hi = p.grasp_mm - p.grasp_window_mm, p.grasp_mm + p.grasp_window_mm
-    near = {
-        "start": (from_start >= lo) & (from_start <= hi),
-        "end": (from_end >= lo) & (from_end <= hi),
-    }
-    if p.free_end == "auto":
-        H, W = shape
-        at_border = {}
-        for end, i in (("start", 0), ("end", -1)):
-            xs = np.array([uv_l[i, 0], uv_r[i, 0]])
-            ys = np.array([uv_l[i, 1], uv_r[i, 1]])
-            m = min(xs.min(), ys.min(), W - 1 - xs.max(), H - 1 - ys.max())
-            at_border[end] = not (m >= p.border_px)
-        ends = [e for e in ("start", "end") if not at_border[e]] or ["start", "end"]
-        best = max(ends, key=lambda e: float(conf[near[e]].mean()) if near[e].any() else -1.0)
-    else:
-        best = p.free_end
-    cand = np.flatnonzero(near[best])
-    if cand.size == 0:  # a curve shorter than the grasp distance: its far end
-        dist = from_start if best == "start" else from_end
-        cand = np.array([int(np.argmin(np.abs(dist - p.grasp_mm)))])
-    i = int(cand[np.argmax(conf[cand])])
-    tangent = _gradient_at(pts, i)
-    norm = np.linalg.norm(tangent)
-    tangent = tangent / norm if norm > 0 else np.zeros(3)
-    dist = from_start if best == "start" else from_end
-    return GraspPoint(
-        point=pts[i].copy(),
-        confidence=float(conf[i]),
-        tangent=tangent,
-        index=i,
-        from_end=best,
-        distance=float(dist[i] / mm),
-    )
-
-
-def _gradient_at(pts: np.ndarray, i: int) -> np.ndarray:
-    """Row i of ``np.gradient(pts, axis=0)`` (unit spacing, edge_order 1)."""
-    if i == 0:
-        return pts[1] - pts[0]
-    if i == len(pts) - 1:
-        return pts[-1] - pts[-2]
-    return (pts[i + 1] - pts[i - 1]) / 2.0

@@ -18,12 +18,9 @@ from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check import (
     CheckParams,
     CheckResult,
-    _expected_error,
-    _local_mean,
     _overlap,
     _strand_samples,
     _surface_behind,
-    _typical,
     _unmeasured_length,
     _unsupported_travel,
     check_curve,
@@ -136,39 +133,6 @@ def test_confidence_is_lower_where_the_curve_leaves_the_evidence() -> None:
 
     chk = _recheck(2, bump)
     assert chk.confidence[150:250].mean() < 0.5 * chk.confidence[:100].mean()
-
-
-def test_local_mean_averages_over_the_window_along_the_arc() -> None:
-    s = np.arange(10.0)  # unit spacing
-    x = np.zeros(10)
-    x[5] = 3.0
-    m = _local_mean(x, s, 2.0)  # samples within 1 of each: three in the middle
-    np.testing.assert_allclose(m[4:7], 1.0)
-    assert m[0] == m[2] == m[8] == 0.0
-    np.testing.assert_allclose(_local_mean(np.ones(10), s, 100.0), 1.0)  # window past the ends
-
-
-def test_expected_error_is_twice_as_large_at_an_end_and_grows_with_the_residual() -> None:
-    pair, calib, _ = synthetic_case(0)
-    spline = Pipeline(pair, calib).run()["spline"]
-    n, p = 201, CheckParams()
-    z, step = np.full(n, 100.0), np.ones(n - 1)
-    s3 = np.linspace(0.0, 100.0, n)  # mm
-    e = _expected_error(z, np.full(n, 0.2), step, s3, spline, 500.0, p)
-    mid = e[n // 2]
-    np.testing.assert_allclose(e[[0, -1]], 2.0 * mid, rtol=1e-6)
-    np.testing.assert_allclose(mid, 100.0**2 / 500.0 * np.hypot(p.sigma_disparity_px, 0.2))
-    r = np.full(n, 0.2)
-    r[90:110] = 2.0  # a stretch that disagrees with its reliable matches
-    worse = _expected_error(z, r, step, s3, spline, 500.0, p)
-    assert worse[n // 2] > 3 * mid and np.all(worse >= e - 1e-12)
-
-
-def test_typical_error_is_not_swamped_by_a_few_large_points() -> None:
-    e = np.full(100, 0.2)
-    e[:3] = 50.0  # an interpolated stretch
-    assert _typical(e) < 0.25 < float(np.mean(e))
-    assert _typical(np.full(5, np.inf)) == pytest.approx(1e6)
 
 
 def test_check_results_do_not_depend_on_blas_threads() -> None:
