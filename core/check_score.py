@@ -9,6 +9,7 @@ capped by the check's status.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -19,9 +20,6 @@ from threadrecon.core.spline import SplineResult
 
 if TYPE_CHECKING:
     from threadrecon.core.check import CheckParams, Status
-
-_SCORE_STEPS = (1.0, 2.0, 4.0, 8.0)  # score 5..1 edges, in multiples of score_mm
-_R_CAP_PX = 10.0  # a residual counts at most this (px) in the local mean: no reliable match near
 
 
 @dataclass(frozen=True)
@@ -73,7 +71,9 @@ def point_errors(
     """
     lateral = z_pos / f * rho * mm + p.bridge_error * bridge_gap  # bridges: interpolated
     e_mm = _expected_error(z_pos, r, step, s3, spline, fB, p)
-    e_mm = e_mm * mm + lateral
+    # unsupported stretches are interpolated like a bridge: drift from the nearest supported point
+    drift = p.bridge_error * np.maximum(bridge_gap, _unsupported_gap(s3, r <= p.support_tol_px))
+    e_mm = e_mm * mm + z_pos / f * rho * mm + drift
     e_mm[behind] = np.inf
     conf = np.exp(-e_mm / p.conf_mm)
     return PointErrors(e_mm=e_mm, lateral_mm=lateral, confidence=conf)
@@ -91,14 +91,33 @@ def _expected_error(
     """Depth part of the expected error e_i (calib units): the depth size of a pixel of
     disparity z^2 / (f B) times the local disparity error sqrt(sigma_d^2 + rbar_i^2), rbar_i
     the mean residual r of the reliable matches over one knot span of the spline around the
-    point (the stretch whose matches the spline averages; r capped at _R_CAP_PX); doubled at
-    an end of the curve (fitted from one side only), falling back over ``end_mm``."""
+    point (the stretch whose matches the spline averages); doubled at an end of the curve
+    (fitted from one side only), falling back over ``end_mm``.
+
+    r counts at most ``support_tol_px``: beyond it no reliable match agrees with the curve and
+    the residual says nothing about the curve's error (the nearest match may be another
+    strand's, e.g. a spiral's next turn on the same rows, whose depth the spline rightly
+    ignored); the depth there is interpolated from the supported points around it, and
+    ``point_errors`` adds the drift of that interpolation."""
     n_spans = max(len(spline.ctrl) - int(spline.degree), 1)
     s2 = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))])
-    r_local = _local_mean(np.minimum(r, _R_CAP_PX), s2, s2[-1] / n_spans)
+    r_local = _local_mean(np.minimum(r, p.support_tol_px), s2, s2[-1] / n_spans)
     d = np.sqrt(p.sigma_disparity_px**2 + r_local**2)
     end = np.minimum(s3, s3[-1] - s3)  # mm to the nearer end
     return z**2 / fB * d * (1.0 + np.exp(-end / p.end_mm))
+
+
+def _unsupported_gap(s3: np.ndarray, supported: np.ndarray) -> np.ndarray:
+    """Arc length (mm) from each point to the nearest supported point (0 on one; the curve's
+    whole length when none is supported)."""
+    n = len(s3)
+    idx = np.flatnonzero(supported)
+    if idx.size == 0:
+        return np.full(n, float(s3[-1]) if np.isfinite(s3[-1]) else np.inf)
+    k = np.searchsorted(idx, np.arange(n))
+    before = np.where(k > 0, s3 - s3[idx[np.maximum(k - 1, 0)]], np.inf)
+    after = np.where(k < idx.size, s3[idx[np.minimum(k, idx.size - 1)]] - s3, np.inf)
+    return np.minimum(before, after)
 
 
 def _local_mean(x: np.ndarray, s: np.ndarray, width: float) -> np.ndarray:
@@ -125,9 +144,23 @@ def _typical(e_mm: np.ndarray) -> float:
         return float(np.exp(np.mean(np.log(np.clip(e_mm, 1e-9, 1e6)))))
 
 
-def _score(error_mm: float, status: Status, score_mm: float) -> int:
-    """The paper's 1-5 rating from the typical expected error, capped by the status."""
-    score = 5 - int(np.searchsorted(np.array(_SCORE_STEPS) * score_mm, error_mm))
+def _rating(error_mm: float, status: Status, score_mm: float, step: float) -> float:
+    """The continuous rating on the paper's 1-5 scale from the typical expected error:
+    4.5 - log_step(error / score_mm), in [1, 5]; a suspect curve at most 2, a failed one 1.
+    Rounded, it is the score: 5 below score_mm, each further class a factor ``step`` wider."""
+    if status == "failed" or not error_mm < np.inf:
+        return 1.0
+    with np.errstate(divide="ignore"):
+        x = math.log(max(error_mm, 1e-12) / score_mm) / math.log(step)
+    rating = min(max(4.5 - x, 1.0), 5.0)
+    return min(rating, 2.0) if status == "suspect" else rating
+
+
+def _score(error_mm: float, status: Status, score_mm: float, step: float) -> int:
+    """The paper's 1-5 rating from the typical expected error, capped by the status: 5 below
+    score_mm, 4 below step x score_mm, 3 below step^2 x, 2 below step^3 x, else 1."""
+    edges = score_mm * step ** np.arange(4.0)
+    score = 5 - int(np.searchsorted(edges, error_mm, side="right"))
     if status == "failed":
         return 1
     if status == "suspect":
@@ -135,9 +168,14 @@ def _score(error_mm: float, status: Status, score_mm: float) -> int:
     return max(1, score)
 
 
-def quality_score(e_mm: np.ndarray, status: Status, p: CheckParams) -> int:
-    """The automatic quality score (1-5, the paper's rating scale) of a checked curve."""
-    return _score(_typical(e_mm), status, p.score_mm)
+def quality_score(e_mm: np.ndarray, status: Status, p: CheckParams) -> tuple[int, float]:
+    """The automatic quality score (1-5, the paper's rating scale) of a checked curve and the
+    continuous rating behind it (module docstring)."""
+    typical = _typical(e_mm)
+    return (
+        _score(typical, status, p.score_mm, p.score_step),
+        _rating(typical, status, p.score_mm, p.score_step),
+    )
 
 
 def grasp_point(

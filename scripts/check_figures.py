@@ -63,7 +63,7 @@ def frame_rows(root: str, params, point_sets: list) -> list[dict]:
         row["has_curve"] = "check" in rec.runs
         if "check" in rec.runs:
             chk = rec["check"]
-            row.update(score=chk.score, ms_check=rec.runs["check"].ms, **_flat(chk.evidence()))
+            row.update(score=chk.score, rating=chk.rating, ms_check=rec.runs["check"].ms, **_flat(chk.evidence()))
             row["cpu_ms_check"], row["cpu_ms_check_cached"] = _cpu_ms(rec, calib, params)
             e_mm = np.minimum(chk.expected_error_mm, 1e6)
             row.update(exp_mean=float(e_mm.mean()), exp_p90=float(np.percentile(e_mm, 90)))
@@ -146,6 +146,7 @@ REASON_KINDS = {  # a keyword of each kind of reason (core/check.py) -> a short 
     "depth bounds by": "bounds",
     "stops short": "piece beyond an end",
     "cut by an occluder": "cut end",
+    "runs twice over": "fold",
 }
 
 
@@ -209,11 +210,15 @@ def report(rows: list[dict], point_sets: list, label: str) -> None:
             f"{np.median(g_ok) if g_ok.size else math.nan:.2f} (ok frames), p90 "
             f"{np.percentile(g, 90):.2f}"
         )
-    sc = [(r["score"], r["e_S"]) for r in gt_rows if "score" in r]
+    sc = [(r["score"], r["rating"], r["e_S"]) for r in gt_rows if "score" in r]
     if len(sc) > 2:
-        s, e = np.array(sc, dtype=float).T
+        s, x, e = np.array(sc, dtype=float).T
         e = np.where(np.isfinite(e), e, 1e9)
-        print(f"  score vs e_S, Spearman: {spearmanr(s, e)[0]:.3f} (negative = agrees)")
+        hist = np.bincount(s.astype(int), minlength=6)[1:].tolist()
+        print(
+            f"  score vs e_S, Spearman: {spearmanr(s, e)[0]:.3f} (negative = agrees; scores 1-5: "
+            f"{hist}); continuous rating: {spearmanr(x, e)[0]:.3f}"
+        )
     ms = [r["ms_check"] for r in rows if "ms_check" in r]
     cpu = [r["cpu_ms_check"] for r in rows if "cpu_ms_check" in r]
     cached = [r["cpu_ms_check_cached"] for r in rows if "cpu_ms_check_cached" in r]

@@ -502,3 +502,19 @@ def test_depth_change_over_matches_that_give_another_depth_is_suspect() -> None:
     assert any("give another depth" in r for r in chk.reasons), chk.reasons
     good = _recheck(0, lambda p: p)  # the curve as reconstructed
     assert good.status == "ok" and good.contradicted_mm < 1.0
+
+
+def test_curve_folded_back_over_one_strand_is_suspect() -> None:
+    """A Z fold (forward, back over the same stretch, forward again) lies on the thread pixels
+    at the thread's depth: only the fold check sees it (r9960 raw spiral_3 came back ok with a
+    28 mm length error this way)."""
+
+    def fold(p: np.ndarray) -> np.ndarray:
+        a, b = len(p) // 3, len(p) // 3 + 60
+        return np.concatenate([p[:b], p[a:b][::-1], p[a:]])
+
+    plain = _recheck(0, lambda p: p)
+    assert plain.status == "ok" and plain.fold_px == 0.0
+    chk = _recheck(0, fold)
+    assert chk.status == "suspect" and chk.fold_px > CheckParams().max_overlap_px
+    assert any("runs twice over" in r for r in chk.reasons)

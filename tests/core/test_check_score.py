@@ -8,7 +8,15 @@ import pytest
 from support import synthetic_case
 
 from threadrecon.core.check import CheckParams
-from threadrecon.core.check_score import _expected_error, _local_mean, _typical
+from threadrecon.core.check_score import (
+    _expected_error,
+    _local_mean,
+    _rating,
+    _score,
+    _typical,
+    _unsupported_gap,
+    point_errors,
+)
 from threadrecon.core.pipeline import Pipeline
 
 
@@ -33,9 +41,67 @@ def test_expected_error_is_twice_as_large_at_an_end_and_grows_with_the_residual(
     np.testing.assert_allclose(e[[0, -1]], 2.0 * mid, rtol=1e-6)
     np.testing.assert_allclose(mid, 100.0**2 / 500.0 * np.hypot(p.sigma_disparity_px, 0.2))
     r = np.full(n, 0.2)
-    r[90:110] = 2.0  # a stretch that disagrees with its reliable matches
+    r[90:110] = 0.9  # a stretch that disagrees with its reliable matches (still supported)
     worse = _expected_error(z, r, step, s3, spline, 500.0, p)
-    assert worse[n // 2] > 3 * mid and np.all(worse >= e - 1e-12)
+    assert worse[n // 2] > 2 * mid and np.all(worse >= e - 1e-12)
+
+
+def test_a_residual_beyond_the_support_tolerance_counts_as_the_tolerance() -> None:
+    """A match that disagrees by 16 px (another strand's, on the same rows) says nothing
+    more about the curve's error than one that disagrees by just over support_tol_px."""
+    pair, calib, _ = synthetic_case(0)
+    spline = Pipeline(pair, calib).run()["spline"]
+    n, p = 201, CheckParams()
+    z, step, s3 = np.full(n, 100.0), np.ones(n - 1), np.linspace(0.0, 100.0, n)
+    r = np.full(n, 0.1)
+    r[90:110] = 16.0
+    at_tol = r.copy()
+    at_tol[90:110] = p.support_tol_px
+    e16 = _expected_error(z, r, step, s3, spline, 500.0, p)
+    np.testing.assert_array_equal(e16, _expected_error(z, at_tol, step, s3, spline, 500.0, p))
+
+
+def test_unsupported_points_drift_with_their_distance_to_a_supported_point() -> None:
+    s3 = np.arange(11.0)  # mm
+    sup = np.zeros(11, dtype=bool)
+    sup[[2, 8]] = True
+    np.testing.assert_array_equal(_unsupported_gap(s3, sup), [2, 1, 0, 1, 2, 3, 2, 1, 0, 1, 2])
+    np.testing.assert_array_equal(_unsupported_gap(s3, np.zeros(11, dtype=bool)), np.full(11, 10.0))
+    p = CheckParams()
+    n = 11
+    r = np.where(sup, 0.0, 5.0)
+    pe = point_errors(
+        np.full(n, 100.0), np.zeros(n, dtype=bool), r, np.zeros(n), np.zeros(n), np.ones(n - 1),
+        s3 * 10.0, _FakeSpline(), 500.0, 5e4, 1.0, p,
+    )  # fmt: skip
+    d = pe.e_mm - _expected_error(
+        np.full(n, 100.0), r, np.ones(n - 1), s3 * 10.0, _FakeSpline(), 5e4, p
+    )
+    np.testing.assert_allclose(d, p.bridge_error * _unsupported_gap(s3 * 10.0, sup))
+    np.testing.assert_allclose(pe.confidence, np.exp(-pe.e_mm / p.conf_mm))
+
+
+class _FakeSpline:
+    ctrl = np.zeros((6, 3))
+    degree = 3
+
+
+def test_score_is_the_rounded_rating_and_falls_with_the_typical_error() -> None:
+    m, q = 0.25, 2.0
+    errors = np.geomspace(0.01, 100.0, 400)
+    scores = [_score(e, "ok", m, q) for e in errors]
+    ratings = [_rating(e, "ok", m, q) for e in errors]
+    assert scores[0] == 5 and scores[-1] == 1
+    assert np.all(np.diff(scores) <= 0) and np.all(np.diff(ratings) <= 0)
+    assert all(1.0 <= x <= 5.0 for x in ratings)
+    for s, x in zip(scores, ratings, strict=True):
+        assert s == max(1, min(5, int(np.floor(x + 0.5)))) or abs(x - round(x) - 0.5) < 1e-9
+    assert _score(0.1, "ok", m, q) == 5 and _score(0.3, "ok", m, q) == 4
+    assert _score(0.6, "ok", m, q) == 3 and _score(1.5, "ok", m, q) == 2
+    assert _score(2.5, "ok", m, q) == 1
+    assert _score(0.01, "suspect", m, q) == 2 and _rating(0.01, "suspect", m, q) == 2.0
+    assert _score(0.01, "failed", m, q) == 1 and _rating(0.01, "failed", m, q) == 1.0
+    assert _rating(np.inf, "ok", m, q) == 1.0
 
 
 def test_typical_error_is_not_swamped_by_a_few_large_points() -> None:
