@@ -343,7 +343,8 @@ class CheckResult:
     left projection running over another part of the curve, ``beyond_mm`` how far (mm, at the
     end's depth) a piece of thread pixels beyond a free end across an occluder reaches
     (core/check_beyond.py; 0 when there is none), ``fold_px`` the length of the left
-    projection running twice over one strand (core/check_fold.py).
+    projection running twice over one strand (core/check_fold.py), ``end_added_mm`` the
+    length the depth change over a free end's last knot span adds (mm).
     """
 
     status: Status
@@ -379,6 +380,7 @@ class CheckResult:
     ends_at_border: tuple[str, ...] = ()
     beyond_mm: float = 0.0
     fold_px: float = 0.0
+    end_added_mm: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -417,6 +419,7 @@ class CheckResult:
             "ends_at_border": list(self.ends_at_border),
             "beyond_mm": self.beyond_mm,
             "fold_px": self.fold_px,
+            "end_added_mm": self.end_added_mm,
         }
 
 
@@ -619,6 +622,7 @@ def _check(
     # pixels that are neither thread nor bare background, in both views (core/check_beyond).
     free = tuple(e for e in ("start", "end") if e not in at_border)
     missing = 0.0
+    end_added = 0.0
     if free and bare is None:
         bare = _BareBackground(lifted, (field_l, field_r), p)
     for end in free:  # a free end ends at one 3D point: both views see the thread stop there
@@ -637,6 +641,20 @@ def _check(
             )  # fmt: skip
         elif cut is not None:  # the thread's end is seen in one view: the curve misses that much
             missing = max(missing, max(cut.ext) * z_end / f * mm)
+    # A free end is matched from one side, with the matching window over the thread's end and
+    # what lies beyond it (an occluder's edge pulls the depth towards its own): a depth change
+    # over the end's last knot span is length the matches there cannot vouch for.
+    n_spans = max(len(spline.ctrl) - int(spline.degree), 1)
+    for end in free:
+        added = _end_added_length(step3, step, z, f / mm, n_spans, end)
+        end_added = max(end_added, added)
+        if added > p.max_unmeasured_mm:
+            findings.append(
+                ("suspect", f"the curve's depth change over the last knot span at its {end} "
+                 f"adds {added:.1f} mm to its length (limit {p.max_unmeasured_mm:g} mm): an "
+                 "end is matched from one side, over the thread's end and what lies beyond "
+                 "it (an occluder's edge pulls the depth towards its own)")
+            )  # fmt: skip
     if free and cov_l < 1.0 and cov_r < 1.0:
         found = beyond_ends(
             (uv_l, uv_r), (lifted.P_L, lifted.P_R), free, {"start": z[0], "end": z[-1]}, f,
@@ -801,6 +819,7 @@ def _check(
         ends_at_border=at_border,
         beyond_mm=missing,
         fold_px=fold,
+        end_added_mm=end_added,
     )
 
 
@@ -999,6 +1018,21 @@ def _unmeasured_length(
     flat = step[free] * (0.5 / f_mm) * (z[1:][free] + z[:-1][free])  # the step at constant depth
     extra = step3[free] - flat
     return float(np.sum(extra, where=np.isfinite(extra) & (extra > 0.0)))
+
+
+def _end_added_length(
+    step3: np.ndarray, step: np.ndarray, z: np.ndarray, f_mm: float, n_spans: int, end: str
+) -> float:
+    """Length (mm) the depth change adds over the curve's last knot span at ``end`` (2D length
+    of the left projection / ``n_spans``): each step's 3D length less the same 2D step at
+    constant depth (``_unmeasured_length`` with no step measured)."""
+    seg = np.where(np.isfinite(step), step, 0.0)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    span = s[-1] / n_spans
+    k = int(np.searchsorted(s, span)) if end == "start" else int(np.searchsorted(s, s[-1] - span))
+    sl = slice(0, max(k, 1)) if end == "start" else slice(min(k, len(step) - 1), len(step))
+    zs = z[sl.start : sl.stop + 1]
+    return _unmeasured_length(step3[sl], step[sl], zs, np.zeros(len(zs), dtype=bool), f_mm)
 
 
 def _strand_samples(

@@ -147,6 +147,7 @@ REASON_KINDS = {  # a keyword of each kind of reason (core/check.py) -> a short 
     "stops short": "piece beyond an end",
     "cut by an occluder": "cut end",
     "runs twice over": "fold",
+    "last knot span": "end depth change",
 }
 
 

@@ -18,6 +18,7 @@ from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check import (
     CheckParams,
     CheckResult,
+    _end_added_length,
     _overlap,
     _strand_samples,
     _surface_behind,
@@ -518,3 +519,34 @@ def test_curve_folded_back_over_one_strand_is_suspect() -> None:
     chk = _recheck(0, fold)
     assert chk.status == "suspect" and chk.fold_px > CheckParams().max_overlap_px
     assert any("runs twice over" in r for r in chk.reasons)
+
+
+def test_end_diving_in_depth_over_its_last_knot_span_is_suspect() -> None:
+    """The end of m9961 occlusion_8 (held out): the matches at an instrument's edge pulled the
+    curve's last knot span 20 mm towards the camera, ok and wrong before."""
+
+    def dive(p: np.ndarray) -> np.ndarray:
+        k = len(p) // 10  # about one knot span
+        q = p.copy()
+        q[-k:] *= np.linspace(1.0, 0.8, k)[:, None]  # same left projection, up to 20 % nearer
+        return q
+
+    plain = _recheck(0, lambda p: p)
+    assert plain.end_added_mm < CheckParams().max_unmeasured_mm
+    chk = _recheck(0, dive)
+    assert chk.end_added_mm > CheckParams().max_unmeasured_mm
+    assert chk.status == "suspect" and any("last knot span" in r for r in chk.reasons)
+
+
+def test_end_added_length_counts_only_the_last_knot_span() -> None:
+    n = 101
+    step = np.ones(n - 1)  # px
+    z = np.full(n, 100.0)
+    z[-11:] = np.linspace(100.0, 90.0, 11)  # the last 10 steps come 10 units nearer
+    f_mm = 100.0  # px per mm at depth 1: a step of 1 px at depth 100 is 1 mm flat
+    step3 = np.hypot(step * z[1:] / f_mm, np.diff(z))
+    assert _end_added_length(step3, step, z, f_mm, 10, "start") == pytest.approx(0.0, abs=1e-9)
+    added = _end_added_length(step3, step, z, f_mm, 10, "end")
+    flat = np.sum(step[-10:] * 0.5 * (z[-11:-1] + z[-10:]) / f_mm)
+    assert added == pytest.approx(np.sum(step3[-10:]) - flat)
+    assert added > 0.0
