@@ -310,14 +310,25 @@ def _extra_points(
     n_extra = count // extra_px
     keep = n_extra[link] > 0
     sel, link = sel[keep], link[keep]
-    # Runs as np.array_split: a link of c pixels in n runs has c % n runs of c // n + 1 first.
+    # Runs the same from either end of the link (issue 12: the walk may start at either end):
+    # pixel j of c goes to run floor((j + 1/2) n / c), pixels of equal t at their mean j, and
+    # a pixel exactly on a run boundary (the middle of an odd link in 2 runs) to none.
     start = np.concatenate([[0], np.cumsum(count)])[:-1]
     start = start - np.concatenate([[0], np.cumsum(np.where(n_extra > 0, 0, count))])[:-1]
     j = np.arange(sel.size) - start[link]  # position in the link
     n, c = n_extra[link], count[link]
-    q, rem = c // n, c % n
-    big = rem * (q + 1)
-    run = np.where(j < big, j // (q + 1), rem + (j - big) // np.maximum(q, 1))
+    t = t[order][keep]
+    new = np.ones(sel.size, dtype=bool)
+    new[1:] = (link[1:] != link[:-1]) | (t[1:] != t[:-1])  # first pixel of a group of ties
+    gs = np.flatnonzero(new)
+    ge = np.append(gs[1:], sel.size)[: gs.size] - 1  # last pixel of each group
+    grp = np.cumsum(new) - 1
+    first, last = j[gs][grp], j[ge][grp]
+    num = (first + last + 1) * n  # run = floor(num / (2 c)), mid position (first + last) / 2
+    run = num // (2 * c)
+    on_edge = (num % (2 * c) == 0) & (run > 0)
+    keep2 = ~on_edge
+    sel, link, run, j = sel[keep2], link[keep2], run[keep2], j[keep2]
     run_start = np.concatenate([[0], np.cumsum(n_extra)])[:-1]
     group = run_start[link] + run  # global run id, in the order of H
     n_runs = int(n_extra.sum())
