@@ -27,6 +27,7 @@ from threadrecon.core.ordering import OUTLIER_PX, Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.stereo import StereoResult
 
+T_TIE = 1e-12  # positions t this close are one (d_a / (d_a + d_b) from either end: ulps)
 BORDER_PX = 2.0  # a left pixel within this of where its match leaves the right image: no depth
 
 
@@ -319,7 +320,7 @@ def _extra_points(
     n, c = n_extra[link], count[link]
     t = t[order][keep]
     new = np.ones(sel.size, dtype=bool)
-    new[1:] = (link[1:] != link[:-1]) | (t[1:] != t[:-1])  # first pixel of a group of ties
+    new[1:] = (link[1:] != link[:-1]) | (t[1:] - t[:-1] > T_TIE)  # first pixel of a tie group
     gs = np.flatnonzero(new)
     ge = np.append(gs[1:], sel.size)[: gs.size] - 1  # last pixel of each group
     grp = np.cumsum(new) - 1

@@ -3,7 +3,11 @@ it and once with that ordering reversed (core/reversal.py) before the stages aft
 bounds, spline, refinement, camera, check), and the two curves compared.
 
     python scripts/direction_check.py --seed 8130 [--count 20] [--suite spiral ...]
-        [--dev /work/shared/data/paper-dataset] [--set stage.name=value ...] [--csv out.csv]
+        [--mode output|walk] [--dev /work/shared/data/paper-dataset] [--set stage.name=value]
+        [--csv out.csv]
+
+Mode "walk" reverses the walk inside the ordering stage instead (its end extension, the gap
+pixels' links and the tips' disparities are then computed for the reversed walk too).
 
 Per frame: the distance between the two curves (mm; each curve's points to the other curve's
 polyline, max and mean over both ways), e_S, e_S^max, length error and status both ways. Per
@@ -14,6 +18,7 @@ and the right/good counts both ways (as scripts/hard_suites.py scores them).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import sys
 from pathlib import Path
@@ -27,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from threadrecon.app.bench import with_overrides  # noqa: E402
 from threadrecon.app.dataset import discover, evaluate_reconstruction, load_frame  # noqa: E402
 from threadrecon.app.presets import resolve_preset  # noqa: E402
+from threadrecon.core import ordering  # noqa: E402
 from threadrecon.core.pipeline import (  # noqa: E402
     STAGE_TABLE,
     STAGES,
@@ -44,6 +50,33 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from hard_suites import GOOD_MM, SUITES  # noqa: E402
 
 DIFF_MM = 0.1  # a frame whose two curves lie further apart than this counts as asymmetric
+
+
+@contextlib.contextmanager
+def _walks_reversed():
+    """The ordering stage with its walk (the keypoint order the walk chose) reversed before
+    everything the stage does after the walk: end extension, gap pixels' links, tips."""
+    saved = ordering._bending_walk, ordering._best_walk, ordering._explain
+
+    def explain(*a, **k):  # the walk's replay of its decisions does not hold reversed
+        try:
+            return saved[2](*a, **k)
+        except ValueError:
+            return ()
+
+    ordering._bending_walk = lambda *a, **k: saved[0](*a, **k)[::-1]
+    ordering._best_walk = lambda *a, **k: saved[1](*a, **k)[::-1]
+    ordering._explain = explain
+    try:
+        yield
+    finally:
+        ordering._bending_walk, ordering._best_walk, ordering._explain = saved
+
+
+def reversed_walk_run(pipe: Pipeline, rec: Reconstruction, params) -> Reconstruction:
+    """The whole pipeline once more with the ordering's walk reversed (mode "walk")."""
+    with _walks_reversed():
+        return Pipeline(pipe.pair, pipe.calib).run(params)
 
 
 def reversed_run(pipe: Pipeline, rec: Reconstruction, params) -> Reconstruction:
@@ -76,8 +109,9 @@ def _dense(points: np.ndarray, step: float) -> np.ndarray:
 
 def curve_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """(max, mean) distance between two curves (N, 3), both ways, in their unit."""
-    da = cKDTree(_dense(b, 0.01 * _length(b) / 100 + 1e-9)).query(a)[0]
-    db = cKDTree(_dense(a, 0.01 * _length(a) / 100 + 1e-9)).query(b)[0]
+    # each polyline resampled every 1e-5 of its length: distances to it within 5e-6 of that
+    da = cKDTree(_dense(b, 1e-5 * _length(b) + 1e-12)).query(a)[0]
+    db = cKDTree(_dense(a, 1e-5 * _length(a) + 1e-12)).query(b)[0]
     both = np.concatenate([da, db])
     return float(both.max()), float(both.mean())
 
@@ -86,10 +120,10 @@ def _length(p: np.ndarray) -> float:
     return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
 
 
-def compare(pair: StereoPair, calib, truth, params) -> dict:
+def compare(pair: StereoPair, calib, truth, params, mode: str = "output") -> dict:
     pipe = Pipeline(pair, calib)
     fwd = pipe.run(params)
-    bwd = reversed_run(pipe, fwd, params)
+    bwd = (reversed_walk_run if mode == "walk" else reversed_run)(pipe, fwd, params)
     row: dict = {}
     for tag, rec in (("fwd", fwd), ("bwd", bwd)):
         m = evaluate_reconstruction(rec, calib, truth)
@@ -117,7 +151,7 @@ def compare(pair: StereoPair, calib, truth, params) -> dict:
     return row
 
 
-def suite_rows(name: str, seed: int, count: int, params) -> list[dict]:
+def suite_rows(name: str, seed: int, count: int, params, mode: str) -> list[dict]:
     _, thread, render = SUITES[name]
     syn = SyntheticParams(thread=thread, render=render)
     calib = syn.camera.calibration()
@@ -127,31 +161,34 @@ def suite_rows(name: str, seed: int, count: int, params) -> list[dict]:
         pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
         rows.append(
             dict(suite=name, seed=seed, frame=k)
-            | compare(pair, calib, frame.truth.centerline, params)
+            | compare(pair, calib, frame.truth.centerline, params, mode)
         )
     return rows
 
 
-def dev_rows(root: str, params) -> list[dict]:
+def dev_rows(root: str, params, mode: str) -> list[dict]:
     rows = []
     for fr in discover(root):
         pair, calib, gt = load_frame(fr)
-        rows.append(dict(suite=fr.kind, seed=0, frame=fr.name) | compare(pair, calib, gt, params))
+        rows.append(
+            dict(suite=fr.kind, seed=0, frame=fr.name) | compare(pair, calib, gt, params, mode)
+        )
     return rows
 
 
 def summary(name: str, rows: list[dict]) -> str:
     d = np.array([r["diff_max"] for r in rows])
     asym = [r for r in rows if not (r["diff_max"] <= DIFF_MM)]
-    flips = [r for r in rows if r["good_fwd"] != r["good_bwd"] or r["status_fwd"] != r["status_bwd"]]
+    flips = [
+        r for r in rows if r["good_fwd"] != r["good_bwd"] or r["status_fwd"] != r["status_bwd"]
+    ]
     gf = sum(r["good_fwd"] for r in rows)
     gb = sum(r["good_bwd"] for r in rows)
     return (
         f"{name:16s} n={len(rows):3d} diff median {np.nanmedian(d):7.3f} max {np.nanmax(d):7.3f} mm"
         f"  >{DIFF_MM}: {len(asym):2d}  good fwd/bwd {gf}/{gb}  status flips: "
         + ", ".join(
-            f"{r['frame']}({r['status_fwd']}/{r['status_bwd']}, {r['diff_max']:.2f})"
-            for r in flips
+            f"{r['frame']}({r['status_fwd']}/{r['status_bwd']}, {r['diff_max']:.2f})" for r in flips
         )
     )
 
@@ -162,6 +199,13 @@ def main() -> int:
     ap.add_argument("--count", type=int, default=20)
     ap.add_argument("--suite", action="append", choices=sorted(SUITES), default=None)
     ap.add_argument("--dev", default=None, help="also the paper dataset's frames at this root")
+    ap.add_argument(
+        "--mode",
+        choices=("output", "walk"),
+        default="output",
+        help="output: the ordering's result reversed (the stages after it); walk: the walk "
+        "reversed inside the ordering (its end extension and gap links too)",
+    )
     ap.add_argument("--config", default=None)
     ap.add_argument("--set", action="append", default=[])
     ap.add_argument("--csv", default=None)
@@ -171,11 +215,11 @@ def main() -> int:
     with threadpool_limits(1):
         for seed in args.seed:
             for name in args.suite or list(SUITES):
-                rows = suite_rows(name, seed, args.count, params)
+                rows = suite_rows(name, seed, args.count, params, args.mode)
                 all_rows += rows
                 print(summary(f"{seed} {name}", rows), flush=True)
         if args.dev:
-            rows = dev_rows(args.dev, params)
+            rows = dev_rows(args.dev, params, args.mode)
             all_rows += rows
             for kind in ("simulated", "real"):
                 sel = [r for r in rows if r["suite"] == kind]
