@@ -7,7 +7,9 @@ bounds, spline, refinement, camera, check), and the two curves compared.
         [--csv out.csv]
 
 Mode "walk" reverses the walk inside the ordering stage instead (its end extension, the gap
-pixels' links and the tips' disparities are then computed for the reversed walk too).
+pixels' links and the tips' disparities are then computed for the reversed walk too). Mode
+"start" walks from the other end of the chosen walk (the greedy walk's own dependence on its
+start: another path, not the same one reversed).
 
 Per frame: the distance between the two curves (mm; each curve's points to the other curve's
 polyline, max and mean over both ways), e_S, e_S^max, length error and status both ways. Per
@@ -73,9 +75,29 @@ def _walks_reversed():
         ordering._bending_walk, ordering._best_walk, ordering._explain = saved
 
 
-def reversed_walk_run(pipe: Pipeline, rec: Reconstruction, params) -> Reconstruction:
-    """The whole pipeline once more with the ordering's walk reversed (mode "walk")."""
-    with _walks_reversed():
+@contextlib.contextmanager
+def _walks_from_other_end():
+    """The ordering stage with its bending walk started at the chosen walk's last keypoint
+    (no runner-up branches): where the greedy walk itself depends on its start."""
+    saved = ordering._bending_walk
+
+    def other(g, p):
+        w = saved(g, p)
+        if len(w) < 2:
+            return w
+        return ordering._walk_from([w[-1]], [], None, g, p)[0]
+
+    ordering._bending_walk = other
+    try:
+        yield
+    finally:
+        ordering._bending_walk = saved
+
+
+def reversed_walk_run(pipe: Pipeline, rec: Reconstruction, params, start: bool = False):
+    """The whole pipeline once more with the ordering's walk reversed (mode "walk") or walked
+    from the other end (mode "start")."""
+    with _walks_from_other_end() if start else _walks_reversed():
         return Pipeline(pipe.pair, pipe.calib).run(params)
 
 
@@ -123,7 +145,10 @@ def _length(p: np.ndarray) -> float:
 def compare(pair: StereoPair, calib, truth, params, mode: str = "output") -> dict:
     pipe = Pipeline(pair, calib)
     fwd = pipe.run(params)
-    bwd = (reversed_walk_run if mode == "walk" else reversed_run)(pipe, fwd, params)
+    if mode == "output":
+        bwd = reversed_run(pipe, fwd, params)
+    else:
+        bwd = reversed_walk_run(pipe, fwd, params, start=mode == "start")
     row: dict = {}
     for tag, rec in (("fwd", fwd), ("bwd", bwd)):
         m = evaluate_reconstruction(rec, calib, truth)
@@ -201,10 +226,11 @@ def main() -> int:
     ap.add_argument("--dev", default=None, help="also the paper dataset's frames at this root")
     ap.add_argument(
         "--mode",
-        choices=("output", "walk"),
+        choices=("output", "walk", "start"),
         default="output",
         help="output: the ordering's result reversed (the stages after it); walk: the walk "
-        "reversed inside the ordering (its end extension and gap links too)",
+        "reversed inside the ordering (its end extension and gap links too); start: the "
+        "bending walk started at the other end of the chosen walk",
     )
     ap.add_argument("--config", default=None)
     ap.add_argument("--set", action="append", default=[])
