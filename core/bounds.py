@@ -376,7 +376,8 @@ def _extra_points(
 
 def _border_depths(path: np.ndarray, fB: float) -> np.ndarray:
     """Keypoints whose match would lie left of the right image take the depth of the nearest
-    keypoint along the path that lies safely inside it (x >= 2 d + ``BORDER_PX``, and x >= the
+    keypoint along the path that lies safely inside it (the mean of the two when one before
+    and one after are equally near: the same from either end; x >= 2 d + ``BORDER_PX``, and x >= the
     median disparity of such keypoints + ``BORDER_PX``): the search was cut at the border
     there, and its depth is meaningless (metres on generated frames). The second test catches
     a keypoint whose cut search found a tiny disparity (x = 3 px, d = 0.002 px: 2.9 km deep)."""
@@ -391,12 +392,14 @@ def _border_depths(path: np.ndarray, fB: float) -> np.ndarray:
     i = np.arange(len(path))
     pos = np.clip(np.searchsorted(safe, i), 1, safe.size) - 1
     nxt = np.minimum(pos + 1, safe.size - 1)
-    near = np.where(np.abs(safe[nxt] - i) < np.abs(safe[pos] - i), safe[nxt], safe[pos])
-    bad = x < d[near] + BORDER_PX
+    after, before = np.abs(safe[nxt] - i), np.abs(safe[pos] - i)
+    near = np.where(after < before, safe[nxt], safe[pos])
+    other = np.where(after == before, safe[nxt], near)  # equally near both: their mean
+    bad = x < 0.5 * (d[near] + d[other]) + BORDER_PX
     if not bad.any():
         return path
     out = path.copy()
-    out[bad, 2] = z[near[bad]]
+    out[bad, 2] = 0.5 * (z[near[bad]] + z[other[bad]])
     return out
 
 

@@ -108,3 +108,19 @@ def test_walk_reversed_inside_the_ordering_gives_the_same_links(seed: int, monke
     ok = np.isfinite(o.pixel_t)
     assert np.array_equal(ok, np.isfinite(r.pixel_t))
     np.testing.assert_allclose(o.pixel_t[ok], r.pixel_t[ok], atol=1e-12)
+
+
+def test_a_border_keypoint_between_two_equally_near_safe_ones_is_the_same_both_ways() -> None:
+    # Keypoint 4 (x = 3 px, a cut search: d = 0.002 px) lies two steps from safe keypoints at
+    # 118 and 126 mm on either side: their mean, from either end (before: the earlier one).
+    from threadrecon.core.bounds import _border_depths
+
+    fB = 4450.0
+    x = np.array([300.0, 280.0, 260.0, 4.0, 3.0, 5.0, 260.0, 280.0, 300.0])
+    z = np.array([118.0] * 3 + [fB / 0.002] * 3 + [126.0] * 3)
+    path = np.column_stack([x, np.full(9, 200.0), z])
+    out = _border_depths(path, fB)
+    back = _border_depths(path[::-1].copy(), fB)[::-1]
+    assert out[4, 2] == pytest.approx(122.0)
+    np.testing.assert_array_equal(out, back)
+    assert out[3, 2] == 118.0 and out[5, 2] == 126.0
