@@ -27,6 +27,7 @@ from threadrecon.core.ordering import OUTLIER_PX, Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.stereo import StereoResult
 
+T_TIE = 1e-12  # positions t this close are one (d_a / (d_a + d_b) from either end: ulps)
 BORDER_PX = 2.0  # a left pixel within this of where its match leaves the right image: no depth
 
 
@@ -310,14 +311,25 @@ def _extra_points(
     n_extra = count // extra_px
     keep = n_extra[link] > 0
     sel, link = sel[keep], link[keep]
-    # Runs as np.array_split: a link of c pixels in n runs has c % n runs of c // n + 1 first.
+    # Runs the same from either end of the link (issue 12: the walk may start at either end):
+    # pixel j of c goes to run floor((j + 1/2) n / c), pixels of equal t at their mean j, and
+    # a pixel exactly on a run boundary (the middle of an odd link in 2 runs) to none.
     start = np.concatenate([[0], np.cumsum(count)])[:-1]
     start = start - np.concatenate([[0], np.cumsum(np.where(n_extra > 0, 0, count))])[:-1]
     j = np.arange(sel.size) - start[link]  # position in the link
     n, c = n_extra[link], count[link]
-    q, rem = c // n, c % n
-    big = rem * (q + 1)
-    run = np.where(j < big, j // (q + 1), rem + (j - big) // np.maximum(q, 1))
+    t = t[order][keep]
+    new = np.ones(sel.size, dtype=bool)
+    new[1:] = (link[1:] != link[:-1]) | (t[1:] - t[:-1] > T_TIE)  # first pixel of a tie group
+    gs = np.flatnonzero(new)
+    ge = np.append(gs[1:], sel.size)[: gs.size] - 1  # last pixel of each group
+    grp = np.cumsum(new) - 1
+    first, last = j[gs][grp], j[ge][grp]
+    num = (first + last + 1) * n  # run = floor(num / (2 c)), mid position (first + last) / 2
+    run = num // (2 * c)
+    on_edge = (num % (2 * c) == 0) & (run > 0)
+    keep2 = ~on_edge
+    sel, link, run, j = sel[keep2], link[keep2], run[keep2], j[keep2]
     run_start = np.concatenate([[0], np.cumsum(n_extra)])[:-1]
     group = run_start[link] + run  # global run id, in the order of H
     n_runs = int(n_extra.sum())
@@ -364,7 +376,8 @@ def _extra_points(
 
 def _border_depths(path: np.ndarray, fB: float) -> np.ndarray:
     """Keypoints whose match would lie left of the right image take the depth of the nearest
-    keypoint along the path that lies safely inside it (x >= 2 d + ``BORDER_PX``, and x >= the
+    keypoint along the path that lies safely inside it (the mean of the two when one before
+    and one after are equally near: the same from either end; x >= 2 d + ``BORDER_PX``, and x >= the
     median disparity of such keypoints + ``BORDER_PX``): the search was cut at the border
     there, and its depth is meaningless (metres on generated frames). The second test catches
     a keypoint whose cut search found a tiny disparity (x = 3 px, d = 0.002 px: 2.9 km deep)."""
@@ -379,12 +392,14 @@ def _border_depths(path: np.ndarray, fB: float) -> np.ndarray:
     i = np.arange(len(path))
     pos = np.clip(np.searchsorted(safe, i), 1, safe.size) - 1
     nxt = np.minimum(pos + 1, safe.size - 1)
-    near = np.where(np.abs(safe[nxt] - i) < np.abs(safe[pos] - i), safe[nxt], safe[pos])
-    bad = x < d[near] + BORDER_PX
+    after, before = np.abs(safe[nxt] - i), np.abs(safe[pos] - i)
+    near = np.where(after < before, safe[nxt], safe[pos])
+    other = np.where(after == before, safe[nxt], near)  # equally near both: their mean
+    bad = x < 0.5 * (d[near] + d[other]) + BORDER_PX
     if not bad.any():
         return path
     out = path.copy()
-    out[bad, 2] = z[near[bad]]
+    out[bad, 2] = 0.5 * (z[near[bad]] + z[other[bad]])
     return out
 
 

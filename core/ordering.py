@@ -23,6 +23,7 @@ crossings run in a compiled kernel (core/walk_kernel.py), jumps across gaps in n
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
 import weakref
@@ -505,15 +506,20 @@ def _link_positions(
     pixel_t = np.full(n, np.nan)
     pixel_link = np.full(n, -1, dtype=np.int64)
     link_of = np.full(n_nodes, -1, dtype=np.int64)
-    if links:  # a gap on two links (it touches three clusters) belongs to the later one
+    link_lo = np.full(n_nodes, len(links), dtype=np.int64)
+    if links:
         n_ids = [len(g) for g in links]
         ids = np.fromiter((g for gap_ids in links for g in gap_ids), np.int64, sum(n_ids))
         np.maximum.at(link_of, ids, np.repeat(np.arange(len(links)), n_ids))
-    sel = np.flatnonzero((pixel_node >= 0) & (link_of[np.maximum(pixel_node, 0)] >= 0))
+        np.minimum.at(link_lo, ids, np.repeat(np.arange(len(links)), n_ids))
+    ends = np.array(order, dtype=np.int64)
+    px_link = np.where(pixel_node >= 0, link_of[np.maximum(pixel_node, 0)], -1)
+    if np.any((link_lo < link_of)[np.maximum(pixel_node, 0)] & (pixel_node >= 0)):
+        geo, px_link = _split_shared(geo, pixel_node, px_link, link_lo, ends)
+    sel = np.flatnonzero(px_link >= 0)
     if sel.size == 0:
         return pixel_t, pixel_link
-    lk = link_of[pixel_node[sel]]
-    ends = np.array(order, dtype=np.int64)
+    lk = px_link[sel]
     a, b = ends[lk], ends[lk + 1]
     nb = geo.nb_node[sel]
     d = []
@@ -546,6 +552,42 @@ def _link_positions(
     pixel_t[sel] = np.where(np.isfinite(t) & ~beyond, t, np.nan)
     pixel_link[sel] = np.where(beyond, -1, lk)
     return pixel_t, pixel_link
+
+
+def _split_shared(
+    geo: _GapGeodesics,
+    pixel_node: np.ndarray,
+    px_link: np.ndarray,
+    link_lo: np.ndarray,
+    ends: np.ndarray,
+) -> tuple[_GapGeodesics, np.ndarray]:
+    """A gap on two links (it touches three clusters, or four at a crossing) split between
+    them, the same whichever end the walk started from (issue 12): each of its pixels goes to
+    the link whose own end (one the other link does not share) is geodesically nearer, none on
+    a tie. Returns the gap geodesics with each part a gap of its own (a link's distances stay
+    inside its part) and ``px_link`` (N,) with the split pixels' links."""
+    on = pixel_node >= 0
+    hi = px_link
+    lo = np.where(on, link_lo[np.maximum(pixel_node, 0)], -1)
+    shared = np.flatnonzero(on & (hi >= 0) & (lo < hi))
+    d = []
+    for own, other in ((lo[shared], hi[shared]), (hi[shared], lo[shared])):
+        mine = np.column_stack([ends[own], ends[own + 1]])
+        theirs = np.column_stack([ends[other], ends[other + 1]])
+        excl = np.where(np.isin(mine, theirs) | (mine < 0), -2, mine)  # -2: no cluster
+        nb = geo.nb_node[shared]
+        src = shared[np.any((nb[:, :, None] == excl[:, None, :]) & (nb[:, :, None] >= 0), (1, 2))]
+        d.append(geo.distances(src)[shared] if src.size else np.full(shared.size, np.inf))
+    d_lo, d_hi = d
+    out = px_link.copy()
+    out[shared] = np.where(d_lo < d_hi, lo[shared], np.where(d_hi < d_lo, hi[shared], -1))
+    node = geo.node.copy()  # the lower link's part and the ties become gaps of their own
+    n_nodes = int(node.max()) + 1
+    node[shared] += np.where(out[shared] == lo[shared], n_nodes, 0)
+    node[shared] += np.where(out[shared] < 0, 2 * n_nodes, 0)
+    split = copy.copy(geo)
+    split.node = node
+    return split, out
 
 
 def _normalised(d: np.ndarray) -> np.ndarray:

@@ -172,6 +172,13 @@ def fit_spline(
         if retry.status == "ok":
             sol, relaxed = retry, True
             E, e_rhs = E[0:4:2], e_rhs[0:4:2]
+    if sol.status == "infeasible" and p.relax_slopes and untipped:
+        # The lines' values were no better than the tips': the tips' values alone, the last
+        # combination (real thread2_59: the tips' slopes and the lines' values both fail).
+        retry = problem.solve(b0, st.E[0:4:2] / zs, st.e_rhs[0:4:2] / zs, p.max_iter)
+        if retry.status == "ok":
+            sol, relaxed, untipped = retry, True, False
+            E, e_rhs = st.E[0:4:2], st.e_rhs[0:4:2]
     b = sol.x
     viol = _violation(A @ b, lo_c, hi_c, half_c) if np.all(np.isfinite(b)) else np.inf
     status: Status = sol.status

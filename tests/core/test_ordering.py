@@ -125,17 +125,45 @@ def test_link_positions_match_per_link_geodesics(seed: int) -> None:
     o, stereo = rec["ordering"], rec["stereo"]
     geo = _GapGeodesics(stereo, o.pixel_node, o.n_clusters)
     expected = np.full(len(o.pixel_node), np.nan)
+    # A gap on two links (or more: the first and the last): each pixel on the link whose own
+    # end (not the other's) is nearer, on none at a tie; each link's positions from geodesics
+    # inside its own part.
+    on = {}
     for i, gap_ids in enumerate(o.links):
-        sel = np.flatnonzero(np.isin(o.pixel_node, gap_ids))
+        for g in gap_ids:
+            on.setdefault(g, []).append(i)
+    owner = np.full(len(o.pixel_node), -1)
+    for g, ls in on.items():
+        sel = np.flatnonzero(o.pixel_node == g)
+        lo, hi = ls[0], ls[-1]
+        if lo == hi:
+            owner[sel] = lo
+            continue
+        d = []
+        for mine, theirs in ((lo, hi), (hi, lo)):
+            own = [
+                c
+                for c in o.order[mine : mine + 2]
+                if c >= 0 and c not in o.order[theirs : theirs + 2]
+            ]
+            d.append(
+                np.min([np.nan_to_num(geo.distance_from(c, sel), nan=np.inf) for c in own], axis=0)
+            )
+        owner[sel] = np.where(d[0] < d[1], lo, np.where(d[1] < d[0], hi, -1))
+    for i, _ in enumerate(o.links):
+        sel = np.flatnonzero(owner == i)
         if sel.size == 0:
             continue
+        gap = o.pixel_node >= o.n_clusters
+        part = np.where(gap & (owner != i), -5, o.pixel_node)  # -5: no gap, no cluster
+        geo_i = _GapGeodesics(stereo, part, o.n_clusters)
         a, b = o.order[i], o.order[i + 1]
         if a < 0:
-            expected[sel] = 1.0 - _normalised(geo.distance_from(b, sel))
+            expected[sel] = 1.0 - _normalised(geo_i.distance_from(b, sel))
         elif b < 0:
-            expected[sel] = _normalised(geo.distance_from(a, sel))
+            expected[sel] = _normalised(geo_i.distance_from(a, sel))
         else:
-            da, db = geo.distance_from(a, sel), geo.distance_from(b, sel)
+            da, db = geo_i.distance_from(a, sel), geo_i.distance_from(b, sel)
             expected[sel] = da / (da + db)
     assert np.array_equal(np.isfinite(expected), np.isfinite(o.pixel_t))
     np.testing.assert_allclose(o.pixel_t[np.isfinite(expected)], expected[np.isfinite(expected)])

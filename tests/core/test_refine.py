@@ -296,7 +296,10 @@ def test_repair_fixes_a_coil_turn_matched_to_its_neighbour(frame: int, mvs_faile
     before = curve_errors(off["camera"].points, fr.truth.centerline)
     after = curve_errors(rec["camera"].points, fr.truth.centerline)
     assert before.e_S_max > 20.0
-    assert after.e_S_max < 1.0 and after.e_length < 1.0
+    # frame 10: 1.45 mm from either end; the extra points' runs were split from the walk's
+    # start before (issue 12, docs/method.md "The same curve from either end"): 0.29 mm
+    # one way, 3.49 mm the other
+    assert after.e_S_max < 2.0 and after.e_length < 1.0
     assert rec["refine"].ok and rec.status != "failed"
     dropped = rec["refine"].bounds_dropped  # the check is told which bounds no longer hold
     assert dropped is not None and dropped.shape == rec["bounds"].lower.shape
