@@ -44,6 +44,11 @@ OUTLIER_PX = 2.0  # a pixel > 2 px of disparity from its cluster's median is ano
 MAX_WALKS = 24  # walks tried per frame (ends, then runner-up turns of the best): bounded time
 _NO_END_DISPARITY = np.array([[np.nan, np.inf], [np.nan, np.inf]])  # no end matched
 MAX_REJECTED = 4  # rejected continuations kept per decision: a jump may see dozens, few matter
+# Depth continuity along one strand: two of its keypoints d px apart in the image differ in
+# disparity by at most DISPARITY_SLACK_PX + DISPARITY_SLOPE * d (slope <= B/Z: the thread at
+# 45 deg to the image plane; the slack covers the clusters' median disparities' noise).
+DISPARITY_SLACK_PX = 1.0
+DISPARITY_SLOPE = 0.1
 
 
 @dataclass(frozen=True)
@@ -228,12 +233,15 @@ def order_keypoints(
     edges = _edges(cc, cg)
 
     pos = clusters.keypoints_px[:, :2] if p.metric == "image" else clusters.keypoints
-    adj = _adjacency(K, edges)
     disp = _cluster_median(clusters.labels, stereo.disparity, K)
+    broken = edges[:0]
+    if p.walk == "bending":  # two strands touching where the mask lost their crossing
+        edges, broken = _depth_breaks(edges, clusters.keypoints_px[:, :2], disp, K)
+    adj = _adjacency(K, edges)
     if p.walk == "greedy":
         walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
     else:
-        wg = _WalkGraph.of(adj, clusters.keypoints_px[:, :2], disp)
+        wg = _WalkGraph.of(adj, clusters.keypoints_px[:, :2], disp, _adjacency(K, broken))
         walk = _bending_walk(wg, p)
 
     links = cluster_gaps.shared(walk)
@@ -818,9 +826,18 @@ class _WalkGraph:
     )
     """(K,) int64, float64, float64 buffers that :func:`_continuations` hands to the kernel
     (one walk at a time uses them; what it returns is copied out)."""
+    broken: list[list[int]] = field(default_factory=list)
+    """Per keypoint, its neighbours whose edge :func:`_depth_breaks` took out of A (empty
+    lists, or no list at all, where none was): the walk's last resort."""
 
     @classmethod
-    def of(cls, adj: list[list[int]], pos: np.ndarray, disp: np.ndarray) -> _WalkGraph:
+    def of(
+        cls,
+        adj: list[list[int]],
+        pos: np.ndarray,
+        disp: np.ndarray,
+        broken: list[list[int]] | None = None,
+    ) -> _WalkGraph:
         K = len(adj)
         indptr = np.zeros(K + 1, dtype=np.int64)
         indptr[1:] = np.cumsum([len(a) for a in adj])
@@ -832,6 +849,7 @@ class _WalkGraph:
             np.ascontiguousarray(pos, dtype=np.float64),
             np.ascontiguousarray(disp, dtype=np.float64),
             (np.empty(K, np.int64), np.empty(K), np.empty(K)),
+            broken if broken is not None and any(broken) else [],
         )
 
 
@@ -918,6 +936,8 @@ def _continuations(
     a touching turn); 2, unvisited keypoints within ``bridge_px`` whose disparity agrees and whose piece
     continues the same way (across an occlusion or a break in the segmentation): the turn into
     the jump and the turn out of it at most 90 deg each and ``2 max_turn_deg`` together.
+    Last, when no jump is left either: the unvisited neighbours across a depth break
+    (:func:`_depth_breaks`), at tier 0's cost, reported as tier 0.
 
     ``walk[:n]``: the path so far ((K,) int64 buffer). Tiers 0 and 1 are computed by
     :func:`walk_kernel.step_costs` (the walk's own kernel), tier 2 here."""
@@ -936,6 +956,19 @@ def _continuations(
         if tier == 1 and np.isinf(cost).any():
             why = ["" if c >= cos_max else "turn > max_turn_deg" for c in cos_buf[:m]]
         return cand_buf[:m].tolist(), cost, tier, why
+    cand, cost, tier, why = _jumps(walk, n, visited, g, p)
+    if g.broken and not np.isfinite(cost).any():
+        across = _across_breaks(walk, n, visited, g, p)
+        if across[0]:
+            return across
+    return cand, cost, tier, why
+
+
+def _jumps(
+    walk: np.ndarray, n: int, visited: np.ndarray, g: _WalkGraph, p: OrderingParams
+) -> tuple[list[int], np.ndarray, int, list[str]]:
+    """Tier 2 of :func:`_continuations`: the jumps across a gap."""
+    tier = 2
     if p.bridge_px <= 0:
         return [], np.zeros(0), tier, []
     pos, disp, adj = g.pos, g.disp, g.adj
@@ -950,7 +983,7 @@ def _continuations(
         free = np.flatnonzero(~visited)
         d = np.linalg.norm(pos[free] - pos[cur], axis=1)
         near = d <= p.bridge_px
-        near &= np.abs(disp[free] - ref) <= 1.0 + 0.1 * d  # depth agrees (slope <= B/Z)
+        near &= np.abs(disp[free] - ref) <= DISPARITY_SLACK_PX + DISPARITY_SLOPE * d
         cand = [int(v) for v in free[near]]
     if not cand:
         return [], np.zeros(0), tier, []
@@ -974,6 +1007,52 @@ def _continuations(
     cost = np.where(ok, cost, np.inf)
     why = ["" if k else "turn across the gap" for k in ok]
     return cand, cost, 2, why
+
+
+def _depth_breaks(
+    edges: np.ndarray, pos: np.ndarray, disp: np.ndarray, K: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(kept, broken) edges of A: an edge between two keypoints that are no junction (degree
+    <= 2 in A) is broken where their disparities differ by more than one strand's depth can
+    change over their distance (``DISPARITY_SLACK_PX + DISPARITY_SLOPE * distance``). Such
+    clusters touch in the image but lie on two strands at two depths: where a raw mask lost
+    the pixels of a crossing, an X becomes two touching turns, > and <, whose clusters are
+    each other's only neighbours (generated crossing frames: 6 px of disparity over 8 px).
+    A junction's own disparity is either strand's (its pixels are both's): its edges stay.
+    ``pos``: (K, 2) keypoints, px; ``disp``: (K,) their median disparities, px (NaN: no
+    match, never a break)."""
+    if not len(edges):
+        return edges, edges[:0]
+    degree = np.bincount(edges.ravel(), minlength=K)
+    a, b = edges[:, 0], edges[:, 1]
+    dist = np.hypot(*(pos[a] - pos[b]).T)
+    jump = np.abs(disp[a] - disp[b]) > DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
+    cut = jump & (degree[a] <= 2) & (degree[b] <= 2)
+    return edges[~cut], edges[cut]
+
+
+def _across_breaks(
+    walk: np.ndarray, n: int, visited: np.ndarray, g: _WalkGraph, p: OrderingParams
+) -> tuple[list[int], np.ndarray, int, list[str]]:
+    """The unvisited neighbours of the walk's keypoint across a depth break, at tier 0's
+    cost (:func:`_continuations`' last resort: a thread whose depth the stereo got wrong on
+    a stretch is still one thread)."""
+    cur = int(walk[n - 1])
+    cand = [v for v in g.broken[cur] if not visited[v]]
+    if not cand:
+        return [], np.zeros(0), 0, []
+    back = int(walk[n - 3] if n >= 3 else walk[0])
+    heading = g.pos[cur] - g.pos[back]
+    hn = float(np.hypot(*heading))
+    c = np.array(cand)
+    chord = g.pos[c] - g.pos[cur]
+    dist = np.maximum(np.hypot(chord[:, 0], chord[:, 1]), 1e-9)
+    cos_t = (chord @ heading) / (dist * hn) if hn > 0 else np.ones(len(c))
+    ref = _ref_disparity(walk, n, g)
+    cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(
+        g.disp[c] - ref
+    )
+    return cand, cost, 0, [""] * len(cand)
 
 
 def _ref_disparity(walk: np.ndarray, n: int, g: _WalkGraph) -> float:
