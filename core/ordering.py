@@ -1013,11 +1013,14 @@ def _depth_breaks(
     edges: np.ndarray, pos: np.ndarray, disp: np.ndarray, K: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """(kept, broken) edges of A: an edge between two keypoints that are no junction (degree
-    <= 2 in A) is broken where their disparities differ by more than one strand's depth can
-    change over their distance (``DISPARITY_SLACK_PX + DISPARITY_SLOPE * distance``). Such
-    clusters touch in the image but lie on two strands at two depths: where a raw mask lost
-    the pixels of a crossing, an X becomes two touching turns, > and <, whose clusters are
-    each other's only neighbours (generated crossing frames: 6 px of disparity over 8 px).
+    <= 2 in A) is broken where the disparities on its two sides differ by more than one
+    strand's depth can change over their distance (``DISPARITY_SLACK_PX + DISPARITY_SLOPE *
+    distance``). Such clusters touch in the image but lie on two strands at two depths: where
+    a raw mask lost the pixels of a crossing, an X becomes two touching turns, > and <, whose
+    clusters are each other's only neighbours (generated crossing frames: 6 px of disparity
+    over 8 px). A side's disparity is the median over its first ``BREAK_SIDE`` keypoints
+    along its chain (no junction): one cluster matched wrong (a hairpin's legs: 11 px against
+    33 px on both sides) is an outlier of its strand, not a second strand, and breaks nothing.
     A junction's own disparity is either strand's (its pixels are both's): its edges stay.
     ``pos``: (K, 2) keypoints, px; ``disp``: (K,) their median disparities, px (NaN: no
     match, never a break)."""
@@ -1026,9 +1029,33 @@ def _depth_breaks(
     degree = np.bincount(edges.ravel(), minlength=K)
     a, b = edges[:, 0], edges[:, 1]
     dist = np.hypot(*(pos[a] - pos[b]).T)
-    jump = np.abs(disp[a] - disp[b]) > DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
-    cut = jump & (degree[a] <= 2) & (degree[b] <= 2)
+    bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
+    cut = (np.abs(disp[a] - disp[b]) > bound) & (degree[a] <= 2) & (degree[b] <= 2)
+    if not cut.any():
+        return edges, edges[:0]
+    adj = _adjacency(K, edges)
+    for i in np.flatnonzero(cut).tolist():
+        u, v = int(a[i]), int(b[i])
+        side_u = np.median(disp[_chain_away(u, v, adj, degree, BREAK_SIDE)])
+        side_v = np.median(disp[_chain_away(v, u, adj, degree, BREAK_SIDE)])
+        cut[i] = abs(side_u - side_v) > bound[i]
     return edges[~cut], edges[cut]
+
+
+BREAK_SIDE = 5  # keypoints per side of a depth break: the median outvotes two wrong clusters
+
+
+def _chain_away(u: int, v: int, adj: list[list[int]], degree: np.ndarray, n: int) -> list[int]:
+    """Up to ``n`` keypoints from ``u`` along its chain away from its neighbour ``v``, through
+    keypoints of degree <= 2 (a junction ends it)."""
+    out, prev = [u], v
+    while len(out) < n and degree[out[-1]] == 2:
+        nxt = adj[out[-1]][0] if adj[out[-1]][0] != prev else adj[out[-1]][1]
+        if degree[nxt] > 2 or nxt == u:
+            break
+        prev = out[-1]
+        out.append(nxt)
+    return out
 
 
 def _across_breaks(
