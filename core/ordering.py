@@ -236,7 +236,9 @@ def order_keypoints(
     disp = _cluster_median(clusters.labels, stereo.disparity, K)
     broken = edges[:0]
     if p.walk == "bending":  # two strands touching where the mask lost their crossing
-        edges, broken = _depth_breaks(edges, clusters.keypoints_px[:, :2], disp, K)
+        edges, broken = _depth_breaks(
+            edges, clusters.keypoints_px[:, :2], disp, K, _cos_deg(p.max_turn_deg)
+        )
     adj = _adjacency(K, edges)
     if p.walk == "greedy":
         walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
@@ -1010,7 +1012,7 @@ def _jumps(
 
 
 def _depth_breaks(
-    edges: np.ndarray, pos: np.ndarray, disp: np.ndarray, K: int
+    edges: np.ndarray, pos: np.ndarray, disp: np.ndarray, K: int, cos_max: float = 0.5
 ) -> tuple[np.ndarray, np.ndarray]:
     """(kept, broken) edges of A: an edge between two keypoints that are no junction (degree
     <= 2 in A) is broken where the disparities on its two sides differ by more than one
@@ -1021,6 +1023,10 @@ def _depth_breaks(
     over 8 px). A side's disparity is the median over its first ``BREAK_SIDE`` keypoints
     along its chain (no junction): one cluster matched wrong (a hairpin's legs: 11 px against
     33 px on both sides) is an outlier of its strand, not a second strand, and breaks nothing.
+    And both strands must go on beyond the touch (:func:`_continues`): each side's chain,
+    followed through its end keypoint, points (within ``acos(cos_max)``) at another keypoint
+    of its own disparity, as a crossing's four arms do; a stretch matched wrong (a hairpin
+    whose bend four clusters match at 11 px, hard suite 8130 #6) leads nowhere at its depth.
     A junction's own disparity is either strand's (its pixels are both's): its edges stay.
     ``pos``: (K, 2) keypoints, px; ``disp``: (K,) their median disparities, px (NaN: no
     match, never a break)."""
@@ -1036,10 +1042,41 @@ def _depth_breaks(
     adj = _adjacency(K, edges)
     for i in np.flatnonzero(cut).tolist():
         u, v = int(a[i]), int(b[i])
-        side_u = np.median(disp[_chain_away(u, v, adj, degree, BREAK_SIDE)])
-        side_v = np.median(disp[_chain_away(v, u, adj, degree, BREAK_SIDE)])
-        cut[i] = abs(side_u - side_v) > bound[i]
+        chain_u = _chain_away(u, v, adj, degree, BREAK_SIDE)
+        chain_v = _chain_away(v, u, adj, degree, BREAK_SIDE)
+        side_u, side_v = np.median(disp[chain_u]), np.median(disp[chain_v])
+        cut[i] = (
+            abs(side_u - side_v) > bound[i]
+            and _continues(chain_u, side_u, chain_v, pos, disp, cos_max)
+            and _continues(chain_v, side_v, chain_u, pos, disp, cos_max)
+        )
     return edges[~cut], edges[cut]
+
+
+def _continues(
+    chain: list[int],
+    side: float,
+    other: list[int],
+    pos: np.ndarray,
+    disp: np.ndarray,
+    cos_max: float,
+) -> bool:
+    """Some keypoint outside ``chain`` and ``other`` lies ahead of the chain's end keypoint
+    ``chain[0]`` (heading from ``chain[2]``, or its last, to it; the turn's cos >= ``cos_max``)
+    with a disparity within the depth-continuity bound of the chain's median ``side``."""
+    if len(chain) < 2:
+        return False
+    end = pos[chain[0]]
+    heading = end - pos[chain[min(2, len(chain) - 1)]]
+    hn = float(np.hypot(*heading))
+    if hn == 0:
+        return False
+    chord = pos - end
+    dist = np.maximum(np.hypot(chord[:, 0], chord[:, 1]), 1e-9)
+    ahead = (chord @ heading) / (dist * hn) >= cos_max
+    ahead &= np.abs(disp - side) <= DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
+    ahead[chain + other] = False
+    return bool(ahead.any())
 
 
 BREAK_SIDE = 5  # keypoints per side of a depth break: the median outvotes two wrong clusters
