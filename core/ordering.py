@@ -1005,7 +1005,12 @@ def _jumps(
             for i, v in enumerate(cand)
         ]
     )
-    ok = (turn_in <= 90.0) & (turn_out <= 90.0) & (turn_in + turn_out <= 2 * p.max_turn_deg)
+    import os  # EXPERIMENT
+
+    lim = 180.0 if os.environ.get("X_SUM") else 2 * p.max_turn_deg
+    ok = (turn_in <= 90.0) & (turn_out <= 90.0) & (turn_in + turn_out <= lim)
+    if os.environ.get("X_MID"):
+        ok &= np.array([sum(not visited[u] for u in adj[v]) <= 1 for v in cand])
     cost = np.where(ok, cost, np.inf)
     why = ["" if k else "turn across the gap" for k in ok]
     return cand, cost, 2, why
@@ -1023,10 +1028,14 @@ def _depth_breaks(
     over 8 px). A side's disparity is the median over its first ``BREAK_SIDE`` keypoints
     along its chain (no junction): one cluster matched wrong (a hairpin's legs: 11 px against
     33 px on both sides) is an outlier of its strand, not a second strand, and breaks nothing.
-    And both strands must go on beyond the touch (:func:`_continues`): each side's chain,
-    followed through its end keypoint, points (within ``acos(cos_max)``) at another keypoint
-    of its own disparity, as a crossing's four arms do; a stretch matched wrong (a hairpin
-    whose bend four clusters match at 11 px, hard suite 8130 #6) leads nowhere at its depth.
+    And both strands must go on beyond the touch, each straighter than across it: each
+    side's chain, followed through its end keypoint, points at another keypoint of its own
+    disparity (:func:`_ahead_cos`) with a turn under ``acos(cos_max)`` (``max_turn_deg``) and
+    under the turn from one chain onto the other (:func:`_turn_cos`), as a crossing's arms
+    do. A stretch matched wrong leads nowhere at its depth (a hairpin whose bend four
+    clusters match at 11 px, hard suite 8130 #6), or runs on straight where the strand does
+    (a spiral's turn matched to the next turn, 55 px among 37 px, hard suite 8130 #6 too):
+    neither is a second strand.
     A junction's own disparity is either strand's (its pixels are both's): its edges stay.
     ``pos``: (K, 2) keypoints, px; ``disp``: (K,) their median disparities, px (NaN: no
     match, never a break)."""
@@ -1045,38 +1054,49 @@ def _depth_breaks(
         chain_u = _chain_away(u, v, adj, degree, BREAK_SIDE)
         chain_v = _chain_away(v, u, adj, degree, BREAK_SIDE)
         side_u, side_v = np.median(disp[chain_u]), np.median(disp[chain_v])
-        cut[i] = (
-            abs(side_u - side_v) > bound[i]
-            and _continues(chain_u, side_u, chain_v, pos, disp, cos_max)
-            and _continues(chain_v, side_v, chain_u, pos, disp, cos_max)
+        if abs(side_u - side_v) <= bound[i]:
+            cut[i] = False
+            continue
+        ahead = min(
+            _ahead_cos(chain_u, side_u, chain_v, pos, disp),
+            _ahead_cos(chain_v, side_v, chain_u, pos, disp),
         )
+        cut[i] = ahead >= cos_max and ahead > _turn_cos(chain_u, chain_v, pos)
     return edges[~cut], edges[cut]
 
 
-def _continues(
-    chain: list[int],
-    side: float,
-    other: list[int],
-    pos: np.ndarray,
-    disp: np.ndarray,
-    cos_max: float,
-) -> bool:
-    """Some keypoint outside ``chain`` and ``other`` lies ahead of the chain's end keypoint
-    ``chain[0]`` (heading from ``chain[2]``, or its last, to it; the turn's cos >= ``cos_max``)
-    with a disparity within the depth-continuity bound of the chain's median ``side``."""
+def _turn_cos(chain_u: list[int], chain_v: list[int], pos: np.ndarray) -> float:
+    """cos of the turn of a path that comes along ``chain_u`` to its end keypoint and leaves
+    along ``chain_v`` from its end (each chain's direction over up to two steps); 1 (no turn)
+    for a chain of one keypoint."""
+    if len(chain_u) < 2 or len(chain_v) < 2:
+        return 1.0
+    come = pos[chain_u[0]] - pos[chain_u[min(2, len(chain_u) - 1)]]
+    leave = pos[chain_v[min(2, len(chain_v) - 1)]] - pos[chain_v[0]]
+    n = float(np.hypot(*come)) * float(np.hypot(*leave))
+    return 1.0 if n == 0 else float(come @ leave) / n
+
+
+def _ahead_cos(
+    chain: list[int], side: float, other: list[int], pos: np.ndarray, disp: np.ndarray
+) -> float:
+    """The largest cos of the turn from the direction of ``chain`` at its end keypoint
+    ``chain[0]`` (from ``chain[2]``, or its last, to it) to a keypoint outside ``chain`` and
+    ``other`` whose disparity lies within the depth-continuity bound of the chain's median
+    ``side``; -inf where there is none (or the chain has one keypoint)."""
     if len(chain) < 2:
-        return False
+        return -np.inf
     end = pos[chain[0]]
     heading = end - pos[chain[min(2, len(chain) - 1)]]
     hn = float(np.hypot(*heading))
     if hn == 0:
-        return False
+        return -np.inf
     chord = pos - end
     dist = np.maximum(np.hypot(chord[:, 0], chord[:, 1]), 1e-9)
-    ahead = (chord @ heading) / (dist * hn) >= cos_max
-    ahead &= np.abs(disp - side) <= DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
-    ahead[chain + other] = False
-    return bool(ahead.any())
+    cos = (chord @ heading) / (dist * hn)
+    same = np.abs(disp - side) <= DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
+    same[chain + other] = False
+    return float(cos[same].max()) if same.any() else -np.inf
 
 
 BREAK_SIDE = 5  # keypoints per side of a depth break: the median outvotes two wrong clusters

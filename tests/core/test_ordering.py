@@ -642,3 +642,21 @@ def test_a_strand_whose_tail_is_matched_wrong_stays_whole() -> None:
         [ids["k0"]], [], None, _WalkGraph.of(_adjacency(K, kept), pos, disp), OrderingParams()
     )
     assert walk == [ids[f"k{i}"] for i in range(10)]
+
+
+def test_a_straight_strand_whose_depth_steps_is_not_broken() -> None:
+    # A spiral's turn matched to the next turn (55 px among 37 px, hard suite 8130 #6): both
+    # sides have keypoints of their own disparity ahead (the other turns), but the strand runs
+    # on straight across the step: one strand, not two touching.
+    xy = {f"k{i}": (6.0 * i, 0.0) for i in range(10)} | {"p": (90.0, 4.0), "q": (-40.0, 0.0)}
+    d = {n: 37.0 for n in xy} | {f"k{i}": 55.0 for i in range(5, 10)} | {"q": 55.0}
+    pairs = [(f"k{i}", f"k{i + 1}") for i in range(9)]
+    ids, edges, pos, disp = _graph(xy, d, pairs)
+    kept, broken = _depth_breaks(edges, pos, disp, len(ids))
+    assert broken.shape == (0, 2) and np.array_equal(kept, edges)
+    # Bent into a V at the step, the same chains are two strands.
+    for i in range(5, 10):
+        pos[ids[f"k{i}"]] = (24.0 + 0.3 * (i - 4), 6.0 * (i - 4))
+    pos[ids["q"]] = (24.5, -30.0)
+    kept, broken = _depth_breaks(edges, pos, disp, len(ids))
+    assert broken.tolist() == [[ids["k4"], ids["k5"]]]
