@@ -244,7 +244,8 @@ def order_keypoints(
     if p.walk == "greedy":
         walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
     else:
-        wg = _WalkGraph.of(adj, clusters.keypoints_px[:, :2], disp, _adjacency(K, broken))
+        across = _adjacency(K, broken) if len(broken) else None
+        wg = _WalkGraph.of(adj, clusters.keypoints_px[:, :2], disp, across)
         walk = _bending_walk(wg, p)
 
     links = cluster_gaps.shared(walk)
