@@ -108,7 +108,7 @@ class OrderingParams(Params):
         lo=0.0,
         hi=180.0,
         unit="deg",
-        label="max turn at a jump",
+        label="max turn at a crossing",
         doc="A step through a crossing turns by at most this (unless nothing else is left); "
         "two touching strands at two depths are broken apart only where each goes on ahead "
         "within this (walk=bending). A jump over a gap turns in and out by at most 90 deg each.",
