@@ -45,6 +45,11 @@ OUTLIER_PX = 2.0  # a pixel > 2 px of disparity from its cluster's median is ano
 MAX_WALKS = 24  # walks tried per frame (ends, then runner-up turns of the best): bounded time
 _NO_END_DISPARITY = np.array([[np.nan, np.inf], [np.nan, np.inf]])  # no end matched
 MAX_REJECTED = 4  # rejected continuations kept per decision: a jump may see dozens, few matter
+# Depth continuity along one strand: two of its keypoints d px apart in the image differ in
+# disparity by at most DISPARITY_SLACK_PX + DISPARITY_SLOPE * d (slope <= B/Z: the thread at
+# 45 deg to the image plane; the slack covers the clusters' median disparities' noise).
+DISPARITY_SLACK_PX = 1.0
+DISPARITY_SLOPE = 0.1
 
 
 @dataclass(frozen=True)
@@ -104,9 +109,10 @@ class OrderingParams(Params):
         lo=0.0,
         hi=180.0,
         unit="deg",
-        label="max turn at a jump",
-        doc="A step through a crossing turns by at most this (unless nothing else is left); a "
-        "jump over a gap turns in and out by at most twice this together (walk=bending).",
+        label="max turn at a crossing",
+        doc="A step through a crossing turns by at most this (unless nothing else is left); "
+        "two touching strands at two depths are broken apart only where each goes on ahead "
+        "within this (walk=bending). A jump over a gap turns in and out by at most 90 deg each.",
     )
 
 
@@ -229,12 +235,18 @@ def order_keypoints(
     edges = _edges(cc, cg)
 
     pos = clusters.keypoints_px[:, :2] if p.metric == "image" else clusters.keypoints
-    adj = _adjacency(K, edges)
     disp = _cluster_median(clusters.labels, stereo.disparity, K)
+    broken = edges[:0]
+    if p.walk == "bending":  # two strands touching where the mask lost their crossing
+        edges, broken = _depth_breaks(
+            edges, clusters.keypoints_px[:, :2], disp, K, _cos_deg(p.max_turn_deg)
+        )
+    adj = _adjacency(K, edges)
     if p.walk == "greedy":
         walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
     else:
-        wg = _WalkGraph.of(adj, clusters.keypoints_px[:, :2], disp)
+        across = _adjacency(K, broken) if len(broken) else None
+        wg = _WalkGraph.of(adj, clusters.keypoints_px[:, :2], disp, across)
         walk = _bending_walk(wg, p)
 
     links = cluster_gaps.shared(walk)
@@ -860,9 +872,18 @@ class _WalkGraph:
     )
     """(K,) int64, float64, float64 buffers that :func:`_continuations` hands to the kernel
     (one walk at a time uses them; what it returns is copied out)."""
+    broken: list[list[int]] = field(default_factory=list)
+    """Per keypoint, its neighbours whose edge :func:`_depth_breaks` took out of A (empty
+    lists, or no list at all, where none was): the walk's last resort."""
 
     @classmethod
-    def of(cls, adj: list[list[int]], pos: np.ndarray, disp: np.ndarray) -> _WalkGraph:
+    def of(
+        cls,
+        adj: list[list[int]],
+        pos: np.ndarray,
+        disp: np.ndarray,
+        broken: list[list[int]] | None = None,
+    ) -> _WalkGraph:
         K = len(adj)
         indptr = np.zeros(K + 1, dtype=np.int64)
         indptr[1:] = np.cumsum([len(a) for a in adj])
@@ -874,6 +895,7 @@ class _WalkGraph:
             np.ascontiguousarray(pos, dtype=np.float64),
             np.ascontiguousarray(disp, dtype=np.float64),
             (np.empty(K, np.int64), np.empty(K), np.empty(K)),
+            broken if broken is not None and any(broken) else [],
         )
 
 
@@ -959,7 +981,9 @@ def _continuations(
     strand of a crossing; a turn of more than ``max_turn_deg`` only when nothing else is left:
     a touching turn); 2, unvisited keypoints within ``bridge_px`` whose disparity agrees and whose piece
     continues the same way (across an occlusion or a break in the segmentation): the turn into
-    the jump and the turn out of it at most 90 deg each and ``2 max_turn_deg`` together.
+    the jump and the turn out of it at most 90 deg each.
+    Last, when no jump is left either: the unvisited neighbours across a depth break
+    (:func:`_depth_breaks`), at tier 0's cost, reported as tier 0.
 
     ``walk[:n]``: the path so far ((K,) int64 buffer). Tiers 0 and 1 are computed by
     :func:`walk_kernel.step_costs` (the walk's own kernel), tier 2 here."""
@@ -978,6 +1002,19 @@ def _continuations(
         if tier == 1 and np.isinf(cost).any():
             why = ["" if c >= cos_max else "turn > max_turn_deg" for c in cos_buf[:m]]
         return cand_buf[:m].tolist(), cost, tier, why
+    cand, cost, tier, why = _jumps(walk, n, visited, g, p)
+    if g.broken and not np.isfinite(cost).any():
+        across = _across_breaks(walk, n, visited, g, p)
+        if across[0]:
+            return across
+    return cand, cost, tier, why
+
+
+def _jumps(
+    walk: np.ndarray, n: int, visited: np.ndarray, g: _WalkGraph, p: OrderingParams
+) -> tuple[list[int], np.ndarray, int, list[str]]:
+    """Tier 2 of :func:`_continuations`: the jumps across a gap."""
+    tier = 2
     if p.bridge_px <= 0:
         return [], np.zeros(0), tier, []
     pos, disp, adj = g.pos, g.disp, g.adj
@@ -992,7 +1029,7 @@ def _continuations(
         free = np.flatnonzero(~visited)
         d = np.linalg.norm(pos[free] - pos[cur], axis=1)
         near = d <= p.bridge_px
-        near &= np.abs(disp[free] - ref) <= 1.0 + 0.1 * d  # depth agrees (slope <= B/Z)
+        near &= np.abs(disp[free] - ref) <= DISPARITY_SLACK_PX + DISPARITY_SLOPE * d
         cand = [int(v) for v in free[near]]
     if not cand:
         return [], np.zeros(0), tier, []
@@ -1003,7 +1040,8 @@ def _continuations(
     # less), the operations of walk_kernel.step_costs
     cos_t = (chord[:, 0] * heading[0] + chord[:, 1] * heading[1]) / dist
     cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(disp[c] - ref)
-    # across a gap: turn in + turn out <= 2 max_turn_deg, each <= 90 deg
+    # across a gap: turn in and turn out each <= 90 deg (the hidden stretch heads from each
+    # end towards the other; a bend under an occluder may add up to 180 deg)
     turn_in = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
     # the turn out only where the turn in leaves the jump possible (else it decides nothing)
     turn_out = np.array(
@@ -1012,10 +1050,133 @@ def _continuations(
             for i, v in enumerate(cand)
         ]
     )
-    ok = (turn_in <= 90.0) & (turn_out <= 90.0) & (turn_in + turn_out <= 2 * p.max_turn_deg)
+    ok = (turn_in <= 90.0) & (turn_out <= 90.0)
     cost = np.where(ok, cost, np.inf)
     why = ["" if k else "turn across the gap" for k in ok]
     return cand, cost, 2, why
+
+
+def _depth_breaks(
+    edges: np.ndarray, pos: np.ndarray, disp: np.ndarray, K: int, cos_max: float = 0.5
+) -> tuple[np.ndarray, np.ndarray]:
+    """(kept, broken) edges of A: an edge between two keypoints that are no junction (degree
+    <= 2 in A) is broken where the disparities on its two sides differ by more than one
+    strand's depth can change over their distance (``DISPARITY_SLACK_PX + DISPARITY_SLOPE *
+    distance``). Such clusters touch in the image but lie on two strands at two depths: where
+    a raw mask lost the pixels of a crossing, an X becomes two touching turns, > and <, whose
+    clusters are each other's only neighbours (generated crossing frames: 6 px of disparity
+    over 8 px). A side's disparity is the median over its first ``BREAK_SIDE`` keypoints
+    along its chain (no junction): one cluster matched wrong (a hairpin's legs: 11 px against
+    33 px on both sides) is an outlier of its strand, not a second strand, and breaks nothing.
+    And both strands must go on beyond the touch, each straighter than across it: each
+    side's chain, followed through its end keypoint, points at another keypoint of its own
+    disparity (:func:`_ahead_cos`) with a turn under ``acos(cos_max)`` (``max_turn_deg``) and
+    under the turn from one chain onto the other (:func:`_turn_cos`), as a crossing's arms
+    do. A stretch matched wrong leads nowhere at its depth (a hairpin whose bend four
+    clusters match at 11 px, hard suite 8130 #6), or runs on straight where the strand does
+    (a spiral's turn matched to the next turn, 55 px among 37 px, hard suite 8130 #6 too):
+    neither is a second strand.
+    A junction's own disparity is either strand's (its pixels are both's): its edges stay.
+    ``pos``: (K, 2) keypoints, px; ``disp``: (K,) their median disparities, px (NaN: no
+    match, never a break)."""
+    if not len(edges):
+        return edges, edges[:0]
+    degree = np.bincount(edges.ravel(), minlength=K)
+    a, b = edges[:, 0], edges[:, 1]
+    dist = np.hypot(*(pos[a] - pos[b]).T)
+    bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
+    cut = (np.abs(disp[a] - disp[b]) > bound) & (degree[a] <= 2) & (degree[b] <= 2)
+    if not cut.any():
+        return edges, edges[:0]
+    adj = _adjacency(K, edges)
+    for i in np.flatnonzero(cut).tolist():
+        u, v = int(a[i]), int(b[i])
+        chain_u = _chain_away(u, v, adj, degree, BREAK_SIDE)
+        chain_v = _chain_away(v, u, adj, degree, BREAK_SIDE)
+        side_u, side_v = np.median(disp[chain_u]), np.median(disp[chain_v])
+        if abs(side_u - side_v) <= bound[i]:
+            cut[i] = False
+            continue
+        ahead = min(
+            _ahead_cos(chain_u, side_u, chain_v, pos, disp),
+            _ahead_cos(chain_v, side_v, chain_u, pos, disp),
+        )
+        cut[i] = ahead >= cos_max and ahead > _turn_cos(chain_u, chain_v, pos)
+    return edges[~cut], edges[cut]
+
+
+def _turn_cos(chain_u: list[int], chain_v: list[int], pos: np.ndarray) -> float:
+    """cos of the turn of a path that comes along ``chain_u`` to its end keypoint and leaves
+    along ``chain_v`` from its end (each chain's direction over up to two steps); 1 (no turn)
+    for a chain of one keypoint."""
+    if len(chain_u) < 2 or len(chain_v) < 2:
+        return 1.0
+    come = pos[chain_u[0]] - pos[chain_u[min(2, len(chain_u) - 1)]]
+    leave = pos[chain_v[min(2, len(chain_v) - 1)]] - pos[chain_v[0]]
+    n = float(np.hypot(*come)) * float(np.hypot(*leave))
+    return 1.0 if n == 0 else float(come @ leave) / n
+
+
+def _ahead_cos(
+    chain: list[int], side: float, other: list[int], pos: np.ndarray, disp: np.ndarray
+) -> float:
+    """The largest cos of the turn from the direction of ``chain`` at its end keypoint
+    ``chain[0]`` (from ``chain[2]``, or its last, to it) to a keypoint outside ``chain`` and
+    ``other`` whose disparity lies within the depth-continuity bound of the chain's median
+    ``side``; -inf where there is none (or the chain has one keypoint)."""
+    if len(chain) < 2:
+        return -np.inf
+    end = pos[chain[0]]
+    heading = end - pos[chain[min(2, len(chain) - 1)]]
+    hn = float(np.hypot(*heading))
+    if hn == 0:
+        return -np.inf
+    chord = pos - end
+    dist = np.maximum(np.hypot(chord[:, 0], chord[:, 1]), 1e-9)
+    cos = (chord @ heading) / (dist * hn)
+    same = np.abs(disp - side) <= DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
+    same[chain + other] = False
+    return float(cos[same].max()) if same.any() else -np.inf
+
+
+BREAK_SIDE = 5  # keypoints per side of a depth break: the median outvotes two wrong clusters
+
+
+def _chain_away(u: int, v: int, adj: list[list[int]], degree: np.ndarray, n: int) -> list[int]:
+    """Up to ``n`` keypoints from ``u`` along its chain away from its neighbour ``v``, through
+    keypoints of degree <= 2 (a junction ends it)."""
+    out, prev = [u], v
+    while len(out) < n and degree[out[-1]] == 2:
+        nxt = adj[out[-1]][0] if adj[out[-1]][0] != prev else adj[out[-1]][1]
+        if degree[nxt] > 2 or nxt == u:
+            break
+        prev = out[-1]
+        out.append(nxt)
+    return out
+
+
+def _across_breaks(
+    walk: np.ndarray, n: int, visited: np.ndarray, g: _WalkGraph, p: OrderingParams
+) -> tuple[list[int], np.ndarray, int, list[str]]:
+    """The unvisited neighbours of the walk's keypoint across a depth break, at tier 0's
+    cost (:func:`_continuations`' last resort: a thread whose depth the stereo got wrong on
+    a stretch is still one thread)."""
+    cur = int(walk[n - 1])
+    cand = [v for v in g.broken[cur] if not visited[v]]
+    if not cand:
+        return [], np.zeros(0), 0, []
+    back = int(walk[n - 3] if n >= 3 else walk[0])
+    heading = g.pos[cur] - g.pos[back]
+    hn = float(np.hypot(*heading))
+    c = np.array(cand)
+    chord = g.pos[c] - g.pos[cur]
+    dist = np.maximum(np.hypot(chord[:, 0], chord[:, 1]), 1e-9)
+    cos_t = (chord @ heading) / (dist * hn) if hn > 0 else np.ones(len(c))
+    ref = _ref_disparity(walk, n, g)
+    cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(
+        g.disp[c] - ref
+    )
+    return cand, cost, 0, [""] * len(cand)
 
 
 def _ref_disparity(walk: np.ndarray, n: int, g: _WalkGraph) -> float:
