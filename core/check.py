@@ -133,10 +133,7 @@ class CheckParams(Params):
     )  # fmt: skip
     solver_suspect: bool = param(
         True, label="solver failure is suspect",
-        doc="A rejected MVS solution (the initial spline is shown) makes the curve suspect "
-        "when that fallback leaves its depth bounds by more than bound_tol (inside them it is "
-        "judged by the evidence like any curve: 5 of 5 such flags were on right curves, "
-        "sessions 9-10; the solver's status stays in the evidence).",
+        doc="A rejected MVS solution (the initial spline is shown) makes the curve suspect.",
     )  # fmt: skip
     jump_px: float = param(
         3.0, lo=0.0, unit="px", slider=(0.0, 20.0, 0.5), label="off-thread distance",
@@ -688,14 +685,10 @@ def _check(
     # Bound excursions of the returned spline and the solver's status.
     zs = _spline_z(spline)
     excursion = _excursion(spline, bounds, zs)
-    # A rejected solve leaves the initial spline, held to the same evidence as any curve; it
-    # is suspect for the rejection itself only when it leaves its depth bounds (Eq. (7)).
-    if not spline.ok and p.solver_suspect and not excursion <= p.bound_tol:
+    if not spline.ok and p.solver_suspect:
         findings.append(
             ("suspect", f"the MVS solver's result was rejected ({spline.status}: "
-             f"{spline.message}); the curve shown is the initial spline (fallback), which "
-             f"leaves its depth bounds by {excursion:.2f} of the half-width (limit "
-             f"{p.bound_tol:g})")
+             f"{spline.message}); the curve shown is the initial spline (fallback)")
         )  # fmt: skip
 
     # Ordering anomalies (2): crossings of the thread pixels, overlaps the pixels do not show.
