@@ -205,13 +205,16 @@ def covered_by(px, curve, r2):  # noqa: ANN001
     return out
 
 
-@kernel("float64[::1](int64[::1], int64[::1], float64, float64, float64[:, ::1], float64)")
-def band_d2(cols, row_ptr, ox, oy, xy, r):  # noqa: ANN001
+@kernel("float64[::1](int64[::1], int64[::1], float64, float64, float64[:, ::1], float64, float64)")
+def band_d2(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
     """Squared distances to the polyline ``xy`` (m, 2) of the thread pixels within ``r`` of it.
     The thread pixels by rows: row i holds the columns ``cols[row_ptr[i]:row_ptr[i + 1]]``
     (ascending); pixel (i, j) is the point (j + ox, i + oy). Per run of 8 consecutive segments,
     only the thread pixels of the run's bounding box grown by ``r`` are measured (the geometric
-    band that a polyline drawn 2 r wide approximates)."""
+    band that a polyline drawn 2 r wide approximates). A pixel is not measured further once a
+    segment lies within sqrt(``done``) of it: its value is then at most ``done`` but not
+    necessarily the least (exact with ``done`` = 0; counts of values <= any T >= ``done``
+    are exact either way)."""
     h = len(row_ptr) - 1
     m = len(xy)
     inf = np.inf
@@ -244,8 +247,10 @@ def band_d2(cols, row_ptr, ox, oy, xy, r):  # noqa: ANN001
             for q in range(a, row_ptr[i + 1]):
                 if cols[q] > jhi:
                     break
-                x = cols[q] + ox
                 b = best[q]
+                if b <= done:
+                    continue
+                x = cols[q] + ox
                 for k in range(c0, c1):
                     px, py = x - seg[k, 0], y - seg[k, 1]
                     dx, dy = seg[k, 2], seg[k, 3]
@@ -255,6 +260,8 @@ def band_d2(cols, row_ptr, ox, oy, xy, r):  # noqa: ANN001
                     d2 = ex * ex + ey * ey
                     if d2 < b:
                         b = d2
+                        if b <= done:
+                            break
                 best[q] = b
     r2 = r * r
     n = 0

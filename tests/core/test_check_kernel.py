@@ -10,12 +10,14 @@ import numpy as np
 from threadrecon.core import check_kernel
 
 
-def band_d2(mask: np.ndarray, ox: float, oy: float, xy: np.ndarray, r: float) -> np.ndarray:
+def band_d2(
+    mask: np.ndarray, ox: float, oy: float, xy: np.ndarray, r: float, done: float = 0.0
+) -> np.ndarray:
     """The kernel on a mask's thread pixels by rows (as check._crop lists them)."""
     rows, cols = np.nonzero(mask)
     row_ptr = np.searchsorted(rows, np.arange(mask.shape[0] + 1)).astype(np.int64)
     xy = np.ascontiguousarray(xy, dtype=np.float64)
-    return check_kernel.band_d2(cols.astype(np.int64), row_ptr, ox, oy, xy, r)
+    return check_kernel.band_d2(cols.astype(np.int64), row_ptr, ox, oy, xy, r, done)
 
 
 def _direct(mask: np.ndarray, ox: float, oy: float, xy: np.ndarray, r: float) -> np.ndarray:
@@ -37,6 +39,22 @@ def test_band_distances_are_the_pixels_distance_to_the_polyline() -> None:
     for ox, oy, r in ((0.0, 0.0, 4.5), (-7.0, 5.0, 2.5), (3.0, -2.0, 9.5)):
         got = np.sort(band_d2(mask, ox, oy, np.ascontiguousarray(xy), r))
         np.testing.assert_allclose(got, _direct(mask, ox, oy, xy, r), rtol=1e-12, atol=1e-12)
+
+
+def test_band_counts_at_or_above_the_stop_distance_are_exact() -> None:
+    """With ``done`` > 0 a pixel stops at the first segment within sqrt(done): the set of
+    pixels and every count below a threshold T >= done stay those of the exact distances."""
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        mask = (rng.random((70, 90)) < 0.35).astype(np.uint8)
+        xy = np.ascontiguousarray(np.cumsum(rng.normal(0, 2.5, (60, 2)), axis=0) + [45, 35])
+        r, done = 11.5, float(rng.choice([0.0, 3.5**2, 6.5**2]))
+        exact = band_d2(mask, -3.0, 2.0, xy, r)
+        fast = band_d2(mask, -3.0, 2.0, xy, r, done)
+        assert len(fast) == len(exact)
+        for T in (done, done + 0.5, 5.5**2, 9.5**2, r * r):
+            if done <= T:
+                assert np.count_nonzero(fast <= T) == np.count_nonzero(exact <= T)
 
 
 def test_band_counts_agree_with_a_drawn_thick_polyline() -> None:
