@@ -73,8 +73,9 @@ def to_camera(
     elif p.mode == "refit":
         n_fit = max(p.n_points, 8 * len(spline.ctrl))
         u = np.linspace(0.0, 1.0, n_fit)
-        dense = image_to_camera(BSpline.construct_fast(knots, spline.ctrl, k)(u), calib.G)
-        ctrl = _refit(knots, k, u).solve(dense)
+        refit = _refit(knots, k, u)
+        dense = image_to_camera(refit.B @ spline.ctrl, calib.G)  # S(u): the refit's basis
+        ctrl = refit.solve(dense)
         if n_fit == p.n_points:  # the same samples
             points = dense
         else:
