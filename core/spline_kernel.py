@@ -278,3 +278,72 @@ def refine_knots(xy, u, t, k, tol, rounds, min_points, penalty):  # noqa: ANN001
         if not (math.isfinite(c[i, 0]) and math.isfinite(c[i, 1])):
             return t.copy(), c, 1
     return tx, c, 0
+
+
+@kernel(
+    "Tuple((float64[:, ::1], float64[:, ::1], int64))(float64[::1], int64, float64[:, ::1], "
+    "int64, float64[:, ::1], float64)"
+)
+def camera_refit(t, k, ctrl, n, G_inv, cond_floor):  # noqa: ANN001
+    """``camera.to_camera``'s refit: the spline (t, ``ctrl`` (m, 3) in (x px, y px, z)) at n
+    uniform u in [0, 1] (as np.linspace), each sample mapped to the camera frame by Eq. (9)
+    (z ``G_inv`` [x, y, 1]), and the control points (m, 3) of the least-squares fit of those
+    points on the same knots: the normal equations B^T B c = B^T p with B banded, by a banded
+    Cholesky factorisation. Returns (control points, points, 0), or status 1 when the factor's
+    diagonal ratio is below ``cond_floor`` or not positive (the caller solves by SVD)."""
+    m = t.size - k - 1
+    h = np.empty(k + 1)
+    hh = np.empty(k + 1)
+    pts = np.empty((n, 3))
+    M = np.zeros((m, m))
+    rhs = np.zeros((m, 3))
+    step = 1.0 / (n - 1) if n > 1 else 0.0
+    for i in range(n):
+        u = i * step + 0.0 if i < n - 1 else 1.0
+        f = _nonzero(u, t, k, m, h, hh)
+        x = 0.0
+        y = 0.0
+        z = 0.0
+        for a in range(k + 1):
+            x += h[a] * ctrl[f + a, 0]
+            y += h[a] * ctrl[f + a, 1]
+            z += h[a] * ctrl[f + a, 2]
+        for d in range(3):
+            pts[i, d] = (G_inv[d, 0] * x + G_inv[d, 1] * y + G_inv[d, 2]) * z
+        for a in range(k + 1):
+            va = h[a]
+            for d in range(3):
+                rhs[f + a, d] += va * pts[i, d]
+            for e in range(k + 1):
+                M[f + a, f + e] += va * h[e]
+    c = np.empty((m, 3))
+    dmin = np.inf
+    dmax = 0.0
+    for j in range(m):  # M = L L^T inside the band (L in the lower triangle of M)
+        s = M[j, j]
+        for q in range(max(0, j - k), j):
+            s -= M[j, q] * M[j, q]
+        if not s > 0.0:
+            return c, pts, 1
+        s = math.sqrt(s)
+        dmin, dmax = min(dmin, s), max(dmax, s)
+        M[j, j] = s
+        for i in range(j + 1, min(m, j + k + 1)):
+            v = M[i, j]
+            for q in range(max(0, i - k), j):
+                v -= M[i, q] * M[j, q]
+            M[i, j] = v / s
+    if not dmin > cond_floor * dmax:
+        return c, pts, 1
+    for d in range(3):
+        for i in range(m):  # L y = rhs
+            v = rhs[i, d]
+            for q in range(max(0, i - k), i):
+                v -= M[i, q] * c[q, d]
+            c[i, d] = v / M[i, i]
+        for i in range(m - 1, -1, -1):  # L^T c = y
+            v = c[i, d]
+            for q in range(i + 1, min(m, i + k + 1)):
+                v -= M[q, i] * c[q, d]
+            c[i, d] = v / M[i, i]
+    return c, pts, 0
