@@ -647,30 +647,30 @@ class _Problem:
         b = b0 + d
         r, J = self.residual(b)
         F = float(r @ r)
-        JtJ = J.T @ J
+        JtJ, g = J.T @ J, J.T @ r
         scale_h = np.trace(JtJ) / m + 1e-12
         mu, nu = LM_MU0 * scale_h, 2.0
         diag = np.arange(m) * (m + 1)  # the diagonal's flat indices
+        mvs = self.mvs
         for it in range(1, max_iter + 1):
-            g = J.T @ r
             Hq = 2.0 * JtJ  # 2 (J^T J + mu I)
             Hq.flat[diag] += 2.0 * mu
             d, flag = self._qp(Hq, 2.0 * g, b, C, upper, lower, sense)
             if flag not in (1, 2):
                 word = _DAQP_FLAGS.get(flag, f"exit flag {flag}")
                 return _Solution(b, "solver_failed", f"QP (DAQP) {word} at step {it}", it)
-            Jd = J @ d
-            pred = -(2.0 * float(r @ Jd) + float(Jd @ Jd))  # model decrease of F
-            if pred <= GN_FTOL * max(F, 1.0) or float(np.abs(self.A @ d).max()) < GN_STEP_TOL:
+            # the model decrease of F, the stop tests and the residuals at b + d (compiled)
+            stop, pred, b_t, r_t, J_t, F_t, JtJ_t, g_t = spline_kernel.gn_trial(
+                *mvs.B, mvs.sqrt_wq, self.J_d, self.c_d, float(self.scale), J, r, self.A, b, d,
+                GN_FTOL * max(F, 1.0), GN_STEP_TOL,
+            )  # fmt: skip
+            if stop:
                 return _Solution(b, "ok", f"converged in {it} Gauss-Newton steps", it)
-            r_t, J_t = self.residual(b + d)
-            F_t = float(r_t @ r_t)
             rho = (F - F_t) / pred
             if rho > 0:  # accept; Nielsen's damping update
-                b, r, J = b + d, r_t, J_t
+                b, r, J, JtJ, g = b_t, r_t, J_t, JtJ_t, g_t
                 done = F - F_t <= GN_FTOL * max(F, 1.0)
                 F = F_t
-                JtJ = J.T @ J
                 mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
                 if done:

@@ -12,9 +12,12 @@ a 1920x1080 frame's x, y spline.
 
 ``mvs_residual`` is ``spline._Mvs.residual_jac`` and ``mvs_value`` its ``value``: the same
 formulas node by node (a few hundred flops on a 14-column problem, where numpy spent ~45 us in
-its calls); ``refine_knots`` is ``spline._refine_xy``'s rounds of penalised fits and span
-splits on the basis in banded form (k + 1 non-zeros a row), the normal equations by a banded
-Cholesky factorisation. Both sum in another order than numpy and LAPACK: equal to rounding.
+its calls); ``gn_trial`` is the part of a Gauss-Newton step of ``spline._Problem.solve`` after
+its QP (model decrease, stop tests, residuals, J^T J and J^T r at the trial point);
+``refine_knots`` is ``spline._refine_xy``'s rounds of penalised fits and span splits on the
+basis in banded form (k + 1 non-zeros a row), the normal equations by a banded Cholesky
+factorisation; ``camera_refit`` is ``camera.to_camera``'s least-squares refit the same way.
+They sum in another order than numpy and LAPACK: equal to rounding.
 """
 
 from __future__ import annotations
@@ -347,3 +350,54 @@ def camera_refit(t, k, ctrl, n, G_inv, cond_floor):  # noqa: ANN001
                 v -= M[q, i] * c[q, d]
             c[i, d] = v / M[i, i]
     return c, pts, 0
+
+
+@kernel(
+    "Tuple((int64, float64, float64[::1], float64[::1], float64[:, ::1], float64, "
+    "float64[:, ::1], float64[::1]))(float64[:, ::1], float64[:, ::1], float64[:, ::1], "
+    "float64[::1], float64[:, ::1], float64[::1], float64, float64[:, ::1], float64[::1], "
+    "float64[:, ::1], float64[::1], float64[::1], float64, float64)"
+)
+def gn_trial(B1, B2, B3, sqrt_wq, J_d, c_d, scale, J, r, A, b, d, f_stop, step_tol):  # noqa: ANN001
+    """One Gauss-Newton trial step d from b of ``spline._Problem.solve``: the model decrease
+    pred = -(2 r.Jd + |Jd|^2); stop (1) when pred <= ``f_stop`` or max |A d| < ``step_tol``;
+    else (0) the residuals at b + d (:func:`mvs_residual`), their sum of squares, J^T J and
+    J^T r there. Returns (stop, pred, b + d, r, J, F, J^T J, J^T r)."""
+    n, m = J.shape
+    pred = 0.0
+    rJd = 0.0
+    JdJd = 0.0
+    for i in range(n):
+        v = 0.0
+        for j in range(m):
+            v += J[i, j] * d[j]
+        rJd += r[i] * v
+        JdJd += v * v
+    pred = -(2.0 * rJd + JdJd)
+    step = 0.0
+    for i in range(A.shape[0]):
+        v = 0.0
+        for j in range(m):
+            v += A[i, j] * d[j]
+        step = max(step, abs(v))
+    empty1 = np.empty(0)
+    empty2 = np.empty((0, 0))
+    if pred <= f_stop or step < step_tol:
+        return 1, pred, empty1, empty1, empty2, 0.0, empty2, empty1
+    bt = b + d
+    rt, Jt = mvs_residual(B1, B2, B3, sqrt_wq, J_d, c_d, bt, scale)
+    F = 0.0
+    for i in range(rt.size):
+        F += rt[i] * rt[i]
+    JtJ = np.zeros((m, m))
+    g = np.zeros(m)
+    for i in range(rt.size):
+        for a in range(m):
+            va = Jt[i, a]
+            g[a] += va * rt[i]
+            for e in range(a, m):
+                JtJ[a, e] += va * Jt[i, e]
+    for a in range(m):
+        for e in range(a):
+            JtJ[a, e] = JtJ[e, a]
+    return 0, pred, bt, rt, Jt, F, JtJ, g
