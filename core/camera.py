@@ -16,6 +16,7 @@ import numpy as np
 import scipy.linalg
 from scipy.interpolate import BSpline
 
+from threadrecon.core import spline_kernel
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.lru import LRU
 from threadrecon.core.params import Params, param
@@ -72,9 +73,19 @@ def to_camera(
         points = BSpline.construct_fast(knots, ctrl, k)(np.linspace(0.0, 1.0, p.n_points))
     elif p.mode == "refit":
         n_fit = max(p.n_points, 8 * len(spline.ctrl))
-        u = np.linspace(0.0, 1.0, n_fit)
-        dense = image_to_camera(BSpline.construct_fast(knots, spline.ctrl, k)(u), calib.G)
-        ctrl = _refit(knots, k, u).solve(dense)
+        ctrl, dense, status = spline_kernel.camera_refit(
+            np.ascontiguousarray(knots, dtype=np.float64),
+            int(k),
+            np.ascontiguousarray(spline.ctrl, dtype=np.float64),
+            int(n_fit),
+            np.linalg.inv(np.asarray(calib.G, dtype=np.float64)),
+            COND_FLOOR,
+        )  # compiled: S(u) mapped by Eq. (9) and refitted, the basis banded
+        if status:  # an ill-conditioned refit: SVD least squares
+            u = np.linspace(0.0, 1.0, n_fit)
+            refit = _refit(knots, k, u)
+            dense = image_to_camera(refit.B @ spline.ctrl, calib.G)  # S(u): the refit's basis
+            ctrl = refit.solve(dense)
         if n_fit == p.n_points:  # the same samples
             points = dense
         else:

@@ -927,7 +927,9 @@ def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> 
     poly = np.rint(xy * 4) / 4  # as drawn with 2 fractional bits
     length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
     widest = int(np.ceil(cover_px + BAND_PX)) + 1.5
-    d2 = band_d2(v.cols, v.row_ptr, float(v.bx - v.x0), float(v.by - v.y0), poly, widest)
+    # counted below two bands, both at least this one: values under it need not be least
+    done = (min(int(np.ceil(cover_px)), BAND_PX) + 1.5) ** 2  # reach >= ceil(cover_px)
+    d2 = band_d2(v.cols, v.row_ptr, float(v.bx - v.x0), float(v.by - v.y0), poly, widest, done)
     band = float(np.count_nonzero(d2 <= (BAND_PX + 1.5) ** 2))
     half = min(0.5 * band / max(length, 1.0), BAND_PX)
     reach = int(np.ceil(cover_px + half))

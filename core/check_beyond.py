@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from threadrecon.core.check_field import derived, piece_index
-from threadrecon.core.check_kernel import covered_by
+from threadrecon.core.check_kernel import cone_pixels, covered_by
 
 END_SAMPLES = 8  # curve samples over which an end's outward direction is taken
 MIN_PIECE_PX = 12  # a piece spans at least this many px (smaller: segmentation speckle)
@@ -144,36 +144,21 @@ def _cone(
     """Thread pixels (k, 2) within ``radius`` of the tip, within acos(cos) of its way and more
     than ``cover_px`` along it, that no curve sample covers (farther than ``cover_px``), and
     their distance along the way: a cheap superset of any piece beyond the end."""
-    h, w = mask.shape
-    half = math.acos(min(max(cos, -1.0), 1.0))
-    a0 = math.atan2(way[1], way[0])
-    xs, ys = [float(tip[0])], [float(tip[1])]
-    for k in range(9):  # the fan's outline: the tip and 9 points on its arc
-        a = a0 + half * (k / 4.0 - 1.0)
-        xs.append(tip[0] + radius * math.cos(a))
-        ys.append(tip[1] + radius * math.sin(a))
-    x0 = max(int(math.floor(min(xs))) - FAN_MARGIN_PX, 0)
-    y0 = max(int(math.floor(min(ys))) - FAN_MARGIN_PX, 0)
-    x1 = min(int(math.ceil(max(xs))) + FAN_MARGIN_PX + 1, w)
-    y1 = min(int(math.ceil(max(ys))) + FAN_MARGIN_PX + 1, h)
-    if x1 <= x0 or y1 <= y0:
-        return np.zeros((0, 2)), np.zeros(0)
-    nz = cv2.findNonZero(np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8))
-    if nz is None:
-        return np.zeros((0, 2)), np.zeros(0)
-    px = nz.reshape(-1, 2).astype(np.float64) + [x0, y0]
-    rel = px - tip
-    dist = np.hypot(rel[:, 0], rel[:, 1])
-    along = rel @ way
-    keep = (dist <= radius) & (along >= cos * dist) & (along > cover_px)
-    px, along = px[keep], along[keep]
-    if not len(px):
-        return px, along
-    near = curve[np.hypot(*(curve - tip).T) <= radius + cover_px]
-    if not len(near):
-        return px, along
-    free = ~covered_by(px, np.ascontiguousarray(near), float(cover_px) ** 2)
-    return px[free], along[free]
+    if not math.isfinite(radius):
+        raise ValueError(f"the search radius beyond an end is not finite ({radius})")
+    m = mask if mask.flags.c_contiguous else np.ascontiguousarray(mask)
+    return cone_pixels(
+        np.ascontiguousarray(curve, dtype=np.float64),
+        float(tip[0]),
+        float(tip[1]),
+        float(way[0]),
+        float(way[1]),
+        m.view(np.uint8),
+        float(radius),
+        float(cos),
+        float(cover_px),
+        FAN_MARGIN_PX,
+    )  # compiled (check_kernel.cone_pixels): the box's pixels tested in one pass
 
 
 def _beyond(

@@ -7,6 +7,9 @@ the curve (``check._overlap``), by a sweep over the samples sorted by x. ``field
 distance field of a thread mask read at the curve's points (``MaskField.at``). ``band_d2``:
 the thread pixels' distances to the projected curve for the coverage (``check._coverage``:
 the geometric band, no longer drawn as a thick polyline, so not bit-identical to the drawing).
+``cone_pixels``: the uncovered thread pixels in the fan beyond a curve's end
+(``check_beyond._cone``: one pass over the fan's box instead of cv2.findNonZero and numpy
+filters; its distance along the way equal to rounding, as numpy's matrix product sums).
 """
 
 from __future__ import annotations
@@ -202,13 +205,16 @@ def covered_by(px, curve, r2):  # noqa: ANN001
     return out
 
 
-@kernel("float64[::1](int64[::1], int64[::1], float64, float64, float64[:, ::1], float64)")
-def band_d2(cols, row_ptr, ox, oy, xy, r):  # noqa: ANN001
+@kernel("float64[::1](int64[::1], int64[::1], float64, float64, float64[:, ::1], float64, float64)")
+def band_d2(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
     """Squared distances to the polyline ``xy`` (m, 2) of the thread pixels within ``r`` of it.
     The thread pixels by rows: row i holds the columns ``cols[row_ptr[i]:row_ptr[i + 1]]``
     (ascending); pixel (i, j) is the point (j + ox, i + oy). Per run of 8 consecutive segments,
     only the thread pixels of the run's bounding box grown by ``r`` are measured (the geometric
-    band that a polyline drawn 2 r wide approximates)."""
+    band that a polyline drawn 2 r wide approximates). A pixel is not measured further once a
+    segment lies within sqrt(``done``) of it: its value is then at most ``done`` but not
+    necessarily the least (exact with ``done`` = 0; counts of values <= any T >= ``done``
+    are exact either way)."""
     h = len(row_ptr) - 1
     m = len(xy)
     inf = np.inf
@@ -241,8 +247,10 @@ def band_d2(cols, row_ptr, ox, oy, xy, r):  # noqa: ANN001
             for q in range(a, row_ptr[i + 1]):
                 if cols[q] > jhi:
                     break
-                x = cols[q] + ox
                 b = best[q]
+                if b <= done:
+                    continue
+                x = cols[q] + ox
                 for k in range(c0, c1):
                     px, py = x - seg[k, 0], y - seg[k, 1]
                     dx, dy = seg[k, 2], seg[k, 3]
@@ -252,6 +260,8 @@ def band_d2(cols, row_ptr, ox, oy, xy, r):  # noqa: ANN001
                     d2 = ex * ex + ey * ey
                     if d2 < b:
                         b = d2
+                        if b <= done:
+                            break
                 best[q] = b
     r2 = r * r
     n = 0
@@ -264,4 +274,93 @@ def band_d2(cols, row_ptr, ox, oy, xy, r):  # noqa: ANN001
         if best[q] <= r2:
             out[n] = best[q]
             n += 1
+    return out
+
+
+@kernel(
+    "Tuple((float64[:, ::1], float64[::1]))(float64[:, ::1], float64, float64, float64, float64, "
+    "uint8[:, ::1], float64, float64, float64, int64)"
+)
+def cone_pixels(curve, tx, ty, wx, wy, mask, radius, cos, cover_px, margin):  # noqa: ANN001
+    """``check_beyond._cone``: the thread pixels (x, y) of ``mask`` within ``radius`` of the
+    tip (tx, ty), within acos(cos) of the unit way (wx, wy) and more than ``cover_px`` along
+    it, farther than ``cover_px`` from every sample of ``curve`` (m, 2), with their distance
+    along the way; searched in the box of the fan's outline (the tip and 9 points on its arc)
+    grown by ``margin`` px, row by row (cv2.findNonZero's order), with numpy's arithmetic."""
+    h, w = mask.shape
+    half = math.acos(min(max(cos, -1.0), 1.0))
+    a0 = math.atan2(wy, wx)
+    xmin, xmax, ymin, ymax = tx, tx, ty, ty
+    for k in range(9):  # the fan's outline
+        a = a0 + half * (k / 4.0 - 1.0)
+        x = tx + radius * math.cos(a)
+        y = ty + radius * math.sin(a)
+        xmin, xmax = min(xmin, x), max(xmax, x)
+        ymin, ymax = min(ymin, y), max(ymax, y)
+    x0 = max(int(math.floor(xmin)) - margin, 0)
+    y0 = max(int(math.floor(ymin)) - margin, 0)
+    x1 = min(int(math.ceil(xmax)) + margin + 1, w)
+    y1 = min(int(math.ceil(ymax)) + margin + 1, h)
+    reach = radius + cover_px
+    r2 = cover_px * cover_px
+    near = np.empty(len(curve), np.int64)  # the samples that may cover a pixel of the fan
+    n_near = 0
+    for j in range(len(curve)):
+        if math.hypot(curve[j, 0] - tx, curve[j, 1] - ty) <= reach:
+            near[n_near] = j
+            n_near += 1
+    px = np.empty((max((x1 - x0) * (y1 - y0), 0), 2))
+    along = np.empty(px.shape[0])
+    n = 0
+    for y in range(y0, y1):
+        for x in range(x0, x1):
+            if mask[y, x] == 0:
+                continue
+            rx = float(x) - tx
+            ry = float(y) - ty
+            dist = math.hypot(rx, ry)
+            al = rx * wx + ry * wy
+            if not (dist <= radius and al >= cos * dist and al > cover_px):
+                continue
+            covered = False
+            for q in range(n_near):
+                j = near[q]
+                dx = float(x) - curve[j, 0]
+                dy = float(y) - curve[j, 1]
+                if dx * dx + dy * dy <= r2:
+                    covered = True
+                    break
+            if covered:
+                continue
+            px[n, 0] = x
+            px[n, 1] = y
+            along[n] = al
+            n += 1
+    return px[:n].copy(), along[:n].copy()
+
+
+@kernel("boolean[::1](int64[:, ::1], boolean[::1], float64[::1], float32[:, ::1], int64, float64)")
+def window_contradicted(q, ok, disp, img, near, tol):  # noqa: ANN001
+    """``check_support.contradicted`` per point: point i (``ok[i]``) at pixel ``q[i]`` (x, y)
+    of the image ``img`` (h, w) of reliable disparities (NaN: none) has a reliable pixel in
+    its (2 ``near`` + 1)^2 window and none within ``tol`` of its disparity ``disp[i]``."""
+    h, w = img.shape
+    out = np.zeros(len(q), dtype=np.bool_)
+    for i in range(len(q)):
+        if not ok[i]:
+            continue
+        seen = False
+        agrees = False
+        for y in range(q[i, 1] - near, q[i, 1] + near + 1):
+            if y < 0 or y >= h:
+                continue
+            for x in range(q[i, 0] - near, q[i, 0] + near + 1):
+                if x < 0 or x >= w:
+                    continue
+                v = np.float64(img[y, x])
+                if math.isfinite(v):
+                    seen = True
+                    if abs(v - disp[i]) <= tol:
+                        agrees = True
+        out[i] = seen and not agrees
     return out

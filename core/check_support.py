@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from threadrecon.core.check_field import derived
+from threadrecon.core.check_kernel import window_contradicted
 from threadrecon.core.reliability import ReliabilityResult
 from threadrecon.core.stereo import StereoResult
 
@@ -38,19 +39,11 @@ def contradicted(
     n = len(uv_l)
     if img.size == 0 or n == 0:
         return np.zeros(n, dtype=bool)
-    h, w = img.shape
     ok = np.all(np.isfinite(uv_l), axis=1) & np.isfinite(disp_curve)
     q = np.rint(np.where(ok[:, None], uv_l, -1e6)).astype(np.int64) - [x0, y0]
-    k = np.arange(-near_px, near_px + 1)
-    xs = q[:, 0, None, None] + k[None, None, :]  # (N, 1, K) columns
-    ys = q[:, 1, None, None] + k[None, :, None]  # (N, K, 1) rows
-    inside = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
-    d = img[np.clip(ys, 0, h - 1), np.clip(xs, 0, w - 1)]  # (N, K, K), NaN: no reliable pixel
-    d = np.where(inside, d, np.nan).reshape(n, -1)
-    seen = np.isfinite(d).any(axis=1)
-    with np.errstate(invalid="ignore"):
-        agrees = (np.abs(d - disp_curve[:, None]) <= tol_px).any(axis=1)
-    return ok & seen & ~agrees
+    disp = np.ascontiguousarray(disp_curve, dtype=np.float64)
+    # compiled: the window of each point read in place (numpy built (N, K, K) index arrays)
+    return window_contradicted(q, ok, disp, img, int(near_px), float(tol_px))
 
 
 def _image(stereo: StereoResult, rel: ReliabilityResult) -> tuple[int, int, np.ndarray]:

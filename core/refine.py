@@ -376,7 +376,10 @@ class _Stereo:
             self.bad = (iR >= 0) & (np.abs(cL - cR - d_H) > _tolerance(lL, lR))
         self.n_L = runs_L.count(rows)  # same_rank requires as many in the right view
         self.result: tuple[np.ndarray, np.ndarray] | None = None
-        if not (self.n_L >= 3).any():  # no coil point, whatever d_run (exact)
+        self.coil: tuple[np.ndarray, ...] | None = None  # the coil test's curve-free part
+        if (self.n_L >= 3).any():
+            self.coil = _coil_pairs(self, runs_L, runs_R)
+        else:  # no coil point, whatever d_run (exact)
             out, shared = _sections(self, runs_L, runs_R, None)
             out.setflags(write=False)
             shared.setflags(write=False)
@@ -387,26 +390,12 @@ def _sections(
     pre: _Stereo, runs_L: _Runs, runs_R: _Runs, d_run: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_mismatched` from its cached part ``pre``."""
-    rows, iL, cL, lL, d_H, bad, n_L = pre.rows, pre.iL, pre.cL, pre.lL, pre.d_H, pre.bad, pre.n_L
+    rows, bad = pre.rows, pre.bad
     coil = np.zeros_like(bad)
-    if d_run is not None and d_run.size and (n_L >= 3).any():  # else no coil point (exact)
-        many = np.ones(runs_R.H, dtype=bool)
-        iR_n = runs_L.same_rank(runs_R, rows, iL, many)
-        on = (iR_n >= 0) & (n_L >= 3)
-        cR_n, lR_n = runs_R.at(np.where(on, iR_n, -1))
+    if d_run is not None and d_run.size and pre.coil is not None:  # else no coil point (exact)
+        taken, o, c_o, c_j = pre.coil
         with np.errstate(invalid="ignore"):
-            x_R = np.where(np.isfinite(d_H), cL - d_H, -1e9)
-            on &= np.abs(cL - cR_n - d_H) > _tolerance(lL, lR_n)
-        j = runs_R.nearest_index(rows, np.where(on, x_R, -1e9))
-        r = np.clip(rows, 0, runs_R.H - 1)
-        other = np.where(on & (j >= 0), runs_L.row_start[r] + (j - runs_R.row_start[r]), -1)
-        taken = on & (j >= 0) & (other != iL) & (other >= 0)
-        o = np.clip(other, 0, max(runs_L.centre.size - 1, 0))
-        c_o, _ = runs_L.at(np.where(taken, o, -1))
-        c_j, _ = runs_R.at(np.where(taken, j, -1))
-        with np.errstate(invalid="ignore"):
-            taken &= np.abs(c_o - c_j - d_run[o]) <= MISMATCH_PX
-        coil = taken
+            coil = taken & (np.abs(c_o - c_j - d_run[o]) <= MISMATCH_PX)
     # A strand matched to its neighbour is a section of consecutive points, not one point.
     both = bad | coil
     edges = np.flatnonzero(np.diff(np.concatenate([[0], both.astype(np.int8), [0]])))
@@ -419,6 +408,33 @@ def _sections(
                 lo, hi = int(rows[a:b].min()), int(rows[a:b].max())
                 shared[max(lo - 1, 0) : min(hi + 2, runs_R.H)] = True
     return out, shared
+
+
+def _coil_pairs(
+    pre: _Stereo, runs_L: _Runs, runs_R: _Runs
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What :func:`_sections` tests against the curve's own disparity ``d_run`` on rows of
+    three or more runs, computed once per stereo match (it does not depend on the curve):
+    the points whose stereo depth predicts the right run ``j`` that is the same-rank partner
+    of another left run ``o``, and the two runs' centres (read-only)."""
+    rows, iL, cL, lL, d_H, n_L = pre.rows, pre.iL, pre.cL, pre.lL, pre.d_H, pre.n_L
+    many = np.ones(runs_R.H, dtype=bool)
+    iR_n = runs_L.same_rank(runs_R, rows, iL, many)
+    on = (iR_n >= 0) & (n_L >= 3)
+    cR_n, lR_n = runs_R.at(np.where(on, iR_n, -1))
+    with np.errstate(invalid="ignore"):
+        x_R = np.where(np.isfinite(d_H), cL - d_H, -1e9)
+        on &= np.abs(cL - cR_n - d_H) > _tolerance(lL, lR_n)
+    j = runs_R.nearest_index(rows, np.where(on, x_R, -1e9))
+    r = np.clip(rows, 0, runs_R.H - 1)
+    other = np.where(on & (j >= 0), runs_L.row_start[r] + (j - runs_R.row_start[r]), -1)
+    taken = on & (j >= 0) & (other != iL) & (other >= 0)
+    o = np.clip(other, 0, max(runs_L.centre.size - 1, 0))
+    c_o, _ = runs_L.at(np.where(taken, o, -1))
+    c_j, _ = runs_R.at(np.where(taken, j, -1))
+    for a in (taken, o, c_o, c_j):
+        a.setflags(write=False)
+    return taken, o, c_o, c_j
 
 
 def _tolerance(l_L: np.ndarray, l_R: np.ndarray) -> np.ndarray:

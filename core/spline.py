@@ -357,47 +357,24 @@ def _adaptive_xy(
 def _refine_xy(
     xy: np.ndarray, u: np.ndarray, t: np.ndarray, k: int, tol: float
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    t_xy = t
-    fitted = None  # the fit on the current t_xy, when the loop ended without a split
-    for _ in range(XY_ROUNDS):
-        c, B = _penalised_fit(xy, u, t_xy, k)
-        miss = np.linalg.norm(B @ c - xy, axis=1)
-        edges = _distinct(t_xy)
-        span = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, len(edges) - 2)
-        worst = np.zeros(len(edges) - 1)
-        np.maximum.at(worst, span, miss)
-        count = np.bincount(span, minlength=len(edges) - 1)
-        split = (worst > tol) & (count >= XY_MIN_POINTS)
-        if not split.any():
-            fitted = c
-            break
-        t_xy = np.sort(np.concatenate([t_xy, 0.5 * (edges[:-1] + edges[1:])[split]]))
-    if len(t_xy) == len(t):
-        return t, None
-    c = fitted if fitted is not None else _penalised_fit(xy, u, t_xy, k)[0]
-    return (t_xy, c) if np.all(np.isfinite(c)) else (t, None)
-
-
-def _penalised_fit(
-    xy: np.ndarray, u: np.ndarray, t: np.ndarray, k: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Least squares with a small third-difference penalty on the control points (P-spline):
-    halved spans may hold only a few points of H, where plain least squares oscillates."""
-    m = len(t) - k - 1
-    B = basis_matrix(u, t, k)
-    BtB = B.T @ B
-    c = np.linalg.solve(BtB + XY_PENALTY * np.trace(BtB) / m * _third_difference_gram(m), B.T @ xy)
-    return c, B
-
-
-@functools.lru_cache(maxsize=64)
-def _third_difference_gram(m: int) -> np.ndarray:
-    """(m, m) D^T D of the third-difference matrix D ((m - 3, m)): integers, so computed once
-    per m with no rounding (read-only)."""
-    D = np.diff(np.eye(m), 3, axis=0)
-    out = D.T @ D
-    out.setflags(write=False)
-    return out
+    """Up to ``XY_ROUNDS`` rounds of a least-squares fit of S_x, S_y with a small
+    third-difference penalty on the control points (a P-spline: halved spans may hold only a few
+    points of H, where plain least squares oscillates; weight ``XY_PENALTY``) and of span
+    splits, compiled (:func:`spline_kernel.refine_knots`: the basis banded, the normal equations
+    by a banded Cholesky factorisation)."""
+    t_xy, c, status = spline_kernel.refine_knots(
+        np.ascontiguousarray(xy, dtype=np.float64),
+        np.ascontiguousarray(u, dtype=np.float64),
+        np.ascontiguousarray(t, dtype=np.float64),
+        int(k),
+        float(tol),
+        XY_ROUNDS,
+        XY_MIN_POINTS,
+        XY_PENALTY,
+    )
+    if status == 2:
+        raise np.linalg.LinAlgError("the penalised x, y fit's normal equations are singular")
+    return (t_xy, c) if status == 0 else (t, None)
 
 
 def _reexpress_matrix(t: np.ndarray, k: int, t_new: np.ndarray) -> np.ndarray:
@@ -526,7 +503,7 @@ class _Mvs:
         if derivs is None:
             derivs = _derivative_coefficients(t, k, 3)
         uq = _as_points(self.uq)  # (nq, m) each, orders 1, 2, 3 (basis_derivatives)
-        self.B = [BSpline.construct_fast(*tck)(uq) for tck in derivs]
+        self.B = [np.ascontiguousarray(BSpline.construct_fast(*tck)(uq)) for tck in derivs]
         self.sqrt_wq = np.sqrt(self.wq)
 
     def _terms(self, b: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -539,21 +516,23 @@ class _Mvs:
         return z1, z2, z3, g, kp, g15, g25
 
     def value(self, b: np.ndarray) -> float:
-        g, kp = self._terms(b)[3:5]
-        return float(np.sum(self.wq * kp * kp / np.sqrt(g)))
+        """Eq. (8) at b (compiled: :func:`spline_kernel.mvs_value`)."""
+        return spline_kernel.mvs_value(*self.B, self.wq, np.ascontiguousarray(b, np.float64))
 
-    def residual_jac(self, b: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
-        """rho, d rho / d b with scale * Eq. (8) = rho^T rho: rho_q = sqrt(w_q) kappa' g^-1/4."""
-        z1, z2, z3, g, kp, dk3, g25 = self._terms(b)  # dk3 = g^-1.5
-        sw = np.sqrt(scale) * self.sqrt_wq
-        q = g**-0.25
-        g35 = g**-3.5
-        dk1 = -3.0 * z1 * z3 * g25 - 3.0 * z2 * z2 * g25 + 15.0 * z1 * z1 * z2 * z2 * g35
-        dk2 = -6.0 * z1 * z2 * g25
-        j1 = sw * (dk1 * q - 0.5 * kp * z1 * q / g)
-        J = j1[:, None] * self.B[0] + (sw * dk2 * q)[:, None] * self.B[1]
-        J += (sw * dk3 * q)[:, None] * self.B[2]
-        return sw * kp * q, J
+    def residual_jac(
+        self,
+        b: np.ndarray,
+        scale: float,
+        J_d: np.ndarray | None = None,
+        c_d: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """rho, d rho / d b with scale * Eq. (8) = rho^T rho: rho_q = sqrt(w_q) kappa' g^-1/4
+        (compiled: :func:`spline_kernel.mvs_residual`); with a linear data term's Jacobian
+        ``J_d`` (P, m) and target ``c_d`` (P,), its residuals J_d b - c_d follow."""
+        if J_d is None or c_d is None:
+            J_d, c_d = np.zeros((0, len(b))), np.zeros(0)
+        b = np.ascontiguousarray(b, dtype=np.float64)
+        return spline_kernel.mvs_residual(*self.B, self.sqrt_wq, J_d, c_d, b, float(scale))
 
     def value_grad(self, b: np.ndarray, scale: float) -> tuple[float, np.ndarray]:
         z1, z2, z3, g, kp = self._terms(b)[:5]
@@ -618,14 +597,12 @@ class _Problem:
         hi: np.ndarray,
     ) -> None:
         self.mvs, self.scale = mvs, scale
-        self.Bd, self.sw, self.c = Bd, sqrt_wd, centre
         self.A, self.lo, self.hi = A, lo, hi
-        self.J_d = self.sw[:, None] * Bd  # the data term's Jacobian: linear, the same at every b
+        self.J_d = np.ascontiguousarray(sqrt_wd[:, None] * Bd)  # the data term's Jacobian
+        self.c_d = np.ascontiguousarray(sqrt_wd * centre)  # ... and target: rho_d = J_d b - c_d
 
     def residual(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r_m, J_m = self.mvs.residual_jac(b, self.scale)
-        r_d = self.sw * (self.Bd @ b - self.c)
-        return np.concatenate([r_m, r_d]), np.vstack([J_m, self.J_d])
+        return self.mvs.residual_jac(b, self.scale, self.J_d, self.c_d)
 
     def value(self, b: np.ndarray) -> float:
         r, _ = self.residual(b)
@@ -636,25 +613,28 @@ class _Problem:
         H: np.ndarray,
         f: np.ndarray,
         b: np.ndarray,
-        E: np.ndarray,
-        e: np.ndarray,
         C: np.ndarray,
+        upper: np.ndarray,
+        lower: np.ndarray,
         sense: np.ndarray,
     ) -> tuple[np.ndarray, int]:
-        """DAQP on the step d: min 0.5 d'Hd + f'd, lo <= A(b+d) <= hi, E(b+d) = e; ``C``, ``sense``:
-        the rows [A; E] and their kinds (:meth:`_constraints`, the same at every step)."""
-        Ab, Eb = self.A @ b, E @ b
-        upper = np.concatenate([self.hi - Ab, e - Eb])
-        lower = np.concatenate([self.lo - Ab, e - Eb])
-        d, _, flag, _ = daqp.solve(np.ascontiguousarray(H), f, C, upper, lower, sense)
+        """DAQP on the step d: min 0.5 d'Hd + f'd, lower <= C(b+d) <= upper; ``C``, ``upper``,
+        ``lower``, ``sense``: the rows [A; E], their limits and kinds (:meth:`_constraints`,
+        the same at every step)."""
+        Cb = C @ b
+        d, _, flag, _ = daqp.solve(H, f, C, upper - Cb, lower - Cb, sense)
         return np.asarray(d, dtype=np.float64), int(flag)
 
-    def _constraints(self, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The QP's constraint rows [A; E] (contiguous) and their DAQP kinds: bounds on A,
-        equalities (5) on E."""
+    def _constraints(
+        self, E: np.ndarray, e: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The QP's constraint rows [A; E] (contiguous), their upper and lower limits and their
+        DAQP kinds: bounds on A, equalities (5) on E."""
         C = np.ascontiguousarray(np.vstack([self.A, E]))
+        upper = np.concatenate([self.hi, e])
+        lower = np.concatenate([self.lo, e])
         sense = np.concatenate([np.zeros(len(self.A), np.int32), np.full(len(E), 5, np.int32)])
-        return C, sense
+        return C, upper, lower, sense
 
     def solve(self, b0: np.ndarray, E: np.ndarray, e: np.ndarray, max_iter: int) -> _Solution:
         m = b0.size
@@ -664,9 +644,9 @@ class _Problem:
             return _Solution(b0, "infeasible", msg, 0)
         # Step 0: a unit gradient step from b0 projected on the constraints (SLSQP's first QP,
         # identity Hessian); it lands on the feasible set, where the Gauss-Newton steps start.
-        C, sense = self._constraints(E)
+        C, upper, lower, sense = self._constraints(E, e)
         r0, J0 = self.residual(b0)
-        d, flag = self._qp(np.eye(m), 2.0 * (J0.T @ r0), b0, E, e, C, sense)
+        d, flag = self._qp(np.eye(m), 2.0 * (J0.T @ r0), b0, C, upper, lower, sense)
         if flag not in (1, 2):
             word = _DAQP_FLAGS.get(flag, f"exit flag {flag}")
             status: Status = "infeasible" if flag == -1 else "solver_failed"
@@ -674,28 +654,30 @@ class _Problem:
         b = b0 + d
         r, J = self.residual(b)
         F = float(r @ r)
-        JtJ = J.T @ J
+        JtJ, g = J.T @ J, J.T @ r
         scale_h = np.trace(JtJ) / m + 1e-12
         mu, nu = LM_MU0 * scale_h, 2.0
-        eye = np.eye(m)
+        diag = np.arange(m) * (m + 1)  # the diagonal's flat indices
+        mvs = self.mvs
         for it in range(1, max_iter + 1):
-            g = J.T @ r
-            d, flag = self._qp(2.0 * (JtJ + mu * eye), 2.0 * g, b, E, e, C, sense)
+            Hq = 2.0 * JtJ  # 2 (J^T J + mu I)
+            Hq.flat[diag] += 2.0 * mu
+            d, flag = self._qp(Hq, 2.0 * g, b, C, upper, lower, sense)
             if flag not in (1, 2):
                 word = _DAQP_FLAGS.get(flag, f"exit flag {flag}")
                 return _Solution(b, "solver_failed", f"QP (DAQP) {word} at step {it}", it)
-            Jd = J @ d
-            pred = -(2.0 * float(r @ Jd) + float(Jd @ Jd))  # model decrease of F
-            if pred <= GN_FTOL * max(F, 1.0) or float(np.max(np.abs(self.A @ d))) < GN_STEP_TOL:
+            # the model decrease of F, the stop tests and the residuals at b + d (compiled)
+            stop, pred, b_t, r_t, J_t, F_t, JtJ_t, g_t = spline_kernel.gn_trial(
+                *mvs.B, mvs.sqrt_wq, self.J_d, self.c_d, float(self.scale), J, r, self.A, b, d,
+                GN_FTOL * max(F, 1.0), GN_STEP_TOL,
+            )  # fmt: skip
+            if stop:
                 return _Solution(b, "ok", f"converged in {it} Gauss-Newton steps", it)
-            r_t, J_t = self.residual(b + d)
-            F_t = float(r_t @ r_t)
             rho = (F - F_t) / pred
             if rho > 0:  # accept; Nielsen's damping update
-                b, r, J = b + d, r_t, J_t
+                b, r, J, JtJ, g = b_t, r_t, J_t, JtJ_t, g_t
                 done = F - F_t <= GN_FTOL * max(F, 1.0)
                 F = F_t
-                JtJ = J.T @ J
                 mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
                 if done:

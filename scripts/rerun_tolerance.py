@@ -2,14 +2,15 @@
 below the third significant digit, never a status or a verdict).
 
     # once per code version (PYTHONPATH selects the package), then compare:
-    python scripts/rerun_tolerance.py write before.json DATA_DIR[,DATA_DIR...]
+    python scripts/rerun_tolerance.py write before.json DATA_DIR[,DATA_DIR...] [--set S.N=V]
     python scripts/rerun_tolerance.py compare before.json after.json [--tol 1e-3]
 
 Per frame: ``evaluate``'s CSV row (every column but the ms ones) of a full run, and the
 check's status, reasons and evidence after the spline re-run (n_ctrl - 1) and the run back
 on the same pipeline, as ``threadrecon bench`` and the debugger's sliders run them.
 ``compare`` requires identical strings (status, verdict, reasons) and numbers equal to the
-third significant digit, or, for e_S and the coverage, within ``--tol`` (absolute).
+third significant digit (or both below ``ZERO``: rounding residues of 0), or, for e_S and
+the coverage, within ``--tol`` (absolute).
 """
 
 from __future__ import annotations
@@ -24,12 +25,15 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
+from threadrecon.app.bench import with_overrides
 from threadrecon.app.dataset import discover, load_frame
 from threadrecon.app.evaluation import evaluate_frame
 from threadrecon.app.presets import resolve_preset
 from threadrecon.core.pipeline import Pipeline
 
 CLOSE = ("e_S", "coverage")  # compared within --tol (absolute) besides to 3 digits
+ZERO = 1e-9  # two values both below this are rounding residues of 0 (a bound excursion of
+# 1e-14 half-widths at an active constraint): equal, whatever their digits
 
 
 def _plain(v: Any) -> Any:
@@ -52,8 +56,8 @@ def _check(rec: Any) -> dict[str, Any]:
     return out
 
 
-def write(out: Path, roots: list[str], config: str) -> None:
-    params = resolve_preset(config)
+def write(out: Path, roots: list[str], config: str, overrides: list[str]) -> None:
+    params = with_overrides(resolve_preset(config), overrides)
     rows: dict[str, Any] = {}
     changed = replace(params, spline=replace(params.spline, n_ctrl=params.spline.n_ctrl - 1))
     for root in roots:
@@ -61,7 +65,11 @@ def write(out: Path, roots: list[str], config: str) -> None:
             key = f"{root}:{frame.id}"
             loaded = load_frame(frame)
             row, _ = evaluate_frame(frame, params, loaded)
-            entry = {k: _plain(v) for k, v in row.items() if not (k.startswith("ms_") or k.endswith("_ms"))}
+            entry = {
+                k: _plain(v)
+                for k, v in row.items()
+                if not (k.startswith("ms_") or k.endswith("_ms"))
+            }
             pair, calib, _ = loaded
             pipe = Pipeline(pair, calib, frame.corrections)
             pipe.run(params)
@@ -76,7 +84,7 @@ def _same(k: str, a: Any, b: Any, tol: float) -> bool:
     if isinstance(a, float) and isinstance(b, float):
         if math.isnan(a) or math.isnan(b):
             return math.isnan(a) and math.isnan(b)
-        if a == b:
+        if a == b or max(abs(a), abs(b)) < ZERO:
             return True
         if any(c in k for c in CLOSE) and abs(a - b) <= tol:
             return True
@@ -116,6 +124,7 @@ def main() -> int:
     w.add_argument("out", type=Path)
     w.add_argument("roots")
     w.add_argument("--config", default=None)
+    w.add_argument("--set", action="append", default=[], help="STAGE.NAME=VALUE (as bench)")
     c = sub.add_parser("compare")
     c.add_argument("before", type=Path)
     c.add_argument("after", type=Path)
@@ -123,7 +132,7 @@ def main() -> int:
     args = ap.parse_args()
     with threadpool_limits(1):
         if args.cmd == "write":
-            write(args.out, args.roots.split(","), args.config)
+            write(args.out, args.roots.split(","), args.config, args.set)
             return 0
         return compare(args.before, args.after, args.tol)
 

@@ -2,18 +2,22 @@
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
 from threadrecon.core import check_kernel
 
 
-def band_d2(mask: np.ndarray, ox: float, oy: float, xy: np.ndarray, r: float) -> np.ndarray:
+def band_d2(
+    mask: np.ndarray, ox: float, oy: float, xy: np.ndarray, r: float, done: float = 0.0
+) -> np.ndarray:
     """The kernel on a mask's thread pixels by rows (as check._crop lists them)."""
     rows, cols = np.nonzero(mask)
     row_ptr = np.searchsorted(rows, np.arange(mask.shape[0] + 1)).astype(np.int64)
     xy = np.ascontiguousarray(xy, dtype=np.float64)
-    return check_kernel.band_d2(cols.astype(np.int64), row_ptr, ox, oy, xy, r)
+    return check_kernel.band_d2(cols.astype(np.int64), row_ptr, ox, oy, xy, r, done)
 
 
 def _direct(mask: np.ndarray, ox: float, oy: float, xy: np.ndarray, r: float) -> np.ndarray:
@@ -37,6 +41,22 @@ def test_band_distances_are_the_pixels_distance_to_the_polyline() -> None:
         np.testing.assert_allclose(got, _direct(mask, ox, oy, xy, r), rtol=1e-12, atol=1e-12)
 
 
+def test_band_counts_at_or_above_the_stop_distance_are_exact() -> None:
+    """With ``done`` > 0 a pixel stops at the first segment within sqrt(done): the set of
+    pixels and every count below a threshold T >= done stay those of the exact distances."""
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        mask = (rng.random((70, 90)) < 0.35).astype(np.uint8)
+        xy = np.ascontiguousarray(np.cumsum(rng.normal(0, 2.5, (60, 2)), axis=0) + [45, 35])
+        r, done = 11.5, float(rng.choice([0.0, 3.5**2, 6.5**2]))
+        exact = band_d2(mask, -3.0, 2.0, xy, r)
+        fast = band_d2(mask, -3.0, 2.0, xy, r, done)
+        assert len(fast) == len(exact)
+        for T in (done, done + 0.5, 5.5**2, 9.5**2, r * r):
+            if done <= T:
+                assert np.count_nonzero(fast <= T) == np.count_nonzero(exact <= T)
+
+
 def test_band_counts_agree_with_a_drawn_thick_polyline() -> None:
     """The geometric band (centre within r + 1.5: OpenCV's rectangles of half-width r + 1 and
     discs of radius r + 1 for a line 2 r + 1 px wide, grown by the half pixel its filling
@@ -58,3 +78,57 @@ def test_band_of_pixels_far_from_the_curve_is_empty() -> None:
     assert band_d2(mask, 0.0, 0.0, xy, 3.0).size == 0
     one = np.array([[5.0, 5.0]])  # a single point: the disc around it
     assert len(band_d2(mask, 0.0, 0.0, one, 1.0)) == 5
+
+
+def _cone_numpy(curve, tip, way, mask, radius, cos, cover_px, margin=4):  # noqa: ANN001, ANN202
+    """check_beyond._cone as numpy and OpenCV ran it before the kernel."""
+    h, w = mask.shape
+    half = math.acos(min(max(cos, -1.0), 1.0))
+    a0 = math.atan2(way[1], way[0])
+    xs, ys = [float(tip[0])], [float(tip[1])]
+    for k in range(9):
+        a = a0 + half * (k / 4.0 - 1.0)
+        xs.append(tip[0] + radius * math.cos(a))
+        ys.append(tip[1] + radius * math.sin(a))
+    x0 = max(int(math.floor(min(xs))) - margin, 0)
+    y0 = max(int(math.floor(min(ys))) - margin, 0)
+    x1 = min(int(math.ceil(max(xs))) + margin + 1, w)
+    y1 = min(int(math.ceil(max(ys))) + margin + 1, h)
+    if x1 <= x0 or y1 <= y0:
+        return np.zeros((0, 2)), np.zeros(0)
+    nz = cv2.findNonZero(np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8))
+    if nz is None:
+        return np.zeros((0, 2)), np.zeros(0)
+    px = nz.reshape(-1, 2).astype(np.float64) + [x0, y0]
+    rel = px - tip
+    dist = np.hypot(rel[:, 0], rel[:, 1])
+    along = rel[:, 0] * way[0] + rel[:, 1] * way[1]
+    keep = (dist <= radius) & (along >= cos * dist) & (along > cover_px)
+    px, along = px[keep], along[keep]
+    near = curve[np.hypot(*(curve - tip).T) <= radius + cover_px]
+    if not len(px) or not len(near):
+        return px, along
+    d2 = ((px[:, None, :] - near[None, :, :]) ** 2).sum(2)
+    free = ~(d2 <= cover_px**2).any(1)
+    return px[free], along[free]
+
+
+def test_cone_pixels_are_the_fans_uncovered_thread_pixels() -> None:
+    """The compiled fan search beyond a curve's end against its numpy and OpenCV form: random
+    masks, tips inside and near the image's borders, every direction, narrow and wide fans."""
+    rng = np.random.default_rng(11)
+    for trial in range(120):
+        mask = rng.random((int(rng.integers(20, 90)), int(rng.integers(20, 90)))) < 0.3
+        h, w = mask.shape
+        tip = np.array([rng.uniform(-5, w + 5), rng.uniform(-5, h + 5)])
+        a = rng.uniform(-np.pi, np.pi)
+        way = np.array([np.cos(a), np.sin(a)])
+        curve = tip - np.outer(np.linspace(0, 30, 40), way) + rng.normal(0, 1.0, (40, 2))
+        radius, cos = float(rng.uniform(2.0, 40.0)), float(rng.choice([0.0, 0.7071, 0.866]))
+        cover = float(rng.uniform(0.5, 3.0))
+        want_px, want_al = _cone_numpy(curve, tip, way, mask, radius, cos, cover)
+        px, al = check_kernel.cone_pixels(
+            curve, tip[0], tip[1], way[0], way[1], mask.view(np.uint8), radius, cos, cover, 4
+        )
+        assert np.array_equal(px, want_px), trial
+        np.testing.assert_allclose(al, want_al, rtol=0, atol=1e-12)

@@ -39,3 +39,47 @@ def test_contradicted_handles_no_reliable_match_and_bad_points() -> None:
     assert not contradicted(stereo, rel, uv, np.array([3.0, 3.0]), 1, 1.0)[1]  # NaN point
     with pytest.raises(ValueError, match=r"\(N, 2\)"):
         contradicted(stereo, rel, np.zeros((3, 3)), np.zeros(3), 1, 1.0)
+
+
+def _contradicted_numpy(stereo, rel, uv, disp, near, tol):  # noqa: ANN001, ANN202
+    """contradicted as numpy ran it before the kernel: (N, K, K) windows gathered at once."""
+    from threadrecon.core.check_support import _image
+
+    x0, y0, img = _image(stereo, rel)
+    n = len(uv)
+    if img.size == 0 or n == 0:
+        return np.zeros(n, dtype=bool)
+    h, w = img.shape
+    ok = np.all(np.isfinite(uv), axis=1) & np.isfinite(disp)
+    q = np.rint(np.where(ok[:, None], uv, -1e6)).astype(np.int64) - [x0, y0]
+    k = np.arange(-near, near + 1)
+    xs = q[:, 0, None, None] + k[None, None, :]
+    ys = q[:, 1, None, None] + k[None, :, None]
+    inside = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
+    d = img[np.clip(ys, 0, h - 1), np.clip(xs, 0, w - 1)]
+    d = np.where(inside, d, np.nan).reshape(n, -1)
+    seen = np.isfinite(d).any(axis=1)
+    with np.errstate(invalid="ignore"):
+        agrees = (np.abs(d - disp[:, None]) <= tol).any(axis=1)
+    return ok & seen & ~agrees
+
+
+def test_compiled_windows_equal_the_numpy_windows() -> None:
+    """The compiled window test against the (N, K, K) numpy gather it replaced: random
+    reliable pixels and disparities, points inside, at and beyond the box, NaN points and
+    disparities, windows 0-3 px."""
+    rng = np.random.default_rng(2)
+    for _ in range(40):
+        m = int(rng.integers(1, 300))
+        xy = np.column_stack([rng.integers(20, 80, m), rng.integers(10, 60, m)])
+        stereo, rel = _matches([tuple(p) for p in xy], list(rng.uniform(5.0, 40.0, m)))
+        rel.reliable[:] = rng.random(m) < 0.8
+        n = int(rng.integers(0, 200))
+        uv = rng.uniform(0.0, 100.0, (n, 2))
+        disp = rng.uniform(5.0, 40.0, n)
+        if n > 4:
+            uv[0, 1], disp[1] = np.nan, np.nan
+        for near in range(4):
+            tol = float(rng.uniform(0.2, 5.0))
+            want = _contradicted_numpy(stereo, rel, uv, disp, near, tol)
+            assert np.array_equal(contradicted(stereo, rel, uv, disp, near, tol), want)
