@@ -399,3 +399,28 @@ def member_components(nb, member):  # noqa: ANN001
             root_label[r] = count
         label[i] = root_label[r]
     return label
+
+
+@kernel("boolean[::1](int64[::1], int64[::1], boolean[:, :], int64, int64)")
+def row_hits(x, y, P, tol, slack):  # noqa: ANN001
+    """(N,) bool: a pixel of ``P`` (H, W) bool on a row ``y[i]`` +- ``slack`` (inside the image)
+    and a column within ``tol`` of ``x[i]`` (the window clipped to the image): the test of
+    :func:`threadrecon.core.ends.seen_in_right`, a few pixels read per point instead of prefix
+    sums of whole image rows."""
+    H, W = P.shape
+    n = x.size
+    out = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        lo = min(max(x[i] - tol, 0), W)
+        hi = min(max(x[i] + tol + 1, 0), W)
+        for dy in range(-slack, slack + 1):
+            yy = y[i] + dy
+            if yy < 0 or yy >= H:
+                continue
+            for xx in range(lo, hi):
+                if P[yy, xx]:
+                    out[i] = True
+                    break
+            if out[i]:
+                break
+    return out
