@@ -424,3 +424,21 @@ def row_hits(x, y, P, tol, slack):  # noqa: ANN001
             if out[i]:
                 break
     return out
+
+
+@kernel("int32[:, ::1](int32[:, ::1], int64[::1], int64[::1])")
+def grid_neighbours(index, y, x):  # noqa: ANN001
+    """(N, 8) ``index`` at the 8 neighbours of each pixel (``y``, ``x``: rows and columns in
+    the index image, at least 1 px inside it), in the order of ``ordering._OFFSETS_8`` (rows
+    -1, 0, 1, columns -1, 0, 1 within each, the pixel itself left out): one pass, where eight
+    gathers and a stack were 0.1-0.3 ms a frame."""
+    n = y.size
+    out = np.empty((n, 8), dtype=np.int32)
+    for i in range(n):
+        k = 0
+        for dy in range(-1, 2):
+            for dx in range(-1, 2):
+                if dy != 0 or dx != 0:
+                    out[i, k] = index[y[i] + dy, x[i] + dx]
+                    k += 1
+    return out

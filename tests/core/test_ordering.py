@@ -549,3 +549,22 @@ def test_walk_passes_straight_through_a_crossing_split_over_two_junctions() -> N
         "a0", "a1", "a2", "a3", "e0", "e1", "l1", "l2", "l3", "l4", "n1", "n0", "s0", "s1",
     ]  # fmt: skip
     assert len(best) == len(ids)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_pixel_grid_neighbours_are_the_index_at_the_eight_offsets(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    mask = rng.random((int(rng.integers(1, 30)), int(rng.integers(1, 30)))) < rng.uniform(0.05, 1)
+    mask[0, 0] = True
+    ys, xs = np.nonzero(mask)
+    pixels = np.column_stack([xs, ys]).astype(rng.choice([np.int64, np.int32])) + 7
+    grid = _PixelGrid(pixels, int(rng.integers(1, 4)))
+    want = np.full((len(pixels), 8), -1, np.int64)
+    where = {(int(x), int(y)): i for i, (x, y) in enumerate(pixels)}
+    for i, (x, y) in enumerate(pixels):
+        for k, (dy, dx) in enumerate(_OFFSETS_8):
+            want[i, k] = where.get((int(x) + dx, int(y) + dy), -1)
+    got = grid.neighbours()
+    assert got.dtype == np.int32 and np.array_equal(got, want)
+    with pytest.raises(ValueError, match="padded by >= 1 px"):
+        _PixelGrid(pixels, 0).neighbours()
