@@ -36,6 +36,7 @@ import numpy as np
 from threadrecon.core import walk_kernel
 from threadrecon.core.clustering import Clusters
 from threadrecon.core.ends import seen_in_right, tip_disparity
+from threadrecon.core.lazy import Deferred, LazyField
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.stereo import StereoResult
@@ -185,7 +186,7 @@ class Ordering:
     pixel_node: np.ndarray
     pixel_t: np.ndarray
     pixel_link: np.ndarray
-    graph: OrderingGraph
+    graph: OrderingGraph = LazyField()  # type: ignore[assignment]  # built when read
     end_disparity: np.ndarray = field(default_factory=lambda: _NO_END_DISPARITY.copy())
 
     @functools.cached_property
@@ -308,11 +309,7 @@ def order_keypoints(
 
     kept = set(walk)
     dropped = np.array([k for k in range(K) if k not in kept], dtype=np.int64)
-    degree = np.array([len(a) for a in adj], dtype=np.int64)
-    decisions = (
-        _explain(walk, wg, p, offset=int(order[0] < 0)) if p.walk == "bending" and walk else ()
-    )
-    graph = OrderingGraph(_pieces(adj), np.flatnonzero(degree >= 3), decisions)
+    explain = (wg, int(order[0] < 0)) if p.walk == "bending" and walk else None
     return Ordering(
         pixels=stereo.pixels,
         image_shape=(H, W),
@@ -325,9 +322,22 @@ def order_keypoints(
         pixel_node=pixel_node,
         pixel_t=pixel_t,
         pixel_link=pixel_link,
-        graph=graph,
+        graph=Deferred(_graph, adj, walk, explain, p),  # no stage reads it: the debugger's
         end_disparity=end_disparity,
     )
+
+
+def _graph(
+    adj: list[list[int]],
+    walk: list[int],
+    explain: tuple[_WalkGraph, int] | None,
+    p: OrderingParams,
+) -> OrderingGraph:
+    """:class:`OrderingGraph` of A (``adj``) and the bending walk's decisions (``explain``:
+    its walk graph and the offset of the walk in the order; None: no decisions)."""
+    degree = np.array([len(a) for a in adj], dtype=np.int64)
+    decisions = _explain(walk, explain[0], p, offset=explain[1]) if explain is not None else ()
+    return OrderingGraph(_pieces(adj), np.flatnonzero(degree >= 3), decisions)
 
 
 def _edges(cc: np.ndarray, cg: np.ndarray) -> np.ndarray:

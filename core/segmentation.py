@@ -27,6 +27,7 @@ import numpy as np
 
 from threadrecon.core.compiled import kernel
 from threadrecon.core.instrument import drop_attached
+from threadrecon.core.lazy import Deferred, LazyField
 from threadrecon.core.params import Params, param
 from threadrecon.core.segment_raw import drop_specks, segment_raw
 
@@ -182,39 +183,6 @@ class SegmentationParams(Params):
     )
 
 
-class _Deferred:
-    """A field value computed on its first read: ``fn(*args)`` (:class:`_LazyField`)."""
-
-    __slots__ = ("args", "fn")
-
-    def __init__(self, fn: Callable[..., np.ndarray], *args: object) -> None:
-        self.fn, self.args = fn, args
-
-
-class _LazyField:
-    """A dataclass field (descriptor-typed: the generated ``__init__`` stores through
-    :meth:`__set__`, also on a frozen class) whose value may be given as a :class:`_Deferred`:
-    computed on the first read and kept. The threshold path's score maps, two full-image
-    float32 arrays that no stage reads, cost a table lookup and 2 x 1.2 MB of fresh memory per
-    640x480 frame (its page faults were most of the segment stage's time in a process whose
-    heap had shrunk), and now only when read."""
-
-    def __set_name__(self, owner: type, name: str) -> None:
-        self.slot = "_lazy_" + name
-
-    def __get__(self, obj: object, owner: type | None = None) -> np.ndarray | None:
-        if obj is None:
-            return None  # the field's default
-        value = obj.__dict__[self.slot]
-        if isinstance(value, _Deferred):
-            value = value.fn(*value.args)
-            obj.__dict__[self.slot] = value
-        return value
-
-    def __set__(self, obj: object, value: np.ndarray | _Deferred | None) -> None:
-        obj.__dict__[self.slot] = value
-
-
 @dataclass(frozen=True)
 class LiftedPair:
     """Eq. (1): ``I_L^lift``, ``I_R^lift`` as (H, W) float32, and the masks P_L, P_R (H, W) bool."""
@@ -227,10 +195,12 @@ class LiftedPair:
     grey_R: np.ndarray
     background: tuple[float, float]
     """Background level B of the left and right image (grey levels)."""
-    score_L: np.ndarray | None = _LazyField()  # type: ignore[assignment]
+    score_L: np.ndarray | None = LazyField(None)  # type: ignore[assignment]
     """(H, W) float32 per-pixel thread score in [0, 1] of the left view (0.5 ~ the decision
-    level); None when the masks were given. The threshold path computes it on first read."""
-    score_R: np.ndarray | None = _LazyField()  # type: ignore[assignment]
+    level); None when the masks were given. The threshold path computes it on first read (no
+    stage reads it: a LUT and 1.2 MB of fresh memory a 640x480 view, when the debugger
+    shows it)."""
+    score_R: np.ndarray | None = LazyField(None)  # type: ignore[assignment]
     """Same for the right view."""
     method: str = "mask"
     """How P was obtained: "mask" (given), "threshold" or "raw"."""
@@ -309,8 +279,8 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
     views = (_Grey(pair.left), _Grey(pair.right))
     hists = [v.histogram() for v in views]
     bg = (_background_level(hists[0], p), _background_level(hists[1], p))
-    score_L: np.ndarray | _Deferred | None = None
-    score_R: np.ndarray | _Deferred | None = None
+    score_L: np.ndarray | Deferred | None = None
+    score_R: np.ndarray | Deferred | None = None
     box_L = box_R = None  # boxes known to hold P_L, P_R (else their bounding boxes)
     if pair.mask_left is not None and pair.mask_right is not None:
         P_L, P_R = pair.mask_left.astype(bool), pair.mask_right.astype(bool)
@@ -326,8 +296,8 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
             (P_L, box_L), (P_R, box_R) = (
                 _threshold(v, b, p) for v, b in zip(views, bg, strict=True)
             )
-            score_L, score_R = (  # read by no stage: computed when read (_LazyField)
-                _Deferred(v.map, lambda g, b=b: _threshold_score(g, b, p.seg_delta))
+            score_L, score_R = (  # read by no stage: computed when read (core.lazy)
+                Deferred(v.map, lambda g, b=b: _threshold_score(g, b, p.seg_delta))
                 for v, b in zip(views, bg, strict=True)
             )
         else:

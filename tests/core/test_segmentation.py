@@ -436,7 +436,7 @@ def test_threshold_score_is_computed_on_first_read_once_and_survives_copies() ->
     from threadrecon.core.segmentation import LiftedPair
 
     lifted = segment(_line_pair(), SegmentationParams(method="threshold"))
-    assert type(lifted.__dict__["_lazy_score_L"]).__name__ == "_Deferred"  # not computed yet
+    assert type(lifted.__dict__["_lazy_score_L"]).__name__ == "Deferred"  # not computed yet
     expected = np.clip((BG - lifted.grey_L) / 12.0, 0.0, 1.0).astype(np.float32)
     score = lifted.score_L
     assert score is lifted.score_L and np.array_equal(score, expected)  # kept after one read
