@@ -18,6 +18,7 @@ frame in which no piece qualifies raises ``ValueError("no thread found ...")``: 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Final, Literal
@@ -297,7 +298,7 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
                 _threshold(v, b, p) for v, b in zip(views, bg, strict=True)
             )
             score_L, score_R = (  # read by no stage: computed when read (core.lazy)
-                Deferred(v.map, lambda g, b=b: _threshold_score(g, b, p.seg_delta))
+                Deferred(v.map, functools.partial(_threshold_score, level=b, delta=p.seg_delta))
                 for v, b in zip(views, bg, strict=True)
             )
         else:

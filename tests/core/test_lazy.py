@@ -49,3 +49,22 @@ def test_the_ordering_graph_is_built_when_read_and_is_the_walks() -> None:
     assert isinstance(graph, OrderingGraph) and graph is od.graph
     assert sorted(k for piece in graph.pieces for k in piece) == list(range(od.n_clusters))
     assert isinstance(graph.decisions, tuple) and graph.junctions.dtype == np.int64
+
+
+def test_results_with_deferred_fields_pickle_before_and_after_the_read() -> None:
+    import pickle
+
+    pair, calib, _ = synthetic_case(0)
+    rec = reconstruct(pair, calib)
+    for name, field in (("segment", "score_L"), ("ordering", "graph")):
+        result = rec[name]
+        assert type(result.__dict__["_lazy_" + field]).__name__ == "Deferred"
+        before = pickle.loads(pickle.dumps(result))  # still deferred: its inputs travel
+        value = getattr(result, field)
+        after = pickle.loads(pickle.dumps(result))
+        for copy in (before, after):
+            got = getattr(copy, field)
+            if isinstance(value, np.ndarray):
+                assert np.array_equal(got, value)
+            else:
+                assert got.pieces == value.pieces and got.decisions == value.decisions
