@@ -413,10 +413,13 @@ def _rcm(indices: np.ndarray, indptr: np.ndarray, m: int) -> np.ndarray:
     """scipy's reverse Cuthill-McKee order of the symmetric (m, m) pattern (CSR ``indices``,
     ``indptr``), from its ordering routine on the arrays a ``csr_matrix`` would hold (int32
     indices), without building the matrix (its checks cost more than the order at 640x480)."""
-    if _reverse_cuthill_mckee is None or m >= 2**31 or indices.size >= 2**31:
-        pattern = sparse.csr_matrix((np.ones(indices.size), indices, indptr), shape=(m, m))
-        return reverse_cuthill_mckee(pattern, symmetric_mode=True)
-    return _reverse_cuthill_mckee(indices.astype(np.int32), indptr.astype(np.int32), m)
+    if _reverse_cuthill_mckee is not None and m < 2**31 and indices.size < 2**31:
+        try:
+            return _reverse_cuthill_mckee(indices.astype(np.int32), indptr.astype(np.int32), m)
+        except (TypeError, ValueError):  # a scipy whose routine takes other arguments
+            pass
+    pattern = sparse.csr_matrix((np.ones(indices.size), indices, indptr), shape=(m, m))
+    return reverse_cuthill_mckee(pattern, symmetric_mode=True)
 
 
 def _solveh_banded_upper(ab: np.ndarray, b: np.ndarray) -> np.ndarray:
