@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from threadrecon.core import walk_kernel
+
 ROW_SLACK = 1  # px: rows of the two views may differ by this (a real rig's rectification)
 QUANT_VAR = 1.0 / 12.0  # px^2: variance of a pixel-quantised position, the tip's floor
 
@@ -101,25 +103,14 @@ def seen_in_right(px: np.ndarray, P_R: np.ndarray, d_ref: float, tol: int) -> np
     ``P_R`` shows too: a thread pixel on the same row (+- ``ROW_SLACK``) within ``tol`` px of
     the column ``x - d_ref``. A tip pixel without one is a part of the thread only the left view
     sees (hidden or cut differently in the right): its depth has no second view."""
-    H, W = P_R.shape
     px = np.asarray(px, dtype=np.int64).reshape(-1, 2)
     out = np.zeros(len(px), dtype=bool)
     if not len(px) or not np.isfinite(d_ref) or tol < 0:
         return out
     centre = np.rint(px[:, 0] - d_ref).astype(np.int64)
-    lo = np.clip(centre - tol, 0, W)  # inclusive, then exclusive end below
-    hi = np.clip(centre + tol + 1, 0, W)
-    for dy in range(-ROW_SLACK, ROW_SLACK + 1):
-        y = px[:, 1] + dy
-        inside = (y >= 0) & (y < H) & (hi > lo)
-        if not inside.any():
-            continue
-        rows, inv = np.unique(y[inside], return_inverse=True)
-        cs = np.zeros((len(rows), W + 1), dtype=np.int32)  # prefix sums of the rows needed only
-        np.cumsum(P_R[rows], axis=1, out=cs[:, 1:])
-        r = inv.reshape(-1)
-        out[inside] |= cs[r, hi[inside]] > cs[r, lo[inside]]
-    return out
+    return walk_kernel.row_hits(
+        centre, np.ascontiguousarray(px[:, 1]), np.asarray(P_R, dtype=bool), tol, ROW_SLACK
+    )
 
 
 def fuse_end(z_line: float, var_line: float, z_tip: float, var_tip: float) -> tuple[float, float]:

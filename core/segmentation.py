@@ -18,6 +18,7 @@ frame in which no piece qualifies raises ``ValueError("no thread found ...")``: 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Final, Literal
@@ -27,6 +28,7 @@ import numpy as np
 
 from threadrecon.core.compiled import kernel
 from threadrecon.core.instrument import drop_attached
+from threadrecon.core.lazy import Deferred, LazyField
 from threadrecon.core.params import Params, param
 from threadrecon.core.segment_raw import drop_specks, segment_raw
 
@@ -194,10 +196,12 @@ class LiftedPair:
     grey_R: np.ndarray
     background: tuple[float, float]
     """Background level B of the left and right image (grey levels)."""
-    score_L: np.ndarray | None = None
+    score_L: np.ndarray | None = LazyField(None)  # type: ignore[assignment]
     """(H, W) float32 per-pixel thread score in [0, 1] of the left view (0.5 ~ the decision
-    level); None when the masks were given."""
-    score_R: np.ndarray | None = None
+    level); None when the masks were given. The threshold path computes it on first read (no
+    stage reads it: a LUT and 1.2 MB of fresh memory a 640x480 view, when the debugger
+    shows it)."""
+    score_R: np.ndarray | None = LazyField(None)  # type: ignore[assignment]
     """Same for the right view."""
     method: str = "mask"
     """How P was obtained: "mask" (given), "threshold" or "raw"."""
@@ -276,7 +280,8 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
     views = (_Grey(pair.left), _Grey(pair.right))
     hists = [v.histogram() for v in views]
     bg = (_background_level(hists[0], p), _background_level(hists[1], p))
-    score_L = score_R = None
+    score_L: np.ndarray | Deferred | None = None
+    score_R: np.ndarray | Deferred | None = None
     box_L = box_R = None  # boxes known to hold P_L, P_R (else their bounding boxes)
     if pair.mask_left is not None and pair.mask_right is not None:
         P_L, P_R = pair.mask_left.astype(bool), pair.mask_right.astype(bool)
@@ -292,8 +297,8 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
             (P_L, box_L), (P_R, box_R) = (
                 _threshold(v, b, p) for v, b in zip(views, bg, strict=True)
             )
-            score_L, score_R = (
-                v.map(lambda g, b=b: _threshold_score(g, b, p.seg_delta))
+            score_L, score_R = (  # read by no stage: computed when read (core.lazy)
+                Deferred(v.map, functools.partial(_threshold_score, level=b, delta=p.seg_delta))
                 for v, b in zip(views, bg, strict=True)
             )
         else:

@@ -52,8 +52,13 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from scipy import sparse
-from scipy.linalg import solveh_banded
+from scipy.linalg.lapack import dpbsv, dptsv
 from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+try:  # the routine behind reverse_cuthill_mckee (tests/core/test_stereo.py compares the two)
+    from scipy.sparse.csgraph._reordering import _reverse_cuthill_mckee
+except ImportError:  # another scipy: the public function
+    _reverse_cuthill_mckee = None
 
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.compiled import helper, kernel
@@ -314,9 +319,9 @@ def match_stereo(
 
     disparity = d_min.astype(np.float64)
     if p.subpixel:
+        I_R = np.ascontiguousarray(lifted.I_R)  # C order: indexed without strides (18 % faster)
         step, ee, resid, count, tan2 = _subpixel_kernel(
-            box.ry, box.rx, box.I_L_p, box.index, r, lifted.I_R, box.y0, box.x0, d_min, d_hi,
-            LIFT_VALUE,
+            box.ry, box.rx, box.I_L_p, box.index, r, I_R, box.y0, box.x0, d_min, d_hi, LIFT_VALUE,
         )  # fmt: skip
         disparity = disparity + step
         if p.epipolar_deg > 0:
@@ -373,8 +378,7 @@ def _continuity(
     # is a few px wide): a banded Cholesky per round, the order and band layout computed once.
     ia, ib = pa[both], pb[both]
     indptr, indices = _free_pattern_kernel(index, at[fi], pos)
-    pattern = sparse.csr_matrix((np.ones(indices.size), indices, indptr), shape=(m, m))
-    perm = reverse_cuthill_mckee(pattern, symmetric_mode=True)
+    perm = _rcm(indices, indptr, m)
     rank = np.empty(m, dtype=np.int64)
     rank[perm] = np.arange(m)
     ra, rb = rank[ia], rank[ib]
@@ -384,20 +388,55 @@ def _continuity(
     d[fi] = _local_median_kernel(
         index, d_hat, at[fi]
     )  # a start that neither a mismatch nor noise moves
+    # What the rounds share: the gathers that do not depend on d (the same values each round).
+    w_f, d_hat_f = w[fi], d_hat[fi]
+    pa_fa, pb_fb, pa_a, pb_b = pa[fa], pb[fb], pa[a_only], pb[b_only]
+    d_hat_ba, d_hat_ab = d_hat[b[a_only]], d_hat[a[b_only]]
+    off_row = band + lo - hi
     for _ in range(ROUNDS):
-        rho = w[fi] / (1.0 + ((d_hat[fi] - d[fi]) / ROBUST_PX) ** 2)  # Cauchy IRLS weights
+        rho = w_f / (1.0 + ((d_hat_f - d[fi]) / ROBUST_PX) ** 2)  # Cauchy IRLS weights
         e = np.exp(-(((d[a] - d[b]) / STRAND_PX) ** 2)) / tau**2  # Welsch: strands part
         diag = rho + 1e-9  # ridge: a run with no data and no anchor keeps a solution
-        diag += np.bincount(pa[fa], e[fa], m) + np.bincount(pb[fb], e[fb], m)
-        rhs = rho * d_hat[fi]
-        rhs += np.bincount(pa[a_only], e[a_only] * d_hat[b[a_only]], m)
-        rhs += np.bincount(pb[b_only], e[b_only] * d_hat[a[b_only]], m)
+        diag += np.bincount(pa_fa, e[fa], m) + np.bincount(pb_fb, e[fb], m)
+        rhs = rho * d_hat_f
+        rhs += np.bincount(pa_a, e[a_only] * d_hat_ba, m)
+        rhs += np.bincount(pb_b, e[b_only] * d_hat_ab, m)
         ab = np.zeros((band + 1, m))  # upper band form of solveh_banded, permuted order
         ab[band, rank] = diag
-        ab[band + lo - hi, hi] = -e[both]  # each pair once, off the diagonal row: no sums
-        x = solveh_banded(ab, rhs[perm])
+        ab[off_row, hi] = -e[both]  # each pair once, off the diagonal row: no sums
+        x = _solveh_banded_upper(ab, rhs[perm])
         d[fi] = x[rank]
     return d
+
+
+def _rcm(indices: np.ndarray, indptr: np.ndarray, m: int) -> np.ndarray:
+    """scipy's reverse Cuthill-McKee order of the symmetric (m, m) pattern (CSR ``indices``,
+    ``indptr``), from its ordering routine on the arrays a ``csr_matrix`` would hold (int32
+    indices), without building the matrix (its checks cost more than the order at 640x480)."""
+    if _reverse_cuthill_mckee is not None and m < 2**31 and indices.size < 2**31:
+        try:
+            return _reverse_cuthill_mckee(indices.astype(np.int32), indptr.astype(np.int32), m)
+        except (TypeError, ValueError):  # a scipy whose routine takes other arguments
+            pass
+    pattern = sparse.csr_matrix((np.ones(indices.size), indices, indptr), shape=(m, m))
+    return reverse_cuthill_mckee(pattern, symmetric_mode=True)
+
+
+def _solveh_banded_upper(ab: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``scipy.linalg.solveh_banded(ab, b)`` (upper form, float64, m >= 1) calling its LAPACK
+    routine directly (``?ptsv`` for one off-diagonal, else ``?pbsv``, as it does): the same
+    solution bit for bit, without its wrappers' 20-30 us a call (3 calls a frame)."""
+    if not (np.isfinite(ab).all() and np.isfinite(b).all()):
+        raise ValueError("array must not contain infs or NaNs")
+    if ab.shape[0] == 2:
+        _, _, x, info = dptsv(ab[1, :], ab[0, 1:].copy(), b, False, False, False)
+    else:
+        _, x, info = dpbsv(ab, b, lower=0, overwrite_ab=False, overwrite_b=False)
+    if info > 0:
+        raise np.linalg.LinAlgError(f"{info}th leading minor not positive definite")
+    if info < 0:
+        raise ValueError(f"illegal value in {-info}th argument of internal pbsv")
+    return x
 
 
 def _local_median(index: np.ndarray, values: np.ndarray, which: np.ndarray) -> np.ndarray:
@@ -584,7 +623,7 @@ def _fill_best_two(row, base, acc, d_from, d_lo, gap):  # noqa: ANN001
 
 @kernel(
     "Tuple((float64[::1], float64[::1], float64[::1], float64[::1], float64[::1]))"
-    "(int64[::1], int64[::1], float64[::1], int32[:, ::1], int64, float32[:, :], "
+    "(int64[::1], int64[::1], float64[::1], int32[:, ::1], int64, float32[:, ::1], "
     "int64, int64, int64[::1], int64, float64)"
 )
 def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  # noqa: ANN001

@@ -399,3 +399,46 @@ def member_components(nb, member):  # noqa: ANN001
             root_label[r] = count
         label[i] = root_label[r]
     return label
+
+
+@kernel("boolean[::1](int64[::1], int64[::1], boolean[:, :], int64, int64)")
+def row_hits(x, y, P, tol, slack):  # noqa: ANN001
+    """(N,) bool: a pixel of ``P`` (H, W) bool on a row ``y[i]`` +- ``slack`` (inside the image)
+    and a column within ``tol`` of ``x[i]`` (the window clipped to the image): the test of
+    :func:`threadrecon.core.ends.seen_in_right`, a few pixels read per point instead of prefix
+    sums of whole image rows."""
+    H, W = P.shape
+    n = x.size
+    out = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        lo = min(max(x[i] - tol, 0), W)
+        hi = min(max(x[i] + tol + 1, 0), W)
+        for dy in range(-slack, slack + 1):
+            yy = y[i] + dy
+            if yy < 0 or yy >= H:
+                continue
+            for xx in range(lo, hi):
+                if P[yy, xx]:
+                    out[i] = True
+                    break
+            if out[i]:
+                break
+    return out
+
+
+@kernel("int32[:, ::1](int32[:, ::1], int64[::1], int64[::1])")
+def grid_neighbours(index, y, x):  # noqa: ANN001
+    """(N, 8) ``index`` at the 8 neighbours of each pixel (``y``, ``x``: rows and columns in
+    the index image, at least 1 px inside it), in the order of ``ordering._OFFSETS_8`` (rows
+    -1, 0, 1, columns -1, 0, 1 within each, the pixel itself left out): one pass, where eight
+    gathers and a stack were 0.1-0.3 ms a frame."""
+    n = y.size
+    out = np.empty((n, 8), dtype=np.int32)
+    for i in range(n):
+        k = 0
+        for dy in range(-1, 2):
+            for dx in range(-1, 2):
+                if dy != 0 or dx != 0:
+                    out[i, k] = index[y[i] + dy, x[i] + dx]
+                    k += 1
+    return out

@@ -164,6 +164,36 @@ def test_seen_in_right_needs_a_right_thread_pixel_on_the_row_near_the_disparity(
     assert seen_in_right(np.empty((0, 2), int), P_R, 30.0, 3).shape == (0,)
 
 
+def _seen_in_right_by_prefix_sums(px: np.ndarray, P_R: np.ndarray, d_ref: float, tol: int):
+    """seen_in_right as numpy formulas: prefix sums of the rows needed, window sums by two reads."""
+    H, W = P_R.shape
+    out = np.zeros(len(px), dtype=bool)
+    centre = np.rint(px[:, 0] - d_ref).astype(np.int64)
+    lo, hi = np.clip(centre - tol, 0, W), np.clip(centre + tol + 1, 0, W)
+    cs = np.concatenate([np.zeros((H, 1), np.int64), np.cumsum(P_R, axis=1)], axis=1)
+    for dy in (-1, 0, 1):
+        y = px[:, 1] + dy
+        inside = (y >= 0) & (y < H)
+        yy = np.clip(y, 0, H - 1)
+        out |= inside & (cs[yy, hi] > cs[yy, lo])
+    return out
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_seen_in_right_equals_the_prefix_sum_formulas(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    H, W = int(rng.integers(1, 30)), int(rng.integers(1, 50))
+    P_R = rng.random((H, W)) < rng.choice([0.02, 0.1, 0.5])
+    if seed % 3 == 0:
+        P_R = np.asfortranarray(P_R)  # any memory layout
+    px = np.stack([rng.integers(-10, W + 60, 40), rng.integers(-3, H + 3, 40)], axis=1)
+    d_ref, tol = float(rng.uniform(-20, 60)), int(rng.integers(0, 6))
+    got = seen_in_right(px, P_R, d_ref, tol)
+    assert got.dtype == bool and np.array_equal(
+        got, _seen_in_right_by_prefix_sums(px, P_R, d_ref, tol)
+    )
+
+
 def _hidden_tip_case(hide_px: int):
     """A generated frame (exact masks) whose right view does not show the last ``hide_px`` px of
     the thread's first end (painted over with the background and cut from P_R), as a real rig's

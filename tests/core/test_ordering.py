@@ -714,3 +714,22 @@ def test_a_crossing_whose_mask_lost_its_centre_is_reconstructed_along_each_stran
     rec = Pipeline(StereoPair(frame.left, frame.right, *masks), calib).run(ReconParams())
     e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
     assert e.e_S_max < 2.0 and abs(e.e_length) < 2.0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_pixel_grid_neighbours_are_the_index_at_the_eight_offsets(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    mask = rng.random((int(rng.integers(1, 30)), int(rng.integers(1, 30)))) < rng.uniform(0.05, 1)
+    mask[0, 0] = True
+    ys, xs = np.nonzero(mask)
+    pixels = np.column_stack([xs, ys]).astype(rng.choice([np.int64, np.int32])) + 7
+    grid = _PixelGrid(pixels, int(rng.integers(1, 4)))
+    want = np.full((len(pixels), 8), -1, np.int64)
+    where = {(int(x), int(y)): i for i, (x, y) in enumerate(pixels)}
+    for i, (x, y) in enumerate(pixels):
+        for k, (dy, dx) in enumerate(_OFFSETS_8):
+            want[i, k] = where.get((int(x) + dx, int(y) + dy), -1)
+    got = grid.neighbours()
+    assert got.dtype == np.int32 and np.array_equal(got, want)
+    with pytest.raises(ValueError, match="padded by >= 1 px"):
+        _PixelGrid(pixels, 0).neighbours()

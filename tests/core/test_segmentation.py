@@ -427,3 +427,22 @@ def test_compiled_histogram_counts_every_grey_level_exactly() -> None:
         assert hist.dtype == np.int64 and np.array_equal(
             hist, np.bincount(img.ravel(), minlength=256)
         )
+
+
+def test_threshold_score_is_computed_on_first_read_once_and_survives_copies() -> None:
+    from dataclasses import fields
+
+    from threadrecon.core.corrections import Correction, apply_corrections
+    from threadrecon.core.segmentation import LiftedPair
+
+    lifted = segment(_line_pair(), SegmentationParams(method="threshold"))
+    assert type(lifted.__dict__["_lazy_score_L"]).__name__ == "Deferred"  # not computed yet
+    expected = np.clip((BG - lifted.grey_L) / 12.0, 0.0, 1.0).astype(np.float32)
+    score = lifted.score_L
+    assert score is lifted.score_L and np.array_equal(score, expected)  # kept after one read
+    copied = replace(lifted, method="copied")
+    assert copied.score_L is score and np.array_equal(copied.score_R, lifted.score_R)
+    assert [f.name for f in fields(LiftedPair)][-3:] == ["score_L", "score_R", "method"]
+    erase = Correction(op="erase", view="left", points=((30, 20),), radius=3.0)
+    corrected = apply_corrections(lifted, (erase,))  # copies every field of the pair
+    assert corrected.score_L is score and not np.array_equal(corrected.P_L, lifted.P_L)

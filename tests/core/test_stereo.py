@@ -356,3 +356,43 @@ def test_continuity_set_up_kernels_give_the_numpy_formulations_exactly(seed: int
     sym = (pattern + pattern.T).tocsr()
     indptr, indices = _free_pattern_kernel(index, _positions(index)[fi], pos)
     assert np.array_equal(indptr, sym.indptr) and np.array_equal(indices, sym.indices)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_continuity_solver_pieces_equal_scipy_bit_for_bit(seed: int) -> None:
+    from scipy import sparse
+    from scipy.linalg import solveh_banded
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    from threadrecon.core.stereo import _rcm, _solveh_banded_upper
+
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(1, 300))
+    dense = rng.random((m, m)) < rng.uniform(0.002, 0.05)
+    dense = (dense | dense.T) & ~np.eye(m, dtype=bool)  # a symmetric pattern, no diagonal
+    csr = sparse.csr_matrix(dense.astype(float))
+    indptr, indices = csr.indptr.astype(np.int64), csr.indices.astype(np.int64)
+    want = reverse_cuthill_mckee(csr, symmetric_mode=True)
+    assert np.array_equal(_rcm(indices, indptr, m), want)
+    import threadrecon.core.stereo as stereo_module
+
+    def other_arguments(*args: object) -> np.ndarray:
+        raise TypeError("other arguments")
+
+    for private in (None, other_arguments):
+        saved, stereo_module._reverse_cuthill_mckee = stereo_module._reverse_cuthill_mckee, private
+        try:  # without scipy's routine, or with one that takes other arguments: the public one
+            assert np.array_equal(_rcm(indices, indptr, m), want)
+        finally:
+            stereo_module._reverse_cuthill_mckee = saved
+    for band in (0, 1, int(rng.integers(2, 6))):  # one off-diagonal: scipy's ?ptsv
+        ab = rng.uniform(-1, 1, (band + 1, m))
+        ab[band] = np.abs(ab[band]) + 2.0 * band + 1.0  # diagonally dominant: positive definite
+        b = rng.normal(size=m)
+        assert np.array_equal(_solveh_banded_upper(ab, b), solveh_banded(ab, b)), band
+    ab[-1, 0] = np.nan
+    with pytest.raises(ValueError, match="infs or NaNs"):
+        _solveh_banded_upper(ab, b)
+    ab[-1, 0] = -5.0
+    with pytest.raises(np.linalg.LinAlgError, match="not positive definite"):
+        _solveh_banded_upper(ab, b)
