@@ -358,6 +358,7 @@ def test_raw_mask_of_a_thin_thread_is_not_wider_than_its_coverage() -> None:
 def _full_image_reference(pair: StereoPair, p: SegmentationParams) -> dict[str, np.ndarray]:
     """The threshold path of Eq. (1) computed pixel by pixel on the whole float32 image: the
     tables and bounding boxes of core/segmentation.py must give exactly this."""
+    from threadrecon.core.instrument import drop_attached
     from threadrecon.core.segment_raw import drop_specks
 
     out: dict[str, np.ndarray] = {}
@@ -370,7 +371,8 @@ def _full_image_reference(pair: StereoPair, p: SegmentationParams) -> dict[str, 
         off = cv2.morphologyEx(off, cv2.MORPH_CLOSE, cv2.getStructuringElement(2, (5, 5)))
         core = cv2.erode(off, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (21, 21)))
         wide = cv2.dilate(core, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (25, 25))) > 0
-        P = drop_specks(P & ~wide, p.min_component_px)
+        # The jaws' rule on the whole image: parts wider than the thread reaching the bar
+        P = drop_specks(drop_attached(P & ~wide, wide, off > 0), p.min_component_px)
         scale = 1.0 / (2.0 * max(p.seg_delta, 1.0))
         out["P_" + side] = P
         out["score_" + side] = np.clip((bg - grey) * scale, 0.0, 1.0).astype(np.float32)
