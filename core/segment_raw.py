@@ -591,17 +591,26 @@ def noise_sigma(f: np.ndarray, row_step: int = _NOISE_ROW_STEP) -> np.ndarray:
 
 def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
     """Cosine between colour contrasts (M, C) and ``ref`` (C,): on the chroma channels (hue
-    of the contrast, independent of its strength and of lighting) when there is colour, with
-    -1 where the brightness contrast has the other sign; the brightness sign alone for grey."""
-    sign = np.where(delta[:, 0] * ref[0] >= 0, 1.0, -1.0)
+    of the contrast, independent of its strength and of lighting) when there is colour, and
+    where the brightness contrast has the other sign at most the cosine of the whole contrasts
+    (brightness and chroma); the brightness sign alone for grey.
+
+    A dye that differs from the tissue mostly in hue (green on pink) has a brightness contrast
+    near 0 whose sign is shading and noise: its whole contrast keeps its direction there. A
+    light fibre and a dark thread of one hue differ in the direction of the whole contrast."""
+    same_sign = delta[:, 0] * ref[0] >= 0
     if delta.shape[1] == 1:
-        return sign
+        return np.where(same_sign, 1.0, -1.0)
     d, r = delta[:, 1:], ref[1:]
     nr = float(np.linalg.norm(r))
     if nr < _GREY_CHROMA:  # a grey thread (black, white): chroma contrast must stay small too
-        return np.where(np.linalg.norm(d, axis=1) < 2 * _GREY_CHROMA, sign, -1.0)
+        ok = (np.linalg.norm(d, axis=1) < 2 * _GREY_CHROMA) & same_sign
+        return np.where(ok, 1.0, -1.0)
     cos = (d @ r) / np.maximum(np.linalg.norm(d, axis=1) * nr, 1e-9)
-    return np.minimum(cos, sign)
+    if same_sign.all():
+        return cos
+    whole = (delta @ ref) / np.maximum(np.linalg.norm(delta, axis=1) * np.linalg.norm(ref), 1e-9)
+    return np.where(same_sign, cos, np.minimum(cos, whole))
 
 
 def _dye_part(

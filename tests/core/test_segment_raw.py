@@ -160,3 +160,18 @@ def test_grey_and_quarter_of_an_rgb_view_of_bgr_equal_those_of_a_contiguous_copy
         a, b = (sr._View.build(x, p) for x in (rgb, np.ascontiguousarray(rgb)))
         np.testing.assert_array_equal(a.grey(), b.grey())
         np.testing.assert_array_equal(a.bg_rgb, b.bg_rgb)
+
+
+def test_same_dye_ignores_the_brightness_sign_of_a_hue_only_dye() -> None:
+    from threadrecon.core.segment_raw import _same_dye
+
+    green = np.array([0.2, -23.2, -7.3])  # differs from the tissue in hue only
+    shaded = np.array([[-5.0, -22.0, -6.8]])  # a shadowed part of it: darker than the tissue
+    fibre = np.array([[10.5, -8.2, -1.7]])  # a light fibre of that hue
+    assert _same_dye(shaded, green)[0] >= 0.8
+    assert _same_dye(shaded * [1, -1, -1], green)[0] < 0  # the opposite hue
+    dark = np.array([-7.5, -7.1, 9.7])  # a dark blue thread
+    assert _same_dye(np.array([[9.0, -7.1, 9.7]]), dark)[0] < 0.8  # the same hue, but light
+    assert _same_dye(fibre, np.array([-5.0, -22.0, -6.8]))[0] < 0.8
+    grey = np.array([-20.0, 0.5, 0.3])  # a black thread: the sign alone
+    assert _same_dye(np.array([[2.0, 0.5, 0.3]]), grey)[0] == -1.0
