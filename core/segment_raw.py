@@ -71,6 +71,8 @@ _MAX_SURFACE_TESTS: Final = 8  # a thread less salient than 8 marks on the tissu
 _GLINT_APART_DEG: Final = 25.0  # a thread's contrast and white closer than 25 degrees: grey,
 # a highlight on it is not told from its body (the fit's noise gain 1/sin^2 stays <= 5.6)
 _GLINT_APART_SIN2: Final = float(np.sin(np.radians(_GLINT_APART_DEG)) ** 2)
+_HIGHLIGHT_PX: Final = 4  # a highlight along a thread <= 6 px wide leaves at most 4 px
+# between its two sides
 _NOISE_ROW_STEP: Final = 16  # noise estimated on every 16th row: 30 rows x 640 px at 640x480
 
 
@@ -122,15 +124,23 @@ def segment_raw(
         # The most salient shape-ok piece of each view bounds what a red thread can reach.
         bound = sum(float(np.max(v.pieces[2] * np.sqrt(v.pieces[3]), where=v.pieces[4],
                                  initial=0.0)) for v in red_views)  # fmt: skip
+        # A line chosen without them that runs along blood-like pixels in both views may be
+        # the highlight along a red thread: the thread is then the blood-like line around it.
+        glint = (
+            found is not None
+            and floating
+            and all(_near(_blood_px(v), c) for v, c in zip(views, found, strict=True))
+        )
         red, red_salience, red_cos, _ = (
             _select(red_views, p, nearest_hue=True)
-            if bound >= _RED_THREAD_GAIN * salience or not floating
+            if bound >= _RED_THREAD_GAIN * salience or not floating or glint
             else (None, 0.0, 1.0, False)
         )
         # With nearest_hue, a piece is chosen only when seen in front of the tissue.
         if red is not None and (
             not floating
             or (red_salience >= _RED_THREAD_GAIN * salience and red_cos < _VESSEL_HUE_COS)
+            or (glint and all(_near(r, c) for r, c in zip(red, found, strict=True)))
         ):
             views, found = red_views, red
     if found is not None and not _one_object(found, int(p.max_disparity_px)):
@@ -147,6 +157,8 @@ def segment_raw(
         # where its axis passes between pixel centres (coverage < 0.5 on both sides), and its
         # parts stay one piece through the core's pixels there.
         mask = _grow_mask(v, core)
+        if _grey_contrast(v, core):  # a highlight on it is not told from its body by colour
+            mask = _fill_across(mask, _HIGHLIGHT_PX)
         mask &= drop_specks(mask | core.view(bool), max(int(p.min_length_px), 1))
         score = cv2.min(v.S, 2.0 * p.ridge_hi * v.level) * (1.0 / (2.0 * p.ridge_hi * v.level))
         out.append((mask, score))
@@ -346,6 +358,9 @@ def _select(
         )  # fmt: skip
         # Is it there at all: its mean contrast to the background stands out of the pixel noise.
         k &= np.linalg.norm(delta / v.sigma, axis=1) >= _MIN_SNR
+        if nearest_hue:  # a blood-like thread: the pieces of few blood-like pixels were judged
+            # without them (the first pass), and an undecided one there is no thread here
+            k &= np.bincount(lab_on, weights=v.blood[on], minlength=n) >= 0.5 * area
         if not k.any():
             return None, 0.0, 1.0, False
         rank = np.where(k, means * np.sqrt(length), -1.0)
@@ -356,10 +371,11 @@ def _select(
         # Among blood-like pieces (vessels are marks too) the one left must be seen in front
         # of the tissue, not merely undecided (a small leftover).
         marks: list[int] = []  # pieces found to be marks on the tissue, most salient first
+        votes_of: dict[int, np.ndarray] = {}  # surface votes of the pieces tested
         for _ in range(_MAX_SURFACE_TESTS):
             if rank[best] <= 0:
                 break
-            votes = _surface_votes(views, i, lab_on == best, on, D)
+            votes = votes_of[best] = _surface_votes(views, i, lab_on == best, on, D)
             # A piece too short for the test to decide, continuing a mark of its own dye, is
             # a part of that mark (one line cut in two by a faint stretch of it); one too short
             # for the test to ever decide (fewer blocks than it needs) is taken for one more
@@ -372,7 +388,12 @@ def _select(
                 )
             ):
                 if nearest_hue and not _floats(votes):
-                    return None, salience + top, 1.0, False
+                    # undecided or moving with the tissue in part: not told from a vessel of
+                    # its hue (it may still join a thread found in front of the tissue)
+                    k[best] = False
+                    rank[best] = -1.0
+                    best = int(np.argmax(rank))
+                    continue
                 floating &= _floats(votes)
                 break
             marks.append(best)
@@ -389,6 +410,9 @@ def _select(
         if rank[best] <= 0:
             return None, salience + top, 1.0, False
         salience += float(rank[best])
+        # A piece of two dyes (a thread merged with a fibre where they cross) is of the dye
+        # of its part seen in front of the tissue: the thread's other pieces join it.
+        delta[best] = _main_dye(v.delta[on[lab_on == best]], votes_of[best], delta[best])
         # The frame's vessel hue: mean contrast of its blood-like pixels off the chosen piece.
         vessel = v.blood & (lab != best)
         d_vessel = v.delta[vessel].mean(axis=0) if vessel.sum() >= _MIN_VESSEL_PX else None
@@ -425,14 +449,18 @@ def _select(
         others = others[np.argsort(-rank[others])][:_MAX_SURFACE_TESTS]
         k[:] = False
         for j in others.tolist():
-            votes = _surface_votes(views, i, lab_on == j, on, D)
-            k[j] = _floats(votes) if nearest_hue else not _a_mark(votes)
+            votes = votes_of[j] = _surface_votes(views, i, lab_on == j, on, D)
+            # among blood-like pieces, one seen in front of the tissue at least in part (a
+            # part of the thread merged with a vessel where they cross)
+            k[j] = not _a_mark(votes) and (not nearest_hue or np.any(votes == 0))
         k[best] = True
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
-        # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
+        # nor pixels of another colour (a vessel or fibre merged into the thread's piece),
+        # nor, in a piece moving with the tissue in part, that part (a mark merged with it).
         px = on[k[lab_on]]  # the lo pixels of the kept pieces
         hue = _same_dye(v.delta[px], d_best)
         other = _other_dye_px(v.delta[px], d_best, hue)
+        other |= _mark_part(px, on, lab_on, votes_of, k)
         if by_hue:
             other |= hue <= _same_dye(v.delta[px], d_vessel)
         sel = ~other & (v.S[v.rows[px], v.cols[px]] >= _CORE_FRACTION * means[lab[px]])
@@ -441,6 +469,54 @@ def _select(
         core[v.rows[px], v.cols[px]] = 1
         out.append(core)
     return out, salience, cos_vessels, floating
+
+
+def _blood_px(v: _View) -> np.ndarray:
+    """(H, W) uint8, 1 on the view's blood-like candidate pixels."""
+    out = np.zeros(v.lo.shape, np.uint8)
+    out[v.rows[v.blood], v.cols[v.blood]] = 1
+    return out
+
+
+def _near(other: np.ndarray, core: np.ndarray) -> bool:
+    """Whether at least half of the ``core`` (H, W) uint8 pixels have a pixel of ``other``
+    (H, W) uint8 within _GLINT_SIDE_PX (a highlight's distance to the sides of its thread);
+    on the core's bounding box grown by that."""
+    x, y, w, h = cv2.boundingRect(core)
+    if w == 0:
+        return False
+    m = _GLINT_SIDE_PX
+    H, W = core.shape
+    r0, r1, c0, c1 = max(y - m, 0), min(y + h + m, H), max(x - m, 0), min(x + w + m, W)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
+    reach = cv2.dilate(np.ascontiguousarray(other[r0:r1, c0:c1]), k)
+    c = core[r0:r1, c0:c1]
+    return cv2.countNonZero(reach & c) >= 0.5 * cv2.countNonZero(c)
+
+
+_GLINT_SIDE_PX: Final = 3  # a highlight along a thread <= 6 px wide: its sides within 3 px
+
+
+def _main_dye(d_px: np.ndarray, votes: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """The contrast (C,) of a piece: its mean contrast ``mean`` (C,), or, when its pixels'
+    contrasts ``d_px`` (M, C) split by brightness sign into two parts of >= _MIXED_SHARE each
+    and of different dyes (:func:`_same_dye` < _SAME_DYE_COS: a dark thread and a light fibre
+    that cross), the mean of the part with more pixels voted in front of the tissue (surface
+    ``votes`` (M,), :func:`_surface_votes`; a fibre is a mark on it)."""
+    dark = d_px[:, 0] < 0
+    n_dark = int(np.count_nonzero(dark))
+    if min(n_dark, len(dark) - n_dark) < _MIXED_SHARE * len(dark):
+        return mean
+    parts = [d_px[dark].mean(axis=0), d_px[~dark].mean(axis=0)]
+    if _same_dye(parts[0][None], parts[1])[0] >= _SAME_DYE_COS:
+        return mean
+    floats = [int(np.count_nonzero(votes[part] == 0)) for part in (dark, ~dark)]
+    if floats[0] == floats[1]:
+        return mean  # nothing tells the two apart
+    return parts[int(np.argmax(floats))]
+
+
+_MIXED_SHARE: Final = 1.0 - _MARK_SHARE  # a thread merged with a mark keeps >= 1/4 of its own
 
 
 def _one_object(cores: list[np.ndarray], d: int) -> bool:
@@ -554,6 +630,27 @@ def _direction_cos(r1: np.ndarray, c1: np.ndarray, r2: np.ndarray, c2: np.ndarra
         cov = np.cov(np.stack([r, c]).astype(np.float64))
         axes.append(np.linalg.eigh(cov)[1][:, -1])
     return float(abs(axes[0] @ axes[1]))
+
+
+def _mark_part(
+    px: np.ndarray, on: np.ndarray, lab_on: np.ndarray, votes_of: dict, keep: np.ndarray
+) -> np.ndarray:
+    """(len(px),) bool: of the lo pixels ``px`` (ascending) of the kept pieces (``keep`` (n,)),
+    those voted "on the surface" (:func:`_surface_votes`, ``votes_of`` by piece) in a piece
+    that moves with the tissue in part: more of its decided votes than the block test's errors
+    (over 1 - _MARK_SHARE of them) say so. ``on`` (M,) indexes the view's lo pixels of the
+    shape-ok pieces (ascending), ``lab_on`` (M,) their pieces."""
+    out = np.zeros(len(px), bool)
+    for j, votes in votes_of.items():
+        if not keep[j]:
+            continue
+        decided = np.count_nonzero(votes >= 0)
+        surface = votes == 1
+        if decided == 0 or np.count_nonzero(surface) <= (1.0 - _MARK_SHARE) * decided:
+            continue
+        # the piece's pixels on[lab_on == j] are ascending, as px: find them in px
+        out[np.searchsorted(px, on[lab_on == j][surface])] = True
+    return out
 
 
 def _floats(votes: np.ndarray) -> bool:
@@ -949,6 +1046,61 @@ def _body_contrast(
     glint = (den >= _GLINT_APART_SIN2) & (dw > proj * uw)  # s > 0
     net = (proj - dw * uw) / np.maximum(den, np.float32(_GLINT_APART_SIN2))
     return (proj, net), glint
+
+
+def _grey_contrast(v: _View, core: np.ndarray) -> bool:
+    """Whether the summed colour contrast (RGB) of the ``core`` (H, W) uint8 pixels to the
+    view's local background lies within _GLINT_APART_DEG of grey (white or black): there a
+    highlight (white added) is not told from the thread's own contrast by colour
+    (:func:`_body_contrast`)."""
+    rows, cols = _points(core)
+    if len(rows) == 0 or v.bg_rgb.shape[2] != 3:
+        return len(rows) > 0
+    a = v.img if v.img.ndim == 3 else v.img[:, :, None]
+    px = a[rows, cols, :3].astype(np.float64)
+    bg = v.bg_rgb[_qi(rows, v.bg_rgb.shape[0]), _qi(cols, v.bg_rgb.shape[1])]
+    u = (px - bg).sum(axis=0)
+    n2 = float(u @ u)
+    if n2 <= 0.0:
+        return True
+    uw2 = float(u.sum()) ** 2 / (3.0 * n2)  # cos^2 of the angle to white
+    return 1.0 - uw2 < _GLINT_APART_SIN2
+
+
+def _fill_across(mask: np.ndarray, gap: int) -> np.ndarray:
+    """``mask`` (H, W) bool with the runs of at most ``gap`` pixels it encloses along a row, a
+    column or a diagonal (a pixel's nearest mask pixels on its two sides, in one of the four
+    directions, at most ``gap + 1`` steps apart in all).
+
+    A dark thread's specular highlight adds white to it, against its own contrast (the
+    body-contrast fit cannot tell the two apart along a grey direction): the coverage test
+    takes the two dark sides and leaves the highlight between them out. Geometry tells it: a
+    run enclosed across a thread no wider than 6 px is inside it. A 1-2 px thread's staircase
+    encloses nothing (its corner pixels have mask neighbours on two adjacent sides only).
+    Computed on the mask's bounding box."""
+    x, y, w, h = cv2.boundingRect(np.ascontiguousarray(mask, dtype=bool).view(np.uint8))
+    if w == 0 or gap < 1:
+        return mask
+    box = np.zeros((h + 2 * gap, w + 2 * gap), bool)  # padded: shifts read no wrapped pixel
+    box[gap : gap + h, gap : gap + w] = mask[y : y + h, x : x + w]
+    inner = (slice(gap, gap + h), slice(gap, gap + w))
+    fill = np.zeros((h, w), bool)
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        # nearest mask pixel ahead (fwd) and behind (bwd), in steps, capped at gap + 1
+        fwd = np.full((h, w), gap + 1, np.int8)
+        bwd = np.full((h, w), gap + 1, np.int8)
+        for k in range(gap, 0, -1):
+            ahead = box[gap + k * dr : gap + k * dr + h, gap + k * dc : gap + k * dc + w]
+            behind = box[gap - k * dr : gap - k * dr + h, gap - k * dc : gap - k * dc + w]
+            fwd[ahead] = k
+            bwd[behind] = k
+        fill |= fwd.astype(np.int16) + bwd <= gap + 1
+    fill &= ~box[inner]
+    if not fill.any():
+        return mask
+    out = mask.copy()
+    out[y : y + h, x : x + w] |= fill
+    return out
 
 
 def drop_specks(mask: np.ndarray, min_px: int) -> np.ndarray:
