@@ -429,3 +429,26 @@ def test_compiled_histogram_counts_every_grey_level_exactly() -> None:
         assert hist.dtype == np.int64 and np.array_equal(
             hist, np.bincount(img.ravel(), minlength=256)
         )
+
+
+def test_auto_thresholds_a_flat_view_that_a_large_shaft_fills_in_part() -> None:
+    # The shaft covers ~25 % of each view: the share of background-level pixels is ~70 %, but
+    # of the pixels off the instrument it is ~95 %: a flat background, thresholded.
+    views, threads = [], []
+    for shift in (0, 12):
+        img = np.full((120, 160), 205, np.uint8)
+        thread = np.zeros(img.shape, np.uint8)
+        cv2.polylines(thread, [np.array([[10, 100], [60, 70], [150, 90]], np.int32) - [shift, 0]],
+                      False, 1, 2)  # fmt: skip
+        img[thread > 0] = 120
+        shaft = np.zeros(img.shape, np.uint8)  # a capsule 30 px wide, in front of the thread
+        cv2.line(shaft, (45 - shift, 35), (175 - shift, 35), 1, 30)
+        img[shaft > 0] = 150
+        thread[shaft > 0] = 0
+        views.append(img)
+        threads.append(thread > 0)
+    lifted = segment(StereoPair(views[0], views[1]))
+    assert lifted.method == "threshold"
+    for P, T in ((lifted.P_L, threads[0]), (lifted.P_R, threads[1])):
+        assert not P[18:52].any()  # no shaft
+        assert (P & T).sum() >= 0.9 * T.sum()
