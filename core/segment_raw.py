@@ -453,6 +453,16 @@ def _select(
             # among blood-like pieces, one seen in front of the tissue at least in part (a
             # part of the thread merged with a vessel where they cross)
             k[j] = not _a_mark(votes) and (not nearest_hue or np.any(votes == 0))
+            if _a_mark(votes):
+                marks.append(j)
+        # An undecided piece that is a fragment of a mark of its dye (as in the choice above)
+        # does not join either: a fibre cut in two by a faint stretch or by the instrument.
+        for j in others.tolist():
+            if k[j] and np.all(votes_of[j] < 0):
+                k[j] = not (
+                    _continues(v, on, lab_on, j, marks, delta, length)
+                    or _like_a_mark(v, on[lab_on == j], j, marks, delta)
+                )
         k[best] = True
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece),
