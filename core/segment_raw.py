@@ -71,6 +71,10 @@ _MAX_SURFACE_TESTS: Final = 8  # a thread less salient than 8 marks on the tissu
 _GLINT_APART_DEG: Final = 25.0  # a thread's contrast and white closer than 25 degrees: grey,
 # a highlight on it is not told from its body (the fit's noise gain 1/sin^2 stays <= 5.6)
 _GLINT_APART_SIN2: Final = float(np.sin(np.radians(_GLINT_APART_DEG)) ** 2)
+_MAX_RED_TESTS: Final = 4  # a red thread less salient than 3 blood-like lines on the tissue
+# (vessels) is not told from them: the red pass tests at most 4 pieces a view
+_RED_UNDECIDED: Final = 1  # a red thread less salient than 2 undecided blood-like lines is
+# not told from the vessels (bounds the red pass's work: ~1 ms a surface test)
 _HIGHLIGHT_PX: Final = 4  # a highlight along a thread <= 6 px wide leaves at most 4 px
 # between its two sides
 _NOISE_ROW_STEP: Final = 16  # noise estimated on every 16th row: 30 rows x 640 px at 640x480
@@ -129,7 +133,7 @@ def segment_raw(
         glint = (
             found is not None
             and floating
-            and all(_near(_blood_px(v), c) for v, c in zip(views, found, strict=True))
+            and all(_near_blood(v, c) for v, c in zip(views, found, strict=True))
         )
         red, red_salience, red_cos, _ = (
             _select(red_views, p, nearest_hue=True)
@@ -157,7 +161,7 @@ def segment_raw(
         # where its axis passes between pixel centres (coverage < 0.5 on both sides), and its
         # parts stay one piece through the core's pixels there.
         mask = _grow_mask(v, core)
-        if _grey_contrast(v, core):  # a highlight on it is not told from its body by colour
+        if v.grey_core:  # a highlight on it is not told from its body by colour
             mask = _fill_across(mask, _HIGHLIGHT_PX)
         mask &= drop_specks(mask | core.view(bool), max(int(p.min_length_px), 1))
         score = cv2.min(v.S, 2.0 * p.ridge_hi * v.level) * (1.0 / (2.0 * p.ridge_hi * v.level))
@@ -181,6 +185,7 @@ class _View:
     bg_rgb: np.ndarray  # (h, w, C) float32 local background colour at quarter resolution
     s_lo: np.ndarray  # (M,) float32 S at the lo pixels
     pieces: tuple = ()
+    grey_core: bool = False  # the chosen core's contrast is near grey (:func:`_grey_contrast`)
     _grey: np.ndarray | None = None
     _far: np.ndarray | None = None
     _surface: SurfaceTest | None = None
@@ -342,6 +347,7 @@ def _select(
     salience = 0.0
     cos_vessels = -1.0
     floating = True
+    chosen = []
     for i, v in enumerate(views):
         lab, _, means, length, ok = v.pieces  # lab: piece of each lo pixel (0: none), sparse
         # Only the pixels of shape-ok pieces can join (the rest of the lo pixels is skipped).
@@ -372,7 +378,8 @@ def _select(
         # of the tissue, not merely undecided (a small leftover).
         marks: list[int] = []  # pieces found to be marks on the tissue, most salient first
         votes_of: dict[int, np.ndarray] = {}  # surface votes of the pieces tested
-        for _ in range(_MAX_SURFACE_TESTS):
+        skipped = 0  # blood-like pieces passed over as not seen in front of the tissue
+        for _ in range(_MAX_RED_TESTS if nearest_hue else _MAX_SURFACE_TESTS):
             if rank[best] <= 0:
                 break
             votes = votes_of[best] = _surface_votes(views, i, lab_on == best, on, D)
@@ -390,6 +397,9 @@ def _select(
                 if nearest_hue and not _floats(votes):
                     # undecided or moving with the tissue in part: not told from a vessel of
                     # its hue (it may still join a thread found in front of the tissue)
+                    skipped += 1
+                    if skipped > _RED_UNDECIDED:
+                        return None, salience + top, 1.0, False
                     k[best] = False
                     rank[best] = -1.0
                     best = int(np.argmax(rank))
@@ -410,6 +420,11 @@ def _select(
         if rank[best] <= 0:
             return None, salience + top, 1.0, False
         salience += float(rank[best])
+        chosen.append((v, lab, means, length, on, lab_on, k, n, area, delta, rank, best, marks,
+                       votes_of))  # fmt: skip
+    # The pieces that join the chosen ones (tested only once both views have chosen one).
+    for i, (v, lab, means, length, on, lab_on, k, n, area, delta, rank, best, marks,
+            votes_of) in enumerate(chosen):  # fmt: skip
         # A piece of two dyes (a thread merged with a fibre where they cross) is of the dye
         # of its part seen in front of the tissue: the thread's other pieces join it.
         delta[best] = _main_dye(v.delta[on[lab_on == best]], votes_of[best], delta[best])
@@ -477,29 +492,37 @@ def _select(
         px = px[sel] if sel.any() else np.flatnonzero(lab == best)
         core = np.zeros(v.lo.shape, np.uint8)
         core[v.rows[px], v.cols[px]] = 1
+        v.grey_core = _grey_contrast(v, v.rows[px], v.cols[px])
         out.append(core)
     return out, salience, cos_vessels, floating
 
 
-def _blood_px(v: _View) -> np.ndarray:
-    """(H, W) uint8, 1 on the view's blood-like candidate pixels."""
-    out = np.zeros(v.lo.shape, np.uint8)
-    out[v.rows[v.blood], v.cols[v.blood]] = 1
-    return out
+def _near_blood(v: _View, core: np.ndarray) -> bool:
+    """:func:`_near` of the view's blood-like candidate pixels and ``core`` (H, W) uint8."""
+    rows, cols = v.rows[v.blood], v.cols[v.blood]
+    return _near(None, core, (rows, cols))
 
 
-def _near(other: np.ndarray, core: np.ndarray) -> bool:
+def _near(other: np.ndarray | None, core: np.ndarray, other_px: tuple | None = None) -> bool:
     """Whether at least half of the ``core`` (H, W) uint8 pixels have a pixel of ``other``
-    (H, W) uint8 within _GLINT_SIDE_PX (a highlight's distance to the sides of its thread);
-    on the core's bounding box grown by that."""
+    (H, W) uint8 (or of the pixels ``other_px``, rows and columns) within _GLINT_SIDE_PX (a
+    highlight's distance to the sides of its thread); on the core's bounding box grown by
+    that."""
     x, y, w, h = cv2.boundingRect(core)
     if w == 0:
         return False
     m = _GLINT_SIDE_PX
     H, W = core.shape
     r0, r1, c0, c1 = max(y - m, 0), min(y + h + m, H), max(x - m, 0), min(x + w + m, W)
+    if other is not None:
+        near = np.ascontiguousarray(other[r0:r1, c0:c1])
+    else:
+        rows, cols = other_px
+        inside = (rows >= r0) & (rows < r1) & (cols >= c0) & (cols < c1)
+        near = np.zeros((r1 - r0, c1 - c0), np.uint8)
+        near[rows[inside] - r0, cols[inside] - c0] = 1
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
-    reach = cv2.dilate(np.ascontiguousarray(other[r0:r1, c0:c1]), k)
+    reach = cv2.dilate(near, k)
     c = core[r0:r1, c0:c1]
     return cv2.countNonZero(reach & c) >= 0.5 * cv2.countNonZero(c)
 
@@ -1058,17 +1081,16 @@ def _body_contrast(
     return (proj, net), glint
 
 
-def _grey_contrast(v: _View, core: np.ndarray) -> bool:
-    """Whether the summed colour contrast (RGB) of the ``core`` (H, W) uint8 pixels to the
-    view's local background lies within _GLINT_APART_DEG of grey (white or black): there a
-    highlight (white added) is not told from the thread's own contrast by colour
+def _grey_contrast(v: _View, rows: np.ndarray, cols: np.ndarray) -> bool:
+    """Whether the summed colour contrast (RGB) of the core pixels (``rows``, ``cols``) (M,)
+    to the view's local background lies within _GLINT_APART_DEG of grey (white or black):
+    there a highlight (white added) is not told from the thread's own contrast by colour
     (:func:`_body_contrast`)."""
-    rows, cols = _points(core)
     if len(rows) == 0 or v.bg_rgb.shape[2] != 3:
         return len(rows) > 0
-    a = v.img if v.img.ndim == 3 else v.img[:, :, None]
-    px = a[rows, cols, :3].astype(np.float64)
-    bg = v.bg_rgb[_qi(rows, v.bg_rgb.shape[0]), _qi(cols, v.bg_rgb.shape[1])]
+    r64, c64 = np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64)
+    px = pixels_at(_uint8(v.img), r64, c64).astype(np.float64)
+    bg = blocks_at(np.ascontiguousarray(v.bg_rgb, np.float32), r64, c64, _Q)
     u = (px - bg).sum(axis=0)
     n2 = float(u @ u)
     if n2 <= 0.0:
@@ -1087,30 +1109,34 @@ def _fill_across(mask: np.ndarray, gap: int) -> np.ndarray:
     takes the two dark sides and leaves the highlight between them out. Geometry tells it: a
     run enclosed across a thread no wider than 6 px is inside it. A 1-2 px thread's staircase
     encloses nothing (its corner pixels have mask neighbours on two adjacent sides only).
-    Computed on the mask's bounding box."""
-    x, y, w, h = cv2.boundingRect(np.ascontiguousarray(mask, dtype=bool).view(np.uint8))
+
+    A closing by a segment of ``gap + 1`` pixels fills exactly the runs shorter than it; one
+    closing per direction, on the mask's bounding box padded by ``gap + 1`` zeros (a run that
+    reaches the image's edge is not enclosed)."""
+    u8 = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
+    x, y, w, h = cv2.boundingRect(u8)
     if w == 0 or gap < 1:
         return mask
-    box = np.zeros((h + 2 * gap, w + 2 * gap), bool)  # padded: shifts read no wrapped pixel
-    box[gap : gap + h, gap : gap + w] = mask[y : y + h, x : x + w]
-    inner = (slice(gap, gap + h), slice(gap, gap + w))
-    fill = np.zeros((h, w), bool)
-    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
-        # nearest mask pixel ahead (fwd) and behind (bwd), in steps, capped at gap + 1
-        fwd = np.full((h, w), gap + 1, np.int8)
-        bwd = np.full((h, w), gap + 1, np.int8)
-        for k in range(gap, 0, -1):
-            ahead = box[gap + k * dr : gap + k * dr + h, gap + k * dc : gap + k * dc + w]
-            behind = box[gap - k * dr : gap - k * dr + h, gap - k * dc : gap - k * dc + w]
-            fwd[ahead] = k
-            bwd[behind] = k
-        fill |= fwd.astype(np.int16) + bwd <= gap + 1
-    fill &= ~box[inner]
-    if not fill.any():
+    m = gap + 1
+    box = cv2.copyMakeBorder(u8[y : y + h, x : x + w], m, m, m, m, cv2.BORDER_CONSTANT, value=0)
+    fill = np.zeros_like(box)
+    for k in _segments(m):
+        # closing by the segment: dilation, then erosion by its reflection (the anchor at the
+        # other end: an even segment has no centre)
+        grown = cv2.dilate(box, k, anchor=(0, 0))
+        fill |= cv2.erode(grown, k, anchor=(k.shape[1] - 1, k.shape[0] - 1))
+    fill = fill[m : m + h, m : m + w]
+    if not cv2.countNonZero(fill & ~u8[y : y + h, x : x + w] & 1):
         return mask
     out = mask.copy()
-    out[y : y + h, x : x + w] |= fill
+    out[y : y + h, x : x + w] |= fill.view(bool)
     return out
+
+
+def _segments(n: int) -> tuple[np.ndarray, ...]:
+    """Structuring elements of ``n`` pixels in a row, a column and the two diagonals."""
+    eye = np.eye(n, dtype=np.uint8)
+    return np.ones((1, n), np.uint8), np.ones((n, 1), np.uint8), eye, eye[::-1].copy()
 
 
 def drop_specks(mask: np.ndarray, min_px: int) -> np.ndarray:
