@@ -206,3 +206,33 @@ def test_a_red_thread_is_found_whole_not_by_the_highlight_along_it(seed: int) ->
     for P, M in ((lifted.P_L, frame.mask_left), (lifted.P_R, frame.mask_right)):
         assert (P & M).sum() >= 0.8 * M.sum()
         assert (P & ~M).sum() <= 0.15 * P.sum()
+
+
+def _fill_across_plain(mask: np.ndarray, gap: int) -> np.ndarray:
+    """The runs of <= gap pixels enclosed along a row, column or diagonal, pixel by pixel."""
+    h, w = mask.shape
+    out = mask.copy()
+    for r in range(h):
+        for c in range(w):
+            if mask[r, c]:
+                continue
+            for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+                ahead = [k for k in range(1, gap + 1)
+                         if 0 <= r + k * dr < h and 0 <= c + k * dc < w and mask[r + k * dr, c + k * dc]]  # fmt: skip
+                behind = [k for k in range(1, gap + 1)
+                          if 0 <= r - k * dr < h and 0 <= c - k * dc < w and mask[r - k * dr, c - k * dc]]  # fmt: skip
+                if ahead and behind and ahead[0] + behind[0] <= gap + 1:
+                    out[r, c] = True
+    return out
+
+
+@pytest.mark.parametrize("trial", range(12))
+def test_fill_across_equals_the_plain_per_pixel_runs(trial: int) -> None:
+    rng = np.random.default_rng(trial)
+    m = np.zeros((int(rng.integers(8, 40)), int(rng.integers(8, 40))), np.uint8)
+    for _ in range(int(rng.integers(1, 4))):
+        pts = rng.integers(0, [m.shape[1], m.shape[0]], size=(4, 2)).astype(np.int32)
+        cv2.polylines(m, [pts], False, 1, int(rng.integers(1, 4)))
+    mask = (m > 0) | (rng.random(m.shape) < 0.05)
+    gap = int(rng.integers(1, 5))
+    assert np.array_equal(sr._fill_across(mask, gap), _fill_across_plain(mask, gap))
