@@ -348,7 +348,6 @@ def _select(
     cos_vessels = -1.0
     floating = True
     chosen = []
-    undecided: list[int] = []  # views whose chosen piece no surface test decided (red pass)
     for i, v in enumerate(views):
         lab, _, means, length, ok = v.pieces  # lab: piece of each lo pixel (0: none), sparse
         # Only the pixels of shape-ok pieces can join (the rest of the lo pixels is skipped).
@@ -371,7 +370,6 @@ def _select(
         if not k.any():
             return None, 0.0, 1.0, False
         rank = np.where(k, means * np.sqrt(length), -1.0)
-        rank_all = rank.copy()
         best = int(np.argmax(rank))
         top = float(rank[best])  # marks on the tissue count here: a red thread must outshine them
         # A mark on the tissue (vessel, fibre) moves with the texture beside it; a thread in
@@ -381,7 +379,6 @@ def _select(
         marks: list[int] = []  # pieces found to be marks on the tissue, most salient first
         votes_of: dict[int, np.ndarray] = {}  # surface votes of the pieces tested
         skipped = 0  # blood-like pieces passed over as not seen in front of the tissue
-        fallback = -1  # the first of them that no test decided (the red pass)
         for _ in range(_MAX_RED_TESTS if nearest_hue else _MAX_SURFACE_TESTS):
             if rank[best] <= 0:
                 break
@@ -401,11 +398,8 @@ def _select(
                     # undecided or moving with the tissue in part: not told from a vessel of
                     # its hue (it may still join a thread found in front of the tissue)
                     skipped += 1
-                    if fallback < 0 and np.all(votes < 0):
-                        fallback = best
                     if skipped > _RED_UNDECIDED:
-                        rank[:] = -1.0  # none chosen in this view (but the fallback)
-                        break
+                        return None, salience + top, 1.0, False
                     k[best] = False
                     rank[best] = -1.0
                     best = int(np.argmax(rank))
@@ -417,24 +411,17 @@ def _select(
             rank[best] = -1.0
             best = int(np.argmax(rank))
         else:
-            rank[:] = -1.0  # the most salient pieces are marks on the tissue
+            return (
+                None,
+                salience + top,
+                1.0,
+                False,
+            )  # the most salient pieces are marks on the tissue
         if rank[best] <= 0:
-            if fallback < 0:
-                return None, salience + top, 1.0, False
-            # An undecided blood-like piece may be the thread whose other view is seen in
-            # front of the tissue: taken when that view chose a piece that floats and the two
-            # are one object (below).
-            best = fallback
-            undecided.append(i)
-            rank = np.where(k, rank_all, -1.0)
-            rank[best] = rank_all[best]
+            return None, salience + top, 1.0, False
         salience += float(rank[best])
         chosen.append((v, lab, means, length, on, lab_on, k, n, area, delta, rank, best, marks,
                        votes_of))  # fmt: skip
-    if undecided and (len(undecided) == 2 or not _one_object(
-        [_piece_image(c[0], c[4], c[5], c[11]) for c in chosen], D
-    )):  # fmt: skip
-        return None, salience, 1.0, False
     # The pieces that join the chosen ones (tested only once both views have chosen one).
     for i, (v, lab, means, length, on, lab_on, k, n, area, delta, rank, best, marks,
             votes_of) in enumerate(chosen):  # fmt: skip
@@ -508,15 +495,6 @@ def _select(
         v.grey_core = _grey_contrast(v, v.rows[px], v.cols[px])
         out.append(core)
     return out, salience, cos_vessels, floating
-
-
-def _piece_image(v: _View, on: np.ndarray, lab_on: np.ndarray, piece: int) -> np.ndarray:
-    """(H, W) uint8, 1 on the lo pixels of ``piece`` (``on`` (M,) indexes the view's lo
-    pixels of the shape-ok pieces, ``lab_on`` (M,) their pieces)."""
-    out = np.zeros(v.lo.shape, np.uint8)
-    px = on[lab_on == piece]
-    out[v.rows[px], v.cols[px]] = 1
-    return out
 
 
 def _near_blood(v: _View, core: np.ndarray) -> bool:
