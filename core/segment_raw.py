@@ -73,7 +73,7 @@ _GLINT_APART_DEG: Final = 25.0  # a thread's contrast and white closer than 25 d
 _GLINT_APART_SIN2: Final = float(np.sin(np.radians(_GLINT_APART_DEG)) ** 2)
 _MAX_RED_TESTS: Final = 4  # a red thread less salient than 3 blood-like lines on the tissue
 # (vessels) is not told from them: the red pass tests at most 4 pieces a view
-_RED_UNDECIDED: Final = 1  # a red thread less salient than 2 undecided blood-like lines is
+_RED_UNDECIDED: Final = 0  # a red thread less salient than an undecided blood-like line is
 # not told from the vessels (bounds the red pass's work: ~1 ms a surface test)
 _HIGHLIGHT_PX: Final = 4  # a highlight along a thread <= 6 px wide leaves at most 4 px
 # between its two sides
