@@ -97,7 +97,9 @@ def segment_raw(
        _RED_THREAD_GAIN times more than anything else and their hue differs from the mean of
        the frame's other blood-like pixels by more than ~8 degrees (a red thread; the vessels
        of a frame share one hue), keeping only pixels nearer the thread's hue. A lone
-       blood-like line (too few other blood-like pixels) is a vessel.
+       blood-like line (too few other blood-like pixels) is a vessel. They come back too when
+       the line chosen without them runs along them in both views (the highlight on a red
+       thread) and the blood-like line chosen lies along it.
     3. Shape: a piece's length >= min_length_px and largest half-width <= MAX_HALF_WIDTH_PX.
     4. Stereo: a piece keeps >= half of its pixels with a candidate pixel on the same row of the
        other view within [0, max_disparity_px] of disparity.
@@ -108,10 +110,14 @@ def segment_raw(
        and pixels join it when they share its dye (direction of the colour contrast; a piece
        merged with a fibre by its part of that dye) and their mean S is >= keep_ratio of its.
        Pieces moving with the tissue are marks on it (:mod:`core.segment_surface`), and so
-       are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`). The
-       cores chosen in the two views must be one object (:func:`_one_object`).
+       are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`),
+       chosen or joining; a kept piece moving with the tissue in part loses that part
+       (:func:`_mark_part`), and a piece of two dyes takes that of its part in front of the
+       tissue (:func:`_main_dye`). The cores chosen in the two views must be one object
+       (:func:`_one_object`).
     6. Mask: within _BAND_PX of the kept pixels, those with coverage >= 0.5 of a thread colour
-       blended over the local background colour (see :func:`_grow_mask`).
+       blended over the local background colour (see :func:`_grow_mask`); for a contrast near
+       grey, with the runs it encloses across the thread (a highlight, :func:`_fill_across`).
 
     Returns P_L, P_R (H, W) bool and score_L, score_R (H, W) float32 in [0, 1].
     Raises ``ValueError("no thread found ...")`` when no piece survives in a view.
