@@ -3,9 +3,10 @@
 An instrument's shaft is wide and is found as such (``segmentation._drop_wide`` on a flat
 background, ``segment_raw._instrument_mask`` on tissue); its jaws are as thin as a few thread
 widths and stay in the thread mask as stubs attached to the shaft. One thread has one width
-along its length, so a piece attached to the instrument that is markedly wider than the
-frame's longest piece (the thread, or the longest of its visible parts) belongs to the
-instrument. A thread passing under the instrument touches it too, but keeps its own width.
+along its length, so the part of a piece attached to the instrument that is markedly wider
+than the thread (read along the medial axis of the pieces: the thread makes most of it)
+belongs to the instrument, also when a jaw touches the thread and they form one piece. A
+thread passing under the instrument touches it too, but keeps its own width.
 """
 
 from __future__ import annotations
@@ -18,20 +19,25 @@ import numpy as np
 WIDER_THAN_THREAD: Final = 1.5  # a piece 1.5x as wide as the thread is not the same thread
 # (the width of a 1-6 px thread varies by < 30 % along it at this resolution; a jaw is >= 2x)
 _CROSS: Final = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+_SQUARE: Final = np.ones((3, 3), np.uint8)  # the 8 neighbours of the medial-axis test
 
 
 def drop_attached(mask: np.ndarray, tool: np.ndarray, body: np.ndarray | None = None) -> np.ndarray:
-    """``mask`` (H, W) bool without the wide part of the pieces that touch ``tool`` (H, W)
-    bool, the instrument found so far, and are more than WIDER_THAN_THREAD times as wide as the
-    longest piece (the wide part: what a disc WIDER_THAN_THREAD times as wide as that piece
-    covers inside it). Pieces are those of ``body`` (H, W) bool outside ``tool`` (default ``mask``): the
-    pixels off the background level, dark or bright, so that a jaw's highlight is part of the
-    jaw and its width is the jaw's, not that of its dark rims.
+    """``mask`` (H, W) bool without the parts wider than the thread of the pieces that touch
+    ``tool`` (H, W) bool, the instrument found so far: what a disc WIDER_THAN_THREAD times as
+    wide as the thread covers inside them (an opening) where that reaches the tool, and the
+    corners it cannot reach where
+    such a part meets the tool (:func:`_corners`). Pieces are those of ``body`` (H, W) bool
+    outside ``tool`` (default ``mask``): the pixels off the background level, dark or bright,
+    so that a jaw's highlight is part of the jaw and its width is the jaw's, not that of its
+    dark rims.
 
-    A piece's mean width is 2 area / perimeter (perimeter: its pixels with a 4-neighbour
-    outside it, which counts both sides of a strip); its length is half that perimeter. When the
-    longest piece is itself attached and as wide as the rest (the thread mostly hidden), nothing
-    is dropped: there is no thinner reference to tell a jaw from the thread.
+    The thread's width is that of the longest piece (its perimeter: both sides of a strip),
+    read along its medial axis (:func:`thread_half_width`), not as its mean: a jaw
+    touching the thread is one piece with it, and only its own part is wider. A piece no
+    wider than the thread anywhere (a thread end leaving the tool) holds no such disc and stays
+    whole. When the thread is mostly hidden and the jaws make most of that piece's medial axis, the reference is the jaws' width and nothing is dropped: there is no
+    thinner reference to tell a jaw from the thread.
     """
     if mask.shape != tool.shape or mask.ndim != 2:
         raise ValueError(f"drop_attached needs two (H, W) masks, got {mask.shape}, {tool.shape}")
@@ -42,31 +48,72 @@ def drop_attached(mask: np.ndarray, tool: np.ndarray, body: np.ndarray | None = 
         return mask
     u8 = (np.ascontiguousarray(body, dtype=bool) & ~tool).view(np.uint8)
     n, labels = cv2.connectedComponents(u8, connectivity=8, ltype=cv2.CV_32S)
-    if n <= 2:  # one piece: nothing to compare it with
-        return mask
-    rim = cv2.dilate(np.ascontiguousarray(tool, dtype=bool).view(np.uint8), _CROSS)
+    tool8 = np.ascontiguousarray(tool, dtype=bool).view(np.uint8)
+    rim = cv2.dilate(tool8, _CROSS)
     touching = np.zeros(n, bool)
     touching[labels[rim > 0]] = True
     touching[0] = False
     if not touching.any():
         return mask
-    area = np.bincount(labels.ravel(), minlength=n).astype(np.float64)
+    # The thread's width: that of the longest piece (the thread, or the longest of its visible
+    # parts, with the jaws that touch it if any).
     edge = (u8 > cv2.erode(u8, _CROSS, borderType=cv2.BORDER_REPLICATE)).ravel()
-    perimeter = np.bincount(labels.ravel()[edge], minlength=n).astype(np.float64)
-    area[0] = perimeter[0] = 0.0
-    width = 2.0 * area / np.maximum(perimeter, 1.0)
-    ref = int(np.argmax(perimeter))  # the longest piece: the thread or its longest part
-    drop = touching & (width > WIDER_THAN_THREAD * width[ref])
-    if not drop.any():
+    perimeter = np.bincount(labels.ravel()[edge], minlength=n)
+    perimeter[0] = -1
+    half = thread_half_width(labels == int(np.argmax(perimeter)))
+    if half is None:
         return mask
-    # Only the wide part of such a piece: a thread end touching a jaw is in the same piece,
-    # thinner than the disc that fits in the jaw (radius WIDER_THAN_THREAD thread half-widths).
-    r = max(int(np.ceil(0.5 * WIDER_THAN_THREAD * width[ref])), 1)
+    # A strip w px wide has a medial distance (w + 1) / 2: the disc's radius is
+    # WIDER_THAN_THREAD half-widths of the thread, (w - 1) / 2 < r (it fits in no thread).
+    r = max(int(np.ceil(WIDER_THAN_THREAD * (half - 0.5))), 1)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    wide = cv2.erode(drop[labels].view(np.uint8) & u8, disc)
+    attached = touching[labels].view(np.uint8) & u8
+    wide = cv2.erode(attached, disc)
+    if not wide.any():
+        return mask
     grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 3, 2 * r + 3))
     wide = cv2.dilate(wide, grow)  # the opening, and its 1 px anti-aliased rim
+    # Only the wide parts that reach the tool themselves (a jaw is attached to the shaft; a
+    # thread crossing itself is wide where it crosses, away from the tool).
+    m, parts = cv2.connectedComponents(wide, connectivity=8, ltype=cv2.CV_32S)
+    reach = np.zeros(m, bool)
+    reach[parts[rim > 0]] = True
+    reach[0] = False
+    if not reach.any():
+        return mask
+    wide = reach[parts].view(np.uint8)
+    wide |= _corners(attached & (wide == 0), wide | tool8, 2 * r + 3)
     return mask & (wide == 0)
+
+
+def thread_half_width(pieces: np.ndarray) -> float | None:
+    """The thread's half-width (px, a strip w px wide gives (w + 1) / 2) read from ``pieces``
+    (H, W) bool: the median distance to the outside along their medial axis (the pixels no
+    neighbour of which is farther inside), so that the longest width wins over short wider
+    parts (jaws, crossings); None when there is no piece."""
+    u8 = np.ascontiguousarray(pieces, dtype=bool).view(np.uint8)
+    if not u8.any():
+        return None
+    dist = cv2.distanceTransform(u8, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    ridge = (u8 > 0) & (dist >= cv2.dilate(dist, _SQUARE))
+    return float(np.median(dist[ridge]))
+
+
+def _corners(rest: np.ndarray, removed: np.ndarray, size: int) -> np.ndarray:
+    """(H, W) uint8, 1 on the 8-connected pieces of ``rest`` (uint8, what is left of the pieces
+    attached to the tool) that touch ``removed`` (uint8, the tool and the wide parts taken) and
+    fit in a ``size`` x ``size`` box: the corner where a jaw meets the shaft, which the
+    opening's disc does not reach. A thread piece that short beside an instrument is no usable
+    part of the thread either."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(rest, connectivity=8)
+    if n <= 1:
+        return np.zeros(rest.shape, np.uint8)
+    near = np.zeros(n, bool)
+    near[labels[cv2.dilate(removed, _CROSS) > 0]] = True
+    small = (stats[:, cv2.CC_STAT_WIDTH] <= size) & (stats[:, cv2.CC_STAT_HEIGHT] <= size)
+    drop = near & small
+    drop[0] = False
+    return drop[labels].view(np.uint8)
 
 
 def grow_into_attached(grey: np.ndarray, tool: np.ndarray, min_width_px: int) -> np.ndarray:

@@ -71,6 +71,12 @@ _MAX_SURFACE_TESTS: Final = 8  # a thread less salient than 8 marks on the tissu
 _GLINT_APART_DEG: Final = 25.0  # a thread's contrast and white closer than 25 degrees: grey,
 # a highlight on it is not told from its body (the fit's noise gain 1/sin^2 stays <= 5.6)
 _GLINT_APART_SIN2: Final = float(np.sin(np.radians(_GLINT_APART_DEG)) ** 2)
+_MAX_RED_TESTS: Final = 4  # a red thread less salient than 3 blood-like lines on the tissue
+# (vessels) is not told from them: the red pass tests at most 4 pieces a view
+_RED_UNDECIDED: Final = 0  # a red thread less salient than an undecided blood-like line is
+# not told from the vessels (bounds the red pass's work: ~1 ms a surface test)
+_HIGHLIGHT_PX: Final = 4  # a highlight along a thread <= 6 px wide leaves at most 4 px
+# between its two sides
 _NOISE_ROW_STEP: Final = 16  # noise estimated on every 16th row: 30 rows x 640 px at 640x480
 
 
@@ -91,7 +97,9 @@ def segment_raw(
        _RED_THREAD_GAIN times more than anything else and their hue differs from the mean of
        the frame's other blood-like pixels by more than ~8 degrees (a red thread; the vessels
        of a frame share one hue), keeping only pixels nearer the thread's hue. A lone
-       blood-like line (too few other blood-like pixels) is a vessel.
+       blood-like line (too few other blood-like pixels) is a vessel. They come back too when
+       the line chosen without them runs along them in both views (the highlight on a red
+       thread) and the blood-like line chosen lies along it.
     3. Shape: a piece's length >= min_length_px and largest half-width <= MAX_HALF_WIDTH_PX.
     4. Stereo: a piece keeps >= half of its pixels with a candidate pixel on the same row of the
        other view within [0, max_disparity_px] of disparity.
@@ -102,10 +110,14 @@ def segment_raw(
        and pixels join it when they share its dye (direction of the colour contrast; a piece
        merged with a fibre by its part of that dye) and their mean S is >= keep_ratio of its.
        Pieces moving with the tissue are marks on it (:mod:`core.segment_surface`), and so
-       are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`). The
-       cores chosen in the two views must be one object (:func:`_one_object`).
+       are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`),
+       chosen or joining; a kept piece moving with the tissue in part loses that part
+       (:func:`_mark_part`), and a piece of two dyes takes that of its part in front of the
+       tissue (:func:`_main_dye`). The cores chosen in the two views must be one object
+       (:func:`_one_object`).
     6. Mask: within _BAND_PX of the kept pixels, those with coverage >= 0.5 of a thread colour
-       blended over the local background colour (see :func:`_grow_mask`).
+       blended over the local background colour (see :func:`_grow_mask`); for a contrast near
+       grey, with the runs it encloses across the thread (a highlight, :func:`_fill_across`).
 
     Returns P_L, P_R (H, W) bool and score_L, score_R (H, W) float32 in [0, 1].
     Raises ``ValueError("no thread found ...")`` when no piece survives in a view.
@@ -122,15 +134,23 @@ def segment_raw(
         # The most salient shape-ok piece of each view bounds what a red thread can reach.
         bound = sum(float(np.max(v.pieces[2] * np.sqrt(v.pieces[3]), where=v.pieces[4],
                                  initial=0.0)) for v in red_views)  # fmt: skip
+        # A line chosen without them that runs along blood-like pixels in both views may be
+        # the highlight along a red thread: the thread is then the blood-like line around it.
+        glint = (
+            found is not None
+            and floating
+            and all(_near_blood(v, c) for v, c in zip(views, found, strict=True))
+        )
         red, red_salience, red_cos, _ = (
             _select(red_views, p, nearest_hue=True)
-            if bound >= _RED_THREAD_GAIN * salience or not floating
+            if bound >= _RED_THREAD_GAIN * salience or not floating or glint
             else (None, 0.0, 1.0, False)
         )
         # With nearest_hue, a piece is chosen only when seen in front of the tissue.
         if red is not None and (
             not floating
             or (red_salience >= _RED_THREAD_GAIN * salience and red_cos < _VESSEL_HUE_COS)
+            or (glint and all(_near(r, c) for r, c in zip(red, found, strict=True)))
         ):
             views, found = red_views, red
     if found is not None and not _one_object(found, int(p.max_disparity_px)):
@@ -147,6 +167,8 @@ def segment_raw(
         # where its axis passes between pixel centres (coverage < 0.5 on both sides), and its
         # parts stay one piece through the core's pixels there.
         mask = _grow_mask(v, core)
+        if v.grey_core:  # a highlight on it is not told from its body by colour
+            mask = _fill_across(mask, _HIGHLIGHT_PX)
         mask &= drop_specks(mask | core.view(bool), max(int(p.min_length_px), 1))
         score = cv2.min(v.S, 2.0 * p.ridge_hi * v.level) * (1.0 / (2.0 * p.ridge_hi * v.level))
         out.append((mask, score))
@@ -169,6 +191,7 @@ class _View:
     bg_rgb: np.ndarray  # (h, w, C) float32 local background colour at quarter resolution
     s_lo: np.ndarray  # (M,) float32 S at the lo pixels
     pieces: tuple = ()
+    grey_core: bool = False  # the chosen core's contrast is near grey (:func:`_grey_contrast`)
     _grey: np.ndarray | None = None
     _far: np.ndarray | None = None
     _surface: SurfaceTest | None = None
@@ -330,6 +353,7 @@ def _select(
     salience = 0.0
     cos_vessels = -1.0
     floating = True
+    chosen = []
     for i, v in enumerate(views):
         lab, _, means, length, ok = v.pieces  # lab: piece of each lo pixel (0: none), sparse
         # Only the pixels of shape-ok pieces can join (the rest of the lo pixels is skipped).
@@ -346,6 +370,9 @@ def _select(
         )  # fmt: skip
         # Is it there at all: its mean contrast to the background stands out of the pixel noise.
         k &= np.linalg.norm(delta / v.sigma, axis=1) >= _MIN_SNR
+        if nearest_hue:  # a blood-like thread: the pieces of few blood-like pixels were judged
+            # without them (the first pass), and an undecided one there is no thread here
+            k &= np.bincount(lab_on, weights=v.blood[on], minlength=n) >= 0.5 * area
         if not k.any():
             return None, 0.0, 1.0, False
         rank = np.where(k, means * np.sqrt(length), -1.0)
@@ -356,10 +383,12 @@ def _select(
         # Among blood-like pieces (vessels are marks too) the one left must be seen in front
         # of the tissue, not merely undecided (a small leftover).
         marks: list[int] = []  # pieces found to be marks on the tissue, most salient first
-        for _ in range(_MAX_SURFACE_TESTS):
+        votes_of: dict[int, np.ndarray] = {}  # surface votes of the pieces tested
+        skipped = 0  # blood-like pieces passed over as not seen in front of the tissue
+        for _ in range(_MAX_RED_TESTS if nearest_hue else _MAX_SURFACE_TESTS):
             if rank[best] <= 0:
                 break
-            votes = _surface_votes(views, i, lab_on == best, on, D)
+            votes = votes_of[best] = _surface_votes(views, i, lab_on == best, on, D)
             # A piece too short for the test to decide, continuing a mark of its own dye, is
             # a part of that mark (one line cut in two by a faint stretch of it); one too short
             # for the test to ever decide (fewer blocks than it needs) is taken for one more
@@ -372,7 +401,15 @@ def _select(
                 )
             ):
                 if nearest_hue and not _floats(votes):
-                    return None, salience + top, 1.0, False
+                    # undecided or moving with the tissue in part: not told from a vessel of
+                    # its hue (it may still join a thread found in front of the tissue)
+                    skipped += 1
+                    if skipped > _RED_UNDECIDED:
+                        return None, salience + top, 1.0, False
+                    k[best] = False
+                    rank[best] = -1.0
+                    best = int(np.argmax(rank))
+                    continue
                 floating &= _floats(votes)
                 break
             marks.append(best)
@@ -389,6 +426,14 @@ def _select(
         if rank[best] <= 0:
             return None, salience + top, 1.0, False
         salience += float(rank[best])
+        chosen.append((v, lab, means, length, on, lab_on, k, n, area, delta, rank, best, marks,
+                       votes_of))  # fmt: skip
+    # The pieces that join the chosen ones (tested only once both views have chosen one).
+    for i, (v, lab, means, length, on, lab_on, k, n, area, delta, rank, best, marks,
+            votes_of) in enumerate(chosen):  # fmt: skip
+        # A piece of two dyes (a thread merged with a fibre where they cross) is of the dye
+        # of its part seen in front of the tissue: the thread's other pieces join it.
+        delta[best] = _main_dye(v.delta[on[lab_on == best]], votes_of[best], delta[best])
         # The frame's vessel hue: mean contrast of its blood-like pixels off the chosen piece.
         vessel = v.blood & (lab != best)
         d_vessel = v.delta[vessel].mean(axis=0) if vessel.sum() >= _MIN_VESSEL_PX else None
@@ -425,22 +470,92 @@ def _select(
         others = others[np.argsort(-rank[others])][:_MAX_SURFACE_TESTS]
         k[:] = False
         for j in others.tolist():
-            votes = _surface_votes(views, i, lab_on == j, on, D)
-            k[j] = _floats(votes) if nearest_hue else not _a_mark(votes)
+            votes = votes_of[j] = _surface_votes(views, i, lab_on == j, on, D)
+            # among blood-like pieces, one seen in front of the tissue at least in part (a
+            # part of the thread merged with a vessel where they cross)
+            k[j] = not _a_mark(votes) and (not nearest_hue or np.any(votes == 0))
+            if _a_mark(votes):
+                marks.append(j)
+        # An undecided piece that is a fragment of a mark of its dye (as in the choice above)
+        # does not join either: a fibre cut in two by a faint stretch or by the instrument.
+        for j in others.tolist():
+            if k[j] and np.all(votes_of[j] < 0):
+                k[j] = not (
+                    _continues(v, on, lab_on, j, marks, delta, length)
+                    or _like_a_mark(v, on[lab_on == j], j, marks, delta)
+                )
         k[best] = True
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
-        # nor pixels of another colour (a vessel or fibre merged into the thread's piece).
+        # nor pixels of another colour (a vessel or fibre merged into the thread's piece),
+        # nor, in a piece moving with the tissue in part, that part (a mark merged with it).
         px = on[k[lab_on]]  # the lo pixels of the kept pieces
         hue = _same_dye(v.delta[px], d_best)
         other = _other_dye_px(v.delta[px], d_best, hue)
+        other |= _mark_part(px, on, lab_on, votes_of, k)
         if by_hue:
             other |= hue <= _same_dye(v.delta[px], d_vessel)
         sel = ~other & (v.S[v.rows[px], v.cols[px]] >= _CORE_FRACTION * means[lab[px]])
         px = px[sel] if sel.any() else np.flatnonzero(lab == best)
         core = np.zeros(v.lo.shape, np.uint8)
         core[v.rows[px], v.cols[px]] = 1
+        v.grey_core = _grey_contrast(v, v.rows[px], v.cols[px])
         out.append(core)
     return out, salience, cos_vessels, floating
+
+
+def _near_blood(v: _View, core: np.ndarray) -> bool:
+    """:func:`_near` of the view's blood-like candidate pixels and ``core`` (H, W) uint8."""
+    rows, cols = v.rows[v.blood], v.cols[v.blood]
+    return _near(None, core, (rows, cols))
+
+
+def _near(other: np.ndarray | None, core: np.ndarray, other_px: tuple | None = None) -> bool:
+    """Whether at least half of the ``core`` (H, W) uint8 pixels have a pixel of ``other``
+    (H, W) uint8 (or of the pixels ``other_px``, rows and columns) within _GLINT_SIDE_PX (a
+    highlight's distance to the sides of its thread); on the core's bounding box grown by
+    that."""
+    x, y, w, h = cv2.boundingRect(core)
+    if w == 0:
+        return False
+    m = _GLINT_SIDE_PX
+    H, W = core.shape
+    r0, r1, c0, c1 = max(y - m, 0), min(y + h + m, H), max(x - m, 0), min(x + w + m, W)
+    if other is not None:
+        near = np.ascontiguousarray(other[r0:r1, c0:c1])
+    else:
+        rows, cols = other_px
+        inside = (rows >= r0) & (rows < r1) & (cols >= c0) & (cols < c1)
+        near = np.zeros((r1 - r0, c1 - c0), np.uint8)
+        near[rows[inside] - r0, cols[inside] - c0] = 1
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
+    reach = cv2.dilate(near, k)
+    c = core[r0:r1, c0:c1]
+    return cv2.countNonZero(reach & c) >= 0.5 * cv2.countNonZero(c)
+
+
+_GLINT_SIDE_PX: Final = 3  # a highlight along a thread <= 6 px wide: its sides within 3 px
+
+
+def _main_dye(d_px: np.ndarray, votes: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """The contrast (C,) of a piece: its mean contrast ``mean`` (C,), or, when its pixels'
+    contrasts ``d_px`` (M, C) split by brightness sign into two parts of >= _MIXED_SHARE each
+    and of different dyes (:func:`_same_dye` < _SAME_DYE_COS: a dark thread and a light fibre
+    that cross), the mean of the part with more pixels voted in front of the tissue (surface
+    ``votes`` (M,), :func:`_surface_votes`; a fibre is a mark on it)."""
+    dark = d_px[:, 0] < 0
+    n_dark = int(np.count_nonzero(dark))
+    if min(n_dark, len(dark) - n_dark) < _MIXED_SHARE * len(dark):
+        return mean
+    parts = [d_px[dark].mean(axis=0), d_px[~dark].mean(axis=0)]
+    if _same_dye(parts[0][None], parts[1])[0] >= _SAME_DYE_COS:
+        return mean
+    floats = [int(np.count_nonzero(votes[part] == 0)) for part in (dark, ~dark)]
+    if floats[0] == floats[1]:
+        return mean  # nothing tells the two apart
+    return parts[int(np.argmax(floats))]
+
+
+_MIXED_SHARE: Final = 1.0 - _MARK_SHARE  # a thread merged with a mark keeps >= 1/4 of its own
 
 
 def _one_object(cores: list[np.ndarray], d: int) -> bool:
@@ -556,6 +671,27 @@ def _direction_cos(r1: np.ndarray, c1: np.ndarray, r2: np.ndarray, c2: np.ndarra
     return float(abs(axes[0] @ axes[1]))
 
 
+def _mark_part(
+    px: np.ndarray, on: np.ndarray, lab_on: np.ndarray, votes_of: dict, keep: np.ndarray
+) -> np.ndarray:
+    """(len(px),) bool: of the lo pixels ``px`` (ascending) of the kept pieces (``keep`` (n,)),
+    those voted "on the surface" (:func:`_surface_votes`, ``votes_of`` by piece) in a piece
+    that moves with the tissue in part: more of its decided votes than the block test's errors
+    (over 1 - _MARK_SHARE of them) say so. ``on`` (M,) indexes the view's lo pixels of the
+    shape-ok pieces (ascending), ``lab_on`` (M,) their pieces."""
+    out = np.zeros(len(px), bool)
+    for j, votes in votes_of.items():
+        if not keep[j]:
+            continue
+        decided = np.count_nonzero(votes >= 0)
+        surface = votes == 1
+        if decided == 0 or np.count_nonzero(surface) <= (1.0 - _MARK_SHARE) * decided:
+            continue
+        # the piece's pixels on[lab_on == j] are ascending, as px: find them in px
+        out[np.searchsorted(px, on[lab_on == j][surface])] = True
+    return out
+
+
 def _floats(votes: np.ndarray) -> bool:
     """Whether a piece is seen in front of the tissue: it has decided votes
     (:func:`_surface_votes`) and at most 1 - _MARK_SHARE of them say "on the surface"."""
@@ -591,17 +727,26 @@ def noise_sigma(f: np.ndarray, row_step: int = _NOISE_ROW_STEP) -> np.ndarray:
 
 def _same_dye(delta: np.ndarray, ref: np.ndarray) -> np.ndarray:
     """Cosine between colour contrasts (M, C) and ``ref`` (C,): on the chroma channels (hue
-    of the contrast, independent of its strength and of lighting) when there is colour, with
-    -1 where the brightness contrast has the other sign; the brightness sign alone for grey."""
-    sign = np.where(delta[:, 0] * ref[0] >= 0, 1.0, -1.0)
+    of the contrast, independent of its strength and of lighting) when there is colour, and
+    where the brightness contrast has the other sign at most the cosine of the whole contrasts
+    (brightness and chroma); the brightness sign alone for grey.
+
+    A dye that differs from the tissue mostly in hue (green on pink) has a brightness contrast
+    near 0 whose sign is shading and noise: its whole contrast keeps its direction there. A
+    light fibre and a dark thread of one hue differ in the direction of the whole contrast."""
+    same_sign = delta[:, 0] * ref[0] >= 0
     if delta.shape[1] == 1:
-        return sign
+        return np.where(same_sign, 1.0, -1.0)
     d, r = delta[:, 1:], ref[1:]
     nr = float(np.linalg.norm(r))
     if nr < _GREY_CHROMA:  # a grey thread (black, white): chroma contrast must stay small too
-        return np.where(np.linalg.norm(d, axis=1) < 2 * _GREY_CHROMA, sign, -1.0)
+        ok = (np.linalg.norm(d, axis=1) < 2 * _GREY_CHROMA) & same_sign
+        return np.where(ok, 1.0, -1.0)
     cos = (d @ r) / np.maximum(np.linalg.norm(d, axis=1) * nr, 1e-9)
-    return np.minimum(cos, sign)
+    if same_sign.all():
+        return cos
+    whole = (delta @ ref) / np.maximum(np.linalg.norm(delta, axis=1) * np.linalg.norm(ref), 1e-9)
+    return np.where(same_sign, cos, np.minimum(cos, whole))
 
 
 def _dye_part(
@@ -940,6 +1085,64 @@ def _body_contrast(
     glint = (den >= _GLINT_APART_SIN2) & (dw > proj * uw)  # s > 0
     net = (proj - dw * uw) / np.maximum(den, np.float32(_GLINT_APART_SIN2))
     return (proj, net), glint
+
+
+def _grey_contrast(v: _View, rows: np.ndarray, cols: np.ndarray) -> bool:
+    """Whether the summed colour contrast (RGB) of the core pixels (``rows``, ``cols``) (M,)
+    to the view's local background lies within _GLINT_APART_DEG of grey (white or black):
+    there a highlight (white added) is not told from the thread's own contrast by colour
+    (:func:`_body_contrast`)."""
+    if len(rows) == 0 or v.bg_rgb.shape[2] != 3:
+        return len(rows) > 0
+    r64, c64 = np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64)
+    px = pixels_at(_uint8(v.img), r64, c64).astype(np.float64)
+    bg = blocks_at(np.ascontiguousarray(v.bg_rgb, np.float32), r64, c64, _Q)
+    u = (px - bg).sum(axis=0)
+    n2 = float(u @ u)
+    if n2 <= 0.0:
+        return True
+    uw2 = float(u.sum()) ** 2 / (3.0 * n2)  # cos^2 of the angle to white
+    return 1.0 - uw2 < _GLINT_APART_SIN2
+
+
+def _fill_across(mask: np.ndarray, gap: int) -> np.ndarray:
+    """``mask`` (H, W) bool with the runs of at most ``gap`` pixels it encloses along a row, a
+    column or a diagonal (a pixel's nearest mask pixels on its two sides, in one of the four
+    directions, at most ``gap + 1`` steps apart in all).
+
+    A dark thread's specular highlight adds white to it, against its own contrast (the
+    body-contrast fit cannot tell the two apart along a grey direction): the coverage test
+    takes the two dark sides and leaves the highlight between them out. Geometry tells it: a
+    run enclosed across a thread no wider than 6 px is inside it. A 1-2 px thread's staircase
+    encloses nothing (its corner pixels have mask neighbours on two adjacent sides only).
+
+    A closing by a segment of ``gap + 1`` pixels fills exactly the runs shorter than it; one
+    closing per direction, on the mask's bounding box padded by ``gap + 1`` zeros (a run that
+    reaches the image's edge is not enclosed)."""
+    u8 = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
+    x, y, w, h = cv2.boundingRect(u8)
+    if w == 0 or gap < 1:
+        return mask
+    m = gap + 1
+    box = cv2.copyMakeBorder(u8[y : y + h, x : x + w], m, m, m, m, cv2.BORDER_CONSTANT, value=0)
+    fill = np.zeros_like(box)
+    for k in _segments(m):
+        # closing by the segment: dilation, then erosion by its reflection (the anchor at the
+        # other end: an even segment has no centre)
+        grown = cv2.dilate(box, k, anchor=(0, 0))
+        fill |= cv2.erode(grown, k, anchor=(k.shape[1] - 1, k.shape[0] - 1))
+    fill = fill[m : m + h, m : m + w]
+    if not cv2.countNonZero(fill & ~u8[y : y + h, x : x + w] & 1):
+        return mask
+    out = mask.copy()
+    out[y : y + h, x : x + w] |= fill.view(bool)
+    return out
+
+
+def _segments(n: int) -> tuple[np.ndarray, ...]:
+    """Structuring elements of ``n`` pixels in a row, a column and the two diagonals."""
+    eye = np.eye(n, dtype=np.uint8)
+    return np.ones((1, n), np.uint8), np.ones((n, 1), np.uint8), eye, eye[::-1].copy()
 
 
 def drop_specks(mask: np.ndarray, min_px: int) -> np.ndarray:

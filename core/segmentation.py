@@ -292,6 +292,11 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
             flat = min(
                 _flat_share(hists[0], views[0], bg[0]), _flat_share(hists[1], views[1], bg[1])
             )
+            if flat < p.flat_share:  # an instrument may fill more than 1 - flat_share of a view
+                flat = min(
+                    _flat_share_off_tools(h, v, b, p)
+                    for h, v, b in zip(hists, views, bg, strict=True)
+                )
             method = "threshold" if flat >= p.flat_share else "raw"
         if method == "threshold":
             (P_L, box_L), (P_R, box_R) = (
@@ -395,6 +400,36 @@ def _flat_share(hist: np.ndarray, view: _Grey, level: float) -> float:
         return cv2.countNonZero(near) / view.f32.size
     near = cv2.compare(cv2.absdiff(_LEVELS, float(level)), 1.0, cv2.CMP_LE).ravel() > 0
     return int(hist[near].sum()) / view.f32.size
+
+
+def _flat_share_off_tools(
+    hist: np.ndarray, view: _Grey, level: float, p: SegmentationParams
+) -> float:
+    """Share of the pixels within 1 grey level of ``level`` among those off the instrument
+    (:func:`_wide_parts` of the pixels off the level by more than ``seg_delta``): a flat
+    background with a large shaft in front of it is still flat where it is seen, and the
+    threshold path drops the shaft (``hist``: the view's histogram). 0 when even with every
+    off-level pixel taken for the instrument the share stays below ``flat_share`` (tissue:
+    the wide parts are not looked for)."""
+    n = view.f32.size
+    near = _flat_share(hist, view, level) * n
+    if view.u8 is None:
+        off = _off_level(view.f32, level, p.seg_delta).reshape(view.f32.shape)
+    else:
+        off = cv2.LUT(view.u8, _off_level(_LEVELS, level, p.seg_delta).view(np.uint8)).view(bool)
+    n_off = cv2.countNonZero(off.view(np.uint8))
+    if near < p.flat_share * max(n - n_off, 1):  # an upper bound of the share: not flat
+        return 0.0
+    box = _box(off, _CLOSE_MARGIN)
+    if box is None:
+        return near / n
+    parts = _wide_parts(np.ascontiguousarray(off[box]).view(np.uint8) * np.uint8(255))
+    if parts is None:
+        return near / n
+    wide = parts[0].view(np.uint8)
+    g = view.f32[box]
+    near_wide = cv2.countNonZero(cv2.compare(cv2.absdiff(g, float(level)), 1.0, cv2.CMP_LE) & wide)
+    return (near - near_wide) / max(n - cv2.countNonZero(wide), 1)
 
 
 _WIDE_PX: Final = 10  # half-width of an instrument, at least; the raw method's thread <= 6 px

@@ -96,3 +96,30 @@ def test_grow_into_attached_checks_its_input() -> None:
         grow_into_attached(np.zeros((4, 4), bool), np.zeros((4, 4), bool), 0)
     with pytest.raises(ValueError, match=r"\(4, 5\)"):
         grow_into_attached(np.zeros((4, 4), bool), np.zeros((4, 5), bool), 3)
+
+
+def test_a_jaw_touching_the_thread_is_dropped_and_the_thread_kept() -> None:
+    # One piece: the thread passes along the jaw's free end; the old piece-mean rule kept all.
+    mask, tool, jaw, thread = _scene()
+    thread[8:10, 10:190] = True  # touches the jaw's end (rows 10-39)
+    mask = jaw | thread
+    out = drop_attached(mask, tool)
+    assert not (out & jaw).any()
+    far = thread.copy()
+    far[:, 90:110] = False  # within the disc's reach of the jaw
+    assert (out & far).sum() == far.sum()
+
+
+def test_the_corner_between_a_jaw_and_the_shaft_is_dropped() -> None:
+    # A jaw leaving the shaft at a slant: the disc does not reach into the corners it makes
+    # with the shaft, and no speck of them is left for a curve to bridge to.
+    tool = np.zeros((120, 200), bool)
+    tool[60:90, 70:130] = True
+    body = tool.copy()
+    cv2.line(body.view(np.uint8), (100, 60), (70, 15), 1, 9)
+    body &= ~tool
+    thread = np.zeros_like(tool)
+    thread[100:102, 10:190] = True
+    mask = body | thread
+    out = drop_attached(mask, tool)
+    assert np.array_equal(out, thread)

@@ -358,6 +358,7 @@ def test_raw_mask_of_a_thin_thread_is_not_wider_than_its_coverage() -> None:
 def _full_image_reference(pair: StereoPair, p: SegmentationParams) -> dict[str, np.ndarray]:
     """The threshold path of Eq. (1) computed pixel by pixel on the whole float32 image: the
     tables and bounding boxes of core/segmentation.py must give exactly this."""
+    from threadrecon.core.instrument import drop_attached
     from threadrecon.core.segment_raw import drop_specks
 
     out: dict[str, np.ndarray] = {}
@@ -370,7 +371,8 @@ def _full_image_reference(pair: StereoPair, p: SegmentationParams) -> dict[str, 
         off = cv2.morphologyEx(off, cv2.MORPH_CLOSE, cv2.getStructuringElement(2, (5, 5)))
         core = cv2.erode(off, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (21, 21)))
         wide = cv2.dilate(core, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (25, 25))) > 0
-        P = drop_specks(P & ~wide, p.min_component_px)
+        # The jaws' rule on the whole image: parts wider than the thread reaching the bar
+        P = drop_specks(drop_attached(P & ~wide, wide, off > 0), p.min_component_px)
         scale = 1.0 / (2.0 * max(p.seg_delta, 1.0))
         out["P_" + side] = P
         out["score_" + side] = np.clip((bg - grey) * scale, 0.0, 1.0).astype(np.float32)
@@ -446,3 +448,26 @@ def test_threshold_score_is_computed_on_first_read_once_and_survives_copies() ->
     erase = Correction(op="erase", view="left", points=((30, 20),), radius=3.0)
     corrected = apply_corrections(lifted, (erase,))  # copies every field of the pair
     assert corrected.score_L is score and not np.array_equal(corrected.P_L, lifted.P_L)
+
+
+def test_auto_thresholds_a_flat_view_that_a_large_shaft_fills_in_part() -> None:
+    # The shaft covers ~25 % of each view: the share of background-level pixels is ~70 %, but
+    # of the pixels off the instrument it is ~95 %: a flat background, thresholded.
+    views, threads = [], []
+    for shift in (0, 12):
+        img = np.full((120, 160), 205, np.uint8)
+        thread = np.zeros(img.shape, np.uint8)
+        cv2.polylines(thread, [np.array([[10, 100], [60, 70], [150, 90]], np.int32) - [shift, 0]],
+                      False, 1, 2)  # fmt: skip
+        img[thread > 0] = 120
+        shaft = np.zeros(img.shape, np.uint8)  # a capsule 30 px wide, in front of the thread
+        cv2.line(shaft, (45 - shift, 35), (175 - shift, 35), 1, 30)
+        img[shaft > 0] = 150
+        thread[shaft > 0] = 0
+        views.append(img)
+        threads.append(thread > 0)
+    lifted = segment(StereoPair(views[0], views[1]))
+    assert lifted.method == "threshold"
+    for P, T in ((lifted.P_L, threads[0]), (lifted.P_R, threads[1])):
+        assert not P[18:52].any()  # no shaft
+        assert (P & T).sum() >= 0.9 * T.sum()
