@@ -50,7 +50,13 @@ from scipy.interpolate import BSpline
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
-from threadrecon.core.check_beyond import AHEAD_STEP_PX, beyond_ends, cut_end, end_occluder
+from threadrecon.core.check_beyond import (
+    AHEAD_STEP_PX,
+    beyond_ends,
+    cut_end,
+    end_occluder,
+    extension_far,
+)
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_fold import fold_length
 from threadrecon.core.check_kernel import band_d2, nearest_residual, overlap_hits
@@ -635,9 +641,12 @@ def _check(
     for end in free:  # a free end ends at one 3D point: both views see the thread stop there
         z_end = z[0] if end == "start" else z[-1]
         unobserved_px = p.max_unobserved_mm / mm * f / z_end  # the limit's length at the end
-        cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end,
-                      min(unobserved_px, p.cut_end_px + CUT_REACH_PX), p.cut_end_px,
-                      p.cover_px + BEYOND_COVER_PX, bare, p.bare_share, see_px=unobserved_px)  # fmt: skip
+        reach = min(unobserved_px, p.cut_end_px + CUT_REACH_PX)
+        known = extension_far((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach,
+                              p.cover_px + BEYOND_COVER_PX, p.cut_end_px)  # fmt: skip
+        cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach, p.cut_end_px,
+                      p.cover_px + BEYOND_COVER_PX, bare, p.bare_share, see_px=unobserved_px,
+                      known=known[0])  # fmt: skip
         # seen: the far view's thread stops inside see_px = unobserved_px (core/check_beyond)
         if cut is not None and not cut.seen:
             findings.append(
@@ -648,16 +657,13 @@ def _check(
             )  # fmt: skip
         elif cut is not None:  # the thread's end is seen in one view: the curve misses that much
             missing = max(missing, max(cut.ext) * z_end / f * mm)
-    # A free end is followed, in both views, by the surface the thread lies on (at or behind
-    # its depth, measured by stereo: grey levels cannot tell an instrument from the tissue);
-    # an end whose thread runs into an occluder in both views may go on hidden under it, as
-    # far as the occluder reaches (core/check_beyond.end_occluder).
-    for end in free:
-        z_end = z[0] if end == "start" else z[-1]
-        unobserved_px = p.max_unobserved_mm / mm * f / z_end
+        # A free end is followed, in both views, by the surface the thread lies on (at or
+        # behind its depth, measured by stereo: grey levels cannot tell an instrument from the
+        # tissue); a thread that runs into an occluder in both views may go on hidden under
+        # it, as far as the occluder reaches (core/check_beyond.end_occluder).
         occ = end_occluder(
             (uv_l, uv_r), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R), end,
-            f * B / z_end, unobserved_px, p.cover_px + BEYOND_COVER_PX,
+            f * B / z_end, known, reach, p.cover_px + BEYOND_COVER_PX, unobserved_px,
             unobserved_px + AHEAD_STEP_PX,
         )  # fmt: skip
         if occ is None:
@@ -669,7 +675,8 @@ def _check(
                 ("suspect", f"the thread at the curve's {end} runs into an occluder in both "
                  f"views ({occ.front_px:.0f} px of disparity in front of it; the {occ.view} "
                  f"view sees {occ.ext_px:.0f} px of thread beyond the end): it may go on "
-                 f"hidden for {reach_mm:.1f} mm, as far as the occluder reaches (limit "
+                 f"hidden for {'at least ' if occ.walked_out else ''}{reach_mm:.1f} mm, as far "
+                 "as the occluder reaches (limit "
                  f"{p.max_unobserved_mm:g} mm)")
             )  # fmt: skip
     # A free end is matched from one side, with the matching window over the thread's end and

@@ -244,11 +244,11 @@ def extension(
     (within 30 deg of it, up to ``reach_px``); 0 when nothing does. When neither view reaches
     beyond ``min_px``, the cheap bound (any thread pixel there) is returned without looking
     for the pieces."""
-    ext, _ = _extension(uv, masks, end, reach_px, cover_px, min_px)
+    ext, _ = extension_far(uv, masks, end, reach_px, cover_px, min_px)
     return ext
 
 
-def _extension(
+def extension_far(
     uv: tuple[np.ndarray, np.ndarray],
     masks: tuple[np.ndarray, np.ndarray],
     end: str,
@@ -292,13 +292,15 @@ def cut_end(
     bare: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
     bare_share: float,
     see_px: float = 0.0,
+    known: tuple[float, float] | None = None,
 ) -> CutEnd | None:
     """Whether the curve's free ``end`` is cut by an occluder in one view: one view sees the
     thread (``extension`` up to ``reach_px``) more than ``cut_px`` farther beyond it than the
     other, and in the other view the CUT_PROBE_PX px just beyond the end are not bare
     background (more than ``bare_share`` not bare). None when not. The view that sees farther
-    is followed up to ``see_px`` (when larger) to find where its thread stops (``seen``)."""
-    ext = extension(uv, masks, end, reach_px, cover_px, cut_px)
+    is followed up to ``see_px`` (when larger) to find where its thread stops (``seen``).
+    ``known``: ``extension`` with these arguments, when the caller has it."""
+    ext = extension(uv, masks, end, reach_px, cover_px, cut_px) if known is None else known
     if abs(ext[0] - ext[1]) <= cut_px:
         return None
     stop = 1 if ext[0] > ext[1] else 0  # the view where the thread stops
@@ -381,42 +383,44 @@ def surface_ahead(
     grey_a, grey_b = greys[side], greys[1 - side]
     h, w = grey_a.shape
     r = AHEAD_HALF_PX
-    c = tip + (offset + 2.0 + r) * way
-    if not (np.all(np.isfinite(c)) and math.isfinite(disparity) and disparity > 0):
+    t = offset + 2.0 + r
+    cx, cy = float(tip[0]) + t * float(way[0]), float(tip[1]) + t * float(way[1])
+    if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(disparity)):
         return None
-    cx, cy = int(round(float(c[0]))), int(round(float(c[1])))
-    if cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
+    cx, cy = int(round(cx)), int(round(cy))
+    if disparity <= 0 or cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
         return None
     rows, cols = slice(cy - r, cy + r + 1), slice(cx - r, cx + r + 1)
-    seen = ~np.asarray(masks[side][rows, cols], dtype=bool)
-    if seen.mean() < AHEAD_SHARE:
+    thread = masks[side][rows, cols]
+    n_thread = int(np.count_nonzero(thread))
+    n_seen = thread.size - n_thread
+    if n_seen < AHEAD_SHARE * thread.size:
         return None
-    patch = np.ascontiguousarray(grey_a[rows, cols], np.float32)
-    whole = bool(seen.all())
-    if float((patch if whole else patch[seen]).std()) <= AHEAD_LEVELS:
+    patch = np.ascontiguousarray(grey_a[rows, cols], dtype=np.float32)
+    seen = None if n_thread == 0 else (~thread).astype(np.uint8)
+    _, sd = cv2.meanStdDev(patch, mask=seen)
+    if float(sd[0, 0]) <= AHEAD_LEVELS:
         return None  # untextured: the pair cannot tell its depth
     # the other view sees a point of disparity d at x - d (left to right) or x + d
-    sign = -1 if side == 0 else 1
     d_hi = int(math.ceil(AHEAD_DEPTH * disparity))
     x0, x1 = (cx - d_hi - r, cx + r + 1) if side == 0 else (cx - r, cx + d_hi + r + 1)
     x0, x1 = max(x0, 0), min(x1, w)
     if x1 - x0 < 2 * r + 1 + 2 * AHEAD_FAR_PX:
         return None
-    strip = np.ascontiguousarray(grey_b[rows, x0:x1], np.float32)
-    if whole:  # the mask's slower path only where thread pixels are left out
-        cost = cv2.matchTemplate(strip, patch, cv2.TM_SQDIFF).ravel()
+    strip = np.ascontiguousarray(grey_b[rows, x0:x1], dtype=np.float32)
+    if seen is None:  # the mask's slower path only where thread pixels are left out
+        cost = cv2.matchTemplate(strip, patch, cv2.TM_SQDIFF)[0]
     else:
-        cost = cv2.matchTemplate(strip, patch, cv2.TM_SQDIFF, mask=seen.astype(np.float32))
-        cost = cost.ravel()
-    rms = np.sqrt(np.maximum(cost, 0.0) / float(np.count_nonzero(seen)))
+        cost = cv2.matchTemplate(strip, patch, cv2.TM_SQDIFF, mask=seen.astype(np.float32))[0]
+    rms = np.sqrt(np.maximum(cost, 0.0) * (1.0 / n_seen))
     k = int(np.argmin(rms))
-    far = rms[np.abs(np.arange(len(rms)) - k) >= AHEAD_FAR_PX]
+    far = np.concatenate((rms[: max(k - AHEAD_FAR_PX + 1, 0)], rms[k + AHEAD_FAR_PX :]))
     if (
         far.size == 0
         or float(np.partition(far, far.size // 2)[far.size // 2]) < rms[k] + AHEAD_LEVELS
     ):
         return None  # no distinct match (median cost of the far shifts): nothing measured
-    d_best = sign * (x0 + k + r - cx)
+    d_best = (cx - (x0 + k + r)) if side == 0 else (x0 + k + r - cx)
     return float(d_best - disparity)
 
 
@@ -435,12 +439,14 @@ class Occluded:
     end, ``front_px`` how much nearer the occluder is (px of disparity, the two views' mean),
     ``hidden_px`` how far beyond the thread's visible end the occluder reaches in that view
     (to where a surface at or behind the end's depth is seen, or the image border), and
-    ``reach_px`` = ``ext_px`` + ``hidden_px``: what the curve may miss."""
+    ``reach_px`` = ``ext_px`` + ``hidden_px``: what the curve may miss (at least, when
+    ``walked_out``)."""
 
     view: str
     ext_px: float
     front_px: float
     hidden_px: float
+    walked_out: bool = False  # the walk stopped at max_reach_px: the occluder reaches farther
 
     @property
     def reach_px(self) -> float:
@@ -453,28 +459,41 @@ def end_occluder(
     greys: tuple[np.ndarray, np.ndarray],
     end: str,
     disparity: float,
+    known: tuple[tuple[float, float], tuple[np.ndarray | None, np.ndarray | None]],
     reach_px: float,
     cover_px: float,
-    max_hidden_px: float,
+    see_px: float,
+    max_reach_px: float,
 ) -> Occluded | None:
     """Whether the thread at the curve's free ``end`` runs, in both views, into an occluder.
 
-    The thread's visible end is the farthest pixel of the piece at the end (``extension``, up
-    to ``reach_px``) in the view that sees farther, else the end's projection; the same point
-    at the end's ``disparity`` in the other view. Just beyond it, along the way from the
-    curve's end to it, ``surface_ahead`` measures the surface in both views: a free end is
+    The thread's visible end is the farthest pixel of the piece at the end in the view that
+    sees farther (``known``: ``extension_far`` up to ``reach_px``, followed up to ``see_px``
+    when it reaches that far), else the end's projection; the same point at the end's
+    ``disparity`` in the other view. Just beyond it, along the way from the curve's end to it,
+    ``surface_ahead`` measures the surface in both views (AHEAD_MEET patches): a free end is
     followed by the surface the thread lies on (at or behind the end's depth), so both views
     measuring one surface more than AHEAD_NEAR_PX px of disparity in front of the end (within
     AHEAD_AGREE_PX of each other) is an end at an occluder. The occluder is then walked along
     that way a patch at a time in the view that sees farther (the patches the pair cannot
-    tell count as occluder) until a surface at or behind the end's depth or the image border,
-    up to ``max_hidden_px``. None when the end is not at an occluder (or cannot be told)."""
-    ext, far_px = _extension(uv, masks, end, reach_px, cover_px, 2.0)
+    tell count as occluder) until two patches in a row show a surface at or behind the end's
+    depth, or the image border,
+    while the reach (extension and hidden stretch) is under ``max_reach_px``. None when the
+    end is not at an occluder (or the pair cannot tell)."""
+    ext, far_px = known
     far = 0 if ext[0] >= ext[1] else 1
     fr = _end_frame(uv[far], end)
     if fr is None or not (math.isfinite(disparity) and disparity > 0):
         return None
     _, tip, way = fr
+    edge = far_px[far] is not None and float(np.hypot(*(far_px[far] - tip))) + 3.0 > reach_px
+    if edge and see_px > reach_px:  # the thread reaches the search's edge: follow it further
+        ext, far_px = extension_far(uv, masks, end, see_px, cover_px, 0.0)
+        far = 0 if ext[0] >= ext[1] else 1
+        fr = _end_frame(uv[far], end)
+        if fr is None:
+            return None
+        _, tip, way = fr
     at = tip if far_px[far] is None else far_px[far]
     run = at - tip
     n = float(np.hypot(run[0], run[1]))
@@ -487,16 +506,22 @@ def end_occluder(
     d_other, _ = _front(greys, masks, 1 - far, at + shift, way, disparity)
     if d_other is None or abs(d_far - d_other) > AHEAD_AGREE_PX:
         return None
-    limit = min(_to_border(at, way, greys[far].shape), max_hidden_px)
+    limit = min(_to_border(at, way, greys[far].shape), max(max_reach_px - ext[far], 0.0))
     hidden = limit
     offset = float((k + 1) * AHEAD_STEP_PX)  # past the patch that met the occluder
+    bare = None  # the offset of a patch showing the surface under the thread again
     while offset < limit:
         d = surface_ahead(greys, masks, far, at, way, disparity, offset=offset)
-        if d is not None and d <= AHEAD_NEAR_PX:
-            hidden = offset  # the surface under the thread is seen again: it ended before
+        if d is None or d > AHEAD_NEAR_PX:
+            bare = None
+        elif bare is None:
+            bare = offset
+        else:  # two patches in a row (one mismatch on a shaft along the rows is no surface)
+            hidden = bare  # the thread, had it gone on this way, would be seen: it ended before
             break
         offset += AHEAD_STEP_PX
-    return Occluded("left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden)
+    out = ext[far] + hidden >= max_reach_px
+    return Occluded("left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden, out)
 
 
 def _front(
