@@ -50,7 +50,13 @@ from scipy.interpolate import BSpline
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
-from threadrecon.core.check_beyond import beyond_ends, cut_end
+from threadrecon.core.check_beyond import (
+    AHEAD_STEP_PX,
+    beyond_ends,
+    cut_end,
+    end_occluder,
+    extension_far,
+)
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_fold import fold_length
 from threadrecon.core.check_kernel import band_d2, nearest_residual, overlap_hits
@@ -342,7 +348,10 @@ class CheckResult:
     end's depth) a piece of thread pixels beyond a free end across an occluder reaches
     (core/check_beyond.py; 0 when there is none), ``fold_px`` the length of the left
     projection running twice over one strand (core/check_fold.py), ``end_added_mm`` the
-    length the depth change over a free end's last knot span adds (mm).
+    length the depth change over a free end's last knot span adds (mm), ``occluded_mm`` how
+    far (mm, at the end's depth) the thread at a free end may run on hidden under an occluder
+    it runs into in both views (its thread beyond the curve's end and the occluder's reach;
+    0 when no end meets one).
     """
 
     status: Status
@@ -379,6 +388,7 @@ class CheckResult:
     beyond_mm: float = 0.0
     fold_px: float = 0.0
     end_added_mm: float = 0.0
+    occluded_mm: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -418,6 +428,7 @@ class CheckResult:
             "beyond_mm": self.beyond_mm,
             "fold_px": self.fold_px,
             "end_added_mm": self.end_added_mm,
+            "occluded_mm": self.occluded_mm,
         }
 
 
@@ -621,14 +632,18 @@ def _check(
     free = tuple(e for e in ("start", "end") if e not in at_border)
     missing = 0.0
     end_added = 0.0
+    occluded = 0.0
     if free and bare is None:
         bare = _BareBackground(lifted, (field_l, field_r), p)
     for end in free:  # a free end ends at one 3D point: both views see the thread stop there
         z_end = z[0] if end == "start" else z[-1]
         unobserved_px = p.max_unobserved_mm / mm * f / z_end  # the limit's length at the end
-        cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end,
-                      min(unobserved_px, p.cut_end_px + CUT_REACH_PX), p.cut_end_px,
-                      p.cover_px + BEYOND_COVER_PX, bare, p.bare_share, see_px=unobserved_px)  # fmt: skip
+        reach = min(unobserved_px, p.cut_end_px + CUT_REACH_PX)
+        known = extension_far((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach,
+                              p.cover_px + BEYOND_COVER_PX, p.cut_end_px)  # fmt: skip
+        cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach, p.cut_end_px,
+                      p.cover_px + BEYOND_COVER_PX, bare, p.bare_share, see_px=unobserved_px,
+                      known=known[0])  # fmt: skip
         # seen: the far view's thread stops inside see_px = unobserved_px (core/check_beyond)
         if cut is not None and not cut.seen:
             findings.append(
@@ -639,6 +654,28 @@ def _check(
             )  # fmt: skip
         elif cut is not None:  # the thread's end is seen in one view: the curve misses that much
             missing = max(missing, max(cut.ext) * z_end / f * mm)
+        # A free end is followed, in both views, by the surface the thread lies on (at or
+        # behind its depth, measured by stereo: grey levels cannot tell an instrument from the
+        # tissue); a thread that runs into an occluder in both views may go on hidden under
+        # it, as far as the occluder reaches (core/check_beyond.end_occluder).
+        occ = end_occluder(
+            (uv_l, uv_r), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R), end,
+            f * B / z_end, known, reach, p.cover_px + BEYOND_COVER_PX, unobserved_px,
+            unobserved_px + AHEAD_STEP_PX,
+        )  # fmt: skip
+        if occ is None:
+            continue
+        reach_mm = occ.reach_px * z_end / f * mm
+        occluded = max(occluded, reach_mm)
+        if occ.reach_px > unobserved_px:
+            findings.append(
+                ("suspect", f"the thread at the curve's {end} runs into an occluder in both "
+                 f"views ({occ.front_px:.0f} px of disparity in front of it; the {occ.view} "
+                 f"view sees {occ.ext_px:.0f} px of thread beyond the end): it may go on "
+                 f"hidden for {'at least ' if occ.walked_out else ''}{reach_mm:.1f} mm, as far "
+                 "as the occluder reaches (limit "
+                 f"{p.max_unobserved_mm:g} mm)")
+            )  # fmt: skip
     # A free end is matched from one side, with the matching window over the thread's end and
     # what lies beyond it (an occluder's edge pulls the depth towards its own): a depth change
     # over the end's last knot span is length the matches there cannot vouch for.
@@ -818,6 +855,7 @@ def _check(
         beyond_mm=missing,
         fold_px=fold,
         end_added_mm=end_added,
+        occluded_mm=occluded,
     )
 
 

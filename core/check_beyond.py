@@ -229,26 +229,42 @@ def extension(
     (within 30 deg of it, up to ``reach_px``); 0 when nothing does. When neither view reaches
     beyond ``min_px``, the cheap bound (any thread pixel there) is returned without looking
     for the pieces."""
+    ext, _ = extension_far(uv, masks, end, reach_px, cover_px, min_px)
+    return ext
+
+
+def extension_far(
+    uv: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    end: str,
+    reach_px: float,
+    cover_px: float,
+    min_px: float,
+) -> tuple[tuple[float, float], tuple[np.ndarray | None, np.ndarray | None]]:
+    """``extension`` and, per view, the farthest such pixel (x, y) (None when no piece at the
+    end reaches beyond it, or only the cheap bound was taken)."""
     out = []
     cones = []
     for side in (0, 1):
         fr = _end_frame(uv[side], end)
         if fr is None:
-            return 0.0, 0.0
+            return (0.0, 0.0), (None, None)
         px, along = _cone(*fr, masks[side], reach_px, CONE_COS, cover_px)
         cones.append((fr[1], px, along))
         out.append(float(along.max()) if along.size else 0.0)
     if max(out) <= min_px:
-        return out[0], out[1]
+        return (out[0], out[1]), (None, None)
+    far: list[np.ndarray | None] = [None, None]
     for side, (tip, px, along) in enumerate(cones):
         out[side] = 0.0
         index = piece_index(masks[side], lambda m=masks[side]: pieces(m))
         number = index.at(px)  # the piece of each cone pixel (_rows_in per piece, by lookup)
         for i in index.near(tip, 2.0):  # the pieces the end's projection lies on
-            on = number == i
-            if on.any():
-                out[side] = max(out[side], float(along[on].max()))
-    return out[0], out[1]
+            on = np.flatnonzero(number == i)
+            if on.size and float(along[on].max()) > out[side]:
+                k = on[int(np.argmax(along[on]))]
+                out[side], far[side] = float(along[k]), px[k]
+    return (out[0], out[1]), (far[0], far[1])
 
 
 def cut_end(
@@ -261,13 +277,15 @@ def cut_end(
     bare: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
     bare_share: float,
     see_px: float = 0.0,
+    known: tuple[float, float] | None = None,
 ) -> CutEnd | None:
     """Whether the curve's free ``end`` is cut by an occluder in one view: one view sees the
     thread (``extension`` up to ``reach_px``) more than ``cut_px`` farther beyond it than the
     other, and in the other view the CUT_PROBE_PX px just beyond the end are not bare
     background (more than ``bare_share`` not bare). None when not. The view that sees farther
-    is followed up to ``see_px`` (when larger) to find where its thread stops (``seen``)."""
-    ext = extension(uv, masks, end, reach_px, cover_px, cut_px)
+    is followed up to ``see_px`` (when larger) to find where its thread stops (``seen``).
+    ``known``: ``extension`` with these arguments, when the caller has it."""
+    ext = extension(uv, masks, end, reach_px, cover_px, cut_px) if known is None else known
     if abs(ext[0] - ext[1]) <= cut_px:
         return None
     stop = 1 if ext[0] > ext[1] else 0  # the view where the thread stops
@@ -316,3 +334,208 @@ def _bare_beyond(
     at = tip + offset * way
     probe = at + np.arange(2.0, 2.0 + CUT_PROBE_PX)[:, None] * way
     return float(np.mean(bare(side, probe, at, at))) > bare_share
+
+
+AHEAD_HALF_PX = 6  # half-size of the square patch just beyond an end matched across the views
+AHEAD_DEPTH = 4.0  # the search reaches surfaces down to 1 / AHEAD_DEPTH of the end's depth
+AHEAD_FAR_PX = 4  # shifts this far from the best one tell whether it is distinct
+AHEAD_LEVELS = 4.0  # grey levels: the sensor noise floor (texture and distinctness)
+AHEAD_SHARE = 0.5  # at least this share of the patch is not thread (the surface is seen)
+
+
+def surface_ahead(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    tip: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+    offset: float = 0.0,
+) -> float | None:
+    """How much nearer (px of disparity, > 0: in front of the end) the surface just beyond an
+    end lies, measured by stereo: the square patch of view ``side`` (2 AHEAD_HALF_PX + 1 px)
+    whose near side lies 2 px beyond ``offset`` px past ``tip`` along ``way``, its thread
+    pixels (``masks``) left out, is matched along its row of the other view (rectified), over
+    disparities 0 (far away) to AHEAD_DEPTH times the end's ``disparity`` (a surface at a
+    quarter of the end's depth). None when the pair cannot tell: the patch leaves a view, is
+    mostly thread, is untextured (standard deviation under AHEAD_LEVELS), or its best shift is not
+    distinct (the median cost AHEAD_FAR_PX or more away is not AHEAD_LEVELS higher: e.g. a
+    shaft along the rows).
+
+    An occluder's silhouette moves with the occluder's disparity, so a patch over an occluder
+    or its edge matches in front of the thread; the tissue the thread lies on matches at the
+    end's depth or behind it."""
+    grey_a, grey_b = greys[side], greys[1 - side]
+    h, w = grey_a.shape
+    r = AHEAD_HALF_PX
+    t = offset + 2.0 + r
+    cx, cy = float(tip[0]) + t * float(way[0]), float(tip[1]) + t * float(way[1])
+    if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(disparity)):
+        return None
+    cx, cy = int(round(cx)), int(round(cy))
+    if disparity <= 0 or cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
+        return None
+    rows, cols = slice(cy - r, cy + r + 1), slice(cx - r, cx + r + 1)
+    thread = masks[side][rows, cols]
+    n_thread = int(np.count_nonzero(thread))
+    n_seen = thread.size - n_thread
+    if n_seen < AHEAD_SHARE * thread.size:
+        return None
+    patch = np.ascontiguousarray(grey_a[rows, cols], dtype=np.float32)
+    seen = None if n_thread == 0 else (~thread).astype(np.uint8)
+    _, sd = cv2.meanStdDev(patch, mask=seen)
+    if float(sd[0, 0]) <= AHEAD_LEVELS:
+        return None  # untextured: the pair cannot tell its depth
+    # the other view sees a point of disparity d at x - d (left to right) or x + d
+    d_hi = int(math.ceil(AHEAD_DEPTH * disparity))
+    x0, x1 = (cx - d_hi - r, cx + r + 1) if side == 0 else (cx - r, cx + d_hi + r + 1)
+    x0, x1 = max(x0, 0), min(x1, w)
+    if x1 - x0 < 2 * r + 1 + 2 * AHEAD_FAR_PX:
+        return None
+    strip = np.ascontiguousarray(grey_b[rows, x0:x1], dtype=np.float32)
+    if seen is None:  # the mask's slower path only where thread pixels are left out
+        cost = cv2.matchTemplate(strip, patch, cv2.TM_SQDIFF)[0]
+    else:
+        cost = cv2.matchTemplate(strip, patch, cv2.TM_SQDIFF, mask=seen.astype(np.float32))[0]
+    rms = np.sqrt(np.maximum(cost, 0.0) * (1.0 / n_seen))
+    k = int(np.argmin(rms))
+    far = np.concatenate((rms[: max(k - AHEAD_FAR_PX + 1, 0)], rms[k + AHEAD_FAR_PX :]))
+    if (
+        far.size == 0
+        or float(np.partition(far, far.size // 2)[far.size // 2]) < rms[k] + AHEAD_LEVELS
+    ):
+        return None  # no distinct match (median cost of the far shifts): nothing measured
+    d_best = (cx - (x0 + k + r)) if side == 0 else (x0 + k + r - cx)
+    return float(d_best - disparity)
+
+
+AHEAD_NEAR_PX = 2.0  # a surface this much nearer than the end still carries it (the thread's
+# thickness, the tissue's tilt across the patch, the end's depth error)
+AHEAD_AGREE_PX = 8.0  # the two views' occluder disparities agree within this (one surface)
+AHEAD_STEP_PX = 2 * AHEAD_HALF_PX + 1  # the walk over an occluder moves a patch at a time
+AHEAD_MEET = 2  # an occluder within this many patches of the thread's visible end meets it
+
+
+@dataclass(frozen=True)
+class Occluded:
+    """A free end whose thread, in both views, runs into a surface in front of it (an
+    occluder) instead of the surface it lies on: ``view`` the one that sees the thread
+    farther ("left"/"right"), ``ext_px`` how far its thread pixels reach beyond the curve's
+    end, ``front_px`` how much nearer the occluder is (px of disparity, the two views' mean),
+    ``hidden_px`` how far beyond the thread's visible end the occluder reaches in that view
+    (to where a surface at or behind the end's depth is seen, or the image border), and
+    ``reach_px`` = ``ext_px`` + ``hidden_px``: what the curve may miss (at least, when
+    ``walked_out``)."""
+
+    view: str
+    ext_px: float
+    front_px: float
+    hidden_px: float
+    walked_out: bool = False  # the walk stopped at max_reach_px: the occluder reaches farther
+
+    @property
+    def reach_px(self) -> float:
+        return self.ext_px + self.hidden_px
+
+
+def end_occluder(
+    uv: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    greys: tuple[np.ndarray, np.ndarray],
+    end: str,
+    disparity: float,
+    known: tuple[tuple[float, float], tuple[np.ndarray | None, np.ndarray | None]],
+    reach_px: float,
+    cover_px: float,
+    see_px: float,
+    max_reach_px: float,
+) -> Occluded | None:
+    """Whether the thread at the curve's free ``end`` runs, in both views, into an occluder.
+
+    The thread's visible end is the farthest pixel of the piece at the end in the view that
+    sees farther (``known``: ``extension_far`` up to ``reach_px``, followed up to ``see_px``
+    when it reaches that far), else the end's projection; the same point at the end's
+    ``disparity`` in the other view. Just beyond it, along the way from the curve's end to it,
+    ``surface_ahead`` measures the surface in both views (AHEAD_MEET patches): a free end is
+    followed by the surface the thread lies on (at or behind the end's depth), so both views
+    measuring one surface more than AHEAD_NEAR_PX px of disparity in front of the end (within
+    AHEAD_AGREE_PX of each other) is an end at an occluder. The occluder is then walked along
+    that way a patch at a time in the view that sees farther (the patches the pair cannot
+    tell count as occluder) until two patches in a row show a surface at or behind the end's
+    depth, or the image border,
+    while the reach (extension and hidden stretch) is under ``max_reach_px``. None when the
+    end is not at an occluder (or the pair cannot tell)."""
+    ext, far_px = known
+    far = 0 if ext[0] >= ext[1] else 1
+    fr = _end_frame(uv[far], end)
+    if fr is None or not (math.isfinite(disparity) and disparity > 0):
+        return None
+    _, tip, way = fr
+    edge = far_px[far] is not None and float(np.hypot(*(far_px[far] - tip))) + 3.0 > reach_px
+    if edge and see_px > reach_px:  # the thread reaches the search's edge: follow it further
+        ext, far_px = extension_far(uv, masks, end, see_px, cover_px, 0.0)
+        far = 0 if ext[0] >= ext[1] else 1
+        fr = _end_frame(uv[far], end)
+        if fr is None:
+            return None
+        _, tip, way = fr
+    at = tip if far_px[far] is None else far_px[far]
+    run = at - tip
+    n = float(np.hypot(run[0], run[1]))
+    if n > AHEAD_HALF_PX:  # the thread's own way to its visible end (it may bend)
+        way = run / n
+    shift = np.array([-disparity if far == 0 else disparity, 0.0])  # the other view's x
+    d_far, k = _front(greys, masks, far, at, way, disparity)
+    if d_far is None:
+        return None
+    d_other, _ = _front(greys, masks, 1 - far, at + shift, way, disparity)
+    if d_other is None or abs(d_far - d_other) > AHEAD_AGREE_PX:
+        return None
+    limit = min(_to_border(at, way, greys[far].shape), max(max_reach_px - ext[far], 0.0))
+    hidden = limit
+    offset = float((k + 1) * AHEAD_STEP_PX)  # past the patch that met the occluder
+    bare = None  # the offset of a patch showing the surface under the thread again
+    while offset < limit:
+        d = surface_ahead(greys, masks, far, at, way, disparity, offset=offset)
+        if d is None or d > AHEAD_NEAR_PX:
+            bare = None
+        elif bare is None:
+            bare = offset
+        else:  # two patches in a row (one mismatch on a shaft along the rows is no surface)
+            hidden = bare  # the thread, had it gone on this way, would be seen: it ended before
+            break
+        offset += AHEAD_STEP_PX
+    out = ext[far] + hidden >= max_reach_px
+    return Occluded("left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden, out)
+
+
+def _front(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    at: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+) -> tuple[float | None, int]:
+    """The first of the AHEAD_MEET patches beyond ``at`` that shows a surface more than
+    AHEAD_NEAR_PX px of disparity in front of the end: by how much, and its number; (None,
+    AHEAD_MEET) when none does (the surface beyond is at or behind the end's depth, or the
+    pair cannot tell)."""
+    for k in range(AHEAD_MEET):
+        d = surface_ahead(greys, masks, side, at, way, disparity, offset=k * AHEAD_STEP_PX)
+        if d is not None and d > AHEAD_NEAR_PX:
+            return d, k
+    return None, AHEAD_MEET
+
+
+def _to_border(at: np.ndarray, way: np.ndarray, shape: tuple[int, int]) -> float:
+    """Distance (px) from ``at`` along the unit ``way`` to the border of an image of
+    ``shape`` (H, W)."""
+    h, w = shape
+    t = math.inf
+    for x, v, size in ((float(at[0]), float(way[0]), w), (float(at[1]), float(way[1]), h)):
+        if v > 1e-12:
+            t = min(t, (size - 1 - x) / v)
+        elif v < -1e-12:
+            t = min(t, x / -v)
+    return max(t, 0.0)

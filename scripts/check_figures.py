@@ -148,6 +148,7 @@ REASON_KINDS = {  # a keyword of each kind of reason (core/check.py) -> a short 
     "cut by an occluder": "cut end",
     "runs twice over": "fold",
     "last knot span": "end depth change",
+    "runs into an occluder": "occluded end",
 }
 
 

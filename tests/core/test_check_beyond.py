@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from threadrecon.core.check_beyond import beyond_ends, cut_end, extension, pieces
+from threadrecon.core.check_beyond import (
+    beyond_ends,
+    cut_end,
+    end_occluder,
+    extension,
+    extension_far,
+    pieces,
+    surface_ahead,
+)
 
 SHAFT = (80, 110)  # columns of the occluder in the left view
 
@@ -114,3 +122,79 @@ def test_an_end_the_other_view_sees_stop_freely_is_cut_but_seen() -> None:
     # the search stops before the right view's thread does: its end is not seen
     cut = cut_end(uv, masks, "end", 15.0, 5.0, 5.0, _left_only_occluder, 0.5)
     assert cut is not None and not cut.seen
+
+
+# --- a free end followed by the surface the thread lies on, or by an occluder (stereo) ---
+
+D_BG, D_T, D_O = 10, 20, 32  # disparities (px): tissue behind, thread, occluder in front
+
+
+def _texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    import cv2
+
+    t = cv2.GaussianBlur(rng.normal(0.0, 1.0, (h, w)).astype(np.float32), (0, 0), 1.5)
+    return (128.0 + 25.0 * t / t.std()).astype(np.float32)
+
+
+def _stereo_scene(occluder: tuple[int, int] | None, seed: int = 0):
+    """Two rectified greys: textured tissue at D_BG, a dark thread on rows 49-51 from column 20
+    to 139 at D_T, and optionally a textured occluder over left columns ``occluder`` (all
+    rows) at D_O; the masks hold the thread where it is seen; the curve runs to column 139."""
+    rng = np.random.default_rng(seed)
+    h, w = 100, 400
+    bg = _texture(rng, h, w + D_BG)
+    occ = _texture(rng, h, w + D_O)
+    grey = [bg[:, :w].copy(), bg[:, D_BG : D_BG + w].copy()]
+    masks = [np.zeros((h, w), bool), np.zeros((h, w), bool)]
+    for side, d in ((0, 0), (1, D_T)):
+        grey[side][49:52, 20 - d : 140 - d] = 30.0
+        masks[side][49:52, 20 - d : 140 - d] = True
+    if occluder is not None:
+        for side, d in ((0, 0), (1, D_O)):
+            c0, c1 = occluder[0] - d, occluder[1] - d
+            grey[side][:, c0:c1] = occ[:, c0 + d : c1 + d] if side else occ[:, c0:c1]
+            masks[side][:, c0:c1] = False
+    x = np.linspace(20.0, 139.0, 120)
+    uv_l = np.column_stack([x, np.full_like(x, 50.0)])
+    uv_r = uv_l - [D_T, 0.0]
+    return (grey[0], grey[1]), (masks[0], masks[1]), (uv_l, uv_r)
+
+
+def _occluder(greys, masks, uv, max_reach: float = 300.0):
+    known = extension_far(uv, masks, "end", 40.0, 5.0, 5.0)
+    return end_occluder(uv, masks, greys, "end", float(D_T), known, 40.0, 5.0, 100.0, max_reach)
+
+
+def test_surface_ahead_measures_the_tissue_behind_a_free_end() -> None:
+    greys, masks, uv = _stereo_scene(None)
+    d = surface_ahead(greys, masks, 0, uv[0][-1], np.array([1.0, 0.0]), float(D_T))
+    assert d is not None and abs(d - (D_BG - D_T)) <= 1.0
+    # (the right view's patch is seen in the left behind the thread's own end, which hides
+    # it there: one view's measure alone is no occluder, end_occluder asks both to agree)
+
+
+def test_surface_ahead_cannot_tell_on_an_untextured_surface() -> None:
+    greys, masks, uv = _stereo_scene(None)
+    flat = (np.full_like(greys[0], 128.0), np.full_like(greys[1], 128.0))
+    assert surface_ahead(flat, masks, 0, uv[0][-1], np.array([1.0, 0.0]), float(D_T)) is None
+
+
+def test_a_free_end_on_the_tissue_meets_no_occluder() -> None:
+    greys, masks, uv = _stereo_scene(None)
+    assert _occluder(greys, masks, uv) is None
+
+
+def test_an_end_at_an_occluder_in_both_views_may_go_on_hidden_to_the_border() -> None:
+    greys, masks, uv = _stereo_scene((140, 400))
+    occ = _occluder(greys, masks, uv)
+    assert occ is not None and abs(occ.front_px - (D_O - D_T)) <= 1.0
+    assert occ.hidden_px > 200.0  # the occluder runs out of the image (column 399)
+    limited = _occluder(greys, masks, uv, max_reach=60.0)
+    assert limited is not None and limited.walked_out and limited.reach_px >= 60.0
+
+
+def test_a_narrow_occluder_bounds_what_may_hide_under_it() -> None:
+    greys, masks, uv = _stereo_scene((140, 180))
+    occ = _occluder(greys, masks, uv)
+    assert occ is not None and not occ.walked_out
+    assert 30.0 <= occ.hidden_px <= 70.0  # 40 px of occluder, measured a patch at a time
