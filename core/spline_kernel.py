@@ -149,6 +149,45 @@ def mvs_value(B1, B2, B3, wq, b):  # noqa: ANN001
 
 
 @helper()
+def _band_cholesky(M, m, bw):  # noqa: ANN001
+    """M = L L^T inside the band of half-width ``bw`` (L overwrites M's lower triangle); the
+    smallest and largest diagonal of L, or (0, 0) when M is not positive definite."""
+    dmin = np.inf
+    dmax = 0.0
+    for j in range(m):
+        s = M[j, j]
+        for q in range(max(0, j - bw), j):
+            s -= M[j, q] * M[j, q]
+        if not s > 0.0:
+            return 0.0, 0.0
+        s = math.sqrt(s)
+        dmin, dmax = min(dmin, s), max(dmax, s)
+        M[j, j] = s
+        for i in range(j + 1, min(m, j + bw + 1)):
+            v = M[i, j]
+            for q in range(max(0, i - bw), j):
+                v -= M[i, q] * M[j, q]
+            M[i, j] = v / s
+    return dmin, dmax
+
+
+@helper()
+def _band_solve(M, rhs, c, m, bw):  # noqa: ANN001
+    """c = (L L^T)^-1 rhs column by column, L from :func:`_band_cholesky`."""
+    for col in range(rhs.shape[1]):
+        for i in range(m):  # L y = rhs
+            v = rhs[i, col]
+            for q in range(max(0, i - bw), i):
+                v -= M[i, q] * c[q, col]
+            c[i, col] = v / M[i, i]
+        for i in range(m - 1, -1, -1):  # L^T c = y
+            v = c[i, col]
+            for q in range(i + 1, min(m, i + bw + 1)):
+                v -= M[q, i] * c[q, col]
+            c[i, col] = v / M[i, i]
+
+
+@helper()
 def _penalised_fit(xy, u, t, k, penalty, c, miss):  # noqa: ANN001
     """``spline._penalised_fit``: c (m, 2) = argmin |B c - xy|^2 + lam |D3 c|^2, lam =
     ``penalty`` trace(B^T B) / m, with the basis B banded; ``miss`` (P,) the 2D distance of each
@@ -183,31 +222,9 @@ def _penalised_fit(xy, u, t, k, penalty, c, miss):  # noqa: ANN001
         for a in range(4):
             for e in range(4):
                 M[r + a, r + e] += lam * d[a] * d[e]
-    # Cholesky M = L L^T inside the band (L overwrites the lower triangle of M)
-    for j in range(m):
-        s = M[j, j]
-        for q in range(max(0, j - bw), j):
-            s -= M[j, q] * M[j, q]
-        if not s > 0.0:
-            return False
-        s = math.sqrt(s)
-        M[j, j] = s
-        for i in range(j + 1, min(m, j + bw + 1)):
-            v = M[i, j]
-            for q in range(max(0, i - bw), j):
-                v -= M[i, q] * M[j, q]
-            M[i, j] = v / s
-    for col in range(2):
-        for i in range(m):  # L y = rhs
-            v = rhs[i, col]
-            for q in range(max(0, i - bw), i):
-                v -= M[i, q] * c[q, col]
-            c[i, col] = v / M[i, i]
-        for i in range(m - 1, -1, -1):  # L^T c = y
-            v = c[i, col]
-            for q in range(i + 1, min(m, i + bw + 1)):
-                v -= M[q, i] * c[q, col]
-            c[i, col] = v / M[i, i]
+    if _band_cholesky(M, m, bw)[0] <= 0.0:
+        return False
+    _band_solve(M, rhs, c, m, bw)
     for i in range(P):
         f = first[i]
         x = 0.0
@@ -320,35 +337,10 @@ def camera_refit(t, k, ctrl, n, G_inv, cond_floor):  # noqa: ANN001
             for e in range(k + 1):
                 M[f + a, f + e] += va * h[e]
     c = np.empty((m, 3))
-    dmin = np.inf
-    dmax = 0.0
-    for j in range(m):  # M = L L^T inside the band (L in the lower triangle of M)
-        s = M[j, j]
-        for q in range(max(0, j - k), j):
-            s -= M[j, q] * M[j, q]
-        if not s > 0.0:
-            return c, pts, 1
-        s = math.sqrt(s)
-        dmin, dmax = min(dmin, s), max(dmax, s)
-        M[j, j] = s
-        for i in range(j + 1, min(m, j + k + 1)):
-            v = M[i, j]
-            for q in range(max(0, i - k), j):
-                v -= M[i, q] * M[j, q]
-            M[i, j] = v / s
-    if not dmin > cond_floor * dmax:
+    dmin, dmax = _band_cholesky(M, m, k)
+    if not dmin > 0.0 or not dmin > cond_floor * dmax:
         return c, pts, 1
-    for d in range(3):
-        for i in range(m):  # L y = rhs
-            v = rhs[i, d]
-            for q in range(max(0, i - k), i):
-                v -= M[i, q] * c[q, d]
-            c[i, d] = v / M[i, i]
-        for i in range(m - 1, -1, -1):  # L^T c = y
-            v = c[i, d]
-            for q in range(i + 1, min(m, i + k + 1)):
-                v -= M[q, i] * c[q, d]
-            c[i, d] = v / M[i, i]
+    _band_solve(M, rhs, c, m, k)
     return c, pts, 0
 
 
