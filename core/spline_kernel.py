@@ -82,6 +82,21 @@ def basis_dense(x, t, k):  # noqa: ANN001
     return out
 
 
+@helper()
+def _node(B1, B2, B3, b, q):  # noqa: ANN001
+    """At quadrature node q: the first to third derivatives z1, z2, z3 of the curve's depth
+    profile, g = 1 + z1^2 and kappa' = z3 g^-3/2 - 3 z1 z2^2 g^-5/2 (d kappa / du)."""
+    z1 = 0.0
+    z2 = 0.0
+    z3 = 0.0
+    for j in range(B1.shape[1]):
+        z1 += B1[q, j] * b[j]
+        z2 += B2[q, j] * b[j]
+        z3 += B3[q, j] * b[j]
+    g = 1.0 + z1 * z1
+    return z1, z2, z3, g, z3 * g**-1.5 - 3.0 * z1 * z2 * z2 * g**-2.5
+
+
 @kernel(
     "Tuple((float64[::1], float64[:, ::1]))(float64[:, ::1], float64[:, ::1], float64[:, ::1], "
     "float64[::1], float64[:, ::1], float64[::1], float64[::1], float64)"
@@ -97,18 +112,10 @@ def mvs_residual(B1, B2, B3, sqrt_wq, J_d, c_d, b, scale):  # noqa: ANN001
     J = np.empty((nq + P, m))
     s = math.sqrt(scale)
     for q in range(nq):
-        z1 = 0.0
-        z2 = 0.0
-        z3 = 0.0
-        for j in range(m):
-            z1 += B1[q, j] * b[j]
-            z2 += B2[q, j] * b[j]
-            z3 += B3[q, j] * b[j]
-        g = 1.0 + z1 * z1
+        z1, z2, z3, g, kp = _node(B1, B2, B3, b, q)
         g15 = g**-1.5
         g25 = g**-2.5
         g35 = g**-3.5
-        kp = z3 * g15 - 3.0 * z1 * z2 * z2 * g25  # d kappa / du
         sw = s * sqrt_wq[q]
         qq = g**-0.25
         dk1 = -3.0 * z1 * z3 * g25 - 3.0 * z2 * z2 * g25 + 15.0 * z1 * z1 * z2 * z2 * g35
@@ -132,18 +139,10 @@ def mvs_residual(B1, B2, B3, sqrt_wq, J_d, c_d, b, scale):  # noqa: ANN001
 @kernel("float64(float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[::1], float64[::1])")
 def mvs_value(B1, B2, B3, wq, b):  # noqa: ANN001
     """Eq. (8) by quadrature: sum_q w_q kappa'_q^2 / sqrt(g_q) (``_Mvs.value``)."""
-    nq, m = B1.shape
+    nq = B1.shape[0]
     out = 0.0
     for q in range(nq):
-        z1 = 0.0
-        z2 = 0.0
-        z3 = 0.0
-        for j in range(m):
-            z1 += B1[q, j] * b[j]
-            z2 += B2[q, j] * b[j]
-            z3 += B3[q, j] * b[j]
-        g = 1.0 + z1 * z1
-        kp = z3 * g**-1.5 - 3.0 * z1 * z2 * z2 * g**-2.5
+        _, _, _, g, kp = _node(B1, B2, B3, b, q)
         out += wq[q] * kp * kp / math.sqrt(g)
     return out
 
