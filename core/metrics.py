@@ -109,6 +109,39 @@ def visible_part(
     return points[starts[j] : ends[j]]
 
 
+def hidden_ends(
+    points: np.ndarray, calib: StereoCalibration, mask_left: np.ndarray, mask_right: np.ndarray
+) -> tuple[float, float]:
+    """Length (mm) of the true centerline (N, 3) at its start and at its end that no view shows:
+    from each end up to the first point whose projection falls on the thread mask (within 1 px)
+    in the left or the right image. An end hidden under an occluder (not out of the image:
+    ``visible_part`` cuts those) cannot be observed: no method can recover its length, and a
+    curve that stops where the thread disappears is right to be called suspect. Evaluation
+    reports such frames apart; the pipeline never sees this (it has no ground truth)."""
+    points = _check_points(points)
+    seen = np.zeros(len(points), dtype=bool)
+    for P, mask in ((calib.P1, mask_left), (calib.P2, mask_right)):
+        mask = np.asarray(mask, dtype=bool)
+        if mask.ndim != 2:
+            raise ValueError(f"hidden_ends needs (H, W) thread masks, got {mask.shape}")
+        near = np.zeros((mask.shape[0] + 2, mask.shape[1] + 2), dtype=bool)
+        for dy in (0, 1, 2):  # the mask grown by 1 px (3 x 3), padded by one
+            for dx in (0, 1, 2):
+                near[dy : dy + mask.shape[0], dx : dx + mask.shape[1]] |= mask
+        uv = np.rint(project(points, P)).astype(np.int64) + 1
+        ok = (uv[:, 0] >= 0) & (uv[:, 0] < near.shape[1]) & (uv[:, 1] >= 0)
+        ok &= uv[:, 1] < near.shape[0]
+        seen[ok] |= near[uv[ok, 1], uv[ok, 0]]
+    mm = calib.mm_per_unit
+    if not seen.any():
+        return (polyline_length(points) * mm,) * 2
+    first, last = int(np.argmax(seen)), len(seen) - 1 - int(np.argmax(seen[::-1]))
+    return (
+        polyline_length(points[: first + 1]) * mm if first > 0 else 0.0,
+        polyline_length(points[last:]) * mm if last < len(points) - 1 else 0.0,
+    )
+
+
 def project(points: np.ndarray, P: np.ndarray) -> np.ndarray:
     """(N, 3) camera-frame points -> (N, 2) pixels (x, y) with a (3, 4) projection matrix."""
     points = _check_points(points)

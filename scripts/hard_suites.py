@@ -9,7 +9,10 @@ frames of ``threadrecon generate OUT --count N --seed S`` with the suite's flags
 ``threadrecon evaluate OUT`` scores the same frames. Per suite: right frames (status not
 failed, |length error| <= 20 mm, e_S^max <= 20 mm), good frames (right and called "ok" by the
 check: issue 12's "good"), mean and median e_S over the right frames, mean CPU time of the
-pipeline, and the frames that are not good (wrong, or right but flagged suspect). Frames are scored against the
+pipeline, and the frames that are not good (wrong, or right but flagged suspect), with the
+length of the true thread hidden at an end under an occluder in both views (``hidden_ends``):
+good/seen counts good frames among those with no end hidden over 20 mm, which no method can
+recover (a curve stopping where the thread disappears is rightly called suspect). Frames are scored against the
 part of the true curve visible in both views (as ``evaluate`` does).
 """
 
@@ -29,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from threadrecon.app.bench import with_overrides  # noqa: E402
 from threadrecon.app.dataset import evaluate_reconstruction  # noqa: E402
 from threadrecon.app.presets import resolve_preset  # noqa: E402
+from threadrecon.core.metrics import hidden_ends  # noqa: E402
 from threadrecon.core.pipeline import Pipeline  # noqa: E402
 from threadrecon.core.segmentation import StereoPair  # noqa: E402
 from threadrecon.core.synthetic import (  # noqa: E402
@@ -88,6 +92,9 @@ def run_suite(name: str, seed: int, count: int, params) -> list[dict]:
                 e_S_max=m["e_S_max_mm"],
                 e_length=m["e_length_mm"],
                 cpu_ms=cpu_ms,
+                hidden_mm=max(
+                    hidden_ends(frame.truth.centerline, calib, frame.mask_left, frame.mask_right)
+                ),
             )
         )
     return rows
@@ -104,7 +111,9 @@ def main() -> int:
     args = ap.parse_args()
     params = with_overrides(resolve_preset(args.config), args.set)
     all_rows = []
-    print("suite           right  good  mean e_S  median e_S  mean cpu ms  frames not good")
+    print(
+        "suite           right  good  good/seen  mean e_S  median e_S  mean cpu ms  frames not good"
+    )
     with threadpool_limits(1):
         for name in args.suite or list(SUITES):
             rows = run_suite(name, args.seed, args.count, params)
@@ -112,12 +121,16 @@ def main() -> int:
             good = [r for r in rows if r["good"]]
             e = np.array([r["e_S"] for r in good]) if good else np.array([np.nan])
             bad = ", ".join(
-                f"{r['frame']}({r['status']}, max {r['e_S_max']:.1f}, len {r['e_length']:.1f})"
+                f"{r['frame']}({r['status']}, max {r['e_S_max']:.1f}, len {r['e_length']:.1f}"
+                + (f", end hidden {r['hidden_mm']:.0f} mm)" if r["hidden_mm"] > 1.0 else ")")
                 for r in rows
                 if not (r["good"] and r["status"] == "ok")
             )
+            seen = [r for r in rows if r["hidden_mm"] <= GOOD_MM]  # no end hidden > 20 mm
+            n_ok = sum(r["status"] == "ok" for r in good)
+            n_ok_seen = sum(r["status"] == "ok" for r in good if r["hidden_mm"] <= GOOD_MM)
             print(
-                f"{name:16s} {len(good):2d}/{len(rows):<3d} {sum(r['status'] == 'ok' for r in good):3d}"
+                f"{name:16s} {len(good):2d}/{len(rows):<3d} {n_ok:3d}  {n_ok_seen:4d}/{len(seen):<4d}"
                 f"  {np.mean(e):8.3f}  {np.median(e):10.3f}  "
                 f"{np.median([r['cpu_ms'] for r in rows]):11.1f}  {bad}",
                 flush=True,

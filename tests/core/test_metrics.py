@@ -9,6 +9,7 @@ from threadrecon.core.metrics import (
     _zhang_suen,
     curve_errors,
     frame_errors,
+    hidden_ends,
     polyline_length,
     project,
     reprojection_errors,
@@ -170,3 +171,23 @@ def test_frame_errors_judge_a_thread_leaving_the_view_on_its_visible_part() -> N
     assert_close(frame_errors(truth, truth, calib).length_gt, e.length_gt)
     with pytest.raises(ValueError, match="N >= 2"):
         frame_errors(np.zeros((1, 3)), truth, calib)
+
+
+def test_hidden_ends_measure_the_truth_no_view_shows() -> None:
+    K = np.array([[100.0, 0, 50], [0, 100.0, 40], [0, 0, 1]])
+    calib = make_calibration(K, np.zeros(5), K, np.zeros(5), np.eye(3), [-5.0, 0, 0], (80, 100))
+    x = np.linspace(0.0, 40.0, 401)  # mm at z = 100: u = x + 50 (left), x + 45 (right)
+    truth = np.column_stack([x, np.zeros_like(x), np.full_like(x, 100.0)])
+    cols = np.arange(100)
+    mask_l = np.zeros((80, 100), dtype=bool)
+    mask_l[40, (cols >= 50) & (cols <= 80)] = True  # the left view shows x in [0, 30]
+    mask_r = np.zeros((80, 100), dtype=bool)
+    mask_r[40, (cols >= 45) & (cols <= 70)] = True  # the right view shows x in [0, 25]
+    start, end = hidden_ends(truth, calib, mask_l, mask_r)
+    assert start == 0.0
+    assert_close(end, 40.0 - 31.5, atol=0.11)  # the left view shows 30 mm, + 1 px grown, + rounding
+    both = hidden_ends(truth, calib, np.zeros_like(mask_l), mask_r)
+    assert_close(both[1], 40.0 - 26.5, atol=0.11)  # now only the right view shows it
+    assert hidden_ends(truth, calib, mask_l * 0, mask_r * 0) == (40.0, 40.0)  # nothing seen
+    with pytest.raises(ValueError, match=r"\(H, W\) thread masks"):
+        hidden_ends(truth, calib, mask_l[0], mask_r)
