@@ -14,13 +14,12 @@ from typing import Final, Literal
 
 import numpy as np
 import scipy.linalg
-from scipy.interpolate import BSpline
 
 from threadrecon.core import spline_kernel
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.lru import LRU
 from threadrecon.core.params import Params, param
-from threadrecon.core.spline import SplineResult, basis_matrix
+from threadrecon.core.spline import SplineResult, basis_matrix, evaluate
 
 COND_FLOOR = 1e-6  # Cholesky diagonal ratio below which the refit falls back to SVD
 
@@ -70,7 +69,7 @@ def to_camera(
     k = spline.degree
     if p.mode == "paper":
         ctrl = image_to_camera(spline.ctrl, calib.G)
-        points = BSpline.construct_fast(knots, ctrl, k)(np.linspace(0.0, 1.0, p.n_points))
+        points = evaluate(np.linspace(0.0, 1.0, p.n_points), knots, ctrl, k)
     elif p.mode == "refit":
         n_fit = max(p.n_points, 8 * len(spline.ctrl))
         ctrl, dense, status = spline_kernel.camera_refit(
@@ -90,7 +89,7 @@ def to_camera(
             points = dense
         else:
             points = image_to_camera(
-                BSpline.construct_fast(knots, spline.ctrl, k)(np.linspace(0.0, 1.0, p.n_points)),
+                evaluate(np.linspace(0.0, 1.0, p.n_points), knots, spline.ctrl, k),
                 calib.G,
             )
     else:

@@ -44,6 +44,7 @@ import numpy as np
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.lru import LRU
+from threadrecon.core.numeric import median
 from threadrecon.core.params import Params, param
 from threadrecon.core.refine_kernel import (
     GN_CONSTANTS,
@@ -156,8 +157,8 @@ def refine_depth(
     cL, lL = runs_L.at(iL)
     okL = np.isfinite(cL) & (np.abs(cL - xy[:, 0]) <= 0.5 * lL + GATE_PX)
 
-    d_run = _run_disparity(z_c0, iL, okL, runs_L.centre.size, fB)
-    mismatched, shared = _mismatched(bounds, runs_L, runs_R, fB, d_run)
+    d_run = functools.partial(_run_disparity, z_c0, iL, okL, runs_L.centre.size, fB)
+    mismatched, shared = _mismatched(bounds, runs_L, runs_R, fB, d_run)  # d_run: when read
     keep = ~mismatched
     # Stereo matched another strand somewhere: pair runs by rank on rows where the two views
     # hold two runs (or equally many, on the rows of a coil's mismatched turn), and start
@@ -181,9 +182,10 @@ def refine_depth(
     S = D3.scaled(to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))
 
     BH = _basis(t, k, np.clip(spline.u_H, 0, spline.length))
-    iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1), shared)
-    if not remedy:
-        iR_rank[:] = -1
+    if remedy:
+        iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1), shared)
+    else:
+        iR_rank = np.full(len(iL), -1)
     lo, hi = bounds.lower[keep], bounds.upper[keep]
     G = BH[keep].stack(BH[keep].scaled(-1.0))  # Eq. (7): lower <= S_z(u_H) <= upper
     h = np.concatenate([lo, -hi])
@@ -197,9 +199,9 @@ def refine_depth(
         hw_H = 0.5 * (fB / bounds.lower - fB / bounds.upper)  # Eq. (7)'s half-width, px
     use_H = keep & np.isfinite(res_H) & (z0_H > 0) & np.isfinite(hw_H) & (hw_H > 0)
     if spline.ok and use_H.sum() >= MIN_PRIOR_POINTS:  # a failed MVS measures nothing
-        sd_0 = max(1.4826 * float(np.median(np.abs(res_H[use_H]))), MIN_SD_PX)
+        sd_0 = max(1.4826 * median(np.abs(res_H[use_H])), MIN_SD_PX)
         # the MVS is doubted where its bounds are wide: sd in proportion to the half-width
-        sd_H = sd_0 * hw_H / float(np.median(hw_H[use_H]))
+        sd_H = sd_0 * hw_H / median(hw_H[use_H])
         if p.shift_information:  # and where the SSD window could not fix the disparity
             sd_H = sd_H * _information_scale(lifted, bounds.H, use_H)
         # and its ends where Eq. (8) fixed them to a tip matched in both views (deviation 23:
@@ -330,7 +332,11 @@ def _run_disparity(
 
 
 def _mismatched(
-    bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float, d_run: np.ndarray | None = None
+    bounds: Bounds,
+    runs_L: _Runs,
+    runs_R: _Runs,
+    fB: float,
+    d_run: np.ndarray | Callable[[], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(P,) points of H whose stereo depth matched the wrong strand, and (H,) the image rows
     of such sections found on rows of three or more runs.
@@ -346,7 +352,8 @@ def _mismatched(
     (:func:`_run_disparity`) agrees with that pairing (uniqueness: one right run cannot show
     two strands; where strands cross and swap their order, the other strand's depth does
     not agree with the rank pairing, and nothing is flagged). Over at least ``MISMATCH_RUN``
-    consecutive points. Their bounds of Eq. (7), built on that depth, are dropped."""
+    consecutive points. Their bounds of Eq. (7), built on that depth, are dropped.
+    ``d_run`` may be a function that computes it: called only when a row holds three runs."""
     pre = _DERIVED.cached(
         (bounds, runs_L, runs_R),
         ("mismatch", float(fB)),
@@ -354,7 +361,7 @@ def _mismatched(
     )
     if pre.result is not None:  # no row of three runs: d_run is not read (a spline re-run)
         return pre.result[0].copy(), pre.result[1].copy()
-    return _sections(pre, runs_L, runs_R, d_run)
+    return _sections(pre, runs_L, runs_R, d_run() if callable(d_run) else d_run)
 
 
 class _Stereo:

@@ -343,6 +343,49 @@ def camera_refit(t, k, ctrl, n, G_inv, cond_floor):  # noqa: ANN001
     return c, pts, 0
 
 
+@kernel("float64[:, ::1](float64[::1], float64[::1], float64[:, ::1], int64)")
+def evaluate(x, t, c, k):  # noqa: ANN001
+    """(len(x), d) values of the spline of degree k on knots t with coefficients c (rows: at
+    least len(t) - k - 1, d columns) at x: ``BSpline.construct_fast(t, c, k)(x)`` (scipy's
+    ``evaluate_spline``: the k + 1 non-zero B-splines by :func:`_nonzero`, then each column
+    as 0 + sum_a c[ell - k + a] b_a in that order), the same to the last bit; a row of NaN
+    for a non-finite x."""
+    n = x.size
+    m = t.size - k - 1
+    d = c.shape[1]
+    out = np.empty((n, d))
+    h = np.empty(k + 1)
+    hh = np.empty(k + 1)
+    for i in range(n):
+        xi = x[i]
+        if not math.isfinite(xi):
+            out[i, :] = np.nan
+            continue
+        first = _nonzero(xi, t, k, m, h, hh)
+        for j in range(d):
+            s = 0.0
+            for a in range(k + 1):
+                s += c[first + a, j] * h[a]
+            out[i, j] = s
+    return out
+
+
+@helper()
+def _span(row, m):  # noqa: ANN001
+    """First and last index (exclusive) of the non-zero entries of ``row`` (m,); (0, m) when a
+    value is not finite (then no product may be left out)."""
+    lo = m
+    hi = 0
+    for j in range(m):
+        v = row[j]
+        if not math.isfinite(v):
+            return 0, m
+        if v != 0.0:
+            lo = min(lo, j)
+            hi = j + 1
+    return lo, max(hi, lo)
+
+
 @kernel(
     "Tuple((int64, float64, float64[::1], float64[::1], float64[:, ::1], float64, "
     "float64[:, ::1], float64[::1]))(float64[:, ::1], float64[:, ::1], float64[:, ::1], "
@@ -353,22 +396,34 @@ def gn_trial(B1, B2, B3, sqrt_wq, J_d, c_d, scale, J, r, A, b, d, f_stop, step_t
     """One Gauss-Newton trial step d from b of ``spline._Problem.solve``: the model decrease
     pred = -(2 r.Jd + |Jd|^2); stop (1) when pred <= ``f_stop`` or max |A d| < ``step_tol``;
     else (0) the residuals at b + d (:func:`mvs_residual`), their sum of squares, J^T J and
-    J^T r there. Returns (stop, pred, b + d, r, J, F, J^T J, J^T r)."""
+    J^T r there. Returns (stop, pred, b + d, r, J, F, J^T J, J^T r).
+
+    The rows of J and A are B-spline rows, non-zero over k + 1 to 2 k + 1 columns: each sum
+    runs over a row's non-zero span only (:func:`_span`). The products left out are exact
+    zeros and every sum starts at +0.0, which adding a zero leaves unchanged, so the results
+    are those of the sums over every column, bit for bit (a row or step with a value that
+    is not finite is summed in full)."""
     n, m = J.shape
+    d_finite = True
+    for j in range(m):
+        if not math.isfinite(d[j]):
+            d_finite = False
     pred = 0.0
     rJd = 0.0
     JdJd = 0.0
     for i in range(n):
+        lo, hi = _span(J[i], m) if d_finite else (0, m)
         v = 0.0
-        for j in range(m):
+        for j in range(lo, hi):
             v += J[i, j] * d[j]
         rJd += r[i] * v
         JdJd += v * v
     pred = -(2.0 * rJd + JdJd)
     step = 0.0
     for i in range(A.shape[0]):
+        lo, hi = _span(A[i], m) if d_finite else (0, m)
         v = 0.0
-        for j in range(m):
+        for j in range(lo, hi):
             v += A[i, j] * d[j]
         step = max(step, abs(v))
     empty1 = np.empty(0)
@@ -383,10 +438,11 @@ def gn_trial(B1, B2, B3, sqrt_wq, J_d, c_d, scale, J, r, A, b, d, f_stop, step_t
     JtJ = np.zeros((m, m))
     g = np.zeros(m)
     for i in range(rt.size):
-        for a in range(m):
+        lo, hi = _span(Jt[i], m) if math.isfinite(rt[i]) else (0, m)
+        for a in range(lo, hi):
             va = Jt[i, a]
             g[a] += va * rt[i]
-            for e in range(a, m):
+            for e in range(a, hi):
                 JtJ[a, e] += va * Jt[i, e]
     for a in range(m):
         for e in range(a):
