@@ -9,6 +9,7 @@ curve with the same knots. ``mode="paper"`` maps the control points as Eq. (9) d
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Final, Literal
 
@@ -77,7 +78,7 @@ def to_camera(
             int(k),
             np.ascontiguousarray(spline.ctrl, dtype=np.float64),
             int(n_fit),
-            np.linalg.inv(np.asarray(calib.G, dtype=np.float64)),
+            _inverse(np.asarray(calib.G, dtype=np.float64).tobytes()).copy(),
             COND_FLOOR,
         )  # compiled: S(u) mapped by Eq. (9) and refitted, the basis banded
         if status:  # an ill-conditioned refit: SVD least squares
@@ -98,6 +99,12 @@ def to_camera(
     return CameraCurve(
         ctrl=ctrl, knots=knots, degree=k, points=points, length=length, unit=calib.unit
     )
+
+
+@functools.lru_cache(maxsize=8)
+def _inverse(G: bytes) -> np.ndarray:
+    """G^-1 of Eq. (9) from G's (3, 3) float64 bytes (C order), once per calibration."""
+    return np.linalg.inv(np.frombuffer(G, dtype=np.float64).reshape(3, 3))
 
 
 @dataclass(frozen=True)

@@ -282,12 +282,11 @@ def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) ->
     du_ds = length / s[-1]
     lo_c, hi_c, u_c = _constraint_points(u, bounds.lower, bounds.upper)
     half_c = 0.5 * (hi_c - lo_c)
-    derivs = _derivative_coefficients(t, k, 3)  # shared by Eq. (8)'s quadrature and its ends
-    mvs = _Mvs(t, k, length, p.quad_per_span, derivs)
+    mvs = _Mvs(t, k, length, p.quad_per_span)
     b0 = ctrl_init[:, 2].copy()
     f0 = mvs.value(b0)
     A = basis_matrix(u_c, t, k)  # rows: u of H, then the midpoints
-    E = _end_rows(t, k, length, derivs[0])
+    E = _end_rows(t, k, length, mvs.end_slopes)
     e_rhs = np.array(
         [
             bounds.end_values[0],
@@ -414,9 +413,17 @@ def _basis_values(x: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
 
 def basis_derivatives(x: np.ndarray, t: np.ndarray, k: int, nu: int) -> list[np.ndarray]:
     """``[basis_matrix(x, t, k, j) for j in 1..nu]``, each derivative's coefficients computed
-    from the previous one's (as ``basis_matrix`` itself does), once."""
+    from the previous one's (``_derivative_coefficients``, then :func:`evaluate`); compiled
+    in one call for points in a 1-D array (:func:`spline_kernel.derivative_bases`, the same
+    to the last bit): C-contiguous (len(x), m) arrays."""
     x = _as_points(x)
-    return [evaluate(x, *tck) for tck in _derivative_coefficients(t, k, nu)]
+    if x.ndim != 1 or nu > k or k < 0 or len(t) < 2 * k + 2:
+        return [evaluate(x, *tck) for tck in _derivative_coefficients(t, k, nu)]
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    out, status = spline_kernel.derivative_bases(np.ascontiguousarray(x), t, int(k), int(nu))
+    if status:
+        raise ValueError(f"repeated inner knots: the spline is not {nu} times differentiable")
+    return list(out)
 
 
 def evaluate(x: np.ndarray, t: np.ndarray, c: np.ndarray, k: int) -> np.ndarray:
@@ -477,15 +484,12 @@ def _violation(z: np.ndarray, lo: np.ndarray, hi: np.ndarray, half: np.ndarray) 
     return float(max(0.0, np.max(out / np.maximum(half, 1e-12))))
 
 
-def _end_rows(
-    t: np.ndarray, k: int, length: float, first: tuple[np.ndarray, np.ndarray, int] | None = None
-) -> np.ndarray:
-    """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z; ``first``: the first
-    derivatives' ``_derivative_coefficients(t, k, 1)[0]``, if the caller has them."""
+def _end_rows(t: np.ndarray, k: int, length: float, d1: np.ndarray | None = None) -> np.ndarray:
+    """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z; ``d1``: the basis' first
+    derivatives at 0 and l, ``basis_matrix(ends, t, k, 1)``, if the caller has them."""
     ends = np.array([0.0, length])
     v = basis_matrix(ends, t, k)
-    first = first if first is not None else _derivative_coefficients(t, k, 1)[0]
-    d1 = evaluate(ends, *first)  # basis_matrix(ends, t, k, 1)
+    d1 = d1 if d1 is not None else basis_derivatives(ends, t, k, 1)[0]
     return np.stack([v[0], d1[0], v[1], d1[1]])
 
 
@@ -504,18 +508,19 @@ class _Mvs:
         k: int,
         length: float,
         n_per_span: int,
-        derivs: list[tuple[np.ndarray, np.ndarray, int]] | None = None,
     ) -> None:
-        """``derivs``: ``_derivative_coefficients(t, k, 3)``, if the caller has them."""
+        """The quadrature nodes uq and weights wq, the basis' first to third derivatives at the
+        nodes (``B``, (nq, m) each) and its first derivatives at 0 and ``length``
+        (``end_slopes``, (2, m), for Eq. (8)'s end rows): one compiled call."""
         xg, wg = _leggauss(n_per_span)
         edges = _distinct(t)
         a, b = edges[:-1], edges[1:]
         self.uq = (0.5 * (b - a)[:, None] * (xg[None, :] + 1.0) + a[:, None]).ravel()
         self.wq = (0.5 * (b - a)[:, None] * wg[None, :]).ravel()
-        if derivs is None:
-            derivs = _derivative_coefficients(t, k, 3)
-        uq = _as_points(self.uq)  # (nq, m) each, orders 1, 2, 3 (basis_derivatives)
-        self.B = [evaluate(uq, *tck) for tck in derivs]
+        nq = len(self.uq)
+        D = basis_derivatives(np.concatenate([self.uq, [0.0, length]]), t, k, 3)
+        self.B = [d[:nq] for d in D]  # (nq, m) each, orders 1, 2, 3 (C-contiguous rows)
+        self.end_slopes = D[0][nq:]
         self.sqrt_wq = np.sqrt(self.wq)
 
     def _terms(self, b: np.ndarray) -> tuple[np.ndarray, ...]:

@@ -370,6 +370,50 @@ def evaluate(x, t, c, k):  # noqa: ANN001
     return out
 
 
+@kernel("Tuple((float64[:, :, ::1], int64))(float64[::1], float64[::1], int64, int64)")
+def derivative_bases(x, t, k, nu):  # noqa: ANN001
+    """(nu, len(x), m): the j-th derivatives, j = 1..nu, of the m = len(t) - k - 1 B-splines
+    of degree k on knots t at x, and a status (1: a knot span of zero length, the spline is
+    not nu times differentiable). As ``spline.basis_derivatives`` computed them: each
+    derivative's coefficients from the previous one's as scipy's ``splder`` does (the
+    identity's, with FITPACK's len(t) coefficient rows: (c[i + 1] - c[i]) * k / (t[i + k +
+    1] - t[i + 1])), each evaluated as :func:`evaluate` does, so the same to the last bit."""
+    n = x.size
+    m = t.size - k - 1
+    out = np.zeros((nu, n, m))
+    c = np.zeros((t.size, m))
+    for j in range(m):
+        c[j, j] = 1.0
+    tj = t.copy()
+    kj = k
+    h = np.empty(k + 1)
+    hh = np.empty(k + 1)
+    for d in range(nu):
+        cn = np.zeros((tj.size - 2, m))
+        for i in range(tj.size - kj - 2):
+            dt = tj[i + kj + 1] - tj[i + 1]
+            if dt == 0.0:
+                return out, 1
+            for col in range(m):
+                cn[i, col] = (c[i + 1, col] - c[i, col]) * kj / dt
+        c = cn
+        tj = tj[1:-1].copy()
+        kj -= 1
+        mj = tj.size - kj - 1
+        for i in range(n):
+            xi = x[i]
+            if not math.isfinite(xi):
+                out[d, i, :] = np.nan
+                continue
+            first = _nonzero(xi, tj, kj, mj, h, hh)
+            for col in range(m):
+                s = 0.0
+                for a in range(kj + 1):
+                    s += c[first + a, col] * h[a]
+                out[d, i, col] = s
+    return out, 0
+
+
 @helper()
 def _span(row, m):  # noqa: ANN001
     """First and last index (exclusive) of the non-zero entries of ``row`` (m,); (0, m) when a

@@ -219,3 +219,29 @@ def test_gauss_newton_trial_on_banded_rows_equals_the_full_sums_bit_for_bit() ->
                 for g_, w_ in zip(got[2:], want[2:], strict=True):
                     assert np.asarray(g_).tobytes() == np.asarray(w_).tobytes()
     assert trials >= 3  # the trial point's residuals were compared
+
+
+def test_compiled_derivative_bases_equal_scipys_derivative_splines_byte_for_byte() -> None:
+    """spline.basis_derivatives (spline_kernel.derivative_bases, one call for every order)
+    against BSpline(t, eye(m), k).derivative(j)(x), byte for byte (signed zeros, NaN rows);
+    a knot span of zero length is an error that says so."""
+    from threadrecon.core.spline import basis_derivatives
+
+    rng = np.random.default_rng(21)
+    for _ in range(60):
+        k = int(rng.integers(2, 6))
+        m = int(rng.integers(k + 1, 40))
+        length = float(rng.uniform(0.1, 300.0))
+        inner = np.sort(rng.uniform(0.0, length, m - k - 1))
+        t = np.concatenate([np.zeros(k + 1), inner, np.full(k + 1, length)])
+        x = np.concatenate([rng.uniform(-0.1, 1.1, 50) * length, [0.0, length, np.nan], inner])
+        nu = int(rng.integers(1, k + 1))
+        got = basis_derivatives(x, t, k, nu)
+        basis = BSpline.construct_fast(t, np.eye(m), k)
+        assert len(got) == nu
+        for j in range(1, nu + 1):
+            assert got[j - 1].tobytes() == basis.derivative(j)(x).tobytes()
+    t = np.array([0.0, 0, 0, 0, 1, 1, 1, 2, 2, 2, 2])  # a triple knot: C^0 there
+    assert len(basis_derivatives(np.array([0.5]), t, 3, 1)) == 1
+    with pytest.raises(ValueError, match="not 2 times differentiable"):
+        basis_derivatives(np.array([0.5]), t, 3, 2)
