@@ -40,6 +40,7 @@ from threadrecon.core import spline_kernel
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.lru import LRU
+from threadrecon.core.numeric import median
 from threadrecon.core.params import Params, param
 
 EQ_TOL = 1e-3  # endpoint equalities hold to 0.1 % of the median bound half-width
@@ -156,7 +157,7 @@ def fit_spline(
     scale = 1.0 / f0 if f0 > 0 else 1.0
     Bd = A[: len(u)]  # basis at the points of H (the first constraint points)
     w_d = p.data_weight / (len(u) * np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12) ** 2)
-    zs = max(float(np.median(half_c)), 1e-12)  # constraint scaling: depths in half-widths
+    zs = max(median(half_c), 1e-12)  # constraint scaling: depths in half-widths
     problem = _Problem(mvs, scale, Bd, np.sqrt(w_d), bounds.centre, A / zs, lo_c / zs, hi_c / zs)
 
     sol = problem.solve(b0, E / zs, e_rhs / zs, p.max_iter)
@@ -655,7 +656,7 @@ class _Problem:
 
     def solve(self, b0: np.ndarray, E: np.ndarray, e: np.ndarray, max_iter: int) -> _Solution:
         m = b0.size
-        n_crossed = int(np.sum(self.lo > self.hi))
+        n_crossed = int(np.count_nonzero(self.lo > self.hi))
         if n_crossed:
             msg = f"infeasible: the lower depth bound lies above the upper at {n_crossed} points"
             return _Solution(b0, "infeasible", msg, 0)
