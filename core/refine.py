@@ -142,8 +142,10 @@ def refine_depth(
         return spline
     t, k, c0 = spline.knots, spline.degree, spline.ctrl
     fB = calib.focal * calib.baseline
-    xy_len = float(np.linalg.norm(np.diff(spline.curve(200)[:, :2], axis=0), axis=1).sum())
-    n = int(np.clip(xy_len, 50, 3000))  # about one sample per px of image arc length
+    c200 = spline.curve(200)[:, :2]
+    step = c200[1:] - c200[:-1]  # np.linalg.norm(np.diff(...), axis=1)'s own operations
+    xy_len = float(np.sqrt(np.add.reduce(step * step, axis=1)).sum())
+    n = int(min(max(xy_len, 50), 3000))  # about one sample per px of image arc length
     u = np.linspace(0.0, spline.length, n)
     t = np.ascontiguousarray(t, dtype=np.float64)
     c0 = np.ascontiguousarray(c0, dtype=np.float64)
@@ -177,7 +179,7 @@ def refine_depth(
     uq, wq = _gauss_nodes(t, k, QUAD_PER_SPAN)
     D3 = _basis(t, k, uq, 3)  # d^3 S_z / du^3 per control value
     ds_du = xy_len / spline.length
-    z_mean = float(np.mean(z_c0))
+    z_mean = float(np.add.reduce(z_c0) / z_c0.size)  # np.mean's operations
     to_px = fB / z_mean**2  # depth -> disparity px at the mean depth
     S = D3.scaled(to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))
 
@@ -207,8 +209,9 @@ def refine_depth(
         # and its ends where Eq. (8) fixed them to a tip matched in both views (deviation 23:
         # L_{k_1}, L_{k_n} moved off the window lines), at the stereo's typical spread
         ends = _tip_ends(bounds) & keep[[0, -1]]
-        BE = _basis(t, k, np.array([0.0, spline.length])[ends])
-        BP = BH[use_H].stack(BE)
+        BP = BH[use_H]
+        if ends.any():
+            BP = BP.stack(_basis(t, k, np.array([0.0, spline.length])[ends]))
         zP0 = BP.dot(b0)
         dP0 = fB / zP0
         sdP = np.concatenate([sd_H[use_H], np.full(int(ends.sum()), sd_0)])
@@ -470,7 +473,11 @@ def _leggauss(n: int) -> tuple[np.ndarray, np.ndarray]:
 def _gauss_nodes(t: np.ndarray, k: int, per_span: int) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Legendre nodes and weights, ``per_span`` per non-empty knot span of (t, k)."""
     x, w = _leggauss(per_span)
-    brk = np.unique(t[k : len(t) - k])
+    brk = t[k : len(t) - k]
+    if np.all(brk[1:] >= brk[:-1]):  # sorted (and no NaN): np.unique's values without a sort
+        brk = brk[np.concatenate(([True], brk[1:] != brk[:-1]))]
+    else:
+        brk = np.unique(brk)
     a, b = brk[:-1, None], brk[1:, None]
     return (0.5 * (b - a) * x + 0.5 * (a + b)).ravel(), (0.5 * (b - a) * w).ravel()
 
@@ -539,7 +546,7 @@ def _basis(t: np.ndarray, k: int, x: np.ndarray, nu: int = 0) -> _Basis:
     if len(t) < 2 * k + 2:
         raise ValueError(f"a spline of degree {k} needs at least {k + 1} control points")
     inner = t[k + 1 : len(t) - k - 1]
-    if nu and inner.size and np.any(np.diff(inner) == 0):
+    if nu and inner.size and (inner[1:] == inner[:-1]).any():
         raise ValueError(f"repeated inner knots: the spline is not {nu} times differentiable")
     return _Basis(*basis_bands(t, int(k), np.ascontiguousarray(x, dtype=np.float64), nu))
 
