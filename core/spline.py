@@ -286,8 +286,9 @@ def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) ->
     mvs = _Mvs(t, k, length, p.quad_per_span)
     b0 = ctrl_init[:, 2].copy()
     f0 = mvs.value(b0)
-    A = basis_matrix(u_c, t, k)  # rows: u of H, then the midpoints
-    E = _end_rows(t, k, length, mvs.end_slopes)
+    AV = basis_matrix(np.concatenate([u_c, [0.0, length]]), t, k)  # one call: rows apart
+    A = AV[:-2]  # rows: u of H, then the midpoints
+    E = _end_rows(t, k, length, mvs.end_slopes, AV[-2:])
     e_rhs = np.array(
         [
             bounds.end_values[0],
@@ -408,8 +409,16 @@ def _basis_values(x: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
     m = len(t) - k - 1
     if x.ndim != 1 or m < 1 or k < 0:
         return BSpline.construct_fast(t, np.eye(m), k)(x)
-    x, t = (np.require(a, np.float64, ("C", "W")) for a in (x, t))  # read-only: a copy
+    x, t = _writable(x), _writable(t)  # read-only: a copy
     return spline_kernel.basis_dense(x, t, int(k))
+
+
+def _writable(a: np.ndarray) -> np.ndarray:
+    """``np.require(a, np.float64, ("C", "W"))`` without its layers: ``a`` itself when it is
+    a writable C-contiguous float64 array, else a copy that is."""
+    if a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable:
+        return a
+    return np.array(a, dtype=np.float64, order="C")
 
 
 def basis_derivatives(x: np.ndarray, t: np.ndarray, k: int, nu: int) -> list[np.ndarray]:
@@ -485,11 +494,18 @@ def _violation(z: np.ndarray, lo: np.ndarray, hi: np.ndarray, half: np.ndarray) 
     return float(max(0.0, np.max(out / np.maximum(half, 1e-12))))
 
 
-def _end_rows(t: np.ndarray, k: int, length: float, d1: np.ndarray | None = None) -> np.ndarray:
-    """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z; ``d1``: the basis' first
-    derivatives at 0 and l, ``basis_matrix(ends, t, k, 1)``, if the caller has them."""
+def _end_rows(
+    t: np.ndarray,
+    k: int,
+    length: float,
+    d1: np.ndarray | None = None,
+    v: np.ndarray | None = None,
+) -> np.ndarray:
+    """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z; ``d1``, ``v``: the basis' first
+    derivatives and values at 0 and l, ``basis_matrix(ends, t, k, 1)`` and
+    ``basis_matrix(ends, t, k)``, if the caller has them."""
     ends = np.array([0.0, length])
-    v = basis_matrix(ends, t, k)
+    v = v if v is not None else basis_matrix(ends, t, k)
     d1 = d1 if d1 is not None else basis_derivatives(ends, t, k, 1)[0]
     return np.stack([v[0], d1[0], v[1], d1[1]])
 
@@ -675,11 +691,10 @@ class _Problem:
         JtJ, g = J.T @ J, J.T @ r
         scale_h = np.trace(JtJ) / m + 1e-12
         mu, nu = LM_MU0 * scale_h, 2.0
-        diag = np.arange(m) * (m + 1)  # the diagonal's flat indices
         mvs = self.mvs
         for it in range(1, max_iter + 1):
-            Hq = 2.0 * JtJ  # 2 (J^T J + mu I)
-            Hq.flat[diag] += 2.0 * mu
+            Hq = np.ascontiguousarray(2.0 * JtJ)  # 2 (J^T J + mu I)
+            Hq.reshape(-1)[:: m + 1] += 2.0 * mu  # its diagonal (a view: C order)
             d, flag = self._qp(Hq, 2.0 * g, b, C, upper, lower, sense)
             if flag not in (1, 2):
                 word = _DAQP_FLAGS.get(flag, f"exit flag {flag}")
