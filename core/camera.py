@@ -95,7 +95,9 @@ def to_camera(
             )
     else:
         raise ValueError(f"mode must be 'refit' or 'paper', got {p.mode!r}")
-    length = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+    step = points[1:] - points[:-1]
+    sq = step * step  # np.linalg.norm(np.diff(points, axis=0), axis=1)'s operations, in order
+    length = float(np.sqrt((sq[:, 0] + sq[:, 1]) + sq[:, 2]).sum())
     return CameraCurve(
         ctrl=ctrl, knots=knots, degree=k, points=points, length=length, unit=calib.unit
     )

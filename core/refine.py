@@ -144,7 +144,8 @@ def refine_depth(
     fB = calib.focal * calib.baseline
     c200 = spline.curve(200)[:, :2]
     step = c200[1:] - c200[:-1]  # np.linalg.norm(np.diff(...), axis=1)'s own operations
-    xy_len = float(np.sqrt(np.add.reduce(step * step, axis=1)).sum())
+    sq = step * step
+    xy_len = float(np.sqrt(sq[:, 0] + sq[:, 1]).sum())
     n = int(min(max(xy_len, 50), 3000))  # about one sample per px of image arc length
     u = np.linspace(0.0, spline.length, n)
     t = np.ascontiguousarray(t, dtype=np.float64)
