@@ -9,18 +9,18 @@ curve with the same knots. ``mode="paper"`` maps the control points as Eq. (9) d
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Final, Literal
 
 import numpy as np
 import scipy.linalg
-from scipy.interpolate import BSpline
 
 from threadrecon.core import spline_kernel
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.lru import LRU
 from threadrecon.core.params import Params, param
-from threadrecon.core.spline import SplineResult, basis_matrix
+from threadrecon.core.spline import SplineResult, basis_matrix, evaluate
 
 COND_FLOOR = 1e-6  # Cholesky diagonal ratio below which the refit falls back to SVD
 
@@ -70,7 +70,7 @@ def to_camera(
     k = spline.degree
     if p.mode == "paper":
         ctrl = image_to_camera(spline.ctrl, calib.G)
-        points = BSpline.construct_fast(knots, ctrl, k)(np.linspace(0.0, 1.0, p.n_points))
+        points = evaluate(np.linspace(0.0, 1.0, p.n_points), knots, ctrl, k)
     elif p.mode == "refit":
         n_fit = max(p.n_points, 8 * len(spline.ctrl))
         ctrl, dense, status = spline_kernel.camera_refit(
@@ -78,7 +78,7 @@ def to_camera(
             int(k),
             np.ascontiguousarray(spline.ctrl, dtype=np.float64),
             int(n_fit),
-            np.linalg.inv(np.asarray(calib.G, dtype=np.float64)),
+            _inverse(np.asarray(calib.G, dtype=np.float64).tobytes()).copy(),
             COND_FLOOR,
         )  # compiled: S(u) mapped by Eq. (9) and refitted, the basis banded
         if status:  # an ill-conditioned refit: SVD least squares
@@ -90,15 +90,23 @@ def to_camera(
             points = dense
         else:
             points = image_to_camera(
-                BSpline.construct_fast(knots, spline.ctrl, k)(np.linspace(0.0, 1.0, p.n_points)),
+                evaluate(np.linspace(0.0, 1.0, p.n_points), knots, spline.ctrl, k),
                 calib.G,
             )
     else:
         raise ValueError(f"mode must be 'refit' or 'paper', got {p.mode!r}")
-    length = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+    step = points[1:] - points[:-1]
+    sq = step * step  # np.linalg.norm(np.diff(points, axis=0), axis=1)'s operations, in order
+    length = float(np.sqrt((sq[:, 0] + sq[:, 1]) + sq[:, 2]).sum())
     return CameraCurve(
         ctrl=ctrl, knots=knots, degree=k, points=points, length=length, unit=calib.unit
     )
+
+
+@functools.lru_cache(maxsize=8)
+def _inverse(G: bytes) -> np.ndarray:
+    """G^-1 of Eq. (9) from G's (3, 3) float64 bytes (C order), once per calibration."""
+    return np.linalg.inv(np.frombuffer(G, dtype=np.float64).reshape(3, 3))
 
 
 @dataclass(frozen=True)

@@ -44,6 +44,7 @@ import numpy as np
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.lru import LRU
+from threadrecon.core.numeric import median
 from threadrecon.core.params import Params, param
 from threadrecon.core.refine_kernel import (
     GN_CONSTANTS,
@@ -141,8 +142,11 @@ def refine_depth(
         return spline
     t, k, c0 = spline.knots, spline.degree, spline.ctrl
     fB = calib.focal * calib.baseline
-    xy_len = float(np.linalg.norm(np.diff(spline.curve(200)[:, :2], axis=0), axis=1).sum())
-    n = int(np.clip(xy_len, 50, 3000))  # about one sample per px of image arc length
+    c200 = spline.curve(200)[:, :2]
+    step = c200[1:] - c200[:-1]  # np.linalg.norm(np.diff(...), axis=1)'s own operations
+    sq = step * step
+    xy_len = float(np.sqrt(sq[:, 0] + sq[:, 1]).sum())
+    n = int(min(max(xy_len, 50), 3000))  # about one sample per px of image arc length
     u = np.linspace(0.0, spline.length, n)
     t = np.ascontiguousarray(t, dtype=np.float64)
     c0 = np.ascontiguousarray(c0, dtype=np.float64)
@@ -156,8 +160,8 @@ def refine_depth(
     cL, lL = runs_L.at(iL)
     okL = np.isfinite(cL) & (np.abs(cL - xy[:, 0]) <= 0.5 * lL + GATE_PX)
 
-    d_run = _run_disparity(z_c0, iL, okL, runs_L.centre.size, fB)
-    mismatched, shared = _mismatched(bounds, runs_L, runs_R, fB, d_run)
+    d_run = functools.partial(_run_disparity, z_c0, iL, okL, runs_L.centre.size, fB)
+    mismatched, shared = _mismatched(bounds, runs_L, runs_R, fB, d_run)  # d_run: when read
     keep = ~mismatched
     # Stereo matched another strand somewhere: pair runs by rank on rows where the two views
     # hold two runs (or equally many, on the rows of a coil's mismatched turn), and start
@@ -176,14 +180,15 @@ def refine_depth(
     uq, wq = _gauss_nodes(t, k, QUAD_PER_SPAN)
     D3 = _basis(t, k, uq, 3)  # d^3 S_z / du^3 per control value
     ds_du = xy_len / spline.length
-    z_mean = float(np.mean(z_c0))
+    z_mean = float(np.add.reduce(z_c0) / z_c0.size)  # np.mean's operations
     to_px = fB / z_mean**2  # depth -> disparity px at the mean depth
     S = D3.scaled(to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))
 
     BH = _basis(t, k, np.clip(spline.u_H, 0, spline.length))
-    iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1), shared)
-    if not remedy:
-        iR_rank[:] = -1
+    if remedy:
+        iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1), shared)
+    else:
+        iR_rank = np.full(len(iL), -1)
     lo, hi = bounds.lower[keep], bounds.upper[keep]
     G = BH[keep].stack(BH[keep].scaled(-1.0))  # Eq. (7): lower <= S_z(u_H) <= upper
     h = np.concatenate([lo, -hi])
@@ -197,16 +202,17 @@ def refine_depth(
         hw_H = 0.5 * (fB / bounds.lower - fB / bounds.upper)  # Eq. (7)'s half-width, px
     use_H = keep & np.isfinite(res_H) & (z0_H > 0) & np.isfinite(hw_H) & (hw_H > 0)
     if spline.ok and use_H.sum() >= MIN_PRIOR_POINTS:  # a failed MVS measures nothing
-        sd_0 = max(1.4826 * float(np.median(np.abs(res_H[use_H]))), MIN_SD_PX)
+        sd_0 = max(1.4826 * median(np.abs(res_H[use_H])), MIN_SD_PX)
         # the MVS is doubted where its bounds are wide: sd in proportion to the half-width
-        sd_H = sd_0 * hw_H / float(np.median(hw_H[use_H]))
+        sd_H = sd_0 * hw_H / median(hw_H[use_H])
         if p.shift_information:  # and where the SSD window could not fix the disparity
             sd_H = sd_H * _information_scale(lifted, bounds.H, use_H)
         # and its ends where Eq. (8) fixed them to a tip matched in both views (deviation 23:
         # L_{k_1}, L_{k_n} moved off the window lines), at the stereo's typical spread
         ends = _tip_ends(bounds) & keep[[0, -1]]
-        BE = _basis(t, k, np.array([0.0, spline.length])[ends])
-        BP = BH[use_H].stack(BE)
+        BP = BH[use_H]
+        if ends.any():
+            BP = BP.stack(_basis(t, k, np.array([0.0, spline.length])[ends]))
         zP0 = BP.dot(b0)
         dP0 = fB / zP0
         sdP = np.concatenate([sd_H[use_H], np.full(int(ends.sum()), sd_0)])
@@ -330,7 +336,11 @@ def _run_disparity(
 
 
 def _mismatched(
-    bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float, d_run: np.ndarray | None = None
+    bounds: Bounds,
+    runs_L: _Runs,
+    runs_R: _Runs,
+    fB: float,
+    d_run: np.ndarray | Callable[[], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(P,) points of H whose stereo depth matched the wrong strand, and (H,) the image rows
     of such sections found on rows of three or more runs.
@@ -346,7 +356,8 @@ def _mismatched(
     (:func:`_run_disparity`) agrees with that pairing (uniqueness: one right run cannot show
     two strands; where strands cross and swap their order, the other strand's depth does
     not agree with the rank pairing, and nothing is flagged). Over at least ``MISMATCH_RUN``
-    consecutive points. Their bounds of Eq. (7), built on that depth, are dropped."""
+    consecutive points. Their bounds of Eq. (7), built on that depth, are dropped.
+    ``d_run`` may be a function that computes it: called only when a row holds three runs."""
     pre = _DERIVED.cached(
         (bounds, runs_L, runs_R),
         ("mismatch", float(fB)),
@@ -354,7 +365,7 @@ def _mismatched(
     )
     if pre.result is not None:  # no row of three runs: d_run is not read (a spline re-run)
         return pre.result[0].copy(), pre.result[1].copy()
-    return _sections(pre, runs_L, runs_R, d_run)
+    return _sections(pre, runs_L, runs_R, d_run() if callable(d_run) else d_run)
 
 
 class _Stereo:
@@ -463,7 +474,11 @@ def _leggauss(n: int) -> tuple[np.ndarray, np.ndarray]:
 def _gauss_nodes(t: np.ndarray, k: int, per_span: int) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Legendre nodes and weights, ``per_span`` per non-empty knot span of (t, k)."""
     x, w = _leggauss(per_span)
-    brk = np.unique(t[k : len(t) - k])
+    brk = t[k : len(t) - k]
+    if np.all(brk[1:] >= brk[:-1]):  # sorted (and no NaN): np.unique's values without a sort
+        brk = brk[np.concatenate(([True], brk[1:] != brk[:-1]))]
+    else:
+        brk = np.unique(brk)
     a, b = brk[:-1, None], brk[1:, None]
     return (0.5 * (b - a) * x + 0.5 * (a + b)).ravel(), (0.5 * (b - a) * w).ravel()
 
@@ -532,7 +547,7 @@ def _basis(t: np.ndarray, k: int, x: np.ndarray, nu: int = 0) -> _Basis:
     if len(t) < 2 * k + 2:
         raise ValueError(f"a spline of degree {k} needs at least {k + 1} control points")
     inner = t[k + 1 : len(t) - k - 1]
-    if nu and inner.size and np.any(np.diff(inner) == 0):
+    if nu and inner.size and (inner[1:] == inner[:-1]).any():
         raise ValueError(f"repeated inner knots: the spline is not {nu} times differentiable")
     return _Basis(*basis_bands(t, int(k), np.ascontiguousarray(x, dtype=np.float64), nu))
 

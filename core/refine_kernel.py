@@ -519,8 +519,10 @@ def _lsi(vals, first, rhs, n_rows, ridge, band_g, first_g, h, m, maxiter, warm, 
     for p in range(P):
         f = first_g[p]
         eq = 0.0
-        for j in range(m):
-            s = band_g[p, j - f] if f <= j < f + K else 0.0
+        for j in range(min(f, m)):  # ahead of the row's band: e = 0 / R[j, j] = +0.0 exactly
+            Mt[p, j] = 0.0
+        for j in range(min(f, m), m):
+            s = band_g[p, j - f] if j < f + K else 0.0
             for i2 in range(max(0, j - K + 1), j):
                 s -= Mt[p, i2] * R[i2, j - i2]
             e = s / R[j, 0]

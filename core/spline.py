@@ -40,6 +40,7 @@ from threadrecon.core import spline_kernel
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.lru import LRU
+from threadrecon.core.numeric import median
 from threadrecon.core.params import Params, param
 
 EQ_TOL = 1e-3  # endpoint equalities hold to 0.1 % of the median bound half-width
@@ -126,7 +127,7 @@ class SplineResult:
     def curve(self, n: int = 400, initial: bool = False) -> np.ndarray:
         """(n, 3) samples of S at uniform u, (x px, y px, z depth)."""
         c = self.ctrl_init if initial else self.ctrl
-        return BSpline.construct_fast(self.knots, c, self.degree)(np.linspace(0.0, self.length, n))
+        return evaluate(np.linspace(0.0, self.length, n), self.knots, c, self.degree)
 
 
 def fit_spline(
@@ -156,7 +157,7 @@ def fit_spline(
     scale = 1.0 / f0 if f0 > 0 else 1.0
     Bd = A[: len(u)]  # basis at the points of H (the first constraint points)
     w_d = p.data_weight / (len(u) * np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12) ** 2)
-    zs = max(float(np.median(half_c)), 1e-12)  # constraint scaling: depths in half-widths
+    zs = max(median(half_c), 1e-12)  # constraint scaling: depths in half-widths
     problem = _Problem(mvs, scale, Bd, np.sqrt(w_d), bounds.centre, A / zs, lo_c / zs, hi_c / zs)
 
     sol = problem.solve(b0, E / zs, e_rhs / zs, p.max_iter)
@@ -282,12 +283,12 @@ def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) ->
     du_ds = length / s[-1]
     lo_c, hi_c, u_c = _constraint_points(u, bounds.lower, bounds.upper)
     half_c = 0.5 * (hi_c - lo_c)
-    derivs = _derivative_coefficients(t, k, 3)  # shared by Eq. (8)'s quadrature and its ends
-    mvs = _Mvs(t, k, length, p.quad_per_span, derivs)
+    mvs = _Mvs(t, k, length, p.quad_per_span)
     b0 = ctrl_init[:, 2].copy()
     f0 = mvs.value(b0)
-    A = basis_matrix(u_c, t, k)  # rows: u of H, then the midpoints
-    E = _end_rows(t, k, length, derivs[0])
+    AV = basis_matrix(np.concatenate([u_c, [0.0, length]]), t, k)  # one call: rows apart
+    A = AV[:-2]  # rows: u of H, then the midpoints
+    E = _end_rows(t, k, length, mvs.end_slopes, AV[-2:])
     e_rhs = np.array(
         [
             bounds.end_values[0],
@@ -408,15 +409,43 @@ def _basis_values(x: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
     m = len(t) - k - 1
     if x.ndim != 1 or m < 1 or k < 0:
         return BSpline.construct_fast(t, np.eye(m), k)(x)
-    x, t = (np.require(a, np.float64, ("C", "W")) for a in (x, t))  # read-only: a copy
+    x, t = _writable(x), _writable(t)  # read-only: a copy
     return spline_kernel.basis_dense(x, t, int(k))
+
+
+def _writable(a: np.ndarray) -> np.ndarray:
+    """``np.require(a, np.float64, ("C", "W"))`` without its layers: ``a`` itself when it is
+    a writable C-contiguous float64 array, else a copy that is."""
+    if a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable:
+        return a
+    return np.array(a, dtype=np.float64, order="C")
 
 
 def basis_derivatives(x: np.ndarray, t: np.ndarray, k: int, nu: int) -> list[np.ndarray]:
     """``[basis_matrix(x, t, k, j) for j in 1..nu]``, each derivative's coefficients computed
-    from the previous one's (as ``basis_matrix`` itself does), once."""
+    from the previous one's (``_derivative_coefficients``, then :func:`evaluate`); compiled
+    in one call for points in a 1-D array (:func:`spline_kernel.derivative_bases`, the same
+    to the last bit): C-contiguous (len(x), m) arrays."""
     x = _as_points(x)
-    return [BSpline.construct_fast(*tck)(x) for tck in _derivative_coefficients(t, k, nu)]
+    if x.ndim != 1 or nu > k or k < 0 or len(t) < 2 * k + 2:
+        return [evaluate(x, *tck) for tck in _derivative_coefficients(t, k, nu)]
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    out, status = spline_kernel.derivative_bases(np.ascontiguousarray(x), t, int(k), int(nu))
+    if status:
+        raise ValueError(f"repeated inner knots: the spline is not {nu} times differentiable")
+    return list(out)
+
+
+def evaluate(x: np.ndarray, t: np.ndarray, c: np.ndarray, k: int) -> np.ndarray:
+    """``BSpline.construct_fast(t, c, k)(x)``, the same values to the last bit, compiled for
+    points x in a 1-D array and coefficients c (rows, d) (:func:`spline_kernel.evaluate`:
+    ~2 us where scipy's call costs ~20 us); a C-contiguous (len(x), d) array."""
+    x = _as_points(x)
+    c = np.asarray(c)
+    if x.ndim != 1 or c.ndim != 2 or c.dtype != np.float64 or len(c) < len(t) - k - 1 or k < 0:
+        return np.ascontiguousarray(BSpline.construct_fast(t, c, k)(x))
+    t, c = (np.ascontiguousarray(a, dtype=np.float64) for a in (t, c))
+    return spline_kernel.evaluate(np.ascontiguousarray(x), t, c, int(k))
 
 
 def _as_points(x: np.ndarray) -> np.ndarray:
@@ -466,14 +495,18 @@ def _violation(z: np.ndarray, lo: np.ndarray, hi: np.ndarray, half: np.ndarray) 
 
 
 def _end_rows(
-    t: np.ndarray, k: int, length: float, first: tuple[np.ndarray, np.ndarray, int] | None = None
+    t: np.ndarray,
+    k: int,
+    length: float,
+    d1: np.ndarray | None = None,
+    v: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z; ``first``: the first
-    derivatives' ``_derivative_coefficients(t, k, 1)[0]``, if the caller has them."""
+    """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z; ``d1``, ``v``: the basis' first
+    derivatives and values at 0 and l, ``basis_matrix(ends, t, k, 1)`` and
+    ``basis_matrix(ends, t, k)``, if the caller has them."""
     ends = np.array([0.0, length])
-    v = basis_matrix(ends, t, k)
-    first = first if first is not None else _derivative_coefficients(t, k, 1)[0]
-    d1 = BSpline.construct_fast(*first)(ends)  # basis_matrix(ends, t, k, 1)
+    v = v if v is not None else basis_matrix(ends, t, k)
+    d1 = d1 if d1 is not None else basis_derivatives(ends, t, k, 1)[0]
     return np.stack([v[0], d1[0], v[1], d1[1]])
 
 
@@ -492,18 +525,19 @@ class _Mvs:
         k: int,
         length: float,
         n_per_span: int,
-        derivs: list[tuple[np.ndarray, np.ndarray, int]] | None = None,
     ) -> None:
-        """``derivs``: ``_derivative_coefficients(t, k, 3)``, if the caller has them."""
+        """The quadrature nodes uq and weights wq, the basis' first to third derivatives at the
+        nodes (``B``, (nq, m) each) and its first derivatives at 0 and ``length``
+        (``end_slopes``, (2, m), for Eq. (8)'s end rows): one compiled call."""
         xg, wg = _leggauss(n_per_span)
         edges = _distinct(t)
         a, b = edges[:-1], edges[1:]
         self.uq = (0.5 * (b - a)[:, None] * (xg[None, :] + 1.0) + a[:, None]).ravel()
         self.wq = (0.5 * (b - a)[:, None] * wg[None, :]).ravel()
-        if derivs is None:
-            derivs = _derivative_coefficients(t, k, 3)
-        uq = _as_points(self.uq)  # (nq, m) each, orders 1, 2, 3 (basis_derivatives)
-        self.B = [np.ascontiguousarray(BSpline.construct_fast(*tck)(uq)) for tck in derivs]
+        nq = len(self.uq)
+        D = basis_derivatives(np.concatenate([self.uq, [0.0, length]]), t, k, 3)
+        self.B = [d[:nq] for d in D]  # (nq, m) each, orders 1, 2, 3 (C-contiguous rows)
+        self.end_slopes = D[0][nq:]
         self.sqrt_wq = np.sqrt(self.wq)
 
     def _terms(self, b: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -638,7 +672,7 @@ class _Problem:
 
     def solve(self, b0: np.ndarray, E: np.ndarray, e: np.ndarray, max_iter: int) -> _Solution:
         m = b0.size
-        n_crossed = int(np.sum(self.lo > self.hi))
+        n_crossed = int(np.count_nonzero(self.lo > self.hi))
         if n_crossed:
             msg = f"infeasible: the lower depth bound lies above the upper at {n_crossed} points"
             return _Solution(b0, "infeasible", msg, 0)
@@ -657,11 +691,10 @@ class _Problem:
         JtJ, g = J.T @ J, J.T @ r
         scale_h = np.trace(JtJ) / m + 1e-12
         mu, nu = LM_MU0 * scale_h, 2.0
-        diag = np.arange(m) * (m + 1)  # the diagonal's flat indices
         mvs = self.mvs
         for it in range(1, max_iter + 1):
-            Hq = 2.0 * JtJ  # 2 (J^T J + mu I)
-            Hq.flat[diag] += 2.0 * mu
+            Hq = np.ascontiguousarray(2.0 * JtJ)  # 2 (J^T J + mu I)
+            Hq.reshape(-1)[:: m + 1] += 2.0 * mu  # its diagonal (a view: C order)
             d, flag = self._qp(Hq, 2.0 * g, b, C, upper, lower, sense)
             if flag not in (1, 2):
                 word = _DAQP_FLAGS.get(flag, f"exit flag {flag}")

@@ -343,6 +343,93 @@ def camera_refit(t, k, ctrl, n, G_inv, cond_floor):  # noqa: ANN001
     return c, pts, 0
 
 
+@kernel("float64[:, ::1](float64[::1], float64[::1], float64[:, ::1], int64)")
+def evaluate(x, t, c, k):  # noqa: ANN001
+    """(len(x), d) values of the spline of degree k on knots t with coefficients c (rows: at
+    least len(t) - k - 1, d columns) at x: ``BSpline.construct_fast(t, c, k)(x)`` (scipy's
+    ``evaluate_spline``: the k + 1 non-zero B-splines by :func:`_nonzero`, then each column
+    as 0 + sum_a c[ell - k + a] b_a in that order), the same to the last bit; a row of NaN
+    for a non-finite x."""
+    n = x.size
+    m = t.size - k - 1
+    d = c.shape[1]
+    out = np.empty((n, d))
+    h = np.empty(k + 1)
+    hh = np.empty(k + 1)
+    for i in range(n):
+        xi = x[i]
+        if not math.isfinite(xi):
+            out[i, :] = np.nan
+            continue
+        first = _nonzero(xi, t, k, m, h, hh)
+        for j in range(d):
+            s = 0.0
+            for a in range(k + 1):
+                s += c[first + a, j] * h[a]
+            out[i, j] = s
+    return out
+
+
+@kernel("Tuple((float64[:, :, ::1], int64))(float64[::1], float64[::1], int64, int64)")
+def derivative_bases(x, t, k, nu):  # noqa: ANN001
+    """(nu, len(x), m): the j-th derivatives, j = 1..nu, of the m = len(t) - k - 1 B-splines
+    of degree k on knots t at x, and a status (1: a knot span of zero length, the spline is
+    not nu times differentiable). As ``spline.basis_derivatives`` computed them: each
+    derivative's coefficients from the previous one's as scipy's ``splder`` does (the
+    identity's, with FITPACK's len(t) coefficient rows: (c[i + 1] - c[i]) * k / (t[i + k +
+    1] - t[i + 1])), each evaluated as :func:`evaluate` does, so the same to the last bit."""
+    n = x.size
+    m = t.size - k - 1
+    out = np.zeros((nu, n, m))
+    c = np.zeros((t.size, m))
+    for j in range(m):
+        c[j, j] = 1.0
+    tj = t.copy()
+    kj = k
+    h = np.empty(k + 1)
+    hh = np.empty(k + 1)
+    for d in range(nu):
+        cn = np.zeros((tj.size - 2, m))
+        for i in range(tj.size - kj - 2):
+            dt = tj[i + kj + 1] - tj[i + 1]
+            if dt == 0.0:
+                return out, 1
+            for col in range(m):
+                cn[i, col] = (c[i + 1, col] - c[i, col]) * kj / dt
+        c = cn
+        tj = tj[1:-1].copy()
+        kj -= 1
+        mj = tj.size - kj - 1
+        for i in range(n):
+            xi = x[i]
+            if not math.isfinite(xi):
+                out[d, i, :] = np.nan
+                continue
+            first = _nonzero(xi, tj, kj, mj, h, hh)
+            for col in range(m):
+                s = 0.0
+                for a in range(kj + 1):
+                    s += c[first + a, col] * h[a]
+                out[d, i, col] = s
+    return out, 0
+
+
+@helper()
+def _span(row, m):  # noqa: ANN001
+    """First and last index (exclusive) of the non-zero entries of ``row`` (m,); (0, m) when a
+    value is not finite (then no product may be left out)."""
+    lo = m
+    hi = 0
+    for j in range(m):
+        v = row[j]
+        if not math.isfinite(v):
+            return 0, m
+        if v != 0.0:
+            lo = min(lo, j)
+            hi = j + 1
+    return lo, max(hi, lo)
+
+
 @kernel(
     "Tuple((int64, float64, float64[::1], float64[::1], float64[:, ::1], float64, "
     "float64[:, ::1], float64[::1]))(float64[:, ::1], float64[:, ::1], float64[:, ::1], "
@@ -353,22 +440,34 @@ def gn_trial(B1, B2, B3, sqrt_wq, J_d, c_d, scale, J, r, A, b, d, f_stop, step_t
     """One Gauss-Newton trial step d from b of ``spline._Problem.solve``: the model decrease
     pred = -(2 r.Jd + |Jd|^2); stop (1) when pred <= ``f_stop`` or max |A d| < ``step_tol``;
     else (0) the residuals at b + d (:func:`mvs_residual`), their sum of squares, J^T J and
-    J^T r there. Returns (stop, pred, b + d, r, J, F, J^T J, J^T r)."""
+    J^T r there. Returns (stop, pred, b + d, r, J, F, J^T J, J^T r).
+
+    The rows of J and A are B-spline rows, non-zero over k + 1 to 2 k + 1 columns: each sum
+    runs over a row's non-zero span only (:func:`_span`). The products left out are exact
+    zeros and every sum starts at +0.0, which adding a zero leaves unchanged, so the results
+    are those of the sums over every column, bit for bit (a row or step with a value that
+    is not finite is summed in full)."""
     n, m = J.shape
+    d_finite = True
+    for j in range(m):
+        if not math.isfinite(d[j]):
+            d_finite = False
     pred = 0.0
     rJd = 0.0
     JdJd = 0.0
     for i in range(n):
+        lo, hi = _span(J[i], m) if d_finite else (0, m)
         v = 0.0
-        for j in range(m):
+        for j in range(lo, hi):
             v += J[i, j] * d[j]
         rJd += r[i] * v
         JdJd += v * v
     pred = -(2.0 * rJd + JdJd)
     step = 0.0
     for i in range(A.shape[0]):
+        lo, hi = _span(A[i], m) if d_finite else (0, m)
         v = 0.0
-        for j in range(m):
+        for j in range(lo, hi):
             v += A[i, j] * d[j]
         step = max(step, abs(v))
     empty1 = np.empty(0)
@@ -383,10 +482,11 @@ def gn_trial(B1, B2, B3, sqrt_wq, J_d, c_d, scale, J, r, A, b, d, f_stop, step_t
     JtJ = np.zeros((m, m))
     g = np.zeros(m)
     for i in range(rt.size):
-        for a in range(m):
+        lo, hi = _span(Jt[i], m) if math.isfinite(rt[i]) else (0, m)
+        for a in range(lo, hi):
             va = Jt[i, a]
             g[a] += va * rt[i]
-            for e in range(a, m):
+            for e in range(a, hi):
                 JtJ[a, e] += va * Jt[i, e]
     for a in range(m):
         for e in range(a):

@@ -58,3 +58,31 @@ def test_compiled_refit_is_the_least_squares_fit_of_the_mapped_curve() -> None:
             continue  # ill-conditioned knots (random inner knots close together)
         want = _least_squares(basis_matrix(u, t, k), dense)
         assert_close(c, want, rtol=1e-7, atol=1e-7 * np.abs(want).max())
+
+
+def test_camera_curve_length_is_numpys_norm_sum_bit_for_bit() -> None:
+    """to_camera's arc length (the point steps' norms written out, and the paper mode's
+    points by spline.evaluate) equals np.linalg.norm(np.diff(points), axis=1).sum() exactly."""
+    from types import SimpleNamespace
+
+    from threadrecon.core.camera import CameraParams, to_camera
+    from threadrecon.core.spline import SplineResult
+
+    rng = np.random.default_rng(4)
+    G = np.array([[800.0, 0.0, 320.0, 0.0], [0.0, 800.0, 240.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    calib = SimpleNamespace(G=G[:, :3], unit="mm")
+    for mode in ("refit", "paper"):
+        for _ in range(10):
+            k, m, length = 4, int(rng.integers(5, 40)), float(rng.uniform(5.0, 200.0))
+            t = np.concatenate(
+                [np.zeros(k + 1), np.linspace(0.0, length, m - k + 1)[1:-1], np.full(k + 1, length)]
+            )
+            ctrl = np.column_stack(
+                [rng.uniform(0, 640, m), rng.uniform(0, 480, m), rng.uniform(60, 150, m)]
+            )
+            s = SplineResult(t, ctrl, ctrl, k, length, np.zeros(2), "ok", "", (0.0, 0.0), 0, 0.0)
+            curve = to_camera(
+                s, calib, CameraParams(n_points=int(rng.integers(200, 900)), mode=mode)
+            )
+            want = float(np.linalg.norm(np.diff(curve.points, axis=0), axis=1).sum())
+            assert curve.length == want

@@ -116,3 +116,132 @@ def test_compiled_mvs_value_and_residuals_follow_the_formulas() -> None:
         np.testing.assert_allclose(J[: len(r_want)], J_want, rtol=1e-9, atol=1e-12 * scale)
         np.testing.assert_allclose(r[len(r_want) :], J_d @ b - c_d, rtol=1e-12, atol=1e-12)
         assert np.array_equal(J[len(r_want) :], J_d)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_evaluation_equals_scipys_bit_for_bit(seed: int) -> None:
+    """spline.evaluate (spline_kernel.evaluate) against BSpline(t, c, k)(x) byte for byte:
+    splines and the derivative bases of Eq. (8), uniform and random knots, points outside the
+    knots (extrapolated), on knots and NaN."""
+    from threadrecon.core.spline import _derivative_coefficients, evaluate
+
+    rng = np.random.default_rng(seed)
+    for trial in range(40):
+        k = int(rng.integers(2, 6))
+        m = int(rng.integers(k + 1, 40))
+        length = float(rng.uniform(0.1, 300.0))
+        if trial % 2:
+            inner = np.sort(rng.uniform(0.0, length, m - k - 1))
+        else:
+            inner = np.linspace(0.0, length, m - k + 1)[1:-1]
+        t = np.concatenate([np.zeros(k + 1), inner, np.full(k + 1, length)])
+        x = np.concatenate([rng.uniform(-0.1, 1.1, 100) * length, [0.0, length, np.nan], inner])
+        cases = [(t, rng.normal(0.0, 100.0, (m, 3)), k)]
+        cases += _derivative_coefficients(t, k, min(3, k))
+        for tt, c, kk in cases:
+            want = BSpline.construct_fast(tt, c, kk)(x)
+            got = evaluate(x, tt, c, kk)
+            assert got.tobytes() == want.tobytes()
+            assert got.flags.c_contiguous
+
+
+def _trial_full(B1, B2, B3, sqrt_wq, J_d, c_d, scale, J, r, A, b, d, f_stop, step_tol):  # noqa: ANN001, ANN202
+    """gn_trial's sums over every column, one product at a time in the kernel's order (what
+    the kernel computed before it skipped the rows' zeros)."""
+    n, m = J.shape
+    rJd = JdJd = 0.0
+    for i in range(n):
+        v = 0.0
+        for j in range(m):
+            v += J[i, j] * d[j]
+        rJd += r[i] * v
+        JdJd += v * v
+    pred = -(2.0 * rJd + JdJd)
+    step = 0.0
+    for i in range(A.shape[0]):
+        v = 0.0
+        for j in range(m):
+            v += A[i, j] * d[j]
+        step = max(step, abs(v))
+    if pred <= f_stop or step < step_tol:
+        return 1, pred
+    bt = b + d
+    rt, Jt = spline_kernel.mvs_residual(B1, B2, B3, sqrt_wq, J_d, c_d, bt, scale)
+    JtJ, g = np.zeros((m, m)), np.zeros(m)
+    for i in range(len(rt)):
+        for a in range(m):
+            g[a] += Jt[i, a] * rt[i]
+            for e in range(a, m):
+                JtJ[a, e] += Jt[i, a] * Jt[i, e]
+    JtJ = np.triu(JtJ) + np.triu(JtJ, 1).T
+    F = 0.0
+    for v in rt:
+        F += v * v
+    return 0, pred, bt, rt, Jt, F, JtJ, g
+
+
+def test_gauss_newton_trial_on_banded_rows_equals_the_full_sums_bit_for_bit() -> None:
+    """gn_trial sums each B-spline row over its non-zero span: the same numbers, to the bit,
+    as the sums over every column (the products it leaves out are zeros), also with a
+    non-finite step."""
+    from threadrecon.core.spline import basis_matrix
+
+    rng = np.random.default_rng(11)
+    trials = 0
+    for k in (3, 4, 5):
+        length = 40.0
+        t = np.concatenate(
+            [np.zeros(k + 1), np.linspace(0, length, 14)[1:-1], np.full(k + 1, length)]
+        )
+        mvs = _Mvs(t, k, length, 4)
+        m = len(t) - k - 1
+        u = np.sort(rng.uniform(0.0, length, 30))
+        Bd = basis_matrix(u, t, k)
+        J_d = np.ascontiguousarray(0.2 * Bd)
+        c_d = rng.normal(90.0, 1.0, 30)
+        A = np.ascontiguousarray(basis_matrix(np.sort(rng.uniform(0.0, length, 50)), t, k))
+        b = rng.normal(90.0, 4.0, m)
+        r, J = mvs.residual_jac(b, 0.3, J_d, c_d)
+        gn_step = -0.5 * np.linalg.lstsq(J, r, rcond=None)[0]  # a descent step: no stop
+        for d in (
+            gn_step,
+            rng.normal(0.0, 0.5, m),
+            np.full(m, 1e-12),
+            np.where(np.arange(m) == 2, np.nan, 0.1),
+        ):
+            args = (*mvs.B, mvs.sqrt_wq, J_d, c_d, 0.3, J, r, A, b, d, 1e-12, 1e-9)
+            got = spline_kernel.gn_trial(*args)
+            want = _trial_full(*args)
+            assert got[0] == want[0]
+            assert np.array_equal(got[1], want[1], equal_nan=True)
+            trials += want[0] == 0
+            if want[0] == 0:
+                for g_, w_ in zip(got[2:], want[2:], strict=True):
+                    assert np.asarray(g_).tobytes() == np.asarray(w_).tobytes()
+    assert trials >= 3  # the trial point's residuals were compared
+
+
+def test_compiled_derivative_bases_equal_scipys_derivative_splines_byte_for_byte() -> None:
+    """spline.basis_derivatives (spline_kernel.derivative_bases, one call for every order)
+    against BSpline(t, eye(m), k).derivative(j)(x), byte for byte (signed zeros, NaN rows);
+    a knot span of zero length is an error that says so."""
+    from threadrecon.core.spline import basis_derivatives
+
+    rng = np.random.default_rng(21)
+    for _ in range(60):
+        k = int(rng.integers(2, 6))
+        m = int(rng.integers(k + 1, 40))
+        length = float(rng.uniform(0.1, 300.0))
+        inner = np.sort(rng.uniform(0.0, length, m - k - 1))
+        t = np.concatenate([np.zeros(k + 1), inner, np.full(k + 1, length)])
+        x = np.concatenate([rng.uniform(-0.1, 1.1, 50) * length, [0.0, length, np.nan], inner])
+        nu = int(rng.integers(1, k + 1))
+        got = basis_derivatives(x, t, k, nu)
+        basis = BSpline.construct_fast(t, np.eye(m), k)
+        assert len(got) == nu
+        for j in range(1, nu + 1):
+            assert got[j - 1].tobytes() == basis.derivative(j)(x).tobytes()
+    t = np.array([0.0, 0, 0, 0, 1, 1, 1, 2, 2, 2, 2])  # a triple knot: C^0 there
+    assert len(basis_derivatives(np.array([0.5]), t, 3, 1)) == 1
+    with pytest.raises(ValueError, match="not 2 times differentiable"):
+        basis_derivatives(np.array([0.5]), t, 3, 2)
