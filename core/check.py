@@ -57,6 +57,7 @@ from threadrecon.core.check_beyond import (
     end_occluder,
     extension_far,
 )
+from threadrecon.core.check_fast_kernel import mask_rows
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_fold import fold_length
 from threadrecon.core.check_kernel import band_d2, nearest_residual, overlap_hits
@@ -942,11 +943,10 @@ def _crop(mask: np.ndarray, field: MaskField) -> _View:
     bx, by, bw, bh = field.bbox
     crop = np.ascontiguousarray(mask[by : by + bh, bx : bx + bw]).view(np.uint8)
     crop.setflags(write=False)
-    rows, cols = np.nonzero(crop)  # row-major: by rows, columns ascending
-    row_ptr = np.searchsorted(rows, np.arange(crop.shape[0] + 1)).astype(np.int64)
-    return _View(
-        crop, field.x0, field.y0, bx, by, field.total, mask.shape, cols.astype(np.int64), row_ptr
-    )
+    cols, row_ptr = mask_rows(crop, field.total)  # compiled: np.nonzero's order, one scan
+    if row_ptr[-1] != field.total:
+        raise ValueError(f"the thread mask changed: {row_ptr[-1]} pixels, {field.total} counted")
+    return _View(crop, field.x0, field.y0, bx, by, field.total, mask.shape, cols, row_ptr)
 
 
 def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> float:

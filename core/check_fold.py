@@ -13,7 +13,8 @@ differ in disparity: none of them is a fold.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
+
+from threadrecon.core.check_fast_kernel import close_pairs
 
 FOLD_COS = float(np.cos(np.radians(30.0)))  # passes within 30 deg of one line run along it
 
@@ -48,7 +49,8 @@ def fold_length(
     s = np.concatenate([[0.0], np.cumsum(seg)])
     t = np.gradient(uv, axis=0)
     t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
-    pairs = cKDTree(uv[idx]).query_pairs(radius, output_type="ndarray")
+    q = uv[idx]
+    pairs = close_pairs(q[:, 0].copy(), q[:, 1].copy(), float(radius))  # cKDTree.query_pairs'
     if not len(pairs):
         return 0.0
     i, j = idx[pairs[:, 0]], idx[pairs[:, 1]]
