@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from threadrecon.core.compiled import kernel
+from threadrecon.core.compiled import helper, kernel
 
 
 # Compiled ahead of time once per machine (core/compiled.py), so that numba is not loaded.
@@ -214,10 +214,12 @@ def band_d2(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
     band that a polyline drawn 2 r wide approximates). A pixel is not measured further once a
     segment lies within sqrt(``done``) of it: its value is then at most ``done`` but not
     necessarily the least (exact with ``done`` = 0; counts of values <= any T >= ``done``
-    are exact either way)."""
+    are exact either way). With ``done`` > 0 a first pass over the runs' boxes grown by
+    sqrt(``done``) only settles the pixels near their own run (most of a thread's: else a run
+    measures the pixels of its neighbours' segments first, against all its 8); the pass over
+    the ``r`` boxes then measures the rest as before: the same values where above ``done``."""
     h = len(row_ptr) - 1
     m = len(xy)
-    inf = np.inf
     if m == 0 or h <= 0 or len(cols) == 0:
         return np.empty(0, np.float64)
     nseg = max(m - 1, 1)
@@ -228,7 +230,32 @@ def band_d2(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
         ll = dx * dx + dy * dy
         seg[k, 0], seg[k, 1], seg[k, 2], seg[k, 3] = xy[k, 0], xy[k, 1], dx, dy
         seg[k, 4] = 1.0 / ll if ll > 0.0 else 0.0
-    best = np.full(len(cols), inf)
+    best = np.full(len(cols), np.inf)
+    if done > 0.0:
+        _band_pass(cols, row_ptr, ox, oy, xy, seg, best, min(math.sqrt(done), r), done)
+    _band_pass(cols, row_ptr, ox, oy, xy, seg, best, r, done)
+    r2 = r * r
+    n = 0
+    for q in range(len(best)):
+        if best[q] <= r2:
+            n += 1
+    out = np.empty(n, np.float64)
+    n = 0
+    for q in range(len(best)):
+        if best[q] <= r2:
+            out[n] = best[q]
+            n += 1
+    return out
+
+
+@helper()
+def _band_pass(cols, row_ptr, ox, oy, xy, seg, best, r, done):  # noqa: ANN001
+    """``band_d2``'s pass over the runs of 8 segments, their boxes grown by ``r``: ``best``
+    lowered to each measured segment's squared distance (a pixel at most ``done`` is left)."""
+    h = len(row_ptr) - 1
+    m = len(xy)
+    nseg = len(seg)
+    inf = np.inf
     for c0 in range(0, nseg, 8):  # runs of 8 segments: a pixel is visited once per run
         c1 = min(c0 + 8, nseg)
         cx0, cx1, cy0, cy1 = inf, -inf, inf, -inf
@@ -243,8 +270,14 @@ def band_d2(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
         si1 = min(h, int(math.ceil(cy1 + r - oy)) + 1)
         for i in range(si0, si1):
             y = i + oy
-            a = np.searchsorted(cols[row_ptr[i] : row_ptr[i + 1]], jlo) + row_ptr[i]
-            for q in range(a, row_ptr[i + 1]):
+            lo, hi = row_ptr[i], row_ptr[i + 1]
+            while lo < hi:  # the row's first column >= jlo (binary search)
+                mid = (lo + hi) >> 1
+                if cols[mid] < jlo:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            for q in range(lo, row_ptr[i + 1]):
                 if cols[q] > jhi:
                     break
                 b = best[q]
@@ -263,18 +296,6 @@ def band_d2(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
                         if b <= done:
                             break
                 best[q] = b
-    r2 = r * r
-    n = 0
-    for q in range(len(best)):
-        if best[q] <= r2:
-            n += 1
-    out = np.empty(n, np.float64)
-    n = 0
-    for q in range(len(best)):
-        if best[q] <= r2:
-            out[n] = best[q]
-            n += 1
-    return out
 
 
 @kernel(
