@@ -57,7 +57,7 @@ from threadrecon.core.check_beyond import (
     end_occluder,
     extension_far,
 )
-from threadrecon.core.check_fast_kernel import mask_rows
+from threadrecon.core.check_fast_kernel import mask_rows, ring_level
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_fold import fold_length
 from threadrecon.core.check_kernel import band_d2, nearest_residual, overlap_hits
@@ -1153,12 +1153,10 @@ class _BareBackground:
         if (side, x, y) not in self._cache:
             g, _, field = self.views[side]
             d, rows, cols = field.window(x, y, self.REACH_PX, self.RING_PX[1])
-            ring = (d > self.RING_PX[0]) & (d <= self.RING_PX[1])
-            vals = g[rows, cols][ring].astype(np.float64)
-            level = None
-            if vals.size >= 10:
-                med = _median(vals)
-                level = med, max(1.4826 * _median(np.abs(vals - med)), 4.0)
+            # compiled: the ring's grey levels, their median and deviation (np.median's values)
+            grey = np.asarray(g[rows, cols], dtype=np.float64, order="C")
+            n, med, mad = ring_level(d, grey, *self.RING_PX, 10)
+            level = None if n < 10 else (float(med), max(1.4826 * float(mad), 4.0))
             self._cache[side, x, y] = level
         return self._cache[side, x, y]
 

@@ -6,6 +6,9 @@ identical to the forms they replace).
 (whose 2-D form costs ~3 ns a pixel: ~0.35 ms on a 640x480 thread's box). ``close_pairs``: the
 pairs of points within a distance, by a sweep over the points sorted by x, instead of a
 ``cKDTree`` built and queried for a few hundred points (``check_fold.fold_length``).
+``ring_level``: the median grey level of the ring around the thread and its deviation
+(``check._BareBackground``) from one pass over the window and two partitions, instead of a dozen
+numpy calls (~40 us a ring).
 """
 
 from __future__ import annotations
@@ -68,3 +71,31 @@ def close_pairs(x, y, r):  # noqa: ANN001
                 out[k, 1] = max(i, j)
                 k += 1
     return out[:k].copy()
+
+
+@kernel("float64[::1](float32[:, :], float64[:, ::1], float64, float64, int64)")
+def ring_level(d, grey, lo, hi, min_count):  # noqa: ANN001
+    """The grey levels of ``grey`` where ``lo < d <= hi`` (``d``: a distance field on the same
+    window): (count, median, median absolute deviation from it), the medians as ``np.median``
+    gives them (the mean of the two middle values of an even count); count alone (the rest
+    NaN) when there are fewer than ``min_count``."""
+    h, w = d.shape
+    vals = np.empty(h * w)
+    n = 0
+    for i in range(h):
+        for j in range(w):
+            v = d[i, j]
+            if v > lo and v <= hi:
+                vals[n] = grey[i, j]
+                n += 1
+    out = np.full(3, np.nan)
+    out[0] = n
+    if n < min_count or n == 0:
+        return out
+    k = n // 2  # the k-th smallest (and for an even count the largest below it)
+    part = np.partition(vals[:n], k)
+    med = part[k] if n % 2 else (part[:k].max() + part[k]) / 2.0
+    dev = np.partition(np.abs(part - med), k)
+    out[1] = med
+    out[2] = dev[k] if n % 2 else (dev[:k].max() + dev[k]) / 2.0
+    return out

@@ -51,3 +51,21 @@ def test_close_pairs_grow_past_their_first_guess() -> None:
     p = np.zeros((50, 2))  # every pair: 1225 > 4 n + 16
     got = fk.close_pairs(p[:, 0].copy(), p[:, 1].copy(), 0.1)
     assert _pairs(got) == {(i, j) for i in range(50) for j in range(i + 1, 50)}
+
+
+def test_ring_level_is_numpys_median_and_deviation_of_the_ring() -> None:
+    rng = np.random.default_rng(5)
+    for trial in range(30):
+        h, w = rng.integers(1, 30, size=2)
+        d = (rng.random((h, w)) * 12).astype(np.float32)
+        d[rng.random((h, w)) < 0.2] = 3.0  # on the ring's open inner edge: left out
+        grey = np.rint(rng.normal(120, 20, (h, w)))  # integer levels: many ties
+        got = fk.ring_level(d[:, ::-1], grey, 3.0, 9.0, 10)  # a strided field, as cropped
+        ring = (d[:, ::-1] > 3.0) & (d[:, ::-1] <= 9.0)
+        vals = grey[ring]
+        assert got[0] == vals.size, trial
+        if vals.size < 10:
+            assert np.isnan(got[1]) and np.isnan(got[2])
+            continue
+        med = float(np.median(vals))
+        assert got[1] == med and got[2] == float(np.median(np.abs(vals - med))), trial
