@@ -68,7 +68,7 @@ from threadrecon.core.check_score import (
     point_errors,
     quality_score,
 )
-from threadrecon.core.check_support import contradicted
+from threadrecon.core.check_support import contradicted, reliable_rows
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.reliability import ReliabilityResult
@@ -1348,32 +1348,10 @@ def _disparity_residual(
     support_px: float,
 ) -> np.ndarray:
     """|curve disparity - disparity of the nearest reliable pixel| + distance / support_px."""
-    xs, row_ptr, y0, disp_rel = derived(
-        (stereo.pixels, stereo.disparity, rel.reliable), "reliable_rows", lambda: _rows(stereo, rel)
-    )
+    xs, row_ptr, y0, disp_rel = reliable_rows(stereo, rel)  # shared with contradicted
     uv = np.ascontiguousarray(uv_l, dtype=np.float64)
     r = nearest_residual(
         xs, row_ptr, y0, disp_rel, uv[:, 0].copy(), uv[:, 1].copy(),
         np.ascontiguousarray(disp_curve, dtype=np.float64), float(support_px),
     )  # fmt: skip
     return np.where(np.isfinite(r), r, 1e3)
-
-
-def _rows(
-    stereo: StereoResult, rel: ReliabilityResult
-) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
-    """The reliable pixels P_L^R by rows (CSR: x ascending per row, ``row_ptr`` from row
-    ``y0``) and their disparities (per stereo result)."""
-    sel = np.flatnonzero(rel.reliable)
-    if sel.size == 0:
-        return np.zeros(0, np.int64), np.zeros(1, np.int64), 0, np.zeros(0)
-    xs = stereo.pixels[sel, 0].astype(np.int64)
-    ys = stereo.pixels[sel, 1].astype(np.int64)
-    disp = np.asarray(stereo.disparity, dtype=np.float64)[sel]
-    key = ys * (int(xs.max()) + 1) + xs
-    if np.any(np.diff(key) < 0):  # P_L comes in raster order; sort otherwise
-        order = np.argsort(key, kind="stable")
-        xs, ys, disp = xs[order], ys[order], disp[order]
-    y0 = int(ys[0])
-    row_ptr = np.searchsorted(ys, np.arange(y0, int(ys[-1]) + 2)).astype(np.int64)
-    return xs, row_ptr, y0, np.ascontiguousarray(disp)

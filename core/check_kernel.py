@@ -358,30 +358,3 @@ def cone_pixels(curve, tx, ty, wx, wy, mask, radius, cos, cover_px, margin):  # 
             along[n] = al
             n += 1
     return px[:n].copy(), along[:n].copy()
-
-
-@kernel("boolean[::1](int64[:, ::1], boolean[::1], float64[::1], float32[:, ::1], int64, float64)")
-def window_contradicted(q, ok, disp, img, near, tol):  # noqa: ANN001
-    """``check_support.contradicted`` per point: point i (``ok[i]``) at pixel ``q[i]`` (x, y)
-    of the image ``img`` (h, w) of reliable disparities (NaN: none) has a reliable pixel in
-    its (2 ``near`` + 1)^2 window and none within ``tol`` of its disparity ``disp[i]``."""
-    h, w = img.shape
-    out = np.zeros(len(q), dtype=np.bool_)
-    for i in range(len(q)):
-        if not ok[i]:
-            continue
-        seen = False
-        agrees = False
-        for y in range(q[i, 1] - near, q[i, 1] + near + 1):
-            if y < 0 or y >= h:
-                continue
-            for x in range(q[i, 0] - near, q[i, 0] + near + 1):
-                if x < 0 or x >= w:
-                    continue
-                v = np.float64(img[y, x])
-                if math.isfinite(v):
-                    seen = True
-                    if abs(v - disp[i]) <= tol:
-                        agrees = True
-        out[i] = seen and not agrees
-    return out
