@@ -481,7 +481,9 @@ def _check(
     # Depths: in front of both cameras and inside the range of the disparity search.
     z = pts[:, 2]
     depth_range = (float(z.min()), float(z.max()))
-    z_right = (np.column_stack([pts, np.ones(n)]) @ calib.P2.T)[:, 2]
+    hom = np.column_stack([pts, np.ones(n)])
+    h_r = hom @ calib.P2.T  # the right view's projection; its third row: the right depths
+    z_right = h_r[:, 2]
     if np.any(z <= 0) or np.any(z_right <= 0):
         findings.append(
             ("failed", f"{int(np.sum((z <= 0) | (z_right <= 0)))} of {n} points lie behind a "
@@ -500,8 +502,7 @@ def _check(
     # Reprojection onto the thread pixels of both views (one distance transform per view);
     # a point projecting outside a view cannot be seen there and is left out of its figures.
     H, W = lifted.P_L.shape
-    uv_l = _project(pts, calib.P1)
-    uv_r = _project(pts, calib.P2)
+    uv_l, uv_r = _dehomogenise(hom @ calib.P1.T), _dehomogenise(h_r)
     in_l, in_r = _in_image(uv_l, (H, W)), _in_image(uv_r, (H, W))
     margin = p.reproj_fail_px + 2.0
     field_l, field_r = mask_field(lifted.P_L, margin), mask_field(lifted.P_R, margin)
@@ -515,13 +516,11 @@ def _check(
     mm = calib.mm_per_unit
     step3 = np.linalg.norm(np.diff(pts, axis=0), axis=1) * mm
     step = np.linalg.norm(np.diff(uv_l, axis=0), axis=1)
-    run_l, bridge_l = _off_thread_runs(in_l & (rho_l > p.jump_px), step)
-    run3_l, _ = _off_thread_runs(in_l & (rho_l > p.jump_px), step3)
     step_r = np.linalg.norm(np.diff(uv_r, axis=0), axis=1)
-    run_r, bridge_r = _off_thread_runs(in_r & (rho_r > p.jump_px), step_r)
-    run3_r, _ = _off_thread_runs(in_r & (rho_r > p.jump_px), step3)
-    longest_jump = float(max(run_l.max(), run_r.max()))
     off_l, off_r = in_l & (rho_l > p.jump_px), in_r & (rho_r > p.jump_px)
+    run_l, run3_l, bridge_l = _off_thread_runs(off_l, step, step3)
+    run_r, run3_r, bridge_r = _off_thread_runs(off_r, step_r, step3)
+    longest_jump = float(max(run_l.max(), run_r.max()))
     ends = (off_l & ~bridge_l) | (off_r & ~bridge_r)
     bare = (
         _BareBackground(lifted, (field_l, field_r), p)
@@ -894,16 +893,15 @@ def _px(v: float, margin: float) -> str:
     return f"more than {margin:g} px" if v >= margin else f"up to {v:.1f} px"
 
 
-def _project(pts: np.ndarray, P: np.ndarray) -> np.ndarray:
-    h = np.column_stack([pts, np.ones(len(pts))]) @ P.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return h[:, :2] / h[:, 2:3]
+def _dehomogenise(h: np.ndarray) -> np.ndarray:
+    """(N, 2) pixels (x, y) of (N, 3) homogeneous image points (P @ [X, 1] per point); a point
+    at depth 0 gives inf or NaN (check_curve ignores the floating-point warnings)."""
+    return h[:, :2] / h[:, 2:3]
 
 
 def _in_image(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    H, W = shape
-    with np.errstate(invalid="ignore"):
-        return (uv[:, 0] > -0.5) & (uv[:, 0] < W - 0.5) & (uv[:, 1] > -0.5) & (uv[:, 1] < H - 0.5)
+    H, W = shape  # a NaN point compares False: outside
+    return (uv[:, 0] > -0.5) & (uv[:, 0] < W - 0.5) & (uv[:, 1] > -0.5) & (uv[:, 1] < H - 0.5)
 
 
 def _border_distance(a: np.ndarray, b: np.ndarray, shape: tuple[int, int]) -> float:
@@ -1006,22 +1004,27 @@ def _excursion(
     return float(max(0.0, out.max()))
 
 
-def _off_thread_runs(off: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _off_thread_runs(
+    off: np.ndarray, step: np.ndarray, step3: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Runs of consecutive off-thread samples: per sample its run's 2D length (px, including
-    the steps onto and off the thread; 0 on the thread) and whether the run is a bridge (both
-    of its ends on the thread, i.e. not at an end of the curve)."""
+    the steps onto and off the thread; 0 on the thread), its 3D length (the same steps of
+    ``step3``) and whether the run is a bridge (both of its ends on the thread, i.e. not at an
+    end of the curve)."""
     n = len(off)
     if not off.any():
-        return np.zeros(n), np.zeros(n, dtype=bool)
+        return np.zeros(n), np.zeros(n), np.zeros(n, dtype=bool)
     start = off & ~np.concatenate([[False], off[:-1]])
     run = np.where(off, np.cumsum(start) - 1, -1)
     # a step belongs to a run when either of its samples does (entering, inside, leaving)
     step_run = np.maximum(run[1:], run[:-1])
     k = int(run.max()) + 1
-    length = np.bincount(step_run[step_run >= 0], weights=step[step_run >= 0], minlength=k)
+    sel = step_run >= 0
+    length = np.bincount(step_run[sel], weights=step[sel], minlength=k)
+    length3 = np.bincount(step_run[sel], weights=step3[sel], minlength=k)
     at_end = np.zeros(k, dtype=bool)
     at_end[run[[0, -1]][run[[0, -1]] >= 0]] = True
-    return np.where(off, length[run], 0.0), off & ~at_end[run]
+    return np.where(off, length[run], 0.0), np.where(off, length3[run], 0.0), off & ~at_end[run]
 
 
 def _unsupported_travel(z: np.ndarray, supported: np.ndarray) -> float:
