@@ -60,7 +60,7 @@ from threadrecon.core.check_beyond import (
 from threadrecon.core.check_fast_kernel import mask_rows, ring_level
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_fold import fold_length
-from threadrecon.core.check_kernel import band_d2, nearest_residual, overlap_hits
+from threadrecon.core.check_kernel import coverage_count, nearest_residual, overlap_hits
 from threadrecon.core.check_score import (
     GraspPoint,
     bound_halfwidth_px,
@@ -959,17 +959,22 @@ def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> 
     are measured once, out to the widest band."""
     if inside.sum() < 2 or v.total == 0:
         return 0.0
-    xy = uv[inside] - [v.x0, v.y0]
-    poly = np.rint(xy * 4) / 4  # as drawn with 2 fractional bits
-    length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
-    widest = int(np.ceil(cover_px + BAND_PX)) + 1.5
     # counted below two bands, both at least this one: values under it need not be least
     done = (min(int(np.ceil(cover_px)), BAND_PX) + 1.5) ** 2  # reach >= ceil(cover_px)
-    d2 = band_d2(v.cols, v.row_ptr, float(v.bx - v.x0), float(v.by - v.y0), poly, widest, done)
-    band = float(np.count_nonzero(d2 <= (BAND_PX + 1.5) ** 2))
-    half = min(0.5 * band / max(length, 1.0), BAND_PX)
-    reach = int(np.ceil(cover_px + half))
-    return float(np.count_nonzero(d2 <= (reach + 1.5) ** 2)) / v.total
+    n = coverage_count(
+        np.ascontiguousarray(uv, dtype=np.float64),
+        np.ascontiguousarray(inside),
+        float(v.x0),
+        float(v.y0),
+        v.cols,
+        v.row_ptr,
+        float(v.bx - v.x0),
+        float(v.by - v.y0),
+        float(cover_px),
+        float(BAND_PX),
+        float(done),
+    )  # fmt: skip  (compiled: the band's distances and both counts in one call)
+    return float(n) / v.total
 
 
 def _spline_z(spline: SplineResult) -> np.ndarray:

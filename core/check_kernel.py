@@ -218,22 +218,7 @@ def band_d2(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
     sqrt(``done``) only settles the pixels near their own run (most of a thread's: else a run
     measures the pixels of its neighbours' segments first, against all its 8); the pass over
     the ``r`` boxes then measures the rest as before: the same values where above ``done``."""
-    h = len(row_ptr) - 1
-    m = len(xy)
-    if m == 0 or h <= 0 or len(cols) == 0:
-        return np.empty(0, np.float64)
-    nseg = max(m - 1, 1)
-    seg = np.empty((nseg, 5))  # per segment: start, direction, 1 / squared length (0: a point)
-    for k in range(nseg):
-        k1 = min(k + 1, m - 1)
-        dx, dy = xy[k1, 0] - xy[k, 0], xy[k1, 1] - xy[k, 1]
-        ll = dx * dx + dy * dy
-        seg[k, 0], seg[k, 1], seg[k, 2], seg[k, 3] = xy[k, 0], xy[k, 1], dx, dy
-        seg[k, 4] = 1.0 / ll if ll > 0.0 else 0.0
-    best = np.full(len(cols), np.inf)
-    if done > 0.0:
-        _band_pass(cols, row_ptr, ox, oy, xy, seg, best, min(math.sqrt(done), r), done)
-    _band_pass(cols, row_ptr, ox, oy, xy, seg, best, r, done)
+    best = _band_best(cols, row_ptr, ox, oy, xy, r, done)
     r2 = r * r
     n = 0
     for q in range(len(best)):
@@ -246,6 +231,138 @@ def band_d2(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
             out[n] = best[q]
             n += 1
     return out
+
+
+@kernel(
+    "int64(float64[:, ::1], boolean[::1], float64, float64, int64[::1], int64[::1], float64, "
+    "float64, float64, float64, float64)"
+)
+def coverage_count(uv, inside, x0, y0, cols, row_ptr, ox, oy, cover_px, band_px, done):  # noqa: ANN001
+    """``check._coverage``'s count: the thread pixels (by rows, as for ``band_d2``) within
+    reach + 1.5 px of the polyline of the ``inside`` points of ``uv`` (N, 2), taken relative
+    to (x0, y0) and rounded to 1/4 px, where reach = ceil(``cover_px`` + half) and half the
+    thread's half-width: the thread pixels within ``band_px`` + 1.5 px over twice the
+    polyline's length (at least 1 px; half at most ``band_px``). The band is measured out to
+    ceil(``cover_px`` + ``band_px``) + 1.5 px, ``done`` as for ``band_d2``; the length is
+    numpy's sum (pairwise) of the unrounded steps. At least 2 points must be inside."""
+    m = 0
+    for k in range(len(uv)):
+        if inside[k]:
+            m += 1
+    xy = np.empty((m, 2))
+    m = 0
+    for k in range(len(uv)):
+        if inside[k]:
+            xy[m, 0] = uv[k, 0] - x0
+            xy[m, 1] = uv[k, 1] - y0
+            m += 1
+    steps = np.empty(m - 1)
+    for k in range(m - 1):
+        dx = xy[k + 1, 0] - xy[k, 0]
+        dy = xy[k + 1, 1] - xy[k, 1]
+        steps[k] = math.sqrt(dx * dx + dy * dy)
+    length = 0.0 + _pairwise_sum(steps, 0, m - 1)  # np.sum's order: identity, then pairwise
+    poly = np.empty((m, 2))
+    for k in range(m):
+        poly[k, 0] = np.rint(xy[k, 0] * 4.0) / 4.0  # as drawn with 2 fractional bits
+        poly[k, 1] = np.rint(xy[k, 1] * 4.0) / 4.0
+    widest = math.ceil(cover_px + band_px) + 1.5
+    best = _band_best(cols, row_ptr, ox, oy, poly, widest, done)
+    band_r2 = (band_px + 1.5) * (band_px + 1.5)
+    band = 0
+    for q in range(len(best)):
+        if best[q] <= band_r2:
+            band += 1
+    half = min(0.5 * band / max(length, 1.0), band_px)
+    reach = math.ceil(cover_px + half)
+    r2 = (reach + 1.5) * (reach + 1.5)
+    n = 0
+    for q in range(len(best)):
+        if best[q] <= r2:
+            n += 1
+    return n
+
+
+@helper()
+def _pairwise_sum(a, lo, n):  # noqa: ANN001
+    """numpy's pairwise sum of the float64 values a[lo:lo + n] (its reduction's order: blocks
+    of up to 128 in 8 running sums; above that the two halves, split at a multiple of 8,
+    summed first and added), without recursion (an explicit stack of tasks)."""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    t_lo = np.empty(256, np.int64)  # tasks: (start, count, combine?); depth < 64 halvings
+    t_n = np.empty(256, np.int64)
+    t_add = np.empty(256, np.bool_)
+    vals = np.empty(256)
+    nt, nv = 1, 0
+    t_lo[0], t_n[0], t_add[0] = lo, n, False
+    while nt > 0:
+        nt -= 1
+        if t_add[nt]:  # both halves done: left + right
+            nv -= 1
+            vals[nv - 1] = vals[nv - 1] + vals[nv]
+        elif t_n[nt] <= 128:
+            vals[nv] = _block_sum(a, t_lo[nt], t_n[nt])
+            nv += 1
+        else:
+            s, m = t_lo[nt], t_n[nt]
+            m2 = m // 2
+            m2 -= m2 % 8
+            t_add[nt] = True  # after the right half (pushed next) and the left (on top)
+            t_lo[nt + 1], t_n[nt + 1], t_add[nt + 1] = s + m2, m - m2, False
+            t_lo[nt + 2], t_n[nt + 2], t_add[nt + 2] = s, m2, False
+            nt += 3
+    return vals[0]
+
+
+@helper()
+def _block_sum(a, lo, n):  # noqa: ANN001
+    """numpy's pairwise sum of at most 128 values: sequential below 8, else 8 running sums."""
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - n % 8:
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@helper()
+def _band_best(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
+    """``band_d2``'s least squared distance of each thread pixel (inf: none measured)."""
+    h = len(row_ptr) - 1
+    m = len(xy)
+    if m == 0 or h <= 0 or len(cols) == 0:
+        return np.full(len(cols), np.inf)
+    nseg = max(m - 1, 1)
+    seg = np.empty((nseg, 5))  # per segment: start, direction, 1 / squared length (0: a point)
+    for k in range(nseg):
+        k1 = min(k + 1, m - 1)
+        dx, dy = xy[k1, 0] - xy[k, 0], xy[k1, 1] - xy[k, 1]
+        ll = dx * dx + dy * dy
+        seg[k, 0], seg[k, 1], seg[k, 2], seg[k, 3] = xy[k, 0], xy[k, 1], dx, dy
+        seg[k, 4] = 1.0 / ll if ll > 0.0 else 0.0
+    best = np.full(len(cols), np.inf)
+    if done > 0.0:
+        _band_pass(cols, row_ptr, ox, oy, xy, seg, best, min(math.sqrt(done), r), done)
+    _band_pass(cols, row_ptr, ox, oy, xy, seg, best, r, done)
+    return best
 
 
 @helper()
