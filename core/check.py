@@ -57,10 +57,10 @@ from threadrecon.core.check_beyond import (
     end_occluder,
     extension_far,
 )
-from threadrecon.core.check_fast_kernel import mask_rows, ring_level
+from threadrecon.core.check_fast_kernel import flag_runs, mask_rows, ring_level
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_fold import fold_length
-from threadrecon.core.check_kernel import coverage_count, nearest_residual, overlap_hits
+from threadrecon.core.check_kernel import coverage_count, nearest_residual, overlap_length
 from threadrecon.core.check_score import (
     GraspPoint,
     bound_halfwidth_px,
@@ -721,7 +721,8 @@ def _check(
 
     # Bound excursions of the returned spline and the solver's status.
     zs = _spline_z(spline)
-    excursion = _excursion(spline, bounds, zs)
+    excursions = _excursions(spline, bounds, zs)
+    excursion = _excursion(spline, excursions)
     if not spline.ok and p.solver_suspect:
         findings.append(
             ("suspect", f"the MVS solver's result was rejected ({spline.status}: "
@@ -793,7 +794,7 @@ def _check(
              "thread pixels whose reliable matches all give another depth (limit "
              f"{p.max_unmeasured_mm:g} mm): it may join two strands at different depths")
         )  # fmt: skip
-    unsupported_exc = _excursion(spline, bounds, zs, ~supported)
+    unsupported_exc = _excursion(spline, excursions, ~supported)
     if unsupported_exc > p.bound_tol:
         findings.append(
             ("suspect", f"the curve leaves its depth bounds by {unsupported_exc:.2f} of the "
@@ -882,7 +883,7 @@ def _failed_early(
         length=nan,
         length_range=(nan, nan),
         path_px=float(bounds.s[-1]),
-        bound_excursion=_excursion(spline, bounds, _spline_z(spline)),
+        bound_excursion=_excursion(spline, _excursions(spline, bounds, _spline_z(spline))),
         solver_status=spline.status,
         longest_jump_px=nan,
         overlap_px=nan,
@@ -984,19 +985,25 @@ def _spline_z(spline: SplineResult) -> np.ndarray:
     return BSpline.construct_fast(t, c, int(spline.degree))(spline.u_H)
 
 
-def _excursion(
-    spline: SplineResult, bounds: Bounds, zs: np.ndarray, where: np.ndarray | None = None
-) -> float:
-    """Largest excursion of S_z outside [lower, upper] at the points of H, in half-widths;
-    with ``where`` (one flag per dense curve point, evenly spaced in the spline's parameter),
-    only at the points of H whose nearest curve point is flagged. Bounds the refine stage
-    dropped (``spline.bounds_dropped``: stereo matched a strand to its neighbour there, so
-    they bound the wrong strand) are not evidence and are skipped."""
+def _excursions(spline: SplineResult, bounds: Bounds, zs: np.ndarray) -> np.ndarray:
+    """Excursion of S_z outside [lower, upper] at each point of H, in half-widths (<= 0
+    inside); 0 where the refine stage dropped the bounds (``spline.bounds_dropped``: stereo
+    matched a strand to its neighbour there, so they bound the wrong strand: no evidence)."""
     half = np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12)
     out = np.maximum(bounds.lower - zs, zs - bounds.upper) / half
     dropped = spline.bounds_dropped
     if dropped is not None and len(dropped) == len(out):
         out = np.where(dropped, 0.0, out)
+    return out
+
+
+def _excursion(
+    spline: SplineResult, excursions: np.ndarray, where: np.ndarray | None = None
+) -> float:
+    """Largest of the ``excursions`` (``_excursions``) and 0; with ``where`` (one flag per
+    dense curve point, evenly spaced in the spline's parameter), only at the points of H whose
+    nearest curve point is flagged."""
+    out = excursions
     if where is not None:
         n = len(where)
         u = spline.u_H / spline.length if spline.length > 0 else np.zeros(len(out))
@@ -1109,24 +1116,19 @@ def _overlap(
     """2D length (px) of the curve lying within ``loop_px`` of a part of the curve more than
     ``pi * loop_px`` + 3 px away along it (a crossing contributes a few px); two ``strand``
     samples whose disparities differ by ``dtol`` or more cross, they do not overlap."""
-    ok = np.all(np.isfinite(uv), axis=1)
-    if ok.sum() < 3 or loop_px <= 0:
+    if loop_px <= 0:
         return 0.0
-    seg = np.where(np.isfinite(step), step, 0.0)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    hit = np.zeros(len(uv), dtype=bool)
-    q = uv[ok]
-    hit[ok] = overlap_hits(
-        q[:, 0].copy(), q[:, 1].copy(), s[ok], loop_px**2, np.pi * loop_px + 3.0,
-        np.ascontiguousarray(disp[ok]), np.ascontiguousarray(strand[ok]), float(dtol),
+    # compiled: the finite samples' pairs (sorted by x), the arc length and numpy's sum
+    return overlap_length(
+        np.ascontiguousarray(uv, dtype=np.float64), np.ascontiguousarray(step, dtype=np.float64),
+        loop_px**2, np.pi * loop_px + 3.0, np.ascontiguousarray(disp, dtype=np.float64),
+        np.ascontiguousarray(strand, dtype=bool), float(dtol),
     )  # fmt: skip
-    return float(0.5 * np.sum(seg * (hit[1:] & hit[:-1])))
 
 
 def _runs(flag: np.ndarray) -> list[tuple[int, int]]:
     """(start, stop) index ranges of the runs of True in ``flag``."""
-    d = np.diff(np.concatenate([[0], flag.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
+    return [(a, b) for a, b in flag_runs(np.ascontiguousarray(flag, dtype=bool)).tolist()]
 
 
 class _BareBackground:

@@ -146,3 +146,22 @@ def rows_contradicted(xs, row_ptr, y0, disp, q, ok, qdisp, near, tol):  # noqa: 
                         agrees = True
         out[i] = seen and not agrees
     return out
+
+
+@kernel("int64[:, ::1](boolean[::1])")
+def flag_runs(flag):  # noqa: ANN001
+    """(k, 2) (start, stop) of each run of True in ``flag``, in order."""
+    n = len(flag)
+    k = 0
+    for i in range(n):
+        if flag[i] and (i == 0 or not flag[i - 1]):
+            k += 1
+    out = np.empty((k, 2), np.int64)
+    k = 0
+    for i in range(n):
+        if flag[i] and (i == 0 or not flag[i - 1]):
+            out[k, 0] = i
+        if flag[i] and (i == n - 1 or not flag[i + 1]):
+            out[k, 1] = i + 1
+            k += 1
+    return out

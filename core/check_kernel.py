@@ -2,8 +2,8 @@
 curve's samples that numpy would run as many small calls, with the same floating-point
 operations (the check's results are bit-identical to the numpy forms they replace).
 
-``overlap_hits``: the pairs of curve samples within a distance in the image and far apart along
-the curve (``check._overlap``), by a sweep over the samples sorted by x. ``field_at``: the
+``overlap_length``: the length over the pairs of curve samples within a distance in the image
+and far apart along the curve (``check._overlap``), by a sweep over the samples sorted by x. ``field_at``: the
 distance field of a thread mask read at the curve's points (``MaskField.at``). ``band_d2``:
 the thread pixels' distances to the projected curve for the coverage (``check._coverage``:
 the geometric band, no longer drawn as a thick polyline, so not bit-identical to the drawing).
@@ -23,10 +23,50 @@ from threadrecon.core.compiled import helper, kernel
 
 # Compiled ahead of time once per machine (core/compiled.py), so that numba is not loaded.
 @kernel(
-    "boolean[::1](float64[::1], float64[::1], float64[::1], float64, float64, float64[::1], "
-    "boolean[::1], float64)"
+    "float64(float64[:, ::1], float64[::1], float64, float64, float64[::1], boolean[::1], float64)"
 )
-def overlap_hits(x, y, s, r2, gap, disp, strand, dtol):  # noqa: ANN001
+def overlap_length(uv, step, r2, gap, disp, strand, dtol):  # noqa: ANN001
+    """``check._overlap``: half the 2D length of the steps (``step``, non-finite ones 0)
+    between two samples that ``overlap_hits`` finds among the finite samples of ``uv`` (N, 2)
+    (``s`` the arc length along the steps), as numpy summed it (pairwise). 0 with fewer than
+    3 finite samples."""
+    n = len(uv)
+    ok = np.zeros(n, dtype=np.bool_)
+    m = 0
+    for i in range(n):
+        if np.isfinite(uv[i, 0]) and np.isfinite(uv[i, 1]):
+            ok[i] = True
+            m += 1
+    if m < 3:
+        return 0.0
+    seg = np.empty(n - 1)
+    s = np.empty(n)
+    s[0] = 0.0
+    for k in range(n - 1):
+        seg[k] = step[k] if np.isfinite(step[k]) else 0.0
+        s[k + 1] = seg[k] if k == 0 else s[k] + seg[k]  # np.cumsum's running sum
+    x, y, ss = np.empty(m), np.empty(m), np.empty(m)
+    dd, st = np.empty(m), np.empty(m, dtype=np.bool_)
+    j = 0
+    for i in range(n):
+        if ok[i]:
+            x[j], y[j], ss[j], dd[j], st[j] = uv[i, 0], uv[i, 1], s[i], disp[i], strand[i]
+            j += 1
+    sub = _overlap_hits(x, y, ss, r2, gap, dd, st, dtol)
+    hit = np.zeros(n, dtype=np.bool_)
+    j = 0
+    for i in range(n):
+        if ok[i]:
+            hit[i] = sub[j]
+            j += 1
+    both = np.empty(n - 1)
+    for k in range(n - 1):
+        both[k] = seg[k] if hit[k + 1] and hit[k] else 0.0
+    return 0.5 * (0.0 + _pairwise_sum(both, 0, n - 1))
+
+
+@helper()
+def _overlap_hits(x, y, s, r2, gap, disp, strand, dtol):  # noqa: ANN001
     """(n,) bool: sample i lies within sqrt(r2) (squared distance <= r2) of a sample j with
     |s[i] - s[j]| > gap, unless both are ``strand`` samples whose disparities ``disp`` differ by
     ``dtol`` or more (two strands crossing at different depths). Samples must be finite; the

@@ -69,3 +69,12 @@ def test_ring_level_is_numpys_median_and_deviation_of_the_ring() -> None:
             continue
         med = float(np.median(vals))
         assert got[1] == med and got[2] == float(np.median(np.abs(vals - med))), trial
+
+
+def test_flag_runs_are_the_runs_of_true() -> None:
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        flag = rng.random(int(rng.integers(0, 40))) < rng.uniform(0.0, 1.0)
+        d = np.diff(np.concatenate([[0], flag.astype(np.int8), [0]]))
+        want = np.column_stack([np.flatnonzero(d == 1), np.flatnonzero(d == -1)])
+        assert np.array_equal(fk.flag_runs(flag), want.reshape(-1, 2))
