@@ -323,6 +323,33 @@ def coverage_count(uv, inside, x0, y0, cols, row_ptr, ox, oy, cover_px, band_px,
     return n
 
 
+@kernel("float64(float64[::1], float64[::1], float64[::1], boolean[::1], float64)")
+def unmeasured_length(step3, step, z, supported, half_per_f):  # noqa: ANN001
+    """``check._unmeasured_length``: over each step with an unsupported end sample, ``step3``
+    less ``step * half_per_f * (z[k + 1] + z[k])`` (the 2D step at the mean depth), summed
+    where finite and positive as numpy sums with ``where`` (each run of counted values of the
+    free steps' array added pairwise in turn)."""
+    n = len(step)
+    extra = np.empty(n)
+    m = 0
+    for k in range(n):
+        if not (supported[k + 1] and supported[k]):
+            extra[m] = step3[k] - step[k] * half_per_f * (z[k + 1] + z[k])
+            m += 1
+    acc = 0.0
+    i = 0
+    while i < m:
+        if np.isfinite(extra[i]) and extra[i] > 0.0:
+            j = i
+            while j < m and np.isfinite(extra[j]) and extra[j] > 0.0:
+                j += 1
+            acc += _pairwise_sum(extra, i, j - i)
+            i = j
+        else:
+            i += 1
+    return acc
+
+
 @helper()
 def _pairwise_sum(a, lo, n):  # noqa: ANN001
     """numpy's pairwise sum of the float64 values a[lo:lo + n] (its reduction's order: blocks

@@ -168,3 +168,24 @@ def test_coverage_count_is_the_numpy_count_around_the_band() -> None:
             row_ptr, float(bx - x0), float(by - y0), cover, 8.0, float(done),
         )  # fmt: skip
         assert got == want, trial
+
+
+def test_unmeasured_length_is_numpys_masked_sum() -> None:
+    """The compiled sum equals numpy's ``np.sum(extra, where=...)`` to the bit on random
+    steps, depths and supports, with non-finite steps and depths among them."""
+    rng = np.random.default_rng(12)
+    for trial in range(60):
+        n = int(rng.integers(2, 900))
+        step = rng.uniform(0.0, 3.0, n - 1)
+        step3 = step * rng.uniform(0.5, 2.0, n - 1)
+        z = rng.uniform(50.0, 150.0, n)
+        step[rng.random(n - 1) < 0.02] = np.nan
+        z[rng.random(n) < 0.01] = np.inf
+        supported = rng.random(n) < rng.uniform(0.0, 1.0)
+        half = 0.5 / float(rng.uniform(5.0, 20.0))
+        free = ~(supported[1:] & supported[:-1])
+        with np.errstate(invalid="ignore"):
+            extra = step3[free] - step[free] * half * (z[1:][free] + z[:-1][free])
+            want = float(np.sum(extra, where=np.isfinite(extra) & (extra > 0.0)))
+        got = check_kernel.unmeasured_length(step3, step, z, supported, half)
+        assert got == want, trial
