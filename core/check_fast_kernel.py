@@ -4,8 +4,9 @@ identical to the forms they replace).
 
 ``mask_rows``: a mask crop's set pixels by rows (CSR), in one scan instead of ``np.nonzero``
 (whose 2-D form costs ~3 ns a pixel: ~0.35 ms on a 640x480 thread's box). ``close_pairs``: the
-pairs of points within a distance, by a sweep over the points sorted by x, instead of a
-``cKDTree`` built and queried for a few hundred points (``check_fold.fold_length``).
+pairs of points within a distance in the image and apart along the curve, by a sweep over the
+points sorted by x, instead of a ``cKDTree`` built and queried for a few hundred points, most
+of whose pairs are neighbours along the curve (``check_fold.fold_length``).
 ``ring_level``: the median grey level of the ring around the thread and its deviation
 (``check._BareBackground``) from one pass over the window and two partitions, instead of a dozen
 numpy calls (~40 us a ring). ``rows_contradicted``: the reliable matches in a window around
@@ -46,16 +47,17 @@ def mask_rows(mask, total):  # noqa: ANN001
     return cols, row_ptr
 
 
-@kernel("int64[:, ::1](float64[::1], float64[::1], float64)")
-def close_pairs(x, y, r):  # noqa: ANN001
+@kernel("int64[:, ::1](float64[::1], float64[::1], float64[::1], float64, float64)")
+def close_pairs(x, y, s, r, gap):  # noqa: ANN001
     """(k, 2) index pairs (i < j) of the points (x, y) whose squared distance
-    ``dx * dx + dy * dy`` is at most ``r * r``: ``cKDTree.query_pairs(r)``'s pairs (its test
-    for p = 2), in another order. Points must be finite."""
+    ``dx * dx + dy * dy`` is at most ``r * r`` (``cKDTree.query_pairs(r)``'s test for p = 2)
+    and whose ``s`` (arc length along the curve) differ by more than ``gap``; in no
+    particular order. Points must be finite."""
     n = len(x)
     order = np.argsort(x, kind="mergesort")
     r2 = r * r
     reach = r * (1.0 + 1e-9)  # beyond r in x, whatever the rounding: no pair
-    cap = 4 * n + 16
+    cap = 16
     out = np.empty((cap, 2), np.int64)
     k = 0
     for a in range(n):
@@ -66,7 +68,7 @@ def close_pairs(x, y, r):  # noqa: ANN001
                 break
             dx = x[i] - x[j]
             dy = y[i] - y[j]
-            if dx * dx + dy * dy <= r2:
+            if dx * dx + dy * dy <= r2 and abs(s[i] - s[j]) > gap:
                 if k == cap:  # grow: a dense cluster of points
                     bigger = np.empty((2 * cap, 2), np.int64)
                     bigger[:cap] = out

@@ -40,16 +40,19 @@ def test_close_pairs_are_the_kd_trees_pairs(r: float) -> None:
             p = rng.integers(0, 12, size=(n, 2)).astype(np.float64) * rng.choice([0.5, 1.0])
         else:  # along a wiggly curve, as a projected thread
             p = np.cumsum(rng.normal(0.0, 1.0, (n, 2)), axis=0)
-        got = fk.close_pairs(p[:, 0].copy(), p[:, 1].copy(), r)
-        assert got.shape[1] == 2 and np.all(got[:, 0] < got[:, 1])
-        assert len(got) == len(_pairs(got))  # each pair once
-        want = cKDTree(p).query_pairs(r, output_type="ndarray") if n else np.zeros((0, 2))
-        assert _pairs(got) == _pairs(want), (trial, n)
+        s = np.arange(n, dtype=np.float64) * rng.uniform(0.5, 2.0)  # arc length
+        want = cKDTree(p).query_pairs(r, output_type="ndarray") if n else np.zeros((0, 2), int)
+        for gap in (-1.0, 3.0, 7.5):
+            got = fk.close_pairs(p[:, 0].copy(), p[:, 1].copy(), s, r, gap)
+            assert got.shape[1] == 2 and np.all(got[:, 0] < got[:, 1])
+            assert len(got) == len(_pairs(got))  # each pair once
+            apart = want[np.abs(s[want[:, 0]] - s[want[:, 1]]) > gap]
+            assert _pairs(got) == _pairs(apart), (trial, n, gap)
 
 
 def test_close_pairs_grow_past_their_first_guess() -> None:
-    p = np.zeros((50, 2))  # every pair: 1225 > 4 n + 16
-    got = fk.close_pairs(p[:, 0].copy(), p[:, 1].copy(), 0.1)
+    p = np.zeros((50, 2))  # every pair: 1225 > the first 16
+    got = fk.close_pairs(p[:, 0].copy(), p[:, 1].copy(), np.zeros(50), 0.1, -1.0)
     assert _pairs(got) == {(i, j) for i in range(50) for j in range(i + 1, 50)}
 
 
