@@ -65,6 +65,7 @@ from threadrecon.core.check_kernel import (
     nearest_residual,
     overlap_length,
     unmeasured_length,
+    unsupported_travel,
 )
 from threadrecon.core.check_score import (
     GraspPoint,
@@ -1050,17 +1051,11 @@ def _unsupported_travel(z: np.ndarray, supported: np.ndarray) -> float:
     net change is measured at both ends); over an unsupported end, the whole total variation
     (its depth is extrapolated from one side: none of its change is measured). The whole total
     variation when no point is supported."""
-    tv = np.abs(np.diff(z))
-    idx = np.flatnonzero(supported)
-    if idx.size == 0:
-        return float(tv.sum())
-    # stretch k: steps idx[k] .. idx[k+1]-1; the ends: steps before idx[0] and from idx[-1]
-    edges = np.concatenate([[0], idx, [len(z) - 1]])
-    csum = np.concatenate([[0.0], np.cumsum(tv)])
-    travel = csum[edges[1:]] - csum[edges[:-1]]
-    net = np.abs(z[edges[1:]] - z[edges[:-1]])
-    net[[0, -1]] = 0.0  # the ends (empty when the curve's first or last point is supported)
-    return float(np.sum(travel - net))
+    # compiled: stretch k runs over the steps between the supported samples k - 1 and k, the
+    # ends before the first and from the last (empty when the curve's end is supported)
+    return unsupported_travel(
+        np.ascontiguousarray(z, dtype=np.float64), np.ascontiguousarray(supported, dtype=bool)
+    )
 
 
 def _unmeasured_length(

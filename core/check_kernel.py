@@ -350,6 +350,42 @@ def unmeasured_length(step3, step, z, supported, half_per_f):  # noqa: ANN001
     return acc
 
 
+@kernel("float64(float64[::1], boolean[::1])")
+def unsupported_travel(z, supported):  # noqa: ANN001
+    """``check._unsupported_travel``: the depth's total variation over each stretch between
+    two supported samples less its net change there, over each unsupported end the whole
+    variation, summed as numpy sums (pairwise); the whole variation (numpy's sum of |dz|)
+    when no sample is supported."""
+    n = len(z)
+    tv = np.empty(max(n - 1, 0))
+    for k in range(n - 1):
+        tv[k] = abs(z[k + 1] - z[k])
+    m = 0
+    for k in range(n):
+        if supported[k]:
+            m += 1
+    if m == 0:
+        return 0.0 + _pairwise_sum(tv, 0, n - 1)
+    csum = np.empty(n)  # np.cumsum's running sums after a leading 0
+    csum[0] = 0.0
+    for k in range(n - 1):
+        csum[k + 1] = tv[k] if k == 0 else csum[k] + tv[k]
+    edges = np.empty(m + 2, np.int64)
+    edges[0] = 0
+    edges[m + 1] = n - 1
+    m = 1
+    for k in range(n):
+        if supported[k]:
+            edges[m] = k
+            m += 1
+    extra = np.empty(m)
+    for k in range(m):
+        travel = csum[edges[k + 1]] - csum[edges[k]]
+        net = 0.0 if k == 0 or k == m - 1 else abs(z[edges[k + 1]] - z[edges[k]])
+        extra[k] = travel - net
+    return 0.0 + _pairwise_sum(extra, 0, m)
+
+
 @helper()
 def _pairwise_sum(a, lo, n):  # noqa: ANN001
     """numpy's pairwise sum of the float64 values a[lo:lo + n] (its reduction's order: blocks

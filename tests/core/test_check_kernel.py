@@ -189,3 +189,26 @@ def test_unmeasured_length_is_numpys_masked_sum() -> None:
             want = float(np.sum(extra, where=np.isfinite(extra) & (extra > 0.0)))
         got = check_kernel.unmeasured_length(step3, step, z, supported, half)
         assert got == want, trial
+
+
+def _unsupported_numpy(z: np.ndarray, supported: np.ndarray) -> float:
+    """check._unsupported_travel as numpy ran it before the kernel."""
+    tv = np.abs(np.diff(z))
+    idx = np.flatnonzero(supported)
+    if idx.size == 0:
+        return float(tv.sum())
+    edges = np.concatenate([[0], idx, [len(z) - 1]])
+    csum = np.concatenate([[0.0], np.cumsum(tv)])
+    travel = csum[edges[1:]] - csum[edges[:-1]]
+    net = np.abs(z[edges[1:]] - z[edges[:-1]])
+    net[[0, -1]] = 0.0
+    return float(np.sum(travel - net))
+
+
+def test_unsupported_travel_is_numpys_to_the_bit() -> None:
+    rng = np.random.default_rng(13)
+    for _ in range(60):
+        n = int(rng.integers(2, 1200))
+        z = 100.0 + np.cumsum(rng.normal(0.0, rng.uniform(0.01, 2.0), n))
+        supported = rng.random(n) < rng.choice([0.0, 0.05, 0.5, 1.0])
+        assert check_kernel.unsupported_travel(z, supported) == _unsupported_numpy(z, supported)
