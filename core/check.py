@@ -1250,15 +1250,6 @@ def _surface_behind(
     return distinct and delta[k] <= NEAR_PX
 
 
-def _median(v: np.ndarray) -> float:
-    """``np.median`` of a finite 1-D float64 array, the same value without its overhead."""
-    k = len(v) // 2
-    if len(v) % 2:
-        return float(np.partition(v, k)[k])
-    part = np.partition(v, (k - 1, k))
-    return float((part[k - 1] + part[k]) / 2.0)
-
-
 def _sample(grey: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Grey level of an (H, W) image at each (x, y) (nearest pixel); NaN off the image."""
     h, w = grey.shape
