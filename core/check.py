@@ -57,9 +57,16 @@ from threadrecon.core.check_beyond import (
     end_occluder,
     extension_far,
 )
+from threadrecon.core.check_fast_kernel import flag_runs, mask_rows, ring_level
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_fold import fold_length
-from threadrecon.core.check_kernel import band_d2, nearest_residual, overlap_hits
+from threadrecon.core.check_kernel import (
+    coverage_count,
+    nearest_residual,
+    overlap_length,
+    unmeasured_length,
+    unsupported_travel,
+)
 from threadrecon.core.check_score import (
     GraspPoint,
     bound_halfwidth_px,
@@ -67,7 +74,7 @@ from threadrecon.core.check_score import (
     point_errors,
     quality_score,
 )
-from threadrecon.core.check_support import contradicted
+from threadrecon.core.check_support import contradicted, reliable_rows
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.reliability import ReliabilityResult
@@ -480,7 +487,9 @@ def _check(
     # Depths: in front of both cameras and inside the range of the disparity search.
     z = pts[:, 2]
     depth_range = (float(z.min()), float(z.max()))
-    z_right = (np.column_stack([pts, np.ones(n)]) @ calib.P2.T)[:, 2]
+    hom = np.column_stack([pts, np.ones(n)])
+    h_r = hom @ calib.P2.T  # the right view's projection; its third row: the right depths
+    z_right = h_r[:, 2]
     if np.any(z <= 0) or np.any(z_right <= 0):
         findings.append(
             ("failed", f"{int(np.sum((z <= 0) | (z_right <= 0)))} of {n} points lie behind a "
@@ -499,8 +508,7 @@ def _check(
     # Reprojection onto the thread pixels of both views (one distance transform per view);
     # a point projecting outside a view cannot be seen there and is left out of its figures.
     H, W = lifted.P_L.shape
-    uv_l = _project(pts, calib.P1)
-    uv_r = _project(pts, calib.P2)
+    uv_l, uv_r = _dehomogenise(hom @ calib.P1.T), _dehomogenise(h_r)
     in_l, in_r = _in_image(uv_l, (H, W)), _in_image(uv_r, (H, W))
     margin = p.reproj_fail_px + 2.0
     field_l, field_r = mask_field(lifted.P_L, margin), mask_field(lifted.P_R, margin)
@@ -514,13 +522,11 @@ def _check(
     mm = calib.mm_per_unit
     step3 = np.linalg.norm(np.diff(pts, axis=0), axis=1) * mm
     step = np.linalg.norm(np.diff(uv_l, axis=0), axis=1)
-    run_l, bridge_l = _off_thread_runs(in_l & (rho_l > p.jump_px), step)
-    run3_l, _ = _off_thread_runs(in_l & (rho_l > p.jump_px), step3)
     step_r = np.linalg.norm(np.diff(uv_r, axis=0), axis=1)
-    run_r, bridge_r = _off_thread_runs(in_r & (rho_r > p.jump_px), step_r)
-    run3_r, _ = _off_thread_runs(in_r & (rho_r > p.jump_px), step3)
-    longest_jump = float(max(run_l.max(), run_r.max()))
     off_l, off_r = in_l & (rho_l > p.jump_px), in_r & (rho_r > p.jump_px)
+    run_l, run3_l, bridge_l = _off_thread_runs(off_l, step, step3)
+    run_r, run3_r, bridge_r = _off_thread_runs(off_r, step_r, step3)
+    longest_jump = float(max(run_l.max(), run_r.max()))
     ends = (off_l & ~bridge_l) | (off_r & ~bridge_r)
     bare = (
         _BareBackground(lifted, (field_l, field_r), p)
@@ -721,7 +727,8 @@ def _check(
 
     # Bound excursions of the returned spline and the solver's status.
     zs = _spline_z(spline)
-    excursion = _excursion(spline, bounds, zs)
+    excursions = _excursions(spline, bounds, zs)
+    excursion = _excursion(spline, excursions)
     if not spline.ok and p.solver_suspect:
         findings.append(
             ("suspect", f"the MVS solver's result was rejected ({spline.status}: "
@@ -793,7 +800,7 @@ def _check(
              "thread pixels whose reliable matches all give another depth (limit "
              f"{p.max_unmeasured_mm:g} mm): it may join two strands at different depths")
         )  # fmt: skip
-    unsupported_exc = _excursion(spline, bounds, zs, ~supported)
+    unsupported_exc = _excursion(spline, excursions, ~supported)
     if unsupported_exc > p.bound_tol:
         findings.append(
             ("suspect", f"the curve leaves its depth bounds by {unsupported_exc:.2f} of the "
@@ -882,7 +889,7 @@ def _failed_early(
         length=nan,
         length_range=(nan, nan),
         path_px=float(bounds.s[-1]),
-        bound_excursion=_excursion(spline, bounds, _spline_z(spline)),
+        bound_excursion=_excursion(spline, _excursions(spline, bounds, _spline_z(spline))),
         solver_status=spline.status,
         longest_jump_px=nan,
         overlap_px=nan,
@@ -893,16 +900,15 @@ def _px(v: float, margin: float) -> str:
     return f"more than {margin:g} px" if v >= margin else f"up to {v:.1f} px"
 
 
-def _project(pts: np.ndarray, P: np.ndarray) -> np.ndarray:
-    h = np.column_stack([pts, np.ones(len(pts))]) @ P.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return h[:, :2] / h[:, 2:3]
+def _dehomogenise(h: np.ndarray) -> np.ndarray:
+    """(N, 2) pixels (x, y) of (N, 3) homogeneous image points (P @ [X, 1] per point); a point
+    at depth 0 gives inf or NaN (check_curve ignores the floating-point warnings)."""
+    return h[:, :2] / h[:, 2:3]
 
 
 def _in_image(uv: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    H, W = shape
-    with np.errstate(invalid="ignore"):
-        return (uv[:, 0] > -0.5) & (uv[:, 0] < W - 0.5) & (uv[:, 1] > -0.5) & (uv[:, 1] < H - 0.5)
+    H, W = shape  # a NaN point compares False: outside
+    return (uv[:, 0] > -0.5) & (uv[:, 0] < W - 0.5) & (uv[:, 1] > -0.5) & (uv[:, 1] < H - 0.5)
 
 
 def _border_distance(a: np.ndarray, b: np.ndarray, shape: tuple[int, int]) -> float:
@@ -942,11 +948,10 @@ def _crop(mask: np.ndarray, field: MaskField) -> _View:
     bx, by, bw, bh = field.bbox
     crop = np.ascontiguousarray(mask[by : by + bh, bx : bx + bw]).view(np.uint8)
     crop.setflags(write=False)
-    rows, cols = np.nonzero(crop)  # row-major: by rows, columns ascending
-    row_ptr = np.searchsorted(rows, np.arange(crop.shape[0] + 1)).astype(np.int64)
-    return _View(
-        crop, field.x0, field.y0, bx, by, field.total, mask.shape, cols.astype(np.int64), row_ptr
-    )
+    cols, row_ptr = mask_rows(crop, field.total)  # compiled: np.nonzero's order, one scan
+    if row_ptr[-1] != field.total:
+        raise ValueError(f"the thread mask changed: {row_ptr[-1]} pixels, {field.total} counted")
+    return _View(crop, field.x0, field.y0, bx, by, field.total, mask.shape, cols, row_ptr)
 
 
 def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> float:
@@ -961,17 +966,22 @@ def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> 
     are measured once, out to the widest band."""
     if inside.sum() < 2 or v.total == 0:
         return 0.0
-    xy = uv[inside] - [v.x0, v.y0]
-    poly = np.rint(xy * 4) / 4  # as drawn with 2 fractional bits
-    length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
-    widest = int(np.ceil(cover_px + BAND_PX)) + 1.5
     # counted below two bands, both at least this one: values under it need not be least
     done = (min(int(np.ceil(cover_px)), BAND_PX) + 1.5) ** 2  # reach >= ceil(cover_px)
-    d2 = band_d2(v.cols, v.row_ptr, float(v.bx - v.x0), float(v.by - v.y0), poly, widest, done)
-    band = float(np.count_nonzero(d2 <= (BAND_PX + 1.5) ** 2))
-    half = min(0.5 * band / max(length, 1.0), BAND_PX)
-    reach = int(np.ceil(cover_px + half))
-    return float(np.count_nonzero(d2 <= (reach + 1.5) ** 2)) / v.total
+    n = coverage_count(
+        np.ascontiguousarray(uv, dtype=np.float64),
+        np.ascontiguousarray(inside),
+        float(v.x0),
+        float(v.y0),
+        v.cols,
+        v.row_ptr,
+        float(v.bx - v.x0),
+        float(v.by - v.y0),
+        float(cover_px),
+        float(BAND_PX),
+        float(done),
+    )  # fmt: skip  (compiled: the band's distances and both counts in one call)
+    return float(n) / v.total
 
 
 def _spline_z(spline: SplineResult) -> np.ndarray:
@@ -981,19 +991,25 @@ def _spline_z(spline: SplineResult) -> np.ndarray:
     return BSpline.construct_fast(t, c, int(spline.degree))(spline.u_H)
 
 
-def _excursion(
-    spline: SplineResult, bounds: Bounds, zs: np.ndarray, where: np.ndarray | None = None
-) -> float:
-    """Largest excursion of S_z outside [lower, upper] at the points of H, in half-widths;
-    with ``where`` (one flag per dense curve point, evenly spaced in the spline's parameter),
-    only at the points of H whose nearest curve point is flagged. Bounds the refine stage
-    dropped (``spline.bounds_dropped``: stereo matched a strand to its neighbour there, so
-    they bound the wrong strand) are not evidence and are skipped."""
+def _excursions(spline: SplineResult, bounds: Bounds, zs: np.ndarray) -> np.ndarray:
+    """Excursion of S_z outside [lower, upper] at each point of H, in half-widths (<= 0
+    inside); 0 where the refine stage dropped the bounds (``spline.bounds_dropped``: stereo
+    matched a strand to its neighbour there, so they bound the wrong strand: no evidence)."""
     half = np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12)
     out = np.maximum(bounds.lower - zs, zs - bounds.upper) / half
     dropped = spline.bounds_dropped
     if dropped is not None and len(dropped) == len(out):
         out = np.where(dropped, 0.0, out)
+    return out
+
+
+def _excursion(
+    spline: SplineResult, excursions: np.ndarray, where: np.ndarray | None = None
+) -> float:
+    """Largest of the ``excursions`` (``_excursions``) and 0; with ``where`` (one flag per
+    dense curve point, evenly spaced in the spline's parameter), only at the points of H whose
+    nearest curve point is flagged."""
+    out = excursions
     if where is not None:
         n = len(where)
         u = spline.u_H / spline.length if spline.length > 0 else np.zeros(len(out))
@@ -1006,22 +1022,27 @@ def _excursion(
     return float(max(0.0, out.max()))
 
 
-def _off_thread_runs(off: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _off_thread_runs(
+    off: np.ndarray, step: np.ndarray, step3: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Runs of consecutive off-thread samples: per sample its run's 2D length (px, including
-    the steps onto and off the thread; 0 on the thread) and whether the run is a bridge (both
-    of its ends on the thread, i.e. not at an end of the curve)."""
+    the steps onto and off the thread; 0 on the thread), its 3D length (the same steps of
+    ``step3``) and whether the run is a bridge (both of its ends on the thread, i.e. not at an
+    end of the curve)."""
     n = len(off)
     if not off.any():
-        return np.zeros(n), np.zeros(n, dtype=bool)
+        return np.zeros(n), np.zeros(n), np.zeros(n, dtype=bool)
     start = off & ~np.concatenate([[False], off[:-1]])
     run = np.where(off, np.cumsum(start) - 1, -1)
     # a step belongs to a run when either of its samples does (entering, inside, leaving)
     step_run = np.maximum(run[1:], run[:-1])
     k = int(run.max()) + 1
-    length = np.bincount(step_run[step_run >= 0], weights=step[step_run >= 0], minlength=k)
+    sel = step_run >= 0
+    length = np.bincount(step_run[sel], weights=step[sel], minlength=k)
+    length3 = np.bincount(step_run[sel], weights=step3[sel], minlength=k)
     at_end = np.zeros(k, dtype=bool)
     at_end[run[[0, -1]][run[[0, -1]] >= 0]] = True
-    return np.where(off, length[run], 0.0), off & ~at_end[run]
+    return np.where(off, length[run], 0.0), np.where(off, length3[run], 0.0), off & ~at_end[run]
 
 
 def _unsupported_travel(z: np.ndarray, supported: np.ndarray) -> float:
@@ -1030,17 +1051,11 @@ def _unsupported_travel(z: np.ndarray, supported: np.ndarray) -> float:
     net change is measured at both ends); over an unsupported end, the whole total variation
     (its depth is extrapolated from one side: none of its change is measured). The whole total
     variation when no point is supported."""
-    tv = np.abs(np.diff(z))
-    idx = np.flatnonzero(supported)
-    if idx.size == 0:
-        return float(tv.sum())
-    # stretch k: steps idx[k] .. idx[k+1]-1; the ends: steps before idx[0] and from idx[-1]
-    edges = np.concatenate([[0], idx, [len(z) - 1]])
-    csum = np.concatenate([[0.0], np.cumsum(tv)])
-    travel = csum[edges[1:]] - csum[edges[:-1]]
-    net = np.abs(z[edges[1:]] - z[edges[:-1]])
-    net[[0, -1]] = 0.0  # the ends (empty when the curve's first or last point is supported)
-    return float(np.sum(travel - net))
+    # compiled: stretch k runs over the steps between the supported samples k - 1 and k, the
+    # ends before the first and from the last (empty when the curve's end is supported)
+    return unsupported_travel(
+        np.ascontiguousarray(z, dtype=np.float64), np.ascontiguousarray(supported, dtype=bool)
+    )
 
 
 def _unmeasured_length(
@@ -1050,12 +1065,11 @@ def _unmeasured_length(
     each step with an unsupported sample, the 3D step ``step3`` (mm) less the same 2D step
     ``step`` (px) at constant depth (px * z / f, ``f_mm`` = f per mm of depth). A step between
     two supported samples is measured at both ends and left out."""
-    free = ~(supported[1:] & supported[:-1])
-    if not free.any():
-        return 0.0
-    flat = step[free] * (0.5 / f_mm) * (z[1:][free] + z[:-1][free])  # the step at constant depth
-    extra = step3[free] - flat
-    return float(np.sum(extra, where=np.isfinite(extra) & (extra > 0.0)))
+    return unmeasured_length(  # compiled: the same sums (numpy's, with where)
+        np.ascontiguousarray(step3, dtype=np.float64), np.ascontiguousarray(step, dtype=np.float64),
+        np.ascontiguousarray(z, dtype=np.float64), np.ascontiguousarray(supported, dtype=bool),
+        0.5 / f_mm,
+    )  # fmt: skip
 
 
 def _end_added_length(
@@ -1101,24 +1115,19 @@ def _overlap(
     """2D length (px) of the curve lying within ``loop_px`` of a part of the curve more than
     ``pi * loop_px`` + 3 px away along it (a crossing contributes a few px); two ``strand``
     samples whose disparities differ by ``dtol`` or more cross, they do not overlap."""
-    ok = np.all(np.isfinite(uv), axis=1)
-    if ok.sum() < 3 or loop_px <= 0:
+    if loop_px <= 0:
         return 0.0
-    seg = np.where(np.isfinite(step), step, 0.0)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    hit = np.zeros(len(uv), dtype=bool)
-    q = uv[ok]
-    hit[ok] = overlap_hits(
-        q[:, 0].copy(), q[:, 1].copy(), s[ok], loop_px**2, np.pi * loop_px + 3.0,
-        np.ascontiguousarray(disp[ok]), np.ascontiguousarray(strand[ok]), float(dtol),
+    # compiled: the finite samples' pairs (sorted by x), the arc length and numpy's sum
+    return overlap_length(
+        np.ascontiguousarray(uv, dtype=np.float64), np.ascontiguousarray(step, dtype=np.float64),
+        loop_px**2, np.pi * loop_px + 3.0, np.ascontiguousarray(disp, dtype=np.float64),
+        np.ascontiguousarray(strand, dtype=bool), float(dtol),
     )  # fmt: skip
-    return float(0.5 * np.sum(seg * (hit[1:] & hit[:-1])))
 
 
 def _runs(flag: np.ndarray) -> list[tuple[int, int]]:
     """(start, stop) index ranges of the runs of True in ``flag``."""
-    d = np.diff(np.concatenate([[0], flag.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
+    return [(a, b) for a, b in flag_runs(np.ascontiguousarray(flag, dtype=bool)).tolist()]
 
 
 class _BareBackground:
@@ -1153,12 +1162,10 @@ class _BareBackground:
         if (side, x, y) not in self._cache:
             g, _, field = self.views[side]
             d, rows, cols = field.window(x, y, self.REACH_PX, self.RING_PX[1])
-            ring = (d > self.RING_PX[0]) & (d <= self.RING_PX[1])
-            vals = g[rows, cols][ring].astype(np.float64)
-            level = None
-            if vals.size >= 10:
-                med = _median(vals)
-                level = med, max(1.4826 * _median(np.abs(vals - med)), 4.0)
+            # compiled: the ring's grey levels, their median and deviation (np.median's values)
+            grey = np.asarray(g[rows, cols], dtype=np.float64, order="C")
+            n, med, mad = ring_level(d, grey, *self.RING_PX, 10)
+            level = None if n < 10 else (float(med), max(1.4826 * float(mad), 4.0))
             self._cache[side, x, y] = level
         return self._cache[side, x, y]
 
@@ -1241,15 +1248,6 @@ def _surface_behind(
     far = cost[(np.abs(delta - delta[k]) >= FAR_PX) & np.isfinite(cost)]
     distinct = far.size > 0 and float(np.median(far)) >= cost[k] + TEXTURE_LEVELS
     return distinct and delta[k] <= NEAR_PX
-
-
-def _median(v: np.ndarray) -> float:
-    """``np.median`` of a finite 1-D float64 array, the same value without its overhead."""
-    k = len(v) // 2
-    if len(v) % 2:
-        return float(np.partition(v, k)[k])
-    part = np.partition(v, (k - 1, k))
-    return float((part[k - 1] + part[k]) / 2.0)
 
 
 def _sample(grey: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -1350,32 +1348,10 @@ def _disparity_residual(
     support_px: float,
 ) -> np.ndarray:
     """|curve disparity - disparity of the nearest reliable pixel| + distance / support_px."""
-    xs, row_ptr, y0, disp_rel = derived(
-        (stereo.pixels, stereo.disparity, rel.reliable), "reliable_rows", lambda: _rows(stereo, rel)
-    )
+    xs, row_ptr, y0, disp_rel = reliable_rows(stereo, rel)  # shared with contradicted
     uv = np.ascontiguousarray(uv_l, dtype=np.float64)
     r = nearest_residual(
         xs, row_ptr, y0, disp_rel, uv[:, 0].copy(), uv[:, 1].copy(),
         np.ascontiguousarray(disp_curve, dtype=np.float64), float(support_px),
     )  # fmt: skip
     return np.where(np.isfinite(r), r, 1e3)
-
-
-def _rows(
-    stereo: StereoResult, rel: ReliabilityResult
-) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
-    """The reliable pixels P_L^R by rows (CSR: x ascending per row, ``row_ptr`` from row
-    ``y0``) and their disparities (per stereo result)."""
-    sel = np.flatnonzero(rel.reliable)
-    if sel.size == 0:
-        return np.zeros(0, np.int64), np.zeros(1, np.int64), 0, np.zeros(0)
-    xs = stereo.pixels[sel, 0].astype(np.int64)
-    ys = stereo.pixels[sel, 1].astype(np.int64)
-    disp = np.asarray(stereo.disparity, dtype=np.float64)[sel]
-    key = ys * (int(xs.max()) + 1) + xs
-    if np.any(np.diff(key) < 0):  # P_L comes in raster order; sort otherwise
-        order = np.argsort(key, kind="stable")
-        xs, ys, disp = xs[order], ys[order], disp[order]
-    y0 = int(ys[0])
-    row_ptr = np.searchsorted(ys, np.arange(y0, int(ys[-1]) + 2)).astype(np.int64)
-    return xs, row_ptr, y0, np.ascontiguousarray(disp)

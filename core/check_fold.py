@@ -13,7 +13,8 @@ differ in disparity: none of them is a fold.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
+
+from threadrecon.core.check_fast_kernel import close_pairs
 
 FOLD_COS = float(np.cos(np.radians(30.0)))  # passes within 30 deg of one line run along it
 
@@ -46,14 +47,16 @@ def fold_length(
     if idx.size < 3 or radius <= 0:
         return 0.0
     s = np.concatenate([[0.0], np.cumsum(seg)])
-    t = np.gradient(uv, axis=0)
-    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
-    pairs = cKDTree(uv[idx]).query_pairs(radius, output_type="ndarray")
+    gap = np.pi * radius + 3.0
+    q = uv[idx]  # compiled: cKDTree.query_pairs' pairs, only those more than gap apart along
+    pairs = close_pairs(q[:, 0].copy(), q[:, 1].copy(), s[idx], float(radius), gap)
     if not len(pairs):
         return 0.0
+    t = np.gradient(uv, axis=0)
+    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
     i, j = idx[pairs[:, 0]], idx[pairs[:, 1]]
     along = np.abs(np.sum(t[i] * t[j], axis=1)) > FOLD_COS
-    keep = (np.abs(s[i] - s[j]) > np.pi * radius + 3.0) & along & (np.abs(disp[i] - disp[j]) < dtol)
+    keep = (np.abs(s[i] - s[j]) > gap) & along & (np.abs(disp[i] - disp[j]) < dtol)
     hit = np.zeros(n, dtype=bool)
     hit[i[keep]] = True
     hit[j[keep]] = True

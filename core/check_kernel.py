@@ -2,8 +2,8 @@
 curve's samples that numpy would run as many small calls, with the same floating-point
 operations (the check's results are bit-identical to the numpy forms they replace).
 
-``overlap_hits``: the pairs of curve samples within a distance in the image and far apart along
-the curve (``check._overlap``), by a sweep over the samples sorted by x. ``field_at``: the
+``overlap_length``: the length over the pairs of curve samples within a distance in the image
+and far apart along the curve (``check._overlap``), by a sweep over the samples sorted by x. ``field_at``: the
 distance field of a thread mask read at the curve's points (``MaskField.at``). ``band_d2``:
 the thread pixels' distances to the projected curve for the coverage (``check._coverage``:
 the geometric band, no longer drawn as a thick polyline, so not bit-identical to the drawing).
@@ -18,15 +18,55 @@ import math
 
 import numpy as np
 
-from threadrecon.core.compiled import kernel
+from threadrecon.core.compiled import helper, kernel
 
 
 # Compiled ahead of time once per machine (core/compiled.py), so that numba is not loaded.
 @kernel(
-    "boolean[::1](float64[::1], float64[::1], float64[::1], float64, float64, float64[::1], "
-    "boolean[::1], float64)"
+    "float64(float64[:, ::1], float64[::1], float64, float64, float64[::1], boolean[::1], float64)"
 )
-def overlap_hits(x, y, s, r2, gap, disp, strand, dtol):  # noqa: ANN001
+def overlap_length(uv, step, r2, gap, disp, strand, dtol):  # noqa: ANN001
+    """``check._overlap``: half the 2D length of the steps (``step``, non-finite ones 0)
+    between two samples that ``overlap_hits`` finds among the finite samples of ``uv`` (N, 2)
+    (``s`` the arc length along the steps), as numpy summed it (pairwise). 0 with fewer than
+    3 finite samples."""
+    n = len(uv)
+    ok = np.zeros(n, dtype=np.bool_)
+    m = 0
+    for i in range(n):
+        if np.isfinite(uv[i, 0]) and np.isfinite(uv[i, 1]):
+            ok[i] = True
+            m += 1
+    if m < 3:
+        return 0.0
+    seg = np.empty(n - 1)
+    s = np.empty(n)
+    s[0] = 0.0
+    for k in range(n - 1):
+        seg[k] = step[k] if np.isfinite(step[k]) else 0.0
+        s[k + 1] = seg[k] if k == 0 else s[k] + seg[k]  # np.cumsum's running sum
+    x, y, ss = np.empty(m), np.empty(m), np.empty(m)
+    dd, st = np.empty(m), np.empty(m, dtype=np.bool_)
+    j = 0
+    for i in range(n):
+        if ok[i]:
+            x[j], y[j], ss[j], dd[j], st[j] = uv[i, 0], uv[i, 1], s[i], disp[i], strand[i]
+            j += 1
+    sub = _overlap_hits(x, y, ss, r2, gap, dd, st, dtol)
+    hit = np.zeros(n, dtype=np.bool_)
+    j = 0
+    for i in range(n):
+        if ok[i]:
+            hit[i] = sub[j]
+            j += 1
+    both = np.empty(n - 1)
+    for k in range(n - 1):
+        both[k] = seg[k] if hit[k + 1] and hit[k] else 0.0
+    return 0.5 * (0.0 + _pairwise_sum(both, 0, n - 1))
+
+
+@helper()
+def _overlap_hits(x, y, s, r2, gap, disp, strand, dtol):  # noqa: ANN001
     """(n,) bool: sample i lies within sqrt(r2) (squared distance <= r2) of a sample j with
     |s[i] - s[j]| > gap, unless both are ``strand`` samples whose disparities ``disp`` differ by
     ``dtol`` or more (two strands crossing at different depths). Samples must be finite; the
@@ -214,12 +254,205 @@ def band_d2(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
     band that a polyline drawn 2 r wide approximates). A pixel is not measured further once a
     segment lies within sqrt(``done``) of it: its value is then at most ``done`` but not
     necessarily the least (exact with ``done`` = 0; counts of values <= any T >= ``done``
-    are exact either way)."""
+    are exact either way). With ``done`` > 0 a first pass over the runs' boxes grown by
+    sqrt(``done``) only settles the pixels near their own run (most of a thread's: else a run
+    measures the pixels of its neighbours' segments first, against all its 8); the pass over
+    the ``r`` boxes then measures the rest as before: the same values where above ``done``."""
+    best = _band_best(cols, row_ptr, ox, oy, xy, r, done)
+    r2 = r * r
+    n = 0
+    for q in range(len(best)):
+        if best[q] <= r2:
+            n += 1
+    out = np.empty(n, np.float64)
+    n = 0
+    for q in range(len(best)):
+        if best[q] <= r2:
+            out[n] = best[q]
+            n += 1
+    return out
+
+
+@kernel(
+    "int64(float64[:, ::1], boolean[::1], float64, float64, int64[::1], int64[::1], float64, "
+    "float64, float64, float64, float64)"
+)
+def coverage_count(uv, inside, x0, y0, cols, row_ptr, ox, oy, cover_px, band_px, done):  # noqa: ANN001
+    """``check._coverage``'s count: the thread pixels (by rows, as for ``band_d2``) within
+    reach + 1.5 px of the polyline of the ``inside`` points of ``uv`` (N, 2), taken relative
+    to (x0, y0) and rounded to 1/4 px, where reach = ceil(``cover_px`` + half) and half the
+    thread's half-width: the thread pixels within ``band_px`` + 1.5 px over twice the
+    polyline's length (at least 1 px; half at most ``band_px``). The band is measured out to
+    ceil(``cover_px`` + ``band_px``) + 1.5 px, ``done`` as for ``band_d2``; the length is
+    numpy's sum (pairwise) of the unrounded steps. At least 2 points must be inside."""
+    m = 0
+    for k in range(len(uv)):
+        if inside[k]:
+            m += 1
+    xy = np.empty((m, 2))
+    m = 0
+    for k in range(len(uv)):
+        if inside[k]:
+            xy[m, 0] = uv[k, 0] - x0
+            xy[m, 1] = uv[k, 1] - y0
+            m += 1
+    steps = np.empty(m - 1)
+    for k in range(m - 1):
+        dx = xy[k + 1, 0] - xy[k, 0]
+        dy = xy[k + 1, 1] - xy[k, 1]
+        steps[k] = math.sqrt(dx * dx + dy * dy)
+    length = 0.0 + _pairwise_sum(steps, 0, m - 1)  # np.sum's order: identity, then pairwise
+    poly = np.empty((m, 2))
+    for k in range(m):
+        poly[k, 0] = np.rint(xy[k, 0] * 4.0) / 4.0  # as drawn with 2 fractional bits
+        poly[k, 1] = np.rint(xy[k, 1] * 4.0) / 4.0
+    widest = math.ceil(cover_px + band_px) + 1.5
+    best = _band_best(cols, row_ptr, ox, oy, poly, widest, done)
+    band_r2 = (band_px + 1.5) * (band_px + 1.5)
+    band = 0
+    for q in range(len(best)):
+        if best[q] <= band_r2:
+            band += 1
+    half = min(0.5 * band / max(length, 1.0), band_px)
+    reach = math.ceil(cover_px + half)
+    r2 = (reach + 1.5) * (reach + 1.5)
+    n = 0
+    for q in range(len(best)):
+        if best[q] <= r2:
+            n += 1
+    return n
+
+
+@kernel("float64(float64[::1], float64[::1], float64[::1], boolean[::1], float64)")
+def unmeasured_length(step3, step, z, supported, half_per_f):  # noqa: ANN001
+    """``check._unmeasured_length``: over each step with an unsupported end sample, ``step3``
+    less ``step * half_per_f * (z[k + 1] + z[k])`` (the 2D step at the mean depth), summed
+    where finite and positive as numpy sums with ``where`` (each run of counted values of the
+    free steps' array added pairwise in turn)."""
+    n = len(step)
+    extra = np.empty(n)
+    m = 0
+    for k in range(n):
+        if not (supported[k + 1] and supported[k]):
+            extra[m] = step3[k] - step[k] * half_per_f * (z[k + 1] + z[k])
+            m += 1
+    acc = 0.0
+    i = 0
+    while i < m:
+        if np.isfinite(extra[i]) and extra[i] > 0.0:
+            j = i
+            while j < m and np.isfinite(extra[j]) and extra[j] > 0.0:
+                j += 1
+            acc += _pairwise_sum(extra, i, j - i)
+            i = j
+        else:
+            i += 1
+    return acc
+
+
+@kernel("float64(float64[::1], boolean[::1])")
+def unsupported_travel(z, supported):  # noqa: ANN001
+    """``check._unsupported_travel``: the depth's total variation over each stretch between
+    two supported samples less its net change there, over each unsupported end the whole
+    variation, summed as numpy sums (pairwise); the whole variation (numpy's sum of |dz|)
+    when no sample is supported."""
+    n = len(z)
+    tv = np.empty(max(n - 1, 0))
+    for k in range(n - 1):
+        tv[k] = abs(z[k + 1] - z[k])
+    m = 0
+    for k in range(n):
+        if supported[k]:
+            m += 1
+    if m == 0:
+        return 0.0 + _pairwise_sum(tv, 0, n - 1)
+    csum = np.empty(n)  # np.cumsum's running sums after a leading 0
+    csum[0] = 0.0
+    for k in range(n - 1):
+        csum[k + 1] = tv[k] if k == 0 else csum[k] + tv[k]
+    edges = np.empty(m + 2, np.int64)
+    edges[0] = 0
+    edges[m + 1] = n - 1
+    m = 1
+    for k in range(n):
+        if supported[k]:
+            edges[m] = k
+            m += 1
+    extra = np.empty(m)
+    for k in range(m):
+        travel = csum[edges[k + 1]] - csum[edges[k]]
+        net = 0.0 if k == 0 or k == m - 1 else abs(z[edges[k + 1]] - z[edges[k]])
+        extra[k] = travel - net
+    return 0.0 + _pairwise_sum(extra, 0, m)
+
+
+@helper()
+def _pairwise_sum(a, lo, n):  # noqa: ANN001
+    """numpy's pairwise sum of the float64 values a[lo:lo + n] (its reduction's order: blocks
+    of up to 128 in 8 running sums; above that the two halves, split at a multiple of 8,
+    summed first and added), without recursion (an explicit stack of tasks)."""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    t_lo = np.empty(256, np.int64)  # tasks: (start, count, combine?); depth < 64 halvings
+    t_n = np.empty(256, np.int64)
+    t_add = np.empty(256, np.bool_)
+    vals = np.empty(256)
+    nt, nv = 1, 0
+    t_lo[0], t_n[0], t_add[0] = lo, n, False
+    while nt > 0:
+        nt -= 1
+        if t_add[nt]:  # both halves done: left + right
+            nv -= 1
+            vals[nv - 1] = vals[nv - 1] + vals[nv]
+        elif t_n[nt] <= 128:
+            vals[nv] = _block_sum(a, t_lo[nt], t_n[nt])
+            nv += 1
+        else:
+            s, m = t_lo[nt], t_n[nt]
+            m2 = m // 2
+            m2 -= m2 % 8
+            t_add[nt] = True  # after the right half (pushed next) and the left (on top)
+            t_lo[nt + 1], t_n[nt + 1], t_add[nt + 1] = s + m2, m - m2, False
+            t_lo[nt + 2], t_n[nt + 2], t_add[nt + 2] = s, m2, False
+            nt += 3
+    return vals[0]
+
+
+@helper()
+def _block_sum(a, lo, n):  # noqa: ANN001
+    """numpy's pairwise sum of at most 128 values: sequential below 8, else 8 running sums."""
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - n % 8:
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@helper()
+def _band_best(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
+    """``band_d2``'s least squared distance of each thread pixel (inf: none measured)."""
     h = len(row_ptr) - 1
     m = len(xy)
-    inf = np.inf
     if m == 0 or h <= 0 or len(cols) == 0:
-        return np.empty(0, np.float64)
+        return np.full(len(cols), np.inf)
     nseg = max(m - 1, 1)
     seg = np.empty((nseg, 5))  # per segment: start, direction, 1 / squared length (0: a point)
     for k in range(nseg):
@@ -228,7 +461,21 @@ def band_d2(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
         ll = dx * dx + dy * dy
         seg[k, 0], seg[k, 1], seg[k, 2], seg[k, 3] = xy[k, 0], xy[k, 1], dx, dy
         seg[k, 4] = 1.0 / ll if ll > 0.0 else 0.0
-    best = np.full(len(cols), inf)
+    best = np.full(len(cols), np.inf)
+    if done > 0.0:
+        _band_pass(cols, row_ptr, ox, oy, xy, seg, best, min(math.sqrt(done), r), done)
+    _band_pass(cols, row_ptr, ox, oy, xy, seg, best, r, done)
+    return best
+
+
+@helper()
+def _band_pass(cols, row_ptr, ox, oy, xy, seg, best, r, done):  # noqa: ANN001
+    """``band_d2``'s pass over the runs of 8 segments, their boxes grown by ``r``: ``best``
+    lowered to each measured segment's squared distance (a pixel at most ``done`` is left)."""
+    h = len(row_ptr) - 1
+    m = len(xy)
+    nseg = len(seg)
+    inf = np.inf
     for c0 in range(0, nseg, 8):  # runs of 8 segments: a pixel is visited once per run
         c1 = min(c0 + 8, nseg)
         cx0, cx1, cy0, cy1 = inf, -inf, inf, -inf
@@ -243,8 +490,14 @@ def band_d2(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
         si1 = min(h, int(math.ceil(cy1 + r - oy)) + 1)
         for i in range(si0, si1):
             y = i + oy
-            a = np.searchsorted(cols[row_ptr[i] : row_ptr[i + 1]], jlo) + row_ptr[i]
-            for q in range(a, row_ptr[i + 1]):
+            lo, hi = row_ptr[i], row_ptr[i + 1]
+            while lo < hi:  # the row's first column >= jlo (binary search)
+                mid = (lo + hi) >> 1
+                if cols[mid] < jlo:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            for q in range(lo, row_ptr[i + 1]):
                 if cols[q] > jhi:
                     break
                 b = best[q]
@@ -263,18 +516,6 @@ def band_d2(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001
                         if b <= done:
                             break
                 best[q] = b
-    r2 = r * r
-    n = 0
-    for q in range(len(best)):
-        if best[q] <= r2:
-            n += 1
-    out = np.empty(n, np.float64)
-    n = 0
-    for q in range(len(best)):
-        if best[q] <= r2:
-            out[n] = best[q]
-            n += 1
-    return out
 
 
 @kernel(
@@ -337,30 +578,3 @@ def cone_pixels(curve, tx, ty, wx, wy, mask, radius, cos, cover_px, margin):  # 
             along[n] = al
             n += 1
     return px[:n].copy(), along[:n].copy()
-
-
-@kernel("boolean[::1](int64[:, ::1], boolean[::1], float64[::1], float32[:, ::1], int64, float64)")
-def window_contradicted(q, ok, disp, img, near, tol):  # noqa: ANN001
-    """``check_support.contradicted`` per point: point i (``ok[i]``) at pixel ``q[i]`` (x, y)
-    of the image ``img`` (h, w) of reliable disparities (NaN: none) has a reliable pixel in
-    its (2 ``near`` + 1)^2 window and none within ``tol`` of its disparity ``disp[i]``."""
-    h, w = img.shape
-    out = np.zeros(len(q), dtype=np.bool_)
-    for i in range(len(q)):
-        if not ok[i]:
-            continue
-        seen = False
-        agrees = False
-        for y in range(q[i, 1] - near, q[i, 1] + near + 1):
-            if y < 0 or y >= h:
-                continue
-            for x in range(q[i, 0] - near, q[i, 0] + near + 1):
-                if x < 0 or x >= w:
-                    continue
-                v = np.float64(img[y, x])
-                if math.isfinite(v):
-                    seen = True
-                    if abs(v - disp[i]) <= tol:
-                        agrees = True
-        out[i] = seen and not agrees
-    return out

@@ -3,17 +3,18 @@
 A curve point is *contradicted* when reliable pixels of P_L^R lie within ``near_px`` of its
 left projection and none of them agrees with the curve's disparity within ``tol_px``: the
 images measure another depth there (a wrong branch at a crossing runs at one strand's depth
-over the other strand's pixels, or between them). The reliable pixels' disparities are kept as
-a sparse image over their bounding box, built once per stereo result (``check_field.derived``);
-each curve point reads the (2 near_px + 1)^2 window around it.
+over the other strand's pixels, or between them). The reliable pixels are kept by rows with
+their disparities (``reliable_rows``), built once per stereo result (``check_field.derived``)
+and shared with the check's disparity residual; each curve point reads the rows of the
+(2 near_px + 1)^2 window around it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from threadrecon.core.check_fast_kernel import rows_contradicted
 from threadrecon.core.check_field import derived
-from threadrecon.core.check_kernel import window_contradicted
 from threadrecon.core.reliability import ReliabilityResult
 from threadrecon.core.stereo import StereoResult
 
@@ -32,31 +33,41 @@ def contradicted(
     uv_l = np.asarray(uv_l, dtype=np.float64)
     if uv_l.ndim != 2 or uv_l.shape[1] != 2 or len(disp_curve) != len(uv_l):
         raise ValueError(f"uv_l must be (N, 2) with N disparities, got {uv_l.shape}")
-    x0, y0, img = derived(
-        (stereo.pixels, stereo.disparity, rel.reliable), "reliable_image",
-        lambda: _image(stereo, rel),
-    )  # fmt: skip
+    xs, row_ptr, y0, disp_rel = reliable_rows(stereo, rel)
     n = len(uv_l)
-    if img.size == 0 or n == 0:
+    if xs.size == 0 or n == 0:
         return np.zeros(n, dtype=bool)
     ok = np.all(np.isfinite(uv_l), axis=1) & np.isfinite(disp_curve)
-    q = np.rint(np.where(ok[:, None], uv_l, -1e6)).astype(np.int64) - [x0, y0]
+    q = np.rint(np.where(ok[:, None], uv_l, -1e6)).astype(np.int64)
     disp = np.ascontiguousarray(disp_curve, dtype=np.float64)
-    # compiled: the window of each point read in place (numpy built (N, K, K) index arrays)
-    return window_contradicted(q, ok, disp, img, int(near_px), float(tol_px))
+    # compiled: each point's window read from the rows (no image of the reliable pixels' box)
+    return rows_contradicted(xs, row_ptr, y0, disp_rel, q, ok, disp, int(near_px), float(tol_px))
 
 
-def _image(stereo: StereoResult, rel: ReliabilityResult) -> tuple[int, int, np.ndarray]:
-    """The reliable pixels' disparities on their bounding box (NaN elsewhere): x0, y0, image."""
+def reliable_rows(
+    stereo: StereoResult, rel: ReliabilityResult
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+    """The reliable pixels P_L^R by rows (CSR: x ascending per row, ``row_ptr`` from row
+    ``y0``) and their disparities, cached per stereo result."""
+    return derived(
+        (stereo.pixels, stereo.disparity, rel.reliable), "reliable_rows",
+        lambda: _rows(stereo, rel),
+    )  # fmt: skip
+
+
+def _rows(
+    stereo: StereoResult, rel: ReliabilityResult
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
     sel = np.flatnonzero(rel.reliable)
     if sel.size == 0:
-        return 0, 0, np.zeros((0, 0))
-    xy = np.asarray(stereo.pixels)[sel].astype(np.int64)
-    x0, y0 = int(xy[:, 0].min()), int(xy[:, 1].min())
-    # float32: a 1920x1080 thread's box is ~10 MB in float64, kept for a few frames; the
-    # disparities are compared at tol_px (~1 px), far above float32's 1e-5 px at 200 px
-    shape = (int(xy[:, 1].max()) - y0 + 1, int(xy[:, 0].max()) - x0 + 1)
-    img = np.full(shape, np.nan, dtype=np.float32)
-    img[xy[:, 1] - y0, xy[:, 0] - x0] = np.asarray(stereo.disparity, dtype=np.float32)[sel]
-    img.setflags(write=False)
-    return x0, y0, img
+        return np.zeros(0, np.int64), np.zeros(1, np.int64), 0, np.zeros(0)
+    xs = stereo.pixels[sel, 0].astype(np.int64)
+    ys = stereo.pixels[sel, 1].astype(np.int64)
+    disp = np.asarray(stereo.disparity, dtype=np.float64)[sel]
+    key = ys * (int(xs.max()) + 1) + xs
+    if np.any(np.diff(key) < 0):  # P_L comes in raster order; sort otherwise
+        order = np.argsort(key, kind="stable")
+        xs, ys, disp = xs[order], ys[order], disp[order]
+    y0 = int(ys[0])
+    row_ptr = np.searchsorted(ys, np.arange(y0, int(ys[-1]) + 2)).astype(np.int64)
+    return xs, row_ptr, y0, np.ascontiguousarray(disp)

@@ -132,3 +132,83 @@ def test_cone_pixels_are_the_fans_uncovered_thread_pixels() -> None:
         )
         assert np.array_equal(px, want_px), trial
         np.testing.assert_allclose(al, want_al, rtol=0, atol=1e-12)
+
+
+def _coverage_numpy(mask, uv, inside, x0, y0, bx, by, cover_px, band_px=8):  # noqa: ANN001, ANN202
+    """check._coverage's count as numpy ran it around band_d2 before coverage_count."""
+    xy = uv[inside] - [x0, y0]
+    poly = np.rint(xy * 4) / 4
+    length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
+    widest = int(np.ceil(cover_px + band_px)) + 1.5
+    done = (min(int(np.ceil(cover_px)), band_px) + 1.5) ** 2
+    d2 = band_d2(mask, float(bx - x0), float(by - y0), poly, widest, done)
+    band = float(np.count_nonzero(d2 <= (band_px + 1.5) ** 2))
+    half = min(0.5 * band / max(length, 1.0), band_px)
+    reach = int(np.ceil(cover_px + half))
+    return int(np.count_nonzero(d2 <= (reach + 1.5) ** 2)), done
+
+
+def test_coverage_count_is_the_numpy_count_around_the_band() -> None:
+    """Random masks and wiggly curves (some points outside), several cover distances: the
+    compiled count equals the count numpy made from band_d2's distances."""
+    rng = np.random.default_rng(8)
+    for trial in range(40):
+        mask = (rng.random((70, 90)) < rng.uniform(0.02, 0.5)).astype(np.uint8)
+        n = int(rng.integers(2, 300))
+        uv = np.cumsum(rng.normal(0, rng.uniform(0.3, 3.0), (n, 2)), axis=0) + [45, 35]
+        inside = rng.random(n) < 0.9
+        inside[:2] = True
+        x0, y0, bx, by = (int(v) for v in rng.integers(-5, 6, 4))
+        cover = float(rng.choice([0.0, 1.0, 2.5, 3.0, 7.0]))
+        want, done = _coverage_numpy(mask, uv, inside, x0, y0, bx, by, cover)
+        rows, cols = np.nonzero(mask)
+        row_ptr = np.searchsorted(rows, np.arange(mask.shape[0] + 1)).astype(np.int64)
+        got = check_kernel.coverage_count(
+            np.ascontiguousarray(uv), inside, float(x0), float(y0), cols.astype(np.int64),
+            row_ptr, float(bx - x0), float(by - y0), cover, 8.0, float(done),
+        )  # fmt: skip
+        assert got == want, trial
+
+
+def test_unmeasured_length_is_numpys_masked_sum() -> None:
+    """The compiled sum equals numpy's ``np.sum(extra, where=...)`` to the bit on random
+    steps, depths and supports, with non-finite steps and depths among them."""
+    rng = np.random.default_rng(12)
+    for trial in range(60):
+        n = int(rng.integers(2, 900))
+        step = rng.uniform(0.0, 3.0, n - 1)
+        step3 = step * rng.uniform(0.5, 2.0, n - 1)
+        z = rng.uniform(50.0, 150.0, n)
+        step[rng.random(n - 1) < 0.02] = np.nan
+        z[rng.random(n) < 0.01] = np.inf
+        supported = rng.random(n) < rng.uniform(0.0, 1.0)
+        half = 0.5 / float(rng.uniform(5.0, 20.0))
+        free = ~(supported[1:] & supported[:-1])
+        with np.errstate(invalid="ignore"):
+            extra = step3[free] - step[free] * half * (z[1:][free] + z[:-1][free])
+            want = float(np.sum(extra, where=np.isfinite(extra) & (extra > 0.0)))
+        got = check_kernel.unmeasured_length(step3, step, z, supported, half)
+        assert got == want, trial
+
+
+def _unsupported_numpy(z: np.ndarray, supported: np.ndarray) -> float:
+    """check._unsupported_travel as numpy ran it before the kernel."""
+    tv = np.abs(np.diff(z))
+    idx = np.flatnonzero(supported)
+    if idx.size == 0:
+        return float(tv.sum())
+    edges = np.concatenate([[0], idx, [len(z) - 1]])
+    csum = np.concatenate([[0.0], np.cumsum(tv)])
+    travel = csum[edges[1:]] - csum[edges[:-1]]
+    net = np.abs(z[edges[1:]] - z[edges[:-1]])
+    net[[0, -1]] = 0.0
+    return float(np.sum(travel - net))
+
+
+def test_unsupported_travel_is_numpys_to_the_bit() -> None:
+    rng = np.random.default_rng(13)
+    for _ in range(60):
+        n = int(rng.integers(2, 1200))
+        z = 100.0 + np.cumsum(rng.normal(0.0, rng.uniform(0.01, 2.0), n))
+        supported = rng.random(n) < rng.choice([0.0, 0.05, 0.5, 1.0])
+        assert check_kernel.unsupported_travel(z, supported) == _unsupported_numpy(z, supported)

@@ -41,10 +41,22 @@ def test_contradicted_handles_no_reliable_match_and_bad_points() -> None:
         contradicted(stereo, rel, np.zeros((3, 3)), np.zeros(3), 1, 1.0)
 
 
-def _contradicted_numpy(stereo, rel, uv, disp, near, tol):  # noqa: ANN001, ANN202
-    """contradicted as numpy ran it before the kernel: (N, K, K) windows gathered at once."""
-    from threadrecon.core.check_support import _image
+def _image(stereo, rel):  # noqa: ANN001, ANN202
+    """The reliable pixels' disparities (float32) on their bounding box, NaN elsewhere."""
+    sel = np.flatnonzero(rel.reliable)
+    if sel.size == 0:
+        return 0, 0, np.zeros((0, 0))
+    xy = np.asarray(stereo.pixels)[sel].astype(np.int64)
+    x0, y0 = int(xy[:, 0].min()), int(xy[:, 1].min())
+    shape = (int(xy[:, 1].max()) - y0 + 1, int(xy[:, 0].max()) - x0 + 1)
+    img = np.full(shape, np.nan, dtype=np.float32)
+    img[xy[:, 1] - y0, xy[:, 0] - x0] = np.asarray(stereo.disparity, dtype=np.float32)[sel]
+    return x0, y0, img
 
+
+def _contradicted_numpy(stereo, rel, uv, disp, near, tol):  # noqa: ANN001, ANN202
+    """contradicted as numpy ran it before the kernels: (N, K, K) windows gathered at once
+    from an image of the reliable disparities."""
     x0, y0, img = _image(stereo, rel)
     n = len(uv)
     if img.size == 0 or n == 0:
@@ -71,8 +83,10 @@ def test_compiled_windows_equal_the_numpy_windows() -> None:
     rng = np.random.default_rng(2)
     for _ in range(40):
         m = int(rng.integers(1, 300))
-        xy = np.column_stack([rng.integers(20, 80, m), rng.integers(10, 60, m)])
+        flat = rng.choice(60 * 50, size=m, replace=False)  # P_L's pixels are distinct
+        xy = np.column_stack([20 + flat % 60, 10 + flat // 60])
         stereo, rel = _matches([tuple(p) for p in xy], list(rng.uniform(5.0, 40.0, m)))
+        stereo.disparity[rng.random(m) < 0.05] = np.nan  # a match without a disparity
         rel.reliable[:] = rng.random(m) < 0.8
         n = int(rng.integers(0, 200))
         uv = rng.uniform(0.0, 100.0, (n, 2))

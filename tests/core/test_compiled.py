@@ -69,6 +69,7 @@ def test_a_reconstruction_loads_aot_kernels_without_numba(aot_run: dict) -> None
         "threadrecon.core.walk_kernel": "aot",
         "threadrecon.core.spline_kernel": "aot",
         "threadrecon.core.check_kernel": "aot",
+        "threadrecon.core.check_fast_kernel": "aot",
         "threadrecon.core.ridge_kernel": "aot",
         "threadrecon.core.grow_kernel": "aot",
         "threadrecon.core.segmentation": "aot",
