@@ -611,22 +611,28 @@ def _histogram_kernel(g):  # noqa: ANN001
 )
 def _scan_kernel(g):  # noqa: ANN001
     """One pass over a view's grey levels ``g`` (H, W): their float32 copy, the (256,) counts
-    of the levels (as :func:`_histogram_kernel`), and the least and greatest level of each row
-    and of each column (the box of any set of levels outside one interval, with no pass
-    over the image: :meth:`_Grey.box_of_levels`)."""
+    of the levels, and the least and greatest level of each row and of each column (the box of
+    any set of levels outside one interval, with no pass over the image:
+    :meth:`_Grey.box_of_levels`).
+
+    Counting: a row mostly at its first pixel's level (a flat background) counts that level in
+    a register while copying and sends only the other pixels to the tables; other rows go to
+    eight partial tables in turn (increments of one level do not wait on each other)."""
     h, w = g.shape
     f = np.empty((h, w), dtype=np.float32)
-    part = np.zeros((4, 256), dtype=np.int64)
+    part = np.zeros((8, 256), dtype=np.int64)
     rmin = np.empty(h, dtype=np.uint8)
     rmax = np.empty(h, dtype=np.uint8)
     cmin = np.full(w, 255, dtype=np.uint8)
     cmax = np.zeros(w, dtype=np.uint8)
-    m = w - w % 4
+    m = w - w % 8
     for y in range(h):
         row = g[y]
         fr = f[y]
+        ref = row[0]
         lo = np.uint8(255)
         hi = np.uint8(0)
+        same = 0
         for x in range(w):
             v = row[x]
             fr[x] = v
@@ -634,16 +640,27 @@ def _scan_kernel(g):  # noqa: ANN001
             hi = max(hi, v)
             cmin[x] = min(cmin[x], v)
             cmax[x] = max(cmax[x], v)
+            same += np.int64(v == ref)
         rmin[y] = lo
         rmax[y] = hi
-        for x in range(0, m, 4):
-            part[0, row[x]] += 1
-            part[1, row[x + 1]] += 1
-            part[2, row[x + 2]] += 1
-            part[3, row[x + 3]] += 1
-        for x in range(m, w):
-            part[0, row[x]] += 1
+        if 2 * same >= w:
+            part[0, ref] += same
+            k = 0
+            for x in range(w):
+                v = row[x]
+                if v != ref:
+                    part[k, v] += 1
+                    k = (k + 1) & 7
+        else:
+            for x in range(0, m, 8):
+                for k in range(8):
+                    part[k, row[x + k]] += 1
+            for x in range(m, w):
+                part[0, row[x]] += 1
     out = np.zeros(256, dtype=np.int64)
     for v in range(256):
-        out[v] = part[0, v] + part[1, v] + part[2, v] + part[3, v]
+        t = 0
+        for k in range(8):
+            t += part[k, v]
+        out[v] = t
     return f, out, rmin, rmax, cmin, cmax

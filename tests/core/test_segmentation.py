@@ -440,7 +440,8 @@ def test_one_scan_gives_the_float_copy_histogram_and_level_ranges_exactly() -> N
     rng = np.random.default_rng(17)
     for shape in ((7, 9), (120, 161), (3, 1), (1, 5)):
         img = rng.integers(0, 256, shape, dtype=np.uint8)
-        for view in (img, img[:, ::-1].copy()):
+        flat = np.where(rng.random(shape) < 0.3, img, np.uint8(rng.integers(0, 256)))
+        for view in (img, img[:, ::-1].copy(), flat):  # rows mostly at one level, or not
             g = _Grey(view)
             assert g.f32.dtype == np.float32 and np.array_equal(g.f32, view.astype(np.float32))
             assert np.array_equal(g.histogram(), np.bincount(view.ravel(), minlength=256))
