@@ -13,6 +13,7 @@ BFS passes run in one compiled kernel (numba) over the neighbour graph (CSR), bu
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 from dataclasses import dataclass
 from typing import Literal
@@ -118,11 +119,20 @@ def _neighbour_lists(pixels: np.ndarray, radius: int) -> tuple[np.ndarray, np.nd
     idx = np.full((y1 - y0 + 1 + 2 * radius, x1 - x0 + 1 + 2 * radius), -1, dtype=np.int32)
     x, y = pixels[:, 0] - x0 + radius, pixels[:, 1] - y0 + radius
     idx[y, x] = np.arange(n, dtype=np.int32)
+    dy, dx = _offsets(radius)
+    return _gather_kernel(idx, y.astype(np.int64), x.astype(np.int64), dy, dx)
+
+
+@functools.lru_cache(maxsize=16)
+def _offsets(radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """(dy, dx) int64 of the offsets within Manhattan distance ``radius`` (self excluded), in
+    row-major order; built once per radius (read-only: the cached arrays are shared)."""
     offsets = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
     offsets = [o for o in offsets if 0 < abs(o[0]) + abs(o[1]) <= radius]
     dy = np.array([o[0] for o in offsets], dtype=np.int64)
     dx = np.array([o[1] for o in offsets], dtype=np.int64)
-    return _gather_kernel(idx, y.astype(np.int64), x.astype(np.int64), dy, dx)
+    dy.flags.writeable = dx.flags.writeable = False
+    return dy, dx
 
 
 # --- compiled kernels ------------------------------------------------------------------------

@@ -71,15 +71,13 @@ def tip_disparity(
     if x - radius - d0 - radius < 0 or x + radius - d0 + radius >= W:
         return NO_MATCH
     A = I_L[y - radius : y + radius + 1, x - radius : x + radius + 1].astype(np.float64)
-    n = 2 * radius + 1
-    k = np.arange(n)
-    cols = (2 * radius - k)[:, None] + np.arange(n)[None, :]  # (shifts, n) into the strip
+    # shift d = d0 - radius + k lays the window on right columns x - radius - d + (0..n-1),
+    # on the row itself or ROW_SLACK above or below: every cost of the three rows at once
+    rows = slice(y - ROW_SLACK - radius, y + ROW_SLACK + radius + 1)
+    strip = I_R[rows, x - 2 * radius - d0 : x + 2 * radius - d0 + 1].astype(np.float64)
+    costs = walk_kernel.tip_costs(np.ascontiguousarray(A), strip, radius, ROW_SLACK)
     best: tuple[float, int, np.ndarray] | None = None
-    for dy in range(-ROW_SLACK, ROW_SLACK + 1):  # three rows: a handful of items
-        rows = slice(y + dy - radius, y + dy + radius + 1)
-        # shift d = d0 - radius + k lays the window on right columns x - radius - d + (0..n-1)
-        strip = I_R[rows, x - 2 * radius - d0 : x + 2 * radius - d0 + 1].astype(np.float64)
-        cost = np.mean((A[None, :, :] - strip[:, cols].transpose(1, 0, 2)) ** 2, axis=(1, 2))
+    for cost in costs:  # rows y - ROW_SLACK .. y + ROW_SLACK: a handful of items
         i = int(np.argmin(cost))
         if best is None or cost[i] < best[0]:
             best = (float(cost[i]), i, cost)

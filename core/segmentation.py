@@ -245,7 +245,16 @@ class _Grey:
 
     def __init__(self, image: np.ndarray) -> None:
         self.u8 = _grey8(image)
-        self.f32 = self.u8.astype(np.float32) if self.u8 is not None else to_grey(image)
+        self._hist: np.ndarray | None = None
+        self.rows: tuple[np.ndarray, np.ndarray] | None = None
+        """(H,) uint8 least and greatest level of each row (uint8 views)."""
+        self.cols: tuple[np.ndarray, np.ndarray] | None = None
+        """(W,) uint8 least and greatest level of each column (uint8 views)."""
+        if self.u8 is None:
+            self.f32 = to_grey(image)
+        else:  # one pass: the float32 copy, the histogram and the rows' and columns' ranges
+            self.f32, self._hist, rmin, rmax, cmin, cmax = _scan_kernel(self.u8)
+            self.rows, self.cols = (rmin, rmax), (cmin, cmax)
 
     def map(self, fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
         """``fn(f32)`` for a pixelwise ``fn`` returning float32 or bool."""
@@ -259,8 +268,27 @@ class _Grey:
     def histogram(self) -> np.ndarray:
         """(256,) int64 pixel counts of the grey levels 0..255 (values clipped to 0-255 and
         truncated to integers, as a uint8 conversion does)."""
+        if self._hist is not None:
+            return self._hist
         g = self.u8 if self.u8 is not None else np.clip(self.f32, 0, 255).astype(np.uint8)
         return _histogram_kernel(np.ascontiguousarray(g))
+
+    def box_of_levels(self, table: np.ndarray) -> tuple[int, int, int, int] | None:
+        """``cv2.boundingRect(cv2.LUT(u8, table))`` as (x, y, w, h) without the lookup of the
+        image, for a (256,) uint8 ``table`` whose zero levels form one run (else None: the
+        caller looks the image up): a row or column holds a nonzero entry iff its least or
+        greatest level does (its levels lie between the two)."""
+        if self.rows is None or self.cols is None:
+            return None
+        zero = np.flatnonzero(table == 0)
+        if zero.size and zero[-1] - zero[0] + 1 != zero.size:
+            return None
+        hit_r = (table[self.rows[0]] != 0) | (table[self.rows[1]] != 0)
+        ys = np.flatnonzero(hit_r)
+        if not ys.size:
+            return (0, 0, 0, 0)
+        xs = np.flatnonzero((table[self.cols[0]] != 0) | (table[self.cols[1]] != 0))
+        return (int(xs[0]), int(ys[0]), int(xs[-1] - xs[0] + 1), int(ys[-1] - ys[0] + 1))
 
 
 _LEVELS: Final = np.arange(256, dtype=np.float32)  # every grey level of a uint8 image
@@ -337,7 +365,18 @@ def _threshold(
     work is on the bounding box of what it marks."""
     threshold = level - p.seg_delta
     if p.method == "auto" and view.u8 is not None:
-        return _threshold_auto8(view.u8, level, p)
+        return _threshold_auto8(view, level, p)
+    if p.method != "auto" and view.u8 is not None:  # the lookup on P's box only (exact)
+        table = np.less(_LEVELS, threshold).view(np.uint8)
+        rect = view.box_of_levels(table)
+        if rect is not None:
+            out = np.zeros(view.u8.shape, bool)
+            x, y, w, h = rect
+            if w == 0:
+                return out, None
+            box = (slice(y, y + h), slice(x, x + w))
+            out[box] = drop_specks(cv2.LUT(view.u8[box], table).view(bool), p.min_component_px)
+            return out, box
     P = view.map(lambda g: g < threshold)
     if p.method == "auto":  # an instrument over a flat background is no thread
         P = _drop_wide(P, view, level, p.seg_delta)
@@ -350,23 +389,31 @@ def _threshold(
 
 
 def _threshold_auto8(
-    u8: np.ndarray, level: float, p: SegmentationParams
+    view: _Grey, level: float, p: SegmentationParams
 ) -> tuple[np.ndarray, tuple[slice, slice] | None]:
     """:func:`_threshold` of ``method="auto"`` for a uint8 view, the same P from one table
-    lookup of the image: bit 0 thread (below B - delta), bit 1 off the background level (what
-    :func:`_drop_wide` reads). Everything else works on the bounding box of the marked pixels
-    grown by _CLOSE_MARGIN, which holds P and the box :func:`_drop_wide` would take (a larger
+    lookup: bit 0 thread (below B - delta), bit 1 off the background level (what
+    :func:`_drop_wide` reads), looked up on the box of the marked pixels only (found from the
+    rows' and columns' level ranges, :meth:`_Grey.box_of_levels`). Everything else works on
+    the bounding box of the marked pixels grown by _CLOSE_MARGIN, which holds P and the box :func:`_drop_wide` would take (a larger
     box changes no value there: see it)."""
+    u8 = view.u8
     thread = np.less(_LEVELS, level - p.seg_delta)  # the table of view.map(g < B - delta)
-    codes = cv2.LUT(u8, (thread | (_off_level(_LEVELS, level, p.seg_delta) << 1)).astype(np.uint8))
-    x, y, w, h = cv2.boundingRect(codes)
+    table = (thread | (_off_level(_LEVELS, level, p.seg_delta) << 1)).astype(np.uint8)
+    rect = view.box_of_levels(table)  # the box of the marked pixels, without a lookup
+    codes = None
+    if rect is None:
+        codes = cv2.LUT(u8, table)
+        rect = cv2.boundingRect(codes)
+    x, y, w, h = rect
     out = np.zeros(u8.shape, bool)
     if w == 0:
         return out, None
     H, W = u8.shape
     m = _CLOSE_MARGIN
     y0, y1, x0, x1 = max(y - m, 0), min(y + h + m, H), max(x - m, 0), min(x + w + m, W)
-    cb = codes[y0:y1, x0:x1]
+    # the lookup on the box only: the same codes there
+    cb = codes[y0:y1, x0:x1] if codes is not None else cv2.LUT(u8[y0:y1, x0:x1], table)
     P = cv2.bitwise_and(cb, 1)
     parts = _wide_parts(cv2.compare(cb, 2, cv2.CMP_GE))  # off8: 255 off the level
     if parts is not None:  # the shaft, then the jaws attached to it (wider than the thread)
@@ -556,3 +603,64 @@ def _histogram_kernel(g):  # noqa: ANN001
     for v in range(256):
         out[v] = part[0, v] + part[1, v] + part[2, v] + part[3, v]
     return out
+
+
+@kernel(
+    "Tuple((float32[:, ::1], int64[::1], uint8[::1], uint8[::1], uint8[::1], uint8[::1]))"
+    "(uint8[:, ::1])"
+)
+def _scan_kernel(g):  # noqa: ANN001
+    """One pass over a view's grey levels ``g`` (H, W): their float32 copy, the (256,) counts
+    of the levels, and the least and greatest level of each row and of each column (the box of
+    any set of levels outside one interval, with no pass over the image:
+    :meth:`_Grey.box_of_levels`).
+
+    Counting: a row mostly at its first pixel's level (a flat background) counts that level in
+    a register while copying and sends only the other pixels to the tables; other rows go to
+    eight partial tables in turn (increments of one level do not wait on each other)."""
+    h, w = g.shape
+    f = np.empty((h, w), dtype=np.float32)
+    part = np.zeros((8, 256), dtype=np.int64)
+    rmin = np.empty(h, dtype=np.uint8)
+    rmax = np.empty(h, dtype=np.uint8)
+    cmin = np.full(w, 255, dtype=np.uint8)
+    cmax = np.zeros(w, dtype=np.uint8)
+    m = w - w % 8
+    for y in range(h):
+        row = g[y]
+        fr = f[y]
+        ref = row[0]
+        lo = np.uint8(255)
+        hi = np.uint8(0)
+        same = 0
+        for x in range(w):
+            v = row[x]
+            fr[x] = v
+            lo = min(lo, v)
+            hi = max(hi, v)
+            cmin[x] = min(cmin[x], v)
+            cmax[x] = max(cmax[x], v)
+            same += np.int64(v == ref)
+        rmin[y] = lo
+        rmax[y] = hi
+        if 2 * same >= w:
+            part[0, ref] += same
+            k = 0
+            for x in range(w):
+                v = row[x]
+                if v != ref:
+                    part[k, v] += 1
+                    k = (k + 1) & 7
+        else:
+            for x in range(0, m, 8):
+                for k in range(8):
+                    part[k, row[x + k]] += 1
+            for x in range(m, w):
+                part[0, row[x]] += 1
+    out = np.zeros(256, dtype=np.int64)
+    for v in range(256):
+        t = 0
+        for k in range(8):
+            t += part[k, v]
+        out[v] = t
+    return f, out, rmin, rmax, cmin, cmax

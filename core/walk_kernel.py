@@ -442,3 +442,101 @@ def grid_neighbours(index, y, x):  # noqa: ANN001
                     out[i, k] = index[y[i] + dy, x[i] + dx]
                     k += 1
     return out
+
+
+@helper(inline="always")
+def _pairwise_block(a, lo, n):  # noqa: ANN001
+    """numpy's pairwise sum of a block of n <= 128 values a[lo:lo + n]: fewer than 8 in turn;
+    else 8 running sums combined as ((0 + 1) + (2 + 3)) + ((4 + 5) + (6 + 7)), then the rest
+    in turn."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    m = n - n % 8
+    for i in range(lo + 8, lo + m, 8):
+        r0 += a[i]
+        r1 += a[i + 1]
+        r2 += a[i + 2]
+        r3 += a[i + 3]
+        r4 += a[i + 4]
+        r5 += a[i + 5]
+        r6 += a[i + 6]
+        r7 += a[i + 7]
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    for i in range(lo + m, lo + n):
+        res += a[i]
+    return res
+
+
+@helper(inline="always")
+def _pairwise_half(n):  # noqa: ANN001
+    """Where numpy's pairwise sum splits n > 128 values: half, rounded down to a multiple
+    of 8."""
+    n2 = n // 2
+    return n2 - n2 % 8
+
+
+@helper()
+def _pairwise_sum(a, lo, n):  # noqa: ANN001
+    """numpy's pairwise sum of a[lo:lo + n] (float64, contiguous), the same additions in the
+    same order (what ``np.sum`` of a contiguous block does): blocks of at most 128 values
+    (:func:`_pairwise_block`), a longer run split at :func:`_pairwise_half` and the two sums
+    added, left + right. The split tree is walked with a stack (no recursion: the
+    ahead-of-time build takes none)."""
+    if n <= 128:
+        return _pairwise_block(a, lo, n)
+    n2 = _pairwise_half(n)
+    if n - n2 <= 128:  # one split (up to ~256 values: a 15 x 15 window)
+        return _pairwise_block(a, lo, n2) + _pairwise_block(a, lo + n2, n - n2)
+    depth = 64  # splits halve n: far more levels than any array has
+    s_lo = np.empty(depth, dtype=np.int64)
+    s_n = np.empty(depth, dtype=np.int64)
+    s_left = np.zeros(depth, dtype=np.bool_)  # the left half's sum is in s_val
+    s_val = np.empty(depth)
+    top = 0
+    s_lo[0], s_n[0], s_left[0] = lo, n, False
+    while True:
+        if s_n[top] > 128:  # descend into the left half
+            h = _pairwise_half(s_n[top])
+            top += 1
+            s_lo[top], s_n[top], s_left[top] = s_lo[top - 1], h, False
+            continue
+        v = _pairwise_block(a, s_lo[top], s_n[top])
+        top -= 1
+        while True:  # hand v up: a left half waits for its right one, a right one completes
+            if top < 0:
+                return v
+            if not s_left[top]:
+                s_left[top], s_val[top] = True, v
+                h = _pairwise_half(s_n[top])
+                top += 1
+                s_lo[top], s_n[top], s_left[top] = s_lo[top - 1] + h, s_n[top - 1] - h, False
+                break
+            v = s_val[top] + v
+            top -= 1
+
+
+@kernel("float64[:, ::1](float64[:, ::1], float64[:, ::1], int64, int64)")
+def tip_costs(A, strip, radius, slack):  # noqa: ANN001
+    """The SSD curves of :func:`threadrecon.core.ends.tip_disparity`: row t (the right row
+    offset t - ``slack``), column k (shift d0 - radius + k) is the mean of the squared
+    differences between the left window ``A`` (n, n), n = 2 radius + 1, and the right window
+    at rows t..t+n-1 and columns 2 radius - k .. 3 radius - k + n - 1 of ``strip`` (n + 2
+    slack, 4 radius + 1), summed as ``np.mean`` of the (shifts, n, n) block does: each
+    shift's n^2 squares in one pairwise sum, then divided by n^2."""
+    n = 2 * radius + 1
+    out = np.empty((2 * slack + 1, n))
+    sq = np.empty(n * n)
+    for t in range(2 * slack + 1):
+        for k in range(n):
+            c0 = 2 * radius - k
+            for r in range(n):
+                for j in range(n):
+                    v = A[r, j] - strip[t + r, c0 + j]
+                    sq[r * n + j] = v * v
+            out[t, k] = _pairwise_sum(sq, 0, n * n) / (n * n)
+    return out

@@ -232,3 +232,27 @@ def test_an_end_both_views_show_is_extended_as_before() -> None:
         ReconParams(ordering=OrderingParams(tip_views="left")), until="ordering"
     )["ordering"]
     assert np.array_equal(o_both.path_px, o_left.path_px)
+
+
+@pytest.mark.parametrize("radius", [1, 3, 7, 8, 12, 25, 50])
+def test_tip_costs_are_the_numpy_means_bit_for_bit(radius: int) -> None:
+    """The compiled SSD curves of tip_disparity equal ``np.mean`` of the (shifts, n, n) block
+    of squared differences bit for bit: n^2 below 8, up to 128, one split (n = 15) and the
+    split tree of numpy's pairwise sum (n^2 = 10201); grey levels and real-valued images."""
+    from threadrecon.core.walk_kernel import tip_costs
+
+    rng = np.random.default_rng(radius)
+    n = 2 * radius + 1
+    for trial in range(20):
+        shape = (n + 2, 4 * radius + 1)
+        strip = rng.integers(0, 256, shape).astype(np.float64)
+        A = rng.integers(0, 256, (n, n)).astype(np.float64)
+        if trial % 2:
+            strip, A = strip + rng.normal(0, 30, shape), A * 0.37 + rng.normal(0, 3, (n, n))
+        got = tip_costs(A, strip, radius, 1)
+        k = np.arange(n)
+        cols = (2 * radius - k)[:, None] + np.arange(n)[None, :]
+        for t in range(3):
+            rows = strip[t : t + n]
+            want = np.mean((A[None, :, :] - rows[:, cols].transpose(1, 0, 2)) ** 2, axis=(1, 2))
+            assert np.array_equal(got[t], want), (trial, t)

@@ -367,12 +367,14 @@ def _full_image_reference(pair: StereoPair, p: SegmentationParams) -> dict[str, 
         hist = np.bincount(image.ravel(), minlength=256)
         bg = float(np.argmax(hist)) if p.background is None else float(p.background)
         P = grey < bg - p.seg_delta
-        off = (np.abs(grey - np.float32(bg)) > np.float32(p.seg_delta)).astype(np.uint8) * 255
-        off = cv2.morphologyEx(off, cv2.MORPH_CLOSE, cv2.getStructuringElement(2, (5, 5)))
-        core = cv2.erode(off, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (21, 21)))
-        wide = cv2.dilate(core, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (25, 25))) > 0
-        # The jaws' rule on the whole image: parts wider than the thread reaching the bar
-        P = drop_specks(drop_attached(P & ~wide, wide, off > 0), p.min_component_px)
+        if p.method == "auto":  # the instrument's wide parts left out
+            off = (np.abs(grey - np.float32(bg)) > np.float32(p.seg_delta)).astype(np.uint8) * 255
+            off = cv2.morphologyEx(off, cv2.MORPH_CLOSE, cv2.getStructuringElement(2, (5, 5)))
+            core = cv2.erode(off, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (21, 21)))
+            wide = cv2.dilate(core, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (25, 25))) > 0
+            # The jaws' rule on the whole image: parts wider than the thread reaching the bar
+            P = drop_attached(P & ~wide, wide, off > 0)
+        P = drop_specks(P, p.min_component_px)
         scale = 1.0 / (2.0 * max(p.seg_delta, 1.0))
         out["P_" + side] = P
         out["score_" + side] = np.clip((bg - grey) * scale, 0.0, 1.0).astype(np.float32)
@@ -383,8 +385,9 @@ def _full_image_reference(pair: StereoPair, p: SegmentationParams) -> dict[str, 
     return out
 
 
+@pytest.mark.parametrize("method", ["auto", "threshold"])
 @pytest.mark.parametrize("seed", range(6))
-def test_threshold_path_equals_the_whole_image_formulas_bit_for_bit(seed: int) -> None:
+def test_threshold_path_equals_the_whole_image_formulas_bit_for_bit(seed: int, method: str) -> None:
     """Tables per grey level and work on the thread's bounding box change no value: random
     flat frames with dark curves, specks, a wide bar, noise, odd levels and deltas."""
     rng = np.random.default_rng(seed)
@@ -403,7 +406,7 @@ def test_threshold_path_equals_the_whole_image_formulas_bit_for_bit(seed: int) -
         views.append(np.clip(img + noise, 0, 255).astype(np.uint8))
     pair = StereoPair(views[0], views[1])
     p = SegmentationParams(
-        method="auto",
+        method=method,
         flat_share=0.0,  # auto always thresholds: its wide-part removal is tested too
         seg_delta=0.0 if seed == 0 else float(rng.choice([3.0, 6.0, 6.5, 17.3])),
         background=background,
@@ -429,6 +432,47 @@ def test_compiled_histogram_counts_every_grey_level_exactly() -> None:
         assert hist.dtype == np.int64 and np.array_equal(
             hist, np.bincount(img.ravel(), minlength=256)
         )
+
+
+def test_one_scan_gives_the_float_copy_histogram_and_level_ranges_exactly() -> None:
+    from threadrecon.core.segmentation import _Grey
+
+    rng = np.random.default_rng(17)
+    for shape in ((7, 9), (120, 161), (3, 1), (1, 5)):
+        img = rng.integers(0, 256, shape, dtype=np.uint8)
+        flat = np.where(rng.random(shape) < 0.3, img, np.uint8(rng.integers(0, 256)))
+        for view in (img, img[:, ::-1].copy(), flat):  # rows mostly at one level, or not
+            g = _Grey(view)
+            assert g.f32.dtype == np.float32 and np.array_equal(g.f32, view.astype(np.float32))
+            assert np.array_equal(g.histogram(), np.bincount(view.ravel(), minlength=256))
+            assert np.array_equal(g.rows[0], view.min(axis=1))
+            assert np.array_equal(g.rows[1], view.max(axis=1))
+            assert np.array_equal(g.cols[0], view.min(axis=0))
+            assert np.array_equal(g.cols[1], view.max(axis=0))
+
+
+def test_box_of_levels_is_the_bounding_box_of_the_looked_up_image() -> None:
+    """The box from the rows' and columns' level ranges equals cv2.boundingRect of the table
+    lookup for every table whose zero levels form one run (empty, all, one level, none); other
+    tables are left to the lookup (None)."""
+    from threadrecon.core.segmentation import _Grey
+
+    rng = np.random.default_rng(3)
+    for trial in range(200):
+        h, w = rng.integers(1, 40, size=2)
+        img = np.full((h, w), rng.integers(0, 256), np.uint8)
+        k = rng.integers(0, 6)
+        ys, xs = rng.integers(0, h, k), rng.integers(0, w, k)
+        img[ys, xs] = rng.integers(0, 256, k)  # a few pixels at other levels
+        a = int(rng.integers(0, 257))
+        b = int(rng.integers(a, 258))
+        table = np.ones(256, np.uint8) * np.uint8(rng.integers(1, 4))
+        table[a:b] = 0  # zero levels: one run [a, b), possibly empty or all
+        expected = cv2.boundingRect(cv2.LUT(img, table))
+        assert _Grey(img).box_of_levels(table) == tuple(expected), trial
+    table = np.zeros(256, np.uint8)
+    table[[10, 200]] = 1  # the zero levels form two runs: no box from the ranges
+    assert _Grey(img).box_of_levels(table) is None
 
 
 def test_threshold_score_is_computed_on_first_read_once_and_survives_copies() -> None:
