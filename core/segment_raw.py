@@ -35,7 +35,7 @@ from threadrecon.core.ridge_kernel import (
     upsample_max,
     values_at,
 )
-from threadrecon.core.segment_surface import SurfaceTest, undecidable
+from threadrecon.core.segment_surface import SAME_DISPARITY_PX, SurfaceTest, undecidable
 
 if TYPE_CHECKING:
     from threadrecon.core.segmentation import SegmentationParams
@@ -393,14 +393,25 @@ def _select(
             # a part of that mark (one line cut in two by a faint stretch of it); one too short
             # for the test to ever decide (fewer blocks than it needs) is taken for one more
             # of the marks of its dye found in the frame.
-            if not _a_mark(votes) and not (
+            is_mark = split = _a_mark(votes)
+            if is_mark and not nearest_hue:  # a thread merged with fibres: its part floats
+                is_mark, votes = _a_mark_of_one_dye(views, i, lab_on == best, on, D, votes)
+                votes_of[best] = votes
+                split = not is_mark  # (then its own part is seen in front of the tissue)
+            if not is_mark and not (
                 np.all(votes < 0)
                 and (
                     _continues(v, on, lab_on, best, marks, delta, length)
                     or _like_a_mark(v, on[lab_on == best], best, marks, delta)
                 )
             ):
-                if nearest_hue and not _floats(votes):
+                if (
+                    nearest_hue
+                    and not _floats(votes)
+                    and not _at_tissue_disparity(
+                        views, i, on[lab_on == best], [on[lab_on == m] for m in marks], D
+                    )
+                ):
                     # undecided or moving with the tissue in part: not told from a vessel of
                     # its hue (it may still join a thread found in front of the tissue)
                     skipped += 1
@@ -410,8 +421,11 @@ def _select(
                     rank[best] = -1.0
                     best = int(np.argmax(rank))
                     continue
-                floating &= _floats(votes)
-                break
+                if not nearest_hue or _floats(votes):
+                    floating &= split or _floats(votes)
+                    break
+            # (a blood-like piece the surface test left open, at the tissue's own disparity:
+            # a vessel, as a mark)
             marks.append(best)
             k[best] = False
             rank[best] = -1.0
@@ -464,6 +478,7 @@ def _select(
         if by_hue:
             k &= _same_dye(dye, d_best) > _same_dye(dye, d_vessel)
         k[0] = k[best] = False
+        candidates = k.copy()  # the pieces of the thread's dye, bright enough to join it
         # A joining piece is no mark on the tissue either (a fibre as light as a white thread);
         # among blood-like pieces it is seen in front of the tissue, as the chosen one.
         others = np.flatnonzero(k)
@@ -473,8 +488,12 @@ def _select(
             votes = votes_of[j] = _surface_votes(views, i, lab_on == j, on, D)
             # among blood-like pieces, one seen in front of the tissue at least in part (a
             # part of the thread merged with a vessel where they cross)
-            k[j] = not _a_mark(votes) and (not nearest_hue or np.any(votes == 0))
-            if _a_mark(votes):
+            is_mark = _a_mark(votes)
+            if is_mark and not nearest_hue:  # a thread merged with fibres: its part floats
+                is_mark, votes = _a_mark_of_one_dye(views, i, lab_on == j, on, D, votes)
+                votes_of[j] = votes
+            k[j] = not is_mark and (not nearest_hue or np.any(votes == 0))
+            if is_mark:
                 marks.append(j)
         # An undecided piece that is a fragment of a mark of its dye (as in the choice above)
         # does not join either: a fibre cut in two by a faint stretch or by the instrument.
@@ -485,6 +504,19 @@ def _select(
                     or _like_a_mark(v, on[lab_on == j], j, marks, delta)
                 )
         k[best] = True
+        if nearest_hue:
+            # A red thread's fragments between the vessels it crosses are too short for the
+            # surface test: they join at the thread's own disparity.
+            undecided = [j for j in np.flatnonzero(candidates).tolist()
+                         if not k[j] and np.all(votes_of.get(j, _NO_VOTE) < 0)]  # fmt: skip
+            floating_px = np.concatenate(
+                [on[lab_on == j][votes_of[j] != 1] for j in np.flatnonzero(k) if j in votes_of]
+            )
+            marks_px = [on[lab_on == j] for j in marks]
+            for j in _at_thread_disparity(
+                views, i, on, lab_on, floating_px, marks_px, undecided, D
+            ):
+                k[j] = True
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece),
         # nor, in a piece moving with the tissue in part, that part (a mark merged with it).
@@ -501,6 +533,128 @@ def _select(
         v.grey_core = _grey_contrast(v, v.rows[px], v.cols[px])
         out.append(core)
     return out, salience, cos_vessels, floating
+
+
+_NO_VOTE: Final = np.full(1, -1, np.int8)  # a piece the surface test did not look at
+_THREAD_SLOPE: Final = 0.1  # a thread's disparity changes by <= 0.1 px per px along it (its
+# depth slope: the ordering's DISPARITY_SLOPE)
+_LOCAL_PX: Final = 32  # the thread's disparity next to a fragment: its pixels within 32 px
+_MAX_GAP_PX: Final = 64  # a fragment farther from the thread than this is not judged by it
+
+
+def _at_thread_disparity(
+    views: list[_View],
+    i: int,
+    on: np.ndarray,
+    lab_on: np.ndarray,
+    thread: np.ndarray,
+    marks: list[np.ndarray],
+    cands: list[int],
+    d: int,
+) -> list[int]:
+    """Of the pieces ``cands`` of view ``i`` (undecided by the surface test), those at the
+    thread's own disparity where they come near it: the disparity of the piece
+    (:meth:`SurfaceTest.disparity`) is within SAME_DISPARITY_PX + _THREAD_SLOPE x gap of that
+    of the thread's pixels within _LOCAL_PX of the point where the piece comes nearest (gap <=
+    _MAX_GAP_PX, counted up to _LOCAL_PX), and not at the disparity of the tissue: of the
+    background around it (where that resolves, :meth:`SurfaceTest.background_disparity`) or
+    of the nearest of the ``marks`` (lo pixels of the pieces found to be marks on it).
+
+    The thread is its lo pixels ``thread`` not voted "on the surface"; a piece taken extends
+    it (the nearest first). A vessel crossing the thread lies on the tissue behind it, at the
+    tissue's disparity; the thread's fragments between the vessels it crosses are too short
+    for the block-wise surface test (fewer blocks than it needs)."""
+    v = views[i]
+    if not cands:
+        return []
+    st = _surface_test(views, i, d)
+    pts = {j: (v.rows[on[lab_on == j]], v.cols[on[lab_on == j]]) for j in cands}
+    own = {j: st.disparity(*pts[j]) for j in cands}
+    left = [j for j in cands if own[j] is not None]
+    tr, tc = v.rows[thread], v.cols[thread]
+    mark_d: dict[int, int | None] = {}  # the marks' disparities, as needed
+    taken: list[int] = []
+    while left and len(tr):
+        # the candidate nearest to the thread (on sampled pixels: the gap within ~2 px)
+        step_t = max(len(tr) // 512, 1)
+        sr, sc = tr[::step_t].astype(np.float64), tc[::step_t].astype(np.float64)
+        best_j, best_gap, best_at = -1, np.inf, (0.0, 0.0)
+        for j in left:
+            r, c = pts[j]
+            step = max(len(r) // 64, 1)
+            dist = np.hypot(r[::step, None] - sr[None], c[::step, None] - sc[None])
+            a, b = np.unravel_index(int(np.argmin(dist)), dist.shape)
+            if dist[a, b] < best_gap:
+                best_j, best_gap, best_at = j, float(dist[a, b]), (sr[b], sc[b])
+        if best_gap > _MAX_GAP_PX:
+            break
+        left.remove(best_j)
+        gap_t = np.hypot(tr - best_at[0], tc - best_at[1])
+        # (a stretch along the rows has no disparity of its own: a longer one then)
+        d_thread = st.disparity(tr[gap_t <= _LOCAL_PX], tc[gap_t <= _LOCAL_PX])
+        if d_thread is None:
+            d_thread = st.disparity(tr[gap_t <= 2 * _LOCAL_PX], tc[gap_t <= 2 * _LOCAL_PX])
+        if d_thread is None:
+            continue
+        d_bg = st.background_disparity(*pts[best_j])
+        d_mark = _nearest_mark_disparity(st, v, marks, mark_d, pts[best_j])
+        tol = SAME_DISPARITY_PX + _THREAD_SLOPE * min(best_gap, _LOCAL_PX)
+        if abs(own[best_j] - d_thread) <= tol and not any(
+            t is not None and abs(own[best_j] - t) <= SAME_DISPARITY_PX for t in (d_bg, d_mark)
+        ):
+            taken.append(best_j)
+            tr = np.concatenate([tr, pts[best_j][0]])
+            tc = np.concatenate([tc, pts[best_j][1]])
+    return taken
+
+
+def _at_tissue_disparity(
+    views: list[_View], i: int, px: np.ndarray, marks: list[np.ndarray], d: int
+) -> bool:
+    """Whether the piece of view ``i`` of lo pixels ``px`` has a disparity of its own
+    (:meth:`SurfaceTest.disparity`) within SAME_DISPARITY_PX of the tissue's: of the background
+    of its block (where that resolves) or of the nearest of the ``marks`` (lo pixels of the
+    pieces found to be marks on the tissue). A piece the block-wise surface test left open
+    (too few blocks resolve) that matches the tissue's disparity is a mark on it too."""
+    v = views[i]
+    st = _surface_test(views, i, d)
+    rows, cols = v.rows[px], v.cols[px]
+    own = st.disparity(rows, cols)
+    if own is None:
+        return False
+    refs = (st.background_disparity(rows, cols),
+            _nearest_mark_disparity(st, v, marks, {}, (rows, cols)))  # fmt: skip
+    return any(t is not None and abs(own - t) <= SAME_DISPARITY_PX for t in refs)
+
+
+def _surface_test(views: list[_View], i: int, d: int) -> SurfaceTest:
+    """View ``i``'s :class:`SurfaceTest` against the other view (made once, on demand)."""
+    v = views[i]
+    if v._surface is None or v._surface.dmax != d:
+        v._surface = SurfaceTest(v.grey(), views[1 - i].grey(), v.far(), d, look_left=(i == 0))
+    return v._surface
+
+
+def _nearest_mark_disparity(
+    st: SurfaceTest, v: _View, marks: list[np.ndarray], known: dict, pts: tuple
+) -> int | None:
+    """The disparity (:meth:`SurfaceTest.disparity`) of the mark (lo pixels, of ``marks``)
+    nearest to the pixels ``pts`` (rows, cols) (on sampled pixels), None without marks; the
+    marks' disparities are cached in ``known`` by index."""
+    if not marks:
+        return None
+    r, c = pts
+    step = max(len(r) // 64, 1)
+    r, c = r[::step, None].astype(np.float64), c[::step, None].astype(np.float64)
+    gaps = []
+    for px in marks:
+        s = max(len(px) // 256, 1)
+        mr, mc = v.rows[px[::s]], v.cols[px[::s]]
+        gaps.append(float(np.min(np.hypot(r - mr[None], c - mc[None]))))
+    m = int(np.argmin(gaps))
+    if m not in known:
+        known[m] = st.disparity(v.rows[marks[m]], v.cols[marks[m]])
+    return known[m]
 
 
 def _near_blood(v: _View, core: np.ndarray) -> bool:
@@ -538,21 +692,62 @@ _GLINT_SIDE_PX: Final = 3  # a highlight along a thread <= 6 px wide: its sides 
 
 def _main_dye(d_px: np.ndarray, votes: np.ndarray, mean: np.ndarray) -> np.ndarray:
     """The contrast (C,) of a piece: its mean contrast ``mean`` (C,), or, when its pixels'
-    contrasts ``d_px`` (M, C) split by brightness sign into two parts of >= _MIXED_SHARE each
-    and of different dyes (:func:`_same_dye` < _SAME_DYE_COS: a dark thread and a light fibre
-    that cross), the mean of the part with more pixels voted in front of the tissue (surface
-    ``votes`` (M,), :func:`_surface_votes`; a fibre is a mark on it)."""
-    dark = d_px[:, 0] < 0
-    n_dark = int(np.count_nonzero(dark))
-    if min(n_dark, len(dark) - n_dark) < _MIXED_SHARE * len(dark):
-        return mean
-    parts = [d_px[dark].mean(axis=0), d_px[~dark].mean(axis=0)]
-    if _same_dye(parts[0][None], parts[1])[0] >= _SAME_DYE_COS:
+    contrasts ``d_px`` (M, C) are of two dyes (:func:`_two_dyes`: a dark thread and a light
+    fibre that cross), the mean of the part with more pixels voted in front of the tissue
+    (surface ``votes`` (M,), :func:`_surface_votes`; a fibre is a mark on it)."""
+    dark = _two_dyes(d_px)
+    if dark is None:
         return mean
     floats = [int(np.count_nonzero(votes[part] == 0)) for part in (dark, ~dark)]
     if floats[0] == floats[1]:
         return mean  # nothing tells the two apart
-    return parts[int(np.argmax(floats))]
+    part = dark if floats[0] > floats[1] else ~dark
+    return d_px[part].mean(axis=0)
+
+
+def _two_dyes(d_px: np.ndarray) -> np.ndarray | None:
+    """(M,) bool, the darker part of a piece's pixels (contrasts ``d_px`` (M, C)) when they
+    split by brightness sign into two parts of >= _MIXED_SHARE each and of different dyes
+    (:func:`_same_dye` < _SAME_DYE_COS), else None."""
+    dark = d_px[:, 0] < 0
+    n_dark = int(np.count_nonzero(dark))
+    if min(n_dark, len(dark) - n_dark) < _MIXED_SHARE * len(dark):
+        return None
+    parts = [d_px[dark].mean(axis=0), d_px[~dark].mean(axis=0)]
+    if _same_dye(parts[0][None], parts[1])[0] >= _SAME_DYE_COS:
+        return None
+    return dark
+
+
+def _a_mark_of_one_dye(
+    views: list[_View], i: int, sel: np.ndarray, on: np.ndarray, d: int, votes: np.ndarray
+) -> tuple[bool, np.ndarray]:
+    """Whether a piece of view ``i`` (its lo pixels ``on[sel]``, surface ``votes`` (M,)) is a
+    mark on the tissue (:func:`_a_mark`) as a whole, and its votes: not when it is of two dyes
+    (:func:`_two_dyes`) and the part of one of them, tested alone, is seen in front of the
+    tissue (:func:`_floats`); that part's pixels then take their own votes. A thread merged
+    with the fibres it crosses is one piece whose votes the fibres outnumber: a block that
+    holds both takes the fibres' disparity. (It loses the fibres' part later:
+    :func:`_mark_part` and the pixels' dye.) One more surface test, on such pieces only."""
+    if not _a_mark(votes):
+        return False, votes
+    v = views[i]
+    px = on[sel]
+    dark = _two_dyes(v.delta[px])
+    if dark is None:
+        return True, votes
+    # the part that votes "on the surface" least (the other made the piece a mark)
+    share = [np.count_nonzero(votes[m] == 1) / max(np.count_nonzero(votes[m] >= 0), 1)
+             for m in (dark, ~dark)]  # fmt: skip
+    part = dark if share[0] <= share[1] else ~dark
+    sub = np.zeros(len(on), bool)
+    sub[np.flatnonzero(sel)[part]] = True
+    own = _surface_votes(views, i, sub, on, d)
+    if not _floats(own):
+        return True, votes
+    out = votes.copy()
+    out[part] = own
+    return False, out
 
 
 _MIXED_SHARE: Final = 1.0 - _MARK_SHARE  # a thread merged with a mark keeps >= 1/4 of its own
@@ -587,8 +782,7 @@ def _surface_votes(
     with the tissue beside it, 0 where not, -1 undecided
     (:meth:`core.segment_surface.SurfaceTest.votes`)."""
     v = views[i]
-    if v._surface is None or v._surface.dmax != d:
-        v._surface = SurfaceTest(v.grey(), views[1 - i].grey(), v.far(), d, look_left=(i == 0))
+    v._surface = _surface_test(views, i, d)
     px = on[sel]
     return v._surface.votes(v.rows[px], v.cols[px])
 
