@@ -192,6 +192,7 @@ class _View:
     s_lo: np.ndarray  # (M,) float32 S at the lo pixels
     pieces: tuple = ()
     grey_core: bool = False  # the chosen core's contrast is near grey (:func:`_grey_contrast`)
+    tool: np.ndarray | None = None  # (H, W) bool, the instrument found in the view, if any
     _grey: np.ndarray | None = None
     _far: np.ndarray | None = None
     _surface: SurfaceTest | None = None
@@ -244,6 +245,8 @@ class _View:
             if on_tool.any():
                 lo[rows[on_tool], cols[on_tool]] = 0
                 rows, cols = rows[~on_tool], cols[~on_tool]
+        else:
+            tool = None
         free = _free_blocks(rows, cols, a_q.shape[:2])
         bg_rgb = _background(a_q, free)
         bg = _log_of(bg_rgb)
@@ -258,6 +261,8 @@ class _View:
         sigma = noise_sigma(_log_channels(img[::_NOISE_ROW_STEP]), row_step=1)
         s_lo = values_at(S, rows, cols)
         v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb, s_lo)
+        if tool is not None and tool.shape == lo.shape and tool.any():
+            v.tool = tool
         v.pieces = _pieces(~blood if blood.any() else None, v, p)
         return v
 
@@ -360,6 +365,10 @@ def _select(
         on = np.flatnonzero(ok[lab])
         lab_on = lab[on]
         partner = _has_partner(v.rows[on], v.cols[on], keys[1 - i], width, D, look_left=(i == 0))
+        if views[1 - i].tool is not None:  # a partner hidden by the instrument is no absence
+            partner |= _window_hits(
+                views[1 - i].tool, v.rows[on], v.cols[on], D, look_left=(i == 0)
+            )
         k = _consistent(lab_on, partner, ok)
         n = len(k)
         area = np.maximum(np.bincount(lab_on, minlength=n), 1).astype(np.float64)
@@ -1171,6 +1180,22 @@ def _has_partner(
     q = rows.astype(np.int64) * (width + d + 1) + cols
     lo, hi = (q - d, q) if look_left else (q, q + d)
     return np.searchsorted(keys, hi, side="right") > np.searchsorted(keys, lo, side="left")
+
+
+def _window_hits(
+    mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, d: int, look_left: bool
+) -> np.ndarray:
+    """(M,) bool: a pixel of ``mask`` (H, W) bool (the other view's instrument) at (r, c - j)
+    (``look_left``) or (r, c + j), 0 <= j <= max(d, 0), for each pixel (r, c): where the
+    instrument covers part of the window, the partner may lie behind it (a thread passing
+    under it in one view only), and its absence is no evidence. Row-wise running counts."""
+    h, w = mask.shape
+    counts = np.zeros((h, w + 1), np.int32)
+    np.cumsum(mask, axis=1, dtype=np.int32, out=counts[:, 1:])
+    d = max(d, 0)
+    lo, hi = (cols - d, cols) if look_left else (cols, cols + d)
+    lo, hi = np.clip(lo, 0, w - 1), np.clip(hi, 0, w - 1)
+    return counts[rows, hi + 1] > counts[rows, lo]
 
 
 def _consistent(lab: np.ndarray, partner: np.ndarray, ok: np.ndarray) -> np.ndarray:
