@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Final
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from threadrecon.core.grow_kernel import grow_mask_f32, grow_mask_u8
 from threadrecon.core.instrument import grow_into_attached
@@ -196,6 +197,7 @@ class _View:
     _grey: np.ndarray | None = None
     _far: np.ndarray | None = None
     _surface: SurfaceTest | None = None
+    _tool_counts: tuple | None = None
 
     def far(self) -> np.ndarray:
         """(H, W) bool: background pixels beyond _BAND_PX of every candidate (lo) pixel, where
@@ -204,6 +206,13 @@ class _View:
             k = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * _BAND_PX + 1, 2 * _BAND_PX + 1))
             self._far = cv2.dilate(self.lo, k) == 0
         return self._far
+
+    def tool_counts(self) -> tuple[int, int, np.ndarray] | None:
+        """Running counts of the instrument mask along its rows (:func:`_row_counts`;
+        computed once, on demand; None without an instrument)."""
+        if self._tool_counts is None and self.tool is not None:
+            self._tool_counts = _row_counts(self.tool)
+        return self._tool_counts
 
     def grey(self) -> np.ndarray:
         """(H, W) float32 grey levels of the view (computed once, on demand)."""
@@ -366,8 +375,8 @@ def _select(
         lab_on = lab[on]
         partner = _has_partner(v.rows[on], v.cols[on], keys[1 - i], width, D, look_left=(i == 0))
         if views[1 - i].tool is not None:  # a partner hidden by the instrument is no absence
-            partner |= _window_hits(
-                views[1 - i].tool, v.rows[on], v.cols[on], D, look_left=(i == 0)
+            partner |= _window_hits_in(
+                views[1 - i].tool_counts(), v.rows[on], v.cols[on], D, look_left=(i == 0)
             )
         k = _consistent(lab_on, partner, ok)
         n = len(k)
@@ -574,47 +583,70 @@ def _at_thread_disparity(
     tissue's disparity; the thread's fragments between the vessels it crosses are too short
     for the block-wise surface test (fewer blocks than it needs)."""
     v = views[i]
-    if not cands:
+    if not cands or len(thread) == 0:
         return []
     st = _surface_test(views, i, d)
     pts = {j: (v.rows[on[lab_on == j]], v.cols[on[lab_on == j]]) for j in cands}
-    own = {j: st.disparity(*pts[j]) for j in cands}
-    left = [j for j in cands if own[j] is not None]
-    tr, tc = v.rows[thread], v.cols[thread]
-    mark_d: dict[int, int | None] = {}  # the marks' disparities, as needed
+    left = list(cands)
+    thread_xy = np.c_[v.rows[thread], v.cols[thread]].astype(np.float64)
+    # each candidate's gap to the thread and the thread's point there (on <= 64 of its
+    # pixels: the gap within ~2 px), updated as pieces are taken
+    sample = {}
+    for j in left:
+        step = max(len(pts[j][0]) // 64, 1)
+        sample[j] = np.c_[pts[j][0][::step], pts[j][1][::step]].astype(np.float64)
+    gap, at = _nearest(cKDTree(thread_xy), thread_xy, sample, left)
+    near_marks = _Marks(st, v, marks)
     taken: list[int] = []
-    while left and len(tr):
-        # the candidate nearest to the thread (on sampled pixels: the gap within ~2 px)
-        step_t = max(len(tr) // 512, 1)
-        sr, sc = tr[::step_t].astype(np.float64), tc[::step_t].astype(np.float64)
-        best_j, best_gap, best_at = -1, np.inf, (0.0, 0.0)
-        for j in left:
-            r, c = pts[j]
-            step = max(len(r) // 64, 1)
-            dist = np.hypot(r[::step, None] - sr[None], c[::step, None] - sc[None])
-            a, b = np.unravel_index(int(np.argmin(dist)), dist.shape)
-            if dist[a, b] < best_gap:
-                best_j, best_gap, best_at = j, float(dist[a, b]), (sr[b], sc[b])
-        if best_gap > _MAX_GAP_PX:
+    while left:
+        j = min(left, key=gap.__getitem__)
+        if gap[j] > _MAX_GAP_PX:
             break
-        left.remove(best_j)
-        gap_t = np.hypot(tr - best_at[0], tc - best_at[1])
+        left.remove(j)
+        own = st.disparity(*pts[j])  # (only for pieces near the thread)
+        if own is None:
+            continue
+        dist = np.hypot(thread_xy[:, 0] - at[j][0], thread_xy[:, 1] - at[j][1])
         # (a stretch along the rows has no disparity of its own: a longer one then)
-        d_thread = st.disparity(tr[gap_t <= _LOCAL_PX], tc[gap_t <= _LOCAL_PX])
-        if d_thread is None:
-            d_thread = st.disparity(tr[gap_t <= 2 * _LOCAL_PX], tc[gap_t <= 2 * _LOCAL_PX])
+        d_thread = None
+        for radius in (_LOCAL_PX, 2 * _LOCAL_PX):
+            near = thread_xy[dist <= radius].astype(np.int64)
+            d_thread = st.disparity(near[:, 0], near[:, 1])
+            if d_thread is not None:
+                break
         if d_thread is None:
             continue
-        d_bg = st.background_disparity(*pts[best_j])
-        d_mark = _nearest_mark_disparity(st, v, marks, mark_d, pts[best_j])
-        tol = SAME_DISPARITY_PX + _THREAD_SLOPE * min(best_gap, _LOCAL_PX)
-        if abs(own[best_j] - d_thread) <= tol and not any(
-            t is not None and abs(own[best_j] - t) <= SAME_DISPARITY_PX for t in (d_bg, d_mark)
+        d_bg = st.background_disparity(*pts[j])
+        d_mark = near_marks.disparity_near(*pts[j])
+        tol = SAME_DISPARITY_PX + _THREAD_SLOPE * min(gap[j], _LOCAL_PX)
+        if abs(own - d_thread) <= tol and not any(
+            t is not None and abs(own - t) <= SAME_DISPARITY_PX for t in (d_bg, d_mark)
         ):
-            taken.append(best_j)
-            tr = np.concatenate([tr, pts[best_j][0]])
-            tc = np.concatenate([tc, pts[best_j][1]])
+            taken.append(j)
+            piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
+            thread_xy = np.concatenate([thread_xy, piece_xy])
+            g2, at2 = _nearest(cKDTree(piece_xy), piece_xy, sample, left)
+            for m in left:
+                if g2[m] < gap[m]:
+                    gap[m], at[m] = g2[m], at2[m]
     return taken
+
+
+def _nearest(tree: cKDTree, xy: np.ndarray, sample: dict, keys: list[int]) -> tuple[dict, dict]:
+    """For each of ``keys``, the least distance from its ``sample`` points (m, 2) to the points
+    ``xy`` (N, 2) of ``tree``, and the point of ``xy`` where it is reached (one query)."""
+    if not keys:
+        return {}, {}
+    pts = np.concatenate([sample[j] for j in keys])
+    sizes = np.array([len(sample[j]) for j in keys])
+    dist, idx = tree.query(pts)
+    starts = np.cumsum(sizes) - sizes
+    least = np.minimum.reduceat(dist, starts)
+    gap, at = {}, {}
+    for n, j in enumerate(keys):
+        a = int(starts[n] + np.argmin(dist[starts[n] : starts[n] + sizes[n]]))
+        gap[j], at[j] = float(least[n]), xy[int(idx[a])]
+    return gap, at
 
 
 def _at_tissue_disparity(
@@ -631,8 +663,7 @@ def _at_tissue_disparity(
     own = st.disparity(rows, cols)
     if own is None:
         return False
-    refs = (st.background_disparity(rows, cols),
-            _nearest_mark_disparity(st, v, marks, {}, (rows, cols)))  # fmt: skip
+    refs = (st.background_disparity(rows, cols), _Marks(st, v, marks).disparity_near(rows, cols))
     return any(t is not None and abs(own - t) <= SAME_DISPARITY_PX for t in refs)
 
 
@@ -644,26 +675,35 @@ def _surface_test(views: list[_View], i: int, d: int) -> SurfaceTest:
     return v._surface
 
 
-def _nearest_mark_disparity(
-    st: SurfaceTest, v: _View, marks: list[np.ndarray], known: dict, pts: tuple
-) -> int | None:
-    """The disparity (:meth:`SurfaceTest.disparity`) of the mark (lo pixels, of ``marks``)
-    nearest to the pixels ``pts`` (rows, cols) (on sampled pixels), None without marks; the
-    marks' disparities are cached in ``known`` by index."""
-    if not marks:
-        return None
-    r, c = pts
-    step = max(len(r) // 64, 1)
-    r, c = r[::step, None].astype(np.float64), c[::step, None].astype(np.float64)
-    gaps = []
-    for px in marks:
-        s = max(len(px) // 256, 1)
-        mr, mc = v.rows[px[::s]], v.cols[px[::s]]
-        gaps.append(float(np.min(np.hypot(r - mr[None], c - mc[None]))))
-    m = int(np.argmin(gaps))
-    if m not in known:
-        known[m] = st.disparity(v.rows[marks[m]], v.cols[marks[m]])
-    return known[m]
+class _Marks:
+    """The marks on the tissue found in a view (lo pixels of each, ``marks``): which is
+    nearest to a set of pixels (on <= 256 sampled pixels of each mark, one k-d tree), and
+    its disparity (:meth:`SurfaceTest.disparity`, computed once per mark)."""
+
+    def __init__(self, st: SurfaceTest, v: _View, marks: list[np.ndarray]) -> None:
+        self.st, self.v, self.marks = st, v, marks
+        self.known: dict[int, int | None] = {}
+        self.tree: cKDTree | None = None
+        if marks:
+            steps = [max(len(px) // 256, 1) for px in marks]
+            xy = [
+                np.c_[v.rows[px[::s]], v.cols[px[::s]]] for px, s in zip(marks, steps, strict=True)
+            ]
+            self.owner = np.concatenate([np.full(len(a), m) for m, a in enumerate(xy)])
+            self.tree = cKDTree(np.concatenate(xy).astype(np.float64))
+
+    def disparity_near(self, rows: np.ndarray, cols: np.ndarray) -> int | None:
+        """The disparity of the mark nearest to the pixels (``rows``, ``cols``) (on <= 64 of
+        them), None without marks."""
+        if self.tree is None or len(rows) == 0:
+            return None
+        step = max(len(rows) // 64, 1)
+        dist, idx = self.tree.query(np.c_[rows[::step], cols[::step]].astype(np.float64))
+        m = int(self.owner[int(idx[int(np.argmin(dist))])])
+        if m not in self.known:
+            px = self.marks[m]
+            self.known[m] = self.st.disparity(self.v.rows[px], self.v.cols[px])
+        return self.known[m]
 
 
 def _near_blood(v: _View, core: np.ndarray) -> bool:
@@ -1188,14 +1228,41 @@ def _window_hits(
     """(M,) bool: a pixel of ``mask`` (H, W) bool (the other view's instrument) at (r, c - j)
     (``look_left``) or (r, c + j), 0 <= j <= max(d, 0), for each pixel (r, c): where the
     instrument covers part of the window, the partner may lie behind it (a thread passing
-    under it in one view only), and its absence is no evidence. Row-wise running counts."""
-    h, w = mask.shape
+    under it in one view only), and its absence is no evidence."""
+    return _window_hits_in(_row_counts(mask), rows, cols, d, look_left)
+
+
+def _row_counts(mask: np.ndarray) -> tuple[int, int, np.ndarray] | None:
+    """Running counts along the rows of ``mask`` (H, W) bool on its bounding box: (first row,
+    first column, (h, w + 1) int32 counts with a leading 0), None when it is empty."""
+    x, y, w, h = cv2.boundingRect(np.ascontiguousarray(mask, dtype=bool).view(np.uint8))
+    if w == 0:
+        return None
     counts = np.zeros((h, w + 1), np.int32)
-    np.cumsum(mask, axis=1, dtype=np.int32, out=counts[:, 1:])
+    np.cumsum(mask[y : y + h, x : x + w], axis=1, dtype=np.int32, out=counts[:, 1:])
+    return y, x, counts
+
+
+def _window_hits_in(
+    box: tuple[int, int, np.ndarray] | None,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    d: int,
+    look_left: bool,
+) -> np.ndarray:
+    """:func:`_window_hits` from the mask's running counts (:func:`_row_counts`)."""
+    out = np.zeros(len(rows), bool)
+    if box is None or len(rows) == 0:
+        return out
+    y, x, counts = box
+    h, w = counts.shape[0], counts.shape[1] - 1
     d = max(d, 0)
-    lo, hi = (cols - d, cols) if look_left else (cols, cols + d)
-    lo, hi = np.clip(lo, 0, w - 1), np.clip(hi, 0, w - 1)
-    return counts[rows, hi + 1] > counts[rows, lo]
+    lo, hi = (cols - d - x, cols - x) if look_left else (cols - x, cols + d - x)
+    r = rows - y
+    sel = (r >= 0) & (r < h) & (hi >= 0) & (lo < w)  # the window meets the box
+    r, lo, hi = r[sel], np.maximum(lo[sel], 0), np.minimum(hi[sel], w - 1)
+    out[sel] = counts[r, hi + 1] > counts[r, lo]
+    return out
 
 
 def _consistent(lab: np.ndarray, partner: np.ndarray, ok: np.ndarray) -> np.ndarray:
