@@ -103,7 +103,8 @@ def segment_raw(
        thread) and the blood-like line chosen lies along it.
     3. Shape: a piece's length >= min_length_px and largest half-width <= MAX_HALF_WIDTH_PX.
     4. Stereo: a piece keeps >= half of its pixels with a candidate pixel on the same row of the
-       other view within [0, max_disparity_px] of disparity.
+       other view within [0, max_disparity_px] of disparity, or with the other view's
+       instrument in that window (the partner may lie behind it: :func:`_window_hits`).
        Presence: the piece's mean contrast to its local background is >= _MIN_SNR times the
        frame's own pixel noise (per channel, robust): on a thread-free frame nothing passes
        and the answer is "no thread found", not a vessel or a texture line.
@@ -114,8 +115,12 @@ def segment_raw(
        are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`),
        chosen or joining; a kept piece moving with the tissue in part loses that part
        (:func:`_mark_part`), and a piece of two dyes takes that of its part in front of the
-       tissue (:func:`_main_dye`). The cores chosen in the two views must be one object
-       (:func:`_one_object`).
+       tissue (:func:`_main_dye`); it is no mark when that part, tested alone, floats (a
+       thread merged with the fibres it crosses, :func:`_a_mark_of_one_dye`). Among
+       blood-like pieces, one the surface test leaves open at the tissue's own disparity is a
+       vessel (:func:`_at_tissue_disparity`), and a red thread's undecided fragments join it
+       at its own disparity (:func:`_at_thread_disparity`). The cores chosen in the two
+       views must be one object (:func:`_one_object`).
     6. Mask: within _BAND_PX of the kept pixels, those with coverage >= 0.5 of a thread colour
        blended over the local background colour (see :func:`_grow_mask`); for a contrast near
        grey, with the runs it encloses across the thread (a highlight, :func:`_fill_across`).
