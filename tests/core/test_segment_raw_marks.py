@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from threadrecon.core import segment_raw as sr
+from threadrecon.core.segmentation import SegmentationParams
+from threadrecon.core.synthetic import RenderParams, SyntheticParams, ThreadParams, generate_frame
 
 LIGHT = np.array([11.0, -10.0, -2.5])  # a light fibre's contrast (brightness, log R/G, log B/G)
 DARK_BLUE = np.array([-4.0, -9.0, 8.0])  # a dark blue thread's
@@ -179,3 +181,30 @@ def test_window_hits_equals_the_plain_search_of_the_other_views_instrument(
         ]
     )
     np.testing.assert_array_equal(got, want)
+
+
+def _raw_iou(render: dict, seed: list[int]) -> list[float]:
+    """Mask IoU of each view of a generated raw tissue frame (the frames of
+    scripts/eval_suites.py: noise 2, blur 0.5, ``default_rng([seed, suite, k])``)."""
+
+    params = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, **render)
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=params), np.random.default_rng(seed)
+    )
+    P_L, P_R, _, _ = sr.segment_raw(frame.left, frame.right, SegmentationParams())
+    return [
+        float((P & M).sum()) / float((P | M).sum())
+        for P, M in ((P_L, frame.mask_left), (P_R, frame.mask_right))
+    ]
+
+
+def test_a_thread_merged_with_the_fibres_it_crosses_is_found() -> None:
+    # distractors frame 9980 #1: a dark blue thread crossing four light fibres is one piece
+    # whose surface votes the fibres outnumber; its own part, tested alone, floats
+    assert min(_raw_iou({"distractors": 8}, [9980, 5, 1])) >= 0.9
+
+
+def test_a_thread_whose_partner_lies_behind_the_shaft_keeps_that_stretch() -> None:
+    # instrument frame 9981 #5: a loop of thread beside the shaft in the left view runs
+    # behind it in the right view (no partner candidate there)
+    assert min(_raw_iou({"instrument": True}, [9981, 6, 5])) >= 0.85
