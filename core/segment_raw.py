@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Final
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from threadrecon.core.grow_kernel import grow_mask_f32, grow_mask_u8
 from threadrecon.core.instrument import grow_into_attached
@@ -35,7 +36,7 @@ from threadrecon.core.ridge_kernel import (
     upsample_max,
     values_at,
 )
-from threadrecon.core.segment_surface import SurfaceTest, undecidable
+from threadrecon.core.segment_surface import SAME_DISPARITY_PX, SurfaceTest, undecidable
 
 if TYPE_CHECKING:
     from threadrecon.core.segmentation import SegmentationParams
@@ -102,7 +103,8 @@ def segment_raw(
        thread) and the blood-like line chosen lies along it.
     3. Shape: a piece's length >= min_length_px and largest half-width <= MAX_HALF_WIDTH_PX.
     4. Stereo: a piece keeps >= half of its pixels with a candidate pixel on the same row of the
-       other view within [0, max_disparity_px] of disparity.
+       other view within [0, max_disparity_px] of disparity, or with the other view's
+       instrument in that window (the partner may lie behind it: :func:`_window_hits`).
        Presence: the piece's mean contrast to its local background is >= _MIN_SNR times the
        frame's own pixel noise (per channel, robust): on a thread-free frame nothing passes
        and the answer is "no thread found", not a vessel or a texture line.
@@ -113,8 +115,12 @@ def segment_raw(
        are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`),
        chosen or joining; a kept piece moving with the tissue in part loses that part
        (:func:`_mark_part`), and a piece of two dyes takes that of its part in front of the
-       tissue (:func:`_main_dye`). The cores chosen in the two views must be one object
-       (:func:`_one_object`).
+       tissue (:func:`_main_dye`); it is no mark when that part, tested alone, floats (a
+       thread merged with the fibres it crosses, :func:`_a_mark_of_one_dye`). Among
+       blood-like pieces, one the surface test leaves open at the tissue's own disparity is a
+       vessel (:func:`_at_tissue_disparity`), and a red thread's undecided fragments join it
+       at its own disparity (:func:`_at_thread_disparity`). The cores chosen in the two
+       views must be one object (:func:`_one_object`).
     6. Mask: within _BAND_PX of the kept pixels, those with coverage >= 0.5 of a thread colour
        blended over the local background colour (see :func:`_grow_mask`); for a contrast near
        grey, with the runs it encloses across the thread (a highlight, :func:`_fill_across`).
@@ -192,9 +198,11 @@ class _View:
     s_lo: np.ndarray  # (M,) float32 S at the lo pixels
     pieces: tuple = ()
     grey_core: bool = False  # the chosen core's contrast is near grey (:func:`_grey_contrast`)
+    tool: np.ndarray | None = None  # (H, W) bool, the instrument found in the view, if any
     _grey: np.ndarray | None = None
     _far: np.ndarray | None = None
     _surface: SurfaceTest | None = None
+    _tool_counts: tuple | None = None
 
     def far(self) -> np.ndarray:
         """(H, W) bool: background pixels beyond _BAND_PX of every candidate (lo) pixel, where
@@ -203,6 +211,13 @@ class _View:
             k = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * _BAND_PX + 1, 2 * _BAND_PX + 1))
             self._far = cv2.dilate(self.lo, k) == 0
         return self._far
+
+    def tool_counts(self) -> tuple[int, int, np.ndarray] | None:
+        """Running counts of the instrument mask along its rows (:func:`_row_counts`;
+        computed once, on demand; None without an instrument)."""
+        if self._tool_counts is None and self.tool is not None:
+            self._tool_counts = _row_counts(self.tool)
+        return self._tool_counts
 
     def grey(self) -> np.ndarray:
         """(H, W) float32 grey levels of the view (computed once, on demand)."""
@@ -244,6 +259,8 @@ class _View:
             if on_tool.any():
                 lo[rows[on_tool], cols[on_tool]] = 0
                 rows, cols = rows[~on_tool], cols[~on_tool]
+        else:
+            tool = None
         free = _free_blocks(rows, cols, a_q.shape[:2])
         bg_rgb = _background(a_q, free)
         bg = _log_of(bg_rgb)
@@ -258,6 +275,8 @@ class _View:
         sigma = noise_sigma(_log_channels(img[::_NOISE_ROW_STEP]), row_step=1)
         s_lo = values_at(S, rows, cols)
         v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb, s_lo)
+        if tool is not None and tool.shape == lo.shape and tool.any():
+            v.tool = tool
         v.pieces = _pieces(~blood if blood.any() else None, v, p)
         return v
 
@@ -360,6 +379,10 @@ def _select(
         on = np.flatnonzero(ok[lab])
         lab_on = lab[on]
         partner = _has_partner(v.rows[on], v.cols[on], keys[1 - i], width, D, look_left=(i == 0))
+        if views[1 - i].tool is not None:  # a partner hidden by the instrument is no absence
+            partner |= _window_hits_in(
+                views[1 - i].tool_counts(), v.rows[on], v.cols[on], D, look_left=(i == 0)
+            )
         k = _consistent(lab_on, partner, ok)
         n = len(k)
         area = np.maximum(np.bincount(lab_on, minlength=n), 1).astype(np.float64)
@@ -393,14 +416,25 @@ def _select(
             # a part of that mark (one line cut in two by a faint stretch of it); one too short
             # for the test to ever decide (fewer blocks than it needs) is taken for one more
             # of the marks of its dye found in the frame.
-            if not _a_mark(votes) and not (
+            is_mark = split = _a_mark(votes)
+            if is_mark and not nearest_hue:  # a thread merged with fibres: its part floats
+                is_mark, votes = _a_mark_of_one_dye(views, i, lab_on == best, on, D, votes)
+                votes_of[best] = votes
+                split = not is_mark  # (then its own part is seen in front of the tissue)
+            if not is_mark and not (
                 np.all(votes < 0)
                 and (
                     _continues(v, on, lab_on, best, marks, delta, length)
                     or _like_a_mark(v, on[lab_on == best], best, marks, delta)
                 )
             ):
-                if nearest_hue and not _floats(votes):
+                if (
+                    nearest_hue
+                    and not _floats(votes)
+                    and not _at_tissue_disparity(
+                        views, i, on[lab_on == best], [on[lab_on == m] for m in marks], D
+                    )
+                ):
                     # undecided or moving with the tissue in part: not told from a vessel of
                     # its hue (it may still join a thread found in front of the tissue)
                     skipped += 1
@@ -410,8 +444,11 @@ def _select(
                     rank[best] = -1.0
                     best = int(np.argmax(rank))
                     continue
-                floating &= _floats(votes)
-                break
+                if not nearest_hue or _floats(votes):
+                    floating &= split or _floats(votes)
+                    break
+            # (a blood-like piece the surface test left open, at the tissue's own disparity:
+            # a vessel, as a mark)
             marks.append(best)
             k[best] = False
             rank[best] = -1.0
@@ -464,6 +501,7 @@ def _select(
         if by_hue:
             k &= _same_dye(dye, d_best) > _same_dye(dye, d_vessel)
         k[0] = k[best] = False
+        candidates = k.copy()  # the pieces of the thread's dye, bright enough to join it
         # A joining piece is no mark on the tissue either (a fibre as light as a white thread);
         # among blood-like pieces it is seen in front of the tissue, as the chosen one.
         others = np.flatnonzero(k)
@@ -473,8 +511,12 @@ def _select(
             votes = votes_of[j] = _surface_votes(views, i, lab_on == j, on, D)
             # among blood-like pieces, one seen in front of the tissue at least in part (a
             # part of the thread merged with a vessel where they cross)
-            k[j] = not _a_mark(votes) and (not nearest_hue or np.any(votes == 0))
-            if _a_mark(votes):
+            is_mark = _a_mark(votes)
+            if is_mark and not nearest_hue:  # a thread merged with fibres: its part floats
+                is_mark, votes = _a_mark_of_one_dye(views, i, lab_on == j, on, D, votes)
+                votes_of[j] = votes
+            k[j] = not is_mark and (not nearest_hue or np.any(votes == 0))
+            if is_mark:
                 marks.append(j)
         # An undecided piece that is a fragment of a mark of its dye (as in the choice above)
         # does not join either: a fibre cut in two by a faint stretch or by the instrument.
@@ -485,6 +527,19 @@ def _select(
                     or _like_a_mark(v, on[lab_on == j], j, marks, delta)
                 )
         k[best] = True
+        if nearest_hue:
+            # A red thread's fragments between the vessels it crosses are too short for the
+            # surface test: they join at the thread's own disparity.
+            undecided = [j for j in np.flatnonzero(candidates).tolist()
+                         if not k[j] and np.all(votes_of.get(j, _NO_VOTE) < 0)]  # fmt: skip
+            floating_px = np.concatenate(
+                [on[lab_on == j][votes_of[j] != 1] for j in np.flatnonzero(k) if j in votes_of]
+            )
+            marks_px = [on[lab_on == j] for j in marks]
+            for j in _at_thread_disparity(
+                views, i, on, lab_on, floating_px, marks_px, undecided, D
+            ):
+                k[j] = True
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece),
         # nor, in a piece moving with the tissue in part, that part (a mark merged with it).
@@ -501,6 +556,159 @@ def _select(
         v.grey_core = _grey_contrast(v, v.rows[px], v.cols[px])
         out.append(core)
     return out, salience, cos_vessels, floating
+
+
+_NO_VOTE: Final = np.full(1, -1, np.int8)  # a piece the surface test did not look at
+_THREAD_SLOPE: Final = 0.1  # a thread's disparity changes by <= 0.1 px per px along it (its
+# depth slope: the ordering's DISPARITY_SLOPE)
+_LOCAL_PX: Final = 32  # the thread's disparity next to a fragment: its pixels within 32 px
+_MAX_GAP_PX: Final = 64  # a fragment farther from the thread than this is not judged by it
+
+
+def _at_thread_disparity(
+    views: list[_View],
+    i: int,
+    on: np.ndarray,
+    lab_on: np.ndarray,
+    thread: np.ndarray,
+    marks: list[np.ndarray],
+    cands: list[int],
+    d: int,
+) -> list[int]:
+    """Of the pieces ``cands`` of view ``i`` (undecided by the surface test), those at the
+    thread's own disparity where they come near it: the disparity of the piece
+    (:meth:`SurfaceTest.disparity`) is within SAME_DISPARITY_PX + _THREAD_SLOPE x gap of that
+    of the thread's pixels within _LOCAL_PX of the point where the piece comes nearest (gap <=
+    _MAX_GAP_PX, counted up to _LOCAL_PX), and not at the disparity of the tissue: of the
+    background around it (where that resolves, :meth:`SurfaceTest.background_disparity`) or
+    of the nearest of the ``marks`` (lo pixels of the pieces found to be marks on it).
+
+    The thread is its lo pixels ``thread`` not voted "on the surface"; a piece taken extends
+    it (the nearest first). A vessel crossing the thread lies on the tissue behind it, at the
+    tissue's disparity; the thread's fragments between the vessels it crosses are too short
+    for the block-wise surface test (fewer blocks than it needs)."""
+    v = views[i]
+    if not cands or len(thread) == 0:
+        return []
+    st = _surface_test(views, i, d)
+    pts = {j: (v.rows[on[lab_on == j]], v.cols[on[lab_on == j]]) for j in cands}
+    left = list(cands)
+    thread_xy = np.c_[v.rows[thread], v.cols[thread]].astype(np.float64)
+    # each candidate's gap to the thread and the thread's point there (on <= 64 of its
+    # pixels: the gap within ~2 px), updated as pieces are taken
+    sample = {}
+    for j in left:
+        step = max(len(pts[j][0]) // 64, 1)
+        sample[j] = np.c_[pts[j][0][::step], pts[j][1][::step]].astype(np.float64)
+    gap, at = _nearest(cKDTree(thread_xy), thread_xy, sample, left)
+    near_marks = _Marks(st, v, marks)
+    taken: list[int] = []
+    while left:
+        j = min(left, key=gap.__getitem__)
+        if gap[j] > _MAX_GAP_PX:
+            break
+        left.remove(j)
+        own = st.disparity(*pts[j])  # (only for pieces near the thread)
+        if own is None:
+            continue
+        dist = np.hypot(thread_xy[:, 0] - at[j][0], thread_xy[:, 1] - at[j][1])
+        # (a stretch along the rows has no disparity of its own: a longer one then)
+        d_thread = None
+        for radius in (_LOCAL_PX, 2 * _LOCAL_PX):
+            near = thread_xy[dist <= radius].astype(np.int64)
+            d_thread = st.disparity(near[:, 0], near[:, 1])
+            if d_thread is not None:
+                break
+        if d_thread is None:
+            continue
+        d_bg = st.background_disparity(*pts[j])
+        d_mark = near_marks.disparity_near(*pts[j])
+        tol = SAME_DISPARITY_PX + _THREAD_SLOPE * min(gap[j], _LOCAL_PX)
+        if abs(own - d_thread) <= tol and not any(
+            t is not None and abs(own - t) <= SAME_DISPARITY_PX for t in (d_bg, d_mark)
+        ):
+            taken.append(j)
+            piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
+            thread_xy = np.concatenate([thread_xy, piece_xy])
+            g2, at2 = _nearest(cKDTree(piece_xy), piece_xy, sample, left)
+            for m in left:
+                if g2[m] < gap[m]:
+                    gap[m], at[m] = g2[m], at2[m]
+    return taken
+
+
+def _nearest(tree: cKDTree, xy: np.ndarray, sample: dict, keys: list[int]) -> tuple[dict, dict]:
+    """For each of ``keys``, the least distance from its ``sample`` points (m, 2) to the points
+    ``xy`` (N, 2) of ``tree``, and the point of ``xy`` where it is reached (one query)."""
+    if not keys:
+        return {}, {}
+    pts = np.concatenate([sample[j] for j in keys])
+    sizes = np.array([len(sample[j]) for j in keys])
+    dist, idx = tree.query(pts)
+    starts = np.cumsum(sizes) - sizes
+    least = np.minimum.reduceat(dist, starts)
+    gap, at = {}, {}
+    for n, j in enumerate(keys):
+        a = int(starts[n] + np.argmin(dist[starts[n] : starts[n] + sizes[n]]))
+        gap[j], at[j] = float(least[n]), xy[int(idx[a])]
+    return gap, at
+
+
+def _at_tissue_disparity(
+    views: list[_View], i: int, px: np.ndarray, marks: list[np.ndarray], d: int
+) -> bool:
+    """Whether the piece of view ``i`` of lo pixels ``px`` has a disparity of its own
+    (:meth:`SurfaceTest.disparity`) within SAME_DISPARITY_PX of the tissue's: of the background
+    of its block (where that resolves) or of the nearest of the ``marks`` (lo pixels of the
+    pieces found to be marks on the tissue). A piece the block-wise surface test left open
+    (too few blocks resolve) that matches the tissue's disparity is a mark on it too."""
+    v = views[i]
+    st = _surface_test(views, i, d)
+    rows, cols = v.rows[px], v.cols[px]
+    own = st.disparity(rows, cols)
+    if own is None:
+        return False
+    refs = (st.background_disparity(rows, cols), _Marks(st, v, marks).disparity_near(rows, cols))
+    return any(t is not None and abs(own - t) <= SAME_DISPARITY_PX for t in refs)
+
+
+def _surface_test(views: list[_View], i: int, d: int) -> SurfaceTest:
+    """View ``i``'s :class:`SurfaceTest` against the other view (made once, on demand)."""
+    v = views[i]
+    if v._surface is None or v._surface.dmax != d:
+        v._surface = SurfaceTest(v.grey(), views[1 - i].grey(), v.far(), d, look_left=(i == 0))
+    return v._surface
+
+
+class _Marks:
+    """The marks on the tissue found in a view (lo pixels of each, ``marks``): which is
+    nearest to a set of pixels (on <= 256 sampled pixels of each mark, one k-d tree), and
+    its disparity (:meth:`SurfaceTest.disparity`, computed once per mark)."""
+
+    def __init__(self, st: SurfaceTest, v: _View, marks: list[np.ndarray]) -> None:
+        self.st, self.v, self.marks = st, v, marks
+        self.known: dict[int, int | None] = {}
+        self.tree: cKDTree | None = None
+        if marks:
+            steps = [max(len(px) // 256, 1) for px in marks]
+            xy = [
+                np.c_[v.rows[px[::s]], v.cols[px[::s]]] for px, s in zip(marks, steps, strict=True)
+            ]
+            self.owner = np.concatenate([np.full(len(a), m) for m, a in enumerate(xy)])
+            self.tree = cKDTree(np.concatenate(xy).astype(np.float64))
+
+    def disparity_near(self, rows: np.ndarray, cols: np.ndarray) -> int | None:
+        """The disparity of the mark nearest to the pixels (``rows``, ``cols``) (on <= 64 of
+        them), None without marks."""
+        if self.tree is None or len(rows) == 0:
+            return None
+        step = max(len(rows) // 64, 1)
+        dist, idx = self.tree.query(np.c_[rows[::step], cols[::step]].astype(np.float64))
+        m = int(self.owner[int(idx[int(np.argmin(dist))])])
+        if m not in self.known:
+            px = self.marks[m]
+            self.known[m] = self.st.disparity(self.v.rows[px], self.v.cols[px])
+        return self.known[m]
 
 
 def _near_blood(v: _View, core: np.ndarray) -> bool:
@@ -538,21 +746,62 @@ _GLINT_SIDE_PX: Final = 3  # a highlight along a thread <= 6 px wide: its sides 
 
 def _main_dye(d_px: np.ndarray, votes: np.ndarray, mean: np.ndarray) -> np.ndarray:
     """The contrast (C,) of a piece: its mean contrast ``mean`` (C,), or, when its pixels'
-    contrasts ``d_px`` (M, C) split by brightness sign into two parts of >= _MIXED_SHARE each
-    and of different dyes (:func:`_same_dye` < _SAME_DYE_COS: a dark thread and a light fibre
-    that cross), the mean of the part with more pixels voted in front of the tissue (surface
-    ``votes`` (M,), :func:`_surface_votes`; a fibre is a mark on it)."""
-    dark = d_px[:, 0] < 0
-    n_dark = int(np.count_nonzero(dark))
-    if min(n_dark, len(dark) - n_dark) < _MIXED_SHARE * len(dark):
-        return mean
-    parts = [d_px[dark].mean(axis=0), d_px[~dark].mean(axis=0)]
-    if _same_dye(parts[0][None], parts[1])[0] >= _SAME_DYE_COS:
+    contrasts ``d_px`` (M, C) are of two dyes (:func:`_two_dyes`: a dark thread and a light
+    fibre that cross), the mean of the part with more pixels voted in front of the tissue
+    (surface ``votes`` (M,), :func:`_surface_votes`; a fibre is a mark on it)."""
+    dark = _two_dyes(d_px)
+    if dark is None:
         return mean
     floats = [int(np.count_nonzero(votes[part] == 0)) for part in (dark, ~dark)]
     if floats[0] == floats[1]:
         return mean  # nothing tells the two apart
-    return parts[int(np.argmax(floats))]
+    part = dark if floats[0] > floats[1] else ~dark
+    return d_px[part].mean(axis=0)
+
+
+def _two_dyes(d_px: np.ndarray) -> np.ndarray | None:
+    """(M,) bool, the darker part of a piece's pixels (contrasts ``d_px`` (M, C)) when they
+    split by brightness sign into two parts of >= _MIXED_SHARE each and of different dyes
+    (:func:`_same_dye` < _SAME_DYE_COS), else None."""
+    dark = d_px[:, 0] < 0
+    n_dark = int(np.count_nonzero(dark))
+    if min(n_dark, len(dark) - n_dark) < _MIXED_SHARE * len(dark):
+        return None
+    parts = [d_px[dark].mean(axis=0), d_px[~dark].mean(axis=0)]
+    if _same_dye(parts[0][None], parts[1])[0] >= _SAME_DYE_COS:
+        return None
+    return dark
+
+
+def _a_mark_of_one_dye(
+    views: list[_View], i: int, sel: np.ndarray, on: np.ndarray, d: int, votes: np.ndarray
+) -> tuple[bool, np.ndarray]:
+    """Whether a piece of view ``i`` (its lo pixels ``on[sel]``, surface ``votes`` (M,)) is a
+    mark on the tissue (:func:`_a_mark`) as a whole, and its votes: not when it is of two dyes
+    (:func:`_two_dyes`) and the part of one of them, tested alone, is seen in front of the
+    tissue (:func:`_floats`); that part's pixels then take their own votes. A thread merged
+    with the fibres it crosses is one piece whose votes the fibres outnumber: a block that
+    holds both takes the fibres' disparity. (It loses the fibres' part later:
+    :func:`_mark_part` and the pixels' dye.) One more surface test, on such pieces only."""
+    if not _a_mark(votes):
+        return False, votes
+    v = views[i]
+    px = on[sel]
+    dark = _two_dyes(v.delta[px])
+    if dark is None:
+        return True, votes
+    # the part that votes "on the surface" least (the other made the piece a mark)
+    share = [np.count_nonzero(votes[m] == 1) / max(np.count_nonzero(votes[m] >= 0), 1)
+             for m in (dark, ~dark)]  # fmt: skip
+    part = dark if share[0] <= share[1] else ~dark
+    sub = np.zeros(len(on), bool)
+    sub[np.flatnonzero(sel)[part]] = True
+    own = _surface_votes(views, i, sub, on, d)
+    if not _floats(own):
+        return True, votes
+    out = votes.copy()
+    out[part] = own
+    return False, out
 
 
 _MIXED_SHARE: Final = 1.0 - _MARK_SHARE  # a thread merged with a mark keeps >= 1/4 of its own
@@ -587,8 +836,7 @@ def _surface_votes(
     with the tissue beside it, 0 where not, -1 undecided
     (:meth:`core.segment_surface.SurfaceTest.votes`)."""
     v = views[i]
-    if v._surface is None or v._surface.dmax != d:
-        v._surface = SurfaceTest(v.grey(), views[1 - i].grey(), v.far(), d, look_left=(i == 0))
+    v._surface = _surface_test(views, i, d)
     px = on[sel]
     return v._surface.votes(v.rows[px], v.cols[px])
 
@@ -977,6 +1225,49 @@ def _has_partner(
     q = rows.astype(np.int64) * (width + d + 1) + cols
     lo, hi = (q - d, q) if look_left else (q, q + d)
     return np.searchsorted(keys, hi, side="right") > np.searchsorted(keys, lo, side="left")
+
+
+def _window_hits(
+    mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, d: int, look_left: bool
+) -> np.ndarray:
+    """(M,) bool: a pixel of ``mask`` (H, W) bool (the other view's instrument) at (r, c - j)
+    (``look_left``) or (r, c + j), 0 <= j <= max(d, 0), for each pixel (r, c): where the
+    instrument covers part of the window, the partner may lie behind it (a thread passing
+    under it in one view only), and its absence is no evidence."""
+    return _window_hits_in(_row_counts(mask), rows, cols, d, look_left)
+
+
+def _row_counts(mask: np.ndarray) -> tuple[int, int, np.ndarray] | None:
+    """Running counts along the rows of ``mask`` (H, W) bool on its bounding box: (first row,
+    first column, (h, w + 1) int32 counts with a leading 0), None when it is empty."""
+    x, y, w, h = cv2.boundingRect(np.ascontiguousarray(mask, dtype=bool).view(np.uint8))
+    if w == 0:
+        return None
+    counts = np.zeros((h, w + 1), np.int32)
+    np.cumsum(mask[y : y + h, x : x + w], axis=1, dtype=np.int32, out=counts[:, 1:])
+    return y, x, counts
+
+
+def _window_hits_in(
+    box: tuple[int, int, np.ndarray] | None,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    d: int,
+    look_left: bool,
+) -> np.ndarray:
+    """:func:`_window_hits` from the mask's running counts (:func:`_row_counts`)."""
+    out = np.zeros(len(rows), bool)
+    if box is None or len(rows) == 0:
+        return out
+    y, x, counts = box
+    h, w = counts.shape[0], counts.shape[1] - 1
+    d = max(d, 0)
+    lo, hi = (cols - d - x, cols - x) if look_left else (cols - x, cols + d - x)
+    r = rows - y
+    sel = (r >= 0) & (r < h) & (hi >= 0) & (lo < w)  # the window meets the box
+    r, lo, hi = r[sel], np.maximum(lo[sel], 0), np.minimum(hi[sel], w - 1)
+    out[sel] = counts[r, hi + 1] > counts[r, lo]
+    return out
 
 
 def _consistent(lab: np.ndarray, partner: np.ndarray, ok: np.ndarray) -> np.ndarray:

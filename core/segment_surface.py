@@ -143,6 +143,49 @@ class SurfaceTest:
         out[found] = vote[at[found]]
         return out
 
+    def disparity(self, rows: np.ndarray, cols: np.ndarray) -> int | None:
+        """The best disparity (px) of the pixels (``rows``, ``cols``) (M,) taken together (the
+        least mean grey residual over 0..D, on at most _MAX_SAMPLES of them spread evenly),
+        or None where it is not defined (too few pixels, or no distinct minimum: a line along
+        the rows, a flat patch)."""
+        if len(rows) == 0 or self.dmax < 1:
+            return None
+        step = max(len(rows) // _MAX_SAMPLES, 1)
+        r, c = rows[::step], cols[::step]
+        res = _Residuals(
+            self.this,
+            self.other,
+            r,
+            c,
+            np.zeros(len(r), np.intp),
+            1,
+            np.arange(self.dmax + 1),
+            self.look_left,
+        )
+        return int(res.best_d[0]) if res.defined()[0] else None
+
+    def background_disparity(self, rows: np.ndarray, cols: np.ndarray) -> int | None:
+        """The disparity (px) of the background (the tissue) in the block that holds most of
+        the pixels (``rows``, ``cols``) (M,), over 0..D, or None where it does not resolve it
+        (:meth:`_Residuals.resolves`: a flat or shaded background, too few samples)."""
+        if len(rows) == 0 or self.dmax < 1:
+            return None
+        keys = _block_keys(rows, cols, self.nb)
+        rr, cc = self._background(int(np.bincount(keys).argmax()))
+        if len(rr) < _MIN_BLOCK_SAMPLES:
+            return None
+        bg = _Residuals(
+            self.this,
+            self.other,
+            rr,
+            cc,
+            np.zeros(len(rr), np.intp),
+            1,
+            np.arange(self.dmax + 1),
+            self.look_left,
+        )
+        return int(bg.best_d[0]) if bg.resolves(0) else None
+
     def _background(self, key: int) -> tuple[np.ndarray, np.ndarray]:
         """Rows and columns of the background pixels on the grid of block ``key``."""
         if key not in self._grid:

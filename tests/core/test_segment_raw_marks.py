@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from threadrecon.core import segment_raw as sr
+from threadrecon.core.segmentation import SegmentationParams
+from threadrecon.core.synthetic import RenderParams, SyntheticParams, ThreadParams, generate_frame
 
 LIGHT = np.array([11.0, -10.0, -2.5])  # a light fibre's contrast (brightness, log R/G, log B/G)
 DARK_BLUE = np.array([-4.0, -9.0, 8.0])  # a dark blue thread's
@@ -142,3 +144,67 @@ def test_a_short_piece_of_another_dye_than_the_marks_is_not_taken_for_one() -> N
     v, px = _short_piece(10, 70)
     assert not sr._like_a_mark(v, px, 2, [1], np.stack([np.zeros(3), LIGHT, DARK_BLUE]))
     assert not sr._like_a_mark(v, px, 2, [], np.stack([np.zeros(3), LIGHT, LIGHT]))
+
+
+def test_a_piece_of_a_dark_thread_and_a_light_fibre_is_of_two_dyes() -> None:
+    rng = np.random.default_rng(0)
+    px = np.concatenate(
+        [DARK_BLUE + rng.normal(0, 0.5, (60, 3)), LIGHT + rng.normal(0, 0.5, (40, 3))]
+    )
+    dark = sr._two_dyes(px)
+    assert dark is not None
+    np.testing.assert_array_equal(dark, np.r_[np.ones(60, bool), np.zeros(40, bool)])
+    # a dye differing from the tissue in hue only: its brightness contrast's sign is shading
+    green = np.array([0.0, -8.0, 3.0])
+    hue_only = green + np.c_[rng.choice([-1.0, 1.0], 80), np.zeros((80, 2))]
+    assert sr._two_dyes(hue_only) is None
+    # a light fibre with a few dark pixels (< 1/4): one dye, its noise
+    assert sr._two_dyes(px[50:]) is None
+
+
+@pytest.mark.parametrize("look_left", [True, False])
+def test_window_hits_equals_the_plain_search_of_the_other_views_instrument(
+    look_left: bool,
+) -> None:
+    rng = np.random.default_rng(3)
+    tool = rng.random((30, 50)) < 0.03
+    rows, cols = (a.ravel() for a in np.mgrid[0:30, 0:50])
+    d = 7
+    got = sr._window_hits(tool, rows, cols, d, look_left)
+    want = np.array(
+        [
+            any(
+                0 <= (c - j if look_left else c + j) < 50 and tool[r, c - j if look_left else c + j]
+                for j in range(d + 1)
+            )
+            for r, c in zip(rows, cols, strict=True)
+        ]
+    )
+    np.testing.assert_array_equal(got, want)
+
+
+def _raw_iou(render: dict, seed: list[int]) -> list[float]:
+    """Mask IoU of each view of a generated raw tissue frame (the frames of
+    scripts/eval_suites.py: noise 2, blur 0.5, ``default_rng([seed, suite, k])``)."""
+
+    params = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, **render)
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=params), np.random.default_rng(seed)
+    )
+    P_L, P_R, _, _ = sr.segment_raw(frame.left, frame.right, SegmentationParams())
+    return [
+        float((P & M).sum()) / float((P | M).sum())
+        for P, M in ((P_L, frame.mask_left), (P_R, frame.mask_right))
+    ]
+
+
+def test_a_thread_merged_with_the_fibres_it_crosses_is_found() -> None:
+    # distractors frame 9980 #1: a dark blue thread crossing four light fibres is one piece
+    # whose surface votes the fibres outnumber; its own part, tested alone, floats
+    assert min(_raw_iou({"distractors": 8}, [9980, 5, 1])) >= 0.9
+
+
+def test_a_thread_whose_partner_lies_behind_the_shaft_keeps_that_stretch() -> None:
+    # instrument frame 9981 #5: a loop of thread beside the shaft in the left view runs
+    # behind it in the right view (no partner candidate there)
+    assert min(_raw_iou({"instrument": True}, [9981, 6, 5])) >= 0.85

@@ -141,3 +141,31 @@ def test_excess_stats_equal_numpys_mean_and_std(trial: int) -> None:
     got = excess_stats(diff, inside, start, size, at, own, np.float32(cap))
     want = (len(x), float(np.mean(x)), float(np.std(x))) if len(x) else (0, 0.0, 0.0)
     assert got == want
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("extra", [0, 4, 10])
+def test_a_pieces_own_disparity_and_the_backgrounds_are_found(seed: int, extra: int) -> None:
+    tex = _texture(np.random.default_rng(seed))
+    left = np.ascontiguousarray(tex[:, :W])
+    right = np.ascontiguousarray(tex[:, D_BG : D_BG + W])
+    _line(left, 100)
+    _line(right, 100 - D_BG - extra)
+    rows, cols, free = _piece(100)
+    test = SurfaceTest(left, right, free, D_MAX, look_left=True)
+    assert test.disparity(rows, cols) == D_BG + extra
+    assert test.background_disparity(rows, cols) == D_BG
+
+
+def test_a_line_along_the_rows_has_no_disparity_of_its_own() -> None:
+    rng = np.random.default_rng(3)
+    left = 128.0 + rng.normal(0.0, 1.0, (H, W)).astype(np.float32)
+    right = 128.0 + rng.normal(0.0, 1.0, (H, W)).astype(np.float32)
+    left[60:63, 20:180] = 40.0  # a long dark line along the rows: it matches at every shift
+    right[60:63, 8:168] = 40.0
+    rows, cols = (a.ravel() for a in np.mgrid[60:63, 60:140])
+    test = SurfaceTest(left, right, np.ones((H, W), bool), D_MAX, look_left=True)
+    assert test.disparity(rows, cols) is None
+    assert test.disparity(rows[:0], cols[:0]) is None
+    # camera noise only around it: the background resolves no disparity
+    assert test.background_disparity(rows, cols) is None
