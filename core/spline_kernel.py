@@ -10,10 +10,16 @@ turns a -0.0 into +0.0), so the matrix is the same to the last bit (tests/core/t
 checks it) at O(len(x) k^2) instead of O(len(x) m k): 5-10x at the m' = 60-80 control points of
 a 1920x1080 frame's x, y spline.
 
+``evaluate(x, t, c, k)`` is ``BSpline(t, c, k)(x)`` for any coefficients, the same way and to
+the same bits, and ``derivative_bases(x, t, k, nu)`` the basis' first to nu-th derivatives as
+``spline.basis_derivatives`` computes them (scipy's ``splder`` coefficients, then that
+evaluation), in one call: a call into scipy costs ~20 us, these ~2 us.
+
 ``mvs_residual`` is ``spline._Mvs.residual_jac`` and ``mvs_value`` its ``value``: the same
 formulas node by node (a few hundred flops on a 14-column problem, where numpy spent ~45 us in
 its calls); ``gn_trial`` is the part of a Gauss-Newton step of ``spline._Problem.solve`` after
-its QP (model decrease, stop tests, residuals, J^T J and J^T r at the trial point);
+its QP (model decrease, stop tests, residuals, J^T J and J^T r at the trial point, each
+row's sums over its non-zero span);
 ``refine_knots`` is ``spline._refine_xy``'s rounds of penalised fits and span splits on the
 basis in banded form (k + 1 non-zeros a row), the normal equations by a banded Cholesky
 factorisation; ``camera_refit`` is ``camera.to_camera``'s least-squares refit the same way.
