@@ -341,6 +341,8 @@ AHEAD_DEPTH = 4.0  # the search reaches surfaces down to 1 / AHEAD_DEPTH of the 
 AHEAD_FAR_PX = 4  # shifts this far from the best one tell whether it is distinct
 AHEAD_LEVELS = 4.0  # grey levels: the sensor noise floor (texture and distinctness)
 AHEAD_SHARE = 0.5  # at least this share of the patch is not thread (the surface is seen)
+AHEAD_EDGE_PX = 2  # px around the thread mask that belong to the thread (its blurred edge)
+_EDGE_KERNEL = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * AHEAD_EDGE_PX + 1,) * 2)
 
 
 def surface_ahead(
@@ -355,7 +357,7 @@ def surface_ahead(
     """How much nearer (px of disparity, > 0: in front of the end) the surface just beyond an
     end lies, measured by stereo: the square patch of view ``side`` (2 AHEAD_HALF_PX + 1 px)
     whose near side lies 2 px beyond ``offset`` px past ``tip`` along ``way``, its thread
-    pixels (``masks``) left out, is matched along its row of the other view (rectified), over
+    pixels (``masks``, grown by AHEAD_EDGE_PX: the thread's blurred edge) left out, is matched along its row of the other view (rectified), over
     disparities 0 (far away) to AHEAD_DEPTH times the end's ``disparity`` (a surface at a
     quarter of the end's depth). None when the pair cannot tell: the patch leaves a view, is
     mostly thread, is untextured (standard deviation under AHEAD_LEVELS), or its best shift is not
@@ -376,7 +378,7 @@ def surface_ahead(
     if disparity <= 0 or cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
         return None
     rows, cols = slice(cy - r, cy + r + 1), slice(cx - r, cx + r + 1)
-    thread = masks[side][rows, cols]
+    thread = _thread_and_edges(masks[side], cy, cx, r)
     n_thread = int(np.count_nonzero(thread))
     n_seen = thread.size - n_thread
     if n_seen < AHEAD_SHARE * thread.size:
@@ -407,6 +409,26 @@ def surface_ahead(
         return None  # no distinct match (median cost of the far shifts): nothing measured
     d_best = (cx - (x0 + k + r)) if side == 0 else (x0 + k + r - cx)
     return float(d_best - disparity)
+
+
+def _thread_and_edges(mask: np.ndarray, cy: int, cx: int, r: int) -> np.ndarray:
+    """The (2r+1, 2r+1) patch of ``mask`` around (cx, cy) grown by AHEAD_EDGE_PX: the
+    thread's blurred edge outside its mask is the thread's, not the surface's texture (on a
+    plain background it is the only texture, and another strand of the thread beside the end
+    would otherwise be measured as a surface in front of it)."""
+    e = AHEAD_EDGE_PX
+    h, w = mask.shape
+    y0, y1, x0, x1 = (
+        max(cy - r - e, 0),
+        min(cy + r + e + 1, h),
+        max(cx - r - e, 0),
+        min(cx + r + e + 1, w),
+    )
+    crop = np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8)
+    if not crop.any():
+        return np.zeros((2 * r + 1, 2 * r + 1), dtype=bool)
+    grown = cv2.dilate(crop, _EDGE_KERNEL)
+    return grown[cy - r - y0 : cy + r + 1 - y0, cx - r - x0 : cx + r + 1 - x0].astype(bool)
 
 
 AHEAD_NEAR_PX = 2.0  # a surface this much nearer than the end still carries it (the thread's

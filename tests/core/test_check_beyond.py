@@ -198,3 +198,33 @@ def test_a_narrow_occluder_bounds_what_may_hide_under_it() -> None:
     occ = _occluder(greys, masks, uv)
     assert occ is not None and not occ.walked_out
     assert 30.0 <= occ.hidden_px <= 70.0  # 40 px of occluder, measured a patch at a time
+
+
+def _strand_beside_end_scene():
+    """A plain background, the thread of ``_stereo_scene`` ending at column 139 and a second
+    strand of thread crossing the rows at left columns 146-149, nearer (at D_O), both blurred
+    so that their edges spill past their masks (as rendered thread does)."""
+    import cv2
+
+    h, w = 100, 400
+    grey = [np.full((h, w), 200.0, np.float32) for _ in range(2)]
+    masks = [np.zeros((h, w), bool), np.zeros((h, w), bool)]
+    for side, d_t, d_s in ((0, 0, 0), (1, D_T, D_O)):
+        grey[side][49:52, 20 - d_t : 140 - d_t] = 30.0
+        grey[side][:, 146 - d_s : 150 - d_s] = 30.0
+    for side in (0, 1):
+        grey[side] = cv2.GaussianBlur(grey[side], (0, 0), 1.0)
+    for side, d_t, d_s in ((0, 0, 0), (1, D_T, D_O)):
+        masks[side][49:52, 20 - d_t : 140 - d_t] = True
+        masks[side][:, 146 - d_s : 150 - d_s] = True
+    x = np.linspace(20.0, 139.0, 120)
+    uv_l = np.column_stack([x, np.full_like(x, 50.0)])
+    return (grey[0], grey[1]), (masks[0], masks[1]), (uv_l, uv_l - [D_T, 0.0])
+
+
+def test_another_strand_of_thread_beside_an_end_is_no_occluder() -> None:
+    # the strand's blurred edge is the thread's, not a surface's texture: the plain background
+    # around it cannot be measured, so nothing says the end runs under an occluder
+    greys, masks, uv = _strand_beside_end_scene()
+    assert surface_ahead(greys, masks, 0, uv[0][-1], np.array([1.0, 0.0]), float(D_T)) is None
+    assert _occluder(greys, masks, uv) is None
