@@ -513,22 +513,49 @@ def end_occluder(
     d_other, _ = _front(greys, masks, 1 - far, at + shift, way, disparity)
     if d_other is None or abs(d_far - d_other) > AHEAD_AGREE_PX:
         return None
-    limit = min(_to_border(at, way, greys[far].shape), max(max_reach_px - ext[far], 0.0))
-    hidden = limit
-    offset = float((k + 1) * AHEAD_STEP_PX)  # past the patch that met the occluder
+    budget = max(max_reach_px - ext[far], 0.0)
+    # the hidden thread need not go straight on (it may turn to follow a shaft under which it
+    # runs): rays within 45 deg of its way (the cone in which beyond_ends looks for a piece)
+    hidden = 0.0
+    for turn in WALK_TURNS:
+        c, s_ = math.cos(turn), math.sin(turn)
+        ray = np.array([c * way[0] - s_ * way[1], s_ * way[0] + c * way[1]])
+        start = float((k + 1) * AHEAD_STEP_PX) if turn == 0.0 else 0.0  # past the meeting patch
+        limit = min(_to_border(at, ray, greys[far].shape), budget)
+        hidden = max(hidden, _walk(greys, masks, far, at, ray, disparity, start, limit))
+        if ext[far] + hidden >= max_reach_px:
+            break
+    out = ext[far] + hidden >= max_reach_px
+    return Occluded("left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden, out)
+
+
+WALK_TURNS = tuple(np.radians([0.0, 22.5, -22.5, 45.0, -45.0]))  # the walk's rays off the way
+
+
+def _walk(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    at: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+    offset: float,
+    limit: float,
+) -> float:
+    """How far (px) past ``at`` along ``way`` an occluder reaches in view ``side``: walked a
+    patch at a time from ``offset`` until two patches in a row show a surface at or behind the
+    end's depth (the patches the pair cannot tell count as occluder), else ``limit``."""
     bare = None  # the offset of a patch showing the surface under the thread again
     while offset < limit:
-        d = surface_ahead(greys, masks, far, at, way, disparity, offset=offset)
+        d = surface_ahead(greys, masks, side, at, way, disparity, offset=offset)
         if d is None or d > AHEAD_NEAR_PX:
             bare = None
         elif bare is None:
             bare = offset
         else:  # two patches in a row (one mismatch on a shaft along the rows is no surface)
-            hidden = bare  # the thread, had it gone on this way, would be seen: it ended before
-            break
+            return bare  # the thread, had it gone on this way, would be seen: it ended before
         offset += AHEAD_STEP_PX
-    out = ext[far] + hidden >= max_reach_px
-    return Occluded("left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden, out)
+    return limit
 
 
 def _front(
@@ -548,6 +575,33 @@ def _front(
         if d is not None and d > AHEAD_NEAR_PX:
             return d, k
     return None, AHEAD_MEET
+
+
+def surface_past_end(
+    uv: np.ndarray,
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    end: str,
+    disparity: float,
+) -> float | None:
+    """In view ``side``: how much nearer (px of disparity) than the curve's ``end`` the surface
+    just past the end's projection ``uv`` (N, 2) lies, the nearest of the AHEAD_MEET patches
+    along the end's way that the pair can measure (``surface_ahead``); None when none can be.
+
+    For an end that one view sees cut (``cut_end``): an occluder that hides the thread in
+    that view lies in front of the end there; a surface at or behind the end's depth (the
+    tissue, or the thread itself where the segmentation missed it) is no occluder."""
+    fr = _end_frame(uv, end)
+    if fr is None or not (math.isfinite(disparity) and disparity > 0):
+        return None
+    _, tip, way = fr
+    found = [
+        surface_ahead(greys, masks, side, tip, way, disparity, offset=k * AHEAD_STEP_PX)
+        for k in range(AHEAD_MEET)
+    ]
+    measured = [d for d in found if d is not None]
+    return max(measured) if measured else None
 
 
 def _to_border(at: np.ndarray, way: np.ndarray, shape: tuple[int, int]) -> float:
