@@ -515,7 +515,8 @@ def end_occluder(
         return None
     budget = max(max_reach_px - ext[far], 0.0)
     # the hidden thread need not go straight on (it may turn to follow a shaft under which it
-    # runs): rays within 45 deg of its way (the cone in which beyond_ends looks for a piece)
+    # runs): the way and rays inside the 30-deg cone in which a thread is followed beyond an
+    # end (CONE_COS, extension)
     hidden = 0.0
     for turn in WALK_TURNS:
         c, s_ = math.cos(turn), math.sin(turn)
@@ -529,7 +530,9 @@ def end_occluder(
     return Occluded("left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden, out)
 
 
-WALK_TURNS = tuple(np.radians([0.0, 22.5, -22.5, 45.0, -45.0]))  # the walk's rays off the way
+# the walk's rays off the way: 22.5 deg apart, their 13 px patches touch ~33 px out (45 deg
+# rays also flagged ends that stop beside a shaft: c9963r instrument_3, a right curve)
+WALK_TURNS = tuple(np.radians([0.0, 22.5, -22.5]))
 
 
 def _walk(

@@ -198,8 +198,8 @@ def test_a_narrow_occluder_bounds_what_may_hide_under_it() -> None:
     greys, masks, uv = _stereo_scene((140, 180))
     occ = _occluder(greys, masks, uv)
     assert occ is not None and not occ.walked_out
-    # 40 px of occluder, measured a patch at a time along rays up to 45 deg off the way
-    assert 30.0 <= occ.hidden_px <= 40.0 / np.cos(np.radians(45.0)) + 2 * 13
+    # 40 px of occluder, measured a patch at a time along rays up to 22.5 deg off the way
+    assert 30.0 <= occ.hidden_px <= 40.0 / np.cos(np.radians(22.5)) + 2 * 13
 
 
 def _strand_beside_end_scene():
@@ -271,11 +271,11 @@ def _slanted_shaft_scene(angle_deg: float = 35.0, half_width: float = 14.0):
 
 def test_a_thread_may_turn_under_an_occluder_that_runs_off_at_an_angle() -> None:
     # a 28 px wide shaft at 35 deg to the thread's way: straight on, the walk crosses it in
-    # ~50 px; the hidden thread may turn to follow it (rays up to 45 deg off the way run
-    # 10-12.5 deg off its axis and stay under it for 90-130 px)
+    # ~50 px; the hidden thread may turn to follow it (a ray 22.5 deg off the way runs 12.5
+    # deg off its axis and stays under it for ~90 px)
     greys, masks, uv = _slanted_shaft_scene()
     occ = _occluder(greys, masks, uv, max_reach=300.0)
-    assert occ is not None and occ.hidden_px >= 100.0
+    assert occ is not None and occ.hidden_px >= 80.0  # straight on: 39 px
     # the same shaft across the way (90 deg): every ray crosses it within ~40 px
     greys, masks, uv = _slanted_shaft_scene(angle_deg=90.0)
     occ = _occluder(greys, masks, uv, max_reach=300.0)
