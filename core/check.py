@@ -270,8 +270,11 @@ class CheckParams(Params):
         5.0, lo=0.0, unit="px", slider=(0.0, 50.0, 0.5), label="cut end",
         doc="Suspect when one view sees uncovered thread pixels more than this farther beyond a "
         "free end of the curve than the other view, and the other view shows no bare "
-        "background just beyond the end: the end is cut by an occluder in that view (a free "
-        "end stops at one 3D point, seen in both views), so the thread may continue hidden.",
+        "background just beyond the end nor (by stereo) a surface at or behind the end's "
+        "depth: the end is cut by an occluder in that view (a free end stops at one 3D point, "
+        "seen in both views), so the thread may continue hidden. Not when the thread then runs "
+        "into an occluder in both views whose measured reach bounds what may hide "
+        "(occluded_mm, held to max_unobserved_mm).",
     )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
