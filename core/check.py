@@ -51,11 +51,13 @@ from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check_beyond import (
+    AHEAD_NEAR_PX,
     AHEAD_STEP_PX,
     beyond_ends,
     cut_end,
     end_occluder,
     extension_far,
+    surface_past_end,
 )
 from threadrecon.core.check_fast_kernel import flag_runs, mask_rows, ring_level
 from threadrecon.core.check_field import MaskField, derived, mask_field
@@ -275,8 +277,11 @@ class CheckParams(Params):
         5.0, lo=0.0, unit="px", slider=(0.0, 50.0, 0.5), label="cut end",
         doc="Suspect when one view sees uncovered thread pixels more than this farther beyond a "
         "free end of the curve than the other view, and the other view shows no bare "
-        "background just beyond the end: the end is cut by an occluder in that view (a free "
-        "end stops at one 3D point, seen in both views), so the thread may continue hidden.",
+        "background just beyond the end nor (by stereo) a surface at or behind the end's "
+        "depth: the end is cut by an occluder in that view (a free end stops at one 3D point, "
+        "seen in both views), so the thread may continue hidden. Not when the thread then runs "
+        "into an occluder in both views whose measured reach bounds what may hide "
+        "(occluded_mm, held to max_unobserved_mm).",
     )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
@@ -651,15 +656,17 @@ def _check(
                       p.cover_px + BEYOND_COVER_PX, bare, p.bare_share, see_px=unobserved_px,
                       known=known[0])  # fmt: skip
         # seen: the far view's thread stops inside see_px = unobserved_px (core/check_beyond)
-        if cut is not None and not cut.seen:
-            findings.append(
-                ("suspect", f"the {cut.view} view sees the thread {max(cut.ext):.0f} px beyond "
-                 f"the curve's {end}, the other {min(cut.ext):.0f} px, over no bare background: "
-                 "the end is cut by an occluder (a free end stops at one point in both views), "
-                 "the thread may go on hidden under it")
+        hidden = cut is not None and not cut.seen
+        if hidden and max(cut.ext) + 2.0 <= unobserved_px:
+            # An occluder that cuts the thread in one view lies in front of the end there; a
+            # surface at or behind the end's depth just past it (stereo) is none: that view's
+            # thread goes on unsegmented, as far as the other view sees it (within the limit).
+            stop = 1 if cut.view == "left" else 0
+            front = surface_past_end(
+                (uv_l, uv_r)[stop], (lifted.grey_L, lifted.grey_R), (lifted.P_L, lifted.P_R),
+                stop, end, f * B / z_end,
             )  # fmt: skip
-        elif cut is not None:  # the thread's end is seen in one view: the curve misses that much
-            missing = max(missing, max(cut.ext) * z_end / f * mm)
+            hidden = front is None or front > AHEAD_NEAR_PX
         # A free end is followed, in both views, by the surface the thread lies on (at or
         # behind its depth, measured by stereo: grey levels cannot tell an instrument from the
         # tissue); a thread that runs into an occluder in both views may go on hidden under
@@ -669,6 +676,17 @@ def _check(
             f * B / z_end, known, reach, p.cover_px + BEYOND_COVER_PX, unobserved_px,
             unobserved_px + AHEAD_STEP_PX,
         )  # fmt: skip
+        # the occluder's reach, walked in both views, bounds what a cut end may hide
+        bounded = occ is not None and not occ.walked_out and occ.reach_px <= unobserved_px
+        if hidden and not bounded:
+            findings.append(
+                ("suspect", f"the {cut.view} view sees the thread {max(cut.ext):.0f} px beyond "
+                 f"the curve's {end}, the other {min(cut.ext):.0f} px, over no bare background "
+                 "or a surface in front of the end: the end is cut by an occluder (a free end "
+                 "stops at one point in both views), the thread may go on hidden under it")
+            )  # fmt: skip
+        elif cut is not None:  # the thread's end is seen in one view: the curve misses that much
+            missing = max(missing, max(cut.ext) * z_end / f * mm)
         if occ is None:
             continue
         reach_mm = occ.reach_px * z_end / f * mm

@@ -341,6 +341,8 @@ AHEAD_DEPTH = 4.0  # the search reaches surfaces down to 1 / AHEAD_DEPTH of the 
 AHEAD_FAR_PX = 4  # shifts this far from the best one tell whether it is distinct
 AHEAD_LEVELS = 4.0  # grey levels: the sensor noise floor (texture and distinctness)
 AHEAD_SHARE = 0.5  # at least this share of the patch is not thread (the surface is seen)
+AHEAD_EDGE_PX = 2  # px around the thread mask that belong to the thread (its blurred edge)
+_EDGE_KERNEL = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * AHEAD_EDGE_PX + 1,) * 2)
 
 
 def surface_ahead(
@@ -355,7 +357,7 @@ def surface_ahead(
     """How much nearer (px of disparity, > 0: in front of the end) the surface just beyond an
     end lies, measured by stereo: the square patch of view ``side`` (2 AHEAD_HALF_PX + 1 px)
     whose near side lies 2 px beyond ``offset`` px past ``tip`` along ``way``, its thread
-    pixels (``masks``) left out, is matched along its row of the other view (rectified), over
+    pixels (``masks``, grown by AHEAD_EDGE_PX: the thread's blurred edge) left out, is matched along its row of the other view (rectified), over
     disparities 0 (far away) to AHEAD_DEPTH times the end's ``disparity`` (a surface at a
     quarter of the end's depth). None when the pair cannot tell: the patch leaves a view, is
     mostly thread, is untextured (standard deviation under AHEAD_LEVELS), or its best shift is not
@@ -376,7 +378,7 @@ def surface_ahead(
     if disparity <= 0 or cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
         return None
     rows, cols = slice(cy - r, cy + r + 1), slice(cx - r, cx + r + 1)
-    thread = masks[side][rows, cols]
+    thread = _thread_and_edges(masks[side], cy, cx, r)
     n_thread = int(np.count_nonzero(thread))
     n_seen = thread.size - n_thread
     if n_seen < AHEAD_SHARE * thread.size:
@@ -407,6 +409,26 @@ def surface_ahead(
         return None  # no distinct match (median cost of the far shifts): nothing measured
     d_best = (cx - (x0 + k + r)) if side == 0 else (x0 + k + r - cx)
     return float(d_best - disparity)
+
+
+def _thread_and_edges(mask: np.ndarray, cy: int, cx: int, r: int) -> np.ndarray:
+    """The (2r+1, 2r+1) patch of ``mask`` around (cx, cy) grown by AHEAD_EDGE_PX: the
+    thread's blurred edge outside its mask is the thread's, not the surface's texture (on a
+    plain background it is the only texture, and another strand of the thread beside the end
+    would otherwise be measured as a surface in front of it)."""
+    e = AHEAD_EDGE_PX
+    h, w = mask.shape
+    y0, y1, x0, x1 = (
+        max(cy - r - e, 0),
+        min(cy + r + e + 1, h),
+        max(cx - r - e, 0),
+        min(cx + r + e + 1, w),
+    )
+    crop = np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8)
+    if not crop.any():
+        return np.zeros((2 * r + 1, 2 * r + 1), dtype=bool)
+    grown = cv2.dilate(crop, _EDGE_KERNEL)
+    return grown[cy - r - y0 : cy + r + 1 - y0, cx - r - x0 : cx + r + 1 - x0].astype(bool)
 
 
 AHEAD_NEAR_PX = 2.0  # a surface this much nearer than the end still carries it (the thread's
@@ -491,22 +513,52 @@ def end_occluder(
     d_other, _ = _front(greys, masks, 1 - far, at + shift, way, disparity)
     if d_other is None or abs(d_far - d_other) > AHEAD_AGREE_PX:
         return None
-    limit = min(_to_border(at, way, greys[far].shape), max(max_reach_px - ext[far], 0.0))
-    hidden = limit
-    offset = float((k + 1) * AHEAD_STEP_PX)  # past the patch that met the occluder
+    budget = max(max_reach_px - ext[far], 0.0)
+    # the hidden thread need not go straight on (it may turn to follow a shaft under which it
+    # runs): the way and rays inside the 30-deg cone in which a thread is followed beyond an
+    # end (CONE_COS, extension)
+    hidden = 0.0
+    for turn in WALK_TURNS:
+        c, s_ = math.cos(turn), math.sin(turn)
+        ray = np.array([c * way[0] - s_ * way[1], s_ * way[0] + c * way[1]])
+        start = float((k + 1) * AHEAD_STEP_PX) if turn == 0.0 else 0.0  # past the meeting patch
+        limit = min(_to_border(at, ray, greys[far].shape), budget)
+        hidden = max(hidden, _walk(greys, masks, far, at, ray, disparity, start, limit))
+        if ext[far] + hidden >= max_reach_px:
+            break
+    out = ext[far] + hidden >= max_reach_px
+    return Occluded("left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden, out)
+
+
+# the walk's rays off the way: 22.5 deg apart, their 13 px patches touch ~33 px out (45 deg
+# rays also flagged ends that stop beside a shaft: c9963r instrument_3, a right curve)
+WALK_TURNS = tuple(np.radians([0.0, 22.5, -22.5]))
+
+
+def _walk(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    at: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+    offset: float,
+    limit: float,
+) -> float:
+    """How far (px) past ``at`` along ``way`` an occluder reaches in view ``side``: walked a
+    patch at a time from ``offset`` until two patches in a row show a surface at or behind the
+    end's depth (the patches the pair cannot tell count as occluder), else ``limit``."""
     bare = None  # the offset of a patch showing the surface under the thread again
     while offset < limit:
-        d = surface_ahead(greys, masks, far, at, way, disparity, offset=offset)
+        d = surface_ahead(greys, masks, side, at, way, disparity, offset=offset)
         if d is None or d > AHEAD_NEAR_PX:
             bare = None
         elif bare is None:
             bare = offset
         else:  # two patches in a row (one mismatch on a shaft along the rows is no surface)
-            hidden = bare  # the thread, had it gone on this way, would be seen: it ended before
-            break
+            return bare  # the thread, had it gone on this way, would be seen: it ended before
         offset += AHEAD_STEP_PX
-    out = ext[far] + hidden >= max_reach_px
-    return Occluded("left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden, out)
+    return limit
 
 
 def _front(
@@ -526,6 +578,33 @@ def _front(
         if d is not None and d > AHEAD_NEAR_PX:
             return d, k
     return None, AHEAD_MEET
+
+
+def surface_past_end(
+    uv: np.ndarray,
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    end: str,
+    disparity: float,
+) -> float | None:
+    """In view ``side``: how much nearer (px of disparity) than the curve's ``end`` the surface
+    just past the end's projection ``uv`` (N, 2) lies, the nearest of the AHEAD_MEET patches
+    along the end's way that the pair can measure (``surface_ahead``); None when none can be.
+
+    For an end that one view sees cut (``cut_end``): an occluder that hides the thread in
+    that view lies in front of the end there; a surface at or behind the end's depth (the
+    tissue, or the thread itself where the segmentation missed it) is no occluder."""
+    fr = _end_frame(uv, end)
+    if fr is None or not (math.isfinite(disparity) and disparity > 0):
+        return None
+    _, tip, way = fr
+    found = [
+        surface_ahead(greys, masks, side, tip, way, disparity, offset=k * AHEAD_STEP_PX)
+        for k in range(AHEAD_MEET)
+    ]
+    measured = [d for d in found if d is not None]
+    return max(measured) if measured else None
 
 
 def _to_border(at: np.ndarray, way: np.ndarray, shape: tuple[int, int]) -> float:

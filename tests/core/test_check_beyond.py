@@ -12,6 +12,7 @@ from threadrecon.core.check_beyond import (
     extension_far,
     pieces,
     surface_ahead,
+    surface_past_end,
 )
 
 SHAFT = (80, 110)  # columns of the occluder in the left view
@@ -197,4 +198,85 @@ def test_a_narrow_occluder_bounds_what_may_hide_under_it() -> None:
     greys, masks, uv = _stereo_scene((140, 180))
     occ = _occluder(greys, masks, uv)
     assert occ is not None and not occ.walked_out
-    assert 30.0 <= occ.hidden_px <= 70.0  # 40 px of occluder, measured a patch at a time
+    # 40 px of occluder, measured a patch at a time along rays up to 22.5 deg off the way
+    assert 30.0 <= occ.hidden_px <= 40.0 / np.cos(np.radians(22.5)) + 2 * 13
+
+
+def _strand_beside_end_scene():
+    """A plain background, the thread of ``_stereo_scene`` ending at column 139 and a second
+    strand of thread crossing the rows at left columns 146-149, nearer (at D_O), both blurred
+    so that their edges spill past their masks (as rendered thread does)."""
+    import cv2
+
+    h, w = 100, 400
+    grey = [np.full((h, w), 200.0, np.float32) for _ in range(2)]
+    masks = [np.zeros((h, w), bool), np.zeros((h, w), bool)]
+    for side, d_t, d_s in ((0, 0, 0), (1, D_T, D_O)):
+        grey[side][49:52, 20 - d_t : 140 - d_t] = 30.0
+        grey[side][:, 146 - d_s : 150 - d_s] = 30.0
+    for side in (0, 1):
+        grey[side] = cv2.GaussianBlur(grey[side], (0, 0), 1.0)
+    for side, d_t, d_s in ((0, 0, 0), (1, D_T, D_O)):
+        masks[side][49:52, 20 - d_t : 140 - d_t] = True
+        masks[side][:, 146 - d_s : 150 - d_s] = True
+    x = np.linspace(20.0, 139.0, 120)
+    uv_l = np.column_stack([x, np.full_like(x, 50.0)])
+    return (grey[0], grey[1]), (masks[0], masks[1]), (uv_l, uv_l - [D_T, 0.0])
+
+
+def test_another_strand_of_thread_beside_an_end_is_no_occluder() -> None:
+    # the strand's blurred edge is the thread's, not a surface's texture: the plain background
+    # around it cannot be measured, so nothing says the end runs under an occluder
+    greys, masks, uv = _strand_beside_end_scene()
+    assert surface_ahead(greys, masks, 0, uv[0][-1], np.array([1.0, 0.0]), float(D_T)) is None
+    assert _occluder(greys, masks, uv) is None
+
+
+def test_the_surface_past_an_end_is_the_tissue_behind_it_or_an_occluder_in_front() -> None:
+    # a cut end's stopping view: the tissue (or unsegmented thread) past the end is no
+    # occluder; an occluder that hides the thread there lies in front of the end
+    greys, masks, uv = _stereo_scene(None)
+    d = surface_past_end(uv[0], greys, masks, 0, "end", float(D_T))
+    assert d is not None and abs(d - (D_BG - D_T)) <= 1.0
+    greys, masks, uv = _stereo_scene((140, 400))
+    d = surface_past_end(uv[0], greys, masks, 0, "end", float(D_T))
+    assert d is not None and abs(d - (D_O - D_T)) <= 1.0
+
+
+def _slanted_shaft_scene(angle_deg: float = 35.0, half_width: float = 14.0):
+    """Textured tissue at D_BG, the thread on rows 49-51 up to left column 139 at D_T, and a
+    textured band-shaped occluder at D_O along a line through (150, 50) at ``angle_deg`` to
+    the rows (down and right, out of the image), ``half_width`` px either side of it."""
+    rng = np.random.default_rng(3)
+    h, w = 320, 400
+    bg = _texture(rng, h, w + D_BG)
+    occ = _texture(rng, h, w + D_O)
+    grey = [bg[:, :w].copy(), bg[:, D_BG : D_BG + w].copy()]
+    masks = [np.zeros((h, w), bool), np.zeros((h, w), bool)]
+    for side, d in ((0, 0), (1, D_T)):
+        grey[side][49:52, 20 - d : 140 - d] = 30.0
+        masks[side][49:52, 20 - d : 140 - d] = True
+    a = np.radians(angle_deg)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    for side, d in ((0, 0), (1, D_O)):
+        xl = xx + d  # the left column this pixel of the view shows on the occluder
+        band = np.abs(-(xl - 150.0) * np.sin(a) + (yy - 50.0) * np.cos(a)) < half_width
+        band &= (xl - 150.0) * np.cos(a) + (yy - 50.0) * np.sin(a) > -half_width
+        grey[side][band] = occ[:, d : d + w][band]
+        masks[side][band] = False
+    x = np.linspace(20.0, 139.0, 120)
+    uv_l = np.column_stack([x, np.full_like(x, 50.0)])
+    return (grey[0], grey[1]), (masks[0], masks[1]), (uv_l, uv_l - [D_T, 0.0])
+
+
+def test_a_thread_may_turn_under_an_occluder_that_runs_off_at_an_angle() -> None:
+    # a 28 px wide shaft at 35 deg to the thread's way: straight on, the walk crosses it in
+    # ~50 px; the hidden thread may turn to follow it (a ray 22.5 deg off the way runs 12.5
+    # deg off its axis and stays under it for ~90 px)
+    greys, masks, uv = _slanted_shaft_scene()
+    occ = _occluder(greys, masks, uv, max_reach=300.0)
+    assert occ is not None and occ.hidden_px >= 80.0  # straight on: 39 px
+    # the same shaft across the way (90 deg): every ray crosses it within ~40 px
+    greys, masks, uv = _slanted_shaft_scene(angle_deg=90.0)
+    occ = _occluder(greys, masks, uv, max_reach=300.0)
+    assert occ is not None and occ.hidden_px < 60.0
