@@ -1,0 +1,175 @@
+"""Depth continuity along the thread's pieces (issue 12): a short stretch of keypoints matched
+to a neighbouring strand takes its second match.
+
+Two turns of a coil, or the legs of a hairpin, run side by side a few px apart. Where the
+distance between them in the left image equals their difference in disparity, the SSD window
+of Eq. (2) at a pixel of one strand aligns *both* strands with the right image at the other
+strand's disparity, and that wrong match wins by a wide margin (E_next / E_min of 10-20 on
+generated spirals: Eq. (6) calls it reliable). The right match is still there, as the second
+minimum ``d_next`` of every pixel (generated spiral 8141 #9: three keypoints at 67 px among
+49 px, their second match 49 px; 8142 #1, 8144 #8: the free end's last keypoints 58-62 px
+among 38 px, second match 38-39 px).
+
+Along a chain of A (keypoints of degree <= 2 between junctions and ends) the disparity of one
+strand changes by at most ``DISPARITY_SLACK_PX + DISPARITY_SLOPE * distance`` from keypoint to
+keypoint (the ordering's own bound). Each keypoint takes either its first match (the cluster's
+median disparity) or its second (the median ``d_next`` of its pixels, refined to sub-pixel on
+the cluster's summed energy curve); the choice minimises, per chain, ``VIOLATION_COST`` per
+step that breaks continuity plus one per second match taken (dynamic programming over the
+chain). So a stretch of up to ``VIOLATION_COST - 1`` keypoints changes its match when that
+removes a break, the majority of a chain keeps its own, and a chain whose steps all agree is
+never touched (every frame without a break: the same result as before, and no extra time).
+Junctions keep their disparity (their pixels are both strands') and end chains.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from threadrecon.core import walk_kernel
+from threadrecon.core.stereo import StereoResult
+
+DISPARITY_SLACK_PX = 1.0  # the ordering's depth-continuity bound: slack + slope * distance, px
+DISPARITY_SLOPE = 0.1
+VIOLATION_COST = 5  # second matches one continuity break is worth (the ordering's BREAK_SIDE:
+# the median of five keypoints outvotes two wrong ones; a longer stretch is a strand of its own)
+
+
+def second_matches(
+    stereo: StereoResult,
+    labels: np.ndarray,
+    disp: np.ndarray,
+    edges: np.ndarray,
+    pos: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(disp', switched): the keypoints' disparities with short stretches that break depth
+    continuity along a chain of A switched to their second match (see the module docstring),
+    and a (K,) bool of the switched keypoints. ``labels``: (N,) cluster of each pixel of
+    ``stereo`` (-1: none); ``disp``: (K,) the clusters' median disparities, px; ``edges``:
+    (E, 2) A; ``pos``: (K, 2) keypoints, px. ``disp`` is returned as is (same object) when no
+    step of a chain breaks continuity."""
+    K = len(disp)
+    if pos.shape != (K, 2):
+        raise ValueError(f"pos must be ({K}, 2) keypoints in px, got {pos.shape}")
+    switched = np.zeros(K, dtype=bool)
+    if not len(edges):
+        return disp, switched
+    degree = np.bincount(edges.ravel(), minlength=K)
+    a, b = edges[:, 0], edges[:, 1]
+    chain_edge = (degree[a] <= 2) & (degree[b] <= 2)
+    if not _breaks(disp[a], disp[b], pos[a], pos[b])[chain_edge].any():
+        return disp, switched
+    alt = walk_kernel.cluster_medians(
+        np.ascontiguousarray(labels, dtype=np.int64), stereo.d_next.astype(np.float64), K
+    )
+    out = disp.copy()
+    for chain in _chains(K, edges[chain_edge], degree):
+        choice = _best_choice(chain, disp, alt, pos)
+        switched[chain[choice]] = True
+    for k in np.flatnonzero(switched).tolist():
+        sub = _subpixel(stereo, np.flatnonzero(labels == k), alt[k])
+        if np.isfinite(sub):
+            out[k] = sub
+        else:
+            switched[k] = False
+    return out, switched
+
+
+def depth_of(stereo: StereoResult, disparity: np.ndarray) -> np.ndarray:
+    """Depths at ``disparity`` px, from the stereo result's own reprojection (1 / depth is
+    affine in disparity for a rectified pair: fitted on its finite pixels)."""
+    d, z = stereo.disparity, stereo.depth
+    ok = np.isfinite(z) & (z > 0)
+    if np.count_nonzero(ok) < 2 or np.ptp(d[ok]) <= 0:
+        return np.full(len(disparity), np.nan)
+    slope, icpt = np.polyfit(d[ok], 1.0 / z[ok], 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = slope * disparity + icpt
+        return np.where(inv > 0, 1.0 / inv, np.nan)
+
+
+def _breaks(da: np.ndarray, db: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
+    """Steps whose disparity change exceeds one strand's continuity bound (NaN: no break)."""
+    dist = np.hypot(*(pa - pb).T) if pa.ndim == 2 else float(np.hypot(*(pa - pb)))
+    return np.abs(da - db) > DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
+
+
+def _chains(K: int, edges: np.ndarray, degree: np.ndarray) -> list[np.ndarray]:
+    """The chains of A: paths through keypoints of degree <= 2 over ``edges`` (edges between
+    two such keypoints), each in order along A; a closed loop is opened at its lowest id."""
+    adj: list[list[int]] = [[] for _ in range(K)]
+    for u, v in edges.tolist():
+        adj[u].append(v)
+        adj[v].append(u)
+    seen = np.zeros(K, dtype=bool)
+    out = []
+    starts = [k for k in range(K) if len(adj[k]) == 1] + [k for k in range(K) if len(adj[k]) == 2]
+    for s in starts:
+        if seen[s]:
+            continue
+        chain, prev, cur = [s], -1, s
+        seen[s] = True
+        while True:
+            nxt = [v for v in adj[cur] if v != prev and not seen[v]]
+            if not nxt:
+                break
+            prev, cur = cur, nxt[0]
+            seen[cur] = True
+            chain.append(cur)
+        if len(chain) > 1:
+            out.append(np.array(chain, dtype=np.int64))
+    return out
+
+
+def _best_choice(
+    chain: np.ndarray, disp: np.ndarray, alt: np.ndarray, pos: np.ndarray
+) -> np.ndarray:
+    """(n,) bool over ``chain``: which keypoints take their second match, by dynamic
+    programming (cost ``VIOLATION_COST`` per broken step, 1 per second match; ties keep the
+    first match). A keypoint without a finite second match keeps its first."""
+    n = len(chain)
+    cand = np.stack([disp[chain], alt[chain]], axis=1)  # (n, 2): first, second match
+    usable = np.isfinite(cand)
+    usable[:, 0] = True  # a keypoint without any match (NaN) breaks nothing: _breaks is False
+    cost = np.where(usable[0], [0.0, 1.0], np.inf)
+    back = np.zeros((n, 2), dtype=np.int64)
+    for i in range(1, n):
+        p0, p1 = pos[chain[i - 1]], pos[chain[i]]
+        new = np.full(2, np.inf)
+        for s in (0, 1):
+            if not usable[i, s]:
+                continue
+            step = [
+                cost[r] + VIOLATION_COST * float(_breaks(cand[i - 1, r], cand[i, s], p0, p1))
+                for r in (0, 1)
+            ]
+            r = int(np.argmin(step))  # argmin: the first match on a tie
+            new[s], back[i, s] = step[r] + s, r
+        cost = new
+    choice = np.zeros(n, dtype=bool)
+    s = int(np.argmin(cost))
+    for i in range(n - 1, -1, -1):
+        choice[i] = bool(s)
+        s = int(back[i, s])
+    return choice
+
+
+def _subpixel(stereo: StereoResult, idx: np.ndarray, d0: float) -> float:
+    """The minimum of the cluster's summed energy curve E(d) of Eq. (2) (its pixels ``idx``)
+    nearest ``d0`` px: the local minimum within 1 px of the integer nearest ``d0``, refined by
+    a parabola through it and its two neighbours; NaN where there is none."""
+    if not len(idx) or not np.isfinite(d0):
+        return float("nan")
+    E = stereo._energy(idx).astype(np.float64).sum(axis=0)  # the cluster's own curve, once
+    lo = stereo.d_range[0]
+    j = int(round(d0))
+    cands = [
+        c for c in (j - 1, j, j + 1) if lo < c < len(E) - 1 and np.isfinite(E[c - 1 : c + 2]).all()
+    ]
+    cands = [c for c in cands if E[c] <= E[c - 1] and E[c] <= E[c + 1]]
+    if not cands:
+        return float("nan")
+    c = min(cands, key=lambda v: E[v])
+    den = E[c - 1] - 2.0 * E[c] + E[c + 1]
+    step = 0.5 * (E[c - 1] - E[c + 1]) / den if den > 0 else 0.0
+    return float(c + np.clip(step, -0.5, 0.5))
