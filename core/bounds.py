@@ -22,6 +22,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.continuity import (
+    DISPARITY_SLACK_PX,
+    DISPARITY_SLOPE,
+    depth_of,
+    disparity_of,
+)
 from threadrecon.core.ends import fuse_end
 from threadrecon.core.ordering import OUTLIER_PX, Ordering
 from threadrecon.core.params import Params, param
@@ -338,7 +344,7 @@ def _extra_points(
     cx = np.bincount(group, weights=xy[:, 0], minlength=n_runs) / np.maximum(size, 1)
     cy = np.bincount(group, weights=xy[:, 1], minlength=n_runs) / np.maximum(size, 1)
     # Median stereo depth of each run's finite depths.
-    depth = stereo.depth[sel]
+    depth = _dead_end_depths(stereo, ordering, path, sel, link)
     fin = np.isfinite(depth)
     g_f, d_f = group[fin], depth[fin]
     o = np.lexsort((d_f, g_f))
@@ -372,6 +378,36 @@ def _extra_points(
     is_key = np.concatenate([np.ones(M, bool), np.zeros(len(extras), bool)])
     o = np.lexsort((~is_key, key_pos))  # stable: extras keep their run order
     return rows[o], is_key[o]
+
+
+def _dead_end_depths(
+    stereo: StereoResult, ordering: Ordering, path: np.ndarray, sel: np.ndarray, link: np.ndarray
+) -> np.ndarray:
+    """Stereo depths of the gap pixels ``sel`` (on links ``link``), where a pixel on a dead
+    end (the link to an extension keypoint, whose only anchor is the end keypoint) takes its
+    second match when its first breaks depth continuity with the end keypoint and its second
+    does not (continuity bound of core/continuity.py over the pixel's distance from it). A thin
+    free end beside other strands (the inner end of a coil) is matched to its neighbours at
+    every other pixel (generated spiral 8141 #11: 27, 11 and 44 px where the truth is 44 px, the
+    second match then 44 px): the median of a run of them put the end 60 mm off."""
+    depth = stereo.depth[sel]
+    M = len(path)
+    ends = [(0, 1)] if ordering.order[0] < 0 else []
+    ends += [(M - 2, M - 2)] if ordering.order[-1] < 0 and M > 2 else []
+    for li, anchor in ends:
+        on = np.flatnonzero(link == li)
+        z_a = path[anchor, 2]
+        if not len(on) or not (np.isfinite(z_a) and z_a > 0):
+            continue
+        px = sel[on]
+        d_a = disparity_of(stereo, z_a)
+        dist = np.hypot(*(stereo.pixels[px] - path[anchor, :2]).T)
+        bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
+        first, second = stereo.disparity[px], stereo.d_next[px].astype(np.float64)
+        swap = ~(np.abs(first - d_a) <= bound) & (np.abs(second - d_a) <= bound)
+        if swap.any():
+            depth[on[swap]] = depth_of(stereo, second[swap])
+    return depth
 
 
 def _border_depths(path: np.ndarray, fB: float) -> np.ndarray:

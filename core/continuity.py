@@ -76,16 +76,32 @@ def second_matches(
 
 
 def depth_of(stereo: StereoResult, disparity: np.ndarray) -> np.ndarray:
-    """Depths at ``disparity`` px, from the stereo result's own reprojection (1 / depth is
-    affine in disparity for a rectified pair: fitted on its finite pixels)."""
-    d, z = stereo.disparity, stereo.depth
-    ok = np.isfinite(z) & (z > 0)
-    if np.count_nonzero(ok) < 2 or np.ptp(d[ok]) <= 0:
-        return np.full(len(disparity), np.nan)
-    slope, icpt = np.polyfit(d[ok], 1.0 / z[ok], 1)
+    """Depths at ``disparity`` px (NaN where none), by the stereo result's own reprojection."""
+    slope, icpt = _inverse_depth_line(stereo)
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = slope * disparity + icpt
+        inv = slope * np.asarray(disparity, dtype=np.float64) + icpt
         return np.where(inv > 0, 1.0 / inv, np.nan)
+
+
+def disparity_of(stereo: StereoResult, depth: float) -> float:
+    """The disparity, px, at which the stereo result reprojects to ``depth`` (NaN: none)."""
+    slope, icpt = _inverse_depth_line(stereo)
+    return (1.0 / depth - icpt) / slope if slope != 0 and depth > 0 else float("nan")
+
+
+def _inverse_depth_line(stereo: StereoResult) -> tuple[float, float]:
+    """(a, b) with 1 / depth = a disparity + b: Eq. (4)-(5)'s reprojection of a rectified pair
+    is affine in 1 / depth, so the finite pixels of least and greatest disparity fix it
+    (NaN, NaN when fewer than two distinct disparities have a depth)."""
+    d, z = stereo.disparity, stereo.depth
+    ok = np.flatnonzero(np.isfinite(z) & (z > 0))
+    if len(ok) < 2:
+        return float("nan"), float("nan")
+    i, j = ok[np.argmin(d[ok])], ok[np.argmax(d[ok])]
+    if not d[j] > d[i]:
+        return float("nan"), float("nan")
+    slope = (1.0 / z[j] - 1.0 / z[i]) / (d[j] - d[i])
+    return float(slope), float(1.0 / z[i] - slope * d[i])
 
 
 def _breaks(da: np.ndarray, db: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
