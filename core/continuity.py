@@ -16,7 +16,7 @@ keypoint (the ordering's own bound). Each keypoint takes either its first match 
 median disparity) or its second (the median ``d_next`` of its pixels, refined to sub-pixel on
 the cluster's summed energy curve); the choice minimises, per chain, ``VIOLATION_COST`` per
 step that breaks continuity plus one per second match taken (dynamic programming over the
-chain). So a stretch of up to ``VIOLATION_COST - 1`` keypoints changes its match when that
+chain). So a stretch of up to four keypoints changes its match when that
 removes a break, the majority of a chain keeps its own, and a chain whose steps all agree is
 never touched (every frame without a break: the same result as before, and no extra time).
 Junctions keep their disparity (their pixels are both strands') and end chains.
@@ -31,8 +31,11 @@ from threadrecon.core.stereo import StereoResult
 
 DISPARITY_SLACK_PX = 1.0  # the ordering's depth-continuity bound: slack + slope * distance, px
 DISPARITY_SLOPE = 0.1
-VIOLATION_COST = 5  # second matches one continuity break is worth (the ordering's BREAK_SIDE:
-# the median of five keypoints outvotes two wrong ones; a longer stretch is a strand of its own)
+SMOOTH_TIE = 1e-6  # per px of disparity change: among choices of equal cost, the smoother
+# (the same from either end of a chain; the counts above are never outweighed)
+VIOLATION_COST = 4.5  # second matches one continuity break is worth: a stretch of up to four
+# switches (the ordering's BREAK_SIDE of five is a strand of its own); never a tie between
+# switching a stretch and keeping its break, so the choice is the same along either direction
 
 
 def second_matches(
@@ -141,8 +144,8 @@ def _best_choice(
     chain: np.ndarray, disp: np.ndarray, alt: np.ndarray, pos: np.ndarray
 ) -> np.ndarray:
     """(n,) bool over ``chain``: which keypoints take their second match, by dynamic
-    programming (cost ``VIOLATION_COST`` per broken step, 1 per second match; ties keep the
-    first match). A keypoint without a finite second match keeps its first."""
+    programming (cost ``VIOLATION_COST`` per broken step, 1 per second match, and among
+    equal counts the least total disparity change). A keypoint without a finite second match keeps its first."""
     n = len(chain)
     cand = np.stack([disp[chain], alt[chain]], axis=1)  # (n, 2): first, second match
     usable = np.isfinite(cand)
@@ -156,7 +159,9 @@ def _best_choice(
             if not usable[i, s]:
                 continue
             step = [
-                cost[r] + VIOLATION_COST * float(_breaks(cand[i - 1, r], cand[i, s], p0, p1))
+                cost[r]
+                + VIOLATION_COST * float(_breaks(cand[i - 1, r], cand[i, s], p0, p1))
+                + SMOOTH_TIE * _change(cand[i - 1, r], cand[i, s])
                 for r in (0, 1)
             ]
             r = int(np.argmin(step))  # argmin: the first match on a tie
@@ -168,6 +173,12 @@ def _best_choice(
         choice[i] = bool(s)
         s = int(back[i, s])
     return choice
+
+
+def _change(a: float, b: float) -> float:
+    """|a - b| px, 0 where either is NaN (a keypoint without a match)."""
+    d = abs(a - b)
+    return d if d == d else 0.0
 
 
 def _subpixel(stereo: StereoResult, idx: np.ndarray, d0: float) -> float:

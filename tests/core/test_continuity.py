@@ -29,7 +29,7 @@ def _line_chain(n: int) -> tuple[np.ndarray, np.ndarray]:
     return pos, edges
 
 
-@pytest.mark.parametrize("wrong", [1, 2, VIOLATION_COST - 1])
+@pytest.mark.parametrize("wrong", [1, 2, int(VIOLATION_COST)])
 def test_a_short_wrong_stretch_at_a_chain_end_takes_its_second_match(wrong: int) -> None:
     n = 12
     pos, _ = _line_chain(n)
@@ -44,7 +44,8 @@ def test_a_long_stretch_is_a_strand_of_its_own() -> None:
     n = 14
     pos, _ = _line_chain(n)
     disp, alt = np.full(n, 40.0), np.full(n, 22.0)
-    disp[n - VIOLATION_COST :], alt[n - VIOLATION_COST :] = 58.0, 40.0
+    long = int(VIOLATION_COST) + 1
+    disp[n - long :], alt[n - long :] = 58.0, 40.0
     assert not _best_choice(np.arange(n), disp, alt, pos).any()
 
 
@@ -107,3 +108,16 @@ def test_a_coils_free_end_matched_to_the_next_turn_comes_back_at_its_depth(
     rec = Pipeline(pair, calib).run(resolve_preset(None))
     e = frame_errors(rec["camera"].points, f.truth.centerline, calib)
     assert e.e_S_max < 3.0 and abs(e.e_length) < 3.0, (e.e_S_max, e.e_length)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_the_choice_is_the_same_along_either_direction_of_a_chain(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(3, 30))
+    pos = np.cumsum(rng.uniform(3, 8, (n, 2)), axis=0)
+    disp = rng.choice([40.0, 41.0, 58.0], n) + rng.uniform(0, 0.3, n)
+    alt = np.where(rng.random(n) < 0.3, np.nan, rng.choice([40.0, 22.0, 58.0], n))
+    alt += rng.uniform(0, 0.3, n)
+    forward = _best_choice(np.arange(n), disp, alt, pos)
+    backward = _best_choice(np.arange(n)[::-1], disp, alt, pos)
+    assert np.array_equal(forward, backward[::-1])
