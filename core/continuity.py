@@ -60,13 +60,14 @@ def second_matches(
     degree = np.bincount(edges.ravel(), minlength=K)
     a, b = edges[:, 0], edges[:, 1]
     chain_edge = (degree[a] <= 2) & (degree[b] <= 2)
-    if not _breaks(disp[a], disp[b], pos[a], pos[b])[chain_edge].any():
+    broken = _breaks(disp[a], disp[b], pos[a], pos[b]) & chain_edge
+    if not broken.any():
         return disp, switched
     alt = walk_kernel.cluster_medians(
         np.ascontiguousarray(labels, dtype=np.int64), stereo.d_next.astype(np.float64), K
     )
     out = disp.copy()
-    for chain in _chains(K, edges[chain_edge], degree):
+    for chain in _chains(K, edges[chain_edge], np.unique(a[broken])):
         choice = _best_choice(chain, disp, alt, pos)
         switched[chain[choice]] = True
     for k in np.flatnonzero(switched).tolist():
@@ -113,21 +114,27 @@ def _breaks(da: np.ndarray, db: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> n
     return np.abs(da - db) > DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
 
 
-def _chains(K: int, edges: np.ndarray, degree: np.ndarray) -> list[np.ndarray]:
-    """The chains of A: paths through keypoints of degree <= 2 over ``edges`` (edges between
-    two such keypoints), each in order along A; a closed loop is opened at its lowest id."""
+def _chains(K: int, edges: np.ndarray, through: np.ndarray | None = None) -> list[np.ndarray]:
+    """The chains of ``edges`` (A's edges between keypoints of degree <= 2: paths), each in
+    order along A; only those through a keypoint of ``through`` when given (the ends of the
+    broken steps: the others need no choice). A closed loop is opened where it was entered."""
     adj: list[list[int]] = [[] for _ in range(K)]
     for u, v in edges.tolist():
         adj[u].append(v)
         adj[v].append(u)
     seen = np.zeros(K, dtype=bool)
     out = []
-    starts = [k for k in range(K) if len(adj[k]) == 1] + [k for k in range(K) if len(adj[k]) == 2]
-    for s in starts:
-        if seen[s]:
+    for s in range(K) if through is None else through.tolist():
+        if seen[s] or not adj[s]:
             continue
-        chain, prev, cur = [s], -1, s
-        seen[s] = True
+        end, prev = s, -1  # to one end of s's chain (or once round a loop)
+        while len(adj[end]) == 2:
+            nxt = adj[end][0] if adj[end][0] != prev else adj[end][1]
+            if nxt == s:
+                break
+            prev, end = end, nxt
+        chain, prev, cur = [end], -1, end
+        seen[end] = True
         while True:
             nxt = [v for v in adj[cur] if v != prev and not seen[v]]
             if not nxt:
@@ -135,8 +142,7 @@ def _chains(K: int, edges: np.ndarray, degree: np.ndarray) -> list[np.ndarray]:
             prev, cur = cur, nxt[0]
             seen[cur] = True
             chain.append(cur)
-        if len(chain) > 1:
-            out.append(np.array(chain, dtype=np.int64))
+        out.append(np.array(chain, dtype=np.int64))
     return out
 
 

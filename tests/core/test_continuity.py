@@ -74,8 +74,15 @@ def test_chains_stop_at_junctions_and_cover_every_chain_edge_once() -> None:
     edges = np.array([[0, 1], [1, 2], [2, 3], [3, 4], [4, 5], [3, 6], [6, 7]])
     degree = np.bincount(edges.ravel(), minlength=8)
     chain_edge = (degree[edges[:, 0]] <= 2) & (degree[edges[:, 1]] <= 2)
-    chains = _chains(8, edges[chain_edge], degree)
-    assert sorted(sorted(c.tolist()) for c in chains) == [[0, 1, 2], [4, 5], [6, 7]]
+    chains = _chains(8, edges[chain_edge])
+    assert sorted(c.tolist() for c in chains) == [[0, 1, 2], [4, 5], [6, 7]]
+    # only the chains through the given keypoints, each walked from one of its ends
+    assert [c.tolist() for c in _chains(8, edges[chain_edge], np.array([1, 5]))] == [
+        [0, 1, 2],
+        [5, 4],
+    ]
+    ring = np.array([[0, 1], [1, 2], [2, 3], [3, 0]])  # a closed loop: once round
+    assert sorted(_chains(4, ring, np.array([2]))[0].tolist()) == [0, 1, 2, 3]
 
 
 def test_a_thread_without_a_depth_break_is_returned_untouched() -> None:
