@@ -17,6 +17,7 @@ depth resolution of the rig (the paper leaves this threshold unstated).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +28,7 @@ from threadrecon.core.continuity import (
     DISPARITY_SLOPE,
     depth_of,
     disparity_of,
+    second_match_subpixel,
 )
 from threadrecon.core.ends import fuse_end
 from threadrecon.core.ordering import OUTLIER_PX, Ordering
@@ -383,12 +385,13 @@ def _extra_points(
 def _dead_end_depths(
     stereo: StereoResult, ordering: Ordering, path: np.ndarray, sel: np.ndarray, link: np.ndarray
 ) -> np.ndarray:
-    """Stereo depths of the gap pixels ``sel`` (on links ``link``), where a pixel on a dead
-    end (the link to an extension keypoint, whose only anchor is the end keypoint) takes its
-    second match when its first breaks depth continuity with the end keypoint and its second
-    does not (continuity bound of core/continuity.py over the pixel's distance from it). A thin
-    free end beside other strands (the inner end of a coil) is matched to its neighbours at
-    every other pixel (generated spiral 8141 #11: 27, 11 and 44 px where the truth is 44 px, the
+    """Stereo depths of the gap pixels ``sel`` (on links ``link``), where the pixels of a dead
+    end (the link to an extension keypoint) are followed from the end keypoint (their only
+    anchor) outwards, in the order of ``pixel_t``, by :func:`_track`: a pixel whose first
+    match breaks continuity with the strand followed so far and whose second match does not
+    takes its second. A tip whose depth drifts smoothly keeps every first match. A thin free
+    end beside other strands (the inner end of a coil) is matched to its neighbours at every
+    other pixel (generated spiral 8141 #11: 27, 11 and 44 px where the truth is 44 px, the
     second match then 44 px): the median of a run of them put the end 60 mm off."""
     depth = stereo.depth[sel]
     M = len(path)
@@ -401,13 +404,52 @@ def _dead_end_depths(
             continue
         px = sel[on]
         d_a = disparity_of(stereo, z_a)
-        dist = np.hypot(*(stereo.pixels[px] - path[anchor, :2]).T)
-        bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
         first, second = stereo.disparity[px], stereo.d_next[px].astype(np.float64)
-        swap = ~(np.abs(first - d_a) <= bound) & (np.abs(second - d_a) <= bound)
+        bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * np.hypot(
+            *(stereo.pixels[px] - path[anchor, :2]).T
+        )
+        if not (~(np.abs(first - d_a) <= bound) & (np.abs(second - d_a) <= bound)).any():
+            continue  # no pixel has a second match the anchor's strand could reach
+        t = ordering.pixel_t[px]
+        out = np.argsort(-t if anchor == 1 else t, kind="stable")  # outwards from the anchor
+        xy = np.concatenate([path[anchor : anchor + 1, :2], stereo.pixels[px[out]]])
+        swap = _track(d_a, first[out], second[out], xy)
         if swap.any():
-            depth[on[swap]] = depth_of(stereo, second[swap])
+            moved = on[out[swap]]
+            depth[moved] = depth_of(stereo, second_match_subpixel(stereo, sel[moved]))
     return depth
+
+
+TRACK_REF = 5  # pixels whose median disparity is the followed strand's (two wrong outvoted)
+
+
+def _track(d_a: float, first: np.ndarray, second: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(n,) bool over a dead end's pixels (in order outwards from its anchor, disparity
+    ``d_a``; ``xy``: (n + 1, 2), the anchor first): which take their second match. The
+    strand's disparity is the median of the last ``TRACK_REF`` pixels taken (the anchor's at
+    first); a pixel keeps its first match when it lies within the continuity bound of it
+    (over the distance from the last pixel taken), else takes its second when that does and
+    the first is another match (beyond the bound by more than ``OUTLIER_PX``, the ordering's
+    rule: a tip that bends in depth keeps its own); otherwise it keeps its first, and the
+    strand's disparity does not move."""
+    n = len(first)
+    swap = np.zeros(n, dtype=bool)
+    ref = [float(d_a)]
+    last = xy[0]
+    fl, sl, pts = first.tolist(), second.tolist(), xy[1:]
+    for i in range(n):
+        d_ref = float(np.median(ref[-TRACK_REF:]))
+        p = pts[i]
+        bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * math.hypot(p[0] - last[0], p[1] - last[1])
+        if abs(fl[i] - d_ref) <= bound:
+            ref.append(fl[i])
+        elif abs(sl[i] - d_ref) <= bound and abs(fl[i] - d_ref) > bound + OUTLIER_PX:
+            ref.append(sl[i])
+            swap[i] = True
+        else:
+            continue
+        last = p
+    return swap
 
 
 def _border_depths(path: np.ndarray, fB: float) -> np.ndarray:

@@ -527,3 +527,26 @@ def test_extra_points_beyond_the_depth_ratio_leave_the_window_lines() -> None:
     assert_close(_off_by_ratio(H, is_key, s, key_idx, 0.0), H[:, 2])
     with pytest.raises(ValueError, match="depth_ratio"):
         _off_by_ratio(H, is_key, s, key_idx, 0.5)
+
+
+def test_a_dead_end_matched_to_its_neighbours_is_followed_on_its_own_strand() -> None:
+    from threadrecon.core.bounds import _track
+
+    n = 40
+    xy = np.column_stack([np.full(n + 1, 100.0), 100.0 - np.arange(n + 1)])  # anchor first
+    true = 44.0 + 0.02 * np.arange(n)
+    first, second = true.copy(), np.full(n, 12.0)
+    wrong = np.arange(n) % 3 == 1  # every third pixel matched to a neighbour, its 2nd right
+    first[wrong], second[wrong] = 27.0 + 0.01 * np.arange(n)[wrong], np.round(true[wrong])
+    assert np.array_equal(_track(44.0, first, second, xy), wrong)
+
+
+def test_a_tip_whose_depth_drifts_keeps_every_first_match() -> None:
+    from threadrecon.core.bounds import _track
+
+    n = 30
+    xy = np.column_stack([np.full(n + 1, 50.0), 50.0 + np.arange(n + 1)])
+    first = 18.4 - 0.08 * np.arange(n)  # 2.4 px of drift over 30 px, 0.08 px a step
+    second = first + 3.0
+    second[::4] = first[::4] - 0.05  # second matches that would fit do not matter
+    assert not _track(18.4, first, second, xy).any()

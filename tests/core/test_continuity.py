@@ -10,8 +10,8 @@ from support import synthetic_case
 from threadrecon.app.presets import resolve_preset
 from threadrecon.core.continuity import (
     VIOLATION_COST,
-    _best_choice,
     _chains,
+    best_choice,
     depth_of,
     disparity_of,
     second_matches,
@@ -36,7 +36,7 @@ def test_a_short_wrong_stretch_at_a_chain_end_takes_its_second_match(wrong: int)
     disp = np.full(n, 40.0)
     alt = np.full(n, 22.0)  # the second matches of the right keypoints lead nowhere
     disp[n - wrong :], alt[n - wrong :] = 58.0, 40.0
-    choice = _best_choice(np.arange(n), disp, alt, pos)
+    choice = best_choice(disp, alt, pos)
     assert np.array_equal(np.flatnonzero(choice), np.arange(n - wrong, n))
 
 
@@ -46,7 +46,7 @@ def test_a_long_stretch_is_a_strand_of_its_own() -> None:
     disp, alt = np.full(n, 40.0), np.full(n, 22.0)
     long = int(VIOLATION_COST) + 1
     disp[n - long :], alt[n - long :] = 58.0, 40.0
-    assert not _best_choice(np.arange(n), disp, alt, pos).any()
+    assert not best_choice(disp, alt, pos).any()
 
 
 def test_the_majority_of_a_chain_keeps_its_match_when_both_sides_could_switch() -> None:
@@ -54,7 +54,7 @@ def test_the_majority_of_a_chain_keeps_its_match_when_both_sides_could_switch() 
     pos, _ = _line_chain(n)
     disp = np.r_[np.full(7, 40.0), np.full(3, 58.0)]
     alt = np.r_[np.full(7, 58.0), np.full(3, 40.0)]  # each side's second match is the other's
-    choice = _best_choice(np.arange(n), disp, alt, pos)
+    choice = best_choice(disp, alt, pos)
     assert np.array_equal(np.flatnonzero(choice), [7, 8, 9])
 
 
@@ -63,9 +63,9 @@ def test_a_wrong_stretch_inside_a_chain_switches_and_a_nan_second_match_never_do
     pos, _ = _line_chain(n)
     disp, alt = np.full(n, 40.0), np.full(n, np.nan)
     disp[6:9], alt[6:9] = 58.0, 40.2
-    assert np.array_equal(np.flatnonzero(_best_choice(np.arange(n), disp, alt, pos)), [6, 7, 8])
+    assert np.array_equal(np.flatnonzero(best_choice(disp, alt, pos)), [6, 7, 8])
     alt[7] = np.nan  # one keypoint cannot switch: the stretch keeps its two breaks' cost
-    choice = _best_choice(np.arange(n), disp, alt, pos)
+    choice = best_choice(disp, alt, pos)
     assert not choice[7]
 
 
@@ -125,6 +125,6 @@ def test_the_choice_is_the_same_along_either_direction_of_a_chain(seed: int) -> 
     disp = rng.choice([40.0, 41.0, 58.0], n) + rng.uniform(0, 0.3, n)
     alt = np.where(rng.random(n) < 0.3, np.nan, rng.choice([40.0, 22.0, 58.0], n))
     alt += rng.uniform(0, 0.3, n)
-    forward = _best_choice(np.arange(n), disp, alt, pos)
-    backward = _best_choice(np.arange(n)[::-1], disp, alt, pos)
+    forward = best_choice(disp, alt, pos)
+    backward = best_choice(disp[::-1], alt[::-1], pos[::-1])
     assert np.array_equal(forward, backward[::-1])
