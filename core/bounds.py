@@ -403,12 +403,12 @@ def _dead_end_depths(
         if not len(on) or not (np.isfinite(z_a) and z_a > 0):
             continue
         px = sel[on]
-        d_a = disparity_of(stereo, z_a)
-        first, second = stereo.disparity[px], stereo.d_next[px].astype(np.float64)
+        d_a = disparity_of(stereo, z_a, px)
+        first, second = stereo.disparity[px], stereo.d_next[px]
         bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * np.hypot(
             *(stereo.pixels[px] - path[anchor, :2]).T
         )
-        if not (~(np.abs(first - d_a) <= bound) & (np.abs(second - d_a) <= bound)).any():
+        if not ((np.abs(first - d_a) > bound + OUTLIER_PX) & (np.abs(second - d_a) <= bound)).any():
             continue  # no pixel has a second match the anchor's strand could reach
         t = ordering.pixel_t[px]
         out = np.argsort(-t if anchor == 1 else t, kind="stable")  # outwards from the anchor
@@ -416,7 +416,7 @@ def _dead_end_depths(
         swap = _track(d_a, first[out], second[out], xy)
         if swap.any():
             moved = on[out[swap]]
-            depth[moved] = depth_of(stereo, second_match_subpixel(stereo, sel[moved]))
+            depth[moved] = depth_of(stereo, second_match_subpixel(stereo, sel[moved]), px)
     return depth
 
 
@@ -438,7 +438,9 @@ def _track(d_a: float, first: np.ndarray, second: np.ndarray, xy: np.ndarray) ->
     last = xy[0]
     fl, sl, pts = first.tolist(), second.tolist(), xy[1:]
     for i in range(n):
-        d_ref = float(np.median(ref[-TRACK_REF:]))
+        last_ref = sorted(ref[-TRACK_REF:])
+        k = len(last_ref)
+        d_ref = 0.5 * (last_ref[(k - 1) // 2] + last_ref[k // 2])  # their median
         p = pts[i]
         bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * math.hypot(p[0] - last[0], p[1] - last[1])
         if abs(fl[i] - d_ref) <= bound:

@@ -27,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from threadrecon.core import walk_kernel
+from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.stereo import StereoResult
 
 DISPARITY_SLACK_PX = 1.0  # the ordering's depth-continuity bound: slack + slope * distance, px
@@ -79,33 +80,39 @@ def second_matches(
     return out, switched
 
 
-def depth_of(stereo: StereoResult, disparity: np.ndarray) -> np.ndarray:
-    """Depths at ``disparity`` px (NaN where none), by the stereo result's own reprojection."""
-    slope, icpt = _inverse_depth_line(stereo)
+def depth_of(
+    stereo: StereoResult, disparity: np.ndarray, near: np.ndarray | None = None
+) -> np.ndarray:
+    """Depths at ``disparity`` px (NaN where none), by the stereo result's own reprojection
+    (fixed by the pixels ``near`` when two of them have distinct finite depths: fewer to
+    search than all of P_L)."""
+    slope, icpt = _inverse_depth_line(stereo, near)
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = slope * np.asarray(disparity, dtype=np.float64) + icpt
         return np.where(inv > 0, 1.0 / inv, np.nan)
 
 
-def disparity_of(stereo: StereoResult, depth: float) -> float:
+def disparity_of(stereo: StereoResult, depth: float, near: np.ndarray | None = None) -> float:
     """The disparity, px, at which the stereo result reprojects to ``depth`` (NaN: none)."""
-    slope, icpt = _inverse_depth_line(stereo)
+    slope, icpt = _inverse_depth_line(stereo, near)
     return (1.0 / depth - icpt) / slope if slope != 0 and depth > 0 else float("nan")
 
 
-def _inverse_depth_line(stereo: StereoResult) -> tuple[float, float]:
+def _inverse_depth_line(stereo: StereoResult, near: np.ndarray | None) -> tuple[float, float]:
     """(a, b) with 1 / depth = a disparity + b: Eq. (4)-(5)'s reprojection of a rectified pair
-    is affine in 1 / depth, so the finite pixels of least and greatest disparity fix it
-    (NaN, NaN when fewer than two distinct disparities have a depth)."""
-    d, z = stereo.disparity, stereo.depth
-    ok = np.flatnonzero(np.isfinite(z) & (z > 0))
-    if len(ok) < 2:
-        return float("nan"), float("nan")
-    i, j = ok[np.argmin(d[ok])], ok[np.argmax(d[ok])]
-    if not d[j] > d[i]:
-        return float("nan"), float("nan")
-    slope = (1.0 / z[j] - 1.0 / z[i]) / (d[j] - d[i])
-    return float(slope), float(1.0 / z[i] - slope * d[i])
+    is affine in 1 / depth, so two pixels of distinct disparity with a depth fix it (those of
+    least and greatest disparity among ``near``, else among all; NaN, NaN when none)."""
+    for idx in (near, None):
+        d = stereo.disparity if idx is None else stereo.disparity[idx]
+        z = stereo.depth if idx is None else stereo.depth[idx]
+        ok = np.flatnonzero(np.isfinite(z) & (z > 0))
+        if len(ok) < 2:
+            continue
+        i, j = ok[np.argmin(d[ok])], ok[np.argmax(d[ok])]
+        if d[j] > d[i]:
+            slope = (1.0 / z[j] - 1.0 / z[i]) / (d[j] - d[i])
+            return float(slope), float(1.0 / z[i] - slope * d[i])
+    return float("nan"), float("nan")
 
 
 def _breaks(da: np.ndarray, db: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
@@ -187,7 +194,7 @@ def _subpixel(stereo: StereoResult, idx: np.ndarray, d0: float) -> float:
     a parabola through it and its two neighbours; NaN where there is none."""
     if not len(idx) or not np.isfinite(d0):
         return float("nan")
-    E = stereo._energy(idx).astype(np.float64).sum(axis=0)  # the cluster's own curve, once
+    E = _energy(stereo, idx).sum(axis=0)  # the cluster's own curve
     lo = stereo.d_range[0]
     j = int(round(d0))
     cands = [
@@ -210,7 +217,7 @@ def second_match_subpixel(stereo: StereoResult, idx: np.ndarray) -> np.ndarray:
     d = stereo.d_next[idx].astype(np.int64)
     if not len(idx):
         return d.astype(np.float64)
-    E = stereo._energy(idx).astype(np.float64)  # (n, d_hi + 1), these pixels only
+    E = _energy(stereo, idx)  # (n, d_hi + 1), these pixels only
     inner = (d > stereo.d_range[0]) & (d < E.shape[1] - 1)
     j = np.clip(d, 1, E.shape[1] - 2)
     rows = np.arange(len(idx))
@@ -220,3 +227,35 @@ def second_match_subpixel(stereo: StereoResult, idx: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         step = np.where(ok, np.clip(0.5 * (e0 - e2) / den, -0.5, 0.5), 0.0)
     return d + step
+
+
+def _energy(stereo: StereoResult, idx: np.ndarray) -> np.ndarray:
+    """(n, d_hi + 1) float64 E(d, p) of Eq. (2) at the pixels ``idx`` of ``stereo``, computed on
+    the crop of the pair that holds their windows and every match they search (the whole
+    thread's box costs 0.3-2.5 ms a 640x480 frame for a handful of pixels; the crop keeps
+    each window's pixels, so the curves are the stereo result's own, but for window pixels the
+    full box would reach left of the crop's thread box, which the sub-pixel use tolerates)."""
+    source = stereo.__dict__.get("_source")
+    if source is None:
+        raise ValueError("this stereo result has no energy source (built by hand or copied)")
+    lifted = source.lifted
+    r = source.window // 2
+    x, y = stereo.pixels[idx, 0], stereo.pixels[idx, 1]
+    H, W = lifted.P_L.shape
+    y0, y1 = max(0, int(y.min()) - r), min(H, int(y.max()) + r + 1)
+    x0, x1 = max(0, int(x.min()) - r - source.d_hi), min(W, int(x.max()) + r + 1)
+    box = (slice(y0, y1), slice(x0, x1))
+    crop = LiftedPair(  # no score maps: the energy reads the lifted images and P_L only
+        I_L=lifted.I_L[box],
+        I_R=lifted.I_R[box],
+        P_L=lifted.P_L[box],
+        P_R=lifted.P_R[box],
+        grey_L=lifted.grey_L[box],
+        grey_R=lifted.grey_R[box],
+        background=lifted.background,
+        method=lifted.method,
+    )
+    index = np.cumsum(crop.P_L.ravel()) - 1  # row-major order of the crop's thread pixels
+    at = index[(y - y0) * (x1 - x0) + (x - x0)]
+    E = type(source)(crop, source.window, source.d_lo, source.d_hi).energy(at)
+    return np.asarray(E, dtype=np.float64)

@@ -128,3 +128,12 @@ def test_the_choice_is_the_same_along_either_direction_of_a_chain(seed: int) -> 
     forward = best_choice(disp, alt, pos)
     backward = best_choice(disp[::-1], alt[::-1], pos[::-1])
     assert np.array_equal(forward, backward[::-1])
+
+
+def test_the_cropped_energy_equals_the_stereo_results_own() -> None:
+    from threadrecon.core.continuity import _energy
+
+    pair, calib, _ = synthetic_case(7)
+    st = Pipeline(pair, calib).run(resolve_preset(None), until="stereo")["stereo"]
+    idx = np.arange(40, 52)  # a few neighbouring pixels: a small crop
+    assert np.array_equal(_energy(st, idx), st._energy(idx).astype(np.float64))
