@@ -92,10 +92,14 @@ def depth_of(
         return np.where(inv > 0, 1.0 / inv, np.nan)
 
 
-def disparity_of(stereo: StereoResult, depth: float, near: np.ndarray | None = None) -> float:
-    """The disparity, px, at which the stereo result reprojects to ``depth`` (NaN: none)."""
+def disparity_of(
+    stereo: StereoResult, depth: np.ndarray, near: np.ndarray | None = None
+) -> np.ndarray:
+    """The disparities, px, at which the stereo result reprojects to ``depth`` (NaN: none)."""
     slope, icpt = _inverse_depth_line(stereo, near)
-    return (1.0 / depth - icpt) / slope if slope != 0 and depth > 0 else float("nan")
+    z = np.asarray(depth, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(z > 0, (1.0 / z - icpt) / slope, np.nan)
 
 
 def _inverse_depth_line(stereo: StereoResult, near: np.ndarray | None) -> tuple[float, float]:

@@ -396,10 +396,13 @@ def test_dropping_outlying_extra_points_keeps_a_spirals_end_on_the_thread() -> N
     err = {}
     no_tip = OrderingParams(end_window_px=0)  # the end value from the window line alone
     for drop in (False, True):  # depth_ratio 0: only the 2 px rule leaves them out
-        bp = BP(drop_outliers=drop, depth_ratio=0.0)
+        bp = BP(drop_outliers=drop, depth_ratio=0.0, second_matches=False)
         rec = pipe.run(replace(ReconParams(), ordering=no_tip, bounds=bp))
         err[drop] = curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max
     assert err[False] > 100.0 and err[True] < 2.0
+    # the gap pixels' second matches (deviation 28) put the same extra points on their strand
+    rec = pipe.run(replace(ReconParams(), ordering=no_tip, bounds=BP(depth_ratio=0.0)))
+    assert curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max < 2.0
     # 2 px instead of 42 px is 21 times as deep: the default depth_ratio leaves them out too
     rec = pipe.run(replace(ReconParams(), ordering=no_tip))
     assert curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max < 2.0

@@ -103,11 +103,12 @@ def test_depth_and_disparity_follow_the_stereo_reprojection() -> None:
     assert depth_of(st, np.array([disparity_of(st, z)]))[0] == pytest.approx(z, rel=1e-12)
 
 
-@pytest.mark.parametrize("seed, frame", [(8142, 1), (8144, 8)])
+@pytest.mark.parametrize("seed, frame", [(8142, 1), (8144, 8), (8149, 8), (8145, 13)])
 def test_a_coils_free_end_matched_to_the_next_turn_comes_back_at_its_depth(
     seed: int, frame: int
 ) -> None:
-    # the free end's last keypoints were matched 20 px off (the next turn): 43 / 65 mm off
+    # the free end's last keypoints (8142 #1, 8144 #8), a gap along a turn (8149 #8) or the
+    # inner end's dead end (8145 #13) matched to the next turn: 43, 65, 35, 65 mm off
     syn = SyntheticParams(thread=ThreadParams(spiral=True))
     calib = syn.camera.calibration()
     f = generate_frame(syn, np.random.default_rng([seed, frame]))
