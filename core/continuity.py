@@ -70,9 +70,19 @@ def second_matches(
         np.ascontiguousarray(labels, dtype=np.int64), stereo.d_next.astype(np.float64), K
     )
     out = disp.copy()
+    # a junction next to a chain's end holds it by its own (first) match: a stretch switched
+    # there would move its break onto the junction's edge, not remove it
+    junction_of = np.full(K, -1, dtype=np.int64)
+    to_junction = ~chain_edge & ((degree[a] > 2) != (degree[b] > 2))
+    ja, jb = a[to_junction], b[to_junction]
+    junction_of[np.where(degree[ja] > 2, jb, ja)] = np.where(degree[ja] > 2, ja, jb)
     for chain in _chains(K, edges[chain_edge], np.unique(a[broken])):
-        choice = best_choice(disp[chain], alt[chain], pos[chain])
-        switched[chain[choice]] = True
+        head, tail = int(junction_of[chain[0]]), int(junction_of[chain[-1]])
+        seq = np.array([head] * (head >= 0) + chain.tolist() + [tail] * (tail >= 0), np.int64)
+        fixed = np.zeros(len(seq), dtype=bool)
+        fixed[0], fixed[-1] = head >= 0, tail >= 0
+        choice = best_choice(disp[seq], np.where(fixed, np.nan, alt[seq]), pos[seq])
+        switched[seq[choice & ~fixed]] = True
     for k in np.flatnonzero(switched).tolist():
         sub = _subpixel(stereo, np.flatnonzero(labels == k), alt[k])
         if np.isfinite(sub):

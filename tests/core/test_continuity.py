@@ -138,3 +138,26 @@ def test_the_cropped_energy_equals_the_stereo_results_own() -> None:
     st = Pipeline(pair, calib).run(resolve_preset(None), until="stereo")["stereo"]
     idx = np.arange(40, 52)  # a few neighbouring pixels: a small crop
     assert np.array_equal(_energy(st, idx), st._energy(idx).astype(np.float64))
+
+
+def test_a_stretch_next_to_a_junction_keeps_its_match() -> None:
+    # chain 0-1-2-3-4 whose end 4 touches a junction 5 that carries the stretch's match too:
+    # switching 3 and 4 would only move the break onto the edge 4-5
+    pos = np.column_stack([5.0 * np.arange(6), np.zeros(6)])
+    disp = np.array([40.0, 40.1, 40.2, 12.9, 12.9, 12.9])
+    alt = np.array([20.0, 20.0, 20.0, 40.3, 40.4, 40.5])
+    assert np.array_equal(np.flatnonzero(best_choice(disp[:5], alt[:5], pos[:5])), [3, 4])
+    fixed = np.arange(6) == 5  # the junction holds its first match
+    assert not best_choice(disp, np.where(fixed, np.nan, alt), pos).any()
+
+
+def test_a_coil_whose_wrong_stretch_ends_at_a_junction_is_not_folded() -> None:
+    # generated spiral 8152 #18: two of four keypoints matched to the next turn switched, the
+    # break moved onto a junction's edge and the walk ran twice over 43 px (suspect, +5.6 mm)
+    syn = SyntheticParams(thread=ThreadParams(spiral=True))
+    calib = syn.camera.calibration()
+    f = generate_frame(syn, np.random.default_rng([8152, 18]))
+    pair = StereoPair(f.left, f.right, f.mask_left, f.mask_right)
+    rec = Pipeline(pair, calib).run(resolve_preset(None))
+    e = frame_errors(rec["camera"].points, f.truth.centerline, calib)
+    assert rec.status == "ok" and abs(e.e_length) < 2.0, (rec.reasons, e.e_length)
