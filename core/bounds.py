@@ -17,11 +17,11 @@ depth resolution of the rig (the paper leaves this threshold unstated).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from threadrecon.core import walk_kernel
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.continuity import (
     DISPARITY_SLACK_PX,
@@ -488,34 +488,25 @@ TRACK_REF = 5  # pixels whose median disparity is the followed strand's (two wro
 
 
 def _track(d_a: float, first: np.ndarray, second: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(n,) bool over a dead end's pixels (in order outwards from its anchor, disparity
-    ``d_a``; ``xy``: (n + 1, 2), the anchor first): which take their second match. The
-    strand's disparity is the median of the last ``TRACK_REF`` pixels taken (the anchor's at
-    first); a pixel keeps its first match when it lies within the continuity bound of it
-    (over the distance from the last pixel taken), else takes its second when that does and
-    the first is another match (beyond the bound by more than ``OUTLIER_PX``, the ordering's
-    rule: a tip that bends in depth keeps its own); otherwise it keeps its first, and the
-    strand's disparity does not move."""
-    n = len(first)
-    swap = np.zeros(n, dtype=bool)
-    ref = [float(d_a)]
-    last = xy[0]
-    fl, sl, pts = first.tolist(), second.tolist(), xy[1:]
-    for i in range(n):
-        last_ref = sorted(ref[-TRACK_REF:])
-        k = len(last_ref)
-        d_ref = 0.5 * (last_ref[(k - 1) // 2] + last_ref[k // 2])  # their median
-        p = pts[i]
-        bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * math.hypot(p[0] - last[0], p[1] - last[1])
-        if abs(fl[i] - d_ref) <= bound:
-            ref.append(fl[i])
-        elif abs(sl[i] - d_ref) <= bound and abs(fl[i] - d_ref) > bound + OUTLIER_PX:
-            ref.append(sl[i])
-            swap[i] = True
-        else:
-            continue
-        last = p
-    return swap
+    """(n,) bool over a gap's pixels (in order outwards from its anchor, disparity ``d_a``;
+    ``xy``: (n + 1, 2), the anchor first): which take their second match. The strand's
+    disparity is the median of the last ``TRACK_REF`` pixels taken (the anchor's at first); a
+    pixel keeps its first match when it lies within the continuity bound of it (over the
+    distance from the last pixel taken), else takes its second when that does and the first
+    is another match (beyond the bound by more than ``OUTLIER_PX``, the ordering's rule: a tip
+    that bends in depth keeps its own); otherwise it keeps its first, and the strand's
+    disparity does not move. Compiled (:func:`walk_kernel.track_strand`: a loop over the
+    gap's pixels, thousands on a long link)."""
+    return walk_kernel.track_strand(
+        float(d_a),
+        np.ascontiguousarray(first, dtype=np.float64),
+        np.ascontiguousarray(second, dtype=np.float64),
+        np.ascontiguousarray(xy, dtype=np.float64),
+        DISPARITY_SLACK_PX,
+        DISPARITY_SLOPE,
+        OUTLIER_PX,
+        TRACK_REF,
+    )
 
 
 def _border_depths(path: np.ndarray, fB: float) -> np.ndarray:

@@ -553,3 +553,38 @@ def test_a_tip_whose_depth_drifts_keeps_every_first_match() -> None:
     second = first + 3.0
     second[::4] = first[::4] - 0.05  # second matches that would fit do not matter
     assert not _track(18.4, first, second, xy).any()
+
+
+def _track_reference(d_a, first, second, xy):  # noqa: ANN001, ANN202
+    """bounds._track's rule in plain Python (the compiled kernel must take the same steps)."""
+    from threadrecon.core.bounds import OUTLIER_PX, TRACK_REF
+    from threadrecon.core.continuity import DISPARITY_SLACK_PX, DISPARITY_SLOPE
+
+    swap = np.zeros(len(first), dtype=bool)
+    ref, last = [float(d_a)], xy[0]
+    for i in range(len(first)):
+        d_ref = float(np.median(ref[-TRACK_REF:]))
+        bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * float(np.hypot(*(xy[i + 1] - last)))
+        if abs(first[i] - d_ref) <= bound:
+            ref.append(float(first[i]))
+        elif abs(second[i] - d_ref) <= bound and abs(first[i] - d_ref) > bound + OUTLIER_PX:
+            ref.append(float(second[i]))
+            swap[i] = True
+        else:
+            continue
+        last = xy[i + 1]
+    return swap
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_the_compiled_tracker_takes_the_reference_rules_steps(seed: int) -> None:
+    from threadrecon.core.bounds import _track
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 300))
+    xy = np.cumsum(rng.normal(0, 1.5, (n + 1, 2)), axis=0)
+    first = 40.0 + rng.choice([0.0, 0.0, 0.0, -13.0, 17.0], n) + rng.normal(0, 0.3, n)
+    second = np.where(rng.random(n) < 0.5, 40.0, 25.0) + rng.normal(0, 0.3, n)
+    assert np.array_equal(
+        _track(40.0, first, second, xy), _track_reference(40.0, first, second, xy)
+    )
