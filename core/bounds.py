@@ -67,9 +67,12 @@ class BoundsParams(Params):
     """Leave extra points whose disparity lies > ``OUTLIER_PX`` from the keypoints' out of the
     window lines of Eq. (7) (docs/method.md, deviation 21; measured better on held-out
     generated frames, not yet the default: it changes the repair's test frames)."""
-    second_matches: bool = True
-    """Gap pixels matched to a neighbouring strand take their second match where it continues
-    the strand from its keypoints (docs/method.md, deviation 28; False: the paper)."""
+    second_matches: bool = param(
+        True,
+        label="gap pixels' second matches",
+        doc="Gap pixels matched to a neighbouring strand take their second match where it "
+        "continues the strand from its keypoints (docs/method.md, deviation 28; off: the paper).",
+    )
 
 
 @dataclass(frozen=True)

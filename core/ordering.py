@@ -116,6 +116,13 @@ class OrderingParams(Params):
         "two touching strands at two depths are broken apart only where each goes on ahead "
         "within this (walk=bending). A jump over a gap turns in and out by at most 90 deg each.",
     )
+    second_matches: bool = param(
+        True,
+        label="second matches by continuity",
+        doc="A short stretch of keypoints that breaks depth continuity along a chain of A takes "
+        "its second match where that removes the break (core/continuity.py, deviation 27; "
+        "walk=bending).",
+    )
 
 
 @dataclass(frozen=True)
@@ -240,7 +247,7 @@ def order_keypoints(
     disp = _cluster_median(clusters.labels, stereo.disparity, K)
     broken = edges[:0]
     switched = np.zeros(K, dtype=bool)
-    if p.walk == "bending":  # a short stretch matched to the neighbouring strand: 2nd match
+    if p.walk == "bending" and p.second_matches:  # a stretch matched to the neighbour
         disp, switched = second_matches(
             stereo, clusters.labels, disp, edges, clusters.keypoints_px[:, :2]
         )
