@@ -21,7 +21,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from threadrecon.core import walk_kernel
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.continuity import (
+    DISPARITY_SLACK_PX,
+    DISPARITY_SLOPE,
+    depth_of,
+    disparity_of,
+    second_match_subpixel,
+)
 from threadrecon.core.ends import fuse_end
 from threadrecon.core.ordering import OUTLIER_PX, Ordering
 from threadrecon.core.params import Params, param
@@ -59,6 +67,12 @@ class BoundsParams(Params):
     """Leave extra points whose disparity lies > ``OUTLIER_PX`` from the keypoints' out of the
     window lines of Eq. (7) (docs/method.md, deviation 21; measured better on held-out
     generated frames, not yet the default: it changes the repair's test frames)."""
+    second_matches: bool = param(
+        True,
+        label="gap pixels' second matches",
+        doc="Gap pixels matched to a neighbouring strand take their second match where it "
+        "continues the strand from its keypoints (docs/method.md, deviation 28; off: the paper).",
+    )
 
 
 @dataclass(frozen=True)
@@ -106,7 +120,7 @@ def depth_bounds(
         raise ValueError(f"need at least 2 ordered keypoints for a curve, got {M}")
     fB = calib.focal * calib.baseline
     path = _border_depths(path, fB)
-    H, is_key = _extra_points(stereo, ordering, path, p.extra_px, fB)
+    H, is_key = _extra_points(stereo, ordering, path, p.extra_px, fB, p.second_matches)
     seg = np.linalg.norm(np.diff(H[:, :2], axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg)])
     key_idx = np.flatnonzero(is_key)
@@ -288,7 +302,12 @@ def _window_line_fits(
 
 
 def _extra_points(
-    stereo: StereoResult, ordering: Ordering, path: np.ndarray, extra_px: int, fB: float
+    stereo: StereoResult,
+    ordering: Ordering,
+    path: np.ndarray,
+    extra_px: int,
+    fB: float,
+    second_matches: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """H: the ordered keypoints ``path`` with, after keypoint i, the extra points of link i
     (grouped operations over all links at once: one sort, no loop over links or keypoints).
@@ -338,7 +357,9 @@ def _extra_points(
     cx = np.bincount(group, weights=xy[:, 0], minlength=n_runs) / np.maximum(size, 1)
     cy = np.bincount(group, weights=xy[:, 1], minlength=n_runs) / np.maximum(size, 1)
     # Median stereo depth of each run's finite depths.
-    depth = stereo.depth[sel]
+    depth = (
+        _dead_end_depths(stereo, ordering, path, sel, link) if second_matches else stereo.depth[sel]
+    )
     fin = np.isfinite(depth)
     g_f, d_f = group[fin], depth[fin]
     o = np.lexsort((d_f, g_f))
@@ -372,6 +393,123 @@ def _extra_points(
     is_key = np.concatenate([np.ones(M, bool), np.zeros(len(extras), bool)])
     o = np.lexsort((~is_key, key_pos))  # stable: extras keep their run order
     return rows[o], is_key[o]
+
+
+def _dead_end_depths(
+    stereo: StereoResult, ordering: Ordering, path: np.ndarray, sel: np.ndarray, link: np.ndarray
+) -> np.ndarray:
+    """Stereo depths of the gap pixels ``sel`` (on links ``link``), where the pixels of a dead
+    end (the link to an extension keypoint) are followed from the end keypoint (their only
+    anchor) outwards, in the order of ``pixel_t``, by :func:`_track`: a pixel whose first
+    match breaks continuity with the strand followed so far and whose second match does not
+    takes its second. A tip whose depth drifts smoothly keeps every first match. A thin free
+    end beside other strands (the inner end of a coil) is matched to its neighbours at every
+    other pixel (generated spiral 8141 #11: 27, 11 and 44 px where the truth is 44 px, the
+    second match then 44 px): the median of a run of them put the end 60 mm off."""
+    depth = stereo.depth[sel]
+    M = len(path)
+    ends = [(0, 1)] if ordering.order[0] < 0 else []
+    ends += [(M - 2, M - 2)] if ordering.order[-1] < 0 and M > 2 else []
+    for li, anchor in ends:
+        on = np.flatnonzero(link == li)
+        z_a = path[anchor, 2]
+        if not len(on) or not (np.isfinite(z_a) and z_a > 0):
+            continue
+        px = sel[on]
+        d_a = float(disparity_of(stereo, z_a, px))
+        first, second = stereo.disparity[px], stereo.d_next[px]
+        bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * np.hypot(
+            *(stereo.pixels[px] - path[anchor, :2]).T
+        )
+        if not ((np.abs(first - d_a) > bound + OUTLIER_PX) & (np.abs(second - d_a) <= bound)).any():
+            continue  # no pixel has a second match the anchor's strand could reach
+        t = ordering.pixel_t[px]
+        out = np.argsort(-t if anchor == 1 else t, kind="stable")  # outwards from the anchor
+        xy = np.concatenate([path[anchor : anchor + 1, :2], stereo.pixels[px[out]]])
+        swap = _track(d_a, first[out], second[out], xy)
+        if swap.any():
+            moved = on[out[swap]]
+            depth[moved] = depth_of(stereo, second_match_subpixel(stereo, sel[moved]), px)
+    return _interior_depths(stereo, ordering, path, sel, link, depth)
+
+
+def _interior_depths(
+    stereo: StereoResult,
+    ordering: Ordering,
+    path: np.ndarray,
+    sel: np.ndarray,
+    link: np.ndarray,
+    depth: np.ndarray,
+) -> np.ndarray:
+    """:func:`_dead_end_depths` for the links between two keypoints: a link whose pixels hold
+    another match (beyond the continuity bound of its nearer keypoint by more than
+    ``OUTLIER_PX``, the second match within it) is followed from each keypoint towards the
+    other (:func:`_track`), and a pixel takes its second match where both followers take it.
+    A gap along a coil's turn beside the next turn, matched to it (generated spiral 8149 #8:
+    the window line of the first keypoint, extrapolated over such extra points, put the curve's
+    start 35 mm off)."""
+    M = len(path)
+    lo = 1 if ordering.order[0] < 0 else 0
+    hi = M - 2 if ordering.order[-1] < 0 else M - 1
+    cand = np.flatnonzero((link >= lo) & (link < hi))
+    if not len(cand):
+        return depth
+    px, li = sel[cand], link[cand]
+    d_path = disparity_of(stereo, path[:, 2], px)
+    near = np.where(ordering.pixel_t[px] < 0.5, li, li + 1)
+    bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * np.hypot(*(stereo.pixels[px] - path[near, :2]).T)
+    first, second = stereo.disparity[px], stereo.d_next[px]
+    with np.errstate(invalid="ignore"):
+        gate = (np.abs(first - d_path[near]) > bound + OUTLIER_PX) & (
+            np.abs(second - d_path[near]) <= bound
+        )
+    for k in np.unique(li[gate]).tolist():
+        on = cand[li == k]
+        p = sel[on]
+        t = ordering.pixel_t[p]
+        both = np.ones(len(on), dtype=bool)
+        for anchor, order in (
+            (k, np.argsort(t, kind="stable")),
+            (k + 1, np.argsort(-t, kind="stable")),
+        ):
+            if not np.isfinite(d_path[anchor]):
+                both[:] = False
+                break
+            xy = np.concatenate([path[anchor : anchor + 1, :2], stereo.pixels[p[order]]])
+            taken = np.zeros(len(on), dtype=bool)
+            taken[order] = _track(
+                float(d_path[anchor]), stereo.disparity[p[order]], stereo.d_next[p[order]], xy
+            )
+            both &= taken
+        if both.any():
+            moved = on[both]
+            depth[moved] = depth_of(stereo, second_match_subpixel(stereo, sel[moved]), p)
+    return depth
+
+
+TRACK_REF = 5  # pixels whose median disparity is the followed strand's (two wrong outvoted)
+
+
+def _track(d_a: float, first: np.ndarray, second: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(n,) bool over a gap's pixels (in order outwards from its anchor, disparity ``d_a``;
+    ``xy``: (n + 1, 2), the anchor first): which take their second match. The strand's
+    disparity is the median of the last ``TRACK_REF`` pixels taken (the anchor's at first); a
+    pixel keeps its first match when it lies within the continuity bound of it (over the
+    distance from the last pixel taken), else takes its second when that does and the first
+    is another match (beyond the bound by more than ``OUTLIER_PX``, the ordering's rule: a tip
+    that bends in depth keeps its own); otherwise it keeps its first, and the strand's
+    disparity does not move. Compiled (:func:`walk_kernel.track_strand`: a loop over the
+    gap's pixels, thousands on a long link)."""
+    return walk_kernel.track_strand(
+        float(d_a),
+        np.ascontiguousarray(first, dtype=np.float64),
+        np.ascontiguousarray(second, dtype=np.float64),
+        np.ascontiguousarray(xy, dtype=np.float64),
+        DISPARITY_SLACK_PX,
+        DISPARITY_SLOPE,
+        OUTLIER_PX,
+        TRACK_REF,
+    )
 
 
 def _border_depths(path: np.ndarray, fB: float) -> np.ndarray:

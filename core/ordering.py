@@ -36,6 +36,7 @@ import numpy as np
 
 from threadrecon.core import walk_kernel
 from threadrecon.core.clustering import Clusters
+from threadrecon.core.continuity import depth_of, second_matches
 from threadrecon.core.ends import seen_in_right, tip_disparity
 from threadrecon.core.lazy import Deferred, LazyField
 from threadrecon.core.params import Params, param
@@ -114,6 +115,13 @@ class OrderingParams(Params):
         doc="A step through a crossing turns by at most this (unless nothing else is left); "
         "two touching strands at two depths are broken apart only where each goes on ahead "
         "within this (walk=bending). A jump over a gap turns in and out by at most 90 deg each.",
+    )
+    second_matches: bool = param(
+        True,
+        label="second matches by continuity",
+        doc="A short stretch of keypoints that breaks depth continuity along a chain of A takes "
+        "its second match where that removes the break (core/continuity.py, deviation 27; "
+        "walk=bending).",
     )
 
 
@@ -238,6 +246,11 @@ def order_keypoints(
     pos = clusters.keypoints_px[:, :2] if p.metric == "image" else clusters.keypoints
     disp = _cluster_median(clusters.labels, stereo.disparity, K)
     broken = edges[:0]
+    switched = np.zeros(K, dtype=bool)
+    if p.walk == "bending" and p.second_matches:  # a stretch matched to the neighbour
+        disp, switched = second_matches(
+            stereo, clusters.labels, disp, edges, clusters.keypoints_px[:, :2]
+        )
     if p.walk == "bending":  # two strands touching where the mask lost their crossing
         edges, broken = _depth_breaks(
             edges, clusters.keypoints_px[:, :2], disp, K, _cos_deg(p.max_turn_deg)
@@ -260,6 +273,8 @@ def order_keypoints(
         n_in = np.bincount(lab[inlier], minlength=K)
         z_in = np.bincount(lab[inlier], weights=stereo.depth[inlier], minlength=K)
         z_in = np.where(n_in > 0, z_in / np.maximum(n_in, 1), key_px[:, 2])
+        if switched.any():  # their second match: no pixel's first match lies near it
+            z_in[switched] = depth_of(stereo, disp[switched])
         key_px = np.column_stack([key_px[:, :2], z_in])
     path = [key_px[k] for k in walk]
     order = list(walk)
@@ -291,7 +306,8 @@ def order_keypoints(
             dead = []
         else:
             continue
-        new = np.array([*stereo.pixels[far], clusters.keypoints_px[k][2]], dtype=np.float64)
+        z_end = key_px[k][2] if switched[k] else clusters.keypoints_px[k][2]
+        new = np.array([*stereo.pixels[far], z_end], dtype=np.float64)
         if end == 0:
             path.insert(0, new)
             order.insert(0, -1)

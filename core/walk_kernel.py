@@ -540,3 +540,47 @@ def tip_costs(A, strip, radius, slack):  # noqa: ANN001
                     sq[r * n + j] = v * v
             out[t, k] = _pairwise_sum(sq, 0, n * n) / (n * n)
     return out
+
+
+@kernel(
+    "boolean[::1](float64, float64[::1], float64[::1], float64[:, ::1], float64, float64, float64, int64)"
+)
+def track_strand(d_a, first, second, xy, slack, slope, outlier, ref_n):  # noqa: ANN001
+    """bounds._track compiled: (n,) bool, the pixels of a gap (in order outwards from its
+    anchor of disparity ``d_a``; ``xy``: (n + 1, 2), the anchor first) that take their second
+    match. The strand's disparity is the median of the last ``ref_n`` pixels taken (the
+    anchor's at first); a pixel keeps its first match within ``slack + slope * step`` of it
+    (step: distance from the last pixel taken), else takes its second when that lies within
+    and the first lies beyond by more than ``outlier``; otherwise it keeps its first and the
+    strand's disparity does not move."""
+    n = first.size
+    swap = np.zeros(n, dtype=np.bool_)
+    ring = np.empty(ref_n)
+    buf = np.empty(ref_n)
+    ring[0] = d_a
+    taken = 1
+    lx, ly = xy[0, 0], xy[0, 1]
+    for i in range(n):
+        k = min(taken, ref_n)
+        for j in range(k):  # the last k taken, insertion-sorted: k <= ref_n (a handful)
+            v = ring[(taken - k + j) % ref_n]
+            m = j - 1
+            while m >= 0 and buf[m] > v:
+                buf[m + 1] = buf[m]
+                m -= 1
+            buf[m + 1] = v
+        d_ref = 0.5 * (buf[(k - 1) // 2] + buf[k // 2])
+        px, py = xy[i + 1, 0], xy[i + 1, 1]
+        bound = slack + slope * math.hypot(px - lx, py - ly)
+        e1 = abs(first[i] - d_ref)
+        if e1 <= bound:
+            v = first[i]
+        elif abs(second[i] - d_ref) <= bound and e1 > bound + outlier:
+            v = second[i]
+            swap[i] = True
+        else:
+            continue
+        ring[taken % ref_n] = v
+        taken += 1
+        lx, ly = px, py
+    return swap

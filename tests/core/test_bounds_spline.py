@@ -396,10 +396,13 @@ def test_dropping_outlying_extra_points_keeps_a_spirals_end_on_the_thread() -> N
     err = {}
     no_tip = OrderingParams(end_window_px=0)  # the end value from the window line alone
     for drop in (False, True):  # depth_ratio 0: only the 2 px rule leaves them out
-        bp = BP(drop_outliers=drop, depth_ratio=0.0)
+        bp = BP(drop_outliers=drop, depth_ratio=0.0, second_matches=False)
         rec = pipe.run(replace(ReconParams(), ordering=no_tip, bounds=bp))
         err[drop] = curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max
     assert err[False] > 100.0 and err[True] < 2.0
+    # the gap pixels' second matches (deviation 28) put the same extra points on their strand
+    rec = pipe.run(replace(ReconParams(), ordering=no_tip, bounds=BP(depth_ratio=0.0)))
+    assert curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max < 2.0
     # 2 px instead of 42 px is 21 times as deep: the default depth_ratio leaves them out too
     rec = pipe.run(replace(ReconParams(), ordering=no_tip))
     assert curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max < 2.0
@@ -527,3 +530,61 @@ def test_extra_points_beyond_the_depth_ratio_leave_the_window_lines() -> None:
     assert_close(_off_by_ratio(H, is_key, s, key_idx, 0.0), H[:, 2])
     with pytest.raises(ValueError, match="depth_ratio"):
         _off_by_ratio(H, is_key, s, key_idx, 0.5)
+
+
+def test_a_dead_end_matched_to_its_neighbours_is_followed_on_its_own_strand() -> None:
+    from threadrecon.core.bounds import _track
+
+    n = 40
+    xy = np.column_stack([np.full(n + 1, 100.0), 100.0 - np.arange(n + 1)])  # anchor first
+    true = 44.0 + 0.02 * np.arange(n)
+    first, second = true.copy(), np.full(n, 12.0)
+    wrong = np.arange(n) % 3 == 1  # every third pixel matched to a neighbour, its 2nd right
+    first[wrong], second[wrong] = 27.0 + 0.01 * np.arange(n)[wrong], np.round(true[wrong])
+    assert np.array_equal(_track(44.0, first, second, xy), wrong)
+
+
+def test_a_tip_whose_depth_drifts_keeps_every_first_match() -> None:
+    from threadrecon.core.bounds import _track
+
+    n = 30
+    xy = np.column_stack([np.full(n + 1, 50.0), 50.0 + np.arange(n + 1)])
+    first = 18.4 - 0.08 * np.arange(n)  # 2.4 px of drift over 30 px, 0.08 px a step
+    second = first + 3.0
+    second[::4] = first[::4] - 0.05  # second matches that would fit do not matter
+    assert not _track(18.4, first, second, xy).any()
+
+
+def _track_reference(d_a, first, second, xy):  # noqa: ANN001, ANN202
+    """bounds._track's rule in plain Python (the compiled kernel must take the same steps)."""
+    from threadrecon.core.bounds import OUTLIER_PX, TRACK_REF
+    from threadrecon.core.continuity import DISPARITY_SLACK_PX, DISPARITY_SLOPE
+
+    swap = np.zeros(len(first), dtype=bool)
+    ref, last = [float(d_a)], xy[0]
+    for i in range(len(first)):
+        d_ref = float(np.median(ref[-TRACK_REF:]))
+        bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * float(np.hypot(*(xy[i + 1] - last)))
+        if abs(first[i] - d_ref) <= bound:
+            ref.append(float(first[i]))
+        elif abs(second[i] - d_ref) <= bound and abs(first[i] - d_ref) > bound + OUTLIER_PX:
+            ref.append(float(second[i]))
+            swap[i] = True
+        else:
+            continue
+        last = xy[i + 1]
+    return swap
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_the_compiled_tracker_takes_the_reference_rules_steps(seed: int) -> None:
+    from threadrecon.core.bounds import _track
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 300))
+    xy = np.cumsum(rng.normal(0, 1.5, (n + 1, 2)), axis=0)
+    first = 40.0 + rng.choice([0.0, 0.0, 0.0, -13.0, 17.0], n) + rng.normal(0, 0.3, n)
+    second = np.where(rng.random(n) < 0.5, 40.0, 25.0) + rng.normal(0, 0.3, n)
+    assert np.array_equal(
+        _track(40.0, first, second, xy), _track_reference(40.0, first, second, xy)
+    )

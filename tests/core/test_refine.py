@@ -20,8 +20,10 @@ from threadrecon.core.refine import RefineParams, _lsi, _Runs, refine_depth
 
 # The repair's generated frames fail in the MVS only while the extra points matched elsewhere
 # stay in Eq. (7)'s window lines (bounds.depth_ratio, deviation 26, leaves them out by
-# default): these tests keep them in, to show the repair on a wrong-strand MVS.
-KEEP_OUTLIERS = BoundsParams(depth_ratio=0.0)
+# default) and keep their first matches (bounds.second_matches, deviation 28, gives them
+# their own strand's): these tests keep them in, to show the repair on a wrong-strand MVS.
+KEEP_OUTLIERS = BoundsParams(depth_ratio=0.0, second_matches=False)
+FIRST_MATCHES = OrderingParams(second_matches=False)  # keypoints too (deviation 27)
 
 if TYPE_CHECKING:
     from threadrecon.core.synthetic import SyntheticParams
@@ -228,7 +230,7 @@ def test_repair_refines_a_generated_hairpin_as_two_view_does(seed: int, frame_no
     pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
     pipe = Pipeline(pair, syn.camera.calibration())
     err, ctrl = {}, {}
-    no_tip = OrderingParams(end_window_px=0)  # deviation 23's tips fix #13's MVS on their own
+    no_tip = replace(FIRST_MATCHES, end_window_px=0)  # deviation 23's tips fix #13's MVS too
     for mode in ("off", "repair", "two_view"):
         rec = pipe.run(
             replace(
@@ -252,8 +254,22 @@ def test_repair_rescues_a_hairpin_whose_mvs_failed_on_the_wrong_strand() -> None
     frame = generate_frame(syn, np.random.default_rng([6601, 7]))
     pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
     pipe = Pipeline(pair, syn.camera.calibration())
-    off = pipe.run(replace(ReconParams(), bounds=KEEP_OUTLIERS, refine=RefineParams(mode="off")))
-    rec = pipe.run(replace(ReconParams(), bounds=KEEP_OUTLIERS, refine=RefineParams(mode="repair")))
+    off = pipe.run(
+        replace(
+            ReconParams(),
+            bounds=KEEP_OUTLIERS,
+            ordering=FIRST_MATCHES,
+            refine=RefineParams(mode="off"),
+        )
+    )
+    rec = pipe.run(
+        replace(
+            ReconParams(),
+            bounds=KEEP_OUTLIERS,
+            ordering=FIRST_MATCHES,
+            refine=RefineParams(mode="repair"),
+        )
+    )
     assert not rec["spline"].ok and off.status == "failed"
     assert rec["refine"].ok and "repair" in rec["refine"].message
     assert rec.status != "failed"
@@ -290,8 +306,22 @@ def test_repair_fixes_a_coil_turn_matched_to_its_neighbour(frame: int, mvs_faile
     pipe = Pipeline(
         StereoPair(fr.left, fr.right, fr.mask_left, fr.mask_right), syn.camera.calibration()
     )
-    off = pipe.run(replace(ReconParams(), bounds=KEEP_OUTLIERS, refine=RefineParams(mode="off")))
-    rec = pipe.run(replace(ReconParams(), bounds=KEEP_OUTLIERS, refine=RefineParams(mode="repair")))
+    off = pipe.run(
+        replace(
+            ReconParams(),
+            bounds=KEEP_OUTLIERS,
+            ordering=FIRST_MATCHES,
+            refine=RefineParams(mode="off"),
+        )
+    )
+    rec = pipe.run(
+        replace(
+            ReconParams(),
+            bounds=KEEP_OUTLIERS,
+            ordering=FIRST_MATCHES,
+            refine=RefineParams(mode="repair"),
+        )
+    )
     assert off["spline"].ok is not mvs_failed
     before = curve_errors(off["camera"].points, fr.truth.centerline)
     after = curve_errors(rec["camera"].points, fr.truth.centerline)
