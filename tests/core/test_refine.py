@@ -25,6 +25,23 @@ from threadrecon.core.refine import RefineParams, _lsi, _Runs, refine_depth
 KEEP_OUTLIERS = BoundsParams(depth_ratio=0.0, second_matches=False)
 FIRST_MATCHES = OrderingParams(second_matches=False)  # keypoints too (deviation 27)
 
+
+def _off_and_repaired(pipe: Pipeline) -> tuple:
+    """The frame's reconstruction without the two-view refinement and with its repair, both on
+    the wrong matches the repair is built for (KEEP_OUTLIERS, FIRST_MATCHES)."""
+    return tuple(
+        pipe.run(
+            replace(
+                ReconParams(),
+                bounds=KEEP_OUTLIERS,
+                ordering=FIRST_MATCHES,
+                refine=RefineParams(mode=mode),
+            )
+        )
+        for mode in ("off", "repair")
+    )
+
+
 if TYPE_CHECKING:
     from threadrecon.core.synthetic import SyntheticParams
 
@@ -254,22 +271,7 @@ def test_repair_rescues_a_hairpin_whose_mvs_failed_on_the_wrong_strand() -> None
     frame = generate_frame(syn, np.random.default_rng([6601, 7]))
     pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
     pipe = Pipeline(pair, syn.camera.calibration())
-    off = pipe.run(
-        replace(
-            ReconParams(),
-            bounds=KEEP_OUTLIERS,
-            ordering=FIRST_MATCHES,
-            refine=RefineParams(mode="off"),
-        )
-    )
-    rec = pipe.run(
-        replace(
-            ReconParams(),
-            bounds=KEEP_OUTLIERS,
-            ordering=FIRST_MATCHES,
-            refine=RefineParams(mode="repair"),
-        )
-    )
+    off, rec = _off_and_repaired(pipe)
     assert not rec["spline"].ok and off.status == "failed"
     assert rec["refine"].ok and "repair" in rec["refine"].message
     assert rec.status != "failed"
@@ -306,22 +308,7 @@ def test_repair_fixes_a_coil_turn_matched_to_its_neighbour(frame: int, mvs_faile
     pipe = Pipeline(
         StereoPair(fr.left, fr.right, fr.mask_left, fr.mask_right), syn.camera.calibration()
     )
-    off = pipe.run(
-        replace(
-            ReconParams(),
-            bounds=KEEP_OUTLIERS,
-            ordering=FIRST_MATCHES,
-            refine=RefineParams(mode="off"),
-        )
-    )
-    rec = pipe.run(
-        replace(
-            ReconParams(),
-            bounds=KEEP_OUTLIERS,
-            ordering=FIRST_MATCHES,
-            refine=RefineParams(mode="repair"),
-        )
-    )
+    off, rec = _off_and_repaired(pipe)
     assert off["spline"].ok is not mvs_failed
     before = curve_errors(off["camera"].points, fr.truth.centerline)
     after = curve_errors(rec["camera"].points, fr.truth.centerline)
