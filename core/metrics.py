@@ -117,8 +117,9 @@ def hidden_ends(
     in the left or the right image. An end hidden under an occluder (not out of the image:
     ``visible_part`` cuts those) cannot be observed: no method can recover its length, and a
     curve that stops where the thread disappears is right to be called suspect. Evaluation
-    reports such frames apart; the pipeline never sees this (it has no ground truth)."""
-    points = _check_points(points)
+    reports such frames apart; the pipeline never sees this (it has no ground truth). Measured on
+    the part of the truth inside both images (``visible_part``), as ``frame_errors`` scores."""
+    points = visible_part(_check_points(points), calib.P1, calib.P2, calib.image_size)
     seen = np.zeros(len(points), dtype=bool)
     for P, mask in ((calib.P1, mask_left), (calib.P2, mask_right)):
         mask = np.asarray(mask, dtype=bool)

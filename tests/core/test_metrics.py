@@ -189,5 +189,10 @@ def test_hidden_ends_measure_the_truth_no_view_shows() -> None:
     both = hidden_ends(truth, calib, np.zeros_like(mask_l), mask_r)
     assert_close(both[1], 40.0 - 26.5, atol=0.11)  # now only the right view shows it
     assert hidden_ends(truth, calib, mask_l * 0, mask_r * 0) == (40.0, 40.0)  # nothing seen
+    wide = np.column_stack([x - 60.0, np.zeros_like(x), np.full_like(x, 100.0)])  # x < -50: out
+    assert (
+        hidden_ends(wide, calib, mask_l[:, ::-1] * 0, mask_r * 0)
+        == (polyline_length(visible_part(wide, calib.P1, calib.P2, (80, 100))),) * 2
+    )  # out of the image is not hidden
     with pytest.raises(ValueError, match=r"\(H, W\) thread masks"):
         hidden_ends(truth, calib, mask_l[0], mask_r)
