@@ -137,12 +137,9 @@ def _texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     return (128.0 + 25.0 * t / t.std()).astype(np.float32)
 
 
-def _stereo_scene(occluder: tuple[int, int] | None, seed: int = 0):
-    """Two rectified greys: textured tissue at D_BG, a dark thread on rows 49-51 from column 20
-    to 139 at D_T, and optionally a textured occluder over left columns ``occluder`` (all
-    rows) at D_O; the masks hold the thread where it is seen; the curve runs to column 139."""
-    rng = np.random.default_rng(seed)
-    h, w = 100, 400
+def _tissue_and_thread(rng: np.random.Generator, h: int, w: int):
+    """Both views' greys of textured tissue at D_BG with a dark thread on rows 49-51 from left
+    column 20 to 139 at D_T, the thread's masks, and an occluder texture wide enough for D_O."""
     bg = _texture(rng, h, w + D_BG)
     occ = _texture(rng, h, w + D_O)
     grey = [bg[:, :w].copy(), bg[:, D_BG : D_BG + w].copy()]
@@ -150,6 +147,16 @@ def _stereo_scene(occluder: tuple[int, int] | None, seed: int = 0):
     for side, d in ((0, 0), (1, D_T)):
         grey[side][49:52, 20 - d : 140 - d] = 30.0
         masks[side][49:52, 20 - d : 140 - d] = True
+    return grey, masks, occ
+
+
+def _stereo_scene(occluder: tuple[int, int] | None, seed: int = 0):
+    """Two rectified greys: textured tissue at D_BG, a dark thread on rows 49-51 from column 20
+    to 139 at D_T, and optionally a textured occluder over left columns ``occluder`` (all
+    rows) at D_O; the masks hold the thread where it is seen; the curve runs to column 139."""
+    rng = np.random.default_rng(seed)
+    h, w = 100, 400
+    grey, masks, occ = _tissue_and_thread(rng, h, w)
     if occluder is not None:
         for side, d in ((0, 0), (1, D_O)):
             c0, c1 = occluder[0] - d, occluder[1] - d
@@ -249,13 +256,7 @@ def _slanted_shaft_scene(angle_deg: float = 35.0, half_width: float = 14.0):
     the rows (down and right, out of the image), ``half_width`` px either side of it."""
     rng = np.random.default_rng(3)
     h, w = 320, 400
-    bg = _texture(rng, h, w + D_BG)
-    occ = _texture(rng, h, w + D_O)
-    grey = [bg[:, :w].copy(), bg[:, D_BG : D_BG + w].copy()]
-    masks = [np.zeros((h, w), bool), np.zeros((h, w), bool)]
-    for side, d in ((0, 0), (1, D_T)):
-        grey[side][49:52, 20 - d : 140 - d] = 30.0
-        masks[side][49:52, 20 - d : 140 - d] = True
+    grey, masks, occ = _tissue_and_thread(rng, h, w)
     a = np.radians(angle_deg)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     for side, d in ((0, 0), (1, D_O)):
