@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 
 from threadrecon.core.grow_kernel import grow_mask_f32, grow_mask_u8
 from threadrecon.core.instrument import grow_into_attached
+from threadrecon.core.lazy import Deferred
 from threadrecon.core.ridge_kernel import (
     at_least,
     block_means,
@@ -82,8 +83,13 @@ _NOISE_ROW_STEP: Final = 16  # noise estimated on every 16th row: 30 rows x 640 
 
 
 def segment_raw(
-    left: np.ndarray, right: np.ndarray, p: SegmentationParams
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    left: np.ndarray,
+    right: np.ndarray,
+    p: SegmentationParams,
+    *,
+    greys: tuple[np.ndarray, np.ndarray] | None = None,
+    defer_score: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | Deferred, np.ndarray | Deferred]:
     """Thread masks and scores of a raw rectified pair, no mask given.
 
     1. Line response S: on 32 log(I) (brightness, log R/G, log B/G), the scale-normalised
@@ -125,10 +131,15 @@ def segment_raw(
        blended over the local background colour (see :func:`_grow_mask`); for a contrast near
        grey, with the runs it encloses across the thread (a highlight, :func:`_fill_across`).
 
-    Returns P_L, P_R (H, W) bool and score_L, score_R (H, W) float32 in [0, 1].
+    Returns P_L, P_R (H, W) bool and score_L, score_R (H, W) float32 in [0, 1] (with
+    ``defer_score``: :class:`core.lazy.Deferred` of them, computed when read; no stage reads
+    them). ``greys``: the views' grey levels (H, W) float32 as :func:`core.segmentation.to_grey`
+    gives them for uint8 views (the surface test's images; computed here when None).
     Raises ``ValueError("no thread found ...")`` when no piece survives in a view.
     """
     views = [_View.build(img, p) for img in (left, right)]
+    if greys is not None:  # (the same grey levels as :meth:`_View.grey`'s, computed once)
+        views[0]._grey, views[1]._grey = greys
     found, salience, _, floating = _select(views, p)
     if any(v.blood.any() for v in views):
         # A red thread is blood-like too: it wins back when it stands out far more than
@@ -176,9 +187,15 @@ def segment_raw(
         if v.grey_core:  # a highlight on it is not told from its body by colour
             mask = _fill_across(mask, _HIGHLIGHT_PX)
         mask &= drop_specks(mask | core.view(bool), max(int(p.min_length_px), 1))
-        score = cv2.min(v.S, 2.0 * p.ridge_hi * v.level) * (1.0 / (2.0 * p.ridge_hi * v.level))
-        out.append((mask, score))
+        cap = 2.0 * p.ridge_hi * v.level
+        out.append((mask, Deferred(_score, v.S, cap) if defer_score else _score(v.S, cap)))
     return out[0][0], out[1][0], out[0][1], out[1][1]
+
+
+def _score(S: np.ndarray, cap: float) -> np.ndarray:
+    """(H, W) float32 per-pixel thread score in [0, 1]: the line response ``S`` (H, W) over
+    ``cap`` (twice the seed threshold ridge_hi * level), clipped at 1."""
+    return cv2.min(S, cap) * (1.0 / cap)
 
 
 @dataclass

@@ -335,7 +335,13 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
                 for v, b in zip(views, bg, strict=True)
             )
         else:
-            P_L, P_R, score_L, score_R = segment_raw(pair.left, pair.right, p)
+            # (read by no stage, the scores are computed when read; the surface test's grey
+            # levels are the views' own, as :func:`to_grey` gives them for uint8 views)
+            uint8 = pair.left.dtype == np.uint8 and pair.right.dtype == np.uint8
+            greys = (views[0].f32, views[1].f32) if uint8 else None
+            P_L, P_R, score_L, score_R = segment_raw(
+                pair.left, pair.right, p, greys=greys, defer_score=True
+            )
     if not P_L.any():
         raise ValueError("empty segmentation: no thread pixel in the left image")
     if not P_R.any():

@@ -1,0 +1,80 @@
+"""Tests of the raw segmentation's speed-ups across stages (core/segment_raw.py called from
+core/segmentation.py): each gives exactly what the plain computation gives."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from threadrecon.core import segment_raw as sr
+from threadrecon.core.lazy import Deferred
+from threadrecon.core.segmentation import SegmentationParams, StereoPair, _Grey, segment
+from threadrecon.core.synthetic import RenderParams, SyntheticParams, ThreadParams, generate_frame
+
+_TISSUE = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5)
+
+
+def _layouts(rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """uint8 images in the layouts a view comes in."""
+    bgr = rng.integers(0, 256, (37, 51, 3), dtype=np.uint8)
+    wide = rng.integers(0, 256, (37, 102, 3), dtype=np.uint8)
+    return {
+        "rgb": np.ascontiguousarray(bgr),
+        "rgb view of bgr": bgr[:, :, ::-1],
+        "half of a side-by-side pair": wide[:, 51:],
+        "grey": bgr[:, :, 0].copy(),
+        "one channel": bgr[:, :, :1].copy(),
+        "rgba": rng.integers(0, 256, (37, 51, 4), dtype=np.uint8),
+    }
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_segmentation_grey_equals_the_raw_view_grey_for_every_uint8_layout(seed: int) -> None:
+    """segment() hands its grey levels to segment_raw (the surface test's images): for uint8
+    views they are the ones the raw view computes itself."""
+    for name, img in _layouts(np.random.default_rng(seed)).items():
+        v = sr._View.__new__(sr._View)
+        v.img, v._grey = img, None
+        own = v.grey()
+        shared = _Grey(img).f32
+        assert shared.dtype == own.dtype == np.float32, name
+        np.testing.assert_array_equal(shared, own, err_msg=name)
+
+
+@pytest.mark.parametrize(
+    ("seed", "render"),
+    [
+        (1, _TISSUE),
+        (2, replace(_TISSUE, instrument=True)),
+        (3, replace(_TISSUE, thread_colour="random", distractors=6)),
+        (4, replace(_TISSUE, specular=0.4, lighting=0.6)),
+    ],
+)
+def test_segment_gives_the_masks_and_scores_of_segment_raw_alone(
+    seed: int, render: RenderParams
+) -> None:
+    """segment() (shared grey levels, scores computed when read) gives bit for bit the masks
+    and scores that segment_raw gives alone (its own grey levels, scores at once)."""
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng(seed)
+    )
+    p = SegmentationParams(method="raw")
+    try:
+        P_L, P_R, s_L, s_R = sr.segment_raw(frame.left, frame.right, p)
+    except ValueError as exc:
+        with pytest.raises(ValueError, match="no thread found"):
+            segment(StereoPair(frame.left, frame.right), p)
+        pytest.skip(f"no thread found in this frame: {exc}")
+    lifted = segment(StereoPair(frame.left, frame.right), p)
+    assert isinstance(lifted.__dict__["_lazy_score_L"], Deferred)  # not computed yet
+    np.testing.assert_array_equal(lifted.P_L, P_L)
+    np.testing.assert_array_equal(lifted.P_R, P_R)
+    assert isinstance(s_L, np.ndarray) and s_L.dtype == np.float32
+    np.testing.assert_array_equal(lifted.score_L, s_L)
+    np.testing.assert_array_equal(lifted.score_R, s_R)
+    assert lifted.score_L.min() >= 0.0 and lifted.score_L.max() <= 1.0
+
+
+def test_deferred_score_is_the_clipped_scaled_response() -> None:
+    s = np.array([[0.0, 0.5, 1.0, 3.0]], np.float32)
+    np.testing.assert_array_equal(sr._score(s, 2.0), np.array([[0.0, 0.25, 0.5, 1.0]], np.float32))
