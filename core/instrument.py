@@ -16,10 +16,11 @@ from typing import Final
 import cv2
 import numpy as np
 
+from threadrecon.core.instrument_kernel import label_lookup, ridge_values
+
 WIDER_THAN_THREAD: Final = 1.5  # a piece 1.5x as wide as the thread is not the same thread
 # (the width of a 1-6 px thread varies by < 30 % along it at this resolution; a jaw is >= 2x)
 _CROSS: Final = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
-_SQUARE: Final = np.ones((3, 3), np.uint8)  # the 8 neighbours of the medial-axis test
 
 
 def drop_attached(mask: np.ndarray, tool: np.ndarray, body: np.ndarray | None = None) -> np.ndarray:
@@ -67,7 +68,7 @@ def drop_attached(mask: np.ndarray, tool: np.ndarray, body: np.ndarray | None = 
     # WIDER_THAN_THREAD half-widths of the thread, (w - 1) / 2 < r (it fits in no thread).
     r = max(int(np.ceil(WIDER_THAN_THREAD * (half - 0.5))), 1)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    attached = touching[labels].view(np.uint8) & u8
+    attached = label_lookup(labels, touching) & u8  # touching[labels]
     wide = cv2.erode(attached, disc)
     if not wide.any():
         return mask
@@ -81,7 +82,7 @@ def drop_attached(mask: np.ndarray, tool: np.ndarray, body: np.ndarray | None = 
     reach[0] = False
     if not reach.any():
         return mask
-    wide = reach[parts].view(np.uint8)
+    wide = label_lookup(parts, reach)  # reach[parts]
     wide |= _corners(attached & (wide == 0), wide | tool8, 2 * r + 3)
     return mask & (wide == 0)
 
@@ -95,8 +96,8 @@ def thread_half_width(pieces: np.ndarray) -> float | None:
     if not u8.any():
         return None
     dist = cv2.distanceTransform(u8, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    ridge = (u8 > 0) & (dist >= cv2.dilate(dist, _SQUARE))
-    return float(np.median(dist[ridge]))
+    # dist[(u8 > 0) & (dist >= cv2.dilate(dist, 3 x 3))], on the piece's pixels only
+    return float(np.median(ridge_values(dist, np.ascontiguousarray(u8))))
 
 
 def _corners(rest: np.ndarray, removed: np.ndarray, size: int) -> np.ndarray:
@@ -113,7 +114,7 @@ def _corners(rest: np.ndarray, removed: np.ndarray, size: int) -> np.ndarray:
     small = (stats[:, cv2.CC_STAT_WIDTH] <= size) & (stats[:, cv2.CC_STAT_HEIGHT] <= size)
     drop = near & small
     drop[0] = False
-    return drop[labels].view(np.uint8)
+    return label_lookup(labels, drop)  # drop[labels]
 
 
 def grow_into_attached(grey: np.ndarray, tool: np.ndarray, min_width_px: int) -> np.ndarray:

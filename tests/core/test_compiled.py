@@ -28,6 +28,8 @@ pair, calib, _ = synthetic_case(1)
 rec = reconstruct(pair, calib)
 st = rec["stereo"]
 raw = segment(pair, SegmentationParams(method="raw"))  # the raw segmentation's kernels
+from threadrecon.core.instrument import thread_half_width
+thread_half_width(np.eye(8, dtype=bool))  # the instrument width test's kernels
 def h(*arrays):
     return hashlib.sha1(b"".join(np.ascontiguousarray(a).tobytes() for a in arrays)).hexdigest()
 print(json.dumps({{
@@ -72,6 +74,7 @@ def test_a_reconstruction_loads_aot_kernels_without_numba(aot_run: dict) -> None
         "threadrecon.core.check_fast_kernel": "aot",
         "threadrecon.core.ridge_kernel": "aot",
         "threadrecon.core.grow_kernel": "aot",
+        "threadrecon.core.instrument_kernel": "aot",
         "threadrecon.core.segmentation": "aot",
         "threadrecon.core.refine_kernel": "aot",
     }
