@@ -105,16 +105,28 @@ def _corners(rest: np.ndarray, removed: np.ndarray, size: int) -> np.ndarray:
     attached to the tool) that touch ``removed`` (uint8, the tool and the wide parts taken) and
     fit in a ``size`` x ``size`` box: the corner where a jaw meets the shaft, which the
     opening's disc does not reach. A thread piece that short beside an instrument is no usable
-    part of the thread either."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(rest, connectivity=8)
+    part of the thread either.
+
+    Computed on the bounding box of ``rest`` grown by one pixel (the pieces and their sizes
+    are those of the whole image; the cross dilation of ``removed`` reaches the box's pixels
+    from that margin only), zeros elsewhere."""
+    out = np.zeros(rest.shape, np.uint8)
+    x, y, w, h = cv2.boundingRect(rest)
+    if w == 0:
+        return out
+    H, W = rest.shape
+    r0, r1, c0, c1 = max(y - 1, 0), min(y + h + 1, H), max(x - 1, 0), min(x + w + 1, W)
+    box = np.ascontiguousarray(rest[r0:r1, c0:c1])
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(box, connectivity=8)
     if n <= 1:
-        return np.zeros(rest.shape, np.uint8)
+        return out
     near = np.zeros(n, bool)
-    near[labels[cv2.dilate(removed, _CROSS) > 0]] = True
+    near[labels[cv2.dilate(np.ascontiguousarray(removed[r0:r1, c0:c1]), _CROSS) > 0]] = True
     small = (stats[:, cv2.CC_STAT_WIDTH] <= size) & (stats[:, cv2.CC_STAT_HEIGHT] <= size)
     drop = near & small
     drop[0] = False
-    return label_lookup(labels, drop)  # drop[labels]
+    out[r0:r1, c0:c1] = label_lookup(labels, drop)  # drop[labels]
+    return out
 
 
 def grow_into_attached(grey: np.ndarray, tool: np.ndarray, min_width_px: int) -> np.ndarray:

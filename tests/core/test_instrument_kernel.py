@@ -49,3 +49,29 @@ def test_ridge_values_are_the_distances_on_the_dilation_maximum(
 
 def test_ridge_values_of_no_piece_are_empty() -> None:
     assert ridge_values(np.zeros((4, 5), np.float32), np.zeros((4, 5), np.uint8)).shape == (0,)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_corners_on_the_box_are_those_of_the_whole_image(seed: int) -> None:
+    """instrument._corners on the bounding box of ``rest`` (and a 1 px margin) equals the same
+    steps on the whole image (pieces touching the image's edge included)."""
+    from threadrecon.core import instrument
+
+    rng = np.random.default_rng([5, seed])
+    shape = (int(rng.integers(3, 90)), int(rng.integers(3, 90)))
+    rest = (rng.random(shape) < rng.uniform(0.02, 0.4)).astype(np.uint8)
+    if seed % 3 == 0:  # pieces in a corner only: a small box
+        rest[shape[0] // 3 :, :] = 0
+        rest[:, shape[1] // 3 :] = 0
+    removed = (rng.random(shape) < 0.2).astype(np.uint8) & (1 - rest)
+    size = int(rng.integers(1, 8))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(rest, connectivity=8)
+    near = np.zeros(n, bool)
+    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+    near[labels[cv2.dilate(removed, cross) > 0]] = True
+    small = (stats[:, cv2.CC_STAT_WIDTH] <= size) & (stats[:, cv2.CC_STAT_HEIGHT] <= size)
+    drop = near & small
+    drop[0] = False
+    np.testing.assert_array_equal(
+        instrument._corners(rest, removed, size), drop[labels].view(np.uint8)
+    )
