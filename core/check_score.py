@@ -94,31 +94,20 @@ def _expected_error(
     p: CheckParams,
 ) -> np.ndarray:
     """Depth part of the expected error e_i (calib units): the depth size of a pixel of
-    disparity z^2 / (f B) times the local disparity error sqrt(sigma_d^2 + s^2 + rbar_i^2);
-    doubled at an end of the curve (fitted from one side only), falling back over ``end_mm``.
+    disparity z^2 / (f B) times the local disparity error sqrt(sigma_d^2 + rbar_i^2), rbar_i
+    the mean residual r of the reliable matches over one knot span of the spline around the
+    point (the stretch whose matches the spline averages); doubled at an end of the curve
+    (fitted from one side only), falling back over ``end_mm``.
 
-    rbar_i is the mean residual r of the supported points (r <= ``support_tol_px``) over one
-    knot span of the spline around the point (the stretch whose matches the spline averages).
-    Beyond ``support_tol_px`` no reliable match agrees with the curve and the residual says
-    nothing about the curve's error (the nearest match may be another strand's, e.g. a spiral's
-    next turn on the same rows, whose depth the spline rightly ignored): such points do not
-    enter rbar_i, their depth is interpolated from the supported points around them, and
-    ``point_errors`` adds the drift of that interpolation. A span without a supported point
-    takes s.
-
-    s is the frame's matching noise, the median residual of its supported points
-    (``support_tol_px`` when none is): the image noise, blur and texture that scatter the
-    matches are shared by the whole frame, and one knot span's few matches estimate it poorly.
-    The fixed precision sigma_d alone left a noisy frame's error as low as a clean one's."""
+    r counts at most ``support_tol_px``: beyond it no reliable match agrees with the curve and
+    the residual says nothing about the curve's error (the nearest match may be another
+    strand's, e.g. a spiral's next turn on the same rows, whose depth the spline rightly
+    ignored); the depth there is interpolated from the supported points around it, and
+    ``point_errors`` adds the drift of that interpolation."""
     n_spans = max(len(spline.ctrl) - int(spline.degree), 1)
     s2 = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))])
-    supported = r <= p.support_tol_px
-    noise = float(np.median(r[supported])) if supported.any() else p.support_tol_px
-    width = s2[-1] / n_spans
-    total = _local_mean(np.where(supported, r, 0.0), s2, width)
-    share = _local_mean(supported.astype(np.float64), s2, width)
-    r_local = np.where(share > 0.0, total / np.where(share > 0.0, share, 1.0), noise)
-    d = np.sqrt(p.sigma_disparity_px**2 + noise**2 + r_local**2)
+    r_local = _local_mean(np.minimum(r, p.support_tol_px), s2, s2[-1] / n_spans)
+    d = np.sqrt(p.sigma_disparity_px**2 + r_local**2)
     end = np.minimum(s3, s3[-1] - s3)  # mm to the nearer end
     return z**2 / fB * d * (1.0 + np.exp(-end / p.end_mm))
 
