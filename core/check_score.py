@@ -21,6 +21,10 @@ from threadrecon.core.spline import SplineResult
 if TYPE_CHECKING:
     from threadrecon.core.check import CheckParams, Status
 
+# A curve point inside a thread pixel's cell reads up to half its diagonal from the pixel's
+# centre (the distance field's value there): pixel quantisation, not a reprojection error.
+PIXEL_HALF_DIAGONAL = math.sqrt(0.5)
+
 
 @dataclass(frozen=True)
 class GraspPoint:
@@ -69,6 +73,7 @@ def point_errors(
     steps of the left projection; ``s3``: (N,) arc length (mm); ``f``, ``fB`` in px and
     px * calib units; ``mm``: mm per calib unit.
     """
+    rho = np.maximum(rho - PIXEL_HALF_DIAGONAL, 0.0)  # inside a thread pixel's cell: on it
     lateral = z_pos / f * rho * mm + p.bridge_error * bridge_gap  # bridges: interpolated
     e_mm = _expected_error(z_pos, r, step, s3, spline, fB, p)
     # unsupported stretches are interpolated like a bridge: drift from the nearest supported point

@@ -81,6 +81,26 @@ def test_unsupported_points_drift_with_their_distance_to_a_supported_point() -> 
     np.testing.assert_allclose(pe.confidence, np.exp(-pe.e_mm / p.conf_mm))
 
 
+def test_reprojection_within_a_thread_pixel_adds_no_lateral_error() -> None:
+    """The distance field reads up to half a pixel's diagonal at a point inside a thread
+    pixel's cell (pixel quantisation); only the distance beyond it is a lateral error."""
+    n, p = 11, CheckParams()
+    s3 = np.arange(11.0) * 10.0
+
+    def errors(rho: float):
+        return point_errors(
+            np.full(n, 100.0), np.zeros(n, dtype=bool), np.zeros(n), np.full(n, rho),
+            np.zeros(n), np.ones(n - 1), s3, _FakeSpline(), 500.0, 5e4, 1.0, p,
+        )  # fmt: skip
+
+    on = errors(0.0)
+    np.testing.assert_array_equal(errors(0.7).e_mm, on.e_mm)
+    np.testing.assert_array_equal(errors(0.7).lateral_mm, 0.0)
+    off = errors(2.0)
+    np.testing.assert_allclose(off.lateral_mm, 100.0 / 500.0 * (2.0 - np.sqrt(0.5)))
+    np.testing.assert_allclose(off.e_mm - on.e_mm, off.lateral_mm)
+
+
 class _FakeSpline:
     ctrl = np.zeros((6, 3))
     degree = 3
