@@ -674,7 +674,7 @@ def _check(
         occ = end_occluder(
             (uv_l, uv_r), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R), end,
             f * B / z_end, known, reach, p.cover_px + BEYOND_COVER_PX, unobserved_px,
-            unobserved_px + AHEAD_STEP_PX,
+            unobserved_px + AHEAD_STEP_PX, level=bare.level, sigma=p.bare_sigma,
         )  # fmt: skip
         # the occluder's reach, walked in both views, bounds what a cut end may hide
         bounded = occ is not None and not occ.walked_out and occ.reach_px <= unobserved_px
@@ -1186,6 +1186,10 @@ class _BareBackground:
             level = None if n < 10 else (float(med), max(1.4826 * float(mad), 4.0))
             self._cache[side, x, y] = level
         return self._cache[side, x, y]
+
+    def level(self, side: int, xy: np.ndarray) -> tuple[float, float] | None:
+        """Grey level and spread of the bare background next to the thread near ``xy``."""
+        return self._level(side, xy)
 
     def grey(self, side: int, uv: np.ndarray) -> np.ndarray:
         """Grey level at each (x, y) of view ``side``; NaN off the image."""

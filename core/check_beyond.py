@@ -119,12 +119,24 @@ def beyond_ends(
 
 def _end_frame(uv: np.ndarray, end: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The finite curve samples, the ``end``'s tip and its outward unit direction (over
-    END_SAMPLES samples); None for a curve too short or without direction."""
+    END_SAMPLES samples); None for a curve too short or without direction.
+
+    A curve whose last samples turn back on themselves (a hook: a spline's end overshoots its
+    last observation and returns) reaches farthest before its last sample: the tip is the
+    sample of the last END_SAMPLES + 1 that lies farthest along the curve's way just before
+    them, and the direction is taken over the END_SAMPLES samples behind that tip. The thread
+    ends where the curve reaches, and what lies beyond the end is beyond that point, not back
+    over the curve's own thread."""
     curve = uv if np.isfinite(uv).all() else uv[np.all(np.isfinite(uv), axis=1)]
     if len(curve) < END_SAMPLES + 1:
         return None
-    tip = curve[0] if end == "start" else curve[-1]
-    back = curve[END_SAMPLES] if end == "start" else curve[-1 - END_SAMPLES]
+    seq = curve if end == "start" else curve[::-1]  # seq[0] is the end's sample
+    j = 0
+    if len(seq) > 2 * END_SAMPLES:
+        before = seq[END_SAMPLES] - seq[2 * END_SAMPLES]  # the way into the end's window
+        j = int(np.argmax((seq[: END_SAMPLES + 1] - seq[END_SAMPLES]) @ before))
+        j = min(j, len(seq) - 1 - END_SAMPLES)
+    tip, back = seq[j], seq[j + END_SAMPLES]
     way = tip - back
     norm = float(np.hypot(way[0], way[1]))
     if norm == 0.0:
@@ -146,6 +158,10 @@ def _cone(
     their distance along the way: a cheap superset of any piece beyond the end."""
     if not math.isfinite(radius):
         raise ValueError(f"the search radius beyond an end is not finite ({radius})")
+    h, w = mask.shape
+    tx, ty = float(tip[0]), float(tip[1])
+    if not (-radius <= tx <= w + radius and -radius <= ty <= h + radius):
+        return np.empty((0, 2)), np.empty(0)  # the fan misses the image (a diverged curve)
     m = mask if mask.flags.c_contiguous else np.ascontiguousarray(mask)
     return cone_pixels(
         np.ascontiguousarray(curve, dtype=np.float64),
@@ -173,17 +189,10 @@ def _beyond(
 ) -> tuple[float, float, tuple[float, float]] | None:
     """In one view: the nearest uncovered piece beyond ``end`` across an occluder, as (gap px,
     reach px to its far side, its (min, max) rows); None when there is none."""
-    ok = np.all(np.isfinite(uv), axis=1)
-    if ok.sum() < END_SAMPLES + 1 or not parts:
+    fr = _end_frame(uv, end)
+    if fr is None or not parts:
         return None
-    curve = uv[ok]
-    tip = curve[0] if end == "start" else curve[-1]
-    back = curve[END_SAMPLES] if end == "start" else curve[-1 - END_SAMPLES]
-    way = tip - back
-    norm = float(np.linalg.norm(way))
-    if norm == 0.0:
-        return None
-    way /= norm
+    curve, tip, way = fr
     best = None
     for px in parts:
         rel = px - tip
@@ -471,6 +480,8 @@ def end_occluder(
     cover_px: float,
     see_px: float,
     max_reach_px: float,
+    level: Callable[[int, np.ndarray], tuple[float, float] | None] | None = None,
+    sigma: float = 2.5,
 ) -> Occluded | None:
     """Whether the thread at the curve's free ``end`` runs, in both views, into an occluder.
 
@@ -486,7 +497,14 @@ def end_occluder(
     tell count as occluder) until two patches in a row show a surface at or behind the end's
     depth, or the image border,
     while the reach (extension and hidden stretch) is under ``max_reach_px``. None when the
-    end is not at an occluder (or the pair cannot tell)."""
+    end is not at an occluder (or the pair cannot tell).
+
+    ``level(side, xy)``: the grey level and spread (median, robust deviation) of the bare
+    background next to the thread near ``xy`` in a view (the check's ring), or None. Where
+    that background is plain (untextured: stereo cannot measure it) and the thread stands
+    out from it by more than ``sigma`` spreads, a patch of its grey and as plain is the
+    surface the thread lies on, seen (``plain_surface``): a thread there would show. It ends
+    the walk like a measured surface, and before the meeting patch it makes the end free."""
     ext, far_px = known
     far = 0 if ext[0] >= ext[1] else 1
     fr = _end_frame(uv[far], end)
@@ -507,10 +525,14 @@ def end_occluder(
     if n > AHEAD_HALF_PX:  # the thread's own way to its visible end (it may bend)
         way = run / n
     shift = np.array([-disparity if far == 0 else disparity, 0.0])  # the other view's x
-    d_far, k = _front(greys, masks, far, at, way, disparity)
+    plain: list[tuple[float, float] | None] = [None, None]
+    if level is not None:
+        for side, xy in ((far, at), (1 - far, at + shift)):
+            plain[side] = plain_surface(greys[side], masks[side], xy, level(side, xy), sigma)
+    d_far, k = _front(greys, masks, far, at, way, disparity, plain[far])
     if d_far is None:
         return None
-    d_other, _ = _front(greys, masks, 1 - far, at + shift, way, disparity)
+    d_other, _ = _front(greys, masks, 1 - far, at + shift, way, disparity, plain[1 - far])
     if d_other is None or abs(d_far - d_other) > AHEAD_AGREE_PX:
         return None
     budget = max(max_reach_px - ext[far], 0.0)
@@ -523,7 +545,8 @@ def end_occluder(
         ray = np.array([c * way[0] - s_ * way[1], s_ * way[0] + c * way[1]])
         start = float((k + 1) * AHEAD_STEP_PX) if turn == 0.0 else 0.0  # past the meeting patch
         limit = min(_to_border(at, ray, greys[far].shape), budget)
-        hidden = max(hidden, _walk(greys, masks, far, at, ray, disparity, start, limit))
+        walked = _walk(greys, masks, far, at, ray, disparity, start, limit, plain[far])
+        hidden = max(hidden, walked)
         if ext[far] + hidden >= max_reach_px:
             break
     out = ext[far] + hidden >= max_reach_px
@@ -544,13 +567,18 @@ def _walk(
     disparity: float,
     offset: float,
     limit: float,
+    plain: tuple[float, float] | None = None,
 ) -> float:
     """How far (px) past ``at`` along ``way`` an occluder reaches in view ``side``: walked a
     patch at a time from ``offset`` until two patches in a row show a surface at or behind the
-    end's depth (the patches the pair cannot tell count as occluder), else ``limit``."""
+    end's depth, or the plain background the thread lies on (``plain``: its grey level and
+    tolerance, see ``plain_surface``), else ``limit``. The other patches the pair cannot tell
+    count as occluder."""
     bare = None  # the offset of a patch showing the surface under the thread again
     while offset < limit:
         d = surface_ahead(greys, masks, side, at, way, disparity, offset=offset)
+        if d is None and _plain_patch(greys[side], masks[side], at, way, offset, plain):
+            d = 0.0  # the plain background the thread lies on: a thread there would show
         if d is None or d > AHEAD_NEAR_PX:
             bare = None
         elif bare is None:
@@ -568,16 +596,81 @@ def _front(
     at: np.ndarray,
     way: np.ndarray,
     disparity: float,
+    plain: tuple[float, float] | None = None,
 ) -> tuple[float | None, int]:
     """The first of the AHEAD_MEET patches beyond ``at`` that shows a surface more than
     AHEAD_NEAR_PX px of disparity in front of the end: by how much, and its number; (None,
     AHEAD_MEET) when none does (the surface beyond is at or behind the end's depth, or the
-    pair cannot tell)."""
+    pair cannot tell), or when a patch before it shows the plain background the thread lies on
+    (``plain``): the thread would show there, so it ended before the occluder."""
     for k in range(AHEAD_MEET):
-        d = surface_ahead(greys, masks, side, at, way, disparity, offset=k * AHEAD_STEP_PX)
+        offset = k * AHEAD_STEP_PX
+        d = surface_ahead(greys, masks, side, at, way, disparity, offset=offset)
         if d is not None and d > AHEAD_NEAR_PX:
             return d, k
+        if d is None and _plain_patch(greys[side], masks[side], at, way, offset, plain):
+            break  # bare plain background between the end and anything beyond: a free end
     return None, AHEAD_MEET
+
+
+def plain_surface(
+    grey: np.ndarray,
+    mask: np.ndarray,
+    xy: np.ndarray,
+    level: tuple[float, float] | None,
+    sigma: float,
+) -> tuple[float, float] | None:
+    """The plain background a thread ending near ``xy`` lies on in one view, as (grey level,
+    tolerance), when a thread would be seen on it; else None. ``level``: the median and
+    robust spread of the bare background next to the thread there (the check's ring). Plain:
+    that spread is at the noise floor (AHEAD_LEVELS: no texture, so stereo cannot measure
+    the surface and grey is all there is); seen: the thread pixels within AHEAD_HALF_PX of
+    ``xy`` (their median grey) stand out from the level by more than ``sigma`` spreads, the
+    tolerance within which a patch of the background matches it. A textured background is
+    left to stereo (an untextured patch on it is no longer the surface next to the thread)."""
+    if level is None or level[1] > AHEAD_LEVELS or not np.all(np.isfinite(xy)):
+        return None
+    h, w = grey.shape
+    r = AHEAD_HALF_PX
+    x, y = int(round(float(xy[0]))), int(round(float(xy[1])))
+    rows = slice(max(y - r, 0), min(y + r + 1, h))
+    cols = slice(max(x - r, 0), min(x + r + 1, w))
+    on = np.asarray(mask[rows, cols], dtype=bool)
+    if not on.any():
+        return None  # no thread pixels there to measure its contrast with
+    thread = float(np.median(np.asarray(grey[rows, cols])[on]))
+    tol = sigma * level[1]
+    return (level[0], tol) if abs(thread - level[0]) > tol else None
+
+
+def _plain_patch(
+    grey: np.ndarray,
+    mask: np.ndarray,
+    tip: np.ndarray,
+    way: np.ndarray,
+    offset: float,
+    plain: tuple[float, float] | None,
+) -> bool:
+    """Whether the patch of ``surface_ahead`` (``offset`` px past ``tip`` along ``way``) shows
+    the ``plain`` background (``plain_surface``): inside the view, at least AHEAD_SHARE of it
+    off the thread (grown by its blurred edge), as untextured as that background (standard
+    deviation within AHEAD_LEVELS) and at its grey within the tolerance."""
+    if plain is None:
+        return False
+    h, w = grey.shape
+    r = AHEAD_HALF_PX
+    t = offset + 2.0 + r
+    cx, cy = float(tip[0]) + t * float(way[0]), float(tip[1]) + t * float(way[1])
+    if not (math.isfinite(cx) and math.isfinite(cy)):
+        return False
+    cx, cy = int(round(cx)), int(round(cy))
+    if cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
+        return False
+    seen = ~_thread_and_edges(mask, cy, cx, r)
+    if np.count_nonzero(seen) < AHEAD_SHARE * seen.size:
+        return False
+    vals = np.asarray(grey[cy - r : cy + r + 1, cx - r : cx + r + 1], dtype=np.float64)[seen]
+    return float(vals.std()) <= AHEAD_LEVELS and abs(float(vals.mean()) - plain[0]) <= plain[1]
 
 
 def surface_past_end(
