@@ -54,9 +54,11 @@ from threadrecon.core.check_beyond import (
     AHEAD_NEAR_PX,
     AHEAD_STEP_PX,
     beyond_ends,
+    bridge_stray,
     cut_end,
     end_occluder,
     extension_far,
+    plain_surface,
     surface_past_end,
 )
 from threadrecon.core.check_fast_kernel import flag_runs, mask_rows, ring_level
@@ -566,6 +568,9 @@ def _check(
         )
         why = _bridge_evidence(pts, uv_l, uv_r, s3, step, a, b, mm, bare, p)
         limit = p.max_bridge_mm if why is None else p.max_unobserved_mm
+        if len3 > limit and why is None and _bridge_confined(lifted, uv_l, uv_r, z, a, b, f,
+                                                             B, mm, bare, p):  # fmt: skip
+            continue  # the occluder holds the hidden thread within half the limit of it
         if len3 > limit and (worst is None or len3 > worst[0]):
             worst = (len3, why or "")
     if worst is not None:
@@ -1360,6 +1365,41 @@ def _bridge_evidence(
                     "grey of the tissue next to the thread, the same in both), where the thread "
                     "would be seen")  # fmt: skip
     return None
+
+
+def _bridge_confined(
+    lifted: LiftedPair,
+    uv_l: np.ndarray,
+    uv_r: np.ndarray,
+    z: np.ndarray,
+    a: int,
+    b: int,
+    f: float,
+    B: float,
+    mm: float,
+    bare: _BareBackground | None,
+    p: CheckParams,
+) -> bool:
+    """Whether the thread hidden under the evidenced bridge from observed sample ``a`` to ``b``
+    is held by its occluder within max_bridge_mm / 2 of the bridge in both views (at each
+    sample's depth): the bound max_bridge_mm stands for (a thread as long as the bridge strays
+    at most half its length from it), measured instead of assumed from the bridge's length
+    (core/check_beyond.bridge_stray: the occluder walked across the bridge on both sides)."""
+    if bare is None:
+        return False
+    seg = slice(a, b + 1)
+    limit_px = 0.5 * p.max_bridge_mm / mm * f / z[seg]
+    plain = tuple(
+        plain_surface(g, m, uv[a], bare.level(side, uv[a]), p.bare_sigma)
+        for side, (g, m, uv) in enumerate(
+            ((lifted.grey_L, lifted.P_L, uv_l), (lifted.grey_R, lifted.P_R, uv_r))
+        )
+    )
+    stray = bridge_stray(
+        (uv_l[seg], uv_r[seg]), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R),
+        f * B / z[seg], (plain[0], plain[1]), limit_px,
+    )  # fmt: skip
+    return stray < 1.0
 
 
 def _disparity_residual(

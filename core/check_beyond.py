@@ -673,6 +673,55 @@ def _plain_patch(
     return float(vals.std()) <= AHEAD_LEVELS and abs(float(vals.mean()) - plain[0]) <= plain[1]
 
 
+BRIDGE_SAMPLE_PX = AHEAD_STEP_PX  # px between the bridge samples whose occluder is measured
+
+
+def bridge_stray(
+    uv: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    greys: tuple[np.ndarray, np.ndarray],
+    disparity: np.ndarray,
+    plain: tuple[tuple[float, float] | None, tuple[float, float] | None],
+    limit_px: np.ndarray,
+) -> float:
+    """How far (px, at most ``limit_px``) a thread hidden under the bridge ``uv`` ((k, 2) per
+    view, the bridge's samples from one observed end to the other) may stray from it and stay
+    hidden in both views: at samples BRIDGE_SAMPLE_PX apart (left view), the occluder is walked
+    across the bridge on both sides (``_walk``: until two patches in a row show a surface at
+    or behind the bridge's depth, ``disparity`` (k,), or the ``plain`` background) in each view,
+    and its farthest side, plus a patch (where the walk stopped, the surface may only begin
+    at the patch's far side), bounds the stray there. The largest over the samples is
+    returned, relative to each sample's ``limit_px`` (k,): a value >= 1 means the occluder
+    reaches the limit somewhere (the walk stopped there). A hidden thread goes where the
+    occluder lets it: the bridge's shape is then known to within this stray."""
+    uv_l = uv[0]
+    step = np.hypot(*np.diff(uv_l, axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(step)])
+    picks = np.unique(np.searchsorted(s, np.arange(0.0, s[-1] + 1e-9, BRIDGE_SAMPLE_PX)))
+    worst = 0.0
+    for i in picks:
+        if i >= len(uv_l):
+            continue
+        lo, hi = max(i - 1, 0), min(i + 1, len(uv_l) - 1)
+        for side in (0, 1):
+            t = uv[side][hi] - uv[side][lo]
+            nt = float(np.hypot(t[0], t[1]))
+            if nt == 0.0 or not np.all(np.isfinite(uv[side][i])):
+                return math.inf  # no direction to measure across: not bounded
+            normal = np.array([-t[1], t[0]]) / nt
+            limit = float(limit_px[i])
+            for sign in (1.0, -1.0):
+                way = sign * normal
+                reach = min(_to_border(uv[side][i], way, greys[side].shape), limit)
+                d = _walk(greys, masks, side, uv[side][i], way, float(disparity[i]), 0.0,
+                          reach, plain[side])  # fmt: skip
+                stray = limit if d >= reach else d + AHEAD_STEP_PX + 2.0
+                worst = max(worst, stray / limit)
+                if worst >= 1.0:
+                    return worst
+    return worst
+
+
 def surface_past_end(
     uv: np.ndarray,
     greys: tuple[np.ndarray, np.ndarray],
