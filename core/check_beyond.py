@@ -729,10 +729,13 @@ def surface_past_end(
     side: int,
     end: str,
     disparity: float,
+    plain: tuple[float, float] | None = None,
 ) -> float | None:
     """In view ``side``: how much nearer (px of disparity) than the curve's ``end`` the surface
     just past the end's projection ``uv`` (N, 2) lies, the nearest of the AHEAD_MEET patches
     along the end's way that the pair can measure (``surface_ahead``); None when none can be.
+    A patch of the ``plain`` background the thread lies on (``plain_surface``) counts as that
+    surface, at the end's depth (0).
 
     For an end that one view sees cut (``cut_end``): an occluder that hides the thread in
     that view lies in front of the end there; a surface at or behind the end's depth (the
@@ -741,10 +744,13 @@ def surface_past_end(
     if fr is None or not (math.isfinite(disparity) and disparity > 0):
         return None
     _, tip, way = fr
-    found = [
-        surface_ahead(greys, masks, side, tip, way, disparity, offset=k * AHEAD_STEP_PX)
-        for k in range(AHEAD_MEET)
-    ]
+    found = []
+    for k in range(AHEAD_MEET):
+        offset = k * AHEAD_STEP_PX
+        d = surface_ahead(greys, masks, side, tip, way, disparity, offset=offset)
+        if d is None and _plain_patch(greys[side], masks[side], tip, way, offset, plain):
+            d = 0.0  # the plain background the thread lies on: a thread there would show
+        found.append(d)
     measured = [d for d in found if d is not None]
     return max(measured) if measured else None
 
