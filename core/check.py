@@ -53,6 +53,7 @@ from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check_beyond import (
     AHEAD_NEAR_PX,
     AHEAD_STEP_PX,
+    END_SAMPLES,
     beyond_ends,
     bridge_stray,
     cut_end,
@@ -674,7 +675,7 @@ def _check(
             uv_stop, grey_stop = (uv_l, uv_r)[stop], (lifted.grey_L, lifted.grey_R)[stop]
             tip = uv_stop[0] if end == "start" else uv_stop[-1]
             mask_stop = (lifted.P_L, lifted.P_R)[stop]
-            plain = plain_surface(grey_stop, mask_stop, tip, bare.level(stop, tip), p.bare_sigma)
+            plain = plain_surface(grey_stop, mask_stop, tip, _end_way(uv_stop, end), p.bare_sigma)
             front = surface_past_end(
                 uv_stop, (lifted.grey_L, lifted.grey_R), (lifted.P_L, lifted.P_R), stop, end,
                 f * B / z_end, plain,
@@ -687,7 +688,7 @@ def _check(
         occ = end_occluder(
             (uv_l, uv_r), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R), end,
             f * B / z_end, known, reach, p.cover_px + BEYOND_COVER_PX, unobserved_px,
-            unobserved_px + AHEAD_STEP_PX, level=bare.level, sigma=p.bare_sigma,
+            unobserved_px + AHEAD_STEP_PX, plain_sigma=p.bare_sigma,
         )  # fmt: skip
         # the occluder's reach, walked in both views, bounds what a cut end may hide
         bounded = occ is not None and not occ.walked_out and occ.reach_px <= unobserved_px
@@ -1200,10 +1201,6 @@ class _BareBackground:
             self._cache[side, x, y] = level
         return self._cache[side, x, y]
 
-    def level(self, side: int, xy: np.ndarray) -> tuple[float, float] | None:
-        """Grey level and spread of the bare background next to the thread near ``xy``."""
-        return self._level(side, xy)
-
     def grey(self, side: int, uv: np.ndarray) -> np.ndarray:
         """Grey level at each (x, y) of view ``side``; NaN off the image."""
         return _sample(self.views[side][0], uv)
@@ -1378,6 +1375,16 @@ def _bridge_evidence(
     return None
 
 
+def _end_way(uv: np.ndarray, end: str) -> np.ndarray:
+    """The outward unit direction (x, y) of a projected curve's ``end`` over its last (up to)
+    END_SAMPLES samples (zero when they coincide)."""
+    k = min(END_SAMPLES, len(uv) - 1)
+    tip, back = (uv[0], uv[k]) if end == "start" else (uv[-1], uv[-1 - k])
+    way = tip - back
+    norm = float(np.hypot(way[0], way[1]))
+    return way / norm if norm > 0.0 else np.zeros(2)
+
+
 def _bridge_confined(
     lifted: LiftedPair,
     uv_l: np.ndarray,
@@ -1405,10 +1412,14 @@ def _bridge_confined(
     for side, (g, m, uv) in enumerate(
         ((lifted.grey_L, lifted.P_L, uv_l), (lifted.grey_R, lifted.P_R, uv_r))
     ):
-        for i in (a, b):  # at an end of the bridge where this view sees the thread
-            plain[side] = plain_surface(g, m, uv[i], bare.level(side, uv[i]), p.bare_sigma)
+        run = uv[a : b + 1]
+        for i, way in ((a, -_end_way(run, "start")), (b, -_end_way(run, "end"))):
+            # at an end of the bridge where this view sees the thread (way: into the bridge)
+            plain[side] = plain_surface(g, m, uv[i], way, p.bare_sigma)
             if plain[side] is not None:
                 break
+    # the thread hidden at both ends in one view: the plain surface is the one the other sees
+    plain = [plain[0] if plain[0] is not None else plain[1], plain[1] or plain[0]]
     stray = bridge_stray(
         (uv_l[seg], uv_r[seg]), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R),
         f * B / z[seg], (plain[0], plain[1]), limit_px,

@@ -13,6 +13,7 @@ Thread pixels are split into 8-connected pieces once per segmentation (``check_f
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -376,33 +377,47 @@ def surface_ahead(
     An occluder's silhouette moves with the occluder's disparity, so a patch over an occluder
     or its edge matches in front of the thread; the tissue the thread lies on matches at the
     end's depth or behind it."""
+    return _ahead(greys, masks, side, tip, way, disparity, offset)[0]
+
+
+def _ahead(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    tip: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+    offset: float,
+) -> tuple[float | None, float | None]:
+    """``surface_ahead``, and the patch's mean grey (its thread pixels left out) when it is
+    untextured (the pair cannot tell its depth; None otherwise)."""
     grey_a, grey_b = greys[side], greys[1 - side]
     h, w = grey_a.shape
     r = AHEAD_HALF_PX
     t = offset + 2.0 + r
     cx, cy = float(tip[0]) + t * float(way[0]), float(tip[1]) + t * float(way[1])
     if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(disparity)):
-        return None
+        return None, None
     cx, cy = int(round(cx)), int(round(cy))
     if disparity <= 0 or cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
-        return None
+        return None, None
     rows, cols = slice(cy - r, cy + r + 1), slice(cx - r, cx + r + 1)
     thread = _thread_and_edges(masks[side], cy, cx, r)
     n_thread = int(np.count_nonzero(thread))
     n_seen = thread.size - n_thread
     if n_seen < AHEAD_SHARE * thread.size:
-        return None
+        return None, None
     patch = np.ascontiguousarray(grey_a[rows, cols], dtype=np.float32)
     seen = None if n_thread == 0 else (~thread).astype(np.uint8)
-    _, sd = cv2.meanStdDev(patch, mask=seen)
+    mean, sd = cv2.meanStdDev(patch, mask=seen)
     if float(sd[0, 0]) <= AHEAD_LEVELS:
-        return None  # untextured: the pair cannot tell its depth
+        return None, float(mean[0, 0])  # untextured: the pair cannot tell its depth
     # the other view sees a point of disparity d at x - d (left to right) or x + d
     d_hi = int(math.ceil(AHEAD_DEPTH * disparity))
     x0, x1 = (cx - d_hi - r, cx + r + 1) if side == 0 else (cx - r, cx + d_hi + r + 1)
     x0, x1 = max(x0, 0), min(x1, w)
     if x1 - x0 < 2 * r + 1 + 2 * AHEAD_FAR_PX:
-        return None
+        return None, None
     strip = np.ascontiguousarray(grey_b[rows, x0:x1], dtype=np.float32)
     if seen is None:  # the mask's slower path only where thread pixels are left out
         cost = cv2.matchTemplate(strip, patch, cv2.TM_SQDIFF)[0]
@@ -415,9 +430,9 @@ def surface_ahead(
         far.size == 0
         or float(np.partition(far, far.size // 2)[far.size // 2]) < rms[k] + AHEAD_LEVELS
     ):
-        return None  # no distinct match (median cost of the far shifts): nothing measured
+        return None, None  # no distinct match (median cost of the far shifts): nothing measured
     d_best = (cx - (x0 + k + r)) if side == 0 else (x0 + k + r - cx)
-    return float(d_best - disparity)
+    return float(d_best - disparity), None
 
 
 def _thread_and_edges(mask: np.ndarray, cy: int, cx: int, r: int) -> np.ndarray:
@@ -480,8 +495,7 @@ def end_occluder(
     cover_px: float,
     see_px: float,
     max_reach_px: float,
-    level: Callable[[int, np.ndarray], tuple[float, float] | None] | None = None,
-    sigma: float = 2.5,
+    plain_sigma: float | None = None,
 ) -> Occluded | None:
     """Whether the thread at the curve's free ``end`` runs, in both views, into an occluder.
 
@@ -499,12 +513,11 @@ def end_occluder(
     while the reach (extension and hidden stretch) is under ``max_reach_px``. None when the
     end is not at an occluder (or the pair cannot tell).
 
-    ``level(side, xy)``: the grey level and spread (median, robust deviation) of the bare
-    background next to the thread near ``xy`` in a view (the check's ring), or None. Where
-    that background is plain (untextured: stereo cannot measure it) and the thread stands
-    out from it by more than ``sigma`` spreads, a patch of its grey and as plain is the
-    surface the thread lies on, seen (``plain_surface``): a thread there would show. It ends
-    the walk like a measured surface, and before the meeting patch it makes the end free."""
+    ``plain_sigma`` (None: not looked at): where the background beside the thread's visible
+    end is plain (untextured: stereo cannot measure it) and the thread stands out from it by
+    more than ``plain_sigma`` noise floors, a patch of its grey and as plain is the surface
+    the thread lies on, seen (``plain_surface``): a thread there would show. It ends the walk
+    like a measured surface, and before the meeting patch it makes the end free."""
     ext, far_px = known
     far = 0 if ext[0] >= ext[1] else 1
     fr = _end_frame(uv[far], end)
@@ -525,10 +538,12 @@ def end_occluder(
     if n > AHEAD_HALF_PX:  # the thread's own way to its visible end (it may bend)
         way = run / n
     shift = np.array([-disparity if far == 0 else disparity, 0.0])  # the other view's x
-    plain: list[tuple[float, float] | None] = [None, None]
-    if level is not None:
+    plain: list[PlainSource] = [None, None]
+    if plain_sigma is not None:  # measured when a patch first needs it (most ends never do)
         for side, xy in ((far, at), (1 - far, at + shift)):
-            plain[side] = plain_surface(greys[side], masks[side], xy, level(side, xy), sigma)
+            plain[side] = functools.cache(
+                lambda s=side, p=xy: plain_surface(greys[s], masks[s], p, way, plain_sigma)
+            )
     d_far, k = _front(greys, masks, far, at, way, disparity, plain[far])
     if d_far is None:
         return None
@@ -567,7 +582,7 @@ def _walk(
     disparity: float,
     offset: float,
     limit: float,
-    plain: tuple[float, float] | None = None,
+    plain: PlainSource = None,
 ) -> float:
     """How far (px) past ``at`` along ``way`` an occluder reaches in view ``side``: walked a
     patch at a time from ``offset`` until two patches in a row show a surface at or behind the
@@ -576,8 +591,8 @@ def _walk(
     count as occluder."""
     bare = None  # the offset of a patch showing the surface under the thread again
     while offset < limit:
-        d = surface_ahead(greys, masks, side, at, way, disparity, offset=offset)
-        if d is None and _plain_patch(greys[side], masks[side], at, way, offset, plain):
+        d, grey = _ahead(greys, masks, side, at, way, disparity, offset)
+        if d is None and _is_plain(grey, plain):
             d = 0.0  # the plain background the thread lies on: a thread there would show
         if d is None or d > AHEAD_NEAR_PX:
             bare = None
@@ -596,7 +611,7 @@ def _front(
     at: np.ndarray,
     way: np.ndarray,
     disparity: float,
-    plain: tuple[float, float] | None = None,
+    plain: PlainSource = None,
 ) -> tuple[float | None, int]:
     """The first of the AHEAD_MEET patches beyond ``at`` that shows a surface more than
     AHEAD_NEAR_PX px of disparity in front of the end: by how much, and its number; (None,
@@ -604,73 +619,70 @@ def _front(
     pair cannot tell), or when a patch before it shows the plain background the thread lies on
     (``plain``): the thread would show there, so it ended before the occluder."""
     for k in range(AHEAD_MEET):
-        offset = k * AHEAD_STEP_PX
-        d = surface_ahead(greys, masks, side, at, way, disparity, offset=offset)
+        d, grey = _ahead(greys, masks, side, at, way, disparity, k * AHEAD_STEP_PX)
         if d is not None and d > AHEAD_NEAR_PX:
             return d, k
-        if d is None and _plain_patch(greys[side], masks[side], at, way, offset, plain):
+        if d is None and _is_plain(grey, plain):
             break  # bare plain background between the end and anything beyond: a free end
     return None, AHEAD_MEET
+
+
+PLAIN_HALF_PX = 12  # half-size of the square around an end whose background is measured
 
 
 def plain_surface(
     grey: np.ndarray,
     mask: np.ndarray,
     xy: np.ndarray,
-    level: tuple[float, float] | None,
+    way: np.ndarray,
     sigma: float,
 ) -> tuple[float, float] | None:
-    """The plain background a thread ending near ``xy`` lies on in one view, as (grey level,
-    tolerance), when a thread would be seen on it; else None. ``level``: the median and
-    robust spread of the bare background next to the thread there (the check's ring). Plain:
-    that spread is at the noise floor (AHEAD_LEVELS: no texture, so stereo cannot measure
-    the surface and grey is all there is); seen: the thread pixels within AHEAD_HALF_PX of
-    ``xy`` (their median grey) stand out from the level by more than ``sigma`` spreads, the
-    tolerance within which a patch of the background matches it. A textured background is
-    left to stereo (an untextured patch on it is no longer the surface next to the thread)."""
-    if level is None or level[1] > AHEAD_LEVELS or not np.all(np.isfinite(xy)):
+    """The plain background a thread ending at ``xy`` (going ``way``, a unit (x, y)) lies on in
+    one view, as (grey level, tolerance), when a thread would be seen on it; else None.
+    Measured beside the thread's last stretch: the square of 2 PLAIN_HALF_PX + 1 px centred
+    PLAIN_HALF_PX px back from the end (not over what lies ahead of it), its thread pixels and
+    their blurred edge left out (at least AHEAD_SHARE of it left), gives the level (median)
+    and spread (1.4826 MAD). Plain: a spread within AHEAD_LEVELS, the noise floor (no
+    texture: stereo cannot measure the surface, grey is all there is); seen: the thread
+    pixels within AHEAD_HALF_PX of ``xy`` (their median grey) stand out from the level by
+    more than the tolerance, ``sigma`` noise floors. A textured background is left to stereo
+    (an untextured patch on it is no surface the thread lies on)."""
+    h, w = grey.shape
+    r, q = PLAIN_HALF_PX, AHEAD_HALF_PX
+    if not (np.all(np.isfinite(xy)) and np.all(np.isfinite(way))):
         return None
-    h, w = grey.shape
-    r = AHEAD_HALF_PX
     x, y = int(round(float(xy[0]))), int(round(float(xy[1])))
-    rows = slice(max(y - r, 0), min(y + r + 1, h))
-    cols = slice(max(x - r, 0), min(x + r + 1, w))
-    on = np.asarray(mask[rows, cols], dtype=bool)
-    if not on.any():
+    cx, cy = int(round(x - r * float(way[0]))), int(round(y - r * float(way[1])))
+    if min(x - q, y - q, cx - r, cy - r) < 0 or max(x + q, cx + r) >= w or max(y + q, cy + r) >= h:
+        return None
+    near = np.asarray(mask[y - q : y + q + 1, x - q : x + q + 1], dtype=bool)
+    if not near.any():
         return None  # no thread pixels there to measure its contrast with
-    thread = float(np.median(np.asarray(grey[rows, cols])[on]))
-    tol = sigma * level[1]
-    return (level[0], tol) if abs(thread - level[0]) > tol else None
-
-
-def _plain_patch(
-    grey: np.ndarray,
-    mask: np.ndarray,
-    tip: np.ndarray,
-    way: np.ndarray,
-    offset: float,
-    plain: tuple[float, float] | None,
-) -> bool:
-    """Whether the patch of ``surface_ahead`` (``offset`` px past ``tip`` along ``way``) shows
-    the ``plain`` background (``plain_surface``): inside the view, at least AHEAD_SHARE of it
-    off the thread (grown by its blurred edge), as untextured as that background (standard
-    deviation within AHEAD_LEVELS) and at its grey within the tolerance."""
-    if plain is None:
-        return False
-    h, w = grey.shape
-    r = AHEAD_HALF_PX
-    t = offset + 2.0 + r
-    cx, cy = float(tip[0]) + t * float(way[0]), float(tip[1]) + t * float(way[1])
-    if not (math.isfinite(cx) and math.isfinite(cy)):
-        return False
-    cx, cy = int(round(cx)), int(round(cy))
-    if cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
-        return False
     seen = ~_thread_and_edges(mask, cy, cx, r)
     if np.count_nonzero(seen) < AHEAD_SHARE * seen.size:
-        return False
+        return None
     vals = np.asarray(grey[cy - r : cy + r + 1, cx - r : cx + r + 1], dtype=np.float64)[seen]
-    return float(vals.std()) <= AHEAD_LEVELS and abs(float(vals.mean()) - plain[0]) <= plain[1]
+    level = float(np.median(vals))
+    if 1.4826 * float(np.median(np.abs(vals - level))) > AHEAD_LEVELS:
+        return None  # textured: left to stereo
+    thread = float(np.median(np.asarray(grey[y - q : y + q + 1, x - q : x + q + 1])[near]))
+    tol = sigma * AHEAD_LEVELS
+    return (level, tol) if abs(thread - level) > tol else None
+
+
+def _is_plain(grey: float | None, plain: PlainSource) -> bool:
+    """Whether an untextured patch of mean ``grey`` (``_ahead``; None: textured or not
+    measured) shows the ``plain`` background (``plain_surface``; or a function giving it,
+    called only for such a patch): its grey within the tolerance of the background's."""
+    if grey is None or plain is None:
+        return False
+    level = plain() if callable(plain) else plain
+    return level is not None and abs(grey - level[0]) <= level[1]
+
+
+# the plain background of ``plain_surface`` (grey level, tolerance), a function giving it when
+# first needed, or None (no plain background: nothing is taken for it)
+PlainSource = tuple[float, float] | Callable[[], tuple[float, float] | None] | None
 
 
 BRIDGE_SAMPLE_PX = AHEAD_STEP_PX  # px between the bridge samples whose occluder is measured
@@ -729,7 +741,7 @@ def surface_past_end(
     side: int,
     end: str,
     disparity: float,
-    plain: tuple[float, float] | None = None,
+    plain: PlainSource = None,
 ) -> float | None:
     """In view ``side``: how much nearer (px of disparity) than the curve's ``end`` the surface
     just past the end's projection ``uv`` (N, 2) lies, the nearest of the AHEAD_MEET patches
@@ -746,9 +758,8 @@ def surface_past_end(
     _, tip, way = fr
     found = []
     for k in range(AHEAD_MEET):
-        offset = k * AHEAD_STEP_PX
-        d = surface_ahead(greys, masks, side, tip, way, disparity, offset=offset)
-        if d is None and _plain_patch(greys[side], masks[side], tip, way, offset, plain):
+        d, grey = _ahead(greys, masks, side, tip, way, disparity, k * AHEAD_STEP_PX)
+        if d is None and _is_plain(grey, plain):
             d = 0.0  # the plain background the thread lies on: a thread there would show
         found.append(d)
     measured = [d for d in found if d is not None]

@@ -304,14 +304,10 @@ def _plain_scene(gap: int, occluder_px: int = 400):
     return (grey[0], grey[1]), (masks[0], masks[1]), (uv_l, uv_l - [D_T, 0.0])
 
 
-def _plain_level(side: int, xy: np.ndarray) -> tuple[float, float]:
-    return 200.0, 4.0  # the check's ring on the plain background: its grey, the spread floor
-
-
 def _occluder_plain(greys, masks, uv, max_reach: float = 300.0):
     known = extension_far(uv, masks, "end", 40.0, 5.0, 5.0)
     return end_occluder(uv, masks, greys, "end", float(D_T), known, 40.0, 5.0, 100.0,
-                        max_reach, level=_plain_level)  # fmt: skip
+                        max_reach, plain_sigma=2.5)  # fmt: skip
 
 
 def test_an_end_before_an_occluder_across_plain_background_is_free() -> None:
@@ -340,14 +336,17 @@ def test_the_walk_stops_where_the_plain_background_shows_again() -> None:
 def test_a_dark_surface_is_no_plain_background_for_a_dark_thread() -> None:
     # no contrast between the thread and the background: a thread there would not show
     greys, masks, uv = _plain_scene(gap=16)
-    dark = tuple(
-        np.where(m, 30.0, np.where(g == 200.0, 34.0, g)) for g, m in zip(greys, masks, strict=True)
-    )
+    way = np.array([1.0, 0.0])
+    assert plain_surface(greys[0], masks[0], uv[0][-1], way, 2.5) == (200.0, 10.0)
+    dark = tuple(np.where(g == 200.0, 34.0, g) for g in greys)
+    assert plain_surface(dark[0], masks[0], uv[0][-1], way, 2.5) is None
     known = extension_far(uv, masks, "end", 40.0, 5.0, 5.0)
     occ = end_occluder(uv, masks, dark, "end", float(D_T), known, 40.0, 5.0, 100.0, 300.0,
-                       level=lambda side, xy: (34.0, 4.0))  # fmt: skip
-    assert plain_surface(dark[0], masks[0], uv[0][-1], (34.0, 4.0), 2.5) is None
+                       plain_sigma=2.5)  # fmt: skip
     assert occ is not None
+    # a textured surface beside the thread is left to stereo
+    greys, masks, uv = _stereo_scene(None)
+    assert plain_surface(greys[0], masks[0], uv[0][-1], way, 2.5) is None
 
 
 def test_an_end_that_hooks_back_is_taken_where_the_curve_reaches() -> None:
