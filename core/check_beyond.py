@@ -134,9 +134,10 @@ def _end_frame(uv: np.ndarray, end: str) -> tuple[np.ndarray, np.ndarray, np.nda
     seq = curve if end == "start" else curve[::-1]  # seq[0] is the end's sample
     j = 0
     if len(seq) > 2 * END_SAMPLES:
-        before = seq[END_SAMPLES] - seq[2 * END_SAMPLES]  # the way into the end's window
-        j = int(np.argmax((seq[: END_SAMPLES + 1] - seq[END_SAMPLES]) @ before))
-        j = min(j, len(seq) - 1 - END_SAMPLES)
+        (x0, y0), (x1, y1), (xe, ye), (xb, yb) = seq[[0, 1, END_SAMPLES, 2 * END_SAMPLES]].tolist()
+        bx, by = xe - xb, ye - yb  # the way into the end's window
+        if (x0 - x1) * bx + (y0 - y1) * by < 0.0:  # the last step turns back: a hook
+            j = int(np.argmax((seq[: END_SAMPLES + 1] - seq[END_SAMPLES]) @ np.array([bx, by])))
     tip, back = seq[j], seq[j + END_SAMPLES]
     way = tip - back
     norm = float(np.hypot(way[0], way[1]))
@@ -627,7 +628,9 @@ def _front(
     return None, AHEAD_MEET
 
 
-PLAIN_HALF_PX = 12  # half-size of the square around an end whose background is measured
+PLAIN_HALF_PX = 9  # half-size of the square beside an end whose background is measured
+PLAIN_SHARE = 1.0 / 3.0  # of it off the thread (a thick thread and its blurred edge may take
+# 11 of its 19 px across; a third of it, 120 px, still gives the level)
 
 
 def plain_surface(
@@ -641,12 +644,13 @@ def plain_surface(
     one view, as (grey level, tolerance), when a thread would be seen on it; else None.
     Measured beside the thread's last stretch: the square of 2 PLAIN_HALF_PX + 1 px centred
     PLAIN_HALF_PX px back from the end (not over what lies ahead of it), its thread pixels and
-    their blurred edge left out (at least AHEAD_SHARE of it left), gives the level (median)
-    and spread (1.4826 MAD). Plain: a spread within AHEAD_LEVELS, the noise floor (no
-    texture: stereo cannot measure the surface, grey is all there is); seen: the thread
-    pixels within AHEAD_HALF_PX of ``xy`` (their median grey) stand out from the level by
-    more than the tolerance, ``sigma`` noise floors. A textured background is left to stereo
-    (an untextured patch on it is no surface the thread lies on)."""
+    their blurred edge left out (at least PLAIN_SHARE of it left), gives the level (median).
+    Plain: at least half of those pixels within AHEAD_LEVELS / 1.4826 of it (a robust spread,
+    1.4826 MAD, within AHEAD_LEVELS, the noise floor: no texture, so stereo cannot measure
+    the surface and grey is all there is); seen: the thread pixels within AHEAD_HALF_PX of
+    ``xy`` (their median grey) stand out from the level by more than the tolerance, ``sigma``
+    noise floors. A textured background is left to stereo (an untextured patch on it is no
+    surface the thread lies on)."""
     h, w = grey.shape
     r, q = PLAIN_HALF_PX, AHEAD_HALF_PX
     if not (np.all(np.isfinite(xy)) and np.all(np.isfinite(way))):
@@ -659,13 +663,15 @@ def plain_surface(
     if not near.any():
         return None  # no thread pixels there to measure its contrast with
     seen = ~_thread_and_edges(mask, cy, cx, r)
-    if np.count_nonzero(seen) < AHEAD_SHARE * seen.size:
+    n = int(np.count_nonzero(seen))
+    if n < PLAIN_SHARE * seen.size:
         return None
     vals = np.asarray(grey[cy - r : cy + r + 1, cx - r : cx + r + 1], dtype=np.float64)[seen]
-    level = float(np.median(vals))
-    if 1.4826 * float(np.median(np.abs(vals - level))) > AHEAD_LEVELS:
+    level = float(np.partition(vals, n // 2)[n // 2])
+    if 2 * int(np.count_nonzero(np.abs(vals - level) <= AHEAD_LEVELS / 1.4826)) < n:
         return None  # textured: left to stereo
-    thread = float(np.median(np.asarray(grey[y - q : y + q + 1, x - q : x + q + 1])[near]))
+    on = np.asarray(grey[y - q : y + q + 1, x - q : x + q + 1], dtype=np.float64)[near]
+    thread = float(np.partition(on, on.size // 2)[on.size // 2])
     tol = sigma * AHEAD_LEVELS
     return (level, tol) if abs(thread - level) > tol else None
 
