@@ -392,3 +392,17 @@ def test_a_narrow_occluder_holds_a_hidden_thread_near_its_bridge() -> None:
     greys, masks, uv = _bridge_scene(shaft_half_px=45.0)
     stray = bridge_stray(uv, masks, greys, disp, (None, None), np.full(len(uv[0]), 40.0))
     assert stray >= 1.0
+
+
+def test_the_plain_background_past_a_cut_end_is_no_occluder() -> None:
+    # a cut end's stopping view: untextured background past the end cannot be measured by
+    # stereo; when it is the plain background the thread lies on, it is the surface at the
+    # end's depth (0), not an occluder in front of it
+    greys, masks, uv = _plain_scene(gap=60)
+    assert surface_past_end(uv[0], greys, masks, 0, "end", float(D_T)) is None
+    plain = plain_surface(greys[0], masks[0], uv[0][-1], np.array([1.0, 0.0]), 2.5)
+    assert surface_past_end(uv[0], greys, masks, 0, "end", float(D_T), plain) == 0.0
+    # a shaft right at the end is measured in front of it whatever the background
+    greys, masks, uv = _plain_scene(gap=0)
+    d = surface_past_end(uv[0], greys, masks, 0, "end", float(D_T), plain)
+    assert d is not None and abs(d - (D_O - D_T)) <= 1.0
