@@ -53,10 +53,13 @@ from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check_beyond import (
     AHEAD_NEAR_PX,
     AHEAD_STEP_PX,
+    END_SAMPLES,
     beyond_ends,
+    bridge_stray,
     cut_end,
     end_occluder,
     extension_far,
+    plain_surface,
     surface_past_end,
 )
 from threadrecon.core.check_fast_kernel import flag_runs, mask_rows, ring_level
@@ -566,6 +569,13 @@ def _check(
         )
         why = _bridge_evidence(pts, uv_l, uv_r, s3, step, a, b, mm, bare, p)
         limit = p.max_bridge_mm if why is None else p.max_unobserved_mm
+        # a bridge that continues the thread (or only turns onto it more sharply than
+        # bridge_turn_deg: no loop, not over bare background) is judged by how far its occluder
+        # lets the hidden thread stray, where that can be measured
+        hidden_under = why is None or why.startswith(_TURN)
+        if len3 > limit and hidden_under and _bridge_confined(lifted, uv_l, uv_r, z, a, b, f, B,
+                                                              mm, limit, bare, p):  # fmt: skip
+            continue  # the occluder holds the hidden thread within half the limit of it
         if len3 > limit and (worst is None or len3 > worst[0]):
             worst = (len3, why or "")
     if worst is not None:
@@ -662,9 +672,13 @@ def _check(
             # surface at or behind the end's depth just past it (stereo) is none: that view's
             # thread goes on unsegmented, as far as the other view sees it (within the limit).
             stop = 1 if cut.view == "left" else 0
+            uv_stop, grey_stop = (uv_l, uv_r)[stop], (lifted.grey_L, lifted.grey_R)[stop]
+            tip = uv_stop[0] if end == "start" else uv_stop[-1]
+            mask_stop = (lifted.P_L, lifted.P_R)[stop]
+            plain = plain_surface(grey_stop, mask_stop, tip, _end_way(uv_stop, end), p.bare_sigma)
             front = surface_past_end(
-                (uv_l, uv_r)[stop], (lifted.grey_L, lifted.grey_R), (lifted.P_L, lifted.P_R),
-                stop, end, f * B / z_end,
+                uv_stop, (lifted.grey_L, lifted.grey_R), (lifted.P_L, lifted.P_R), stop, end,
+                f * B / z_end, plain,
             )  # fmt: skip
             hidden = front is None or front > AHEAD_NEAR_PX
         # A free end is followed, in both views, by the surface the thread lies on (at or
@@ -674,7 +688,7 @@ def _check(
         occ = end_occluder(
             (uv_l, uv_r), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R), end,
             f * B / z_end, known, reach, p.cover_px + BEYOND_COVER_PX, unobserved_px,
-            unobserved_px + AHEAD_STEP_PX,
+            unobserved_px + AHEAD_STEP_PX, plain_sigma=p.bare_sigma,
         )  # fmt: skip
         # the occluder's reach, walked in both views, bounds what a cut end may hide
         bounded = occ is not None and not occ.walked_out and occ.reach_px <= unobserved_px
@@ -1305,6 +1319,9 @@ def _hidden_end(
     return out
 
 
+_TURN = "it turns"  # the opening of _bridge_evidence's turn reason
+
+
 def _bridge_evidence(
     pts: np.ndarray,
     uv_l: np.ndarray,
@@ -1340,7 +1357,7 @@ def _bridge_evidence(
         cos = float(d @ chord) / (nd * chord_mm / mm)
         if cos < cos_max:
             ang = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-            return f"it turns {ang:.0f} deg at its {end} (limit {p.bridge_turn_deg:g} deg)"
+            return f"{_TURN} {ang:.0f} deg at its {end} (limit {p.bridge_turn_deg:g} deg)"
     if bare is not None and b - a > 1:
         hidden = slice(a + 1, b)
         both = bare(0, uv_l[hidden], uv_l[a], uv_l[b]) & bare(1, uv_r[hidden], uv_r[a], uv_r[b])
@@ -1356,6 +1373,58 @@ def _bridge_evidence(
                     "grey of the tissue next to the thread, the same in both), where the thread "
                     "would be seen")  # fmt: skip
     return None
+
+
+def _end_way(uv: np.ndarray, end: str) -> np.ndarray:
+    """The outward unit direction (x, y) of a projected curve's ``end`` over its last (up to)
+    END_SAMPLES samples (zero when they coincide)."""
+    k = min(END_SAMPLES, len(uv) - 1)
+    tip, back = (uv[0], uv[k]) if end == "start" else (uv[-1], uv[-1 - k])
+    way = tip - back
+    norm = float(np.hypot(way[0], way[1]))
+    return way / norm if norm > 0.0 else np.zeros(2)
+
+
+def _bridge_confined(
+    lifted: LiftedPair,
+    uv_l: np.ndarray,
+    uv_r: np.ndarray,
+    z: np.ndarray,
+    a: int,
+    b: int,
+    f: float,
+    B: float,
+    mm: float,
+    limit_mm: float,
+    bare: _BareBackground | None,
+    p: CheckParams,
+) -> bool:
+    """Whether the thread hidden under the bridge from observed sample ``a`` to ``b`` is held
+    by its occluder within ``limit_mm`` / 2 of the bridge in both views (at each sample's
+    depth): the bound the bridge's limit stands for (a thread as long as the bridge strays at
+    most half its length from it), measured instead of assumed from the bridge's length
+    (core/check_beyond.bridge_stray: the occluder walked across the bridge on both sides)."""
+    if bare is None:
+        return False
+    seg = slice(a, b + 1)
+    limit_px = 0.5 * limit_mm / mm * f / z[seg]
+    plain: list[tuple[float, float] | None] = [None, None]
+    for side, (g, m, uv) in enumerate(
+        ((lifted.grey_L, lifted.P_L, uv_l), (lifted.grey_R, lifted.P_R, uv_r))
+    ):
+        run = uv[a : b + 1]
+        for i, way in ((a, -_end_way(run, "start")), (b, -_end_way(run, "end"))):
+            # at an end of the bridge where this view sees the thread (way: into the bridge)
+            plain[side] = plain_surface(g, m, uv[i], way, p.bare_sigma)
+            if plain[side] is not None:
+                break
+    # the thread hidden at both ends in one view: the plain surface is the one the other sees
+    plain = [plain[0] if plain[0] is not None else plain[1], plain[1] or plain[0]]
+    stray = bridge_stray(
+        (uv_l[seg], uv_r[seg]), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R),
+        f * B / z[seg], (plain[0], plain[1]), limit_px,
+    )  # fmt: skip
+    return stray < 1.0
 
 
 def _disparity_residual(

@@ -13,6 +13,7 @@ Thread pixels are split into 8-connected pieces once per segmentation (``check_f
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -119,12 +120,25 @@ def beyond_ends(
 
 def _end_frame(uv: np.ndarray, end: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The finite curve samples, the ``end``'s tip and its outward unit direction (over
-    END_SAMPLES samples); None for a curve too short or without direction."""
+    END_SAMPLES samples); None for a curve too short or without direction.
+
+    A curve whose last samples turn back on themselves (a hook: a spline's end overshoots its
+    last observation and returns) reaches farthest before its last sample: the tip is the
+    sample of the last END_SAMPLES + 1 that lies farthest along the curve's way just before
+    them, and the direction is taken over the END_SAMPLES samples behind that tip. The thread
+    ends where the curve reaches, and what lies beyond the end is beyond that point, not back
+    over the curve's own thread."""
     curve = uv if np.isfinite(uv).all() else uv[np.all(np.isfinite(uv), axis=1)]
     if len(curve) < END_SAMPLES + 1:
         return None
-    tip = curve[0] if end == "start" else curve[-1]
-    back = curve[END_SAMPLES] if end == "start" else curve[-1 - END_SAMPLES]
+    seq = curve if end == "start" else curve[::-1]  # seq[0] is the end's sample
+    j = 0
+    if len(seq) > 2 * END_SAMPLES:
+        (x0, y0), (x1, y1), (xe, ye), (xb, yb) = seq[[0, 1, END_SAMPLES, 2 * END_SAMPLES]].tolist()
+        bx, by = xe - xb, ye - yb  # the way into the end's window
+        if (x0 - x1) * bx + (y0 - y1) * by < 0.0:  # the last step turns back: a hook
+            j = int(np.argmax((seq[: END_SAMPLES + 1] - seq[END_SAMPLES]) @ np.array([bx, by])))
+    tip, back = seq[j], seq[j + END_SAMPLES]
     way = tip - back
     norm = float(np.hypot(way[0], way[1]))
     if norm == 0.0:
@@ -146,6 +160,10 @@ def _cone(
     their distance along the way: a cheap superset of any piece beyond the end."""
     if not math.isfinite(radius):
         raise ValueError(f"the search radius beyond an end is not finite ({radius})")
+    h, w = mask.shape
+    tx, ty = float(tip[0]), float(tip[1])
+    if not (-radius <= tx <= w + radius and -radius <= ty <= h + radius):
+        return np.empty((0, 2)), np.empty(0)  # the fan misses the image (a diverged curve)
     m = mask if mask.flags.c_contiguous else np.ascontiguousarray(mask)
     return cone_pixels(
         np.ascontiguousarray(curve, dtype=np.float64),
@@ -173,17 +191,10 @@ def _beyond(
 ) -> tuple[float, float, tuple[float, float]] | None:
     """In one view: the nearest uncovered piece beyond ``end`` across an occluder, as (gap px,
     reach px to its far side, its (min, max) rows); None when there is none."""
-    ok = np.all(np.isfinite(uv), axis=1)
-    if ok.sum() < END_SAMPLES + 1 or not parts:
+    fr = _end_frame(uv, end)
+    if fr is None or not parts:
         return None
-    curve = uv[ok]
-    tip = curve[0] if end == "start" else curve[-1]
-    back = curve[END_SAMPLES] if end == "start" else curve[-1 - END_SAMPLES]
-    way = tip - back
-    norm = float(np.linalg.norm(way))
-    if norm == 0.0:
-        return None
-    way /= norm
+    curve, tip, way = fr
     best = None
     for px in parts:
         rel = px - tip
@@ -367,33 +378,47 @@ def surface_ahead(
     An occluder's silhouette moves with the occluder's disparity, so a patch over an occluder
     or its edge matches in front of the thread; the tissue the thread lies on matches at the
     end's depth or behind it."""
+    return _ahead(greys, masks, side, tip, way, disparity, offset)[0]
+
+
+def _ahead(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    tip: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+    offset: float,
+) -> tuple[float | None, float | None]:
+    """``surface_ahead``, and the patch's mean grey (its thread pixels left out) when it is
+    untextured (the pair cannot tell its depth; None otherwise)."""
     grey_a, grey_b = greys[side], greys[1 - side]
     h, w = grey_a.shape
     r = AHEAD_HALF_PX
     t = offset + 2.0 + r
     cx, cy = float(tip[0]) + t * float(way[0]), float(tip[1]) + t * float(way[1])
     if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(disparity)):
-        return None
+        return None, None
     cx, cy = int(round(cx)), int(round(cy))
     if disparity <= 0 or cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
-        return None
+        return None, None
     rows, cols = slice(cy - r, cy + r + 1), slice(cx - r, cx + r + 1)
     thread = _thread_and_edges(masks[side], cy, cx, r)
     n_thread = int(np.count_nonzero(thread))
     n_seen = thread.size - n_thread
     if n_seen < AHEAD_SHARE * thread.size:
-        return None
+        return None, None
     patch = np.ascontiguousarray(grey_a[rows, cols], dtype=np.float32)
     seen = None if n_thread == 0 else (~thread).astype(np.uint8)
-    _, sd = cv2.meanStdDev(patch, mask=seen)
+    mean, sd = cv2.meanStdDev(patch, mask=seen)
     if float(sd[0, 0]) <= AHEAD_LEVELS:
-        return None  # untextured: the pair cannot tell its depth
+        return None, float(mean[0, 0])  # untextured: the pair cannot tell its depth
     # the other view sees a point of disparity d at x - d (left to right) or x + d
     d_hi = int(math.ceil(AHEAD_DEPTH * disparity))
     x0, x1 = (cx - d_hi - r, cx + r + 1) if side == 0 else (cx - r, cx + d_hi + r + 1)
     x0, x1 = max(x0, 0), min(x1, w)
     if x1 - x0 < 2 * r + 1 + 2 * AHEAD_FAR_PX:
-        return None
+        return None, None
     strip = np.ascontiguousarray(grey_b[rows, x0:x1], dtype=np.float32)
     if seen is None:  # the mask's slower path only where thread pixels are left out
         cost = cv2.matchTemplate(strip, patch, cv2.TM_SQDIFF)[0]
@@ -406,9 +431,9 @@ def surface_ahead(
         far.size == 0
         or float(np.partition(far, far.size // 2)[far.size // 2]) < rms[k] + AHEAD_LEVELS
     ):
-        return None  # no distinct match (median cost of the far shifts): nothing measured
+        return None, None  # no distinct match (median cost of the far shifts): nothing measured
     d_best = (cx - (x0 + k + r)) if side == 0 else (x0 + k + r - cx)
-    return float(d_best - disparity)
+    return float(d_best - disparity), None
 
 
 def _thread_and_edges(mask: np.ndarray, cy: int, cx: int, r: int) -> np.ndarray:
@@ -471,6 +496,7 @@ def end_occluder(
     cover_px: float,
     see_px: float,
     max_reach_px: float,
+    plain_sigma: float | None = None,
 ) -> Occluded | None:
     """Whether the thread at the curve's free ``end`` runs, in both views, into an occluder.
 
@@ -486,7 +512,13 @@ def end_occluder(
     tell count as occluder) until two patches in a row show a surface at or behind the end's
     depth, or the image border,
     while the reach (extension and hidden stretch) is under ``max_reach_px``. None when the
-    end is not at an occluder (or the pair cannot tell)."""
+    end is not at an occluder (or the pair cannot tell).
+
+    ``plain_sigma`` (None: not looked at): where the background beside the thread's visible
+    end is plain (untextured: stereo cannot measure it) and the thread stands out from it by
+    more than ``plain_sigma`` noise floors, a patch of its grey and as plain is the surface
+    the thread lies on, seen (``plain_surface``): a thread there would show. It ends the walk
+    like a measured surface, and before the meeting patch it makes the end free."""
     ext, far_px = known
     far = 0 if ext[0] >= ext[1] else 1
     fr = _end_frame(uv[far], end)
@@ -507,10 +539,16 @@ def end_occluder(
     if n > AHEAD_HALF_PX:  # the thread's own way to its visible end (it may bend)
         way = run / n
     shift = np.array([-disparity if far == 0 else disparity, 0.0])  # the other view's x
-    d_far, k = _front(greys, masks, far, at, way, disparity)
+    plain: list[PlainSource] = [None, None]
+    if plain_sigma is not None:  # measured when a patch first needs it (most ends never do)
+        for side, xy in ((far, at), (1 - far, at + shift)):
+            plain[side] = functools.cache(
+                lambda s=side, p=xy: plain_surface(greys[s], masks[s], p, way, plain_sigma)
+            )
+    d_far, k = _front(greys, masks, far, at, way, disparity, plain[far])
     if d_far is None:
         return None
-    d_other, _ = _front(greys, masks, 1 - far, at + shift, way, disparity)
+    d_other, _ = _front(greys, masks, 1 - far, at + shift, way, disparity, plain[1 - far])
     if d_other is None or abs(d_far - d_other) > AHEAD_AGREE_PX:
         return None
     budget = max(max_reach_px - ext[far], 0.0)
@@ -523,7 +561,8 @@ def end_occluder(
         ray = np.array([c * way[0] - s_ * way[1], s_ * way[0] + c * way[1]])
         start = float((k + 1) * AHEAD_STEP_PX) if turn == 0.0 else 0.0  # past the meeting patch
         limit = min(_to_border(at, ray, greys[far].shape), budget)
-        hidden = max(hidden, _walk(greys, masks, far, at, ray, disparity, start, limit))
+        walked = _walk(greys, masks, far, at, ray, disparity, start, limit, plain[far])
+        hidden = max(hidden, walked)
         if ext[far] + hidden >= max_reach_px:
             break
     out = ext[far] + hidden >= max_reach_px
@@ -544,13 +583,18 @@ def _walk(
     disparity: float,
     offset: float,
     limit: float,
+    plain: PlainSource = None,
 ) -> float:
     """How far (px) past ``at`` along ``way`` an occluder reaches in view ``side``: walked a
     patch at a time from ``offset`` until two patches in a row show a surface at or behind the
-    end's depth (the patches the pair cannot tell count as occluder), else ``limit``."""
+    end's depth, or the plain background the thread lies on (``plain``: its grey level and
+    tolerance, see ``plain_surface``), else ``limit``. The other patches the pair cannot tell
+    count as occluder."""
     bare = None  # the offset of a patch showing the surface under the thread again
     while offset < limit:
-        d = surface_ahead(greys, masks, side, at, way, disparity, offset=offset)
+        d, grey = _ahead(greys, masks, side, at, way, disparity, offset)
+        if d is None and _is_plain(grey, plain):
+            d = 0.0  # the plain background the thread lies on: a thread there would show
         if d is None or d > AHEAD_NEAR_PX:
             bare = None
         elif bare is None:
@@ -568,16 +612,132 @@ def _front(
     at: np.ndarray,
     way: np.ndarray,
     disparity: float,
+    plain: PlainSource = None,
 ) -> tuple[float | None, int]:
     """The first of the AHEAD_MEET patches beyond ``at`` that shows a surface more than
     AHEAD_NEAR_PX px of disparity in front of the end: by how much, and its number; (None,
     AHEAD_MEET) when none does (the surface beyond is at or behind the end's depth, or the
-    pair cannot tell)."""
+    pair cannot tell), or when a patch before it shows the plain background the thread lies on
+    (``plain``): the thread would show there, so it ended before the occluder."""
     for k in range(AHEAD_MEET):
-        d = surface_ahead(greys, masks, side, at, way, disparity, offset=k * AHEAD_STEP_PX)
+        d, grey = _ahead(greys, masks, side, at, way, disparity, k * AHEAD_STEP_PX)
         if d is not None and d > AHEAD_NEAR_PX:
             return d, k
+        if d is None and _is_plain(grey, plain):
+            break  # bare plain background between the end and anything beyond: a free end
     return None, AHEAD_MEET
+
+
+PLAIN_HALF_PX = 9  # half-size of the square beside an end whose background is measured
+PLAIN_SHARE = 1.0 / 3.0  # of it off the thread (a thick thread and its blurred edge may take
+# 11 of its 19 px across; a third of it, 120 px, still gives the level)
+
+
+def plain_surface(
+    grey: np.ndarray,
+    mask: np.ndarray,
+    xy: np.ndarray,
+    way: np.ndarray,
+    sigma: float,
+) -> tuple[float, float] | None:
+    """The plain background a thread ending at ``xy`` (going ``way``, a unit (x, y)) lies on in
+    one view, as (grey level, tolerance), when a thread would be seen on it; else None.
+    Measured beside the thread's last stretch: the square of 2 PLAIN_HALF_PX + 1 px centred
+    PLAIN_HALF_PX px back from the end (not over what lies ahead of it), its thread pixels and
+    their blurred edge left out (at least PLAIN_SHARE of it left), gives the level (median).
+    Plain: at least half of those pixels within AHEAD_LEVELS / 1.4826 of it (a robust spread,
+    1.4826 MAD, within AHEAD_LEVELS, the noise floor: no texture, so stereo cannot measure
+    the surface and grey is all there is); seen: the thread pixels within AHEAD_HALF_PX of
+    ``xy`` (their median grey) stand out from the level by more than the tolerance, ``sigma``
+    noise floors. A textured background is left to stereo (an untextured patch on it is no
+    surface the thread lies on)."""
+    h, w = grey.shape
+    r, q = PLAIN_HALF_PX, AHEAD_HALF_PX
+    if not (np.all(np.isfinite(xy)) and np.all(np.isfinite(way))):
+        return None
+    x, y = int(round(float(xy[0]))), int(round(float(xy[1])))
+    cx, cy = int(round(x - r * float(way[0]))), int(round(y - r * float(way[1])))
+    if min(x - q, y - q, cx - r, cy - r) < 0 or max(x + q, cx + r) >= w or max(y + q, cy + r) >= h:
+        return None
+    near = np.asarray(mask[y - q : y + q + 1, x - q : x + q + 1], dtype=bool)
+    if not near.any():
+        return None  # no thread pixels there to measure its contrast with
+    seen = ~_thread_and_edges(mask, cy, cx, r)
+    n = int(np.count_nonzero(seen))
+    if n < PLAIN_SHARE * seen.size:
+        return None
+    vals = np.asarray(grey[cy - r : cy + r + 1, cx - r : cx + r + 1], dtype=np.float64)[seen]
+    level = float(np.partition(vals, n // 2)[n // 2])
+    if 2 * int(np.count_nonzero(np.abs(vals - level) <= AHEAD_LEVELS / 1.4826)) < n:
+        return None  # textured: left to stereo
+    on = np.asarray(grey[y - q : y + q + 1, x - q : x + q + 1], dtype=np.float64)[near]
+    thread = float(np.partition(on, on.size // 2)[on.size // 2])
+    tol = sigma * AHEAD_LEVELS
+    return (level, tol) if abs(thread - level) > tol else None
+
+
+def _is_plain(grey: float | None, plain: PlainSource) -> bool:
+    """Whether an untextured patch of mean ``grey`` (``_ahead``; None: textured or not
+    measured) shows the ``plain`` background (``plain_surface``; or a function giving it,
+    called only for such a patch): its grey within the tolerance of the background's."""
+    if grey is None or plain is None:
+        return False
+    level = plain() if callable(plain) else plain
+    return level is not None and abs(grey - level[0]) <= level[1]
+
+
+# the plain background of ``plain_surface`` (grey level, tolerance), a function giving it when
+# first needed, or None (no plain background: nothing is taken for it)
+PlainSource = tuple[float, float] | Callable[[], tuple[float, float] | None] | None
+
+
+BRIDGE_SAMPLE_PX = AHEAD_STEP_PX  # px between the bridge samples whose occluder is measured
+
+
+def bridge_stray(
+    uv: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    greys: tuple[np.ndarray, np.ndarray],
+    disparity: np.ndarray,
+    plain: tuple[tuple[float, float] | None, tuple[float, float] | None],
+    limit_px: np.ndarray,
+) -> float:
+    """How far (px, at most ``limit_px``) a thread hidden under the bridge ``uv`` ((k, 2) per
+    view, the bridge's samples from one observed end to the other) may stray from it and stay
+    hidden in both views: at samples BRIDGE_SAMPLE_PX apart (left view), the occluder is walked
+    across the bridge on both sides (``_walk``: until two patches in a row show a surface at
+    or behind the bridge's depth, ``disparity`` (k,), or the ``plain`` background) in each view,
+    and its farthest side, plus a patch (where the walk stopped, the surface may only begin
+    at the patch's far side), bounds the stray there. The largest over the samples is
+    returned, relative to each sample's ``limit_px`` (k,): a value >= 1 means the occluder
+    reaches the limit somewhere (the walk stopped there). A hidden thread goes where the
+    occluder lets it: the bridge's shape is then known to within this stray."""
+    uv_l = uv[0]
+    step = np.hypot(*np.diff(uv_l, axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(step)])
+    picks = np.unique(np.searchsorted(s, np.arange(0.0, s[-1] + 1e-9, BRIDGE_SAMPLE_PX)))
+    worst = 0.0
+    for i in picks:
+        if i >= len(uv_l):
+            continue
+        lo, hi = max(i - 1, 0), min(i + 1, len(uv_l) - 1)
+        for side in (0, 1):
+            t = uv[side][hi] - uv[side][lo]
+            nt = float(np.hypot(t[0], t[1]))
+            if nt == 0.0 or not np.all(np.isfinite(uv[side][i])):
+                return math.inf  # no direction to measure across: not bounded
+            normal = np.array([-t[1], t[0]]) / nt
+            limit = float(limit_px[i])
+            for sign in (1.0, -1.0):
+                way = sign * normal
+                reach = min(_to_border(uv[side][i], way, greys[side].shape), limit)
+                d = _walk(greys, masks, side, uv[side][i], way, float(disparity[i]), 0.0,
+                          reach, plain[side])  # fmt: skip
+                stray = limit if d >= reach else d + AHEAD_STEP_PX + 2.0
+                worst = max(worst, stray / limit)
+                if worst >= 1.0:
+                    return worst
+    return worst
 
 
 def surface_past_end(
@@ -587,10 +747,13 @@ def surface_past_end(
     side: int,
     end: str,
     disparity: float,
+    plain: PlainSource = None,
 ) -> float | None:
     """In view ``side``: how much nearer (px of disparity) than the curve's ``end`` the surface
     just past the end's projection ``uv`` (N, 2) lies, the nearest of the AHEAD_MEET patches
     along the end's way that the pair can measure (``surface_ahead``); None when none can be.
+    A patch of the ``plain`` background the thread lies on (``plain_surface``) counts as that
+    surface, at the end's depth (0).
 
     For an end that one view sees cut (``cut_end``): an occluder that hides the thread in
     that view lies in front of the end there; a surface at or behind the end's depth (the
@@ -599,10 +762,12 @@ def surface_past_end(
     if fr is None or not (math.isfinite(disparity) and disparity > 0):
         return None
     _, tip, way = fr
-    found = [
-        surface_ahead(greys, masks, side, tip, way, disparity, offset=k * AHEAD_STEP_PX)
-        for k in range(AHEAD_MEET)
-    ]
+    found = []
+    for k in range(AHEAD_MEET):
+        d, grey = _ahead(greys, masks, side, tip, way, disparity, k * AHEAD_STEP_PX)
+        if d is None and _is_plain(grey, plain):
+            d = 0.0  # the plain background the thread lies on: a thread there would show
+        found.append(d)
     measured = [d for d in found if d is not None]
     return max(measured) if measured else None
 

@@ -5,12 +5,15 @@ from __future__ import annotations
 import numpy as np
 
 from threadrecon.core.check_beyond import (
+    _end_frame,
     beyond_ends,
+    bridge_stray,
     cut_end,
     end_occluder,
     extension,
     extension_far,
     pieces,
+    plain_surface,
     surface_ahead,
     surface_past_end,
 )
@@ -281,3 +284,125 @@ def test_a_thread_may_turn_under_an_occluder_that_runs_off_at_an_angle() -> None
     greys, masks, uv = _slanted_shaft_scene(angle_deg=90.0)
     occ = _occluder(greys, masks, uv, max_reach=300.0)
     assert occ is not None and occ.hidden_px < 60.0
+
+
+def _plain_scene(gap: int, occluder_px: int = 400):
+    """A plain background (grey 200, noise-free), the dark thread of ``_stereo_scene`` up to
+    left column 139 at D_T, and a textured occluder at D_O over left columns 140 + ``gap`` to
+    140 + ``gap`` + ``occluder_px`` (all rows); the curve runs to column 139."""
+    rng = np.random.default_rng(5)
+    h, w = 100, 400
+    _, masks, occ = _tissue_and_thread(rng, h, w)
+    grey = [np.full((h, w), 200.0, np.float32) for _ in range(2)]
+    for side, d in ((0, 0), (1, D_T)):
+        grey[side][49:52, 20 - d : 140 - d] = 30.0
+    c0, c1 = 140 + gap, min(140 + gap + occluder_px, w)
+    for side, d in ((0, 0), (1, D_O)):
+        grey[side][:, c0 - d : c1 - d] = occ[:, c0:c1]  # seen D_O px to the left in the right
+    x = np.linspace(20.0, 139.0, 120)
+    uv_l = np.column_stack([x, np.full_like(x, 50.0)])
+    return (grey[0], grey[1]), (masks[0], masks[1]), (uv_l, uv_l - [D_T, 0.0])
+
+
+def _occluder_plain(greys, masks, uv, max_reach: float = 300.0):
+    known = extension_far(uv, masks, "end", 40.0, 5.0, 5.0)
+    return end_occluder(uv, masks, greys, "end", float(D_T), known, 40.0, 5.0, 100.0,
+                        max_reach, plain_sigma=2.5)  # fmt: skip
+
+
+def test_an_end_before_an_occluder_across_plain_background_is_free() -> None:
+    # 16 px of plain background between the thread's end and a shaft: a thread there would
+    # show, so it ended before the shaft; the second patch meets the shaft, which without the
+    # background's level (grey alone cannot be told by stereo) counts as meeting the end
+    greys, masks, uv = _plain_scene(gap=16)
+    assert _occluder(greys, masks, uv) is not None  # no level given: as before
+    assert _occluder_plain(greys, masks, uv) is None
+    # a shaft right at the end still meets it
+    greys, masks, uv = _plain_scene(gap=0)
+    assert _occluder_plain(greys, masks, uv) is not None
+
+
+def test_the_walk_stops_where_the_plain_background_shows_again() -> None:
+    # a 40 px shaft at the end on a plain background: past it the background cannot be
+    # measured by stereo (untextured), but it is the background the thread lies on
+    greys, masks, uv = _plain_scene(gap=0, occluder_px=40)
+    unbounded = _occluder(greys, masks, uv)
+    assert unbounded is not None and unbounded.hidden_px > 200.0  # to the image's border
+    occ = _occluder_plain(greys, masks, uv)
+    assert occ is not None and not occ.walked_out
+    assert 30.0 <= occ.hidden_px <= 40.0 / np.cos(np.radians(22.5)) + 2 * 13
+
+
+def test_a_dark_surface_is_no_plain_background_for_a_dark_thread() -> None:
+    # no contrast between the thread and the background: a thread there would not show
+    greys, masks, uv = _plain_scene(gap=16)
+    way = np.array([1.0, 0.0])
+    assert plain_surface(greys[0], masks[0], uv[0][-1], way, 2.5) == (200.0, 10.0)
+    dark = tuple(np.where(g == 200.0, 34.0, g) for g in greys)
+    assert plain_surface(dark[0], masks[0], uv[0][-1], way, 2.5) is None
+    known = extension_far(uv, masks, "end", 40.0, 5.0, 5.0)
+    occ = end_occluder(uv, masks, dark, "end", float(D_T), known, 40.0, 5.0, 100.0, 300.0,
+                       plain_sigma=2.5)  # fmt: skip
+    assert occ is not None
+    # a textured surface beside the thread is left to stereo
+    greys, masks, uv = _stereo_scene(None)
+    assert plain_surface(greys[0], masks[0], uv[0][-1], way, 2.5) is None
+
+
+def test_an_end_that_hooks_back_is_taken_where_the_curve_reaches() -> None:
+    # the curve runs right to column 139, then its last samples turn back to column 131 (a
+    # spline's end overshoot): the end's tip is at column 139 and its way points right
+    x = np.concatenate([np.linspace(20.0, 139.0, 120), [137.0, 134.0, 131.0]])
+    y = np.concatenate([np.full(120, 50.0), [51.0, 52.0, 52.5]])
+    uv = np.column_stack([x, y])
+    _, tip, way = _end_frame(uv, "end")
+    assert abs(tip[0] - 139.0) < 1e-9 and way[0] > 0.99
+    _, tip, way = _end_frame(uv[::-1].copy(), "start")
+    assert abs(tip[0] - 139.0) < 1e-9 and way[0] > 0.99
+    # a straight end keeps its last sample
+    _, tip, way = _end_frame(uv[:120], "end")
+    assert tip[0] == 139.0 and way[0] > 0.99
+
+
+def _bridge_scene(shaft_half_px: float):
+    """Textured tissue at D_BG, a shaft at D_O along the rows (rows 50 +- ``shaft_half_px``,
+    left columns 100-300), and a bridge of the curve under it along row 50 from column 100 to
+    299 (the thread seen on either side)."""
+    rng = np.random.default_rng(7)
+    h, w = 200, 400
+    grey, masks, occ = _tissue_and_thread(rng, h, w)
+    for m in masks:
+        m[:] = False
+        m[49:52, 40:100] = True
+        m[49:52, 300:360] = True
+    rows = slice(int(50 - shaft_half_px), int(50 + shaft_half_px) + 1)
+    for side, d in ((0, 0), (1, D_O)):
+        grey[side][rows, 100 - d : 300 - d] = occ[rows, 100:300]
+    x = np.linspace(100.0, 299.0, 100)
+    uv_l = np.column_stack([x, np.full_like(x, 50.0)])
+    return (grey[0], grey[1]), (masks[0], masks[1]), (uv_l, uv_l - [D_T, 0.0])
+
+
+def test_a_narrow_occluder_holds_a_hidden_thread_near_its_bridge() -> None:
+    greys, masks, uv = _bridge_scene(shaft_half_px=12.0)
+    disp = np.full(len(uv[0]), float(D_T))
+    stray = bridge_stray(uv, masks, greys, disp, (None, None), np.full(len(uv[0]), 60.0))
+    assert stray < 1.0  # ~12 px each side and a patch: within 60 px
+    # a wide one does not: the thread may stray as far as the limit under it
+    greys, masks, uv = _bridge_scene(shaft_half_px=45.0)
+    stray = bridge_stray(uv, masks, greys, disp, (None, None), np.full(len(uv[0]), 40.0))
+    assert stray >= 1.0
+
+
+def test_the_plain_background_past_a_cut_end_is_no_occluder() -> None:
+    # a cut end's stopping view: untextured background past the end cannot be measured by
+    # stereo; when it is the plain background the thread lies on, it is the surface at the
+    # end's depth (0), not an occluder in front of it
+    greys, masks, uv = _plain_scene(gap=60)
+    assert surface_past_end(uv[0], greys, masks, 0, "end", float(D_T)) is None
+    plain = plain_surface(greys[0], masks[0], uv[0][-1], np.array([1.0, 0.0]), 2.5)
+    assert surface_past_end(uv[0], greys, masks, 0, "end", float(D_T), plain) == 0.0
+    # a shaft right at the end is measured in front of it whatever the background
+    greys, masks, uv = _plain_scene(gap=0)
+    d = surface_past_end(uv[0], greys, masks, 0, "end", float(D_T), plain)
+    assert d is not None and abs(d - (D_O - D_T)) <= 1.0
