@@ -46,7 +46,6 @@ from threadrecon.core.stereo import StereoResult
 OUTLIER_PX = 2.0  # a pixel > 2 px of disparity from its cluster's median is another match
 MAX_WALKS = 24  # walks tried per frame (ends, then runner-up turns of the best): bounded time
 _NO_END_DISPARITY = np.array([[np.nan, np.inf], [np.nan, np.inf]])  # no end matched
-HIDDEN_TURN_DEG = 180.0  # a hidden stretch turns by at most a half turn (turn in + turn out)
 MAX_REJECTED = 4  # rejected continuations kept per decision: a jump may see dozens, few matter
 # Depth continuity along one strand: two of its keypoints d px apart in the image differ in
 # disparity by at most DISPARITY_SLACK_PX + DISPARITY_SLOPE * d (slope <= B/Z: the thread at
@@ -115,7 +114,7 @@ class OrderingParams(Params):
         label="max turn at a crossing",
         doc="A step through a crossing turns by at most this (unless nothing else is left); "
         "two touching strands at two depths are broken apart only where each goes on ahead "
-        "within this (walk=bending). A jump over a gap turns in and out by at most 180 deg together.",
+        "within this (walk=bending). A jump over a gap turns in and out by at most 90 deg each.",
     )
     second_matches: bool = param(
         True,
@@ -1089,8 +1088,7 @@ def _continuations(
     strand of a crossing; a turn of more than ``max_turn_deg`` only when nothing else is left:
     a touching turn); 2, unvisited keypoints within ``bridge_px`` whose disparity agrees and whose piece
     continues the same way (across an occlusion or a break in the segmentation): the turn into
-    the jump and the turn out of it at most 180 deg together into a piece's end (a lone
-    keypoint or a piece's middle: each at most 90 deg).
+    the jump and the turn out of it at most 90 deg each.
     Last, when no jump is left either: the unvisited neighbours across a depth break
     (:func:`_depth_breaks`), at tier 0's cost, reported as tier 0.
 
@@ -1149,17 +1147,17 @@ def _jumps(
     # less), the operations of walk_kernel.step_costs
     cos_t = (chord[:, 0] * heading[0] + chord[:, 1] * heading[1]) / dist
     cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(disp[c] - ref)
-    # across a gap into a piece's end: the hidden stretch turns by the turn in plus the turn
-    # out (from the chord), at most a half turn (a bend under an occluder: a loop's top, a
-    # hairpin); into a lone keypoint or a piece's middle (no one way out): each <= 90 deg
+    # across a gap: turn in and turn out each <= 90 deg (the hidden stretch heads from each
+    # end towards the other; a bend under an occluder may add up to 180 deg)
     turn_in = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
-    free_nb = np.concatenate([[0], np.cumsum(~visited[g.indices])])
-    end = free_nb[g.indptr[c + 1]] - free_nb[g.indptr[c]] == 1  # one unvisited neighbour
-    ok = np.zeros(len(cand), dtype=bool)
     # the turn out only where the turn in leaves the jump possible (else it decides nothing)
-    for i in np.flatnonzero(np.where(end, turn_in <= HIDDEN_TURN_DEG, turn_in <= 90.0)):
-        turn_out = _turn_out(cand[i], chord[i], adj, visited, pos)
-        ok[i] = turn_in[i] + turn_out <= HIDDEN_TURN_DEG if end[i] else turn_out <= 90.0
+    turn_out = np.array(
+        [
+            _turn_out(v, chord[i], adj, visited, pos) if turn_in[i] <= 90.0 else 0.0
+            for i, v in enumerate(cand)
+        ]
+    )
+    ok = (turn_in <= 90.0) & (turn_out <= 90.0)
     cost = np.where(ok, cost, np.inf)
     why = ["" if k else "turn across the gap" for k in ok]
     return cand, cost, 2, why

@@ -763,44 +763,6 @@ def test_pixel_grid_neighbours_are_the_index_at_the_eight_offsets(seed: int) -> 
         _PixelGrid(pixels, 0).neighbours()
 
 
-def _two_pieces(second: list[tuple[float, float]]) -> tuple[_WalkGraph, int]:
-    """Piece one runs up x = 0 from y = 100 to y = 0 (heading north); piece two is the chain of
-    keypoints ``second`` (from its end nearest the gap). Every keypoint at disparity 40: the
-    jump is decided by its turns alone. Returns the graph and the number of keypoints."""
-    first = [(0.0, float(y)) for y in range(100, -1, -10)]
-    xy = np.array(first + second, dtype=np.float64)
-    n1 = len(first)
-    pairs = [(i, i + 1) for i in range(n1 - 1)]
-    pairs += [(i, i + 1) for i in range(n1, len(xy) - 1)]
-    adj = _adjacency(len(xy), np.array(pairs))
-    return _WalkGraph.of(adj, xy, np.full(len(xy), 40.0)), len(xy)
-
-
-def test_a_jump_over_a_bend_under_an_occluder_turns_by_at_most_a_half_turn() -> None:
-    # The walk heads north at (0, 0); the thread goes on hidden over the top of a bend and comes
-    # out at (100, 5) heading south-east (generated occlusion 8154 #12): the jump turns in by
-    # ~93 deg and out by ~42 deg, 135 deg in all. With 90 deg each the walk stopped there and
-    # the other piece (half the thread) was lost.
-    p = OrderingParams()
-    out_se = [(100.0 + 10 * i, 5.0 + 10 * i) for i in range(8)]
-    g, K = _two_pieces(out_se)
-    walk, _, _ = _walk_from([0], [], None, g, p)
-    assert walk == list(range(K))  # up piece one, across the gap, on along piece two
-    d = next(d for d in _explain(walk, g, p, 0) if d.kind == "jump")
-    assert (d.at, d.chosen) == (10, 11)
-    # A piece that heads back the way the walk came (in ~93 + out ~132 deg: the hidden
-    # stretch would turn by more than a half turn) is not joined ...
-    back_sw = [(100.0 - 10 * i, 5.0 + 10 * i) for i in range(8)]
-    g, K = _two_pieces(back_sw)
-    walk, _, _ = _walk_from([0], [], None, g, p)
-    assert walk == list(range(11))
-    # ... nor a lone keypoint past the side (its way out is unknown: in by <= 90 deg)
-    g, K = _two_pieces([(100.0, 5.0)])
-    assert _walk_from([0], [], None, g, p)[0] == list(range(11))
-    g, K = _two_pieces([(100.0, -5.0)])
-    assert _walk_from([0], [], None, g, p)[0] == list(range(12))
-
-
 def test_two_strands_touching_along_a_loops_crossing_are_split_along_each_strand() -> None:
     # Generated crossing 8158 #15: the loop's crossing runs along its tangent, the two strands
     # touch over ~60 px with no keypoint (one gap on six links). Each pixel of that gap goes
