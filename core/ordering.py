@@ -544,8 +544,9 @@ def _link_positions(
     An extension link runs from its end keypoint (t = 0 at the end, 1 at the start's tip) to
     the gap's farthest pixel, or to ``tips[link]`` (a pixel index) where the extension stopped
     short of it: the pixels beyond that tip lie on no link. ``path_xy``: (M, 2) px, the ordered
-    keypoints (``order``'s), and ``pixels``: (N, 2) (x, y) of P_L, to split a gap between two
-    links of four distinct keypoints along their strands (:func:`_split_shared`)."""
+    keypoints (``order``'s), and ``pixels``: (N, 2) (x, y) of P_L, to split a gap on three
+    links or more, or on two of four distinct keypoints, along the strands
+    (:func:`_split_shared`)."""
     n = len(pixel_node)
     pixel_t = np.full(n, np.nan)
     pixel_link = np.full(n, -1, dtype=np.int64)
@@ -625,9 +626,8 @@ def _split_shared(
     cubic from its keypoint to the next, leaving and arriving along the path's own steps there)
     passes nearest, none on a tie (geodesically nearer ends cut two strands side by side
     across, and the min/max links of a gap on six took all of it: generated crossing 8158
-    #15). Returns the gap geodesics with each part a gap of its
-    own (a link's distances stay inside its part) and ``px_link`` (N,) with the split pixels'
-    links."""
+    #15). Returns the gap geodesics with each part a gap of its own (a link's distances stay
+    inside its part) and ``px_link`` (N,) with the split pixels' links."""
     on = pixel_node >= 0
     hi = px_link
     lo = np.where(on, link_lo[np.maximum(pixel_node, 0)], -1)
