@@ -71,7 +71,7 @@ class BoundsParams(Params):
         True,
         label="gap pixels' second matches",
         doc="Gap pixels matched to a neighbouring strand take their second match where it "
-        "continues the strand from its keypoints (docs/method.md, deviation 28; off: the paper).",
+        "continues the strand from its keypoints (docs/method.md, deviation 30; off: the paper).",
     )
 
 

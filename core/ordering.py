@@ -120,7 +120,7 @@ class OrderingParams(Params):
         True,
         label="second matches by continuity",
         doc="A short stretch of keypoints that breaks depth continuity along a chain of A takes "
-        "its second match where that removes the break (core/continuity.py, deviation 27; "
+        "its second match where that removes the break (core/continuity.py, deviation 29; "
         "walk=bending).",
     )
 

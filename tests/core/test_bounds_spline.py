@@ -400,7 +400,7 @@ def test_dropping_outlying_extra_points_keeps_a_spirals_end_on_the_thread() -> N
         rec = pipe.run(replace(ReconParams(), ordering=no_tip, bounds=bp))
         err[drop] = curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max
     assert err[False] > 100.0 and err[True] < 2.0
-    # the gap pixels' second matches (deviation 28) put the same extra points on their strand
+    # the gap pixels' second matches (deviation 30) put the same extra points on their strand
     rec = pipe.run(replace(ReconParams(), ordering=no_tip, bounds=BP(depth_ratio=0.0)))
     assert curve_errors(rec["camera"].points, fr.truth.centerline).e_S_max < 2.0
     # 2 px instead of 42 px is 21 times as deep: the default depth_ratio leaves them out too

@@ -20,10 +20,10 @@ from threadrecon.core.refine import RefineParams, _lsi, _Runs, refine_depth
 
 # The repair's generated frames fail in the MVS only while the extra points matched elsewhere
 # stay in Eq. (7)'s window lines (bounds.depth_ratio, deviation 26, leaves them out by
-# default) and keep their first matches (bounds.second_matches, deviation 28, gives them
+# default) and keep their first matches (bounds.second_matches, deviation 30, gives them
 # their own strand's): these tests keep them in, to show the repair on a wrong-strand MVS.
 KEEP_OUTLIERS = BoundsParams(depth_ratio=0.0, second_matches=False)
-FIRST_MATCHES = OrderingParams(second_matches=False)  # keypoints too (deviation 27)
+FIRST_MATCHES = OrderingParams(second_matches=False)  # keypoints too (deviation 29)
 
 
 def _off_and_repaired(pipe: Pipeline) -> tuple:
