@@ -444,7 +444,9 @@ def _select(
                     rank[best] = -1.0
                     best = int(np.argmax(rank))
                     continue
-                if not nearest_hue or _floats(votes):
+                if not nearest_hue or (
+                    _floats(votes) and not _contradicted(views, i, on, lab_on, best, marks, D)
+                ):
                     floating &= split or _floats(votes)
                     break
             # (a blood-like piece the surface test left open, at the tissue's own disparity:
@@ -635,6 +637,24 @@ def _at_thread_disparity(
                 if g2[m] < gap[m]:
                     gap[m], at[m] = g2[m], at2[m]
     return taken
+
+
+def _contradicted(
+    views: list[_View],
+    i: int,
+    on: np.ndarray,
+    lab_on: np.ndarray,
+    best: int,
+    marks: list[int],
+    d: int,
+) -> bool:
+    """Whether the blood-like piece ``best`` of view ``i``, voted in front of the tissue by
+    the block-wise surface test, has a disparity of its own at the tissue's
+    (:func:`_at_tissue_disparity`: of its block's background, or of the nearest mark found):
+    the two depth cues disagree, and a red thread of the vessels' hue is told from them by
+    depth only. Uneven light (vignetting, fixed in the image, not on the tissue) biases a
+    dark block's background match, so that a vessel there seemed to float."""
+    return _at_tissue_disparity(views, i, on[lab_on == best], [on[lab_on == m] for m in marks], d)
 
 
 def _nearest(tree: cKDTree, xy: np.ndarray, sample: dict, keys: list[int]) -> tuple[dict, dict]:
@@ -1191,6 +1211,7 @@ def _pieces(sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
     diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
     cands &= np.maximum(diag, area / (2.0 * _CHAMFER_A)) >= p.min_length_px
     h, w = v.lo.shape
+    cands &= ~_along_border(boxes, h, w)
     half = half_widths(lab, rows, cols, np.flatnonzero(cands), boxes, h, w)
     length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
     ok = cands & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
@@ -1201,6 +1222,17 @@ def _pieces(sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
 
 
 _CHAMFER_A: Final = 0.95  # below cv2's DIST_L2 3x3 step (0.955): no piece is thinner
+_BORDER_PX: Final = int(np.ceil(2 * _SCALES[-1]))  # the coarse scale's reflected rim, px
+
+
+def _along_border(boxes: np.ndarray, h: int, w: int) -> np.ndarray:
+    """Per piece (n,) bool: its bounding box ``boxes`` (4, n) (rows r0..r1, columns c0..c1)
+    lies within _BORDER_PX of one side of the (h, w) image. The line filters reflect the image
+    at its border, so any brightness gradient across it becomes a ridge along it: there the
+    response is no evidence of a line (a thread leaving the image crosses the border)."""
+    r0, r1, c0, c1 = boxes
+    m = _BORDER_PX
+    return (r1 < m) | (r0 >= h - m) | (c1 < m) | (c0 >= w - m)
 
 
 def _scatter(values: np.ndarray, where: np.ndarray) -> np.ndarray:
