@@ -445,7 +445,8 @@ def _select(
                     best = int(np.argmax(rank))
                     continue
                 if not nearest_hue or (
-                    _floats(votes) and not _contradicted(views, i, on, lab_on, best, marks, D)
+                    _floats(votes)
+                    and not _contradicted(views, i, on, lab_on, best, votes, marks, D)
                 ):
                     floating &= split or _floats(votes)
                     break
@@ -603,6 +604,9 @@ def _at_thread_disparity(
         step = max(len(pts[j][0]) // 64, 1)
         sample[j] = np.c_[pts[j][0][::step], pts[j][1][::step]].astype(np.float64)
     gap, at = _nearest(cKDTree(thread_xy), thread_xy, sample, left)
+    if v.tool is not None:  # the thread is hidden under the instrument, not missing there
+        for j in left:
+            gap[j] = _gap_off_tool(v.tool, sample[j], at[j], gap[j])
     near_marks = _Marks(st, v, marks)
     taken: list[int] = []
     while left:
@@ -633,6 +637,9 @@ def _at_thread_disparity(
             piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
             thread_xy = np.concatenate([thread_xy, piece_xy])
             g2, at2 = _nearest(cKDTree(piece_xy), piece_xy, sample, left)
+            if v.tool is not None:
+                for m in left:
+                    g2[m] = _gap_off_tool(v.tool, sample[m], at2[m], g2[m])
             for m in left:
                 if g2[m] < gap[m]:
                     gap[m], at[m] = g2[m], at2[m]
@@ -645,16 +652,47 @@ def _contradicted(
     on: np.ndarray,
     lab_on: np.ndarray,
     best: int,
+    votes: np.ndarray,
     marks: list[int],
     d: int,
 ) -> bool:
-    """Whether the blood-like piece ``best`` of view ``i``, voted in front of the tissue by
-    the block-wise surface test, has a disparity of its own at the tissue's
-    (:func:`_at_tissue_disparity`: of its block's background, or of the nearest mark found):
-    the two depth cues disagree, and a red thread of the vessels' hue is told from them by
-    depth only. Uneven light (vignetting, fixed in the image, not on the tissue) biases a
-    dark block's background match, so that a vessel there seemed to float."""
-    return _at_tissue_disparity(views, i, on[lab_on == best], [on[lab_on == m] for m in marks], d)
+    """Whether the part of the blood-like piece ``best`` of view ``i`` (pieces ``lab_on`` of
+    its lo pixels ``on``) that the block-wise surface test voted in front of the tissue
+    (``votes`` == 0, per pixel) is not seen nearer than the tissue by its own disparity
+    (:meth:`SurfaceTest.disparity`): at most SAME_DISPARITY_PX above the tissue's (of its
+    block's background where that resolves, else of the nearest of the pieces ``marks``
+    found to be marks on it). In front of the tissue means nearer the cameras, a larger
+    disparity; the two depth cues disagree, and a red thread of the vessels' hue is told from
+    them by depth only. Uneven light (vignetting, fixed in the image, not on the tissue)
+    biases a dark block's matches towards disparity 0, so that a vessel there seemed to
+    float; a thread merged with a vessel is judged by its own part."""
+    front = on[lab_on == best][votes == 0]
+    if len(front) == 0:
+        return False
+    v = views[i]
+    st = _surface_test(views, i, d)
+    rows, cols = v.rows[front], v.cols[front]
+    own = st.disparity(rows, cols)
+    if own is None:
+        return False
+    tissue = st.background_disparity(rows, cols)
+    if tissue is None:
+        tissue = _Marks(st, v, [on[lab_on == m] for m in marks]).disparity_near(rows, cols)
+    return tissue is not None and own <= tissue + SAME_DISPARITY_PX
+
+
+def _gap_off_tool(tool: np.ndarray, sample: np.ndarray, at: np.ndarray, gap: float) -> float:
+    """The part of a fragment's ``gap`` (px) to the thread that lies off the instrument
+    ``tool`` (H, W) bool: on the straight line from the fragment's point nearest to the
+    thread's point ``at`` (2,) (of its ``sample`` points (m, 2), row and column). A thread
+    passing under the shaft is hidden there, not missing; gaps within _MAX_GAP_PX are kept."""
+    if gap <= _MAX_GAP_PX:
+        return gap
+    a = sample[np.argmin(np.hypot(*(sample - at).T))]
+    t = np.linspace(0.0, 1.0, int(np.ceil(gap)) + 1)
+    r = np.rint(a[0] + t * (at[0] - a[0])).astype(np.intp)
+    c = np.rint(a[1] + t * (at[1] - a[1])).astype(np.intp)
+    return gap * float(np.count_nonzero(~tool[r, c])) / len(t)
 
 
 def _nearest(tree: cKDTree, xy: np.ndarray, sample: dict, keys: list[int]) -> tuple[dict, dict]:
