@@ -142,13 +142,11 @@ def segment_raw(
                                  initial=0.0)) for v in red_views)  # fmt: skip
         # A line chosen without them that runs along blood-like pixels in both views may be
         # the highlight along a red thread: the thread is then the blood-like line around it.
-        glint = (
-            found is not None
-            and floating
-            and all(_near_blood(v, c) for v, c in zip(views, found, strict=True))
+        glint = found is not None and all(
+            _near_blood(v, c) for v, c in zip(views, found, strict=True)
         )
         red, red_salience, red_cos, _ = (
-            _select(red_views, p, nearest_hue=True)
+            _select(red_views, p, nearest_hue=True, along=found if glint else None)
             if bound >= _RED_THREAD_GAIN * salience or not floating or glint
             else (None, 0.0, 1.0, False)
         )
@@ -353,7 +351,10 @@ def _background(a_q: np.ndarray, free: np.ndarray) -> np.ndarray:
 
 
 def _select(
-    views: list[_View], p: SegmentationParams, nearest_hue: bool = False
+    views: list[_View],
+    p: SegmentationParams,
+    nearest_hue: bool = False,
+    along: list[np.ndarray] | None = None,
 ) -> tuple[list[np.ndarray] | None, float, float, bool]:
     """Core thread pixels (H, W) bool of both views (None when a view has no piece), the
     salience (mean S x sqrt(length), summed over the views) of the chosen pieces (with None:
@@ -364,7 +365,9 @@ def _select(
     in front of the tissue in both views (:func:`_floats`; False with None).
 
     ``nearest_hue`` (a blood-like thread among vessels): pieces and pixels join the thread only
-    when their hue is nearer the thread's than the vessels'."""
+    when their hue is nearer the thread's than the vessels'. ``along``: per view, the core
+    (H, W) uint8 of a line that runs along blood-like pixels (a highlight on a red thread): a
+    blood-like piece that holds it is chosen even when the surface test leaves it open."""
     D = int(p.max_disparity_px)
     width = views[0].lo.shape[1]
     keys = [_row_keys(*v.pieces[1], width, D) for v in views]  # shape-ok pixels, sorted
@@ -436,7 +439,16 @@ def _select(
                     )
                 ):
                     # undecided or moving with the tissue in part: not told from a vessel of
-                    # its hue (it may still join a thread found in front of the tissue)
+                    # its hue (it may still join a thread found in front of the tissue), unless
+                    # it holds the highlight along its axis (a glossy body, not a vessel)
+                    if along is not None and np.all(votes < 0):
+                        px = on[lab_on == best]
+                        if _holds(along[i], v.rows[px], v.cols[px], p.min_length_px):
+                            break
+                        k[best] = False  # (another piece may hold it)
+                        rank[best] = -1.0
+                        best = int(np.argmax(rank))
+                        continue
                     skipped += 1
                     if skipped > _RED_UNDECIDED:
                         return None, salience + top, 1.0, False
@@ -518,7 +530,14 @@ def _select(
             if is_mark and not nearest_hue:  # a thread merged with fibres: its part floats
                 is_mark, votes = _a_mark_of_one_dye(views, i, lab_on == j, on, D, votes)
                 votes_of[j] = votes
-            k[j] = not is_mark and (not nearest_hue or np.any(votes == 0))
+            k[j] = not is_mark and (
+                not nearest_hue
+                or np.any(votes == 0)
+                or (
+                    along is not None
+                    and _holds(along[i], *_rc(v, on[lab_on == j]), p.min_length_px)
+                )
+            )
             if is_mark:
                 marks.append(j)
         # An undecided piece that is a fragment of a mark of its dye (as in the choice above)
@@ -800,6 +819,27 @@ def _near(other: np.ndarray | None, core: np.ndarray, other_px: tuple | None = N
 
 
 _GLINT_SIDE_PX: Final = 3  # a highlight along a thread <= 6 px wide: its sides within 3 px
+
+
+def _rc(v: _View, px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of the view's lo pixels ``px``."""
+    return v.rows[px], v.cols[px]
+
+
+def _holds(core: np.ndarray, rows: np.ndarray, cols: np.ndarray, min_px: float) -> bool:
+    """Whether the piece of pixels (``rows``, ``cols``) holds a stretch of the line ``core``
+    (H, W) uint8 along it: at least ``min_px`` (a piece's least length) of the core's pixels
+    lie within _GLINT_SIDE_PX of the piece's (on the piece's bounding box)."""
+    if len(rows) == 0:
+        return False
+    m = _GLINT_SIDE_PX
+    H, W = core.shape
+    r0, r1 = max(int(rows.min()) - m, 0), min(int(rows.max()) + m + 1, H)
+    c0, c1 = max(int(cols.min()) - m, 0), min(int(cols.max()) + m + 1, W)
+    piece = np.zeros((r1 - r0, c1 - c0), np.uint8)
+    piece[rows - r0, cols - c0] = 1
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
+    return cv2.countNonZero(cv2.dilate(piece, k) & core[r0:r1, c0:c1]) >= min_px
 
 
 def _main_dye(d_px: np.ndarray, votes: np.ndarray, mean: np.ndarray) -> np.ndarray:
