@@ -456,10 +456,21 @@ def _select(
                     rank[best] = -1.0
                     best = int(np.argmax(rank))
                     continue
-                if not nearest_hue or (
-                    _floats(votes)
+                if (
+                    nearest_hue
+                    and _floats(votes)
                     and not _contradicted(views, i, on, lab_on, best, votes, marks, D)
+                ) or (
+                    not nearest_hue
+                    and not (
+                        np.all(votes < 0)
+                        and _at_tissue_disparity(
+                            views, i, on[lab_on == best], [on[lab_on == m] for m in marks], D
+                        )
+                    )
                 ):
+                    # (a piece the surface test left open whose own disparity is the tissue's
+                    # is a mark on it, in either pass)
                     floating &= split or _floats(votes)
                     break
             # (a blood-like piece the surface test left open, at the tissue's own disparity:

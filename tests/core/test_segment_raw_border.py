@@ -137,3 +137,19 @@ def test_holds_counts_the_line_s_pixels_along_the_piece() -> None:
     assert not sr._holds(core, rows.ravel(), cols.ravel(), 30)
     rows, cols = np.mgrid[10:90, 60:65]  # beside it, 10 px away
     assert not sr._holds(core, rows.ravel(), cols.ravel(), 30)
+
+
+@pytest.mark.parametrize(("seed", "k"), [(9954, 8), (9956, 16), (9956, 17)])
+def test_a_faint_line_at_the_tissue_s_disparity_is_no_thread(seed: int, k: int) -> None:
+    """Thread-free frames with fibres (scripts/eval_suites.py's empty-distractors, index 16):
+    the most salient piece left after the fibres (marks) is faint, left open by the block
+    test, and its own disparity is the tissue's (32 px, the fibres' too): a mark, not the
+    thread ("no thread found", was a curve)."""
+    render = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, distractors=8)
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(diameter_mm=1e-6), render=render),
+        np.random.default_rng([seed, 16, k]),
+    )
+    assert not frame.mask_left.any()
+    with pytest.raises(ValueError, match="no thread found"):
+        segment(StereoPair(frame.left, frame.right), _P)
