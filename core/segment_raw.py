@@ -101,7 +101,9 @@ def segment_raw(
        blood-like line (too few other blood-like pixels) is a vessel. They come back too when
        the line chosen without them runs along them in both views (the highlight on a red
        thread) and the blood-like line chosen lies along it.
-    3. Shape: a piece's length >= min_length_px and largest half-width <= MAX_HALF_WIDTH_PX.
+    3. Shape: a piece's length >= min_length_px and largest half-width <= MAX_HALF_WIDTH_PX,
+       not lying within _BORDER_PX of one image side (the filters' reflected rim,
+       :func:`_along_border`).
     4. Stereo: a piece keeps >= half of its pixels with a candidate pixel on the same row of the
        other view within [0, max_disparity_px] of disparity, or with the other view's
        instrument in that window (the partner may lie behind it: :func:`_window_hits`).
@@ -118,9 +120,13 @@ def segment_raw(
        tissue (:func:`_main_dye`); it is no mark when that part, tested alone, floats (a
        thread merged with the fibres it crosses, :func:`_a_mark_of_one_dye`). Among
        blood-like pieces, one the surface test leaves open at the tissue's own disparity is a
-       vessel (:func:`_at_tissue_disparity`), and a red thread's undecided fragments join it
-       at its own disparity (:func:`_at_thread_disparity`). The cores chosen in the two
-       views must be one object (:func:`_one_object`).
+       vessel (:func:`_at_tissue_disparity`; in the first pass too, any undecided chosen
+       piece), and so is one voted in front of it whose own disparity is not above the
+       tissue's (:func:`_contradicted`); a red thread's undecided fragments join it at its
+       own disparity (:func:`_at_thread_disparity`; the gap counted off the instrument,
+       :func:`_gap_off_tool`); an undecided blood-like piece holding the highlight the first
+       pass chose is chosen (:func:`_holds`). The cores chosen in the two views must be one
+       object (:func:`_one_object`).
     6. Mask: within _BAND_PX of the kept pixels, those with coverage >= 0.5 of a thread colour
        blended over the local background colour (see :func:`_grow_mask`); for a contrast near
        grey, with the runs it encloses across the thread (a highlight, :func:`_fill_across`).
