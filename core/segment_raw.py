@@ -107,7 +107,9 @@ def segment_raw(
        blood-like line (too few other blood-like pixels) is a vessel. They come back too when
        the line chosen without them runs along them in both views (the highlight on a red
        thread) and the blood-like line chosen lies along it.
-    3. Shape: a piece's length >= min_length_px and largest half-width <= MAX_HALF_WIDTH_PX.
+    3. Shape: a piece's length >= min_length_px and largest half-width <= MAX_HALF_WIDTH_PX,
+       not lying within _BORDER_PX of one image side (the filters' reflected rim,
+       :func:`_along_border`).
     4. Stereo: a piece keeps >= half of its pixels with a candidate pixel on the same row of the
        other view within [0, max_disparity_px] of disparity, or with the other view's
        instrument in that window (the partner may lie behind it: :func:`_window_hits`).
@@ -124,9 +126,13 @@ def segment_raw(
        tissue (:func:`_main_dye`); it is no mark when that part, tested alone, floats (a
        thread merged with the fibres it crosses, :func:`_a_mark_of_one_dye`). Among
        blood-like pieces, one the surface test leaves open at the tissue's own disparity is a
-       vessel (:func:`_at_tissue_disparity`), and a red thread's undecided fragments join it
-       at its own disparity (:func:`_at_thread_disparity`). The cores chosen in the two
-       views must be one object (:func:`_one_object`).
+       vessel (:func:`_at_tissue_disparity`; in the first pass too, any undecided chosen
+       piece), and so is one voted in front of it whose own disparity is not above the
+       tissue's (:func:`_contradicted`); a red thread's undecided fragments join it at its
+       own disparity (:func:`_at_thread_disparity`; the gap counted off the instrument,
+       :func:`_gap_off_tool`); an undecided blood-like piece holding the highlight the first
+       pass chose is chosen (:func:`_holds`). The cores chosen in the two views must be one
+       object (:func:`_one_object`).
     6. Mask: within _BAND_PX of the kept pixels, those with coverage >= 0.5 of a thread colour
        blended over the local background colour (see :func:`_grow_mask`); for a contrast near
        grey, with the runs it encloses across the thread (a highlight, :func:`_fill_across`).
@@ -153,13 +159,11 @@ def segment_raw(
                                  initial=0.0)) for v in red_views)  # fmt: skip
         # A line chosen without them that runs along blood-like pixels in both views may be
         # the highlight along a red thread: the thread is then the blood-like line around it.
-        glint = (
-            found is not None
-            and floating
-            and all(_near_blood(v, c) for v, c in zip(views, found, strict=True))
+        glint = found is not None and all(
+            _near_blood(v, c) for v, c in zip(views, found, strict=True)
         )
         red, red_salience, red_cos, _ = (
-            _select(red_views, p, nearest_hue=True)
+            _select(red_views, p, nearest_hue=True, along=found if glint else None)
             if bound >= _RED_THREAD_GAIN * salience or not floating or glint
             else (None, 0.0, 1.0, False)
         )
@@ -370,7 +374,10 @@ def _background(a_q: np.ndarray, free: np.ndarray) -> np.ndarray:
 
 
 def _select(
-    views: list[_View], p: SegmentationParams, nearest_hue: bool = False
+    views: list[_View],
+    p: SegmentationParams,
+    nearest_hue: bool = False,
+    along: list[np.ndarray] | None = None,
 ) -> tuple[list[np.ndarray] | None, float, float, bool]:
     """Core thread pixels (H, W) bool of both views (None when a view has no piece), the
     salience (mean S x sqrt(length), summed over the views) of the chosen pieces (with None:
@@ -381,7 +388,9 @@ def _select(
     in front of the tissue in both views (:func:`_floats`; False with None).
 
     ``nearest_hue`` (a blood-like thread among vessels): pieces and pixels join the thread only
-    when their hue is nearer the thread's than the vessels'."""
+    when their hue is nearer the thread's than the vessels'. ``along``: per view, the core
+    (H, W) uint8 of a line that runs along blood-like pixels (a highlight on a red thread): a
+    blood-like piece that holds it is chosen even when the surface test leaves it open."""
     D = int(p.max_disparity_px)
     width = views[0].lo.shape[1]
     keys = [_row_keys(*v.pieces[1], width, D) for v in views]  # shape-ok pixels, sorted
@@ -453,7 +462,16 @@ def _select(
                     )
                 ):
                     # undecided or moving with the tissue in part: not told from a vessel of
-                    # its hue (it may still join a thread found in front of the tissue)
+                    # its hue (it may still join a thread found in front of the tissue), unless
+                    # it holds the highlight along its axis (a glossy body, not a vessel)
+                    if along is not None and np.all(votes < 0):
+                        px = on[lab_on == best]
+                        if _holds(along[i], v.rows[px], v.cols[px], p.min_length_px):
+                            break
+                        k[best] = False  # (another piece may hold it)
+                        rank[best] = -1.0
+                        best = int(np.argmax(rank))
+                        continue
                     skipped += 1
                     if skipped > _RED_UNDECIDED:
                         return None, salience + top, 1.0, False
@@ -461,7 +479,21 @@ def _select(
                     rank[best] = -1.0
                     best = int(np.argmax(rank))
                     continue
-                if not nearest_hue or _floats(votes):
+                if (
+                    nearest_hue
+                    and _floats(votes)
+                    and not _contradicted(views, i, on, lab_on, best, votes, marks, D)
+                ) or (
+                    not nearest_hue
+                    and not (
+                        np.all(votes < 0)
+                        and _at_tissue_disparity(
+                            views, i, on[lab_on == best], [on[lab_on == m] for m in marks], D
+                        )
+                    )
+                ):
+                    # (a piece the surface test left open whose own disparity is the tissue's
+                    # is a mark on it, in either pass)
                     floating &= split or _floats(votes)
                     break
             # (a blood-like piece the surface test left open, at the tissue's own disparity:
@@ -532,7 +564,14 @@ def _select(
             if is_mark and not nearest_hue:  # a thread merged with fibres: its part floats
                 is_mark, votes = _a_mark_of_one_dye(views, i, lab_on == j, on, D, votes)
                 votes_of[j] = votes
-            k[j] = not is_mark and (not nearest_hue or np.any(votes == 0))
+            k[j] = not is_mark and (
+                not nearest_hue
+                or np.any(votes == 0)
+                or (
+                    along is not None
+                    and _holds(along[i], *_rc(v, on[lab_on == j]), p.min_length_px)
+                )
+            )
             if is_mark:
                 marks.append(j)
         # An undecided piece that is a fragment of a mark of its dye (as in the choice above)
@@ -618,6 +657,9 @@ def _at_thread_disparity(
         step = max(len(pts[j][0]) // 64, 1)
         sample[j] = np.c_[pts[j][0][::step], pts[j][1][::step]].astype(np.float64)
     gap, at = _nearest(cKDTree(thread_xy), thread_xy, sample, left)
+    if v.tool is not None:  # the thread is hidden under the instrument, not missing there
+        for j in left:
+            gap[j] = _gap_off_tool(v.tool, sample[j], at[j], gap[j])
     near_marks = _Marks(st, v, marks)
     taken: list[int] = []
     while left:
@@ -648,10 +690,62 @@ def _at_thread_disparity(
             piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
             thread_xy = np.concatenate([thread_xy, piece_xy])
             g2, at2 = _nearest(cKDTree(piece_xy), piece_xy, sample, left)
+            if v.tool is not None:
+                for m in left:
+                    g2[m] = _gap_off_tool(v.tool, sample[m], at2[m], g2[m])
             for m in left:
                 if g2[m] < gap[m]:
                     gap[m], at[m] = g2[m], at2[m]
     return taken
+
+
+def _contradicted(
+    views: list[_View],
+    i: int,
+    on: np.ndarray,
+    lab_on: np.ndarray,
+    best: int,
+    votes: np.ndarray,
+    marks: list[int],
+    d: int,
+) -> bool:
+    """Whether the part of the blood-like piece ``best`` of view ``i`` (pieces ``lab_on`` of
+    its lo pixels ``on``) that the block-wise surface test voted in front of the tissue
+    (``votes`` == 0, per pixel) is not seen nearer than the tissue by its own disparity
+    (:meth:`SurfaceTest.disparity`): at most SAME_DISPARITY_PX above the tissue's (of its
+    block's background where that resolves, else of the nearest of the pieces ``marks``
+    found to be marks on it). In front of the tissue means nearer the cameras, a larger
+    disparity; the two depth cues disagree, and a red thread of the vessels' hue is told from
+    them by depth only. Uneven light (vignetting, fixed in the image, not on the tissue)
+    biases a dark block's matches towards disparity 0, so that a vessel there seemed to
+    float; a thread merged with a vessel is judged by its own part."""
+    front = on[lab_on == best][votes == 0]
+    if len(front) == 0:
+        return False
+    v = views[i]
+    st = _surface_test(views, i, d)
+    rows, cols = v.rows[front], v.cols[front]
+    own = st.disparity(rows, cols)
+    if own is None:
+        return False
+    tissue = st.background_disparity(rows, cols)
+    if tissue is None:
+        tissue = _Marks(st, v, [on[lab_on == m] for m in marks]).disparity_near(rows, cols)
+    return tissue is not None and own <= tissue + SAME_DISPARITY_PX
+
+
+def _gap_off_tool(tool: np.ndarray, sample: np.ndarray, at: np.ndarray, gap: float) -> float:
+    """The part of a fragment's ``gap`` (px) to the thread that lies off the instrument
+    ``tool`` (H, W) bool: on the straight line from the fragment's point nearest to the
+    thread's point ``at`` (2,) (of its ``sample`` points (m, 2), row and column). A thread
+    passing under the shaft is hidden there, not missing; gaps within _MAX_GAP_PX are kept."""
+    if gap <= _MAX_GAP_PX:
+        return gap
+    a = sample[np.argmin(np.hypot(*(sample - at).T))]
+    t = np.linspace(0.0, 1.0, int(np.ceil(gap)) + 1)
+    r = np.rint(a[0] + t * (at[0] - a[0])).astype(np.intp)
+    c = np.rint(a[1] + t * (at[1] - a[1])).astype(np.intp)
+    return gap * float(np.count_nonzero(~tool[r, c])) / len(t)
 
 
 def _nearest(tree: cKDTree, xy: np.ndarray, sample: dict, keys: list[int]) -> tuple[dict, dict]:
@@ -759,6 +853,27 @@ def _near(other: np.ndarray | None, core: np.ndarray, other_px: tuple | None = N
 
 
 _GLINT_SIDE_PX: Final = 3  # a highlight along a thread <= 6 px wide: its sides within 3 px
+
+
+def _rc(v: _View, px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of the view's lo pixels ``px``."""
+    return v.rows[px], v.cols[px]
+
+
+def _holds(core: np.ndarray, rows: np.ndarray, cols: np.ndarray, min_px: float) -> bool:
+    """Whether the piece of pixels (``rows``, ``cols``) holds a stretch of the line ``core``
+    (H, W) uint8 along it: at least ``min_px`` (a piece's least length) of the core's pixels
+    lie within _GLINT_SIDE_PX of the piece's (on the piece's bounding box)."""
+    if len(rows) == 0:
+        return False
+    m = _GLINT_SIDE_PX
+    H, W = core.shape
+    r0, r1 = max(int(rows.min()) - m, 0), min(int(rows.max()) + m + 1, H)
+    c0, c1 = max(int(cols.min()) - m, 0), min(int(cols.max()) + m + 1, W)
+    piece = np.zeros((r1 - r0, c1 - c0), np.uint8)
+    piece[rows - r0, cols - c0] = 1
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m + 1, 2 * m + 1))
+    return cv2.countNonZero(cv2.dilate(piece, k) & core[r0:r1, c0:c1]) >= min_px
 
 
 def _main_dye(d_px: np.ndarray, votes: np.ndarray, mean: np.ndarray) -> np.ndarray:
@@ -1208,6 +1323,7 @@ def _pieces(sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
     diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
     cands &= np.maximum(diag, area / (2.0 * _CHAMFER_A)) >= p.min_length_px
     h, w = v.lo.shape
+    cands &= ~_along_border(boxes, h, w)
     half = half_widths(lab, rows, cols, np.flatnonzero(cands), boxes, h, w)
     length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
     ok = cands & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
@@ -1218,6 +1334,17 @@ def _pieces(sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
 
 
 _CHAMFER_A: Final = 0.95  # below cv2's DIST_L2 3x3 step (0.955): no piece is thinner
+_BORDER_PX: Final = int(np.ceil(2 * _SCALES[-1]))  # the coarse scale's reflected rim, px
+
+
+def _along_border(boxes: np.ndarray, h: int, w: int) -> np.ndarray:
+    """Per piece (n,) bool: its bounding box ``boxes`` (4, n) (rows r0..r1, columns c0..c1)
+    lies within _BORDER_PX of one side of the (h, w) image. The line filters reflect the image
+    at its border, so any brightness gradient across it becomes a ridge along it: there the
+    response is no evidence of a line (a thread leaving the image crosses the border)."""
+    r0, r1, c0, c1 = boxes
+    m = _BORDER_PX
+    return (r1 < m) | (r0 >= h - m) | (c1 < m) | (c0 >= w - m)
 
 
 def _scatter(values: np.ndarray, where: np.ndarray) -> np.ndarray:

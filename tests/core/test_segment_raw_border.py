@@ -1,0 +1,155 @@
+"""Tests of core/segment_raw.py: what is no evidence of a thread (the filters' reflected rim at
+the image border, a vessel whose two depth cues disagree)."""
+
+import numpy as np
+import pytest
+
+from threadrecon.core import segment_raw as sr
+from threadrecon.core.segmentation import SegmentationParams, StereoPair, segment
+from threadrecon.core.synthetic import RenderParams, SyntheticParams, ThreadParams, generate_frame
+
+_P = SegmentationParams(method="raw")
+
+
+def _tissue_with_bright_rim(line: bool) -> np.ndarray:
+    """(240, 320, 3) uint8 pinkish noise brightening over its last 8 rows (light falling on
+    the border), with a dark vertical line 3 px wide reaching the bottom edge if ``line``."""
+    rng = np.random.default_rng(3)
+    h, w = 240, 320
+    img = np.full((h, w, 3), (170.0, 90.0, 90.0)) + rng.normal(0, 2, (h, w, 1))
+    img += (np.clip((np.arange(h) - (h - 8)) / 8, 0, 1) * 60)[:, None, None]
+    if line:
+        img[120:, 150:153] *= 0.5
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def test_the_ridge_the_filters_reflect_along_the_border_is_no_piece() -> None:
+    """The line filters reflect the image at its edge: a gradient across the edge is a ridge
+    along it, candidate pixels there, but no shape-ok piece."""
+    v = sr._View.build(_tissue_with_bright_rim(line=False), _P)
+    h = v.lo.shape[0]
+    assert np.any(v.rows >= h - sr._BORDER_PX)  # the rim responds
+    assert not v.pieces[4].any()
+
+
+def test_a_line_running_into_the_border_is_still_a_piece() -> None:
+    v = sr._View.build(_tissue_with_bright_rim(line=True), _P)
+    _, (rows, cols), _, _, ok = v.pieces
+    assert ok.any()
+    on_line = (cols >= 149) & (cols <= 153)  # (the piece holds the rim where they meet)
+    assert set(range(125, 240)) <= set(rows[on_line].tolist())
+
+
+@pytest.mark.parametrize(
+    ("box", "along"),
+    [
+        ((0, 3, 10, 90), True),  # top rows
+        ((236, 239, 10, 90), True),  # bottom rows
+        ((10, 90, 0, 3), True),  # left columns
+        ((10, 90, 316, 319), True),  # right columns
+        ((0, 4, 10, 90), False),  # reaches row 4: beyond the rim
+        ((200, 239, 10, 90), False),  # runs into the border
+        ((100, 120, 100, 200), False),
+    ],
+)
+def test_along_border_is_the_box_within_the_rim_of_one_side(box: tuple, along: bool) -> None:
+    boxes = np.array(box, np.int64).reshape(4, 1)
+    assert sr._BORDER_PX == 4
+    assert sr._along_border(boxes, 240, 320)[0] == along
+
+
+def test_a_vessel_in_a_dark_corner_at_the_tissue_s_disparity_is_no_thread() -> None:
+    """A thread-free frame with uneven light (scripts/eval_suites.py's empty-lighting, seed
+    9950, frame 7): the block test voted a vessel in the vignetted corner in front of the
+    tissue, but its own disparity is the tissue's (28-30 px, as the marks beside it)."""
+    render = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, lighting=0.6)
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(diameter_mm=1e-6), render=render),
+        np.random.default_rng([9950, 14, 7]),
+    )
+    assert not frame.mask_left.any()
+    with pytest.raises(ValueError, match="no thread found"):
+        segment(StereoPair(frame.left, frame.right), _P)
+
+
+def test_a_gap_across_the_instrument_counts_only_off_it() -> None:
+    tool = np.zeros((200, 300), bool)
+    tool[:, 100:180] = True  # a shaft 80 px wide
+    sample = np.array([[50.0, 20.0], [50.0, 60.0]])  # a fragment left of it, nearest at col 60
+    at = np.array([50.0, 200.0])  # the thread's nearest point, right of it
+    gap = 140.0
+    # 140 px between them, 80 of them on the shaft: 60 px off it (to the sampling's 1 px)
+    assert abs(sr._gap_off_tool(tool, sample, at, gap) - 60.0) <= 1.5
+    # without the shaft between them, or within _MAX_GAP_PX, the gap stays
+    assert sr._gap_off_tool(np.zeros_like(tool), sample, at, gap) == gap
+    near = np.array([50.0, 60.0 + sr._MAX_GAP_PX])
+    assert sr._gap_off_tool(tool, sample, near, float(sr._MAX_GAP_PX)) == sr._MAX_GAP_PX
+
+
+def test_a_red_thread_s_stretch_beyond_the_shaft_joins_it() -> None:
+    """scripts/eval_suites.py's "all", seed 9948, frame 17: a red thread among vessels of its
+    hue passes under the shaft; its stretch beyond (left of) the shaft, undecided by the block
+    test, lies ~100 px from the rest, 60 of them under the shaft, and has the thread's own
+    disparity (34 px; the vessels 28): it joins (it was left out, and the curve was 32 mm
+    short but "ok")."""
+    frame = _all_frame(9948, 17)
+    lifted = segment(StereoPair(frame.left, frame.right), _P)
+    beyond = np.zeros_like(frame.mask_left)
+    beyond[150:240, 100:200] = True  # the stretch left of the shaft in the left view
+    truth = frame.mask_left & beyond
+    assert truth.sum() > 200
+    assert (lifted.P_L & truth).sum() >= 0.8 * truth.sum()
+    # (the found mask is ~1 px wider than the exact one, as along the rest of this thread)
+    assert (lifted.P_L & beyond & ~frame.mask_left).sum() <= 0.5 * truth.sum()
+
+
+def _all_frame(seed: int, k: int):  # noqa: ANN202
+    """Frame ``k`` of scripts/eval_suites.py's "all" suite (index 12) for ``seed``."""
+    render = RenderParams(
+        background="tissue", noise_sigma=3.0, blur_sigma=0.5, thread_colour="random",
+        distractors=6, instrument=True, lighting=0.5, jpeg_quality=75, specular=0.3,
+    )  # fmt: skip
+    return generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=render),
+        np.random.default_rng([seed, 12, k]),
+    )
+
+
+def test_a_red_thread_holding_its_highlight_is_found_though_undecided() -> None:
+    """ "all", seed 9948, frame 4: a red thread of the vessels' hue with a highlight along it;
+    the first pass chose the highlight (undecided by the surface test), the red pass gave up
+    at the thread itself (undecided too: its grey contrast gives no disparity of its own).
+    The blood-like piece holding the highlight is a glossy body, not a vessel: it is chosen
+    (left view IoU 0.06 -> 0.93)."""
+    frame = _all_frame(9948, 4)
+    lifted = segment(StereoPair(frame.left, frame.right), _P)
+    P, M = lifted.P_L, frame.mask_left
+    assert (P & M).sum() / (P | M).sum() >= 0.85
+    assert (lifted.P_R & frame.mask_right).sum() >= 0.5 * frame.mask_right.sum()
+
+
+def test_holds_counts_the_line_s_pixels_along_the_piece() -> None:
+    core = np.zeros((100, 100), np.uint8)
+    core[20:80, 50] = 1  # a highlight 60 px long
+    rows, cols = np.mgrid[10:90, 48:53]  # a piece 5 px wide around it
+    assert sr._holds(core, rows.ravel(), cols.ravel(), 30)
+    rows, cols = np.mgrid[10:40, 48:53]  # holds 20 px of it only
+    assert not sr._holds(core, rows.ravel(), cols.ravel(), 30)
+    rows, cols = np.mgrid[10:90, 60:65]  # beside it, 10 px away
+    assert not sr._holds(core, rows.ravel(), cols.ravel(), 30)
+
+
+@pytest.mark.parametrize(("seed", "k"), [(9954, 8), (9956, 16), (9956, 17)])
+def test_a_faint_line_at_the_tissue_s_disparity_is_no_thread(seed: int, k: int) -> None:
+    """Thread-free frames with fibres (scripts/eval_suites.py's empty-distractors, index 16):
+    the most salient piece left after the fibres (marks) is faint, left open by the block
+    test, and its own disparity is the tissue's (32 px, the fibres' too): a mark, not the
+    thread ("no thread found", was a curve)."""
+    render = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, distractors=8)
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(diameter_mm=1e-6), render=render),
+        np.random.default_rng([seed, 16, k]),
+    )
+    assert not frame.mask_left.any()
+    with pytest.raises(ValueError, match="no thread found"):
+        segment(StereoPair(frame.left, frame.right), _P)
