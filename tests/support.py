@@ -114,3 +114,15 @@ def far_spot(mask: np.ndarray, length: int, margin: int) -> tuple[int, int]:
     assert len(ys), "no free spot for a distractor"
     i = len(ys) // 2
     return int(xs[i]), int(ys[i])
+
+
+def random_mask(
+    shape: tuple[int, int], seed: int, fill: tuple[float, float], close_px: int
+) -> np.ndarray:
+    """A random uint8 mask for kernel tests: speckle of a density drawn from ``fill``, or for an
+    odd ``seed`` blobs, strips and lines (the speckle closed by a ``close_px`` square)."""
+    rng = np.random.default_rng(seed)
+    m = (rng.random(shape) < rng.uniform(*fill)).astype(np.uint8)
+    if seed % 2 and min(shape) > 2:
+        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, np.ones((close_px, close_px), np.uint8))
+    return m

@@ -4,6 +4,7 @@ replaces in core/instrument.py."""
 import cv2
 import numpy as np
 import pytest
+from support import random_mask
 
 from threadrecon.core.instrument_kernel import label_lookup, ridge_values
 
@@ -11,12 +12,8 @@ _SHAPES = [(1, 1), (1, 7), (7, 1), (2, 3), (37, 51), (120, 160)]
 
 
 def _mask(shape: tuple[int, int], seed: int) -> np.ndarray:
-    """A random uint8 mask: speckle, or blobs and strips (a closing of speckle), by seed."""
-    rng = np.random.default_rng(seed)
-    m = (rng.random(shape) < rng.uniform(0.1, 0.95)).astype(np.uint8)
-    if seed % 2 and min(shape) > 2:
-        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
-    return m
+    """A random uint8 mask: speckle, or blobs and strips, by seed."""
+    return random_mask(shape, seed, fill=(0.1, 0.95), close_px=5)
 
 
 @pytest.mark.parametrize("shape", _SHAPES)

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 from scipy import ndimage
+from support import random_mask
 
 from threadrecon.core import ridge_kernel as pk
 
@@ -15,12 +16,8 @@ _SIZES = [(1, 1), (1, 9), (9, 1), (2, 2), (37, 51), (120, 160), (480, 640)]
 
 
 def _mask(shape: tuple[int, int], seed: int) -> np.ndarray:
-    """A random uint8 mask: speckle, or blobs and lines (a closing of speckle), by seed."""
-    rng = np.random.default_rng(seed)
-    m = (rng.random(shape) < rng.uniform(0.05, 0.7)).astype(np.uint8)
-    if seed % 2 and min(shape) > 2:
-        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
-    return m
+    """A random uint8 mask: speckle, or blobs and lines, by seed."""
+    return random_mask(shape, seed, fill=(0.05, 0.7), close_px=3)
 
 
 def _pixels(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
