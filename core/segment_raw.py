@@ -40,6 +40,8 @@ from threadrecon.core.ridge_kernel import (
 from threadrecon.core.segment_surface import SAME_DISPARITY_PX, SurfaceTest, undecidable
 
 if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator
+
     from threadrecon.core.segmentation import SegmentationParams
 
 _SCALES: Final = (1.0, 2.0)  # fine and coarse Gaussian scales of the line detector, px
@@ -722,16 +724,11 @@ def _contradicted(
     front = on[lab_on == best][votes == 0]
     if len(front) == 0:
         return False
-    v = views[i]
-    st = _surface_test(views, i, d)
-    rows, cols = v.rows[front], v.cols[front]
-    own = st.disparity(rows, cols)
+    own, tissue = _own_and_tissue(views, i, front, lambda: [on[lab_on == m] for m in marks], d)
     if own is None:
         return False
-    tissue = st.background_disparity(rows, cols)
-    if tissue is None:
-        tissue = _Marks(st, v, [on[lab_on == m] for m in marks]).disparity_near(rows, cols)
-    return tissue is not None and own <= tissue + SAME_DISPARITY_PX
+    first = next((t for t in tissue if t is not None), None)
+    return first is not None and own <= first + SAME_DISPARITY_PX
 
 
 def _gap_off_tool(tool: np.ndarray, sample: np.ndarray, at: np.ndarray, gap: float) -> float:
@@ -773,14 +770,29 @@ def _at_tissue_disparity(
     of its block (where that resolves) or of the nearest of the ``marks`` (lo pixels of the
     pieces found to be marks on the tissue). A piece the block-wise surface test left open
     (too few blocks resolve) that matches the tissue's disparity is a mark on it too."""
+    own, tissue = _own_and_tissue(views, i, px, lambda: marks, d)
+    return own is not None and any(
+        t is not None and abs(own - t) <= SAME_DISPARITY_PX for t in tissue
+    )
+
+
+def _own_and_tissue(
+    views: list[_View], i: int, px: np.ndarray, marks: Callable[[], list[np.ndarray]], d: int
+) -> tuple[float | None, Iterator[float | None]]:
+    """The disparity of view ``i``'s lo pixels ``px`` of their own
+    (:meth:`SurfaceTest.disparity`; None where it does not resolve), and the tissue's beside
+    them, each read when asked: of the background of their block, then of the nearest of the
+    ``marks`` (lo pixels of the pieces found to be marks on the tissue; None where either
+    does not resolve)."""
     v = views[i]
     st = _surface_test(views, i, d)
     rows, cols = v.rows[px], v.cols[px]
-    own = st.disparity(rows, cols)
-    if own is None:
-        return False
-    refs = (st.background_disparity(rows, cols), _Marks(st, v, marks).disparity_near(rows, cols))
-    return any(t is not None and abs(own - t) <= SAME_DISPARITY_PX for t in refs)
+
+    def tissue() -> Iterator[float | None]:
+        yield st.background_disparity(rows, cols)
+        yield _Marks(st, v, marks()).disparity_near(rows, cols)
+
+    return st.disparity(rows, cols), tissue()
 
 
 def _surface_test(views: list[_View], i: int, d: int) -> SurfaceTest:
