@@ -364,34 +364,21 @@ def surface_ahead(
     way: np.ndarray,
     disparity: float,
     offset: float = 0.0,
-) -> float | None:
+) -> tuple[float | None, float | None]:
     """How much nearer (px of disparity, > 0: in front of the end) the surface just beyond an
-    end lies, measured by stereo: the square patch of view ``side`` (2 AHEAD_HALF_PX + 1 px)
-    whose near side lies 2 px beyond ``offset`` px past ``tip`` along ``way``, its thread
-    pixels (``masks``, grown by AHEAD_EDGE_PX: the thread's blurred edge) left out, is matched along its row of the other view (rectified), over
-    disparities 0 (far away) to AHEAD_DEPTH times the end's ``disparity`` (a surface at a
-    quarter of the end's depth). None when the pair cannot tell: the patch leaves a view, is
-    mostly thread, is untextured (standard deviation under AHEAD_LEVELS), or its best shift is not
-    distinct (the median cost AHEAD_FAR_PX or more away is not AHEAD_LEVELS higher: e.g. a
-    shaft along the rows).
+    end lies, measured by stereo, and the patch's mean grey (its thread pixels left out) when
+    it is untextured (None otherwise): the square patch of view ``side`` (2 AHEAD_HALF_PX + 1
+    px) whose near side lies 2 px beyond ``offset`` px past ``tip`` along ``way``, its thread
+    pixels (``masks``, grown by AHEAD_EDGE_PX: the thread's blurred edge) left out, is matched
+    along its row of the other view (rectified), over disparities 0 (far away) to AHEAD_DEPTH
+    times the end's ``disparity`` (a surface at a quarter of the end's depth). The disparity is
+    None when the pair cannot tell: the patch leaves a view, is mostly thread, is untextured
+    (standard deviation under AHEAD_LEVELS), or its best shift is not distinct (the median cost
+    AHEAD_FAR_PX or more away is not AHEAD_LEVELS higher: e.g. a shaft along the rows).
 
     An occluder's silhouette moves with the occluder's disparity, so a patch over an occluder
     or its edge matches in front of the thread; the tissue the thread lies on matches at the
     end's depth or behind it."""
-    return _ahead(greys, masks, side, tip, way, disparity, offset)[0]
-
-
-def _ahead(
-    greys: tuple[np.ndarray, np.ndarray],
-    masks: tuple[np.ndarray, np.ndarray],
-    side: int,
-    tip: np.ndarray,
-    way: np.ndarray,
-    disparity: float,
-    offset: float,
-) -> tuple[float | None, float | None]:
-    """``surface_ahead``, and the patch's mean grey (its thread pixels left out) when it is
-    untextured (the pair cannot tell its depth; None otherwise)."""
     grey_a, grey_b = greys[side], greys[1 - side]
     h, w = grey_a.shape
     r = AHEAD_HALF_PX
@@ -592,7 +579,7 @@ def _walk(
     count as occluder."""
     bare = None  # the offset of a patch showing the surface under the thread again
     while offset < limit:
-        d, grey = _ahead(greys, masks, side, at, way, disparity, offset)
+        d, grey = surface_ahead(greys, masks, side, at, way, disparity, offset)
         if d is None and _is_plain(grey, plain):
             d = 0.0  # the plain background the thread lies on: a thread there would show
         if d is None or d > AHEAD_NEAR_PX:
@@ -620,7 +607,7 @@ def _front(
     pair cannot tell), or when a patch before it shows the plain background the thread lies on
     (``plain``): the thread would show there, so it ended before the occluder."""
     for k in range(AHEAD_MEET):
-        d, grey = _ahead(greys, masks, side, at, way, disparity, k * AHEAD_STEP_PX)
+        d, grey = surface_ahead(greys, masks, side, at, way, disparity, k * AHEAD_STEP_PX)
         if d is not None and d > AHEAD_NEAR_PX:
             return d, k
         if d is None and _is_plain(grey, plain):
@@ -764,7 +751,7 @@ def surface_past_end(
     _, tip, way = fr
     found = []
     for k in range(AHEAD_MEET):
-        d, grey = _ahead(greys, masks, side, tip, way, disparity, k * AHEAD_STEP_PX)
+        d, grey = surface_ahead(greys, masks, side, tip, way, disparity, k * AHEAD_STEP_PX)
         if d is None and _is_plain(grey, plain):
             d = 0.0  # the plain background the thread lies on: a thread there would show
         found.append(d)

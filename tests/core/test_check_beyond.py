@@ -178,7 +178,7 @@ def _occluder(greys, masks, uv, max_reach: float = 300.0):
 
 def test_surface_ahead_measures_the_tissue_behind_a_free_end() -> None:
     greys, masks, uv = _stereo_scene(None)
-    d = surface_ahead(greys, masks, 0, uv[0][-1], np.array([1.0, 0.0]), float(D_T))
+    d, _ = surface_ahead(greys, masks, 0, uv[0][-1], np.array([1.0, 0.0]), float(D_T))
     assert d is not None and abs(d - (D_BG - D_T)) <= 1.0
     # (the right view's patch is seen in the left behind the thread's own end, which hides
     # it there: one view's measure alone is no occluder, end_occluder asks both to agree)
@@ -187,7 +187,7 @@ def test_surface_ahead_measures_the_tissue_behind_a_free_end() -> None:
 def test_surface_ahead_cannot_tell_on_an_untextured_surface() -> None:
     greys, masks, uv = _stereo_scene(None)
     flat = (np.full_like(greys[0], 128.0), np.full_like(greys[1], 128.0))
-    assert surface_ahead(flat, masks, 0, uv[0][-1], np.array([1.0, 0.0]), float(D_T)) is None
+    assert surface_ahead(flat, masks, 0, uv[0][-1], np.array([1.0, 0.0]), float(D_T))[0] is None
 
 
 def test_a_free_end_on_the_tissue_meets_no_occluder() -> None:
@@ -238,7 +238,7 @@ def test_another_strand_of_thread_beside_an_end_is_no_occluder() -> None:
     # the strand's blurred edge is the thread's, not a surface's texture: the plain background
     # around it cannot be measured, so nothing says the end runs under an occluder
     greys, masks, uv = _strand_beside_end_scene()
-    assert surface_ahead(greys, masks, 0, uv[0][-1], np.array([1.0, 0.0]), float(D_T)) is None
+    assert surface_ahead(greys, masks, 0, uv[0][-1], np.array([1.0, 0.0]), float(D_T))[0] is None
     assert _occluder(greys, masks, uv) is None
 
 
