@@ -27,11 +27,11 @@ curve against the nearest reliable pixel of P_L^R (stretched when that pixel is 
 counted up to ``support_tol_px`` (beyond it no match agrees and the depth is interpolated);
 sigma_d the matching precision (``sigma_disparity_px``); a_i the distance to the nearer end
 (an end is fitted from one side); rho_i the larger of the two reprojection distances to the
-thread pixels beyond half a pixel's diagonal (quantisation); g_i the distance into a bridge or from the nearest supported point (an
-interpolated shape drifts; core/check_score.py). The confidence is
-exp(-e_i / ``conf_mm``). The bound half-width h_i of Eq. (7) is left out: where no match pins
-the depth it was no sign of a larger error (docs/method.md, the check's fifth round); it only
-marks the ambiguous length of the evidence (``ambiguous_mm``).
+thread pixels beyond half a pixel's diagonal (quantisation); g_i the distance into a bridge
+or from the nearest supported point (an interpolated shape drifts; core/check_score.py). The
+confidence is exp(-e_i / ``conf_mm``). The bound half-width h_i of Eq. (7) is left out: where
+no match pins the depth it was no sign of a larger error (docs/method.md, the check's fifth
+round); it only marks the ambiguous length of the evidence (``ambiguous_mm``).
 
 All image measurements use one distance field per view of the thread masks (``check_field``:
 cached with the segmentation, its values computed only where the curve reads them), so the
