@@ -212,22 +212,12 @@ class CheckParams(Params):
     )  # fmt: skip
     max_unmeasured_mm: float = param(
         10.0, lo=0.0, unit="mm", slider=(0.0, 100.0, 1.0), label="unmeasured length",
-        doc="Suspect when the curve's depth change adds more than this to its length over its "
-        "last knot span at a free end, or over thread pixels whose reliable matches all give "
-        "another depth (over each such step, the 3D step less the same 2D step at constant "
-        "depth). Default: half the wrong-length limit (such a depth change also displaces the "
-        "curve, not only lengthens it).",
-    )  # fmt: skip
-    good_mm: float = param(
-        20.0, lo=0.0, unit="mm", slider=(0.0, 100.0, 1.0), label="good-curve error",
-        doc="The error up to which a curve counts as good (issue 11: wrong above it in length "
-        "or position). With a crossing (of the thread pixels, or of the curve's left "
-        "projection with itself), suspect when the curve's depth change adds more than this "
-        "to its length where no reliable match supports it (over each such step, the 3D step "
-        "less the same 2D step at constant depth, evidence unmeasured_mm): the length error "
-        "the crossing's ambiguity may cause, a wrong branch entering and leaving another "
-        "strand's depth (both joins summed). Under it the stretches that add it carry their "
-        "added length as expected error (lower confidence) instead.",
+        doc="With a crossing (of the thread pixels, or of the curve's left projection with "
+        "itself), suspect when the curve's depth change adds more than this to its length "
+        "where no reliable match supports it (over each such step, the 3D step less the same "
+        "2D step at constant depth): the effect of the crossing's ambiguity, a wrong branch "
+        "joining two strands at different depths. Default: half the wrong-length limit "
+        "(a wrong branch enters and leaves the other strand: two such joins).",
     )  # fmt: skip
     loop_px: float = param(
         1.5, lo=0.0, unit="px", slider=(0.0, 10.0, 0.5), label="loop distance",
@@ -804,15 +794,14 @@ def _check(
     # two strands at different depths through such a stretch. Without a crossing, unsupported
     # depth change is a tilted thread (the paper's frames: up to 29 mm on right curves).
     unmeasured = _unmeasured_length(step3, step, z_pos, supported, f / mm)
-    at_crossing = bool(crossings or overlap > 0)
-    if at_crossing and unmeasured > p.good_mm:
+    if (crossings or overlap > 0) and unmeasured > p.max_unmeasured_mm:
         where = (
             f"the thread pixels cross or branch at {crossings} keypoint(s)" if crossings
             else f"the curve crosses itself in the left image ({overlap:.0f} px overlap)"
         )  # fmt: skip
         findings.append(
             ("suspect", f"{where} and the curve's depth change adds {unmeasured:.1f} mm to its "
-             f"length where no reliable match supports it (limit {p.good_mm:g} mm): "
+             f"length where no reliable match supports it (limit {p.max_unmeasured_mm:g} mm): "
              "the strands' order or depth may be mixed up")
         )  # fmt: skip
     # Depth change where the reliable matches under the curve all give another depth (by
@@ -846,11 +835,6 @@ def _check(
         z_pos, (z <= 0) | (z_right <= 0), r, rho, bridge_gap, step, s3, spline, f, f * B, mm, p
     )
     e_mm, lateral, conf = pe.e_mm, pe.lateral_mm, pe.confidence
-    if at_crossing and unmeasured > 0.0:
-        # a crossing's ambiguity under good_mm: each unsupported stretch carries the length
-        # its depth change adds (the length error a wrong branch there would cause)
-        e_mm = e_mm + _unmeasured_runs(step3, step, z_pos, supported, f / mm)
-        conf = np.exp(-e_mm / p.conf_mm)
 
     # Ambiguous depth (evidence only): a wide bound where no agreeing reliable match pins the
     # depth (where one does, the strands' depths are measured there, however wide the bounds).
@@ -1106,22 +1090,6 @@ def _unmeasured_length(
         np.ascontiguousarray(z, dtype=np.float64), np.ascontiguousarray(supported, dtype=bool),
         0.5 / f_mm,
     )  # fmt: skip
-
-
-def _unmeasured_runs(
-    step3: np.ndarray, step: np.ndarray, z: np.ndarray, supported: np.ndarray, f_mm: float
-) -> np.ndarray:
-    """(N,) per curve point, the length (mm) the depth change adds over the run of steps with
-    an unsupported sample that holds it (``_unmeasured_length``'s terms, summed per run; 0 on
-    points no such run holds)."""
-    n = len(z)
-    free = ~(supported[1:] & supported[:-1])
-    extra = step3 - step * (0.5 / f_mm) * (z[1:] + z[:-1])
-    extra = np.where(free & np.isfinite(extra) & (extra > 0.0), extra, 0.0)
-    out = np.zeros(n)
-    for i0, i1 in _runs(free):  # steps i0..i1-1: points i0..i1
-        out[i0 : i1 + 1] = np.maximum(out[i0 : i1 + 1], float(extra[i0:i1].sum()))
-    return out
 
 
 def _end_added_length(

@@ -14,7 +14,6 @@ from threadpoolctl import threadpool_limits
 
 from threadrecon.app.dataset import discover, load_frame
 from threadrecon.app.io import load_calibration, load_ground_truth, load_pair
-from threadrecon.core import check as check_module
 from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check import (
     CheckParams,
@@ -25,7 +24,6 @@ from threadrecon.core.check import (
     _strand_samples,
     _surface_behind,
     _unmeasured_length,
-    _unmeasured_runs,
     _unsupported_travel,
     check_curve,
 )
@@ -44,10 +42,9 @@ def _run(seed: int, params: ReconParams | None = None) -> Reconstruction:
     return Pipeline(pair, calib).run(params or ReconParams())
 
 
-def _recheck(seed: int, change, p: CheckParams | None = None, **thread: object) -> CheckResult:
-    """The check of seed's reconstruction with its camera-frame curve changed by ``change``
-    (``thread``: the generator's thread options, e.g. crossing=True)."""
-    pair, calib, _ = synthetic_case(seed, **thread)
+def _recheck(seed: int, change) -> CheckResult:
+    """The check of seed's reconstruction with its camera-frame curve changed by ``change``."""
+    pair, calib, _ = synthetic_case(seed)
     rec = Pipeline(pair, calib).run()
     cam = rec["camera"]
     points = change(cam.points.copy())
@@ -55,7 +52,7 @@ def _recheck(seed: int, change, p: CheckParams | None = None, **thread: object) 
         length = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
     curve = CameraCurve(cam.ctrl, cam.knots, cam.degree, points, length, cam.unit)
     args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
-    return check_curve(*args, curve, calib, p or CheckParams())
+    return check_curve(*args, curve, calib, CheckParams())
 
 
 def test_check_is_the_last_stage_and_sets_the_status() -> None:
@@ -587,47 +584,6 @@ def test_an_end_the_left_segmentation_misses_is_not_cut_by_an_occluder() -> None
     chk = check_curve(replace(seg, P_L=m, grey_R=g), *args, short, calib, CheckParams())
     assert not any("cut by an occluder" in r for r in chk.reasons), chk.reasons
     assert chk.beyond_mm > 2.0  # what the right view sees beyond the end is counted as missing
-
-
-def test_unmeasured_runs_carry_their_added_length_on_their_points() -> None:
-    """Each run of steps with an unsupported sample carries the length its depth change adds
-    on all its points; the runs' values sum to _unmeasured_length; supported stretches carry 0."""
-    f_mm = 500.0
-    n = 21
-    step = np.full(n - 1, 5.0)
-    z = np.full(n, 100.0)
-    z[6:] = 110.0  # a 10 mm depth step inside the first unsupported run
-    z[16:] = 104.0  # a 6 mm step back inside the second
-    step3 = np.hypot(step * z[:-1] / f_mm, np.diff(z))
-    sup = np.ones(n, dtype=bool)
-    sup[4:8] = False
-    sup[15:18] = False
-    got = _unmeasured_runs(step3, step, z, sup, f_mm)
-    first, second = got[5], got[16]
-    assert np.all(got[3:9] == first) and np.all(got[14:19] == second)
-    assert got[:3].max() == 0.0 and got[10:13].max() == 0.0 and got[20] == 0.0
-    assert first > 8.9 and second > 5.0
-    assert first + second == pytest.approx(_unmeasured_length(step3, step, z, sup, f_mm))
-
-
-def test_crossing_ambiguity_under_the_good_line_lowers_confidence_over_it_is_suspect_over(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    """At a crossing the length the unmeasured depth change adds is the length error a wrong
-    branch would cause: under good_mm the curve stays ok and that stretch's points carry it
-    as expected error; over good_mm (here lowered below the measured value) it is suspect."""
-    same = _recheck(0, lambda p: p, crossing=True)
-    assert same.crossings > 0 and 0.0 < same.unmeasured_mm < CheckParams().good_mm
-    assert same.status == "ok"
-    tight = _recheck(0, lambda p: p, CheckParams(good_mm=0.5 * same.unmeasured_mm), crossing=True)
-    assert tight.status == "suspect"
-    assert any("order or depth may be mixed up" in r for r in tight.reasons), tight.reasons
-    # the ambiguity is carried by the points of its stretches, and by no other point
-    monkeypatch.setattr(check_module, "_unmeasured_runs", lambda *a: np.zeros(len(a[2])))
-    plain = _recheck(0, lambda p: p, crossing=True)
-    added = same.expected_error_mm - plain.expected_error_mm
-    assert added.min() >= -1e-12 and 0.0 < added.max() <= same.unmeasured_mm + 1e-9
-    assert np.all(same.confidence <= plain.confidence) and (added == 0.0).any()
 
 
 def _corner(turn_deg: float, loop: bool = False) -> tuple[np.ndarray, ...]:
