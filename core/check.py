@@ -171,21 +171,11 @@ class CheckParams(Params):
     )  # fmt: skip
     max_bridge_mm: float = param(
         40.0, lo=0.0, unit="mm", slider=(0.0, 300.0, 1.0), label="longest evidenced bridge",
-        doc="Suspect when a bridge the evidence supports (it continues the thread at both ends, "
-        "is no loop, and crosses occluder or unsegmented thread, not bare background) is longer "
-        "than this in 3D. A thread as long as the bridge strays at most half its length from "
-        "it: the default is twice the wrong-curve error (issue 11). A bridge without that "
-        "evidence is held to max_unobserved_mm.",
-    )  # fmt: skip
-    bridge_turn_deg: float = param(
-        60.0, lo=0.0, hi=180.0, unit="deg", slider=(0.0, 180.0, 5.0), label="bridge turn",
-        doc="A bridge continues the thread when the curve's 3D direction over bridge_mm on each "
-        "observed side turns by at most this onto the bridge's chord.",
-    )  # fmt: skip
-    bridge_mm: float = param(
-        3.0, lo=0.0, unit="mm", slider=(0.5, 20.0, 0.5), label="bridge side length",
-        doc="Length of observed curve on each side of a bridge whose direction is compared "
-        "with the bridge's chord.",
+        doc="Suspect when a bridge the evidence supports (it is no loop and crosses occluder "
+        "or unsegmented thread, not bare background) is longer than this in 3D. A thread as "
+        "long as the bridge strays at most half its length from it, however it turns at the "
+        "bridge's ends: the default is twice the wrong-curve error (issue 11). A bridge without "
+        "that evidence is held to max_unobserved_mm.",
     )  # fmt: skip
     bridge_stretch: float = param(
         1.6, lo=1.0, slider=(1.0, 5.0, 0.05), label="bridge stretch",
@@ -555,8 +545,8 @@ def _check(
             ("suspect", f"an end of the curve runs {overshoot:.0f} px off the thread pixels "
              f"(limit {p.max_jump_px:g} px)")
         )  # fmt: skip
-    # Each bridge is judged by what can be checked (continuation, no loop, not over bare
-    # background); an evidenced one is allowed up to max_bridge_mm, any other one up to
+    # Each bridge is judged by what can be checked (no loop, not over bare background); an
+    # evidenced one is allowed up to max_bridge_mm, any other one up to
     # max_unobserved_mm. Its points get a growing expected error (below) instead.
     s3 = np.concatenate([[0.0], np.cumsum(step3)])
     bridge_gap = np.zeros(n)  # mm along the curve to the nearest observed end of a bridge
@@ -569,11 +559,9 @@ def _check(
         )
         why = _bridge_evidence(pts, uv_l, uv_r, s3, step, a, b, mm, bare, p)
         limit = p.max_bridge_mm if why is None else p.max_unobserved_mm
-        # a bridge that continues the thread (or only turns onto it more sharply than
-        # bridge_turn_deg: no loop, not over bare background) is judged by how far its occluder
-        # lets the hidden thread stray, where that can be measured
-        hidden_under = why is None or why.startswith(_TURN)
-        if len3 > limit and hidden_under and _bridge_confined(lifted, uv_l, uv_r, z, a, b, f, B,
+        # an evidenced bridge is judged by how far its occluder lets the hidden thread stray,
+        # where that can be measured
+        if len3 > limit and why is None and _bridge_confined(lifted, uv_l, uv_r, z, a, b, f, B,
                                                               mm, limit, bare, p):  # fmt: skip
             continue  # the occluder holds the hidden thread within half the limit of it
         if len3 > limit and (worst is None or len3 > worst[0]):
@@ -1319,9 +1307,6 @@ def _hidden_end(
     return out
 
 
-_TURN = "it turns"  # the opening of _bridge_evidence's turn reason
-
-
 def _bridge_evidence(
     pts: np.ndarray,
     uv_l: np.ndarray,
@@ -1335,8 +1320,9 @@ def _bridge_evidence(
     p: CheckParams,
 ) -> str | None:
     """None when the bridge from observed sample ``a`` to ``b`` is supported by the evidence,
-    else why not: it turns away from the thread it joins, it is a loop, or it crosses bare
-    background in both views."""
+    else why not: it is a loop, or it crosses bare background in both views. How it turns at
+    its ends is no evidence: the hidden thread bends somewhere between them either way, and a
+    thread as long as the bridge strays at most half its length from it (max_bridge_mm)."""
     chord = pts[b] - pts[a]
     chord_mm = float(np.linalg.norm(chord)) * mm
     len3 = float(s3[b] - s3[a])
@@ -1345,19 +1331,6 @@ def _bridge_evidence(
     if not (len3 <= p.bridge_stretch * chord_mm and path_px <= p.bridge_stretch * chord_px):
         return (f"{len3:.0f} mm / {path_px:.0f} px for a chord of {chord_mm:.0f} mm / "
                 f"{chord_px:.0f} px: a loop, not a continuation")  # fmt: skip
-    side_u = p.bridge_mm / mm
-    back = int(np.searchsorted(s3, s3[a] - side_u))  # observed side before the bridge
-    fwd = int(np.searchsorted(s3, s3[b] + side_u, side="right")) - 1
-    cos_max = np.cos(np.radians(p.bridge_turn_deg))
-    for end, (i, j) in (("entry", (back, a)), ("exit", (b, fwd))):
-        d = pts[j] - pts[i]
-        nd = float(np.linalg.norm(d))
-        if j <= i or nd == 0.0 or chord_mm == 0.0:
-            continue  # no observed curve on that side to compare with
-        cos = float(d @ chord) / (nd * chord_mm / mm)
-        if cos < cos_max:
-            ang = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-            return f"{_TURN} {ang:.0f} deg at its {end} (limit {p.bridge_turn_deg:g} deg)"
     if bare is not None and b - a > 1:
         hidden = slice(a + 1, b)
         both = bare(0, uv_l[hidden], uv_l[a], uv_l[b]) & bare(1, uv_r[hidden], uv_r[a], uv_r[b])
