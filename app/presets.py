@@ -1,6 +1,8 @@
 """Parameter presets: TOML files with one table per stage (``[stereo]``, ``[spline]`` ...).
 
-Unknown keys, wrong types and out-of-range values are rejected with the key's name.
+Unknown keys, wrong types and out-of-range values are rejected with the key's name; a parameter
+a stage has retired (its Params' ``RETIRED``) is ignored with a warning, so that a preset saved
+before still loads.
 
 Storage: the built-in presets (the project's ``configs/``) are read-only. User presets live in
 a user data folder (``serve --configs DIR``, else the platform's data dir, e.g.
@@ -17,6 +19,7 @@ import os
 import re
 import tempfile
 import tomllib
+import warnings
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -50,6 +53,12 @@ def validate(data: dict[str, Any]) -> ReconParams:
         by_name = {spec.name: spec for spec in specs(cls)}
         clean: dict[str, Any] = {}
         for name, value in values.items():
+            if name in cls.RETIRED:  # a preset saved before the parameter was retired
+                warnings.warn(
+                    f"{stage}.{name} is no longer a parameter ({cls.RETIRED[name]}): ignored",
+                    stacklevel=2,
+                )
+                continue
             if name not in by_name:
                 raise ValueError(f"unknown parameter {stage}.{name}")
             clean[name] = _coerce(by_name[name], value)

@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from scipy.interpolate import BSpline
@@ -98,6 +98,11 @@ CONTRA_PX = 1  # px: the reliable pixels under a curve point (its pixel and 8 ne
 @dataclass(frozen=True)
 class CheckParams(Params):
     """Thresholds of the check stage; each one's doc says what exceeding it means."""
+
+    RETIRED: ClassVar[dict[str, str]] = {
+        "bridge_turn_deg": "a bridge's turn at its ends is no evidence against it (session 13)",
+        "bridge_mm": "the side length of the retired bridge turn test (session 13)",
+    }
 
     reproj_mean_px: float = param(
         2.0, lo=0.0, unit="px", slider=(0.5, 10.0, 0.1), label="max mean reprojection",

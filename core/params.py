@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import typing
 from dataclasses import MISSING, dataclass, field, fields
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 Kind = Literal["slider", "checkbox", "dropdown", "number", "auto"]
 
@@ -99,6 +99,10 @@ class Params:
 
     Subclasses add cross-field checks by overriding :meth:`_check` (call ``super()._check()``).
     """
+
+    RETIRED: ClassVar[dict[str, str]] = {}
+    """Parameters the stage no longer has, each with why: a preset saved before (every saved
+    preset lists every parameter) still loads, the retired value ignored (``app.presets``)."""
 
     def __post_init__(self) -> None:
         self._check()
