@@ -17,6 +17,7 @@ from threadrecon.core.segmentation import StereoPair
 from threadrecon.core.synthetic import RenderParams, SyntheticParams, generate_frame
 
 OFF = ReconParams(ordering=OrderingParams(mono_reach_px=0.0))
+ON = ReconParams(ordering=OrderingParams(mono_reach_px=60.0))  # off by default (deviation 33)
 
 
 def _shaft_frame():
@@ -36,7 +37,7 @@ def _run(pair, calib, params):
 
 def test_an_end_behind_the_shaft_in_the_right_view_follows_the_left_view() -> None:
     pair, calib, truth = _shaft_frame()
-    on, off = _run(pair, calib, ReconParams()), _run(pair, calib, OFF)
+    on, off = _run(pair, calib, ON), _run(pair, calib, OFF)
     m_on = evaluate_reconstruction(on, calib, truth)
     m_off = evaluate_reconstruction(off, calib, truth)
     assert off["ordering"].mono == (0, 0)
@@ -61,8 +62,8 @@ def test_an_end_behind_the_shaft_in_the_right_view_follows_the_left_view() -> No
 
 def test_the_depth_of_a_one_view_stretch_stays_within_the_continuity_bound() -> None:
     pair, calib, _ = _shaft_frame()
-    o = Pipeline(pair, calib).run(until="ordering")["ordering"]
-    stereo = Pipeline(pair, calib).run(until="stereo")["stereo"]
+    o = Pipeline(pair, calib).run(ON, until="ordering")["ordering"]
+    stereo = Pipeline(pair, calib).run(ON, until="stereo")["stereo"]
     a, b = o.mono
     path = o.path_px
     end = path[len(path) - b - 1]  # the last point seen in both views (the two-view tip)
@@ -76,7 +77,7 @@ def test_the_depth_of_a_one_view_stretch_stays_within_the_continuity_bound() -> 
 
 def test_nothing_changes_where_both_views_see_the_end() -> None:
     pair, calib, _ = synthetic_case(2)
-    on = Pipeline(pair, calib).run(until="bounds")
+    on = Pipeline(pair, calib).run(ON, until="bounds")
     off = Pipeline(pair, calib).run(OFF, until="bounds")
     assert on["ordering"].mono == (0, 0)
     assert np.array_equal(on["ordering"].path_px, off["ordering"].path_px)
@@ -103,7 +104,7 @@ def _painted_right_end(hide_px: int, grey: float | None):
 
 def test_an_end_hidden_by_an_occluder_in_the_right_view_is_followed() -> None:
     pair, calib, truth = _painted_right_end(40, grey=60.0)
-    on, off = _run(pair, calib, ReconParams()), _run(pair, calib, OFF)
+    on, off = _run(pair, calib, ON), _run(pair, calib, OFF)
     assert sum(on["ordering"].mono) >= 2 and off["ordering"].mono == (0, 0)
     e_on = evaluate_reconstruction(on, calib, truth)
     e_off = evaluate_reconstruction(off, calib, truth)
@@ -117,14 +118,15 @@ def test_an_end_hidden_by_an_occluder_in_the_right_view_is_followed() -> None:
 
 def test_an_end_over_bare_background_in_the_right_view_is_not_extended() -> None:
     pair, calib, _ = _painted_right_end(40, grey=None)
-    on = Pipeline(pair, calib).run(until="ordering")["ordering"]
+    on = Pipeline(pair, calib).run(ON, until="ordering")["ordering"]
     off = Pipeline(pair, calib).run(OFF, until="ordering")["ordering"]
     assert on.mono == (0, 0)
     assert np.array_equal(on.path_px, off.path_px)
 
 
-def test_mono_reach_zero_is_the_paper_strict_preset() -> None:
+def test_the_extension_is_off_in_paper_strict_and_by_default() -> None:
     from threadrecon.app.presets import resolve_preset
 
     assert resolve_preset("paper-strict").ordering.mono_reach_px == 0.0
-    assert replace(ReconParams().ordering, mono_reach_px=0.0) == OFF.ordering
+    assert ReconParams().ordering == OFF.ordering
+    assert replace(ReconParams().ordering, mono_reach_px=60.0) == ON.ordering
