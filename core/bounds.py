@@ -408,8 +408,9 @@ def _dead_end_depths(
     second match then 44 px): the median of a run of them put the end 60 mm off."""
     depth = stereo.depth[sel]
     M = len(path)
-    ends = [(0, 1)] if ordering.order[0] < 0 else []
-    ends += [(M - 2, M - 2)] if ordering.order[-1] < 0 and M > 2 else []
+    a, b = ordering.mono  # points placed from the left view alone lie before a dead end's tip
+    ends = [(a, a + 1)] if ordering.order[a] < 0 else []
+    ends += [(M - 2 - b, M - 2 - b)] if ordering.order[M - 1 - b] < 0 and M - b > 2 else []
     for li, anchor in ends:
         on = np.flatnonzero(link == li)
         z_a = path[anchor, 2]
@@ -449,8 +450,9 @@ def _interior_depths(
     the window line of the first keypoint, extrapolated over such extra points, put the curve's
     start 35 mm off)."""
     M = len(path)
-    lo = 1 if ordering.order[0] < 0 else 0
-    hi = M - 2 if ordering.order[-1] < 0 else M - 1
+    a, b = ordering.mono
+    lo = a + 1 if ordering.order[a] < 0 else a
+    hi = M - 2 - b if ordering.order[M - 1 - b] < 0 else M - 1 - b
     cand = np.flatnonzero((link >= lo) & (link < hi))
     if not len(cand):
         return depth

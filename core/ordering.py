@@ -15,6 +15,10 @@
    (geodesically, so that a curled tail ends at its tip) becomes a new keypoint with the end
    keypoint's depth. Deviation: otherwise, when the end cluster's own farthest pixel from the
    inward neighbour lies ``tip_px`` or more beyond the end keypoint, that pixel becomes the end.
+5. Ends seen in one view only (deviation 33, ``mono_reach_px``, off by default): past the last
+   pixel the right view shows, or across a short hidden stretch to a piece of P_L no stereo
+   match reaches, the curve follows the left view's thread with depth from the end's
+   continuity.
 
 Cost scales with the thread, not the image: steps 1-2 and the geodesics work on the pixel list
 of P_L and index images over its bounding box; the walk's steps to neighbours and through
@@ -36,7 +40,7 @@ import numpy as np
 
 from threadrecon.core import walk_kernel
 from threadrecon.core.clustering import Clusters
-from threadrecon.core.continuity import depth_of, second_matches
+from threadrecon.core.continuity import depth_of, disparity_of, second_matches
 from threadrecon.core.ends import seen_in_right, tip_disparity
 from threadrecon.core.lazy import Deferred, LazyField
 from threadrecon.core.params import Params, param
@@ -116,6 +120,20 @@ class OrderingParams(Params):
         "two touching strands at two depths are broken apart only where each goes on ahead "
         "within this (walk=bending). A jump over a gap turns in and out by at most 90 deg each.",
     )
+    mono_reach_px: float = param(
+        0.0,
+        lo=0.0,
+        hi=1000.0,
+        unit="px",
+        slider=(0.0, 200.0, 5.0),
+        label="one-view end reach px",
+        doc="A piece of P_L that no stereo match reaches (no cluster touches it, the right "
+        "view does not show it: behind an instrument there) whose nearest pixel lies within "
+        "this of a free end, ahead of it, continues the curve in the left view only; its "
+        "depth is the end's, extrapolated along the end's slope (docs/method.md, deviation "
+        "33; 0: off, the paper, and the default: on held-out frames the check called two "
+        "curves it improved suspect or failed; 60 px is the check's max_jump_px).",
+    )
     second_matches: bool = param(
         True,
         label="second matches by continuity",
@@ -188,6 +206,9 @@ class Ordering:
     ``end_disparity``: (2, 2) float, (disparity px, variance px^2) of the first and the last
     point of ``path_px`` matched on a window holding the tip in both views (core/ends.py);
     NaN, inf where not matched (``end_window_px`` = 0, a tip at the image border, no match).
+    ``mono``: how many points at the start and at the end of ``path_px`` lie on a piece of P_L
+    only the left view shows (``mono_reach_px``, :func:`_one_view_piece`): order -1, empty
+    links, depth from the end's continuity, not from stereo.
     """
 
     pixels: np.ndarray
@@ -203,6 +224,7 @@ class Ordering:
     pixel_link: np.ndarray
     graph: OrderingGraph = LazyField()  # type: ignore[assignment]  # built when read
     end_disparity: np.ndarray = field(default_factory=lambda: _NO_END_DISPARITY.copy())
+    mono: tuple[int, int] = (0, 0)
 
     @functools.cached_property
     def node_image(self) -> np.ndarray:
@@ -326,6 +348,40 @@ def order_keypoints(
         np.array([q[:2] for q in path], dtype=np.float64).reshape(-1, 2),
         stereo.pixels,
     )
+    mono = [0, 0]
+    if p.mono_reach_px > 0 and walk:
+        linked = {g for gap_ids in links for g in gap_ids}
+        touched = set(cg[:, 1].tolist())  # gaps some cluster touches: stereo reaches them
+        lone = np.array(
+            [g for g in range(K, K + n_gaps) if g not in linked and g not in touched], np.int64
+        )
+        for row, end in enumerate((0, -1)):
+            beyond = None
+            if end in cut_tips:  # the left view's thread past the last pixel the right shows
+                tip_px = cut_tips[end]
+                past = np.flatnonzero(
+                    (pixel_node == pixel_node[tip_px]) & (pixel_link < 0) & np.isnan(pixel_t)
+                )
+                d_tip = float(disp[order[1] if end == 0 else order[-2]])
+                past = past[stereo.pixels[past, 0] - d_tip >= 0]  # inside the right image
+                beyond = (tip_px, past)
+            pts, gap = _one_view_piece(
+                path, end, lone, pixel_node, geo, lifted, stereo, p, np.array(order) >= 0, beyond
+            )
+            if not len(pts):
+                continue
+            mono[row] = len(pts)
+            lone = lone[lone != gap]
+            n = len(pts)
+            if end == 0:
+                path[:0] = list(pts[::-1])
+                order[:0] = [-1] * n
+                links[:0] = [()] * n
+                pixel_link = np.where(pixel_link >= 0, pixel_link + n, -1)
+            else:
+                path += list(pts)
+                order += [-1] * n
+                links += [()] * n
     end_disparity = _NO_END_DISPARITY.copy()
     if p.end_window_px > 0 and walk:
         r = p.end_window_px
@@ -334,13 +390,14 @@ def order_keypoints(
             own = _window_is_own(
                 stereo.pixels, pixel_node, K, seq, key_px, cluster_gaps, path[e], r, grid
             )
-            if own and e not in cut_tips:  # a cut tip's window holds what only the left sees
+            if own and e not in cut_tips and not mono[row]:  # what only the left sees
                 m = tip_disparity(lifted.I_L, lifted.I_R, path[e][:2], disp[k], r)
                 end_disparity[row] = (m.disparity, m.var)
 
     kept = set(walk)
     dropped = np.array([k for k in range(K) if k not in kept], dtype=np.int64)
-    explain = (wg, int(order[0] < 0)) if p.walk == "bending" and walk else None
+    lead = mono[0] + int(order[mono[0]] < 0)  # path points before the walk's first keypoint
+    explain = (wg, lead) if p.walk == "bending" and walk else None
     return Ordering(
         pixels=stereo.pixels,
         image_shape=(H, W),
@@ -355,6 +412,7 @@ def order_keypoints(
         pixel_link=pixel_link,
         graph=Deferred(_graph, adj, walk, explain, p),  # no stage reads it: the debugger's
         end_disparity=end_disparity,
+        mono=(mono[0], mono[1]),
     )
 
 
@@ -525,6 +583,170 @@ def _tip_candidates(
     if p.tip_views == "left" or not np.isfinite(d_ref):
         return sel
     return sel[seen_in_right(stereo.pixels[sel], lifted.P_R, d_ref, max(p.end_window_px, 1))]
+
+
+MONO_MIN_PX = 15  # a piece of P_L smaller than a tip window (2 x 7 + 1 px) is no thread's end
+MONO_STEP_PX = 12  # px of geodesic length per point placed on a one-view piece
+MONO_FIT_KEYPOINTS = 4  # the end's depth slope: least squares over its last keypoints
+MONO_MAX_TURN_DEG = 90.0  # the jump onto the piece turns in and out by at most this (28's)
+
+
+def _one_view_piece(
+    path: list[np.ndarray],
+    end: int,
+    lone: np.ndarray,
+    pixel_node: np.ndarray,
+    geo: _GapGeodesics,
+    lifted: LiftedPair,
+    stereo: StereoResult,
+    p: OrderingParams,
+    is_key: np.ndarray,
+    beyond: tuple[int, np.ndarray] | None = None,
+) -> tuple[np.ndarray, int]:
+    """Points (x px, y px, z depth), from the end outwards, on the piece of P_L that continues
+    the path's ``end`` (0 or -1) in the left view only, and the piece's gap id (-1: none).
+
+    ``beyond``: (tip pixel, pixels) where the endpoint extension stopped at the last pixel the
+    right view shows (``tip_views = "both"``) and left view's thread goes on (the pixels past
+    that tip whose right-view position lies inside the right image: hidden there, not cut by
+    its border). Those pixels, when at least ``MONO_MIN_PX``, are the piece, entered at the tip.
+
+    ``lone``: the gaps no cluster touches (no reliable stereo match reaches them) and no link
+    holds. A candidate's nearest pixel lies within ``mono_reach_px`` of the end's tip, the jump
+    to it turns by at most ``MONO_MAX_TURN_DEG`` from the end's way, and the piece leaves that
+    pixel turning by at most as much from the jump; the right view does not show it (most of
+    its pixels have no right thread pixel near the end's disparity, :func:`seen_in_right`):
+    behind an instrument there, so stereo has no depth for it. The nearest such piece wins.
+
+    Its pixels are ordered by geodesic distance from that entry pixel and cut into runs of
+    ``MONO_STEP_PX``, one point per run (the centroid) and the farthest pixel as the new tip.
+    Each pixel constrains the thread to its ray; the depth along it is not observed and is
+    taken from continuity: the end keypoints' least-squares line of depth against 2D arc
+    length (the last ``MONO_FIT_KEYPOINTS``), extrapolated over the hidden jump and along the
+    piece, its disparity held within the ordering's continuity bound from the end's
+    (``DISPARITY_SLACK_PX`` + ``DISPARITY_SLOPE`` x distance) and within the disparities the
+    stereo searched. No piece where the right view shows bare background at most of those
+    points (:func:`_bare_in_right`): there it would see the thread, so nothing hides it."""
+    none = np.zeros((0, 3)), -1
+    if len(path) < 2 or (not len(lone) and beyond is None):
+        return none
+    P = np.array(path, dtype=np.float64)
+    if end == 0:
+        P = P[::-1]
+    tip = P[-1, :2]
+    # the end's way: from the point about a tip window back to the tip
+    back = np.linalg.norm(P[:, :2] - tip, axis=1)
+    far = np.flatnonzero(back >= MONO_MIN_PX)
+    if not len(far):
+        return none
+    way = tip - P[far[-1], :2]
+    way /= np.linalg.norm(way)
+    cos_max = math.cos(math.radians(MONO_MAX_TURN_DEG))
+    if beyond is not None and len(beyond[1]) >= MONO_MIN_PX:
+        entry, sel = beyond
+        g = int(pixel_node[entry])
+    else:
+        on = np.flatnonzero(np.isin(pixel_node, lone))
+        if not len(on):
+            return none
+        xy = stereo.pixels[on].astype(np.float64)
+        dist = np.hypot(*(xy - tip).T)
+        best: tuple[float, int] | None = None
+        for g in np.unique(pixel_node[on]).tolist():
+            mine = pixel_node[on] == g
+            if mine.sum() < MONO_MIN_PX:
+                continue
+            i = int(np.argmin(np.where(mine, dist, np.inf)))
+            if dist[i] > p.mono_reach_px or (best is not None and dist[i] >= best[0]):
+                continue
+            jump = xy[i] - tip
+            if dist[i] > 0 and float(jump @ way) < cos_max * dist[i]:
+                continue  # behind or beside the end
+            best = (float(dist[i]), g)
+        if best is None:
+            return none
+        g = best[1]
+        sel = on[pixel_node[on] == g]
+        entry = sel[int(np.argmin(np.hypot(*(stereo.pixels[sel] - tip).T)))]
+    d = geo.distances(np.array([entry]))[sel]
+    ok = np.isfinite(d)
+    sel, d = sel[ok], d[ok]
+    run = (d // MONO_STEP_PX).astype(np.int64)
+    n_run = int(run.max()) + 1
+    cnt = np.bincount(run, minlength=n_run)
+    keep = cnt > 0
+    pix = stereo.pixels[sel].astype(np.float64)
+    cx = np.bincount(run, weights=pix[:, 0], minlength=n_run)[keep] / cnt[keep]
+    cy = np.bincount(run, weights=pix[:, 1], minlength=n_run)[keep] / cnt[keep]
+    s_in = np.bincount(run, weights=d, minlength=n_run)[keep] / cnt[keep]
+    pts = np.column_stack([cx, cy])
+    out_tip = pix[int(np.argmax(d))]
+    pts = np.vstack([pts, out_tip])
+    s_in = np.append(s_in, d.max())
+    if len(pts) >= 2:  # the piece leaves its entry along the jump, not back towards the end
+        lead = pts[min(1, len(pts) - 1)] - stereo.pixels[entry]
+        jump = stereo.pixels[entry] - tip
+        nl, nj = np.linalg.norm(lead), np.linalg.norm(jump)
+        if nl > 0 and nj > 0 and float(lead @ jump) < cos_max * nl * nj:
+            return none
+    # depth from continuity: the end keypoints' line, from the last one outwards
+    kp = P[np.asarray(is_key, dtype=bool)[::-1] if end == 0 else np.asarray(is_key, dtype=bool)]
+    kp = kp[-MONO_FIT_KEYPOINTS:]
+    if not len(kp) or not np.all(np.isfinite(kp[:, 2]) & (kp[:, 2] > 0)):
+        return none
+    s_kp = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(kp[:, :2], axis=0), axis=1))])
+    s_kp -= s_kp[-1]
+    z0, slope = float(kp[-1, 2]), 0.0
+    if len(kp) >= 2:
+        ds = s_kp - s_kp.mean()
+        slope = float(ds @ (kp[:, 2] - kp[:, 2].mean())) / float(ds @ ds)
+        z0 = float(kp[:, 2].mean() + slope * (0.0 - s_kp.mean()))
+    d_end = float(disparity_of(stereo, np.array([z0]))[0])
+    if not (np.isfinite(d_end) and d_end > 0):
+        return none
+    seen = seen_in_right(pix.astype(np.int64), lifted.P_R, d_end, max(p.end_window_px, 1))
+    if beyond is None and np.mean(seen) >= 0.5:
+        return none  # the right view shows it: not hidden there
+    s = float(np.hypot(*(tip - kp[-1, :2]))) + float(np.hypot(*(stereo.pixels[entry] - tip))) + s_in
+    z = z0 + slope * s
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d_lin = disparity_of(stereo, z)
+    d_lin = np.where(np.isfinite(d_lin), d_lin, d_end)
+    room = DISPARITY_SLACK_PX + DISPARITY_SLOPE * s
+    d_lo, d_hi = stereo.d_range
+    d_new = np.clip(np.clip(d_lin, d_end - room, d_end + room), max(d_lo, 1), d_hi)
+    z = depth_of(stereo, d_new)
+    if not np.all(np.isfinite(z) & (z > 0)):
+        return none
+    if _bare_in_right(lifted, pts, d_new):
+        return none  # the right view shows what lies beside the thread there: no thread
+    return np.column_stack([pts, z]), g
+
+
+MONO_BARE_LEVELS = 10.0  # grey levels: the right view's pixel is the bare background within this
+
+
+def _bare_in_right(lifted: LiftedPair, pts: np.ndarray, d: np.ndarray) -> bool:
+    """Whether the right view shows bare background where most points ``pts`` ((P, 2) x, y px,
+    left view) project at disparities ``d``: the median grey of the 3 x 3 right pixels there
+    within ``MONO_BARE_LEVELS`` of the median grey of the left view's non-thread pixels in the
+    15 x 15 window around the point (what lies beside the thread). An instrument in front of
+    the thread shows its own grey; bare background means the right view would see the thread
+    there, and it does not (a mask that ends short, a glint): no thread for it to hide."""
+    H, W = lifted.P_L.shape
+    bare = 0
+    r = MONO_MIN_PX // 2
+    for (x, y), dd in zip(np.rint(pts).astype(np.int64), np.asarray(d, float), strict=True):
+        xr = int(round(x - dd))
+        if not (1 <= y < H - 1 and 1 <= xr < W - 1):
+            continue
+        win = (slice(max(y - r, 0), y + r + 1), slice(max(x - r, 0), x + r + 1))
+        side = lifted.grey_L[win][~lifted.P_L[win]]
+        if not side.size:
+            continue
+        g_r = float(np.median(lifted.grey_R[y - 1 : y + 2, xr - 1 : xr + 2]))
+        bare += abs(g_r - float(np.median(side))) <= MONO_BARE_LEVELS
+    return 2 * bare > len(pts)
 
 
 def _link_positions(
