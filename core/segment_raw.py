@@ -602,12 +602,13 @@ def _select(
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece),
         # nor, in a piece moving with the tissue in part, that part (a mark merged with it).
         px = on[k[lab_on]]  # the lo pixels of the kept pieces
-        hue = _same_dye(v.delta[px], d_best)
-        other = _other_dye_px(v.delta[px], d_best, hue)
+        d_px = v.delta[px]
+        hue = _same_dye(d_px, d_best)
+        other = _other_dye_px(d_px, d_best, hue)
         other |= _mark_part(px, on, lab_on, votes_of, k)
         if by_hue:
-            other |= hue <= _same_dye(v.delta[px], d_vessel)
-        sel = ~other & (v.S[v.rows[px], v.cols[px]] >= _CORE_FRACTION * means[lab[px]])
+            other |= hue <= _same_dye(d_px, d_vessel)
+        sel = ~other & (v.s_lo[px] >= _CORE_FRACTION * means[lab[px]])  # (s_lo: S at them)
         px = px[sel] if sel.any() else np.flatnonzero(lab == best)
         core = np.zeros(v.lo.shape, np.uint8)
         core[v.rows[px], v.cols[px]] = 1
