@@ -431,31 +431,31 @@ def blocks_at(a, rows, cols, q):  # noqa: ANN001
     return out
 
 
-@kernel("float32[:, ::1](uint8[:, :, :], float32[:, ::1])")
-def block_means(img, out):  # noqa: ANN001
+@kernel("float32[:, ::1](uint8[:, :], float32[:, ::1])")
+def block_means(rows, out):  # noqa: ANN001
     """``out`` (H // 4, (W // 4) * 3) = the means of the 4 x 4 blocks of the three channels of
-    ``img`` (H, W, 3) uint8 (any strides; H and W multiples of 4), interleaved, rounded half
-    to even as cv2.resize's INTER_AREA rounds them; returns ``out``."""
+    an image (H, W, 3) uint8 given as its ``rows`` (H, 3 W) (each row's pixels one after the
+    other, interleaved; any row stride; H and W multiples of 4), interleaved, rounded half to
+    even as cv2.resize's INTER_AREA rounds them; returns ``out``. Integer sums (exact in any
+    order): the four rows' column sums of each block row first (one contiguous pass, which
+    vectorises), then the four columns of each block."""
     h2, wc = out.shape
     w2 = wc // 3
-    acc = np.zeros(wc, np.int64)
+    col = np.empty(12 * w2, np.int32)
     for y2 in range(h2):
-        acc[:] = 0
-        for k in range(4):
-            row = img[4 * y2 + k]
-            for x in range(w2):
-                b, p = 3 * x, 4 * x
-                for j in range(3):
-                    acc[b + j] += (
-                        np.int64(row[p, j]) + row[p + 1, j] + row[p + 2, j] + row[p + 3, j]
-                    )
+        r0, r1, r2, r3 = rows[4 * y2], rows[4 * y2 + 1], rows[4 * y2 + 2], rows[4 * y2 + 3]
+        for i in range(12 * w2):
+            col[i] = np.int32(r0[i]) + np.int32(r1[i]) + np.int32(r2[i]) + np.int32(r3[i])
         o = out[y2]
-        for i in range(wc):
-            q = acc[i] >> 4
-            r = acc[i] & 15
-            if r > 8 or (r == 8 and (q & 1) == 1):  # exactly half: to the even neighbour
-                q += 1
-            o[i] = q
+        for x in range(w2):
+            b = 12 * x
+            for j in range(3):
+                a = col[b + j] + col[b + 3 + j] + col[b + 6 + j] + col[b + 9 + j]
+                q = a >> 4
+                r = a & 15
+                if r > 8 or (r == 8 and (q & 1) == 1):  # exactly half: to the even neighbour
+                    q += 1
+                o[3 * x + j] = q
     return out
 
 
