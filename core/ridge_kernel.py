@@ -221,6 +221,11 @@ def upsample_max(coarse, out):  # noqa: ANN001
         x1[x] = min(i + 1, w - 1)
         ax[x] = a
     one = np.float32(1.0)
+    # Twice as wide (the usual case): outputs 2 j + 1 and 2 j + 2 blend inputs j and j + 1
+    # with the weights (3/4, 1/4) and (1/4, 3/4), the same products and sums as the general
+    # formula, without its gathers; the first and last outputs repeat the edge.
+    double = big_w == 2 * w and w > 1
+    q1, q3 = np.float32(0.25), np.float32(0.75)
     # The coarse rows resized along x, the last two: slot i % 2 holds coarse row i.
     rows = np.empty((2, big_w), np.float32)
     held = np.full(2, -1, np.int64)
@@ -229,8 +234,16 @@ def upsample_max(coarse, out):  # noqa: ANN001
         for k in (i, min(i + 1, h - 1)):
             if held[k % 2] != k:
                 src, dst = coarse[k], rows[k % 2]
-                for x in range(big_w):
-                    dst[x] = (one - ax[x]) * src[x0[x]] + ax[x] * src[x1[x]]
+                if double:
+                    for x in (0, big_w - 1):
+                        dst[x] = (one - ax[x]) * src[x0[x]] + ax[x] * src[x1[x]]
+                    for j in range(w - 1):
+                        s0, s1 = src[j], src[j + 1]
+                        dst[2 * j + 1] = q3 * s0 + q1 * s1
+                        dst[2 * j + 2] = q1 * s0 + q3 * s1
+                else:
+                    for x in range(big_w):
+                        dst[x] = (one - ax[x]) * src[x0[x]] + ax[x] * src[x1[x]]
                 held[k % 2] = k
         lo, hi = rows[i % 2], rows[min(i + 1, h - 1) % 2]
         row = out[y]
