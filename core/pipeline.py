@@ -36,8 +36,9 @@ _BLAS_LIBS = _BLAS.select(user_api="blas").lib_controllers
 
 def _blas_guard() -> Callable[[], contextlib.AbstractContextManager[Any]]:
     """What to wrap each stage's computation in: nothing when every BLAS already runs one
-    thread (the CLI and the server set that once; a check costs ~15 us), else a one-thread
-    limit (~100 us a stage: it queries and sets every library twice)."""
+    thread (the CLI and the server set that once, :meth:`Pipeline.run` once per run; a check
+    costs ~15 us), else a one-thread limit (~100 us a stage: it queries and sets every library
+    twice)."""
     if all(lib.num_threads == 1 for lib in _BLAS_LIBS):
         return contextlib.nullcontext
     return lambda: _BLAS.limit(limits=1, user_api="blas")
@@ -248,11 +249,14 @@ class Pipeline:
         """Run every stage up to ``until``; a failing stage is reported, not raised."""
         params = ReconParams() if params is None else params
         runs: dict[str, StageRun] = {}
-        try:
-            for run in self.stages(params, until, corrections):
-                runs[run.stage] = run
-        except StageError as exc:
-            return Reconstruction(runs, exc.stage, exc.reason, params)
+        # One BLAS limit for the whole run, when it is not set already: the stages find it
+        # set and each skips its own (~100 us a stage; the same one thread either way).
+        with _blas_guard()():
+            try:
+                for run in self.stages(params, until, corrections):
+                    runs[run.stage] = run
+            except StageError as exc:
+                return Reconstruction(runs, exc.stage, exc.reason, params)
         return Reconstruction(runs, None, None, params)
 
 

@@ -328,8 +328,13 @@ def _quarter(a: np.ndarray) -> np.ndarray:
     rounded: 0.5 grey levels at most)."""
     h, w = a.shape[:2]
     if a.dtype == np.uint8 and a.shape[2] == 3 and h % _Q == 0 and w % _Q == 0 and h * w > 0:
-        out = np.empty((h // _Q, (w // _Q) * 3), np.float32)  # cv2's values, 2x faster
-        return block_means(a, out).reshape(h // _Q, w // _Q, 3)
+        out = np.empty((h // _Q, (w // _Q) * 3), np.float32)  # cv2's values, 6x faster
+        # Each row's pixels one after the other (a view; of an RGB view of BGR, the BGR
+        # array's, whose block means are those of its channels in the other order).
+        if (rev := _reversed(a)) is not None:
+            means = block_means(rev.reshape(h, w * 3), out).reshape(h // _Q, w // _Q, 3)
+            return np.ascontiguousarray(means[:, :, ::-1])
+        return block_means(a.reshape(h, w * 3), out).reshape(h // _Q, w // _Q, 3)
     size = (max(w // _Q, 1), max(h // _Q, 1))
     if (rev := _reversed(a)) is not None:  # channel by channel: the reversed array's means
         small = cv2.resize(rev, size, interpolation=cv2.INTER_AREA)[:, :, ::-1]
@@ -602,12 +607,13 @@ def _select(
         # nor pixels of another colour (a vessel or fibre merged into the thread's piece),
         # nor, in a piece moving with the tissue in part, that part (a mark merged with it).
         px = on[k[lab_on]]  # the lo pixels of the kept pieces
-        hue = _same_dye(v.delta[px], d_best)
-        other = _other_dye_px(v.delta[px], d_best, hue)
+        d_px = v.delta[px]
+        hue = _same_dye(d_px, d_best)
+        other = _other_dye_px(d_px, d_best, hue)
         other |= _mark_part(px, on, lab_on, votes_of, k)
         if by_hue:
-            other |= hue <= _same_dye(v.delta[px], d_vessel)
-        sel = ~other & (v.S[v.rows[px], v.cols[px]] >= _CORE_FRACTION * means[lab[px]])
+            other |= hue <= _same_dye(d_px, d_vessel)
+        sel = ~other & (v.s_lo[px] >= _CORE_FRACTION * means[lab[px]])  # (s_lo: S at them)
         px = px[sel] if sel.any() else np.flatnonzero(lab == best)
         core = np.zeros(v.lo.shape, np.uint8)
         core[v.rows[px], v.cols[px]] = 1

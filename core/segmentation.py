@@ -468,11 +468,14 @@ def _flat_share_off_tools(
     near = _flat_share(hist, view, level) * n
     if view.u8 is None:
         off = _off_level(view.f32, level, p.seg_delta).reshape(view.f32.shape)
-    else:
-        off = cv2.LUT(view.u8, _off_level(_LEVELS, level, p.seg_delta).view(np.uint8)).view(bool)
-    n_off = cv2.countNonZero(off.view(np.uint8))
+        n_off = cv2.countNonZero(off.view(np.uint8))
+    else:  # counted on the histogram: the off-level pixels are those of the off levels
+        off_levels = _off_level(_LEVELS, level, p.seg_delta)
+        n_off = int(hist[off_levels].sum())
     if near < p.flat_share * max(n - n_off, 1):  # an upper bound of the share: not flat
         return 0.0
+    if view.u8 is not None:  # (the image looked up only where the bound leaves it open)
+        off = cv2.LUT(view.u8, off_levels.view(np.uint8)).view(bool)
     box = _box(off, _CLOSE_MARGIN)
     if box is None:
         return near / n

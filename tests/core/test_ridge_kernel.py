@@ -109,6 +109,33 @@ def test_upsample_max_is_cv2_resize_then_max(shape: tuple[int, int]) -> None:
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
 
 
+@pytest.mark.parametrize("shape", [(480, 640), (37, 52), (3, 4), (6, 2)])
+def test_upsample_max_of_twice_the_width_is_the_general_formula_bit_for_bit(
+    shape: tuple[int, int],
+) -> None:
+    # (even widths: the kernel's doubled-width path; the reference is its general formula)
+    rng = np.random.default_rng(shape[0])
+    h, w = (shape[0] + 1) // 2, shape[1] // 2
+    coarse = rng.random((h, w), dtype=np.float32) * 30
+    fine = rng.random(shape, dtype=np.float32) * 30
+
+    def source(n: int, big_n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        f = (np.arange(big_n) + 0.5) * (n / big_n) - 0.5
+        i = np.floor(f).astype(np.int64)
+        a = (f - i).astype(np.float32)
+        a[(i < 0) | (i >= n - 1)] = 0.0
+        i = np.clip(i, 0, n - 1)
+        return i, np.minimum(i + 1, n - 1), a
+
+    x0, x1, ax = source(w, shape[1])
+    y0, y1, by = source(h, shape[0])
+    one = np.float32(1.0)
+    across = (one - ax) * coarse[:, x0] + ax * coarse[:, x1]
+    want = np.maximum(fine, (one - by)[:, None] * across[y0] + by[:, None] * across[y1])
+    got = rk.upsample_max(coarse, fine.copy())
+    np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
+
+
 def test_line_response_in_place_is_the_response_into_another_buffer() -> None:
     for shape in _SIZES:
         g = _image(shape, seed=shape[1])
@@ -214,7 +241,7 @@ def test_block_means_are_cv2_inter_area(shape: tuple[int, int]) -> None:
     side = rng.integers(0, 256, (shape[0], 2 * shape[1], 3), dtype=np.uint8)
     img = side[:, : shape[1]]  # a strided view, as a side-by-side frame's half
     h, w = shape[0] // 4, shape[1] // 4
-    got = rk.block_means(img, np.empty((h, 3 * w), np.float32))
+    got = rk.block_means(img.reshape(shape[0], -1), np.empty((h, 3 * w), np.float32))
     want = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA).reshape(h, 3 * w)
     np.testing.assert_array_equal(got, want)
     # Sums of exactly half a grey level round to the even neighbour, as cv2's do.
@@ -224,7 +251,7 @@ def test_block_means_are_cv2_inter_area(shape: tuple[int, int]) -> None:
     flat[:2, :, 1] = 1
     flat[:, :, 2] = 1
     flat[:2, :, 2] = 2
-    got = rk.block_means(flat, np.empty((1, 3), np.float32))
+    got = rk.block_means(flat.reshape(4, 12), np.empty((1, 3), np.float32))
     want = cv2.resize(flat, (1, 1), interpolation=cv2.INTER_AREA).reshape(1, 3)
     np.testing.assert_array_equal(got, want)
     assert got.tolist() == [[0.0, 0.0, 2.0]]
