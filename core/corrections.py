@@ -31,6 +31,7 @@ from typing import Final, Literal
 import cv2
 import numpy as np
 
+from threadrecon.core.numeric import distance_to_zero
 from threadrecon.core.segmentation import LIFT_VALUE, LiftedPair, StereoPair, to_grey
 
 OPS: Final = ("remove", "add", "erase", "paint", "clear", "keep")
@@ -253,7 +254,7 @@ def _stroke(
     cv2.polylines(line, [pts], False, 0, thickness=1, lineType=cv2.LINE_8)
     for x, y in points[:1]:
         line[y, x] = 0  # a click (one point) is a disc
-    return cv2.distanceTransform(line, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) <= radius
+    return distance_to_zero(line) <= radius
 
 
 def _window(shape: tuple[int, ...], x: int, y: int, half: int) -> tuple[slice, slice]:

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from threadrecon.core.instrument_kernel import label_lookup, ridge_values
+from threadrecon.core.numeric import distance_to_zero
 
 WIDER_THAN_THREAD: Final = 1.5  # a piece 1.5x as wide as the thread is not the same thread
 # (the width of a 1-6 px thread varies by < 30 % along it at this resolution; a jaw is >= 2x)
@@ -95,7 +96,7 @@ def thread_half_width(pieces: np.ndarray) -> float | None:
     u8 = np.ascontiguousarray(pieces, dtype=bool).view(np.uint8)
     if not u8.any():
         return None
-    dist = cv2.distanceTransform(u8, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    dist = distance_to_zero(u8)
     # dist[(u8 > 0) & (dist >= cv2.dilate(dist, 3 x 3))], on the piece's pixels only
     return float(np.median(ridge_values(dist, np.ascontiguousarray(u8))))
 

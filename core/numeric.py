@@ -1,4 +1,5 @@
-"""Small numeric helpers of the hot paths that return exactly what numpy returns, faster.
+"""Small numeric helpers whose results are exactly defined: what numpy returns, faster, and
+the exact Euclidean distance transform (OpenCV's, without IPP).
 
 ``np.median`` of a short 1-D array costs ~20-40 us, most of it in its generic layers (axis
 handling, ``np.mean`` of the middle values, a NaN check on the partitioned copy); a spline
@@ -7,6 +8,7 @@ re-run takes three of them.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 
@@ -25,3 +27,28 @@ def median(a: np.ndarray) -> float:
         return float(np.partition(a, h)[h])
     part = np.partition(a, (h - 1, h))
     return float((part[h - 1] + part[h]) / 2.0)
+
+
+def distance_to_zero(image: np.ndarray) -> np.ndarray:
+    """(H, W) float32, the Euclidean distance (px) of each pixel of the (H, W) uint8 ``image``
+    to its nearest zero pixel: ``cv2.distanceTransform(image, DIST_L2, DIST_MASK_PRECISE)`` as
+    OpenCV computes it (Felzenszwalb's exact transform: the float32 square root of the integer
+    squared distance), never through IPP.
+
+    IPP's ``ippiTrueDistanceTransform``, which OpenCV calls first when it is built with IPP,
+    is off by one float32 ulp on ~14 % of the pixels and WHICH pixels depends on the address
+    of the output buffer modulo 32 bytes: what numpy's allocator returns, so on what the
+    process allocated before. One ulp flipped the split of a crossing's gap between its
+    links (``ordering._curve_distance``) and moved e_S of a frame by 3e-4 mm between two
+    processes (generated crossing-tissue 13133 #18). The IPP switch is per thread (OpenCV's
+    thread-local flag), restored after the call."""
+    if image.ndim != 2 or image.dtype != np.uint8:
+        raise ValueError(
+            f"a distance transform needs an (H, W) uint8 image, got {image.shape} {image.dtype}"
+        )
+    was = cv2.ipp.useIPP()
+    cv2.ipp.setUseIPP(False)
+    try:
+        return cv2.distanceTransform(image, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    finally:
+        cv2.ipp.setUseIPP(was)

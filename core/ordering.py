@@ -43,6 +43,7 @@ from threadrecon.core.clustering import Clusters
 from threadrecon.core.continuity import depth_of, disparity_of, second_matches
 from threadrecon.core.ends import seen_in_right, tip_disparity
 from threadrecon.core.lazy import Deferred, LazyField
+from threadrecon.core.numeric import distance_to_zero
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.stereo import StereoResult
@@ -920,7 +921,7 @@ def _curve_distance(xy: np.ndarray, i: int, path_xy: np.ndarray) -> np.ndarray:
     hi = np.maximum(c.max(axis=0), xy.max(axis=0))
     img = np.full((hi[1] - lo[1] + 1, hi[0] - lo[0] + 1), 255, dtype=np.uint8)
     img[c[:, 1] - lo[1], c[:, 0] - lo[0]] = 0
-    dt = cv2.distanceTransform(img, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    dt = distance_to_zero(img)
     return dt[xy[:, 1] - lo[1], xy[:, 0] - lo[0]].astype(np.float64)
 
 

@@ -49,6 +49,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from threadrecon.core.corrections import MAX_RADIUS_PX, MAX_STROKE_POINTS, Correction
+from threadrecon.core.numeric import distance_to_zero
 from threadrecon.core.params import Params, param
 
 MIN_ALPHA: Final = 8  # the smallest stereo search range tracking sets, px (Eq. (3) needs > 4)
@@ -243,7 +244,7 @@ def _thick_erasures(
     distance to its border is >= ``r`` (the centres of the disks that fit in it: their union is
     the mask's opening by that disk, what is thicker than a thread), restricted to ``near``
     (H, W) bool when given."""
-    dist = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    dist = distance_to_zero(mask.astype(np.uint8))
     centres = dist >= r
     if near is not None:
         centres &= near
@@ -272,7 +273,7 @@ def _near_polyline(shape: tuple[int, int], xy: np.ndarray, distance: float) -> n
     line = np.ones(shape, np.uint8)
     cv2.polylines(line, [xy.astype(np.int32).reshape(-1, 1, 2)], False, 0, thickness=1)
     line[xy[0, 1], xy[0, 0]] = 0
-    return cv2.distanceTransform(line, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) <= distance
+    return distance_to_zero(line) <= distance
 
 
 def start_corrections(
