@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from threadrecon.core.calibration import StereoCalibration
+from threadrecon.core.metrics import project
 from threadrecon.core.segmentation import StereoPair
 from threadrecon.core.synthetic import (
     StereoCamera,
@@ -75,6 +76,16 @@ def synthetic_case(
     frame = synthetic_frame(seed, **thread_kwargs)
     pair = StereoPair(frame.left, frame.right)
     return pair, calibration_for(frame.camera), frame.truth.centerline
+
+
+def right_tip_disc(hide_px: int) -> tuple[SyntheticFrame, StereoCalibration, np.ndarray]:
+    """Synthetic frame 2, its calibration and the (H, W) bool disc of radius ``hide_px`` around
+    the right view's projection of the thread's first end: where tests hide that end."""
+    frame = synthetic_frame(2)
+    calib = calibration_for(frame.camera)
+    tip = project(frame.truth.centerline[:2], calib.P2)[0]
+    ys, xs = np.mgrid[: frame.mask_right.shape[0], : frame.mask_right.shape[1]]
+    return frame, calib, np.hypot(xs - tip[0], ys - tip[1]) <= hide_px
 
 
 def write_png(path: Path, img: np.ndarray) -> Path:

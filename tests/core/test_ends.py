@@ -5,7 +5,7 @@ window line of Eq. (7) by their variances (deviation 23)."""
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
-from support import calibration_for, synthetic_case, synthetic_frame
+from support import right_tip_disc, synthetic_case
 
 from threadrecon.core.bounds import _line_variance, _tip_ends, _window_line_fits
 from threadrecon.core.ends import NO_MATCH, QUANT_VAR, fuse_end, seen_in_right, tip_disparity
@@ -198,11 +198,7 @@ def _hidden_tip_case(hide_px: int):
     """A generated frame (exact masks) whose right view does not show the last ``hide_px`` px of
     the thread's first end (painted over with the background and cut from P_R), as a real rig's
     hand mask or a glint does; (pair, calibration, the right mask)."""
-    frame = synthetic_frame(2)
-    calib = calibration_for(frame.camera)
-    tip = project(frame.truth.centerline[:2], calib.P2)[0]
-    ys, xs = np.mgrid[: frame.mask_right.shape[0], : frame.mask_right.shape[1]]
-    near = np.hypot(xs - tip[0], ys - tip[1]) <= hide_px
+    frame, calib, near = right_tip_disc(hide_px)
     right, m_R = frame.right.copy(), frame.mask_right.copy()
     right[near & m_R] = np.median(frame.right[~m_R], axis=0).astype(np.uint8)
     m_R[near] = False

@@ -7,7 +7,7 @@ shows thread, nothing changes."""
 from dataclasses import replace
 
 import numpy as np
-from support import calibration_for, synthetic_case, synthetic_frame
+from support import calibration_for, right_tip_disc, synthetic_case
 
 from threadrecon.app.dataset import evaluate_reconstruction
 from threadrecon.core.metrics import project
@@ -88,11 +88,7 @@ def _painted_right_end(hide_px: int, grey: float | None):
     """Plain generated frame whose right view loses the last ``hide_px`` px of the thread's
     first end: painted with ``grey`` (an occluder) or, for None, the bare background (a mask
     that ends short, a glint)."""
-    frame = synthetic_frame(2)
-    calib = calibration_for(frame.camera)
-    tip = project(frame.truth.centerline[:2], calib.P2)[0]
-    ys, xs = np.mgrid[: frame.mask_right.shape[0], : frame.mask_right.shape[1]]
-    near = np.hypot(xs - tip[0], ys - tip[1]) <= hide_px
+    frame, calib, near = right_tip_disc(hide_px)
     right, m_R = frame.right.copy(), frame.mask_right.copy()
     bg = np.median(frame.right[~m_R], axis=0)
     right[near] = bg.astype(np.uint8) if grey is None else np.full_like(bg, grey).astype(np.uint8)
