@@ -512,6 +512,7 @@ def end_occluder(
     if fr is None or not (math.isfinite(disparity) and disparity > 0):
         return None
     _, tip, way = fr
+    tangent = way  # the curve's own way at its end: the axis of the cone the thread is followed in
     edge = far_px[far] is not None and float(np.hypot(*(far_px[far] - tip))) + 3.0 > reach_px
     if edge and see_px > reach_px:  # the thread reaches the search's edge: follow it further
         ext, far_px = extension_far(uv, masks, end, see_px, cover_px, 0.0)
@@ -520,6 +521,7 @@ def end_occluder(
         if fr is None:
             return None
         _, tip, way = fr
+        tangent = way
     at = tip if far_px[far] is None else far_px[far]
     run = at - tip
     n = float(np.hypot(run[0], run[1]))
@@ -541,12 +543,18 @@ def end_occluder(
     budget = max(max_reach_px - ext[far], 0.0)
     # the hidden thread need not go straight on (it may turn to follow a shaft under which it
     # runs): the way and rays inside the 30-deg cone in which a thread is followed beyond an
-    # end (CONE_COS, extension)
+    # end (CONE_COS, extension). That cone is the curve's: around its tangent at the end. The
+    # visible thread's own way to its farthest pixel may lie up to 30 deg off it (a thread
+    # that bends where it meets the occluder, or whose last pixels at the occluder's edge the
+    # segmentation missed): the rays around both ways are walked.
     hidden = 0.0
-    for turn in WALK_TURNS:
+    rays = [(way, turn) for turn in WALK_TURNS]
+    if float(tangent @ way) < 1.0 - 1e-9:  # the tangent's rays (none: the same way)
+        rays += [(tangent, turn) for turn in WALK_TURNS]
+    for i, (axis, turn) in enumerate(rays):
         c, s_ = math.cos(turn), math.sin(turn)
-        ray = np.array([c * way[0] - s_ * way[1], s_ * way[0] + c * way[1]])
-        start = float((k + 1) * AHEAD_STEP_PX) if turn == 0.0 else 0.0  # past the meeting patch
+        ray = np.array([c * axis[0] - s_ * axis[1], s_ * axis[0] + c * axis[1]])
+        start = float((k + 1) * AHEAD_STEP_PX) if i == 0 else 0.0  # past the meeting patch
         limit = min(_to_border(at, ray, greys[far].shape), budget)
         walked = _walk(greys, masks, far, at, ray, disparity, start, limit, plain[far])
         hidden = max(hidden, walked)
