@@ -546,14 +546,12 @@ def end_occluder(
     # end (CONE_COS, extension). That cone is the curve's: around its tangent at the end. The
     # visible thread's own way to its farthest pixel may lie up to 30 deg off it (a thread
     # that bends where it meets the occluder, or whose last pixels at the occluder's edge the
-    # segmentation missed): the rays around both ways are walked.
+    # segmentation missed): the fan is widened by the tangent's rays that lie outside it.
     hidden = 0.0
-    rays = [(way, turn) for turn in WALK_TURNS]
-    if float(tangent @ way) < 1.0 - 1e-9:  # the tangent's rays (none: the same way)
-        rays += [(tangent, turn) for turn in WALK_TURNS]
-    for i, (axis, turn) in enumerate(rays):
-        c, s_ = math.cos(turn), math.sin(turn)
-        ray = np.array([c * axis[0] - s_ * axis[1], s_ * axis[0] + c * axis[1]])
+    rays = [_turned(way, turn) for turn in WALK_TURNS]
+    fan_cos = math.cos(max(abs(t) for t in WALK_TURNS)) - 1e-9
+    rays += [r for r in (_turned(tangent, t) for t in WALK_TURNS) if float(r @ way) < fan_cos]
+    for i, ray in enumerate(rays):
         start = float((k + 1) * AHEAD_STEP_PX) if i == 0 else 0.0  # past the meeting patch
         limit = min(_to_border(at, ray, greys[far].shape), budget)
         walked = _walk(greys, masks, far, at, ray, disparity, start, limit, plain[far])
@@ -562,6 +560,12 @@ def end_occluder(
             break
     out = ext[far] + hidden >= max_reach_px
     return Occluded("left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden, out)
+
+
+def _turned(way: np.ndarray, turn: float) -> np.ndarray:
+    """The unit ``way`` (x, y) turned by ``turn`` radians."""
+    c, s = math.cos(turn), math.sin(turn)
+    return np.array([c * way[0] - s * way[1], s * way[0] + c * way[1]])
 
 
 # the walk's rays off the way: 22.5 deg apart, their 13 px patches touch ~33 px out (45 deg
