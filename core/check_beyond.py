@@ -537,9 +537,21 @@ def end_occluder(
     d_far, k = _front(greys, masks, far, at, way, disparity, plain[far])
     if d_far is None:
         return None
-    d_other, _ = _front(greys, masks, 1 - far, at + shift, way, disparity, plain[1 - far])
-    if d_other is None or abs(d_far - d_other) > AHEAD_AGREE_PX:
+    d_other, k_other = _front(greys, masks, 1 - far, at + shift, way, disparity, plain[1 - far])
+    if d_other is None:
         return None
+    if abs(d_far - d_other) > AHEAD_AGREE_PX:
+        # Next to an occluder's edge one view sees background the other's occluder hides (a
+        # half-occlusion, on the side the occluder shifts away from): that view's patch has no
+        # match and measures anything. A measure the other view's own patch at the matched
+        # place returns (left-right consistency) is the surface, seen in both views.
+        for side, xy, d, kk in ((1 - far, at + shift, d_other, k_other), (far, at, d_far, k)):
+            back = _matched_back(greys, masks, side, xy, way, disparity, d, kk)
+            if back is not None and abs(back - d) <= AHEAD_AGREE_PX:
+                d_far, d_other = d, back
+                break
+        else:
+            return None
     budget = max(max_reach_px - ext[far], 0.0)
     # the hidden thread need not go straight on (it may turn to follow a shaft under which it
     # runs): the way and rays inside the 30-deg cone in which a thread is followed beyond an
@@ -602,6 +614,28 @@ def _walk(
             return bare  # the thread, had it gone on this way, would be seen: it ended before
         offset += AHEAD_STEP_PX
     return limit
+
+
+def _matched_back(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    at: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+    d: float,
+    k: int,
+) -> float | None:
+    """The other view's measure (``surface_ahead``, px of disparity in front of the end) of
+    its patch where view ``side``'s patch ``k`` beyond ``at`` along ``way`` matched, ``d`` px
+    in front of the end's ``disparity``; None when it cannot tell."""
+    t = k * AHEAD_STEP_PX + 2.0 + AHEAD_HALF_PX  # the patch's centre along the way
+    c = at + t * way
+    dx = disparity + d  # the surface's disparity: seen dx px left in the right view
+    c_other = c - np.array([dx if side == 0 else -dx, 0.0])
+    d_back, _ = surface_ahead(greys, masks, 1 - side, c_other - t * way, way, disparity, t - 2.0
+                              - AHEAD_HALF_PX)  # fmt: skip
+    return d_back
 
 
 def _front(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from threadrecon.core.check_beyond import (
     _end_frame,
@@ -454,3 +455,43 @@ def test_the_walk_covers_the_cone_around_the_curves_way_when_the_thread_bends() 
     greys, masks, uv = _bent_end_shaft_scene(length=50.0)
     occ = _occluder(greys, masks, uv, max_reach=300.0)
     assert occ is not None and not occ.walked_out and occ.hidden_px < 50.0 + 2 * 13
+
+
+def _raw_suite_frame(seed: int, suite_index: int, k: int, render: dict):
+    """Frame ``k`` of a suite of ``scripts/eval_suites.py`` (its ``render`` flags on the tissue
+    background), reconstructed with the masks withheld, and its true errors."""
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.pipeline import Pipeline, ReconParams
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import (
+        RenderParams,
+        SyntheticParams,
+        ThreadParams,
+        generate_frame,
+    )
+
+    rp = RenderParams(**(dict(background="tissue", noise_sigma=2.0, blur_sigma=0.5) | render))
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=rp),
+        np.random.default_rng([seed, suite_index, k]),
+    )
+    calib = frame.camera.calibration()
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
+    return rec, frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+
+
+@pytest.mark.parametrize(
+    "seed, suite_index, k, render",
+    [
+        # eval_suites "all": the raw mask stops 7 px short of a shaft the thread bends to follow
+        (13153, 12, 16, dict(thread_colour="random", distractors=6, instrument=True,
+                             lighting=0.5, jpeg_quality=75, specular=0.3, noise_sigma=3.0)),
+        # "tissue+occlusion": the view that sees farther sees, at the shaft's edge, tissue the
+        # other view's shaft hides (a half-occlusion): its patches match nothing
+        (13155, 1, 3, dict(occlusion=True)),
+    ],
+)  # fmt: skip
+def test_raw_frames_whose_thread_goes_on_under_a_shaft_are_not_ok(seed, suite_index, k, render):
+    rec, err = _raw_suite_frame(seed, suite_index, k, render)
+    assert err.e_length > 20.0  # wrong: the curve stops at the shaft, the thread goes on
+    assert rec.status == "suspect" and "runs into an occluder in both views" in rec.message
