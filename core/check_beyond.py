@@ -512,6 +512,7 @@ def end_occluder(
     if fr is None or not (math.isfinite(disparity) and disparity > 0):
         return None
     _, tip, way = fr
+    tangent = way  # the curve's own way at its end: the axis of the cone the thread is followed in
     edge = far_px[far] is not None and float(np.hypot(*(far_px[far] - tip))) + 3.0 > reach_px
     if edge and see_px > reach_px:  # the thread reaches the search's edge: follow it further
         ext, far_px = extension_far(uv, masks, end, see_px, cover_px, 0.0)
@@ -520,6 +521,7 @@ def end_occluder(
         if fr is None:
             return None
         _, tip, way = fr
+        tangent = way
     at = tip if far_px[far] is None else far_px[far]
     run = at - tip
     n = float(np.hypot(run[0], run[1]))
@@ -535,18 +537,34 @@ def end_occluder(
     d_far, k = _front(greys, masks, far, at, way, disparity, plain[far])
     if d_far is None:
         return None
-    d_other, _ = _front(greys, masks, 1 - far, at + shift, way, disparity, plain[1 - far])
-    if d_other is None or abs(d_far - d_other) > AHEAD_AGREE_PX:
+    d_other, k_other = _front(greys, masks, 1 - far, at + shift, way, disparity, plain[1 - far])
+    if d_other is None:
         return None
+    if abs(d_far - d_other) > AHEAD_AGREE_PX:
+        # Next to an occluder's edge one view sees background the other's occluder hides (a
+        # half-occlusion, on the side the occluder shifts away from): that view's patch has no
+        # match and measures anything. A measure the other view's own patch at the matched
+        # place returns (left-right consistency) is the surface, seen in both views.
+        for side, xy, d, kk in ((1 - far, at + shift, d_other, k_other), (far, at, d_far, k)):
+            back = _matched_back(greys, masks, side, xy, way, disparity, d, kk)
+            if back is not None and abs(back - d) <= AHEAD_AGREE_PX:
+                d_far, d_other = d, back
+                break
+        else:
+            return None
     budget = max(max_reach_px - ext[far], 0.0)
     # the hidden thread need not go straight on (it may turn to follow a shaft under which it
     # runs): the way and rays inside the 30-deg cone in which a thread is followed beyond an
-    # end (CONE_COS, extension)
+    # end (CONE_COS, extension). That cone is the curve's: around its tangent at the end. The
+    # visible thread's own way to its farthest pixel may lie up to 30 deg off it (a thread
+    # that bends where it meets the occluder, or whose last pixels at the occluder's edge the
+    # segmentation missed): the fan is widened by the tangent's rays that lie outside it.
     hidden = 0.0
-    for turn in WALK_TURNS:
-        c, s_ = math.cos(turn), math.sin(turn)
-        ray = np.array([c * way[0] - s_ * way[1], s_ * way[0] + c * way[1]])
-        start = float((k + 1) * AHEAD_STEP_PX) if turn == 0.0 else 0.0  # past the meeting patch
+    rays = [_turned(way, turn) for turn in WALK_TURNS]
+    fan_cos = math.cos(max(abs(t) for t in WALK_TURNS)) - 1e-9
+    rays += [r for r in (_turned(tangent, t) for t in WALK_TURNS) if float(r @ way) < fan_cos]
+    for i, ray in enumerate(rays):
+        start = float((k + 1) * AHEAD_STEP_PX) if i == 0 else 0.0  # past the meeting patch
         limit = min(_to_border(at, ray, greys[far].shape), budget)
         walked = _walk(greys, masks, far, at, ray, disparity, start, limit, plain[far])
         hidden = max(hidden, walked)
@@ -554,6 +572,12 @@ def end_occluder(
             break
     out = ext[far] + hidden >= max_reach_px
     return Occluded("left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden, out)
+
+
+def _turned(way: np.ndarray, turn: float) -> np.ndarray:
+    """The unit ``way`` (x, y) turned by ``turn`` radians."""
+    c, s = math.cos(turn), math.sin(turn)
+    return np.array([c * way[0] - s * way[1], s * way[0] + c * way[1]])
 
 
 # the walk's rays off the way: 22.5 deg apart, their 13 px patches touch ~33 px out (45 deg
@@ -590,6 +614,28 @@ def _walk(
             return bare  # the thread, had it gone on this way, would be seen: it ended before
         offset += AHEAD_STEP_PX
     return limit
+
+
+def _matched_back(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    at: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+    d: float,
+    k: int,
+) -> float | None:
+    """The other view's measure (``surface_ahead``, px of disparity in front of the end) of
+    its patch where view ``side``'s patch ``k`` beyond ``at`` along ``way`` matched, ``d`` px
+    in front of the end's ``disparity``; None when it cannot tell."""
+    t = k * AHEAD_STEP_PX + 2.0 + AHEAD_HALF_PX  # the patch's centre along the way
+    c = at + t * way
+    dx = disparity + d  # the surface's disparity: seen dx px left in the right view
+    c_other = c - np.array([dx if side == 0 else -dx, 0.0])
+    d_back, _ = surface_ahead(greys, masks, 1 - side, c_other - t * way, way, disparity, t - 2.0
+                              - AHEAD_HALF_PX)  # fmt: skip
+    return d_back
 
 
 def _front(
