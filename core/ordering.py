@@ -326,6 +326,8 @@ def order_keypoints(
         if n_dead >= p.extension_min_px:
             every = np.flatnonzero(np.isin(pixel_node, dead))
             sel = _tip_candidates(every, lifted, stereo, disp[k], p)
+            if len(walk) > 1:
+                sel = _ahead_of_jump(sel, stereo.pixels, key_px, walk, end, adj)
             if not len(sel):
                 continue
             d = geo.distance_from(k, sel)
@@ -588,6 +590,26 @@ def _cluster_median(labels: np.ndarray, values: np.ndarray, K: int) -> np.ndarra
     return walk_kernel.cluster_medians(
         np.ascontiguousarray(labels, dtype=np.int64), np.ascontiguousarray(values), K
     )
+
+
+def _ahead_of_jump(
+    sel: np.ndarray,
+    pixels: np.ndarray,
+    key_px: np.ndarray,
+    walk: list[int],
+    end: int,
+    adj: list[list[int]],
+) -> np.ndarray:
+    """The pixels of ``sel`` (an end keypoint's dead-end gaps) ahead of the end, where the walk
+    reached it by a jump (the end and its inner neighbour are not adjacent in A): a dead end
+    behind the end keypoint (towards the inner one) is the thread the jump passed over (its
+    side of an occluder), not the thread's free end: extended to, the curve ran out to the
+    end and back over it (generated raw frame 13170 all #2: a 31 px fold at the shaft)."""
+    k, inner = (walk[0], walk[1]) if end == 0 else (walk[-1], walk[-2])
+    if inner in adj[k] or not len(sel):
+        return sel
+    out = key_px[k, :2] - key_px[inner, :2]
+    return sel[(pixels[sel] - key_px[k, :2]) @ out > 0]
 
 
 def _tip_candidates(

@@ -17,6 +17,7 @@ from threadrecon.core.ordering import (
     Ordering,
     OrderingParams,
     _adjacency,
+    _ahead_of_jump,
     _bending_walk,
     _cluster_median,
     _ClusterGaps,
@@ -843,3 +844,34 @@ def test_a_generated_raw_frame_with_a_stub_on_a_link_does_not_fold() -> None:
         e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
         assert (rec["check"].fold_px > 25.0) == folds
         assert (abs(e.e_length) > 10.0) == folds
+
+
+def test_an_end_reached_by_a_jump_extends_ahead_not_back_over_the_jump() -> None:
+    # Generated raw frame 13170 all #2: the walk jumped over a shaft onto the end keypoint; its
+    # dead-end gap was the thread between it and the shaft, and the extension ran back there
+    # (a 31 px fold). Pixels behind the end (towards the inner keypoint) are no free end then.
+    key_px = np.array([[100.0, 50.0, 80.0], [40.0, 50.0, 80.0]])  # inner 0, end 1, 60 px apart
+    pixels = np.array([[30, 50], [36, 50], [45, 50], [60, 51], [70, 50]], dtype=np.int64)
+    sel = np.arange(len(pixels))
+    jumped = _ahead_of_jump(sel, pixels, key_px, [0, 1], -1, [[], []])
+    assert jumped.tolist() == [0, 1]  # beyond the end, away from the inner keypoint
+    assert _ahead_of_jump(sel, pixels, key_px, [1, 0], 0, [[], []]).tolist() == [0, 1]
+    adjacent = _ahead_of_jump(sel, pixels, key_px, [0, 1], -1, [[1], [0]])
+    assert adjacent.tolist() == sel.tolist()  # reached along the thread: every pixel, as before
+
+
+def test_a_generated_raw_frame_whose_end_follows_a_jump_does_not_fold() -> None:
+    # scripts/eval_suites.py --seed 13170 --suite all, frame 2 (suite index 12), masks withheld.
+    render = RenderParams(
+        background="tissue", noise_sigma=3.0, blur_sigma=0.5, thread_colour="random",
+        distractors=6, instrument=True, lighting=0.5, jpeg_quality=75, specular=0.3,
+    )  # fmt: skip
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng([13170, 12, 2])
+    )
+    rec = Pipeline(StereoPair(frame.left, frame.right), calibration_for(frame.camera)).run()
+    o = rec["ordering"]
+    assert o.order[-1] < 0 and o.order[-3] >= 0  # extended, after a jump onto the end keypoint
+    end, key, inner = o.path_px[-1, :2], o.path_px[-2, :2], o.path_px[-3, :2]
+    assert np.dot(end - key, key - inner) > 0  # the extension goes on ahead
+    assert rec["check"].fold_px < 5.0 and rec.status == "ok"
