@@ -135,6 +135,20 @@ class OrderingParams(Params):
         "33; 0: off, the paper, and the default: on held-out frames the check called two "
         "curves it improved suspect or failed; 60 px is the check's max_jump_px).",
     )
+    spur_px: float = param(
+        6.0,
+        lo=0.0,
+        hi=1000.0,
+        unit="px",
+        slider=(0.0, 60.0, 1.0),
+        label="side branch px",
+        doc="A gap pixel of a link between two keypoints whose way from one to the other through "
+        "it is longer than the link's shortest way by more than twice (the thread's width + "
+        "this) lies on a side branch reaching this far past the strand (a spur of the mask, a "
+        "stub of another strand), not between them: it is on no link, so no extra point of H "
+        "leads the curve out along the branch and back (docs/method.md, deviation 35; 0: off, "
+        "every pixel of the gap on the link, the paper).",
+    )
     second_matches: bool = param(
         True,
         label="second matches by continuity",
@@ -312,6 +326,8 @@ def order_keypoints(
         if n_dead >= p.extension_min_px:
             every = np.flatnonzero(np.isin(pixel_node, dead))
             sel = _tip_candidates(every, lifted, stereo, disp[k], p)
+            if len(walk) > 1:
+                sel = _ahead_of_jump(sel, stereo.pixels, key_px, walk, end, adj)
             if not len(sel):
                 continue
             d = geo.distance_from(k, sel)
@@ -348,6 +364,7 @@ def order_keypoints(
         {(0 if e == 0 else len(links) - 1): px for e, px in cut_tips.items()},
         np.array([q[:2] for q in path], dtype=np.float64).reshape(-1, 2),
         stereo.pixels,
+        p.spur_px,
     )
     mono = [0, 0]
     if p.mono_reach_px > 0 and walk:
@@ -575,6 +592,26 @@ def _cluster_median(labels: np.ndarray, values: np.ndarray, K: int) -> np.ndarra
     )
 
 
+def _ahead_of_jump(
+    sel: np.ndarray,
+    pixels: np.ndarray,
+    key_px: np.ndarray,
+    walk: list[int],
+    end: int,
+    adj: list[list[int]],
+) -> np.ndarray:
+    """The pixels of ``sel`` (an end keypoint's dead-end gaps) ahead of the end, where the walk
+    reached it by a jump (the end and its inner neighbour are not adjacent in A): a dead end
+    behind the end keypoint (towards the inner one) is the thread the jump passed over (its
+    side of an occluder), not the thread's free end: extended to, the curve ran out to the
+    end and back over it (generated raw frame 13170 all #2: a 31 px fold at the shaft)."""
+    k, inner = (walk[0], walk[1]) if end == 0 else (walk[-1], walk[-2])
+    if inner in adj[k] or not len(sel):
+        return sel
+    out = key_px[k, :2] - key_px[inner, :2]
+    return sel[(pixels[sel] - key_px[k, :2]) @ out > 0]
+
+
 def _tip_candidates(
     sel: np.ndarray, lifted: LiftedPair, stereo: StereoResult, d_ref: float, p: OrderingParams
 ) -> np.ndarray:
@@ -759,6 +796,7 @@ def _link_positions(
     tips: dict[int, int] | None = None,
     path_xy: np.ndarray | None = None,
     pixels: np.ndarray | None = None,
+    spur_px: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``pixel_t``, ``pixel_link`` of every gap pixel on a link, from two multi-source geodesic
     searches (from the link's first cluster and from its second, all links at once: gaps are
@@ -769,7 +807,12 @@ def _link_positions(
     short of it: the pixels beyond that tip lie on no link. ``path_xy``: (M, 2) px, the ordered
     keypoints (``order``'s), and ``pixels``: (N, 2) (x, y) of P_L, to split a gap on three
     links or more, or on two of four distinct keypoints, along the strands
-    (:func:`_split_shared`)."""
+    (:func:`_split_shared`). ``spur_px`` > 0: a pixel of a link between two keypoints whose
+    detour d_a + d_b exceeds the link's shortest way (the least d_a + d_b over its pixels) by
+    more than 2 (w + ``spur_px``) lies on a side branch: on no link (a spur walked out and back
+    by the extra points otherwise). A pixel across the strand detours by up to about 2 w (w:
+    the thread's width, the links' pixels per px of shortest way), one on a branch reaching l
+    px past the strand by 2 (w + l)."""
     n = len(pixel_node)
     pixel_t = np.full(n, np.nan)
     pixel_link = np.full(n, -1, dtype=np.int64)
@@ -824,6 +867,14 @@ def _link_positions(
         else:
             t[on] = 1.0 - db[on] / db[at][0]
         beyond |= on & ((t < 0.0) | (t > 1.0))
+    if spur_px > 0:  # a side branch of an interior link: its detour through the pixel
+        way = da + db
+        inner = (a >= 0) & (b >= 0) & np.isfinite(way)
+        short = np.full(len(links), np.inf)
+        np.fmin.at(short, lk[inner], way[inner])
+        fin = np.isfinite(short)
+        width = np.count_nonzero(inner) / max(float(np.sum(short[fin])), 1.0)
+        beyond |= inner & (way - short[lk] > 2.0 * (width + spur_px))
     pixel_t[sel] = np.where(np.isfinite(t) & ~beyond, t, np.nan)
     pixel_link[sel] = np.where(beyond, -1, lk)
     return pixel_t, pixel_link

@@ -2,6 +2,7 @@
 at most once, covers a clean thread completely, and follows the true curve."""
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from threadrecon.core.ordering import (
     Ordering,
     OrderingParams,
     _adjacency,
+    _ahead_of_jump,
     _bending_walk,
     _cluster_median,
     _ClusterGaps,
@@ -25,6 +27,7 @@ from threadrecon.core.ordering import (
     _edges,
     _explain,
     _GapGeodesics,
+    _link_positions,
     _normalised,
     _PixelGrid,
     _single_steps,
@@ -782,3 +785,93 @@ def test_two_strands_touching_along_a_loops_crossing_are_split_along_each_strand
         assert len(on[on >= 0]) >= 3  # split among its links, not two of them
     e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
     assert e.e_S_max < 1.0 and abs(e.e_length) < 1.0
+
+
+def _strand_with_spur(spur: int) -> tuple[np.ndarray, np.ndarray]:
+    """A horizontal strand 5 px wide (x 0..60), clusters 0 (x < 10) and 1 (x > 50), the gap
+    between them (node 2) with a branch 3 px wide and ``spur`` px long up from x = 30."""
+    xy = [(x, y) for x in range(61) for y in range(20, 25)]
+    xy += [(x, y) for x in range(29, 32) for y in range(20 - spur, 20)]
+    pixels = np.array(xy, dtype=np.int64)
+    node = np.where(pixels[:, 0] < 10, 0, np.where(pixels[:, 0] > 50, 1, 2))
+    return pixels, node
+
+
+def _positions(pixels: np.ndarray, node: np.ndarray, spur_px: float):
+    geo = _GapGeodesics(SimpleNamespace(pixels=pixels), node, 2)
+    path_xy = np.array([[4.5, 22.0], [55.5, 22.0]])
+    return _link_positions(geo, node, [(2,)], [0, 1], 3, None, path_xy, pixels, spur_px)
+
+
+def test_a_side_branch_of_a_link_is_on_no_link_and_the_strand_stays_whole() -> None:
+    # Generated raw frame 13171 all #6: a stub of a distractor on the link between two
+    # keypoints; its pixels ordered by their position between them put extra points of H out
+    # along the stub, and the curve ran out and back over it (a 27 px fold, +13 mm).
+    pixels, node = _strand_with_spur(20)
+    t, link = _positions(pixels, node, OrderingParams().spur_px)
+    gap = node == 2
+    on_strand = gap & (pixels[:, 1] >= 20)
+    assert np.all(link[on_strand] == 0) and np.all(np.isfinite(t[on_strand]))
+    tip = pixels[:, 1] < 5  # the branch's far end: 15 px and more past the strand
+    assert tip.any() and np.all(link[tip] == -1) and np.all(np.isnan(t[tip]))
+    root = gap & (pixels[:, 1] >= 17)  # its root, within the strand's width of it: kept
+    assert np.all(link[root] == 0)
+    t0, link0 = _positions(pixels, node, 0.0)  # off: every gap pixel on the link (the paper)
+    assert np.all(link0[gap] == 0) and np.all(np.isfinite(t0[gap]))
+
+
+def test_a_straight_strand_keeps_every_gap_pixel_on_its_link() -> None:
+    pixels, node = _strand_with_spur(0)
+    t, link = _positions(pixels, node, OrderingParams().spur_px)
+    t0, link0 = _positions(pixels, node, 0.0)
+    assert np.array_equal(link, link0) and np.all(link[node == 2] == 0)
+    np.testing.assert_array_equal(t, t0)
+
+
+def test_a_generated_raw_frame_with_a_stub_on_a_link_does_not_fold() -> None:
+    # scripts/eval_suites.py --seed 13171 --suite all, frame 6 (suite index 12), masks withheld.
+    render = RenderParams(
+        background="tissue", noise_sigma=3.0, blur_sigma=0.5, thread_colour="random",
+        distractors=6, instrument=True, lighting=0.5, jpeg_quality=75, specular=0.3,
+    )  # fmt: skip
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng([13171, 12, 6])
+    )
+    calib = calibration_for(frame.camera)
+    for spur_px, folds in ((0.0, True), (OrderingParams().spur_px, False)):
+        params = ReconParams(ordering=OrderingParams(spur_px=spur_px))
+        rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(params)
+        e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+        assert (rec["check"].fold_px > 25.0) == folds
+        assert (abs(e.e_length) > 10.0) == folds
+
+
+def test_an_end_reached_by_a_jump_extends_ahead_not_back_over_the_jump() -> None:
+    # Generated raw frame 13170 all #2: the walk jumped over a shaft onto the end keypoint; its
+    # dead-end gap was the thread between it and the shaft, and the extension ran back there
+    # (a 31 px fold). Pixels behind the end (towards the inner keypoint) are no free end then.
+    key_px = np.array([[100.0, 50.0, 80.0], [40.0, 50.0, 80.0]])  # inner 0, end 1, 60 px apart
+    pixels = np.array([[30, 50], [36, 50], [45, 50], [60, 51], [70, 50]], dtype=np.int64)
+    sel = np.arange(len(pixels))
+    jumped = _ahead_of_jump(sel, pixels, key_px, [0, 1], -1, [[], []])
+    assert jumped.tolist() == [0, 1]  # beyond the end, away from the inner keypoint
+    assert _ahead_of_jump(sel, pixels, key_px, [1, 0], 0, [[], []]).tolist() == [0, 1]
+    adjacent = _ahead_of_jump(sel, pixels, key_px, [0, 1], -1, [[1], [0]])
+    assert adjacent.tolist() == sel.tolist()  # reached along the thread: every pixel, as before
+
+
+def test_a_generated_raw_frame_whose_end_follows_a_jump_does_not_fold() -> None:
+    # scripts/eval_suites.py --seed 13170 --suite all, frame 2 (suite index 12), masks withheld.
+    render = RenderParams(
+        background="tissue", noise_sigma=3.0, blur_sigma=0.5, thread_colour="random",
+        distractors=6, instrument=True, lighting=0.5, jpeg_quality=75, specular=0.3,
+    )  # fmt: skip
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng([13170, 12, 2])
+    )
+    rec = Pipeline(StereoPair(frame.left, frame.right), calibration_for(frame.camera)).run()
+    o = rec["ordering"]
+    assert o.order[-1] < 0 and o.order[-3] >= 0  # extended, after a jump onto the end keypoint
+    end, key, inner = o.path_px[-1, :2], o.path_px[-2, :2], o.path_px[-3, :2]
+    assert np.dot(end - key, key - inner) > 0  # the extension goes on ahead
+    assert rec["check"].fold_px < 5.0 and rec.status == "ok"
