@@ -33,6 +33,14 @@ timeout 900 .venv/bin/python scripts/build_kernels.py \
     || echo "test.sh: WARNING: the parallel kernel build did not finish (exit $?):" \
         "the tests build the missing kernels one after the other" >&2
 
+# The debugger's server runs numba's JIT kernels (they release the GIL: app/server.py), which
+# numba compiles on their first call and caches beside the sources: on a fresh checkout ~100 s
+# of CPU, more than a browser test waits for its first frame on a slow 2-core machine. One
+# reconstruction of every bundled frame in that mode fills the cache first (the same kernels
+# and argument types the browser tests' server calls); a failure here is left to the tests.
+THREADRECON_KERNELS=jit timeout 900 .venv/bin/python -m threadrecon.app.cli evaluate sample_data \
+    >/dev/null || echo "test.sh: WARNING: warming numba's JIT cache did not finish (exit $?)" >&2
+
 # The suite on every core (pytest-xdist; TEST_WORKERS=0 runs it in this process): a test file
 # runs whole on one worker (--dist loadfile), so a module's server, browser or generated data
 # set is made once. While one worker waits on a server or a browser, the other computes.
