@@ -382,7 +382,7 @@ def surface_ahead(
     grey_a, grey_b = greys[side], greys[1 - side]
     h, w = grey_a.shape
     r = AHEAD_HALF_PX
-    t = offset + 2.0 + r
+    t = _patch_t(offset)
     cx, cy = float(tip[0]) + t * float(way[0]), float(tip[1]) + t * float(way[1])
     if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(disparity)):
         return None, None
@@ -629,13 +629,19 @@ def _matched_back(
     """The other view's measure (``surface_ahead``, px of disparity in front of the end) of
     its patch where view ``side``'s patch ``k`` beyond ``at`` along ``way`` matched, ``d`` px
     in front of the end's ``disparity``; None when it cannot tell."""
-    t = k * AHEAD_STEP_PX + 2.0 + AHEAD_HALF_PX  # the patch's centre along the way
+    offset = k * AHEAD_STEP_PX
+    t = _patch_t(offset)  # the patch's centre along the way
     c = at + t * way
     dx = disparity + d  # the surface's disparity: seen dx px left in the right view
     c_other = c - np.array([dx if side == 0 else -dx, 0.0])
-    d_back, _ = surface_ahead(greys, masks, 1 - side, c_other - t * way, way, disparity, t - 2.0
-                              - AHEAD_HALF_PX)  # fmt: skip
+    d_back, _ = surface_ahead(greys, masks, 1 - side, c_other - t * way, way, disparity, offset)
     return d_back
+
+
+def _patch_t(offset: float) -> float:
+    """px along an end's way from its tip to the centre of ``surface_ahead``'s patch at
+    ``offset``: 2 px clear of the tip, then half a patch."""
+    return offset + 2.0 + AHEAD_HALF_PX
 
 
 def _front(
