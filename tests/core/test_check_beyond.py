@@ -254,6 +254,25 @@ def test_the_surface_past_an_end_is_the_tissue_behind_it_or_an_occluder_in_front
     assert d is not None and abs(d - (D_O - D_T)) <= 1.0
 
 
+def _with_shaft(grey, masks, occ, origin, a, half_width, start, length=np.inf):
+    """The scene of ``_tissue_and_thread``'s views with the textured occluder ``occ`` (at
+    D_O) painted in both along a band ``half_width`` px either side of the line through
+    ``origin`` (left view, x, y) at ``a`` rad to the rows, from ``start`` to ``length`` px
+    along it; the thread's curve to left column 139 on row 50 as (uv_l, uv_r)."""
+    h, w = grey[0].shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    for side, d in ((0, 0), (1, D_O)):
+        xl = xx + d  # the left column this pixel of the view shows on the occluder
+        along = (xl - origin[0]) * np.cos(a) + (yy - origin[1]) * np.sin(a)
+        band = np.abs(-(xl - origin[0]) * np.sin(a) + (yy - origin[1]) * np.cos(a)) < half_width
+        band &= (along > start) & (along < length)
+        grey[side][band] = occ[:, d : d + w][band]
+        masks[side][band] = False
+    x = np.linspace(20.0, 139.0, 120)
+    uv_l = np.column_stack([x, np.full_like(x, 50.0)])
+    return (grey[0], grey[1]), (masks[0], masks[1]), (uv_l, uv_l - [D_T, 0.0])
+
+
 def _slanted_shaft_scene(angle_deg: float = 35.0, half_width: float = 14.0):
     """Textured tissue at D_BG, the thread on rows 49-51 up to left column 139 at D_T, and a
     textured band-shaped occluder at D_O along a line through (150, 50) at ``angle_deg`` to
@@ -261,17 +280,8 @@ def _slanted_shaft_scene(angle_deg: float = 35.0, half_width: float = 14.0):
     rng = np.random.default_rng(3)
     h, w = 320, 400
     grey, masks, occ = _tissue_and_thread(rng, h, w)
-    a = np.radians(angle_deg)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    for side, d in ((0, 0), (1, D_O)):
-        xl = xx + d  # the left column this pixel of the view shows on the occluder
-        band = np.abs(-(xl - 150.0) * np.sin(a) + (yy - 50.0) * np.cos(a)) < half_width
-        band &= (xl - 150.0) * np.cos(a) + (yy - 50.0) * np.sin(a) > -half_width
-        grey[side][band] = occ[:, d : d + w][band]
-        masks[side][band] = False
-    x = np.linspace(20.0, 139.0, 120)
-    uv_l = np.column_stack([x, np.full_like(x, 50.0)])
-    return (grey[0], grey[1]), (masks[0], masks[1]), (uv_l, uv_l - [D_T, 0.0])
+    return _with_shaft(grey, masks, occ, (150.0, 50.0), np.radians(angle_deg), half_width,
+                       -half_width)  # fmt: skip
 
 
 def test_a_thread_may_turn_under_an_occluder_that_runs_off_at_an_angle() -> None:
@@ -426,18 +436,7 @@ def _bent_end_shaft_scene(bend_deg: float = -25.0, shaft_deg: float = 20.0, leng
         cv2.line(m, (139 - d, 50), (int(round(p[0])) - d, int(round(p[1]))), 1, 3)
         grey[side][m > 0] = 30.0
         masks[side] |= m > 0
-    a = np.radians(shaft_deg)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    for side, d in ((0, 0), (1, D_O)):
-        xl = xx + d  # the left column this pixel of the view shows on the occluder
-        along = (xl - p[0]) * np.cos(a) + (yy - p[1]) * np.sin(a)
-        band = np.abs(-(xl - p[0]) * np.sin(a) + (yy - p[1]) * np.cos(a)) < 14.0
-        band &= (along > 0) & (along < length)
-        grey[side][band] = occ[:, d : d + w][band]
-        masks[side][band] = False
-    x = np.linspace(20.0, 139.0, 120)
-    uv_l = np.column_stack([x, np.full_like(x, 50.0)])
-    return (grey[0], grey[1]), (masks[0], masks[1]), (uv_l, uv_l - [D_T, 0.0])
+    return _with_shaft(grey, masks, occ, p, np.radians(shaft_deg), 14.0, 0.0, length)
 
 
 def test_the_walk_covers_the_cone_around_the_curves_way_when_the_thread_bends() -> None:
