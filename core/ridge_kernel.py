@@ -709,6 +709,61 @@ def excess_stats(diff, inside, start, size, at, own, cap):  # noqa: ANN001
     return float(n), float(mean), float(std)
 
 
+@kernel(
+    "int64(float32[:, ::1], float32[:, ::1], int64[::1], int64[::1], int64, int64, int64, "
+    "boolean, int64, int64, float64, float64, float64)"
+)
+def background_vote(this, other, r, c, d, dmax, window, look_left, resolve_px, min_samples,  # noqa: ANN001, ANN201
+                    same_px, tail, t_same):  # fmt: skip
+    """The surface test's vote of one block's background samples (r, c) (N,) on a piece of
+    best disparity ``d`` (core/segment_surface.py, ``SurfaceTest.votes``): their residuals
+    (:func:`block_residuals`, one block) at the disparities max(d - window, 0) ..
+    min(d + window, dmax); -1 where the background does not resolve its own best disparity
+    (fewer than ``min_samples`` samples, no finite residual, or a side ``resolve_px`` away
+    that is not worse by ``t_same`` standard errors of the excess residuals clipped at
+    ``tail`` times the least plus 1: :func:`excess_stats`), else 1 where it matches at ``d``
+    (within ``same_px``) with an excess under half of the sides' least, 0 where not. The
+    Python steps' own arithmetic (float64 from the float32 residuals, np.argmin's first
+    minimum) in one call."""
+    d0 = max(d - window, 0)
+    nd = min(d + window, dmax) + 1 - d0
+    block = np.zeros(len(r), np.int64)
+    diff, inside, size, mean = block_residuals(this, other, r, c, block, 1, d0, nd, look_left)
+    m = mean[0]
+    own = 0
+    for k in range(1, nd):
+        if m[k] < m[own]:
+            own = k
+    least = m[own]
+    if size[0] < min_samples or not np.isfinite(least):
+        return -1
+    n_sides = 0
+    ref = np.inf
+    for i in (own - resolve_px, own + resolve_px):
+        if i < 0 or i >= nd:
+            continue
+        n_sides += 1
+        cap = np.float32(tail * np.float64(least) + 1.0)
+        n, mu, sd = excess_stats(diff, inside, 0, size[0], i, own, cap)
+        if n < min_samples:
+            return -1
+        se = sd / np.sqrt(n) + 1e-6
+        if not mu >= t_same * se:
+            return -1
+        ref = min(ref, np.float64(m[i]))
+    if n_sides == 0:
+        return -1
+    lo = max(int(np.ceil(d - same_px)) - d0, 0)
+    hi = min(int(np.floor(d + same_px)) - d0, nd - 1)
+    if hi < lo:
+        return 0
+    low = m[lo]
+    for k in range(lo + 1, hi + 1):
+        low = min(low, m[k])
+    excess = np.float64(low) - np.float64(least)
+    return 1 if excess < 0.5 * (ref - np.float64(least)) else 0
+
+
 @helper()
 def _pairwise(x, j, lo, n):  # noqa: ANN001
     """Sum of x[lo : lo + n, j] in float32 as numpy's pairwise summation adds it: runs of at

@@ -28,7 +28,7 @@ from typing import Final
 
 import numpy as np
 
-from threadrecon.core.ridge_kernel import block_residuals, excess_stats
+from threadrecon.core.ridge_kernel import background_vote, block_residuals, excess_stats
 
 SAME_DISPARITY_PX: Final = 1.5  # two disparities within 1.5 px: one surface (the sampling
 # of a 1-6 px line blurs its optimum by ~1 px)
@@ -128,12 +128,15 @@ class SurfaceTest:
             rr, cc = self._background(int(ids[b]))
             if len(rr) < _MIN_BLOCK_SAMPLES:
                 continue
-            ds = np.arange(max(d - _WINDOW_PX, 0), min(d + _WINDOW_PX, self.dmax) + 1)
-            bg = _Residuals(
-                self.this, self.other, rr, cc, np.zeros(len(rr), np.intp), 1, ds, self.look_left
-            )
-            if bg.resolves(0):
-                vote[b] = bg.matches_at(0, d)
+            # The background's residuals within _WINDOW_PX of d: does it resolve its own
+            # disparity, and does it match at d (:meth:`_Residuals.resolves`, ``matches_at``
+            # of the block, in one compiled call)?
+            bv = background_vote(
+                self.this, self.other, rr, cc, d, self.dmax, _WINDOW_PX, self.look_left,
+                _RESOLVE_PX, _MIN_BLOCK_SAMPLES, SAME_DISPARITY_PX, _TAIL, _T_SAME,
+            )  # fmt: skip
+            if bv >= 0:
+                vote[b] = bv
                 if np.count_nonzero(vote >= 0) >= _MAX_VOTES:
                     break
         if np.count_nonzero(vote >= 0) < _MIN_VOTES:

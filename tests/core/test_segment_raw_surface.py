@@ -4,6 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
+from threadrecon.core import segment_surface as ss
 from threadrecon.core.ridge_kernel import block_residuals, excess_stats
 from threadrecon.core.segment_surface import _BLOCK_PX, SurfaceTest, _unique
 
@@ -169,3 +170,45 @@ def test_a_line_along_the_rows_has_no_disparity_of_its_own() -> None:
     assert test.disparity(rows[:0], cols[:0]) is None
     # camera noise only around it: the background resolves no disparity
     assert test.background_disparity(rows, cols) is None
+
+
+def _plain_background_vote(t: SurfaceTest, rr: np.ndarray, cc: np.ndarray, d: int) -> int:
+    """A background block's vote as the Python steps gave it before they were compiled
+    (:class:`_Residuals` of the block, its ``resolves`` and ``matches_at``): -1 undecided."""
+    ds = np.arange(max(d - ss._WINDOW_PX, 0), min(d + ss._WINDOW_PX, t.dmax) + 1)
+    bg = ss._Residuals(t.this, t.other, rr, cc, np.zeros(len(rr), np.intp), 1, ds, t.look_left)
+    return int(bg.matches_at(0, d)) if bg.resolves(0) else -1
+
+
+@pytest.mark.parametrize("trial", range(40))
+def test_background_vote_equals_the_residuals_steps(trial: int) -> None:
+    """The compiled vote of a background block (SurfaceTest.votes) is the Python steps' on
+    textured, shifted, flat and noisy backgrounds, at disparities near 0 and near the largest
+    (a side of the optimum outside the window), with few and many samples, both views."""
+    rng = np.random.default_rng([44, trial])
+    tex = _texture(rng)
+    shift = int(rng.integers(0, D_BG + 1))
+    left = np.ascontiguousarray(tex[:, shift : shift + W])
+    right = np.ascontiguousarray(tex[:, :W])
+    if trial % 5 == 1:  # a flat, noisy background: it does not resolve its disparity
+        left = (120 + rng.normal(0, 2, (H, W))).astype(np.float32)
+    if trial % 5 == 2:  # an unrelated view: it resolves at some other disparity, or not
+        right = _texture(rng)[:, :W].copy()
+    look_left = trial % 2 == 0
+    this, other = (left, right) if look_left else (right, left)
+    dmax = int(rng.choice([3, 12, D_MAX]))
+    t = SurfaceTest(this, other, np.ones((H, W), bool), dmax, look_left=look_left)
+    for key in range(t.nb * 2):
+        rr, cc = t._background(key)
+        keep = rng.random(len(rr)) < [1.0, 0.05, 0.5][trial % 3]  # down to a few samples
+        rr, cc = rr[keep], cc[keep]
+        if len(rr) == 0:
+            continue
+        for d in {0, 1, shift, dmax - 1, dmax, int(rng.integers(0, dmax + 1))}:
+            if not 0 <= d <= dmax:
+                continue
+            got = ss.background_vote(
+                this, other, rr, cc, d, dmax, ss._WINDOW_PX, look_left, ss._RESOLVE_PX,
+                ss._MIN_BLOCK_SAMPLES, ss.SAME_DISPARITY_PX, ss._TAIL, ss._T_SAME,
+            )  # fmt: skip
+            assert got == _plain_background_vote(t, rr, cc, d), (key, d)
