@@ -796,7 +796,15 @@ def surface_past_end(
 
     For an end that one view sees cut (``cut_end``): an occluder that hides the thread in
     that view lies in front of the end there; a surface at or behind the end's depth (the
-    tissue, or the thread itself where the segmentation missed it) is no occluder."""
+    tissue, or the thread itself where the segmentation missed it) is no occluder.
+
+    A patch measured in front counts only when the other view's own patch at the matched
+    place does not measure another surface (left-right consistency, ``_matched_back``, within
+    AHEAD_AGREE_PX): an occluder's silhouette is matched back at its disparity from either
+    view, while a patch holding another strand of the thread or unsegmented thread (at a
+    crossing) can match a strand elsewhere on its row, far in front, where the other view's
+    patch sees the tissue at the end's depth. A back-match that cannot tell keeps the
+    measure."""
     fr = _end_frame(uv, end)
     if fr is None or not (math.isfinite(disparity) and disparity > 0):
         return None
@@ -806,6 +814,10 @@ def surface_past_end(
         d, grey = surface_ahead(greys, masks, side, tip, way, disparity, k * AHEAD_STEP_PX)
         if d is None and _is_plain(grey, plain):
             d = 0.0  # the plain background the thread lies on: a thread there would show
+        elif d is not None and d > AHEAD_NEAR_PX:
+            back = _matched_back(greys, masks, side, tip, way, disparity, d, k)
+            if back is not None and abs(back - d) > AHEAD_AGREE_PX:
+                d = None  # a mismatch along the row: the pair does not show this surface
         found.append(d)
     measured = [d for d in found if d is not None]
     return max(measured) if measured else None

@@ -254,6 +254,27 @@ def test_the_surface_past_an_end_is_the_tissue_behind_it_or_an_occluder_in_front
     assert d is not None and abs(d - (D_O - D_T)) <= 1.0
 
 
+def test_a_strand_matched_in_front_past_a_cut_end_is_no_occluder() -> None:
+    # the stopping view's segmentation missed a dark strand of thread past the end (at a
+    # crossing); the other view segmented it, F px of disparity in front of the end. The
+    # stopping view's patch over it matches that strand on its row, in front; the other view's
+    # patch there, its thread pixels left out, sees the tissue instead (no left-right
+    # consistency): no surface in front, the tissue behind the end is what the pair shows
+    F = 10
+    for seed in range(4):
+        greys, masks, uv = _stereo_scene(None, seed)
+        g, m = [greys[0].copy(), greys[1].copy()], [masks[0].copy(), masks[1].copy()]
+        g[0][:, 159:161] = 0.0
+        g[1][:, 159 - D_T - F : 161 - D_T - F] = 0.0
+        m[1][:, 159 - D_T - F : 161 - D_T - F] = True
+        # the patch over the strand (the second past the end) measures it in front alone
+        ahead = surface_ahead((g[0], g[1]), (m[0], m[1]), 0, uv[0][-1], np.array([1.0, 0.0]),
+                              float(D_T), 13.0)[0]  # fmt: skip
+        assert ahead is not None and abs(ahead - F) <= 1.0
+        d = surface_past_end(uv[0], (g[0], g[1]), (m[0], m[1]), 0, "end", float(D_T))
+        assert d is not None and abs(d - (D_BG - D_T)) <= 1.0
+
+
 def _with_shaft(grey, masks, occ, origin, a, half_width, start, length=np.inf):
     """The scene of ``_tissue_and_thread``'s views with the textured occluder ``occ`` (at
     D_O) painted in both along a band ``half_width`` px either side of the line through
