@@ -822,3 +822,106 @@ def _to_border(at: np.ndarray, way: np.ndarray, shape: tuple[int, int]) -> float
         elif v < -1e-12:
             t = min(t, x / -v)
     return max(t, 0.0)
+
+
+FOLLOW_STEP_PX = 3.0  # the thread line beyond a free end is followed this far per step
+# its way may turn by at most 20 deg per step (10 deg apart; a bend of radius >= ~9 px: a
+# loop), and stays within the 30-deg cone of the curve's way at the end (CONE_COS,
+# ``extension``) for its first FOLLOW_CONE_PX (a line crossing near a true end leaves it)
+FOLLOW_TURNS = tuple(np.radians([0.0, 10.0, -10.0, 20.0, -20.0]))
+FOLLOW_CONE_PX = 20.0
+FOLLOW_AHEAD_PX = (2.0, 4.0, 6.0)  # each way is judged by the line's mean score ahead
+FOLLOW_GAP_STEPS = 2  # steps below the level in a row that the line may bridge (a speck)
+FOLLOW_DISPARITY_PX = 4  # the other view's line within this of the end's disparity
+FOLLOW_CURVE_PX = 3.0  # the line ends where it meets the curve's own projection
+_DILATE3 = np.ones((3, 3), np.uint8)
+
+
+def thread_line_beyond(
+    scores: tuple[np.ndarray, np.ndarray],
+    uv: tuple[np.ndarray, np.ndarray],
+    end: str,
+    disparity: float,
+    max_px: float,
+    level: float,
+) -> float:
+    """How far (px, left view) a thread-like line goes on past the curve's free ``end``, seen
+    in both views at the end's ``disparity``: the raw segmentation's thread score (``scores``,
+    (H, W) in [0, 1] per view) followed from the end's tip in the left view, a step of
+    FOLLOW_STEP_PX at a time, along the way (turning at most 20 deg a step, within the
+    curve's 30-deg cone for the first FOLLOW_CONE_PX) whose mean score ahead is highest, the
+    score at a pixel being the lower of the left view's and the right view's best within
+    FOLLOW_DISPARITY_PX of the end's disparity (each the best of its 3 x 3 neighbourhood: a
+    line 1-2 px wide between pixel centres). The line ends after more than FOLLOW_GAP_STEPS
+    steps in a row below ``level``, where it meets the curve's own projection, or at
+    ``max_px``; the length returned is that of its last step at or above ``level``.
+
+    A thread the segmentation dropped past the end (a loop it judged a vessel) goes on in
+    both views at about the end's depth and bends smoothly on from the curve's way; a fibre or
+    vessel crossing near a true end leaves it at an angle."""
+    fr = _end_frame(uv[0], end)
+    if fr is None or not (math.isfinite(disparity) and disparity > 0):
+        return 0.0
+    curve, tip, way = fr
+    H, W = scores[0].shape
+    r = int(max_px + max(FOLLOW_AHEAD_PX) + FOLLOW_STEP_PX + 2)
+    x0, x1 = max(int(tip[0]) - r, 0), min(int(tip[0]) + r + 1, W)
+    y0, y1 = max(int(tip[1]) - r, 0), min(int(tip[1]) + r + 1, H)
+    if x1 - x0 < 3 or y1 - y0 < 3:
+        return 0.0
+    left = cv2.dilate(np.ascontiguousarray(scores[0][y0:y1, x0:x1]), _DILATE3)
+    # the right view's line at the left pixel's place: its best over the disparity window
+    d0 = int(round(disparity))
+    lo = max(x0 - d0 - FOLLOW_DISPARITY_PX - 1, 0)
+    hi = min(x1 - d0 + FOLLOW_DISPARITY_PX + 1, W)
+    right = np.zeros_like(left)
+    if hi > lo:
+        band = cv2.dilate(np.ascontiguousarray(scores[1][y0:y1, lo:hi]), _DILATE3)
+        for e in range(-FOLLOW_DISPARITY_PX, FOLLOW_DISPARITY_PX + 1):
+            xs = np.arange(x0, x1) - d0 - e - lo  # left column x is seen at x - d in the right
+            ok = (xs >= 0) & (xs < hi - lo)
+            right[:, ok] = np.maximum(right[:, ok], band[:, xs[ok]])
+    both = np.minimum(left, right)
+    origin = np.array([x0, y0], dtype=np.float64)
+    near = curve[np.hypot(*(curve - tip).T) <= max_px + FOLLOW_STEP_PX] - origin
+    pos, heading = tip - origin, way.copy()
+    cone = CONE_COS - 1e-9
+    walked, found, missed = 0.0, 0.0, 0
+    while walked < max_px:
+        best, best_way = -1.0, None
+        for turn in FOLLOW_TURNS:
+            w = _turned(heading, turn)
+            if walked < FOLLOW_CONE_PX and float(w @ way) < cone:
+                continue
+            ahead = [_bilinear(both, pos + t * w) for t in FOLLOW_AHEAD_PX]
+            mean = float(np.mean(ahead))
+            if mean > best + 0.02:  # ties go to the straighter way (tried first)
+                best, best_way = mean, w
+        if best_way is None or best < 0.0:
+            break
+        pos, heading = pos + FOLLOW_STEP_PX * best_way, best_way
+        walked += FOLLOW_STEP_PX
+        if walked > FOLLOW_CONE_PX and near.size and float(
+            np.min(np.hypot(near[:, 0] - pos[0], near[:, 1] - pos[1]))
+        ) < FOLLOW_CURVE_PX:
+            break
+        if best >= level:
+            found, missed = walked, 0
+        else:
+            missed += 1
+            if missed > FOLLOW_GAP_STEPS:
+                break
+    return found
+
+
+def _bilinear(img: np.ndarray, xy: np.ndarray) -> float:
+    """``img`` (h, w) at the point ``xy`` (x, y), bilinear; -1 off the image."""
+    h, w = img.shape
+    x, y = float(xy[0]), float(xy[1])
+    if not (0.0 <= x < w - 1 and 0.0 <= y < h - 1):
+        return -1.0
+    i, j = int(x), int(y)
+    fx, fy = x - i, y - j
+    top = img[j, i] * (1 - fx) + img[j, i + 1] * fx
+    bottom = img[j + 1, i] * (1 - fx) + img[j + 1, i + 1] * fx
+    return float(top * (1 - fy) + bottom * fy)
