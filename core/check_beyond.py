@@ -835,6 +835,8 @@ FOLLOW_GAP_STEPS = 2  # steps below the level in a row that the line may bridge 
 FOLLOW_DISPARITY_PX = 4  # the other view's line within this of the end's disparity
 FOLLOW_CURVE_PX = 3.0  # the line ends where it meets the curve's own projection
 _DILATE3 = np.ones((3, 3), np.uint8)
+_AHEAD = np.array(FOLLOW_AHEAD_PX)
+_TURN_ROT = np.array([[[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]] for t in FOLLOW_TURNS])
 
 
 def thread_line_beyond(
@@ -863,38 +865,22 @@ def thread_line_beyond(
     if fr is None or not (math.isfinite(disparity) and disparity > 0):
         return 0.0
     curve, tip, way = fr
-    H, W = scores[0].shape
-    r = int(max_px + max(FOLLOW_AHEAD_PX) + FOLLOW_STEP_PX + 2)
-    x0, x1 = max(int(tip[0]) - r, 0), min(int(tip[0]) + r + 1, W)
-    y0, y1 = max(int(tip[1]) - r, 0), min(int(tip[1]) + r + 1, H)
-    if x1 - x0 < 3 or y1 - y0 < 3:
-        return 0.0
-    left = cv2.dilate(np.ascontiguousarray(scores[0][y0:y1, x0:x1]), _DILATE3)
-    # the right view's line at the left pixel's place: its best over the disparity window
-    d0 = int(round(disparity))
-    lo = max(x0 - d0 - FOLLOW_DISPARITY_PX - 1, 0)
-    hi = min(x1 - d0 + FOLLOW_DISPARITY_PX + 1, W)
-    right = np.zeros_like(left)
-    if hi > lo:
-        band = cv2.dilate(np.ascontiguousarray(scores[1][y0:y1, lo:hi]), _DILATE3)
-        for e in range(-FOLLOW_DISPARITY_PX, FOLLOW_DISPARITY_PX + 1):
-            xs = np.arange(x0, x1) - d0 - e - lo  # left column x is seen at x - d in the right
-            ok = (xs >= 0) & (xs < hi - lo)
-            right[:, ok] = np.maximum(right[:, ok], band[:, xs[ok]])
-    both = np.minimum(left, right)
-    origin = np.array([x0, y0], dtype=np.float64)
-    near = curve[np.hypot(*(curve - tip).T) <= max_px + FOLLOW_STEP_PX] - origin
-    pos, heading = tip - origin, way.copy()
+    left, right = derived(scores, "thread line", lambda: _line_maps(scores))
+    shift = np.array([float(round(disparity)), 0.0])  # left x is seen at x - d in the right
+    near = curve[np.hypot(*(curve - tip).T) <= max_px + FOLLOW_STEP_PX]
+    pos, heading = tip.astype(np.float64), way.copy()
     cone = CONE_COS - 1e-9
     walked, found, missed = 0.0, 0.0, 0
     while walked < max_px:
+        ways = _TURN_ROT @ heading
+        if walked < FOLLOW_CONE_PX:
+            ways = ways[ways @ way >= cone]
+        if not len(ways):
+            break
+        ahead = pos + ways[:, None, :] * _AHEAD[None, :, None]
+        means = np.minimum(_bilinear(left, ahead), _bilinear(right, ahead - shift)).mean(axis=1)
         best, best_way = -1.0, None
-        for turn in FOLLOW_TURNS:
-            w = _turned(heading, turn)
-            if walked < FOLLOW_CONE_PX and float(w @ way) < cone:
-                continue
-            ahead = [_bilinear(both, pos + t * w) for t in FOLLOW_AHEAD_PX]
-            mean = float(np.mean(ahead))
+        for mean, w in zip(means.tolist(), ways, strict=True):
             if mean > best + 0.02:  # ties go to the straighter way (tried first)
                 best, best_way = mean, w
         if best_way is None or best < 0.0:
@@ -914,14 +900,25 @@ def thread_line_beyond(
     return found
 
 
-def _bilinear(img: np.ndarray, xy: np.ndarray) -> float:
-    """``img`` (h, w) at the point ``xy`` (x, y), bilinear; -1 off the image."""
+def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """``img`` (h, w) at the points ``xy`` (..., 2) (x, y), bilinear; -1 off the image."""
     h, w = img.shape
-    x, y = float(xy[0]), float(xy[1])
-    if not (0.0 <= x < w - 1 and 0.0 <= y < h - 1):
-        return -1.0
-    i, j = int(x), int(y)
+    x, y = xy[..., 0], xy[..., 1]
+    inside = (x >= 0.0) & (x < w - 1) & (y >= 0.0) & (y < h - 1)
+    x, y = np.where(inside, x, 0.0), np.where(inside, y, 0.0)
+    i, j = x.astype(np.intp), y.astype(np.intp)
     fx, fy = x - i, y - j
     top = img[j, i] * (1 - fx) + img[j, i + 1] * fx
     bottom = img[j + 1, i] * (1 - fx) + img[j + 1, i + 1] * fx
-    return float(top * (1 - fy) + bottom * fy)
+    return np.where(inside, top * (1 - fy) + bottom * fy, -1.0)
+
+
+def _line_maps(scores: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The views' thread scores (H, W), each pixel the best of its 3 x 3 neighbourhood (a line
+    1-2 px wide between pixel centres), the right view's also of +-FOLLOW_DISPARITY_PX along
+    its row (the disparity window): once per segmentation."""
+    right_kernel = np.ones((3, 3 + 2 * FOLLOW_DISPARITY_PX), np.uint8)
+    return (
+        cv2.dilate(np.ascontiguousarray(scores[0], np.float32), _DILATE3),
+        cv2.dilate(np.ascontiguousarray(scores[1], np.float32), right_kernel),
+    )
