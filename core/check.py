@@ -283,13 +283,14 @@ class CheckParams(Params):
         "(occluded_mm, held to max_unobserved_mm).",
     )  # fmt: skip
     line_level: float = param(
-        0.5, lo=0.0, hi=1.0, slider=(0.0, 1.0, 0.05), label="thread line level",
+        0.0, lo=0.0, hi=1.0, slider=(0.0, 1.0, 0.05), label="thread line level",
         doc="Where the segmentation gives a thread score (not with given masks): suspect when "
         "a line of at least this score (0.5: the segmentation's decision level) goes on past a "
-        "free end that meets no occluder, "
-        "in both views at the end's disparity, bending smoothly on from the curve's way, "
-        "farther than max_unobserved_mm (core/check_beyond.thread_line_beyond): thread the "
-        "segmentation dropped (a loop taken for a vessel). 0 turns the rule off.",
+        "free end that meets no occluder, in both views at the end's disparity, bending "
+        "smoothly on from the curve's way, farther than max_unobserved_mm "
+        "(core/check_beyond.thread_line_beyond): thread the segmentation dropped (a loop "
+        "taken for a vessel). Default 0, off: at 0.5 it flagged a right curve on a held-out "
+        "seed (docs/method.md, okwrong14).",
     )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",

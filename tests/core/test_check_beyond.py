@@ -457,9 +457,10 @@ def test_the_walk_covers_the_cone_around_the_curves_way_when_the_thread_bends() 
     assert occ is not None and not occ.walked_out and occ.hidden_px < 50.0 + 2 * 13
 
 
-def _raw_suite_frame(seed: int, suite_index: int, k: int, render: dict):
+def _raw_suite_frame(seed: int, suite_index: int, k: int, render: dict, params=None):
     """Frame ``k`` of a suite of ``scripts/eval_suites.py`` (its ``render`` flags on the tissue
-    background), reconstructed with the masks withheld, and its true errors."""
+    background), reconstructed with the masks withheld (``params``: the default
+    ReconParams), and its true errors."""
     from threadrecon.core.metrics import frame_errors
     from threadrecon.core.pipeline import Pipeline, ReconParams
     from threadrecon.core.segmentation import StereoPair
@@ -476,7 +477,7 @@ def _raw_suite_frame(seed: int, suite_index: int, k: int, render: dict):
         np.random.default_rng([seed, suite_index, k]),
     )
     calib = frame.camera.calibration()
-    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(params or ReconParams())
     return rec, frame_errors(rec["camera"].points, frame.truth.centerline, calib)
 
 
@@ -547,11 +548,16 @@ def test_a_line_that_leaves_the_end_at_an_angle_is_no_continuation() -> None:
     assert thread_line_beyond(scores, uv, "end", 20.0, 150.0, 0.5) < 20.0
 
 
-def test_a_raw_frame_whose_thread_loop_the_segmentation_dropped_is_not_ok() -> None:
+def test_a_raw_frame_whose_thread_loop_the_segmentation_dropped_is_flagged_by_its_line() -> None:
     # eval_suites "all" seed 13173 k=17: the segmentation dropped the thread's loop past the
-    # curve's end as undecided (a vessel?); the end meets no occluder
-    rec, err = _raw_suite_frame(13173, 12, 17, dict(thread_colour="random", distractors=6,
-                                instrument=True, lighting=0.5, jpeg_quality=75, specular=0.3,
-                                noise_sigma=3.0))  # fmt: skip
+    # curve's end as undecided (a vessel?); the end meets no occluder. The rule is off by
+    # default (CheckParams.line_level = 0): the frame is "ok" and wrong without it.
+    from threadrecon.core.check import CheckParams
+    from threadrecon.core.pipeline import ReconParams
+
+    render = dict(thread_colour="random", distractors=6, instrument=True, lighting=0.5,
+                  jpeg_quality=75, specular=0.3, noise_sigma=3.0)  # fmt: skip
+    params = ReconParams(check=CheckParams(line_level=0.5))
+    rec, err = _raw_suite_frame(13173, 12, 17, render, params)
     assert err.e_length > 20.0
     assert rec.status == "suspect" and "a thread line goes on" in rec.message
