@@ -887,9 +887,11 @@ def thread_line_beyond(
             break
         pos, heading = pos + FOLLOW_STEP_PX * best_way, best_way
         walked += FOLLOW_STEP_PX
-        if walked > FOLLOW_CONE_PX and near.size and float(
-            np.min(np.hypot(near[:, 0] - pos[0], near[:, 1] - pos[1]))
-        ) < FOLLOW_CURVE_PX:
+        if (
+            walked > FOLLOW_CONE_PX
+            and near.size
+            and float(np.min(np.hypot(near[:, 0] - pos[0], near[:, 1] - pos[1]))) < FOLLOW_CURVE_PX
+        ):
             break
         if best >= level:
             found, missed = walked, 0
