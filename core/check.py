@@ -61,6 +61,7 @@ from threadrecon.core.check_beyond import (
     extension_far,
     plain_surface,
     surface_past_end,
+    thread_line_beyond,
 )
 from threadrecon.core.check_fast_kernel import flag_runs, mask_rows, ring_level
 from threadrecon.core.check_field import MaskField, derived, mask_field
@@ -280,6 +281,16 @@ class CheckParams(Params):
         "seen in both views), so the thread may continue hidden. Not when the thread then runs "
         "into an occluder in both views whose measured reach bounds what may hide "
         "(occluded_mm, held to max_unobserved_mm).",
+    )  # fmt: skip
+    line_level: float = param(
+        0.0, lo=0.0, hi=1.0, slider=(0.0, 1.0, 0.05), label="thread line level",
+        doc="Where the segmentation gives a thread score (not with given masks): suspect when "
+        "a line of at least this score (0.5: the segmentation's decision level) goes on past a "
+        "free end that meets no occluder, in both views at the end's disparity, bending "
+        "smoothly on from the curve's way, farther than max_unobserved_mm "
+        "(core/check_beyond.thread_line_beyond): thread the segmentation dropped (a loop "
+        "taken for a vessel). Default 0, off: at 0.5 it flagged a right curve on a held-out "
+        "seed (docs/method.md, okwrong14).",
     )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
@@ -695,6 +706,21 @@ def _check(
         elif cut is not None:  # the thread's end is seen in one view: the curve misses that much
             missing = max(missing, max(cut.ext) * z_end / f * mm)
         if occ is None:
+            # No occluder in front of the end: a thread line the segmentation dropped that goes
+            # on past it, in both views at its depth, makes it no end (core/check_beyond).
+            if p.line_level > 0.0 and lifted.score_L is not None and lifted.score_R is not None:
+                line_px = thread_line_beyond(
+                    (lifted.score_L, lifted.score_R), (uv_l, uv_r), end, f * B / z_end,
+                    unobserved_px + AHEAD_STEP_PX, p.line_level,
+                )  # fmt: skip
+                if line_px > unobserved_px:
+                    findings.append(
+                        ("suspect", f"a thread line goes on {line_px:.0f} px "
+                         f"({line_px * z_end / f * mm:.1f} mm) past the curve's {end}, in "
+                         "both views at the end's depth, bending on from the curve's way "
+                         "(thread score): the thread goes on past the end, not reconstructed "
+                         f"(limit {p.max_unobserved_mm:g} mm)")
+                    )  # fmt: skip
             continue
         reach_mm = occ.reach_px * z_end / f * mm
         occluded = max(occluded, reach_mm)

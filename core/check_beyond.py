@@ -834,3 +834,105 @@ def _to_border(at: np.ndarray, way: np.ndarray, shape: tuple[int, int]) -> float
         elif v < -1e-12:
             t = min(t, x / -v)
     return max(t, 0.0)
+
+
+FOLLOW_STEP_PX = 3.0  # the thread line beyond a free end is followed this far per step
+# its way may turn by at most 20 deg per step (10 deg apart; a bend of radius >= ~9 px: a
+# loop), and stays within the 30-deg cone of the curve's way at the end (CONE_COS,
+# ``extension``) for its first FOLLOW_CONE_PX (a line crossing near a true end leaves it)
+FOLLOW_TURNS = tuple(np.radians([0.0, 10.0, -10.0, 20.0, -20.0]))
+FOLLOW_CONE_PX = 20.0
+FOLLOW_AHEAD_PX = (2.0, 4.0, 6.0)  # each way is judged by the line's mean score ahead
+FOLLOW_GAP_STEPS = 2  # steps below the level in a row that the line may bridge (a speck)
+FOLLOW_DISPARITY_PX = 4  # the other view's line within this of the end's disparity
+FOLLOW_CURVE_PX = 3.0  # the line ends where it meets the curve's own projection
+_DILATE3 = np.ones((3, 3), np.uint8)
+_AHEAD = np.array(FOLLOW_AHEAD_PX)
+_TURN_ROT = np.array([[[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]] for t in FOLLOW_TURNS])
+
+
+def thread_line_beyond(
+    scores: tuple[np.ndarray, np.ndarray],
+    uv: tuple[np.ndarray, np.ndarray],
+    end: str,
+    disparity: float,
+    max_px: float,
+    level: float,
+) -> float:
+    """How far (px, left view) a thread-like line goes on past the curve's free ``end``, seen
+    in both views at the end's ``disparity``: the raw segmentation's thread score (``scores``,
+    (H, W) in [0, 1] per view) followed from the end's tip in the left view, a step of
+    FOLLOW_STEP_PX at a time, along the way (turning at most 20 deg a step, within the
+    curve's 30-deg cone for the first FOLLOW_CONE_PX) whose mean score ahead is highest, the
+    score at a pixel being the lower of the left view's and the right view's best within
+    FOLLOW_DISPARITY_PX of the end's disparity (each the best of its 3 x 3 neighbourhood: a
+    line 1-2 px wide between pixel centres). The line ends after more than FOLLOW_GAP_STEPS
+    steps in a row below ``level``, where it meets the curve's own projection, or at
+    ``max_px``; the length returned is that of its last step at or above ``level``.
+
+    A thread the segmentation dropped past the end (a loop it judged a vessel) goes on in
+    both views at about the end's depth and bends smoothly on from the curve's way; a fibre or
+    vessel crossing near a true end leaves it at an angle."""
+    fr = _end_frame(uv[0], end)
+    if fr is None or not (math.isfinite(disparity) and disparity > 0):
+        return 0.0
+    curve, tip, way = fr
+    left, right = derived(scores, "thread line", lambda: _line_maps(scores))
+    shift = np.array([float(round(disparity)), 0.0])  # left x is seen at x - d in the right
+    near = curve[np.hypot(*(curve - tip).T) <= max_px + FOLLOW_STEP_PX]
+    pos, heading = tip.astype(np.float64), way.copy()
+    cone = CONE_COS - 1e-9
+    walked, found, missed = 0.0, 0.0, 0
+    while walked < max_px:
+        ways = _TURN_ROT @ heading
+        if walked < FOLLOW_CONE_PX:
+            ways = ways[ways @ way >= cone]
+        if not len(ways):
+            break
+        ahead = pos + ways[:, None, :] * _AHEAD[None, :, None]
+        means = np.minimum(_bilinear(left, ahead), _bilinear(right, ahead - shift)).mean(axis=1)
+        best, best_way = -1.0, None
+        for mean, w in zip(means.tolist(), ways, strict=True):
+            if mean > best + 0.02:  # ties go to the straighter way (tried first)
+                best, best_way = mean, w
+        if best_way is None or best < 0.0:
+            break
+        pos, heading = pos + FOLLOW_STEP_PX * best_way, best_way
+        walked += FOLLOW_STEP_PX
+        if (
+            walked > FOLLOW_CONE_PX
+            and near.size
+            and float(np.min(np.hypot(near[:, 0] - pos[0], near[:, 1] - pos[1]))) < FOLLOW_CURVE_PX
+        ):
+            break
+        if best >= level:
+            found, missed = walked, 0
+        else:
+            missed += 1
+            if missed > FOLLOW_GAP_STEPS:
+                break
+    return found
+
+
+def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """``img`` (h, w) at the points ``xy`` (..., 2) (x, y), bilinear; -1 off the image."""
+    h, w = img.shape
+    x, y = xy[..., 0], xy[..., 1]
+    inside = (x >= 0.0) & (x < w - 1) & (y >= 0.0) & (y < h - 1)
+    x, y = np.where(inside, x, 0.0), np.where(inside, y, 0.0)
+    i, j = x.astype(np.intp), y.astype(np.intp)
+    fx, fy = x - i, y - j
+    top = img[j, i] * (1 - fx) + img[j, i + 1] * fx
+    bottom = img[j + 1, i] * (1 - fx) + img[j + 1, i + 1] * fx
+    return np.where(inside, top * (1 - fy) + bottom * fy, -1.0)
+
+
+def _line_maps(scores: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The views' thread scores (H, W), each pixel the best of its 3 x 3 neighbourhood (a line
+    1-2 px wide between pixel centres), the right view's also of +-FOLLOW_DISPARITY_PX along
+    its row (the disparity window): once per segmentation."""
+    right_kernel = np.ones((3, 3 + 2 * FOLLOW_DISPARITY_PX), np.uint8)
+    return (
+        cv2.dilate(np.ascontiguousarray(scores[0], np.float32), _DILATE3),
+        cv2.dilate(np.ascontiguousarray(scores[1], np.float32), right_kernel),
+    )
