@@ -149,6 +149,19 @@ class OrderingParams(Params):
         "leads the curve out along the branch and back (docs/method.md, deviation 35; 0: off, "
         "every pixel of the gap on the link, the paper).",
     )
+    hidden_turn_deg: float = param(
+        180.0,
+        lo=0.0,
+        hi=180.0,
+        unit="deg",
+        slider=(90.0, 180.0, 5.0),
+        label="turn under an occluder",
+        doc="A jump over a gap whose two ends both run under an occluder in both views (the "
+        "pixels just past each end are neither thread nor bare background, in the left view "
+        "and at the end's disparity in the right) turns in and out by at most this each, "
+        "instead of 90 deg: the thread may bend by any amount where nothing shows it "
+        "(docs/method.md, deviation 38; 90 or less: off, every jump 90 deg each; walk=bending).",
+    )
     second_matches: bool = param(
         True,
         label="second matches by continuity",
@@ -297,7 +310,13 @@ def order_keypoints(
         walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
     else:
         across = _adjacency(K, broken) if len(broken) else None
-        wg = _WalkGraph.of(adj, clusters.keypoints_px[:, :2], disp, across)
+        wg = _WalkGraph.of(
+            adj,
+            clusters.keypoints_px[:, :2],
+            disp,
+            across,
+            lifted if p.hidden_turn_deg > 90 else None,
+        )
         walk = _bending_walk(wg, p)
 
     links = cluster_gaps.shared(walk)
@@ -1256,6 +1275,9 @@ class _WalkGraph:
     broken: list[list[int]] = field(default_factory=list)
     """Per keypoint, its neighbours whose edge :func:`_depth_breaks` took out of A (empty
     lists, or no list at all, where none was): the walk's last resort."""
+    lifted: LiftedPair | None = None
+    """The views, for jumps whose ends run under an occluder (:func:`_runs_under`); None: no
+    such test (every jump turns by at most 90 deg each)."""
 
     @classmethod
     def of(
@@ -1264,6 +1286,7 @@ class _WalkGraph:
         pos: np.ndarray,
         disp: np.ndarray,
         broken: list[list[int]] | None = None,
+        lifted: LiftedPair | None = None,
     ) -> _WalkGraph:
         K = len(adj)
         indptr = np.zeros(K + 1, dtype=np.int64)
@@ -1277,6 +1300,7 @@ class _WalkGraph:
             np.ascontiguousarray(disp, dtype=np.float64),
             (np.empty(K, np.int64), np.empty(K), np.empty(K)),
             broken if broken is not None and any(broken) else [],
+            lifted,
         )
 
 
@@ -1425,13 +1449,28 @@ def _jumps(
     # end towards the other; a bend under an occluder may add up to 180 deg)
     turn_in = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
     # the turn out only where the turn in leaves the jump possible (else it decides nothing)
+    wide = p.hidden_turn_deg if g.lifted is not None else 90.0
     turn_out = np.array(
         [
-            _turn_out(v, chord[i], adj, visited, pos) if turn_in[i] <= 90.0 else 0.0
+            _turn_out(v, chord[i], adj, visited, pos) if turn_in[i] <= max(wide, 90.0) else 0.0
             for i, v in enumerate(cand)
         ]
     )
     ok = (turn_in <= 90.0) & (turn_out <= 90.0)
+    bend = ~ok & (turn_in <= wide) & (turn_out <= wide)
+    if bend.any() and g.lifted is not None:  # a bend where no view shows the thread (38)
+        inner = pos[walk[max(n - 1 - HIDDEN_BACK_STEPS, 0)]]  # the background behind the end
+        if _runs_under(g.lifted, pos[cur], heading, float(disp[cur]), inner):
+            for i in np.flatnonzero(bend):
+                v = cand[i]
+                nb = [u for u in adj[v] if not visited[u]]
+                if len(nb) != 1:  # a lone keypoint, or inside a piece: no end's way
+                    continue
+                way = pos[v] - pos[nb[0]]
+                wn = float(np.hypot(*way))
+                inner_v = pos[_into_piece(v, adj, visited, HIDDEN_BACK_STEPS)]
+                if wn > 0 and _runs_under(g.lifted, pos[v], way / wn, float(disp[v]), inner_v):
+                    ok[i] = True
     cost = np.where(ok, cost, np.inf)
     why = ["" if k else "turn across the gap" for k in ok]
     return cand, cost, 2, why
@@ -1712,3 +1751,101 @@ def _turn_out(
     out = pos[nb].mean(axis=0) - pos[v]
     n = float(np.hypot(*out)) * float(np.hypot(*chord))
     return 0.0 if n == 0 else float(np.degrees(np.arccos(np.clip(out @ chord / n, -1.0, 1.0))))
+
+
+HIDDEN_SEARCH_PX = 30  # the thread's own pixels may reach this far past its end keypoint
+HIDDEN_DISC_PX = 6  # radius of the disc around where the end leaves its thread pixels
+HIDDEN_SHARE = 0.3  # at least this share of the disc's other pixels: neither thread nor bare
+HIDDEN_WINDOW_PX = 15  # half side of the window the bare background's level is taken in
+_DISC = np.array(
+    [
+        (dx, dy)
+        for dy in range(-HIDDEN_DISC_PX, HIDDEN_DISC_PX + 1)
+        for dx in range(-HIDDEN_DISC_PX, HIDDEN_DISC_PX + 1)
+        if dx * dx + dy * dy <= HIDDEN_DISC_PX * HIDDEN_DISC_PX
+    ],
+    dtype=np.int64,
+)
+
+
+HIDDEN_BACK_STEPS = 3  # keypoints behind an end where its background level is taken
+
+
+def _into_piece(v: int, adj: list[list[int]], visited: np.ndarray, steps: int) -> int:
+    """The keypoint ``steps`` along the unvisited piece that ends at ``v`` (or its last)."""
+    prev, cur = -1, v
+    for _ in range(steps):
+        nxt = [u for u in adj[cur] if u != prev and not visited[u]]
+        if len(nxt) != 1:
+            break
+        prev, cur = cur, nxt[0]
+    return cur
+
+
+HIDDEN_FAN_DEG = (0.0, -15.0, 15.0, -30.0, 30.0)  # rays around the end's way (its bend)
+
+
+def _runs_under(
+    lifted: LiftedPair, xy: np.ndarray, way: np.ndarray, d: float, inner: np.ndarray
+) -> bool:
+    """Whether the thread at an end keypoint ``xy`` (left view, px) runs under an occluder in
+    both views: followed along a ray within 30 deg of the end's outward ``way`` (unit; the
+    thread may bend where it goes under) to where the ray leaves the thread pixels (P_L; P_R
+    at the end's disparity ``d``; within ``HIDDEN_SEARCH_PX``), the disc of radius
+    ``HIDDEN_DISC_PX`` there holds at least ``HIDDEN_SHARE`` of pixels (among those off the
+    thread) that are no bare background, for some ray in each view. Bare: within
+    max(``MONO_BARE_LEVELS``, 3 robust deviations) grey levels of the median of the view's
+    non-thread pixels in a window around ``inner`` (a point of the thread behind the end,
+    away from what the end runs into). A free end (bare background all around where it
+    stops) or the image border is no occluder."""
+    steps = np.arange(0, HIDDEN_SEARCH_PX + 1, dtype=np.float64)
+    for grey, P, shift in ((lifted.grey_L, lifted.P_L, 0.0), (lifted.grey_R, lifted.P_R, d)):
+        H, W = P.shape
+        cx, cy = int(round(inner[0] - shift)), int(round(inner[1]))
+        r = HIDDEN_WINDOW_PX
+        win = (slice(max(cy - r, 0), max(cy + r + 1, 0)), slice(max(cx - r, 0), max(cx + r + 1, 0)))
+        side = np.asarray(grey[win], dtype=np.float64)[~P[win]]
+        if side.size < 10:
+            return False
+        level = float(np.median(side))
+        tol = max(MONO_BARE_LEVELS, 3.0 * 1.4826 * float(np.median(np.abs(side - level))))
+        if not any(
+            _occluded_at(grey, P, xy[0] - shift, xy[1], _turned_by(way, a), steps, level, tol)
+            for a in HIDDEN_FAN_DEG
+        ):
+            return False
+    return True
+
+
+def _turned_by(way: np.ndarray, deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([c * way[0] - s * way[1], s * way[0] + c * way[1]])
+
+
+def _occluded_at(
+    grey: np.ndarray,
+    P: np.ndarray,
+    x0: float,
+    y0: float,
+    way: np.ndarray,
+    steps: np.ndarray,
+    level: float,
+    tol: float,
+) -> bool:
+    """Whether the ray from (x0, y0) along ``way`` leaves the thread pixels ``P`` within the
+    search, inside the image, where ``HIDDEN_SHARE`` of the disc's non-thread pixels are
+    farther than ``tol`` from the bare background's grey ``level``."""
+    H, W = P.shape
+    x = np.rint(x0 + steps * way[0]).astype(np.int64)
+    y = np.rint(y0 + steps * way[1]).astype(np.int64)
+    inside = (x >= 0) & (y >= 0) & (x < W) & (y < H)
+    off = np.flatnonzero(~inside | ~P[np.clip(y, 0, H - 1), np.clip(x, 0, W - 1)])
+    if not off.size or not inside[off[0]]:
+        return False  # the thread goes on past the search, or the image border
+    disc = _DISC + (x[off[0]], y[off[0]])
+    disc = disc[(disc[:, 0] >= 0) & (disc[:, 1] >= 0) & (disc[:, 0] < W) & (disc[:, 1] < H)]
+    disc = disc[~P[disc[:, 1], disc[:, 0]]]
+    if not len(disc):
+        return False
+    g = np.asarray(grey[disc[:, 1], disc[:, 0]], dtype=np.float64)
+    return float(np.mean(np.abs(g - level) > tol)) >= HIDDEN_SHARE
