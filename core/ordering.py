@@ -1762,13 +1762,17 @@ def _turn_out(
     return 0.0 if n == 0 else float(np.degrees(np.arccos(np.clip(out @ chord / n, -1.0, 1.0))))
 
 
+# Deviation 38: what the views show where a jump's ends stop (_end_state)
 HIDDEN_SEARCH_PX = 30  # the thread's own pixels may reach this far past its end keypoint
 HIDDEN_DISC_PX = 6  # radius of the disc around where the end leaves its thread pixels
 HIDDEN_SHARE = 0.3  # at least this share of the disc's other pixels: neither thread nor bare
+HIDDEN_FREE_SHARE = 0.05  # a free end: at most this share of its disc is no bare background
+HIDDEN_TIP_PX = 3.0  # a ray may leave a free end's tip by its side: thread this far ahead
+HIDDEN_RIM_PX = 1  # pixels this close to the thread's are its rim (partly covered), not bare
 HIDDEN_WINDOW_PX = 15  # half side of the window the bare background's level is taken in
-
-
 HIDDEN_BACK_STEPS = 3  # keypoints behind an end where its background level is taken
+HIDDEN_FAN_DEG = (0.0, -15.0, 15.0, -30.0, 30.0)  # rays around the end's way (its bend)
+_RIM_KERNEL = np.ones((2 * HIDDEN_RIM_PX + 1, 2 * HIDDEN_RIM_PX + 1), dtype=np.uint8)
 
 
 def _by_the_ends(
@@ -1854,15 +1858,6 @@ def _into_piece(v: int, adj: list[list[int]], visited: np.ndarray, steps: int) -
     return cur
 
 
-HIDDEN_RIM_PX = 1  # pixels this close to the thread's are its rim (partly covered), not bare
-_RIM_KERNEL = np.ones((2 * HIDDEN_RIM_PX + 1, 2 * HIDDEN_RIM_PX + 1), dtype=np.uint8)
-HIDDEN_FAN_DEG = (0.0, -15.0, 15.0, -30.0, 30.0)  # rays around the end's way (its bend)
-
-
-HIDDEN_TIP_PX = 3.0  # a ray may leave a free end's tip by its side: thread this far ahead
-HIDDEN_FREE_SHARE = 0.05  # a free end: at most this share of its disc is no bare background
-
-
 def _runs_under(
     lifted: LiftedPair, xy: np.ndarray, way: np.ndarray, d: float, inner: np.ndarray
 ) -> bool:
@@ -1920,6 +1915,7 @@ def _end_state(
 
 
 def _turned_by(way: np.ndarray, deg: float) -> np.ndarray:
+    """``way`` turned by ``deg`` degrees (image axes)."""
     c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
     return np.array([c * way[0] - s * way[1], s * way[0] + c * way[1]])
 
@@ -1939,9 +1935,8 @@ def _occluded_share(
     ``level``: of all of them, and of those off the thread's rim (not next to a thread pixel:
     a pixel the thread covers in part is neither), 1 when thread pixels lie in the disc more
     than ``HIDDEN_TIP_PX`` ahead of where the ray left the thread (it left a strand that goes
-    on by its side, not its end); None
-    when the ray stays on the thread over
-    the search, leaves the image or the disc holds thread pixels only."""
+    on by its side, not its end); None when the ray stays on the thread over the search,
+    leaves the image or the disc holds thread pixels only."""
     H, W = P.shape
     x = np.rint(x0 + steps * way[0]).astype(np.int64)
     y = np.rint(y0 + steps * way[1]).astype(np.int64)
