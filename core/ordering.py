@@ -149,6 +149,27 @@ class OrderingParams(Params):
         "leads the curve out along the branch and back (docs/method.md, deviation 35; 0: off, "
         "every pixel of the gap on the link, the paper).",
     )
+    hidden_turn_deg: float = param(
+        180.0,
+        lo=0.0,
+        hi=180.0,
+        unit="deg",
+        slider=(90.0, 180.0, 5.0),
+        label="turn under an occluder",
+        doc="A jump over a gap whose two ends both run under an occluder in both views (the "
+        "pixels just past each end are neither thread nor bare background, in the left view "
+        "and at the end's disparity in the right) turns in and out by at most this each, "
+        "instead of 90 deg: the thread may bend by any amount where nothing shows it "
+        "(docs/method.md, deviation 38; 90 or less: off, every jump 90 deg each; walk=bending).",
+    )
+    join_free_ends: bool = param(
+        False,
+        label="join free ends",
+        doc="A jump may join two ends that both stop over bare background in both views (the "
+        "pixels just past each end are the background next to the thread: nothing hides the "
+        "thread there, these are its own two ends). False (the default): such a jump is "
+        "excluded (docs/method.md, deviation 38; True: as before, the paper; walk=bending).",
+    )
     second_matches: bool = param(
         True,
         label="second matches by continuity",
@@ -167,8 +188,9 @@ class Continuation:
     """Step cost of :func:`_walk_from` (px); inf when a rule excluded it (see ``reason``)."""
     reason: str
     """"chosen", "costlier", "turn > max_turn_deg" (through a crossing), "turn across the gap"
-    (a jump whose piece does not continue the way the path goes), or "cheaper, but its walk
-    kept fewer keypoints" (the chosen walk is a runner-up walk)."""
+    (a jump whose piece does not continue the way the path goes), "two free ends" (a jump
+    between two ends the views show stopping over bare background, deviation 38), or
+    "cheaper, but its walk kept fewer keypoints" (the chosen walk is a runner-up walk)."""
 
 
 @dataclass(frozen=True)
@@ -297,7 +319,13 @@ def order_keypoints(
         walk = _best_walk(K, edges, pos, clusters.keypoints_px[:, :2], p.bridge_px)
     else:
         across = _adjacency(K, broken) if len(broken) else None
-        wg = _WalkGraph.of(adj, clusters.keypoints_px[:, :2], disp, across)
+        wg = _WalkGraph.of(
+            adj,
+            clusters.keypoints_px[:, :2],
+            disp,
+            across,
+            lifted if p.hidden_turn_deg > 90 or not p.join_free_ends else None,
+        )
         walk = _bending_walk(wg, p)
 
     links = cluster_gaps.shared(walk)
@@ -1256,6 +1284,22 @@ class _WalkGraph:
     broken: list[list[int]] = field(default_factory=list)
     """Per keypoint, its neighbours whose edge :func:`_depth_breaks` took out of A (empty
     lists, or no list at all, where none was): the walk's last resort."""
+    lifted: LiftedPair | None = None
+    """The views, for what they show at a jump's ends (:func:`_end_state`); None: no such
+    test (every jump turns by at most 90 deg each, free ends are joined)."""
+    states: dict[tuple[int, int, int], str] = field(default_factory=dict)
+    """:func:`_end_state` per (end keypoint, the keypoint its way is taken from, the one its
+    background is taken at), filled as the walks ask."""
+
+    def end_state(self, k: int, toward: int, behind: int, way: np.ndarray) -> str:
+        """:func:`_end_state` of the end at keypoint ``k``, outward unit direction ``way`` (from
+        keypoint ``toward``), its background taken at keypoint ``behind``."""
+        key = (k, toward, behind)
+        if key not in self.states:
+            assert self.lifted is not None
+            inner = self.pos[behind]
+            self.states[key] = _end_state(self.lifted, self.pos[k], way, float(self.disp[k]), inner)
+        return self.states[key]
 
     @classmethod
     def of(
@@ -1264,6 +1308,7 @@ class _WalkGraph:
         pos: np.ndarray,
         disp: np.ndarray,
         broken: list[list[int]] | None = None,
+        lifted: LiftedPair | None = None,
     ) -> _WalkGraph:
         K = len(adj)
         indptr = np.zeros(K + 1, dtype=np.int64)
@@ -1277,6 +1322,7 @@ class _WalkGraph:
             np.ascontiguousarray(disp, dtype=np.float64),
             (np.empty(K, np.int64), np.empty(K), np.empty(K)),
             broken if broken is not None and any(broken) else [],
+            lifted,
         )
 
 
@@ -1432,8 +1478,10 @@ def _jumps(
         ]
     )
     ok = (turn_in <= 90.0) & (turn_out <= 90.0)
-    cost = np.where(ok, cost, np.inf)
     why = ["" if k else "turn across the gap" for k in ok]
+    if g.lifted is not None:  # what the views show at the two ends (deviation 38)
+        _by_the_ends(cand, cost, chord, ok, why, turn_in, walk, n, heading, visited, g, p)
+    cost = np.where(ok, cost, np.inf)
     return cand, cost, 2, why
 
 
@@ -1712,3 +1760,205 @@ def _turn_out(
     out = pos[nb].mean(axis=0) - pos[v]
     n = float(np.hypot(*out)) * float(np.hypot(*chord))
     return 0.0 if n == 0 else float(np.degrees(np.arccos(np.clip(out @ chord / n, -1.0, 1.0))))
+
+
+# Deviation 38: what the views show where a jump's ends stop (_end_state)
+HIDDEN_SEARCH_PX = 30  # the thread's own pixels may reach this far past its end keypoint
+HIDDEN_DISC_PX = 6  # radius of the disc around where the end leaves its thread pixels
+HIDDEN_SHARE = 0.3  # at least this share of the disc's other pixels: neither thread nor bare
+HIDDEN_FREE_SHARE = 0.05  # a free end: at most this share of its disc is no bare background
+HIDDEN_TIP_PX = 3.0  # a ray may leave a free end's tip by its side: thread this far ahead
+HIDDEN_RIM_PX = 1  # pixels this close to the thread's are its rim (partly covered), not bare
+HIDDEN_WINDOW_PX = 15  # half side of the window the bare background's level is taken in
+HIDDEN_BACK_STEPS = 3  # keypoints behind an end where its background level is taken
+HIDDEN_FAN_DEG = (0.0, -15.0, 15.0, -30.0, 30.0)  # rays around the end's way (its bend)
+_RIM_KERNEL = np.ones((2 * HIDDEN_RIM_PX + 1, 2 * HIDDEN_RIM_PX + 1), dtype=np.uint8)
+
+
+def _by_the_ends(
+    cand: list[int],
+    cost: np.ndarray,
+    chord: np.ndarray,
+    ok: np.ndarray,
+    why: list[str],
+    turn_in: np.ndarray,
+    walk: np.ndarray,
+    n: int,
+    heading: np.ndarray,
+    visited: np.ndarray,
+    g: _WalkGraph,
+    p: OrderingParams,
+) -> None:
+    """Deviation 38 on the jumps of :func:`_jumps` (``ok``, ``why`` updated in place): a jump
+    turning by more than 90 deg in or out (at most ``hidden_turn_deg`` each) is allowed when
+    both its ends run under an occluder in both views; a jump between two free ends is not
+    (``join_free_ends`` False). Only a jump onto a piece's end is judged (a jump into a
+    piece's middle has no end's way to look along). Candidates are judged cheapest first
+    until two are left allowed: the walk takes the cheapest and branches at the runner-up,
+    no other is ever taken (the views are read a few times per jump, not for every keypoint
+    in reach)."""
+    wide = p.hidden_turn_deg
+    pos, adj = g.pos, g.adj
+    cur = int(walk[n - 1])
+    here = None
+    left = 2
+    for i in np.argsort(cost, kind="stable").tolist():
+        if left == 0:
+            break
+        bend = not ok[i] and wide > 90.0 and turn_in[i] <= wide
+        if not ok[i] and not bend:
+            continue
+        nb = _piece_end(cand[i], adj, visited)
+        if nb < 0 or (ok[i] and p.join_free_ends):
+            left -= int(ok[i])
+            continue
+        if here is None:
+            back = int(walk[n - 3] if n >= 3 else walk[0])
+            back_k = int(walk[max(n - 1 - HIDDEN_BACK_STEPS, 0)])  # background behind the end
+            here = g.end_state(cur, back, back_k, heading)
+        if here == "unknown" or (bend and here != "hidden") or (ok[i] and here != "free"):
+            left -= int(ok[i])
+            continue
+        v = cand[i]
+        if bend and _turn_out(v, chord[i], adj, visited, pos) > wide:
+            continue
+        way = pos[v] - pos[nb]
+        wn = float(np.hypot(*way))
+        there = "unknown"
+        if wn > 0:
+            behind = _into_piece(v, adj, visited, HIDDEN_BACK_STEPS)
+            there = g.end_state(v, nb, behind, way / wn)
+        if ok[i] and there == "free":  # the thread's own two ends: the views show no thread
+            ok[i], why[i] = False, "two free ends"
+        elif bend and there == "hidden":  # a bend under an occluder in both views
+            ok[i], why[i] = True, ""
+        left -= int(ok[i])
+
+
+def _piece_end(v: int, adj: list[list[int]], visited: np.ndarray) -> int:
+    """The one unvisited neighbour of ``v`` when ``v`` ends an unvisited piece, else -1 (a lone
+    keypoint or one inside a piece: no end's way to look along)."""
+    nb = -1
+    for u in adj[v]:
+        if not visited[u]:
+            if nb >= 0:
+                return -1
+            nb = u
+    return nb
+
+
+def _into_piece(v: int, adj: list[list[int]], visited: np.ndarray, steps: int) -> int:
+    """The keypoint ``steps`` along the unvisited piece that ends at ``v`` (or its last)."""
+    prev, cur = -1, v
+    for _ in range(steps):
+        nxt = [u for u in adj[cur] if u != prev and not visited[u]]
+        if len(nxt) != 1:
+            break
+        prev, cur = cur, nxt[0]
+    return cur
+
+
+def _runs_under(
+    lifted: LiftedPair, xy: np.ndarray, way: np.ndarray, d: float, inner: np.ndarray
+) -> bool:
+    """Whether the thread at an end keypoint runs under an occluder in both views
+    (:func:`_end_state` "hidden")."""
+    return _end_state(lifted, xy, way, d, inner) == "hidden"
+
+
+def _end_state(
+    lifted: LiftedPair, xy: np.ndarray, way: np.ndarray, d: float, inner: np.ndarray
+) -> Literal["hidden", "free", "unknown"]:
+    """What the views show where the thread at an end keypoint ``xy`` (left view, px) stops.
+    Along a ray from the end, to where it leaves the thread pixels (P_L; P_R at the end's
+    disparity ``d``; within ``HIDDEN_SEARCH_PX``): the share of the disc of radius
+    ``HIDDEN_DISC_PX`` there (its pixels off the thread) that is no bare background. Per view:
+    "hidden" when the ray straight along the end's outward ``way`` (unit) finds at least
+    ``HIDDEN_SHARE``; else "free" when it finds at most ``HIDDEN_FREE_SHARE`` off the thread's
+    rim (bare background all around where the thread stops: nothing hides it, the thread's
+    own end); else "hidden" when a ray within 30 deg of ``way`` finds ``HIDDEN_SHARE`` (the
+    thread may bend where it goes under). The end's state is the views' when both agree, else
+    "unknown" (also at the image border, or where the thread goes on). Bare: within
+    max(``MONO_BARE_LEVELS``, 3 robust deviations) grey levels of the median of the view's
+    non-thread pixels in a window around ``inner`` (a point of the thread behind the end,
+    away from what the end runs into)."""
+    steps = np.arange(0, HIDDEN_SEARCH_PX + 1, dtype=np.float64)
+    states = []
+    for grey, P, shift in ((lifted.grey_L, lifted.P_L, 0.0), (lifted.grey_R, lifted.P_R, d)):
+        H, W = P.shape
+        cx, cy = int(round(inner[0] - shift)), int(round(inner[1]))
+        r = HIDDEN_WINDOW_PX
+        win = (slice(max(cy - r, 0), max(cy + r + 1, 0)), slice(max(cx - r, 0), max(cx + r + 1, 0)))
+        side = np.asarray(grey[win], dtype=np.float64)[~P[win]]
+        if side.size < 10:
+            return "unknown"
+        level = float(np.median(side))
+        tol = max(MONO_BARE_LEVELS, 3.0 * 1.4826 * float(np.median(np.abs(side - level))))
+        straight = _occluded_share(grey, P, xy[0] - shift, xy[1], way, steps, level, tol)
+        if straight is not None and straight[0] >= HIDDEN_SHARE:
+            states.append("hidden")
+        elif straight is not None and straight[1] <= HIDDEN_FREE_SHARE:
+            states.append("free")
+        elif any(  # the thread may bend where it goes under
+            sh is not None and sh[0] >= HIDDEN_SHARE
+            for sh in (
+                _occluded_share(
+                    grey, P, xy[0] - shift, xy[1], _turned_by(way, a), steps, level, tol
+                )
+                for a in HIDDEN_FAN_DEG[1:]
+            )
+        ):
+            states.append("hidden")
+        else:
+            return "unknown"
+    return states[0] if states[0] == states[1] else "unknown"
+
+
+def _turned_by(way: np.ndarray, deg: float) -> np.ndarray:
+    """``way`` turned by ``deg`` degrees (image axes)."""
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([c * way[0] - s * way[1], s * way[0] + c * way[1]])
+
+
+def _occluded_share(
+    grey: np.ndarray,
+    P: np.ndarray,
+    x0: float,
+    y0: float,
+    way: np.ndarray,
+    steps: np.ndarray,
+    level: float,
+    tol: float,
+) -> tuple[float, float] | None:
+    """Where the ray from (x0, y0) along ``way`` leaves the thread pixels ``P``, the share of
+    the disc's non-thread pixels farther than ``tol`` from the bare background's grey
+    ``level``: of all of them, and of those off the thread's rim (not next to a thread pixel:
+    a pixel the thread covers in part is neither), 1 when thread pixels lie in the disc more
+    than ``HIDDEN_TIP_PX`` ahead of where the ray left the thread (it left a strand that goes
+    on by its side, not its end); None when the ray stays on the thread over the search,
+    leaves the image or the disc holds thread pixels only."""
+    H, W = P.shape
+    x = np.rint(x0 + steps * way[0]).astype(np.int64)
+    y = np.rint(y0 + steps * way[1]).astype(np.int64)
+    inside = (x >= 0) & (y >= 0) & (x < W) & (y < H)
+    off = np.flatnonzero(~inside | ~P[np.clip(y, 0, H - 1), np.clip(x, 0, W - 1)])
+    if not off.size or not inside[off[0]]:
+        return None  # the thread goes on past the search, or the image border
+    cx, cy = int(x[off[0]]), int(y[off[0]])
+    r = HIDDEN_DISC_PX + HIDDEN_RIM_PX
+    xa, xb, ya, yb = max(cx - r, 0), min(cx + r + 1, W), max(cy - r, 0), min(cy + r + 1, H)
+    thread = np.ascontiguousarray(P[ya:yb, xa:xb], dtype=np.uint8)
+    dx = np.arange(xa, xb)[None, :] - cx
+    dy = np.arange(ya, yb)[:, None] - cy
+    disc = (dx * dx + dy * dy <= HIDDEN_DISC_PX * HIDDEN_DISC_PX) & (thread == 0)  # off it
+    if not disc.any():
+        return None
+    rim = cv2.dilate(thread, _RIM_KERNEL) > 0  # next to a thread pixel: partly covered by it
+    other = np.abs(np.asarray(grey[ya:yb, xa:xb], dtype=np.float64) - level) > tol
+    clean_px = disc & ~rim
+    clean = float(np.mean(other[clean_px])) if clean_px.any() else 0.0
+    near = dx * dx + dy * dy <= HIDDEN_DISC_PX * HIDDEN_DISC_PX
+    ahead = (dx * way[0] + dy * way[1] > HIDDEN_TIP_PX) & near
+    if (ahead & (thread > 0)).any():
+        clean = 1.0  # the thread goes on beside the ray: it left the strand, not its end
+    return float(np.mean(other[disc])), clean

@@ -35,7 +35,11 @@ def cost_text(cost: float, reason: str = "") -> str:
     """A step cost as shown beside its continuation: the number, or the rule that excluded it."""
     if np.isfinite(cost):
         return f"{cost:.1f}"
-    return {"turn > max_turn_deg": "x turn", "turn across the gap": "x gap turn"}.get(reason, "x")
+    return {
+        "turn > max_turn_deg": "x turn",
+        "turn across the gap": "x gap turn",
+        "two free ends": "x free ends",
+    }.get(reason, "x")
 
 
 def _steps(od: Ordering) -> list[tuple[Decision, int, float, str, bool]]:

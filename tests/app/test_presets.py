@@ -24,6 +24,8 @@ def _changed(spec: ParamSpec, value: Any) -> Any:
     if isinstance(value, bool):
         return not value
     step = 1 if spec.integer else 0.5 * ((spec.hi - value) if spec.hi is not None else 1.0)
+    if step == 0:  # a default at its upper bound (ordering.hidden_turn_deg: 180 deg)
+        step = 0.5 * (value - spec.lo) if spec.lo is not None else 1.0
     new = value + step
     return new if spec.hi is None or new <= spec.hi else value - step
 

@@ -77,3 +77,4 @@ def test_excluded_continuations_name_their_rule():
     assert cost_text(12.345) == "12.3"
     assert cost_text(float("inf"), "turn > max_turn_deg") == "x turn"
     assert cost_text(float("inf"), "turn across the gap") == "x gap turn"
+    assert cost_text(float("inf"), "two free ends") == "x free ends"
