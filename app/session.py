@@ -3,12 +3,11 @@
 A session holds the frame being looked at, the parameters, how many stages are revealed, the
 latest reconstruction, and the 3D views (viser clients) that show it. Controls only *submit*
 what they want (frame, parameters, stages to reveal); one worker thread per session computes
-the newest request (latest wins: an older request still running stops at its next stage),
-makes its final state (results and metrics) the session's, which the page's long poll answers,
-and then draws the layers of the last stages in the 3D views; a run that has taken longer than
-``PROGRESS_AFTER_S`` (or is streamed) shows each stage as soon as it exists. The worker
-survives any exception (the stage that raised shows the error; the next request runs). Waiting
-is possible from a thread (:meth:`Session.wait`) or the event loop, holding no thread (:meth:`Session.finished`).
+the newest request (latest wins: an older request still running stops at its next stage) and
+publishes its layers once it is done, or each stage's as soon as it exists once the run has
+taken longer than ``PROGRESS_AFTER_S`` (or is streamed). The worker survives any exception
+(the stage that raised shows the error; the next request runs). Waiting is possible from a
+thread (:meth:`Session.wait`) or the event loop, holding no thread (:meth:`Session.finished`).
 """
 
 from __future__ import annotations
@@ -50,8 +49,7 @@ class Session:
         self._on_status = on_status
         self._cond = threading.Condition()
         self._seq = 0
-        self._done_seq = 0  # the last request finished: computed, answered and drawn
-        self._answered_seq = 0  # the last request whose final state the page can have
+        self._done_seq = 0
         self._pending: Request | None = None
         self._closed = False
         self._worker: threading.Thread | None = None
@@ -156,8 +154,7 @@ class Session:
         return 0.0 if self.views else time.monotonic() - self.last_used
 
     def wait(self, seq: int, timeout: float = 60.0) -> bool:
-        """Block until request ``seq`` (or a newer one) has finished, its layers drawn in
-        every view; False on timeout."""
+        """Block until request ``seq`` (or a newer one) has finished; False on timeout."""
         deadline = time.monotonic() + timeout
         with self._cond:
             while self._done_seq < seq and not self._closed:
@@ -168,9 +165,8 @@ class Session:
         return True
 
     async def finished(self, seq: int, timeout: float) -> bool:
-        """Wait in the event loop, holding no thread, until request ``seq`` (or a newer one)
-        has its final state (the views may still be drawing its last layers)."""
-        return await self.changes.until(lambda: self._answered_seq >= seq, timeout)
+        """:meth:`wait` for the event loop, holding no thread."""
+        return await self.changes.until(lambda: self._done_seq >= seq, timeout)
 
     async def changed(self, since: int, timeout: float) -> bool:
         """Wait in the event loop until the session's version is newer than ``since``."""
@@ -182,8 +178,7 @@ class Session:
 
     @property
     def busy(self) -> bool:
-        """The state is not the latest request's final one yet."""
-        return self._answered_seq < self._seq
+        return self._done_seq < self._seq
 
     def close(self) -> None:
         """Stop the worker and drop every result, so that the memory is freed."""
@@ -256,16 +251,13 @@ class Session:
                 self._fail(req, exc)
             finally:
                 with self._cond:
-                    news = self._answered_seq < req.seq  # not announced by _execute
                     if self._pending is None:
                         self._done_seq = max(self._done_seq, req.seq)
-                        self._answered_seq = max(self._answered_seq, req.seq)
                     self.running = None
                     self._cond.notify_all()
                 # "busy" changed: a new version, so that a long poll that answered the
                 # last one while the run was ending still gets the idle state
-                if news:
-                    self._bump()
+                self._bump()
         with self.draw_lock:
             self._release()
 
@@ -328,20 +320,13 @@ class Session:
             nxt = STAGES.index(run.stage) + 1
             self.running = STAGES[nxt] if run.stage != until and nxt < len(STAGES) else None
             self.latency_ms[run.stage] = 1000.0 * (time.perf_counter() - req.t0)
-            # a cached stage changes no view: it is shown with the next computed one; the last
-            # stage's views come after the run's state (below), unless a newer request
-            # supersedes the run now, which is then shown as it is (a dragged slider's steps)
-            last = run.stage == until
-            superseded = self._superseded(req)
-            if (req.pause_s or (not run.cached and self._slow(req)) or superseded) and (
-                not last or superseded
-            ):
+            # a cached stage changes no view: it is shown with the next computed one
+            if req.pause_s or run.stage == until or (not run.cached and self._slow(req)):
                 with timed(timing, "publish"):
                     self._publish(rec, loaded)
-                self._bump()
                 shown = rec
                 self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
-            if superseded:
+            if self._superseded(req):
                 return
             if req.pause_s and run.stage != until:
                 with self._cond:
@@ -350,6 +335,10 @@ class Session:
                     return
         if rec is None:
             return
+        if rec is not shown:  # the run stopped at a failed stage
+            with timed(timing, "publish"):
+                self._publish(rec, loaded)
+            self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
         with timed(timing, "metrics"):
             try:
                 metrics, self.metrics_error = (
@@ -359,18 +348,8 @@ class Session:
             except Exception as exc:  # e.g. a ground truth holding NaN: the figures say why
                 metrics, self.metrics_error = {}, f"metrics: {type(exc).__name__}: {exc}"
         with self.draw_lock:
-            self.rec, self.metrics = rec, metrics
-        # The page gets the run's final state (and its 2D overlays) before the views draw its
-        # last layers: the page's answer and the 3D batch no longer queue behind each other
-        # on the two cores (1920x1080, Chromium: page state ~300 ms after a change, of which
-        # ~80 ms were the 3D layers' publish).
-        with self._cond:
-            self._answered_seq = max(self._answered_seq, req.seq)
+            self.metrics = metrics
         self._bump()
-        if rec is not shown:
-            with timed(timing, "publish"):
-                self._publish(rec, loaded)
-            self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
         if rec.failed_stage is not None or "camera" in rec.runs:
             self._status(req.frame_id, rec.status)
 
@@ -379,12 +358,11 @@ class Session:
         return time.perf_counter() - req.t0 >= PROGRESS_AFTER_S
 
     def _publish(self, rec: Reconstruction, loaded: LoadedFrame) -> None:
-        """``rec`` is the session's reconstruction, drawn in every view (the caller bumps
-        the version when the state changed)."""
         with self.draw_lock:
             self.rec = rec
             for view in list(self.views.values()):
                 view.show(rec, loaded)
+        self._bump()
 
     def _status(self, frame_id: str, status: str) -> None:
         if self._on_status is not None:

@@ -223,33 +223,3 @@ def test_the_end_of_a_run_is_a_new_version(library, monkeypatch):
     assert not final["busy"] and seen
     assert all(version < final["version"] for version, busy in seen if busy)
     manager.close()
-
-
-def test_the_page_has_the_final_state_before_the_views_draw_the_last_layers(library, monkeypatch):
-    """The run's final state (results, metrics, not busy: the long poll answers it with the
-    2D overlays) is out before the last layers are drawn; the views still get them, and
-    :meth:`Session.wait` returns once they have."""
-    from threadrecon.app import session as session_module
-    from threadrecon.app.session import Session
-
-    manager = SessionManager(library)
-    s = manager.create()
-    assert s.wait(s.submit(frame_id=FLAT), 120)
-    monkeypatch.setattr(session_module, "PROGRESS_AFTER_S", 1e9)  # one publish: the last
-    seen: list[tuple[bool, int, bool, tuple]] = []
-    original = Session._publish
-
-    def publish(self, rec, loaded):
-        seen.append((self.busy, self.version, bool(self.metrics), tuple(rec.runs)))
-        original(self, rec, loaded)
-
-    monkeypatch.setattr(Session, "_publish", publish)
-    params = merge_params(s.params, {"spline": {"n_ctrl": s.params.spline.n_ctrl + 1}})
-    seq = s.submit(params=params)
-    assert s.wait(seq, 120)
-    assert len(seen) == 1
-    busy, version, has_metrics, stages = seen[0]
-    assert not busy and has_metrics and stages == pipeline.STAGES
-    assert s.version == version  # drawing the layers made no new version
-    assert "shown" in s.state()["latency_ms"]
-    manager.close()
