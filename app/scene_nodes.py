@@ -5,8 +5,10 @@ costs the server about a millisecond of Python (viser resolves the handle's type
 anew for every handle) and the viewer a remount (new React components, geometry and material).
 A redraw with the same node names and kinds instead assigns the new arrays to the existing
 handles: one property update per changed array, which the viewer applies to the mounted
-objects. Any other redraw (a node appears or goes, a colour turns from one to per-point)
-replaces the layer. Display thinning (``app.display``) happens here, once per drawn node.
+objects. A redraw where some nodes appear, go or change kind (a colour turns from one to
+per-point) replaces only those: an eps slider changes the ordering's and its graph's label
+count, and re-creating all their ~50 labels cost the server 45 ms of a move's ~90 ms of
+publishing at 1920x1080. Display thinning (``app.display``) happens here, once per drawn node.
 """
 
 from __future__ import annotations
@@ -49,17 +51,23 @@ class LayerNodes:
         self._frame: Any = None
         self._handles: dict[str, tuple[tuple[str, bool], Any]] = {}
 
-    def draw(self, nodes: dict[str, Node], base: float) -> bool:
-        """Show ``nodes`` (sub-path -> node); point sizes are multiples of ``base``. True when
-        the existing handles took the new values, False when the layer was replaced."""
+    def draw(self, nodes: dict[str, Node], base: float) -> int:
+        """Show ``nodes`` (sub-path -> node); point sizes are multiples of ``base``. A node of
+        the same sub-path and kind as one drawn before takes the new values in its existing
+        handle; the others are created, and the drawn ones not in ``nodes`` removed. Returns
+        how many nodes were created (0: every node updated in place)."""
         kinds = {sub: k for sub, node in nodes.items() if (k := _kind(node)) is not None}
-        same = self._frame is not None and kinds == {s: k for s, (k, _) in self._handles.items()}
-        if not same:
-            self.remove()
+        if self._frame is None:
             self._frame = self.scene.add_frame(self.root, show_axes=False, visible=self._visible)
+        for sub, (kind, handle) in list(self._handles.items()):
+            if kinds.get(sub) != kind:  # gone, or another kind: its handle cannot take it
+                handle.remove()
+                del self._handles[sub]
+        created = 0
         for sub, kind in kinds.items():
             node, path = nodes[sub], f"{self.root}/{sub}"
-            old = self._handles[sub][1] if same else None
+            old = self._handles[sub][1] if sub in self._handles else None
+            created += old is None
             if isinstance(node, Points):
                 handle = self._points(path, node, base, old)
             elif isinstance(node, Segments):
@@ -67,7 +75,7 @@ class LayerNodes:
             else:
                 handle = self._label(path, node, old)
             self._handles[sub] = (kind, handle)
-        return same
+        return created
 
     def _points(self, path: str, node: Points, base: float, old: Any) -> Any:
         points, colors = decimate_cloud(node.points, node.colors, CLOUD_POINTS)

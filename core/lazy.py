@@ -7,15 +7,20 @@ a field is declared ``name: T = LazyField()`` on the frozen dataclass and may be
 Everything else about the field stays as it was: the generated ``__init__`` takes it by name
 (dataclasses' descriptor-typed fields store through :meth:`LazyField.__set__`, also on a
 frozen class), ``dataclasses.fields``, ``replace`` and ``asdict`` read it, and assigning to it
-raises ``FrozenInstanceError``.
+raises ``FrozenInstanceError``. Threads that read a deferred field at once compute it once:
+the debugger's page answer and its 3D views read the ordering's graph concurrently (~90 ms at
+1920x1080, which each used to compute).
 """
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from typing import Any
 
 _NO_DEFAULT = object()
+_COMPUTING = threading.RLock()  # one deferred value computed at a time (re-entrant: a
+# deferred function may read another lazy field); reads of computed values never take it
 
 
 class Deferred:
@@ -44,8 +49,11 @@ class LazyField:
             return self.default
         value = obj.__dict__[self.slot]
         if isinstance(value, Deferred):
-            value = value.fn(*value.args)
-            obj.__dict__[self.slot] = value
+            with _COMPUTING:
+                value = obj.__dict__[self.slot]  # another thread may have computed it meanwhile
+                if isinstance(value, Deferred):
+                    value = value.fn(*value.args)
+                    obj.__dict__[self.slot] = value
         return value
 
     def __set__(self, obj: object, value: Any) -> None:

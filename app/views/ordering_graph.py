@@ -104,8 +104,9 @@ def _ordering_graph_layer(
     rec: Reconstruction, calib: StereoCalibration, gt: np.ndarray | None
 ) -> Layer:
     """``pieces`` (one colour per piece), ``junctions``, ``chosen`` and ``rejected``
-    continuations at the walk's decisions, and ``costs/j`` labels at the middles of at most
-    ``MAX_COST_LABELS`` of them."""
+    continuations at the walk's decisions, and ``costs/k`` labels (k = 0, 1, ...: the same
+    names whichever continuations they label, so a redraw updates them in place) at the
+    middles of at most ``MAX_COST_LABELS`` of them."""
     kp = rec["clustering"].keypoints.astype(np.float32)
     od: Ordering = rec["ordering"]
     finite = np.isfinite(kp).all(axis=1)
@@ -127,12 +128,14 @@ def _ordering_graph_layer(
     rejected: list[tuple[int, int]] = []
     steps = _steps(od)
     labelled = set(np.linspace(0, len(steps) - 1, min(len(steps), MAX_COST_LABELS)).astype(int))
+    n_labels = 0
     for j, (d, to, _, text, is_chosen) in enumerate(steps):
         if not (finite[d.at] and finite[to]):
             continue
         (chosen if is_chosen else rejected).append((d.at, to))
         if j in labelled:
-            nodes[f"costs/{j}"] = Label(text, 0.5 * (kp[d.at] + kp[to]))
+            nodes[f"costs/{n_labels}"] = Label(text, 0.5 * (kp[d.at] + kp[to]))
+            n_labels += 1
     for name, pairs, color, width in (
         ("chosen", chosen, CHOSEN, 4.0),
         ("rejected", rejected, REJECTED, 2.0),

@@ -152,8 +152,9 @@ def _ordering_layer(rec: Reconstruction, calib: StereoCalibration, gt: np.ndarra
         nodes["start"] = Points(path[:1], np.array((0, 220, 0), np.uint8), 6.0)
         nodes["end"] = Points(path[-1:], np.array((230, 0, 0), np.uint8), 6.0)
         step = max(1, len(path) // 12)  # at most ~12 index labels, readable
-        for i in [*range(0, len(path) - step // 2, step), len(path) - 1]:
-            nodes[f"labels/{i}"] = Label(str(i), path[i])
+        at = [*range(0, len(path) - step // 2, step), len(path) - 1]
+        for k, i in enumerate(at):  # named by slot: a redraw updates the labels in place
+            nodes[f"labels/{k}"] = Label(str(i), path[i])
     return nodes
 
 

@@ -1,5 +1,5 @@
-"""A layer's viser nodes (app.scene_nodes): a redraw with the same nodes updates the existing
-handles in place; any other redraw replaces the layer."""
+"""A layer's viser nodes (app.scene_nodes): a redraw updates the existing handles of the nodes
+with the same sub-path and kind in place, and creates or removes only the others."""
 
 from __future__ import annotations
 
@@ -46,10 +46,10 @@ def _nodes(rng: np.random.Generator, n: int, k: int, per_segment: bool = False) 
 def test_a_redraw_with_the_same_nodes_updates_the_handles_in_place(scene):
     rng = np.random.default_rng(4)
     nodes = LayerNodes(scene, "t_inplace", visible=True)
-    assert not nodes.draw(_nodes(rng, 50, 300), base=0.1)  # first draw: created
+    assert nodes.draw(_nodes(rng, 50, 300), base=0.1) == 3  # first draw: created
     handles = {s: h for s, (_, h) in nodes._handles.items()}
     again = _nodes(rng, 70, 200)
-    assert nodes.draw(again, base=0.2)  # same names and kinds: in place
+    assert nodes.draw(again, base=0.2) == 0  # same names and kinds: in place
     assert all(nodes._handles[s][1] is h for s, h in handles.items())
     cloud = handles["cloud"]
     np.testing.assert_array_equal(cloud.points, again["cloud"].points)
@@ -68,20 +68,28 @@ def test_a_redraw_with_the_same_nodes_updates_the_handles_in_place(scene):
     nodes.remove()
 
 
-def test_a_redraw_with_other_nodes_replaces_the_layer(scene):
+def test_a_redraw_with_other_nodes_replaces_only_those(scene):
     rng = np.random.default_rng(5)
     nodes = LayerNodes(scene, "t_replace", visible=False)
     nodes.draw(_nodes(rng, 10, 300), base=0.1)
-    first = nodes._handles["curve"][1]
-    assert not nodes.draw(_nodes(rng, 10, 300, per_segment=True), base=0.1)  # colour kind
-    assert nodes._handles["curve"][1] is not first and first._impl.removed
-    fewer = _nodes(rng, 10, 300, per_segment=True)
-    del fewer["tag"]
-    assert not nodes.draw(fewer, base=0.1)
-    assert set(nodes._handles) == {"cloud", "curve"}
+    first = {s: h for s, (_, h) in nodes._handles.items()}
+    assert nodes.draw(_nodes(rng, 10, 300, per_segment=True), base=0.1) == 1  # colour kind
+    assert nodes._handles["curve"][1] is not first["curve"] and first["curve"]._impl.removed
+    assert nodes._handles["cloud"][1] is first["cloud"] and not first["cloud"]._impl.removed
+    assert nodes._handles["tag"][1] is first["tag"]
+    more = _nodes(rng, 10, 300, per_segment=True)  # a label appears (e.g. one more cost)
+    more["tag2"] = Label("two", np.zeros(3, np.float32))
+    kept = {s: h for s, (_, h) in nodes._handles.items()}
+    assert nodes.draw(more, base=0.1) == 1
+    assert all(nodes._handles[s][1] is h and not h._impl.removed for s, h in kept.items())
+    fewer = dict(more)
+    del fewer["tag"], fewer["tag2"]
+    assert nodes.draw(fewer, base=0.1) == 0
+    assert set(nodes._handles) == {"cloud", "curve"} and kept["tag"]._impl.removed
+    assert nodes._handles["curve"][1] is kept["curve"]
     fewer["curve"] = Segments(np.zeros((0, 2, 3), np.float32), (1, 1, 1), 1.0)  # empty: no node
-    assert not nodes.draw(fewer, base=0.1)
-    assert set(nodes._handles) == {"cloud"}
+    assert nodes.draw(fewer, base=0.1) == 0
+    assert set(nodes._handles) == {"cloud"} and kept["curve"]._impl.removed
     assert nodes._frame.visible is False
     nodes.set_visible(True)
     assert nodes._frame.visible is True

@@ -115,6 +115,17 @@ def test_layers_are_finite_float32_geometry(case):
     assert len(members.points) == int((rec["clustering"].labels >= 0).sum())
 
 
+def test_path_index_labels_are_named_by_slot(case):
+    """labels/0, labels/1, ... whichever path indices they show: a redraw with as many labels
+    updates them in place (app.scene_nodes)."""
+    rec, calib, gt = case
+    nodes = layer("ordering", rec, calib, gt)
+    names = [k for k in nodes if k.startswith("labels/")]
+    assert names == [f"labels/{k}" for k in range(len(names))] and len(names) > 2
+    n = len(rec["ordering"].path_px)
+    assert nodes[names[0]].text == "0" and nodes[names[-1]].text == str(n - 1)
+
+
 def test_palette_colours_are_distinct():
     p = palette(40)
     assert len({tuple(c) for c in p}) == 40

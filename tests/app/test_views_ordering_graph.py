@@ -64,6 +64,10 @@ def test_layer_draws_chosen_and_rejected_steps_and_cost_labels(crossing):
     assert len(nodes["chosen"].points) == sum(d.chosen >= 0 for d in od.graph.decisions)
     labels = [v for k, v in nodes.items() if k.startswith("costs/")]
     assert len(labels) == min(n_rej + len(nodes["chosen"].points), MAX_COST_LABELS)
+    # named by slot, not by continuation: a redraw with as many labels updates them in place
+    assert [k for k in nodes if k.startswith("costs/")] == [
+        f"costs/{k}" for k in range(len(labels))
+    ]
     assert all(isinstance(v, Label) for v in labels)
     assert isinstance(nodes["junctions"], Points)
     np.testing.assert_allclose(nodes["junctions"].points, kp[od.graph.junctions], rtol=1e-6)

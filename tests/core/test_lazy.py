@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -38,6 +40,30 @@ def test_a_deferred_field_is_computed_once_on_first_read() -> None:
     with pytest.raises(TypeError, match="'b'"):
         _Result(1)  # type: ignore[call-arg]  # a LazyField without a default is required
     assert _Result(1, np.ones(2), c=np.zeros(1)).c.tolist() == [0.0]  # plain values too
+
+
+def test_threads_reading_a_deferred_field_at_once_compute_it_once() -> None:
+    calls = []
+
+    def slow(n: int) -> np.ndarray:
+        calls.append(n)
+        time.sleep(0.05)  # long enough for every reader to arrive while it computes
+        return np.arange(n)
+
+    r = _Result(1, Deferred(slow, 4))
+    start = threading.Barrier(4)
+    got: list[np.ndarray] = []
+
+    def read() -> None:
+        start.wait()
+        got.append(r.b)
+
+    threads = [threading.Thread(target=read) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert calls == [4] and len(got) == 4 and all(g is got[0] for g in got)
 
 
 def test_the_ordering_graph_is_built_when_read_and_is_the_walks() -> None:
