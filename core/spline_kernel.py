@@ -6,7 +6,7 @@ at the points x, as scipy computes it: the k + 1 non-zero functions at x by the 
 recursion (scipy's ``_deBoor_D``), then each column as the sum ``0 + sum_a c[a] b_a`` with the
 identity's coefficients. Here the recursion's floating-point operations are the same, in the
 same order, and the sum's products by 0 are left out (``0 + 1 * b`` is ``b + 0``, which only
-turns a -0.0 into +0.0), so the matrix is the same to the last bit (tests/core/test_spline.py
+turns a -0.0 into +0.0), so the matrix is the same to the last bit (tests/core/test_bounds_spline.py
 checks it) at O(len(x) k^2) instead of O(len(x) m k): 5-10x at the m' = 60-80 control points of
 a 1920x1080 frame's x, y spline.
 

@@ -877,24 +877,39 @@ def test_a_generated_raw_frame_whose_end_follows_a_jump_does_not_fold() -> None:
     assert rec["check"].fold_px < 5.0 and rec.status == "ok"
 
 
+def _strands_and_shaft(
+    shape: tuple[int, int],
+    d: int,
+    strands: list[tuple[int, int, int]],
+    shaft: tuple[int, int, int] | None,
+) -> LiftedPair:
+    """A lifted pair on a bare background (grey 200): horizontal strands 3 px wide (grey 40)
+    from rows ``y``..``y + 2`` and left-view columns ``x0``..``x1`` (each ``(y, x0, x1)``) at
+    disparity ``d``, and optionally a shaft 40 px wide (grey 60, unsegmented) over rows
+    ``y0``..``y1`` from left-view column ``x`` (``(y0, y1, x)``), 25 px of disparity in front."""
+    grey = [np.full(shape, 200.0, np.float32) for _ in range(2)]
+    P = [np.zeros(shape, bool) for _ in range(2)]
+    for view, shift in ((0, 0), (1, d)):
+        for y, x0, x1 in strands:
+            P[view][y : y + 3, x0 - shift : x1 - shift] = True
+        grey[view][P[view]] = 40.0
+        if shaft is not None:
+            y0, y1, x = shaft
+            x0 = x - (0 if view == 0 else 25)
+            grey[view][y0:y1, x0 : x0 + 40] = 60.0
+            P[view][y0:y1, x0 : x0 + 40] = False
+    return LiftedPair(grey[0], grey[1], P[0], P[1], grey[0], grey[1], (200.0, 200.0))
+
+
 def _u_turn_under(occluder: bool) -> tuple[LiftedPair, _WalkGraph]:
     """Two strands 30 px apart, the upper one heading east into a shaft (grey 60, 15 px of
     disparity in front of the thread's 10 px), the lower one coming out of it heading west:
     a thread that turns back under the shaft, hidden there in both views (or, without the
     shaft, two free ends over bare background). Keypoints every 8 px; the lower strand's end
     lies 4 px west of the upper's, so the jump between them turns in by ~98 deg."""
-    H, W, d, d_shaft = 120, 200, 10, 25
-    grey = [np.full((H, W), 200.0, np.float32) for _ in range(2)]
-    P = [np.zeros((H, W), bool) for _ in range(2)]
-    for view, shift in ((0, 0), (1, d)):
-        P[view][49:52, 20 - shift : 100 - shift] = True
-        P[view][79:82, 20 - shift : 100 - shift] = True
-        grey[view][P[view]] = 40.0
-        if occluder:
-            x0 = 100 - (0 if view == 0 else d_shaft)
-            grey[view][30:100, x0 : x0 + 40] = 60.0
-            P[view][30:100, x0 : x0 + 40] = False
-    lifted = LiftedPair(grey[0], grey[1], P[0], P[1], grey[0], grey[1], (200.0, 200.0))
+    d = 10
+    shaft = (30, 100, 100) if occluder else None
+    lifted = _strands_and_shaft((120, 200), d, [(49, 20, 100), (79, 20, 100)], shaft)
     upper = [(x, 50.0) for x in range(24, 97, 8)]
     lower = [(x, 80.0) for x in range(92, 23, -8)]
     pos = np.array(upper + lower)
@@ -943,18 +958,9 @@ def _two_pieces_in_line(occluder: bool) -> _WalkGraph:
     (grey 60, 25 px of disparity) or by nothing (bare background: two free ends). Two
     keypoints on each side (both ends of their piece: a jump into a piece's middle has no
     end's way to look along, and stays allowed)."""
-    H, W, d = 100, 200, 10
-    grey = [np.full((H, W), 200.0, np.float32) for _ in range(2)]
-    P = [np.zeros((H, W), bool) for _ in range(2)]
-    for view, shift in ((0, 0), (1, d)):
-        P[view][49:52, 76 - shift : 100 - shift] = True
-        P[view][49:52, 140 - shift : 164 - shift] = True
-        grey[view][P[view]] = 40.0
-        if occluder:
-            x0 = 100 - (0 if view == 0 else 25)
-            grey[view][20:80, x0 : x0 + 40] = 60.0
-            P[view][20:80, x0 : x0 + 40] = False
-    lifted = LiftedPair(grey[0], grey[1], P[0], P[1], grey[0], grey[1], (200.0, 200.0))
+    d = 10
+    shaft = (20, 80, 100) if occluder else None
+    lifted = _strands_and_shaft((100, 200), d, [(49, 76, 100), (49, 140, 164)], shaft)
     pos = np.array([(84.0, 50.0), (92.0, 50.0), (148.0, 50.0), (156.0, 50.0)])
     adj = _adjacency(4, np.array([(0, 1), (2, 3)], dtype=np.int64))
     return _WalkGraph.of(adj, pos, np.full(4, float(d)), None, lifted)
