@@ -126,7 +126,8 @@ def contested(
     hi = np.full(width.size, np.iinfo(np.int64).min)
     np.minimum.at(lo, run[on], x[on])
     np.maximum.at(hi, run[on], x[on])
-    reach = width[run] + slack_px
-    far = on & ((hi[run] - x > reach) | (x - lo[run] > reach))
-    out[sel[far]] = True
+    k, xk = run[on], x[on]
+    reach = width[k] + slack_px
+    far = (hi[k] - xk > reach) | (xk - lo[k] > reach)
+    out[sel[on][far]] = True
     return out
