@@ -41,7 +41,7 @@ stage costs a few milliseconds.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -80,7 +80,7 @@ from threadrecon.core.check_score import (
     point_errors,
     quality_score,
 )
-from threadrecon.core.check_support import contradicted, reliable_rows
+from threadrecon.core.check_support import contested, contradicted, reliable_rows
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.reliability import ReliabilityResult
@@ -94,6 +94,7 @@ BAND_PX = 8  # band around the curve in which the thread width is measured, px
 CUT_REACH_PX = 35.0  # px searched past cut_end_px (an occluder shifts a cut by 10-25 px)
 BEYOND_COVER_PX = 2.0  # px: a thread's half-width, added to cover_px for the pieces beyond
 CONTRA_PX = 1  # px: the reliable pixels under a curve point (its pixel and 8 neighbours)
+CONTEST_SLACK_PX = 2.0  # px: a right row run holds its own width of left pixels, +-1 px a side
 
 
 @dataclass(frozen=True)
@@ -334,6 +335,15 @@ class CheckParams(Params):
         "end is suspect for it: both ends at the border (the visible part may be any piece "
         "of the thread), or one end at the border and the curve shorter than grasp_mm + "
         "grasp_window_mm (the grasp window would reach the border end).",
+    )  # fmt: skip
+    contested_support: bool = param(
+        True, label="contested matches support nothing",
+        doc="On: a reliable match whose right position lies on the same strand of the right "
+        "view (row run of P_R) as another reliable match of its row, the two farther apart in "
+        "the left view than that run is wide plus 2 px, supports no curve point (its residual "
+        "r_i is read from the other reliable matches): one right strand cannot show two left "
+        "ones side by side, so one of the two matches is no observation (core/check_support.py, "
+        "``contested``). Off: every reliable match supports (session 14's check).",
     )  # fmt: skip
     crossing_degree: int = param(
         4, lo=3, slider=(3, 10, 1), label="crossing degree",
@@ -791,7 +801,14 @@ def _check(
     degree = np.bincount(ordering.edges.ravel(), minlength=K) if ordering.edges.size else []
     crossings = int(np.sum(np.asarray(degree) >= p.crossing_degree))
     z_pos = np.maximum(z, 1e-12)
-    r = _disparity_residual(stereo, rel, uv_l, f * B / z_pos, p.support_px)
+    # a reliable match sharing its right strand with one of its row too far away in the left
+    # view to be that strand is no observation of the depth (one of the two is not seen)
+    rel_s = rel
+    if p.contested_support and lifted.P_R is not None:
+        clash = contested(stereo, rel, lifted.P_R, CONTEST_SLACK_PX)
+        if clash.any():
+            rel_s = replace(rel, reliable=rel.reliable & ~clash)
+    r = _disparity_residual(stereo, rel_s, uv_l, f * B / z_pos, p.support_px)
     supported = r <= p.support_tol_px
     strand = _strand_samples(crossings, in_l & (rho_l <= p.jump_px), supported, step, p)
     overlap = _overlap(uv_l, step, p.loop_px, f * B / z_pos, strand, p.crossing_disparity_px)

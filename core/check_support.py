@@ -71,3 +71,63 @@ def _rows(
     y0 = int(ys[0])
     row_ptr = np.searchsorted(ys, np.arange(y0, int(ys[-1]) + 2)).astype(np.int64)
     return xs, row_ptr, y0, np.ascontiguousarray(disp)
+
+
+def contested(
+    stereo: StereoResult, rel: ReliabilityResult, P_R: np.ndarray, slack_px: float
+) -> np.ndarray:
+    """(N,) bool over the pixels of P_L: reliable matches that share one strand of the right
+    view with another reliable match of their row lying farther from them in the left view
+    than that strand is wide plus ``slack_px``.
+
+    A strand's row run in the right view holds the pixels of one strand (one right run is as
+    wide as the left one, less the disparity change across it). Two left pixels of a row more
+    than the right run's width apart, both matched into it, cannot both be seen there: the
+    right view shows one strand where the left shows two side by side (a distractor's piece
+    next to the thread matched the thread's right pixels at a larger disparity), or one of the
+    two lies behind the other in the right view. Either way one of the two matches is not an
+    observation, and the images do not tell which: neither measures the depth. The right run
+    of a match is the one holding its right position x - d, or a pixel next to it (the run's
+    sub-pixel edge)."""
+    n = len(stereo.pixels)
+    out = np.zeros(n, dtype=bool)
+    sel = np.flatnonzero(rel.reliable)
+    if sel.size < 2 or not np.any(P_R):
+        return out
+    H, W = P_R.shape
+    x = stereo.pixels[sel, 0].astype(np.int64)
+    y = stereo.pixels[sel, 1].astype(np.int64)
+    xr = np.rint(x - np.asarray(stereo.disparity, dtype=np.float64)[sel])
+    ok = np.isfinite(xr) & (y >= 0) & (y < H)
+    if not ok.any():
+        return out
+    y0, y1 = int(y[ok].min()), int(y[ok].max()) + 1
+    rows = P_R[y0:y1]
+    # run ids over the rows' flat pixels (a run starts where a row's pixel is set and the one
+    # before it, in that row, is not), 0 off P_R; and each run's width
+    pad = np.zeros((rows.shape[0], W + 1), dtype=bool)
+    pad[:, 1:] = rows
+    start = pad[:, 1:] & ~pad[:, :-1]
+    lab = (np.cumsum(start.ravel()) * rows.ravel()).reshape(rows.shape)
+    width = np.bincount(lab.ravel(), minlength=int(lab.max()) + 1)
+    width[0] = 0
+    yy = np.where(ok, y - y0, 0)
+    xi = np.where(ok, xr, -1).astype(np.int64)
+    run = np.zeros(sel.size, dtype=np.int64)
+    for o in (0, -1, 1):  # the run at x - d first, else one next to it
+        xo = xi + o
+        inside = ok & (xo >= 0) & (xo < W)
+        hit = np.where(inside, lab[yy, np.clip(xo, 0, W - 1)], 0)
+        run = np.where(run > 0, run, hit)
+    on = run > 0
+    if not on.any():
+        return out
+    lo = np.full(width.size, np.iinfo(np.int64).max)
+    hi = np.full(width.size, np.iinfo(np.int64).min)
+    np.minimum.at(lo, run[on], x[on])
+    np.maximum.at(hi, run[on], x[on])
+    k, xk = run[on], x[on]
+    reach = width[k] + slack_px
+    far = (hi[k] - xk > reach) | (xk - lo[k] > reach)
+    out[sel[on][far]] = True
+    return out

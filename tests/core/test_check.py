@@ -620,3 +620,33 @@ def test_a_bridge_is_evidenced_however_it_turns_at_its_ends_but_not_as_a_loop(
     pts, uv, s3, step = _corner(turn_deg, loop=True)
     why = _bridge_evidence(pts, uv, uv, s3, step, 20, 40, 1.0, None, p)
     assert why is not None and "a loop" in why
+
+
+def test_a_distractor_piece_matched_into_the_thread_strand_supports_no_depth() -> None:
+    """Raw distractors frame 14111 #15 (eval_suites' frame, masks withheld): a vessel's piece
+    6 px beside the thread joined the left mask; its reliable matches fell on the thread's
+    3 px strand of the right view at 2-5 px more disparity, and the curve went out over it 20
+    mm towards the camera and back (length error 25.5 mm). Those matches supported that
+    depth: the added length counted as measured (9.6 mm, under the 10 mm limit), "ok". The
+    two left strands share one right strand: neither match measures the depth."""
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import (
+        RenderParams,
+        SyntheticParams,
+        ThreadParams,
+        generate_frame,
+    )
+
+    render = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, distractors=8)
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng([14111, 5, 15])
+    )
+    calib = frame.camera.calibration()
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run()
+    assert frame_errors(rec["camera"].points, frame.truth.centerline, calib).e_length > 20.0
+    assert rec["check"].status == "suspect", rec["check"].reasons
+    assert rec["check"].unmeasured_mm > CheckParams().max_unmeasured_mm
+    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    off = check_curve(*args, rec["camera"], calib, CheckParams(contested_support=False))
+    assert off.status == "ok" and off.unmeasured_mm < CheckParams().max_unmeasured_mm

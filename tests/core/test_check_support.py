@@ -1,4 +1,5 @@
-"""The reliable matches under the curve (core/check_support.py): contradicted depth."""
+"""The reliable matches under the curve (core/check_support.py): contradicted depth, contested
+matches."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from threadrecon.core.check_support import contradicted
+from threadrecon.core.check_support import contested, contradicted
 
 
 def _matches(xy: list[tuple[int, int]], disp: list[float]):
@@ -97,3 +98,36 @@ def test_compiled_windows_equal_the_numpy_windows() -> None:
             tol = float(rng.uniform(0.2, 5.0))
             want = _contradicted_numpy(stereo, rel, uv, disp, near, tol)
             assert np.array_equal(contradicted(stereo, rel, uv, disp, near, tol), want)
+
+
+def _rows(runs: list[tuple[int, int, int]], shape=(20, 80)) -> np.ndarray:
+    """P_R with the row runs (y, x0, x1) set, x1 inclusive."""
+    P = np.zeros(shape, dtype=bool)
+    for y, x0, x1 in runs:
+        P[y, x0 : x1 + 1] = True
+    return P
+
+
+def test_two_left_strands_matched_into_one_right_strand_are_contested() -> None:
+    # Row 10: the thread at left 20-22 (disparity 10, right 10-12) and a distractor's piece at
+    # left 27 matched into the same 3 px right run at disparity 16 (right 11): one right strand
+    # cannot show both. The pixels farther than its width + 2 px from the piece are contested.
+    stereo, rel = _matches([(20, 10), (21, 10), (22, 10), (27, 10)], [10.0, 10.0, 10.0, 16.0])
+    P_R = _rows([(10, 10, 12)])
+    assert contested(stereo, rel, P_R, 2.0).tolist() == [True, True, False, True]
+    rel.reliable[3] = False  # the piece not reliable: nothing contests the thread
+    assert not contested(stereo, rel, P_R, 2.0).any()
+
+
+def test_one_strand_and_two_strands_seen_apart_are_not_contested() -> None:
+    # a strand along the row (left 20-49 at disparity 10 to 12: right 10-37, one 28 px run) and
+    # two strands side by side in both views (left 20-22 and 40-42 at disparity 10)
+    xs = list(range(20, 50))
+    stereo, rel = _matches([(x, 5) for x in xs], list(np.linspace(10.0, 12.0, len(xs))))
+    assert not contested(stereo, rel, _rows([(5, 10, 37)]), 2.0).any()
+    stereo, rel = _matches([(20, 5), (21, 5), (22, 5), (40, 5), (41, 5), (42, 5)], [10.0] * 6)
+    assert not contested(stereo, rel, _rows([(5, 10, 12), (5, 30, 32)]), 2.0).any()
+    # the same left strands over an empty right row, or no reliable match: nothing contested
+    assert not contested(stereo, rel, _rows([]), 2.0).any()
+    rel.reliable[:] = False
+    assert not contested(stereo, rel, _rows([(5, 10, 12), (5, 30, 32)]), 2.0).any()
