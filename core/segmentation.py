@@ -128,6 +128,15 @@ class SegmentationParams(Params):
         "level of the background level B (a flat or pre-segmented background).",
         slider=(0.5, 1.0, 0.01),
     )
+    shading_gaps: bool = param(
+        True,
+        label="auto: close shading gaps only",
+        doc="auto: the gaps (<= 4 px) closed before an instrument's wide parts are measured "
+        "are only those between a darker and a lighter pixel (a shading crossing the "
+        "background level inside one object), not between two darker ones (a thread beside a "
+        "shaft, kept). Off: every gap is closed (a thread along a shaft's edge is taken as "
+        "the shaft's).",
+    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,
@@ -385,7 +394,7 @@ def _threshold(
             return out, box
     P = view.map(lambda g: g < threshold)
     if p.method == "auto":  # an instrument over a flat background is no thread
-        P = _drop_wide(P, view, level, p.seg_delta)
+        P = _drop_wide(P, view, level, p.seg_delta, p.shading_gaps)
     box = _box(P, 0)
     if box is None:
         return P, None
@@ -421,7 +430,8 @@ def _threshold_auto8(
     # the lookup on the box only: the same codes there
     cb = codes[y0:y1, x0:x1] if codes is not None else cv2.LUT(u8[y0:y1, x0:x1], table)
     P = cv2.bitwise_and(cb, 1)
-    parts = _wide_parts(cv2.compare(cb, 2, cv2.CMP_GE))  # off8: 255 off the level
+    dark8 = cv2.compare(P, 0, cv2.CMP_GT) if p.shading_gaps else None  # 255 below B - delta
+    parts = _wide_parts(cv2.compare(cb, 2, cv2.CMP_GE), dark8)  # off8: 255 off the level
     if parts is not None:  # the shaft, then the jaws attached to it (wider than the thread)
         wide, body = parts
         P = drop_attached(P.view(bool) & ~wide, wide, body).view(np.uint8)
@@ -479,7 +489,10 @@ def _flat_share_off_tools(
     box = _box(off, _CLOSE_MARGIN)
     if box is None:
         return near / n
-    parts = _wide_parts(np.ascontiguousarray(off[box]).view(np.uint8) * np.uint8(255))
+    parts = _wide_parts(
+        np.ascontiguousarray(off[box]).view(np.uint8) * np.uint8(255),
+        _dark8(view.f32[box], level, p.seg_delta) if p.shading_gaps else None,
+    )
     if parts is None:
         return near / n
     wide = parts[0].view(np.uint8)
@@ -500,7 +513,9 @@ _INSCRIBED_SQUARE: Final = np.ones((15, 15), np.uint8)
 _CLOSE_MARGIN: Final = 4
 
 
-def _drop_wide(mask: np.ndarray, view: _Grey, level: float, delta: float) -> np.ndarray:
+def _drop_wide(
+    mask: np.ndarray, view: _Grey, level: float, delta: float, shading_gaps: bool = True
+) -> np.ndarray:
     """``mask`` without the wide parts of a flat image: pixels off the background level (darker
     or lighter by more than ``delta``, gaps up to 4 px closed) that hold a disc of radius
     _WIDE_PX (an instrument shaft with its dark and bright bands; a thread, or two threads
@@ -519,7 +534,10 @@ def _drop_wide(mask: np.ndarray, view: _Grey, level: float, delta: float) -> np.
     box = _box(off, _CLOSE_MARGIN)
     if box is None:
         return mask
-    parts = _wide_parts(np.ascontiguousarray(off[box]).view(np.uint8) * np.uint8(255))
+    parts = _wide_parts(
+        np.ascontiguousarray(off[box]).view(np.uint8) * np.uint8(255),
+        _dark8(view.f32[box], level, delta) if shading_gaps else None,
+    )
     if parts is None:
         return mask
     wide, body = parts
@@ -533,12 +551,29 @@ def _off_level(g: np.ndarray, level: float, delta: float) -> np.ndarray:
     return cv2.compare(cv2.absdiff(g, float(level)), float(delta), cv2.CMP_GT).ravel() > 0
 
 
-def _wide_parts(off8: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+def _dark8(g: np.ndarray, level: float, delta: float) -> np.ndarray:
+    """uint8, 255 where grey levels ``g`` lie below ``level - delta`` (the thread's side)."""
+    return cv2.compare(g, float(level) - float(delta), cv2.CMP_LT)
+
+
+def _wide_parts(
+    off8: np.ndarray, dark8: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray] | None:
     """(h, w) bool: the wide parts (and their rim) of the off-level pixels ``off8`` (uint8, 255
     off the level) of a box (:func:`_drop_wide`), and those pixels with gaps up to 4 px closed
     (the body that :func:`core.instrument.drop_attached` measures widths on); None when there
-    is no wide part."""
-    off8 = cv2.morphologyEx(off8, cv2.MORPH_CLOSE, _GAP_DISC)  # a shading splits none
+    is no wide part. With ``dark8`` (uint8, 255 below the level: :func:`_dark8`) a gap is
+    closed only where it lies within 4 px of a darker and of a lighter pixel: a shading that
+    crosses the background level inside one object (a shaft's dark rim and its highlight),
+    not the background between two darker objects (a thread along a shaft's dark edge, which
+    the disc would otherwise fit across and the rim swallow; deviation 39)."""
+    closed = cv2.morphologyEx(off8, cv2.MORPH_CLOSE, _GAP_DISC)  # a shading splits none
+    if dark8 is None:
+        off8 = closed
+    else:  # a gap is closed between a darker and a lighter pixel only (a shading, one object)
+        light8 = cv2.bitwise_and(off8, cv2.compare(dark8, 0, cv2.CMP_EQ))
+        both = cv2.bitwise_and(cv2.dilate(light8, _GAP_DISC), cv2.dilate(dark8, _GAP_DISC))
+        off8 = cv2.bitwise_or(off8, cv2.bitwise_and(closed, both))
     if not cv2.countNonZero(cv2.erode(off8, _INSCRIBED_SQUARE)):
         return None  # the usual case, a thin thread only: no square, so no disc fits (exact)
     r = _WIDE_PX

@@ -369,7 +369,15 @@ def _full_image_reference(pair: StereoPair, p: SegmentationParams) -> dict[str, 
         P = grey < bg - p.seg_delta
         if p.method == "auto":  # the instrument's wide parts left out
             off = (np.abs(grey - np.float32(bg)) > np.float32(p.seg_delta)).astype(np.uint8) * 255
-            off = cv2.morphologyEx(off, cv2.MORPH_CLOSE, cv2.getStructuringElement(2, (5, 5)))
+            gap = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+            closed = cv2.morphologyEx(off, cv2.MORPH_CLOSE, gap)
+            if p.shading_gaps:  # only gaps between a darker and a lighter pixel (deviation 39)
+                dark = P.astype(np.uint8) * 255
+                light = off & ~dark
+                both = (cv2.dilate(light, gap) > 0) & (cv2.dilate(dark, gap) > 0)
+                off = np.where(both, closed, off)
+            else:
+                off = closed
             core = cv2.erode(off, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (21, 21)))
             wide = cv2.dilate(core, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (25, 25))) > 0
             # The jaws' rule on the whole image: parts wider than the thread reaching the bar
@@ -412,6 +420,7 @@ def test_threshold_path_equals_the_whole_image_formulas_bit_for_bit(seed: int, m
         background=background,
         lift_dilate_px=int(rng.integers(0, 4)),
         min_component_px=int(rng.integers(0, 40)),
+        shading_gaps=seed < 4,  # both ways of closing the wide parts' gaps
     )
     lifted = segment(pair, p)
     assert lifted.method == "threshold"
@@ -515,3 +524,42 @@ def test_auto_thresholds_a_flat_view_that_a_large_shaft_fills_in_part() -> None:
     for P, T in ((lifted.P_L, threads[0]), (lifted.P_R, threads[1])):
         assert not P[18:52].any()  # no shaft
         assert (P & T).sum() >= 0.9 * T.sum()
+
+
+def _shaft_and_thread_along_it(shift: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A flat view (grey 200): a horizontal shaft (rows 100-135, grey 150, a highlight of 240
+    in rows 113-116, the shading crossing the background level on 2 px rows each side) and a
+    5 px thread (grey 120) that comes down from the top left and runs along the shaft's top
+    edge 3 px above it (rows 92-96) from x = 100 to 260. Returns the view (RGB) and the
+    thread's pixels."""
+    g = np.full((240, 400), 200, np.uint8)
+    g[100:136, :] = 150
+    g[111:113, :] = 200  # the shading crosses the background level: rims to highlight
+    g[113:117, :] = 240
+    g[117:119, :] = 200
+    thread = np.zeros(g.shape, np.uint8)
+    cv2.line(thread, (20 + shift, 10), (100 + shift, 94), 255, 3)
+    cv2.line(thread, (100 + shift, 94), (260 + shift, 94), 255, 3)
+    g[thread > 0] = 120
+    return np.repeat(g[:, :, None], 3, axis=2), thread > 0
+
+
+def test_auto_keeps_a_thread_along_a_shafts_edge() -> None:
+    # Closing every 4-px gap joined the thread to the shaft's dark rim: the wide part's disc
+    # fit across both and its rim swallowed the thread along the edge. A gap between two
+    # darker objects is background, not a shading (deviation 39).
+    left, thread_l = _shaft_and_thread_along_it(0)
+    right, thread_r = _shaft_and_thread_along_it(-10)
+    pair = StereoPair(left, right)
+    along = np.zeros(thread_l.shape, bool)
+    along[90:100, 110:250] = True  # the thread's stretch along the edge, in both views
+    for shading_gaps, kept in ((True, 0.9), (False, None)):
+        lifted = segment(pair, SegmentationParams(shading_gaps=shading_gaps))
+        assert lifted.method == "threshold"
+        for P, T in ((lifted.P_L, thread_l), (lifted.P_R, thread_r)):
+            assert not P[100:136].any()  # the shaft is left out either way
+            share = (P & T & along).sum() / (T & along).sum()
+            if kept is None:
+                assert share < 0.1  # every gap closed: the edge's thread is the shaft's
+            else:
+                assert share >= kept
