@@ -73,6 +73,9 @@ def _rows(
     return xs, row_ptr, y0, np.ascontiguousarray(disp)
 
 
+_I64_MAX, _I64_MIN = int(np.iinfo(np.int64).max), int(np.iinfo(np.int64).min)
+
+
 def contested(
     stereo: StereoResult, rel: ReliabilityResult, P_R: np.ndarray, slack_px: float
 ) -> np.ndarray:
@@ -89,8 +92,18 @@ def contested(
     observation, and the images do not tell which: neither measures the depth. The right run
     of a match is the one holding its right position x - d, or a pixel next to it (the run's
     sub-pixel edge)."""
-    n = len(stereo.pixels)
-    out = np.zeros(n, dtype=bool)
+    return derived(
+        (stereo.pixels, stereo.disparity, rel.reliable, P_R),
+        f"contested {slack_px:g}",
+        lambda: _contested(stereo, rel, P_R, slack_px),
+    )  # fmt: skip  (read-only: cached while the stereo result and P_R live)
+
+
+def _contested(
+    stereo: StereoResult, rel: ReliabilityResult, P_R: np.ndarray, slack_px: float
+) -> np.ndarray:
+    out = np.zeros(len(stereo.pixels), dtype=bool)
+    out.setflags(write=False)  # every return: the cached value is shared
     sel = np.flatnonzero(rel.reliable)
     if sel.size < 2 or not np.any(P_R):
         return out
@@ -102,32 +115,37 @@ def contested(
     if not ok.any():
         return out
     y0, y1 = int(y[ok].min()), int(y[ok].max()) + 1
-    rows = P_R[y0:y1]
-    # run ids over the rows' flat pixels (a run starts where a row's pixel is set and the one
-    # before it, in that row, is not), 0 off P_R; and each run's width
-    pad = np.zeros((rows.shape[0], W + 1), dtype=bool)
-    pad[:, 1:] = rows
-    start = pad[:, 1:] & ~pad[:, :-1]
-    lab = (np.cumsum(start.ravel()) * rows.ravel()).reshape(rows.shape)
-    width = np.bincount(lab.ravel(), minlength=int(lab.max()) + 1)
+    # the rows' thread pixels (flat, raster order) and their runs: a run starts where a pixel
+    # does not follow the one before it in its row; run ids count the starts (1, 2, ...)
+    flat = np.flatnonzero(P_R[y0:y1])
+    if flat.size == 0:
+        return out
+    start = np.ones(flat.size, dtype=bool)
+    start[1:] = (np.diff(flat) != 1) | (flat[1:] % W == 0)
+    run_of = np.cumsum(start)
+    width = np.bincount(run_of, minlength=int(run_of[-1]) + 1)
     width[0] = 0
-    yy = np.where(ok, y - y0, 0)
+    key = np.where(ok, (y - y0) * W, -(2 * W))  # off the rows: no pixel at any offset
     xi = np.where(ok, xr, -1).astype(np.int64)
     run = np.zeros(sel.size, dtype=np.int64)
     for o in (0, -1, 1):  # the run at x - d first, else one next to it
         xo = xi + o
         inside = ok & (xo >= 0) & (xo < W)
-        hit = np.where(inside, lab[yy, np.clip(xo, 0, W - 1)], 0)
+        q = key + np.clip(xo, 0, W - 1)
+        at = np.minimum(np.searchsorted(flat, q), flat.size - 1)
+        hit = np.where(inside & (flat[at] == q), run_of[at], 0)
         run = np.where(run > 0, run, hit)
     on = run > 0
     if not on.any():
         return out
-    lo = np.full(width.size, np.iinfo(np.int64).max)
-    hi = np.full(width.size, np.iinfo(np.int64).min)
+    lo = np.full(width.size, _I64_MAX)
+    hi = np.full(width.size, _I64_MIN)
     np.minimum.at(lo, run[on], x[on])
     np.maximum.at(hi, run[on], x[on])
     k, xk = run[on], x[on]
     reach = width[k] + slack_px
     far = (hi[k] - xk > reach) | (xk - lo[k] > reach)
+    out = np.zeros(len(stereo.pixels), dtype=bool)
     out[sel[on][far]] = True
+    out.setflags(write=False)
     return out

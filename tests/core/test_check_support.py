@@ -115,8 +115,8 @@ def test_two_left_strands_matched_into_one_right_strand_are_contested() -> None:
     stereo, rel = _matches([(20, 10), (21, 10), (22, 10), (27, 10)], [10.0, 10.0, 10.0, 16.0])
     P_R = _rows([(10, 10, 12)])
     assert contested(stereo, rel, P_R, 2.0).tolist() == [True, True, False, True]
-    rel.reliable[3] = False  # the piece not reliable: nothing contests the thread
-    assert not contested(stereo, rel, P_R, 2.0).any()
+    alone = SimpleNamespace(reliable=np.array([True, True, True, False]))
+    assert not contested(stereo, alone, P_R, 2.0).any()  # the piece not reliable: no contest
 
 
 def test_one_strand_and_two_strands_seen_apart_are_not_contested() -> None:
@@ -131,3 +131,52 @@ def test_one_strand_and_two_strands_seen_apart_are_not_contested() -> None:
     assert not contested(stereo, rel, _rows([]), 2.0).any()
     rel.reliable[:] = False
     assert not contested(stereo, rel, _rows([(5, 10, 12), (5, 30, 32)]), 2.0).any()
+
+
+def _contested_by_rows(stereo, rel, P_R: np.ndarray, slack: float) -> np.ndarray:
+    """contested(), one match and one row at a time: the run of P_R's row holding the match's
+    right position x - d (else a pixel next to it), and the farthest other match of that run."""
+    H, W = P_R.shape
+    runs = {}  # (y, x) of a run's pixel -> (run key, width)
+    for y in range(H):
+        x = 0
+        while x < W:
+            if P_R[y, x]:
+                x1 = x
+                while x1 + 1 < W and P_R[y, x1 + 1]:
+                    x1 += 1
+                for xx in range(x, x1 + 1):
+                    runs[y, xx] = ((y, x), x1 - x + 1)
+                x = x1 + 1
+            else:
+                x += 1
+    member = {}
+    for i in np.flatnonzero(rel.reliable):
+        x, y = (int(v) for v in stereo.pixels[i])
+        xr = float(np.rint(x - stereo.disparity[i]))
+        if not np.isfinite(xr) or not 0 <= y < H:
+            continue
+        for o in (0, -1, 1):
+            if (y, int(xr) + o) in runs:
+                member[i] = runs[y, int(xr) + o]
+                break
+    out = np.zeros(len(stereo.pixels), dtype=bool)
+    for i, (key, width) in member.items():
+        xs = [int(stereo.pixels[j, 0]) for j, (k, _) in member.items() if k == key]
+        out[i] = max(abs(v - int(stereo.pixels[i, 0])) for v in xs) > width + slack
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_contested_equals_the_row_by_row_reading(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    H, W, n = 12, 40, 60
+    P_R = rng.random((H, W)) < 0.35
+    xy = np.column_stack([rng.integers(0, W + 10, n), rng.integers(-1, H + 1, n)])
+    disp = rng.uniform(-2.0, 14.0, n)
+    disp[rng.random(n) < 0.1] = np.nan
+    stereo, rel = _matches([tuple(p) for p in xy], list(disp))
+    rel.reliable[rng.random(n) < 0.2] = False
+    for slack in (0.0, 2.0, 5.0):
+        want = _contested_by_rows(stereo, rel, P_R, slack)
+        assert np.array_equal(contested(stereo, rel, P_R, slack), want)
