@@ -1858,14 +1858,6 @@ def _into_piece(v: int, adj: list[list[int]], visited: np.ndarray, steps: int) -
     return cur
 
 
-def _runs_under(
-    lifted: LiftedPair, xy: np.ndarray, way: np.ndarray, d: float, inner: np.ndarray
-) -> bool:
-    """Whether the thread at an end keypoint runs under an occluder in both views
-    (:func:`_end_state` "hidden")."""
-    return _end_state(lifted, xy, way, d, inner) == "hidden"
-
-
 def _end_state(
     lifted: LiftedPair, xy: np.ndarray, way: np.ndarray, d: float, inner: np.ndarray
 ) -> Literal["hidden", "free", "unknown"]:

@@ -129,8 +129,8 @@ class SurfaceTest:
             if len(rr) < _MIN_BLOCK_SAMPLES:
                 continue
             # The background's residuals within _WINDOW_PX of d: does it resolve its own
-            # disparity, and does it match at d (:meth:`_Residuals.resolves`, ``matches_at``
-            # of the block, in one compiled call)?
+            # disparity, and does it match at d (:meth:`_Residuals.resolves` of the block, then
+            # its excess residual at d against the sides', in one compiled call)?
             bv = background_vote(
                 self.this, self.other, rr, cc, d, self.dmax, _WINDOW_PX, self.look_left,
                 _RESOLVE_PX, _MIN_BLOCK_SAMPLES, SAME_DISPARITY_PX, _TAIL, _T_SAME,
@@ -257,20 +257,6 @@ class _Residuals:
             return False
         sides = self._sides(b)
         return bool(sides) and all(self._worse(b, i) for i in sides)
-
-    def matches_at(self, b: int, d: int) -> bool:
-        """Whether block ``b`` (which :meth:`resolves`) matches at disparity ``d`` (within
-        SAME_DISPARITY_PX) about as well as at its own best: its excess mean residual there is
-        under half of that _RESOLVE_PX away (near its optimum a residual grows as the square
-        of the offset: half of it is ~0.7 _RESOLVE_PX, i.e. ~2 px)."""
-        lo = max(int(np.ceil(d - SAME_DISPARITY_PX)) - int(self.ds[0]), 0)
-        hi = min(int(np.floor(d + SAME_DISPARITY_PX)) - int(self.ds[0]), len(self.ds) - 1)
-        if hi < lo:
-            return False
-        m = self.mean[b]
-        excess = float(np.min(m[lo : hi + 1])) - float(self.least[b])
-        ref = min(float(m[i]) for i in self._sides(b)) - float(self.least[b])
-        return excess < 0.5 * ref
 
     def _sides(self, b: int) -> list[int]:
         """Indices into ``ds`` of the disparities _RESOLVE_PX either side of block ``b``'s

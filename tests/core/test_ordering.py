@@ -31,7 +31,6 @@ from threadrecon.core.ordering import (
     _link_positions,
     _normalised,
     _PixelGrid,
-    _runs_under,
     _single_steps,
     _solidify,
     _touching_pairs,
@@ -925,9 +924,9 @@ def test_an_end_running_under_an_occluder_in_both_views_is_told_from_a_free_end(
     for occluder in (True, False):
         lifted, g = _u_turn_under(occluder)
         east, west = np.array([1.0, 0.0]), np.array([-1.0, 0.0])
-        at_shaft = _runs_under(lifted, g.pos[9], east, 10.0, g.pos[6])
+        at_shaft = _end_state(lifted, g.pos[9], east, 10.0, g.pos[6]) == "hidden"
         assert at_shaft is occluder
-        assert not _runs_under(lifted, g.pos[0], west, 10.0, g.pos[3])  # the far, free end
+        assert _end_state(lifted, g.pos[0], west, 10.0, g.pos[3]) != "hidden"  # the far, free end
 
 
 def test_a_thread_turning_back_under_an_occluder_is_joined_across_it() -> None:

@@ -174,10 +174,21 @@ def test_a_line_along_the_rows_has_no_disparity_of_its_own() -> None:
 
 def _plain_background_vote(t: SurfaceTest, rr: np.ndarray, cc: np.ndarray, d: int) -> int:
     """A background block's vote as the Python steps gave it before they were compiled
-    (:class:`_Residuals` of the block, its ``resolves`` and ``matches_at``): -1 undecided."""
+    (:class:`_Residuals` of the block and its ``resolves``): -1 undecided; else 1 where the
+    block matches at ``d`` (within SAME_DISPARITY_PX) about as well as at its own best, its
+    excess mean residual there under half of that _RESOLVE_PX away, 0 where not."""
     ds = np.arange(max(d - ss._WINDOW_PX, 0), min(d + ss._WINDOW_PX, t.dmax) + 1)
     bg = ss._Residuals(t.this, t.other, rr, cc, np.zeros(len(rr), np.intp), 1, ds, t.look_left)
-    return int(bg.matches_at(0, d)) if bg.resolves(0) else -1
+    if not bg.resolves(0):
+        return -1
+    lo = max(int(np.ceil(d - ss.SAME_DISPARITY_PX)) - int(ds[0]), 0)
+    hi = min(int(np.floor(d + ss.SAME_DISPARITY_PX)) - int(ds[0]), len(ds) - 1)
+    if hi < lo:
+        return 0
+    m, least = bg.mean[0], float(bg.least[0])
+    excess = float(np.min(m[lo : hi + 1])) - least
+    ref = min(float(m[i]) for i in bg._sides(0)) - least
+    return int(excess < 0.5 * ref)
 
 
 @pytest.mark.parametrize("trial", range(40))
