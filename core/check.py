@@ -134,7 +134,8 @@ class CheckParams(Params):
         1.0, lo=0.0, unit="px", slider=(0.0, 10.0, 0.5), symbol="d_min",
         label="smallest disparity",
         doc="Smallest disparity a depth may have: the curve must lie between f B / alpha and "
-        "f B / d_min (Eq. (3) searches d = 0..alpha).",
+        "f B / d_min (Eq. (3) searches d = 0..alpha). With a working depth range "
+        "(stereo.z_far_mm) the search starts at floor(f B / z_far): a larger d_min is that.",
     )  # fmt: skip
     disparity_tol_px: float = param(
         0.5, lo=0.0, unit="px", slider=(0.0, 10.0, 0.5), label="disparity tolerance",
@@ -496,7 +497,9 @@ def _check(
     n = len(pts)
     f, B = calib.focal, calib.baseline
     alpha = stereo.d_range[1]
-    d_lo = p.min_disparity_px
+    # the search's own far end (stereo.z_far_mm): a depth beyond it was never searched, so a
+    # curve there is no measurement (a bridge's depth run away), whatever d_min allows
+    d_lo = max(p.min_disparity_px, float(stereo.d_range[0]))
     z_allowed = (f * B / alpha, f * B / d_lo if d_lo > 0 else np.inf)
     findings: list[tuple[Status, str]] = []
     unit = calib.unit

@@ -121,6 +121,35 @@ def test_depth_outside_the_disparity_search_fails() -> None:
     assert any("disparity search allows" in r for r in chk.reasons)
 
 
+def test_depth_beyond_the_searched_far_depth_fails() -> None:
+    """With a working depth range (stereo.z_far_mm) the search starts at floor(f B / z_far):
+    a curve part beyond z_far was never searched (a bridge's depth run away, raw 14165
+    flat+occlusion k=15) and fails, though the default d_min of 1 px would allow it."""
+    pair, calib, _ = synthetic_case(0)
+    z_far = 400.0
+    base = ReconParams()
+    params = replace(base, stereo=replace(base.stereo, z_far_mm=z_far))
+    rec = Pipeline(pair, calib).run(params)
+    assert rec["stereo"].d_range[0] > 1
+    cam = rec["camera"]
+    points = cam.points.copy()
+    assert points[:, 2].max() * calib.mm_per_unit < z_far
+    points[200:] *= 1.5 * z_far / (points[200:, 2].min() * calib.mm_per_unit)  # same rays
+    length = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
+    curve = CameraCurve(cam.ctrl, cam.knots, cam.degree, points, length, cam.unit)
+    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    chk = check_curve(*args, curve, calib, CheckParams())
+    assert chk.status == "failed"
+    assert any("disparity search allows" in r for r in chk.reasons)
+    fB = calib.focal * calib.baseline
+    assert chk.depth_allowed[1] == pytest.approx(fB / rec["stereo"].d_range[0])
+    # the same curve against the full search (d = 0..alpha) is not out of its range
+    plain = Pipeline(pair, calib).run()
+    args = [plain[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    chk0 = check_curve(*args, curve, calib, CheckParams())
+    assert not any("disparity search allows" in r for r in chk0.reasons)
+
+
 def test_thresholds_are_documented_parameters() -> None:
     for spec in specs(CheckParams):
         assert spec.doc, spec.name
