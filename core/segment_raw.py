@@ -1314,12 +1314,18 @@ def _kth_smallest(x: np.ndarray, k: int) -> float:
     return float(kth_smallest(x if x.ndim == 2 else x[None], k))
 
 
-def _pieces(sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
+def _pieces(
+    sub: np.ndarray | None, v: _View, p: SegmentationParams, thin_only: bool = False
+) -> tuple:
     """Hysteresis pieces of the view's lo pixels where ``sub`` (M,) is True (all when None),
     8-connected: the piece of each lo pixel (M,) (0: none), rows and columns of the shape-ok
     pieces' pixels, per-piece mean S, length (exact where shape ok), shape ok. Labelled and
     measured on the pixel lists (:mod:`threadrecon.core.ridge_kernel`): cv2.connectedComponents'
-    labels and cv2.distanceTransform's half-widths (to float32 rounding), no label image."""
+    labels and cv2.distanceTransform's half-widths (to float32 rounding), no label image.
+
+    With ``p.split_wide`` (deviation 40), a long piece too wide for a thread loses its wide
+    part (:func:`_wide_part`; those pixels belong to no piece) and the pieces are formed again
+    without it (``thin_only``: once; no piece is wider then)."""
     rows, cols = (v.rows, v.cols) if sub is None else (v.rows[sub], v.cols[sub])
     lab = np.empty(len(rows), np.int64)
     n = label_pixels(rows, cols, lab)
@@ -1345,6 +1351,15 @@ def _pieces(sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
     half = half_widths(lab, rows, cols, np.flatnonzero(cands), boxes, h, w)
     length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
     ok = cands & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
+    wide = cands & (length >= p.min_length_px) & ~ok
+    if p.split_wide and not thin_only and wide.any():
+        # A thread merged with a line it runs beside (or crossing itself at a shallow angle)
+        # is wider than a thread there only: that part goes, the rest is judged as pieces.
+        drop = _wide_part(lab, rows, cols, np.flatnonzero(wide), boxes, h, w)
+        if drop.any():
+            keep = np.ones(len(v.rows), bool) if sub is None else sub.copy()
+            keep[np.flatnonzero(keep)[drop]] = False
+            return _pieces(keep, v, p, thin_only=True)
     means[0] = 0.0
     on = ok[lab]
     lab_all = lab if sub is None else _scatter(lab, sub)
@@ -1352,6 +1367,49 @@ def _pieces(sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
 
 
 _CHAMFER_A: Final = 0.95  # below cv2's DIST_L2 3x3 step (0.955): no piece is thinner
+
+
+def _wide_part(
+    lab: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    ids: np.ndarray,
+    boxes: np.ndarray,
+    h: int,
+    w: int,
+) -> np.ndarray:
+    """(M,) bool: the pixels (``rows``, ``cols``, of pieces ``lab``) of the pieces ``ids``
+    that a disc wider than a thread inside the piece reaches: within L + 1 px (an ellipse) of
+    a pixel farther than L from the piece's outside, for L = MAX_HALF_WIDTH_PX (6), 7, 8, ...
+    (the distance of cv2.distanceTransform, DIST_L2 3x3, as :func:`ridge_kernel.half_widths`,
+    the outside of the image far). The 1 px beyond the disc: where two lines part. ``boxes``
+    (4, n): the pieces' first and last rows and columns."""
+    out = np.zeros(len(rows), bool)
+    for k in ids.tolist():
+        r0, r1, c0, c1 = (int(b) for b in boxes[:, k])
+        # the box grown by one pixel of zeros where that stays in the image (else far, as cv2)
+        y0, y1, x0, x1 = max(r0 - 1, 0), min(r1 + 1, h - 1), max(c0 - 1, 0), min(c1 + 1, w - 1)
+        sel = np.flatnonzero(lab == k)
+        m = np.zeros((y1 - y0 + 1, x1 - x0 + 1), np.uint8)
+        m[rows[sel] - y0, cols[sel] - x0] = 1
+        out[sel] = _disc_reach(m)[rows[sel] - y0, cols[sel] - x0] > 0
+    return out
+
+
+def _disc_reach(m: np.ndarray) -> np.ndarray:
+    """(h, w) uint8, nonzero where a disc wider than a thread inside the mask ``m`` (h, w)
+    uint8 reaches (:func:`_wide_part`)."""
+    dt = cv2.distanceTransform(m, cv2.DIST_L2, 3)
+    reach = np.zeros(m.shape, np.uint8)
+    level = MAX_HALF_WIDTH_PX
+    while True:
+        centres = (dt > level).view(np.uint8)
+        if not centres.any():
+            return reach
+        r = int(np.floor(level)) + 1
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        reach |= cv2.dilate(centres, disc)
+        level = np.floor(level) + 1.0
 _BORDER_PX: Final = int(np.ceil(2 * _SCALES[-1]))  # the coarse scale's reflected rim, px
 
 
