@@ -582,12 +582,20 @@ def _select(
             if is_mark:
                 marks.append(j)
         # An undecided piece that is a fragment of a mark of its dye (as in the choice above)
-        # does not join either: a fibre cut in two by a faint stretch or by the instrument.
+        # does not join either: a fibre cut in two by a faint stretch or by the instrument;
+        # nor, in the first pass, one whose own disparity is the tissue's (a fibre of a white
+        # thread's dye the block test leaves open: a mark, as when choosing).
         for j in others.tolist():
             if k[j] and np.all(votes_of[j] < 0):
                 k[j] = not (
                     _continues(v, on, lab_on, j, marks, delta, length)
                     or _like_a_mark(v, on[lab_on == j], j, marks, delta)
+                    or (
+                        not nearest_hue
+                        and _at_tissue_disparity(
+                            views, i, on[lab_on == j], [on[lab_on == m] for m in marks], D
+                        )
+                    )
                 )
         k[best] = True
         if nearest_hue:
