@@ -451,7 +451,10 @@ def _select(
             # of the marks of its dye found in the frame.
             is_mark = split = _a_mark(votes)
             if is_mark and not nearest_hue:  # a thread merged with fibres: its part floats
-                is_mark, votes = _a_mark_of_one_dye(views, i, lab_on == best, on, D, votes)
+                piece_px = p.min_length_px * area[best] / length[best]  # (its least pixels)
+                is_mark, votes = _a_mark_of_one_dye(
+                    views, i, lab_on == best, on, D, votes, piece_px
+                )
                 votes_of[best] = votes
                 split = not is_mark  # (then its own part is seen in front of the tissue)
             if not is_mark and not (
@@ -569,7 +572,8 @@ def _select(
             # part of the thread merged with a vessel where they cross)
             is_mark = _a_mark(votes)
             if is_mark and not nearest_hue:  # a thread merged with fibres: its part floats
-                is_mark, votes = _a_mark_of_one_dye(views, i, lab_on == j, on, D, votes)
+                piece_px = p.min_length_px * area[j] / length[j]
+                is_mark, votes = _a_mark_of_one_dye(views, i, lab_on == j, on, D, votes, piece_px)
                 votes_of[j] = votes
             k[j] = not is_mark and (
                 not nearest_hue
@@ -917,13 +921,15 @@ def _main_dye(d_px: np.ndarray, votes: np.ndarray, mean: np.ndarray) -> np.ndarr
     return d_px[part].mean(axis=0)
 
 
-def _two_dyes(d_px: np.ndarray) -> np.ndarray | None:
+def _two_dyes(d_px: np.ndarray, min_px: float | None = None) -> np.ndarray | None:
     """(M,) bool, the darker part of a piece's pixels (contrasts ``d_px`` (M, C)) when they
-    split by brightness sign into two parts of >= _MIXED_SHARE each and of different dyes
+    split by brightness sign into two parts of >= _MIXED_SHARE each (or, given ``min_px``, of
+    >= ``min_px`` pixels each: as long as a piece must be) and of different dyes
     (:func:`_same_dye` < _SAME_DYE_COS), else None."""
     dark = d_px[:, 0] < 0
     n_dark = int(np.count_nonzero(dark))
-    if min(n_dark, len(dark) - n_dark) < _MIXED_SHARE * len(dark):
+    least = _MIXED_SHARE * len(dark) if min_px is None else min(_MIXED_SHARE * len(dark), min_px)
+    if min(n_dark, len(dark) - n_dark) < least:
         return None
     parts = [d_px[dark].mean(axis=0), d_px[~dark].mean(axis=0)]
     if _same_dye(parts[0][None], parts[1])[0] >= _SAME_DYE_COS:
@@ -932,7 +938,13 @@ def _two_dyes(d_px: np.ndarray) -> np.ndarray | None:
 
 
 def _a_mark_of_one_dye(
-    views: list[_View], i: int, sel: np.ndarray, on: np.ndarray, d: int, votes: np.ndarray
+    views: list[_View],
+    i: int,
+    sel: np.ndarray,
+    on: np.ndarray,
+    d: int,
+    votes: np.ndarray,
+    min_px: float,
 ) -> tuple[bool, np.ndarray]:
     """Whether a piece of view ``i`` (its lo pixels ``on[sel]``, surface ``votes`` (M,)) is a
     mark on the tissue (:func:`_a_mark`) as a whole, and its votes: not when it is of two dyes
@@ -940,12 +952,14 @@ def _a_mark_of_one_dye(
     tissue (:func:`_floats`); that part's pixels then take their own votes. A thread merged
     with the fibres it crosses is one piece whose votes the fibres outnumber: a block that
     holds both takes the fibres' disparity. (It loses the fibres' part later:
-    :func:`_mark_part` and the pixels' dye.) One more surface test, on such pieces only."""
+    :func:`_mark_part` and the pixels' dye.) One more surface test, on such pieces only. Each
+    dye's part is >= 1/4 of the pixels or >= ``min_px`` (a piece's least length at this
+    piece's width): a short fibre merged into a long thread takes a block's votes too."""
     if not _a_mark(votes):
         return False, votes
     v = views[i]
     px = on[sel]
-    dark = _two_dyes(v.delta[px])
+    dark = _two_dyes(v.delta[px], min_px)
     if dark is None:
         return True, votes
     # the part that votes "on the surface" least (the other made the piece a mark)
@@ -1418,6 +1432,8 @@ def _disc_reach(m: np.ndarray) -> np.ndarray:
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         reach |= cv2.dilate(centres, disc)
         level = np.floor(level) + 1.0
+
+
 _BORDER_PX: Final = int(np.ceil(2 * _SCALES[-1]))  # the coarse scale's reflected rim, px
 
 
