@@ -111,7 +111,8 @@ def segment_raw(
        thread) and the blood-like line chosen lies along it.
     3. Shape: a piece's length >= min_length_px and largest half-width <= MAX_HALF_WIDTH_PX,
        not lying within _BORDER_PX of one image side (the filters' reflected rim,
-       :func:`_along_border`).
+       :func:`_along_border`); with ``split_wide`` a long piece wider than that loses its wide
+       part and its thin rest is judged (:func:`_wide_part`: a thread beside a fibre).
     4. Stereo: a piece keeps >= half of its pixels with a candidate pixel on the same row of the
        other view within [0, max_disparity_px] of disparity, or with the other view's
        instrument in that window (the partner may lie behind it: :func:`_window_hits`).
@@ -128,8 +129,8 @@ def segment_raw(
        tissue (:func:`_main_dye`); it is no mark when that part, tested alone, floats (a
        thread merged with the fibres it crosses, :func:`_a_mark_of_one_dye`). Among
        blood-like pieces, one the surface test leaves open at the tissue's own disparity is a
-       vessel (:func:`_at_tissue_disparity`; in the first pass too, any undecided chosen
-       piece), and so is one voted in front of it whose own disparity is not above the
+       vessel (:func:`_at_tissue_disparity`; in the first pass too, any undecided piece
+       chosen or joining), and so is one voted in front of it whose own disparity is not above the
        tissue's (:func:`_contradicted`); a red thread's undecided fragments join it at its
        own disparity (:func:`_at_thread_disparity`; the gap counted off the instrument,
        :func:`_gap_off_tool`); an undecided blood-like piece holding the highlight the first
