@@ -111,7 +111,8 @@ def segment_raw(
        thread) and the blood-like line chosen lies along it.
     3. Shape: a piece's length >= min_length_px and largest half-width <= MAX_HALF_WIDTH_PX,
        not lying within _BORDER_PX of one image side (the filters' reflected rim,
-       :func:`_along_border`).
+       :func:`_along_border`); with ``split_wide`` a long piece wider than that loses its wide
+       part and its thin rest is judged (:func:`_wide_part`: a thread beside a fibre).
     4. Stereo: a piece keeps >= half of its pixels with a candidate pixel on the same row of the
        other view within [0, max_disparity_px] of disparity, or with the other view's
        instrument in that window (the partner may lie behind it: :func:`_window_hits`).
@@ -128,8 +129,8 @@ def segment_raw(
        tissue (:func:`_main_dye`); it is no mark when that part, tested alone, floats (a
        thread merged with the fibres it crosses, :func:`_a_mark_of_one_dye`). Among
        blood-like pieces, one the surface test leaves open at the tissue's own disparity is a
-       vessel (:func:`_at_tissue_disparity`; in the first pass too, any undecided chosen
-       piece), and so is one voted in front of it whose own disparity is not above the
+       vessel (:func:`_at_tissue_disparity`; in the first pass too, any undecided piece
+       chosen or joining), and so is one voted in front of it whose own disparity is not above the
        tissue's (:func:`_contradicted`); a red thread's undecided fragments join it at its
        own disparity (:func:`_at_thread_disparity`; the gap counted off the instrument,
        :func:`_gap_off_tool`); an undecided blood-like piece holding the highlight the first
@@ -451,7 +452,10 @@ def _select(
             # of the marks of its dye found in the frame.
             is_mark = split = _a_mark(votes)
             if is_mark and not nearest_hue:  # a thread merged with fibres: its part floats
-                is_mark, votes = _a_mark_of_one_dye(views, i, lab_on == best, on, D, votes)
+                piece_px = p.min_length_px * area[best] / length[best]  # (its least pixels)
+                is_mark, votes = _a_mark_of_one_dye(
+                    views, i, lab_on == best, on, D, votes, piece_px
+                )
                 votes_of[best] = votes
                 split = not is_mark  # (then its own part is seen in front of the tissue)
             if not is_mark and not (
@@ -569,7 +573,8 @@ def _select(
             # part of the thread merged with a vessel where they cross)
             is_mark = _a_mark(votes)
             if is_mark and not nearest_hue:  # a thread merged with fibres: its part floats
-                is_mark, votes = _a_mark_of_one_dye(views, i, lab_on == j, on, D, votes)
+                piece_px = p.min_length_px * area[j] / length[j]
+                is_mark, votes = _a_mark_of_one_dye(views, i, lab_on == j, on, D, votes, piece_px)
                 votes_of[j] = votes
             k[j] = not is_mark and (
                 not nearest_hue
@@ -582,12 +587,20 @@ def _select(
             if is_mark:
                 marks.append(j)
         # An undecided piece that is a fragment of a mark of its dye (as in the choice above)
-        # does not join either: a fibre cut in two by a faint stretch or by the instrument.
+        # does not join either: a fibre cut in two by a faint stretch or by the instrument;
+        # nor, in the first pass, one whose own disparity is the tissue's (a fibre of a white
+        # thread's dye the block test leaves open: a mark, as when choosing).
         for j in others.tolist():
             if k[j] and np.all(votes_of[j] < 0):
                 k[j] = not (
                     _continues(v, on, lab_on, j, marks, delta, length)
                     or _like_a_mark(v, on[lab_on == j], j, marks, delta)
+                    or (
+                        not nearest_hue
+                        and _at_tissue_disparity(
+                            views, i, on[lab_on == j], [on[lab_on == m] for m in marks], D
+                        )
+                    )
                 )
         k[best] = True
         if nearest_hue:
@@ -909,13 +922,15 @@ def _main_dye(d_px: np.ndarray, votes: np.ndarray, mean: np.ndarray) -> np.ndarr
     return d_px[part].mean(axis=0)
 
 
-def _two_dyes(d_px: np.ndarray) -> np.ndarray | None:
+def _two_dyes(d_px: np.ndarray, min_px: float | None = None) -> np.ndarray | None:
     """(M,) bool, the darker part of a piece's pixels (contrasts ``d_px`` (M, C)) when they
-    split by brightness sign into two parts of >= _MIXED_SHARE each and of different dyes
+    split by brightness sign into two parts of >= _MIXED_SHARE each (or, given ``min_px``, of
+    >= ``min_px`` pixels each: as long as a piece must be) and of different dyes
     (:func:`_same_dye` < _SAME_DYE_COS), else None."""
     dark = d_px[:, 0] < 0
     n_dark = int(np.count_nonzero(dark))
-    if min(n_dark, len(dark) - n_dark) < _MIXED_SHARE * len(dark):
+    least = _MIXED_SHARE * len(dark) if min_px is None else min(_MIXED_SHARE * len(dark), min_px)
+    if min(n_dark, len(dark) - n_dark) < least:
         return None
     parts = [d_px[dark].mean(axis=0), d_px[~dark].mean(axis=0)]
     if _same_dye(parts[0][None], parts[1])[0] >= _SAME_DYE_COS:
@@ -924,7 +939,13 @@ def _two_dyes(d_px: np.ndarray) -> np.ndarray | None:
 
 
 def _a_mark_of_one_dye(
-    views: list[_View], i: int, sel: np.ndarray, on: np.ndarray, d: int, votes: np.ndarray
+    views: list[_View],
+    i: int,
+    sel: np.ndarray,
+    on: np.ndarray,
+    d: int,
+    votes: np.ndarray,
+    min_px: float,
 ) -> tuple[bool, np.ndarray]:
     """Whether a piece of view ``i`` (its lo pixels ``on[sel]``, surface ``votes`` (M,)) is a
     mark on the tissue (:func:`_a_mark`) as a whole, and its votes: not when it is of two dyes
@@ -932,12 +953,14 @@ def _a_mark_of_one_dye(
     tissue (:func:`_floats`); that part's pixels then take their own votes. A thread merged
     with the fibres it crosses is one piece whose votes the fibres outnumber: a block that
     holds both takes the fibres' disparity. (It loses the fibres' part later:
-    :func:`_mark_part` and the pixels' dye.) One more surface test, on such pieces only."""
+    :func:`_mark_part` and the pixels' dye.) One more surface test, on such pieces only. Each
+    dye's part is >= 1/4 of the pixels or >= ``min_px`` (a piece's least length at this
+    piece's width): a short fibre merged into a long thread takes a block's votes too."""
     if not _a_mark(votes):
         return False, votes
     v = views[i]
     px = on[sel]
-    dark = _two_dyes(v.delta[px])
+    dark = _two_dyes(v.delta[px], min_px)
     if dark is None:
         return True, votes
     # the part that votes "on the surface" least (the other made the piece a mark)
@@ -1314,12 +1337,18 @@ def _kth_smallest(x: np.ndarray, k: int) -> float:
     return float(kth_smallest(x if x.ndim == 2 else x[None], k))
 
 
-def _pieces(sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
+def _pieces(
+    sub: np.ndarray | None, v: _View, p: SegmentationParams, thin_only: bool = False
+) -> tuple:
     """Hysteresis pieces of the view's lo pixels where ``sub`` (M,) is True (all when None),
     8-connected: the piece of each lo pixel (M,) (0: none), rows and columns of the shape-ok
     pieces' pixels, per-piece mean S, length (exact where shape ok), shape ok. Labelled and
     measured on the pixel lists (:mod:`threadrecon.core.ridge_kernel`): cv2.connectedComponents'
-    labels and cv2.distanceTransform's half-widths (to float32 rounding), no label image."""
+    labels and cv2.distanceTransform's half-widths (to float32 rounding), no label image.
+
+    With ``p.split_wide`` (deviation 40), a long piece too wide for a thread loses its wide
+    part (:func:`_wide_part`; those pixels belong to no piece) and the pieces are formed again
+    without it (``thin_only``: once; no piece is wider then)."""
     rows, cols = (v.rows, v.cols) if sub is None else (v.rows[sub], v.cols[sub])
     lab = np.empty(len(rows), np.int64)
     n = label_pixels(rows, cols, lab)
@@ -1345,6 +1374,15 @@ def _pieces(sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
     half = half_widths(lab, rows, cols, np.flatnonzero(cands), boxes, h, w)
     length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
     ok = cands & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
+    wide = cands & (length >= p.min_length_px) & ~ok
+    if p.split_wide and not thin_only and wide.any():
+        # A thread merged with a line it runs beside (or crossing itself at a shallow angle)
+        # is wider than a thread there only: that part goes, the rest is judged as pieces.
+        drop = _wide_part(lab, rows, cols, np.flatnonzero(wide), boxes, h, w)
+        if drop.any():
+            keep = np.ones(len(v.rows), bool) if sub is None else sub.copy()
+            keep[np.flatnonzero(keep)[drop]] = False
+            return _pieces(keep, v, p, thin_only=True)
     means[0] = 0.0
     on = ok[lab]
     lab_all = lab if sub is None else _scatter(lab, sub)
@@ -1352,6 +1390,51 @@ def _pieces(sub: np.ndarray | None, v: _View, p: SegmentationParams) -> tuple:
 
 
 _CHAMFER_A: Final = 0.95  # below cv2's DIST_L2 3x3 step (0.955): no piece is thinner
+
+
+def _wide_part(
+    lab: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    ids: np.ndarray,
+    boxes: np.ndarray,
+    h: int,
+    w: int,
+) -> np.ndarray:
+    """(M,) bool: the pixels (``rows``, ``cols``, of pieces ``lab``) of the pieces ``ids``
+    that a disc wider than a thread inside the piece reaches: within L + 1 px (an ellipse) of
+    a pixel farther than L from the piece's outside, for L = MAX_HALF_WIDTH_PX (6), 7, 8, ...
+    (the distance of cv2.distanceTransform, DIST_L2 3x3, as :func:`ridge_kernel.half_widths`,
+    the outside of the image far). The 1 px beyond the disc: where two lines part. ``boxes``
+    (4, n): the pieces' first and last rows and columns."""
+    out = np.zeros(len(rows), bool)
+    for k in ids.tolist():
+        r0, r1, c0, c1 = (int(b) for b in boxes[:, k])
+        # the box grown by one pixel of zeros where that stays in the image (else far, as cv2)
+        y0, y1, x0, x1 = max(r0 - 1, 0), min(r1 + 1, h - 1), max(c0 - 1, 0), min(c1 + 1, w - 1)
+        sel = np.flatnonzero(lab == k)
+        m = np.zeros((y1 - y0 + 1, x1 - x0 + 1), np.uint8)
+        m[rows[sel] - y0, cols[sel] - x0] = 1
+        out[sel] = _disc_reach(m)[rows[sel] - y0, cols[sel] - x0] > 0
+    return out
+
+
+def _disc_reach(m: np.ndarray) -> np.ndarray:
+    """(h, w) uint8, nonzero where a disc wider than a thread inside the mask ``m`` (h, w)
+    uint8 reaches (:func:`_wide_part`)."""
+    dt = cv2.distanceTransform(m, cv2.DIST_L2, 3)
+    reach = np.zeros(m.shape, np.uint8)
+    level = MAX_HALF_WIDTH_PX
+    while True:
+        centres = (dt > level).view(np.uint8)
+        if not centres.any():
+            return reach
+        r = int(np.floor(level)) + 1
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        reach |= cv2.dilate(centres, disc)
+        level = np.floor(level) + 1.0
+
+
 _BORDER_PX: Final = int(np.ceil(2 * _SCALES[-1]))  # the coarse scale's reflected rim, px
 
 

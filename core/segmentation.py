@@ -137,6 +137,14 @@ class SegmentationParams(Params):
         "shaft, kept). Off: every gap is closed (a thread along a shaft's edge is taken as "
         "the shaft's).",
     )
+    split_wide: bool = param(
+        True,
+        label="raw: cut wide parts",
+        doc="raw: a piece wider than a thread (a disc over 12 px across fits in it) loses its "
+        "wide part (and a band around it) and its thin rest is judged piece by piece: a thread "
+        "merged with a fibre or vessel it runs beside, or crossing itself at a shallow angle, "
+        "is wide there only. Off: the whole piece is dropped (deviation 40).",
+    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,
