@@ -197,8 +197,15 @@ def segment_raw(
             mask = _fill_across(mask, _HIGHLIGHT_PX)
         mask &= drop_specks(mask | core.view(bool), max(int(p.min_length_px), 1))
         cap = 2.0 * p.ridge_hi * v.level
-        out.append((mask, Deferred(_score, v.S, cap) if defer_score else _score(v.S, cap)))
+        out.append((mask, Deferred(_score_of, v.img, cap) if defer_score else _score(v.S, cap)))
     return out[0][0], out[1][0], out[0][1], out[1][1]
+
+
+def _score_of(img: np.ndarray, cap: float) -> np.ndarray:
+    """:func:`_score` of the view ``img``'s line response, computed anew (deferred scores, read
+    by no stage: the response, 4 B a pixel, is not kept alive for them; the view is held by
+    the pair anyway, and the response is the same computation, value for value)."""
+    return _score(_line_response(*_log_planes(img)), cap)
 
 
 def _score(S: np.ndarray, cap: float) -> np.ndarray:
