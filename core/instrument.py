@@ -155,4 +155,4 @@ def grow_into_attached(grey: np.ndarray, tool: np.ndarray, min_width_px: int) ->
     touching = np.zeros(n, bool)
     touching[labels[tool8 > 0]] = True
     touching[0] = False
-    return touching[labels] | tool
+    return label_lookup(labels, touching).view(bool)  # touching[labels]: it holds the tool

@@ -205,6 +205,24 @@ def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
     return half
 
 
+@kernel("uint8[:, ::1](uint8[:, :, :], float32[::1], float32, uint8[:, ::1])")
+def achromatic(img, lut, limit, out):  # noqa: ANN001
+    """1 into ``out`` (H, W) where ``img`` (H, W, 3) uint8 (any strides) is unsaturated, else 0;
+    returns ``out``. Unsaturated: both log chroma channels of the pixel, lut[R] - lut[G] and
+    lut[B] - lut[G] (float32, as cv2.transform mixes the looked-up channels), are below
+    ``limit`` in magnitude. The instrument's jaws are grown into such pixels
+    (segment_raw._View.build): one pass from the uint8 image, no (H, W, 3) float image."""
+    h, w = out.shape
+    for y in range(h):
+        src, o = img[y], out[y]
+        for x in range(w):
+            g = lut[src[x, 1]]
+            a = abs(lut[src[x, 0]] - g)
+            b = abs(lut[src[x, 2]] - g)
+            o[x] = 1 if max(a, b) < limit else 0
+    return out
+
+
 @kernel("float32[:, ::1](float32[:, ::1], float32[:, ::1])")
 def upsample_max(coarse, out):  # noqa: ANN001
     """``out`` (H, W) = max(out, coarse (h, w) resized to (W, H) bilinearly as cv2.resize's

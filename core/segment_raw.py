@@ -23,6 +23,7 @@ from threadrecon.core.grow_kernel import grow_mask_f32, grow_mask_u8
 from threadrecon.core.instrument import grow_into_attached
 from threadrecon.core.lazy import Deferred
 from threadrecon.core.ridge_kernel import (
+    achromatic,
     at_least,
     block_means,
     blocks_at,
@@ -61,6 +62,8 @@ _VESSEL_HUE_COS: Final = 0.99  # chroma contrasts within 8 degrees: one absorber
 _MIN_VESSEL_PX: Final = 50  # blood-like pixels needed to tell the frame's vessel hue
 _GREY_TOOL: Final = 0.12  # |log R/G|, |log B/G| below this: unsaturated, e.g. steel
 _LOG_SCALE: Final = 32.0  # channels are 32 log(.), so 1 unit ~ 3 % of contrast
+_GREY_LIMIT: Final = np.float32(_GREY_TOOL * _LOG_SCALE)  # the same in log channel units
+# (float32, as numpy compares a float32 image with it)
 _BLOOD_RATIO: Final = 0.25  # haemoglobin absorbs G, B far more than R: a vessel reddens by
 # >= 1/4 of its darkening (log units) at any strength; dyes other than red redden less or not
 _MIN_SNR: Final = 5.0  # a thread piece's mean contrast to its background: >= 5 noise sigmas
@@ -195,8 +198,15 @@ def segment_raw(
             mask = _fill_across(mask, _HIGHLIGHT_PX)
         mask &= drop_specks(mask | core.view(bool), max(int(p.min_length_px), 1))
         cap = 2.0 * p.ridge_hi * v.level
-        out.append((mask, Deferred(_score, v.S, cap) if defer_score else _score(v.S, cap)))
+        out.append((mask, Deferred(_score_of, v.img, cap) if defer_score else _score(v.S, cap)))
     return out[0][0], out[1][0], out[0][1], out[1][1]
+
+
+def _score_of(img: np.ndarray, cap: float) -> np.ndarray:
+    """:func:`_score` of the view ``img``'s line response, computed anew (deferred scores, read
+    by no stage: the response, 4 B a pixel, is not kept alive for them; the view is held by
+    the pair anyway, and the response is the same computation, value for value)."""
+    return _score(_line_response(*_log_planes(img)), cap)
 
 
 def _score(S: np.ndarray, cap: float) -> np.ndarray:
@@ -273,10 +283,10 @@ class _View:
             if tool.any():  # its jaws: grey parts wider than a thread, attached to it
                 h, w = lo.shape
                 full = tool[_qi(np.arange(h), tool.shape[0])][:, _qi(np.arange(w), tool.shape[1])]
-                f = _log_channels(img)  # full resolution, on instrument frames only
-                chroma = cv2.max(cv2.absdiff(f[:, :, 1], 0.0), cv2.absdiff(f[:, :, 2], 0.0))
-                achromatic = chroma < _GREY_TOOL * _LOG_SCALE
-                tool = grow_into_attached(achromatic, full, _JAW_MIN_PX)
+                # full resolution, on instrument frames only: chroma of _log_channels below
+                # _GREY_TOOL, from the uint8 pixels in one pass
+                unsat = achromatic(_uint8(img), _LOG_LUT, _GREY_LIMIT, np.empty((h, w), np.uint8))
+                tool = grow_into_attached(unsat.view(bool), full, _JAW_MIN_PX)
                 on_tool = tool[rows, cols]
             else:
                 on_tool = np.zeros(len(rows), bool)

@@ -87,6 +87,25 @@ def test_log_planes_are_the_log_channels_and_their_pyrdown(
     np.testing.assert_allclose(half, want, rtol=0, atol=1e-4)
 
 
+def test_achromatic_is_the_log_chroma_of_every_colour_pair_below_the_limit() -> None:
+    """The kernel against the steps it replaces (segment_raw._View.build, instrument frames):
+    the full-resolution log channels, max(|log R/G|, |log B/G|) by cv2, compared with
+    _GREY_TOOL * _LOG_SCALE by numpy; on every (R, G) and every (B, G) pair of levels (R the
+    row, G the column, B = 7 R + 13 G mod 256 takes every level down a column), as a strided
+    RGB view of BGR (as loaded)."""
+    from threadrecon.core import segment_raw as sr
+
+    r, g = np.meshgrid(np.arange(256), np.arange(256), indexing="ij")
+    rgb = np.stack([r, g, (7 * r + 13 * g) % 256], -1).astype(np.uint8)
+    img = np.ascontiguousarray(rgb[:, :, ::-1])[:, :, ::-1]
+    f = sr._log_channels(img)
+    chroma = cv2.max(cv2.absdiff(f[:, :, 1], 0.0), cv2.absdiff(f[:, :, 2], 0.0))
+    want = chroma < sr._GREY_TOOL * sr._LOG_SCALE
+    got = rk.achromatic(img, sr._LOG_LUT, sr._GREY_LIMIT, np.empty((256, 256), np.uint8))
+    assert 0 < want.sum() < want.size
+    np.testing.assert_array_equal(got.view(bool), want)
+
+
 def test_log_at_gives_the_log_channels_of_those_pixels_bit_for_bit() -> None:
     from threadrecon.core.segment_raw import _log_at, _log_channels
 

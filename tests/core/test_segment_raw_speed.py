@@ -78,3 +78,19 @@ def test_segment_gives_the_masks_and_scores_of_segment_raw_alone(
 def test_deferred_score_is_the_clipped_scaled_response() -> None:
     s = np.array([[0.0, 0.5, 1.0, 3.0]], np.float32)
     np.testing.assert_array_equal(sr._score(s, 2.0), np.array([[0.0, 0.25, 0.5, 1.0]], np.float32))
+
+
+def test_deferred_scores_keep_no_line_response_alive() -> None:
+    """A deferred score holds the view's image (held by the pair anyway) and recomputes the
+    line response when read: the (H, W) float32 response is freed with the segmentation (the
+    lifted images then reuse its memory, no fresh pages), and the score read is the eager one
+    (test_segment_gives_the_masks_and_scores_of_segment_raw_alone)."""
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=_TISSUE), np.random.default_rng(1)
+    )
+    p = SegmentationParams(method="raw")
+    *_, s_L, s_R = sr.segment_raw(frame.left, frame.right, p, defer_score=True)
+    for d, img in ((s_L, frame.left), (s_R, frame.right)):
+        assert isinstance(d, Deferred)
+        assert not any(isinstance(a, np.ndarray) and a.dtype == np.float32 for a in d.args)
+        assert any(a is img for a in d.args)
