@@ -1350,9 +1350,9 @@ def _walk_from(
     continuation of least cost of :func:`_continuations`. Returns the walk, the cost of each
     step and the ``walk_runners`` next cheapest continuations at each step that had them (as
     (index in the walk, keypoint): every step's runner-up in path order, then every step's
-    third, ...; the first ``max_alts`` of them when given). ``prefix``, ``prefix_steps``: lists or arrays.
-    Steps to neighbours and through crossings run in :func:`walk_kernel.walk_on`; a jump across
-    a gap (a few per walk) here."""
+    third, ...; the first ``max_alts`` of them when given). ``prefix``, ``prefix_steps``:
+    lists or arrays. Steps to neighbours and through crossings run in
+    :func:`walk_kernel.walk_on`; a jump across a gap (a few per walk) here."""
     K = len(g.adj)
     cos_max = _cos_deg(p.max_turn_deg)
     visited = np.zeros(K, dtype=bool)
