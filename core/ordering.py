@@ -121,6 +121,18 @@ class OrderingParams(Params):
         "two touching strands at two depths are broken apart only where each goes on ahead "
         "within this (walk=bending). A jump over a gap turns in and out by at most 90 deg each.",
     )
+    walk_runners: int = param(
+        2,
+        lo=1,
+        hi=10,
+        label="walk alternatives per step",
+        doc="When the best walk leaves keypoints out, the walks branching off it are tried: at "
+        "each of its steps, the continuations ranked 2 to this + 1 by cost (the runners-up "
+        "of every step first, then the thirds; at most MAX_WALKS walks in all). 1: the "
+        "runner-up only (before deviation 41): a stray keypoint just off the thread's "
+        "direction, passed by the cheapest step, was then reached only by a zig-zag back "
+        "over the strand (walk=bending).",
+    )
     mono_reach_px: float = param(
         0.0,
         lo=0.0,
@@ -1336,10 +1348,11 @@ def _walk_from(
 ) -> tuple[list[int], list[float], list[tuple[int, int]]]:
     """Walk A on from ``prefix`` (its first step ``forced`` when given), each step to the
     continuation of least cost of :func:`_continuations`. Returns the walk, the cost of each
-    step and the runner-up at each step that had one (as (index in the walk, keypoint); the
-    first ``max_alts`` of them when given). ``prefix``, ``prefix_steps``: lists or arrays.
-    Steps to neighbours and through crossings run in :func:`walk_kernel.walk_on`; a jump across
-    a gap (a few per walk) here."""
+    step and the ``walk_runners`` next cheapest continuations at each step that had them (as
+    (index in the walk, keypoint): every step's runner-up in path order, then every step's
+    third, ...; the first ``max_alts`` of them when given). ``prefix``, ``prefix_steps``:
+    lists or arrays. Steps to neighbours and through crossings run in
+    :func:`walk_kernel.walk_on`; a jump across a gap (a few per walk) here."""
     K = len(g.adj)
     cos_max = _cos_deg(p.max_turn_deg)
     visited = np.zeros(K, dtype=bool)
@@ -1348,14 +1361,17 @@ def _walk_from(
     walk[: len(prefix)] = prefix
     steps = np.zeros(K)
     steps[: len(prefix_steps)] = prefix_steps
-    alt_at = np.zeros(K, dtype=np.int64)
-    alt_kp = np.zeros(K, dtype=np.int64)
+    runners = max(1, p.walk_runners)
+    alt_at = np.zeros(K * runners, dtype=np.int64)
+    alt_kp = np.zeros(K * runners, dtype=np.int64)
+    alt_rank = np.zeros(K * runners, dtype=np.int64)
     n, n_alt = len(prefix), 0
     pending = -1 if forced is None else forced
     while True:
         n, n_alt, state = walk_kernel.walk_on(
             walk, n, len(prefix), steps, pending, visited, g.indptr, g.indices, g.pos, g.disp,
-            float(p.bend_weight), float(p.disparity_weight), cos_max, alt_at, alt_kp, n_alt,
+            float(p.bend_weight), float(p.disparity_weight), cos_max, alt_at, alt_kp, alt_rank,
+            n_alt, runners,
         )  # fmt: skip
         if state == walk_kernel.WALK_END:
             break
@@ -1368,17 +1384,24 @@ def _walk_from(
             if pending not in cand:
                 break
             j = cand.index(pending)
-        elif len(rank) > 1 and np.isfinite(cost[rank[1]]):
-            alt_at[n_alt], alt_kp[n_alt] = n - 1, cand[rank[1]]
-            n_alt += 1
+        else:
+            for r in range(1, min(runners, len(rank) - 1) + 1):
+                if not np.isfinite(cost[rank[r]]):
+                    break
+                alt_at[n_alt], alt_kp[n_alt], alt_rank[n_alt] = n - 1, cand[rank[r]], r
+                n_alt += 1
         if not np.isfinite(cost[j]):
             break
         visited[cand[j]] = True
         walk[n] = cand[j]
         steps[n - 1] = cost[j]
         n += 1
+    # the runners-up of every step in path order first, then the thirds, ...
+    by_rank = np.argsort(alt_rank[:n_alt], kind="stable")
     n_alt = n_alt if max_alts is None else min(n_alt, max_alts)
-    alts = list(zip(alt_at[:n_alt].tolist(), alt_kp[:n_alt].tolist(), strict=True))
+    alts = list(
+        zip(alt_at[by_rank[:n_alt]].tolist(), alt_kp[by_rank[:n_alt]].tolist(), strict=True)
+    )
     return walk[:n].tolist(), steps[: n - 1].tolist(), alts
 
 

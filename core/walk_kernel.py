@@ -30,6 +30,13 @@ def _before(a: float, b: float) -> bool:
     return a < b or (math.isnan(b) and not math.isnan(a))
 
 
+@helper(inline="always")
+def _after(a: float, i: int, b: float, k: int) -> bool:
+    """Candidate i of cost a sorts after candidate k of cost b (a stable argsort: by cost,
+    NaN last, ties by candidate order)."""
+    return _before(b, a) or (not _before(a, b) and i > k)
+
+
 REF_KEYPOINTS = 3  # the walk's disparity reference: the mean of its last three keypoints ...
 REF_LOOKBACK = 8  # ... that are not junctions, among its last eight (a crossing spans a few)
 
@@ -164,7 +171,7 @@ def step_costs(
 @kernel(
     "UniTuple(int64, 3)(int64[::1], int64, int64, float64[::1], int64, boolean[::1], "
     "int64[::1], int64[::1], float64[:, ::1], float64[::1], float64, float64, float64, "
-    "int64[::1], int64[::1], int64)"
+    "int64[::1], int64[::1], int64[::1], int64, int64)"
 )
 def walk_on(
     walk,
@@ -182,12 +189,16 @@ def walk_on(
     cos_max,
     alt_at,
     alt_kp,
+    alt_rank,
     n_alt,
+    runners,
 ):  # noqa: ANN001
     """Extend ``walk[:n]`` (``steps[:n-1]`` the cost of each step so far) by the cheapest
     continuation of tier 0 or 1 until none is left; at the first step after the prefix
-    (``n == n_prefix``) the step goes to ``forced`` when it is >= 0. The runner-up of each
-    step with a finite one is appended to ``alt_at`` (walk index) / ``alt_kp``.
+    (``n == n_prefix``) the step goes to ``forced`` when it is >= 0. The ``runners`` next
+    cheapest continuations of each step with a finite cost (the runner-up, rank 1, then the
+    third, rank 2, ...) are appended to ``alt_at`` (walk index) / ``alt_kp`` / ``alt_rank``
+    (buffers of at least ``runners`` entries per keypoint).
     Returns (n, n_alt, WALK_END or WALK_JUMP)."""
     K = visited.size
     cand = np.empty(K, dtype=np.int64)
@@ -212,14 +223,21 @@ def walk_on(
             if j < 0:
                 return n, n_alt, WALK_END
         elif m > 1:
-            r = 0 if j != 0 else 1
-            for i in range(r + 1, m):
-                if i != j and _before(cost[i], cost[r]):
-                    r = i
-            if math.isfinite(cost[r]):
+            prev = j  # each runner sorts after the one before it (ties: candidate order)
+            for rank in range(1, min(runners, m - 1) + 1):
+                r = -1
+                for i in range(m):
+                    if i == j or not _after(cost[i], i, cost[prev], prev):
+                        continue
+                    if r < 0 or _after(cost[r], r, cost[i], i):
+                        r = i
+                if r < 0 or not math.isfinite(cost[r]):
+                    break
                 alt_at[n_alt] = n - 1
                 alt_kp[n_alt] = cand[r]
+                alt_rank[n_alt] = rank
                 n_alt += 1
+                prev = r
         if not math.isfinite(cost[j]):
             return n, n_alt, WALK_END
         v = cand[j]

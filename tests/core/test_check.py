@@ -672,7 +672,11 @@ def test_a_distractor_piece_matched_into_the_thread_strand_supports_no_depth() -
         SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng([14111, 5, 15])
     )
     calib = frame.camera.calibration()
-    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run()
+    # the walk of the okwrong14d round (the runner-up alternatives only): with deviation 41's
+    # third alternatives the walk leaves the piece out (length error 18.9 mm)
+    params = ReconParams()
+    params = replace(params, ordering=replace(params.ordering, walk_runners=1))
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(params)
     assert frame_errors(rec["camera"].points, frame.truth.centerline, calib).e_length > 20.0
     assert rec["check"].status == "suspect", rec["check"].reasons
     assert rec["check"].unmeasured_mm > CheckParams().max_unmeasured_mm

@@ -102,7 +102,7 @@ def test_an_array_of_another_dtype_is_a_type_error_naming_it() -> None:
         np.zeros(K, np.int32),  # walk: int64 expected
         1, 1, np.zeros(K), -1, np.zeros(K, bool), np.zeros(K + 1, np.int64),
         np.zeros(0, np.int64), np.zeros((K, 2)), np.zeros(K), 1.0, 1.0, 0.0,
-        np.zeros(K, np.int64), np.zeros(K, np.int64), 0,
+        np.zeros(K, np.int64), np.zeros(K, np.int64), np.zeros(K, np.int64), 0, 1,
     ]  # fmt: skip
     if walk_kernel.walk_on.backend == "aot":
         with pytest.raises(

@@ -508,14 +508,18 @@ def _reference_walk(
             if forced not in cand:
                 break
             j = cand.index(forced)
-        elif len(rank) > 1 and np.isfinite(cost[rank[1]]):
-            alts.append((len(walk) - 1, int(cand[rank[1]])))
+        else:  # the walk_runners next cheapest, each ranked
+            for r in range(1, min(p.walk_runners, len(rank) - 1) + 1):
+                if not np.isfinite(cost[rank[r]]):
+                    break
+                alts.append((r, len(walk) - 1, int(cand[rank[r]])))
         if not np.isfinite(cost[j]):
             break
         visited[cand[j]] = True
         walk.append(int(cand[j]))
         steps.append(float(cost[j]))
-    return walk, steps, alts
+    alts.sort(key=lambda a: a[0])  # the runners-up in path order, then the thirds
+    return walk, steps, [(i, k) for _, i, k in alts]
 
 
 @pytest.mark.parametrize("seed", range(20))
@@ -546,6 +550,7 @@ def test_compiled_walk_takes_the_steps_of_the_numpy_rule_exactly(seed: int) -> N
         bend_weight=float(rng.uniform(0, 4)),
         max_turn_deg=float(rng.uniform(20, 120)),
         bridge_px=float(rng.choice([0.0, 40.0])),
+        walk_runners=int(rng.integers(1, 4)),
     )
     graph = _WalkGraph.of(adj, pos, disp)
     for start in rng.choice(K, size=min(K, 4), replace=False).tolist():
@@ -1003,3 +1008,24 @@ def test_a_generated_loop_is_joined_under_the_shaft_not_across_its_free_ends() -
     rec = Pipeline(pair, calib).run()
     errors = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
     assert errors.e_S_max < 5.0 and rec.status == "ok"  # was 8.8 mm, suspect
+
+
+def test_a_stray_keypoint_passed_by_is_reached_in_order_not_by_a_zig_zag() -> None:
+    # A strand down x = 0 (disparity 59), keypoints 5 and 6 on it at y = 24 and 28 matched to
+    # the next turn (disparity 33); 7 (y = 54) touches both (a triangle 5-6-7). From 5 the walk
+    # steps on to 7 (the disparity agrees), passing 6 by; 6 is then reached from 7 only by
+    # turning back over the strand and through 7 again (a fold of the curve). The third
+    # continuation at 5 (6, then 7 straight on) covers every keypoint too, at lower cost.
+    ys = [0, 5, 10, 15, 20, 24, 28, 54, 58, 63, 68, 73]
+    pos = np.array([[0.0, y] for y in ys])
+    disp = np.full(len(ys), 59.0)
+    disp[[5, 6]] = 33.0
+    edges = [[i, i + 1] for i in range(4)] + [[4, 5], [5, 6], [5, 7], [6, 7]]
+    edges += [[i, i + 1] for i in range(7, 11)]
+    g = _WalkGraph.of(_adjacency(len(ys), np.array(edges)), pos, disp)
+    walk = _bending_walk(g, OrderingParams())
+    assert OrderingParams().walk_runners == 2
+    assert walk in (list(range(12)), list(range(11, -1, -1)))
+    # the runner-up alone (walk_runners = 1, before deviation 41) folds back over 6
+    zig = _bending_walk(g, OrderingParams(walk_runners=1))
+    assert len(zig) == 12 and zig not in (list(range(12)), list(range(11, -1, -1)))
