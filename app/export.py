@@ -72,7 +72,7 @@ def json_safe(obj: Any) -> Any:
 def _array_json(a: np.ndarray) -> Any:
     """A numeric array as nested lists in one vectorised pass (NaN/inf -> None); the overlays
     of every slider move go through here, and a per-element walk cost them milliseconds."""
-    if a.dtype.kind in "biu":
+    if a.dtype.kind in "biuU":  # strings too (e.g. an overlay's CSS colours, one a point)
         return a.tolist()
     if a.dtype.kind == "f":
         finite = np.isfinite(a)

@@ -3,11 +3,14 @@
 A session holds the frame being looked at, the parameters, how many stages are revealed, the
 latest reconstruction, and the 3D views (viser clients) that show it. Controls only *submit*
 what they want (frame, parameters, stages to reveal); one worker thread per session computes
-the newest request (latest wins: an older request still running stops at its next stage) and
-publishes its layers once it is done, or each stage's as soon as it exists once the run has
-taken longer than ``PROGRESS_AFTER_S`` (or is streamed). The worker survives any exception
-(the stage that raised shows the error; the next request runs). Waiting is possible from a
-thread (:meth:`Session.wait`) or the event loop, holding no thread (:meth:`Session.finished`).
+the newest request (latest wins: an older request still running stops at its next stage).
+Once it is done, its final state (results and metrics) becomes the session's, the page's long
+poll answers it with the 2D overlays, and only then do the 3D views draw its last layers (a
+run that has taken longer than ``PROGRESS_AFTER_S``, or is streamed, shows each stage's as
+soon as it exists). The state is read under its own lock, never behind the views' drawing.
+The worker survives any exception (the stage that raised shows the error; the next request
+runs). Waiting is possible from a thread (:meth:`Session.wait`: the views have drawn) or the
+event loop, holding no thread (:meth:`Session.finished`: the final state is out).
 """
 
 from __future__ import annotations
@@ -17,16 +20,16 @@ import logging
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
-from threadrecon.app.dataset import evaluate_reconstruction
-from threadrecon.app.errors import Conflict, DomainError, Invalid
+from threadrecon.app.errors import Conflict, Invalid
 from threadrecon.app.library import FrameLibrary, LoadedFrame, merge_params
 from threadrecon.app.notify import Changes
-from threadrecon.app.session_state import TIMING_KEYS, Request, View, describe, timed
+from threadrecon.app.session_run import RunWorker
+from threadrecon.app.session_state import Request, View, describe
 from threadrecon.app.views import OverlayCache
-from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction, StageError
+from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
 
 __all__ = ["FrameLibrary", "LoadedFrame", "Session", "View", "merge_params"]
 
@@ -35,9 +38,13 @@ PIPELINES_PER_SESSION = 3  # frames whose stage cache a session keeps (back-and-
 MAX_PAUSE_S = 10.0  # longest pause between streamed stages (a watchable step, not a hang)
 PROGRESS_AFTER_S = 0.1  # a run older than this shows each stage as it comes; a quicker one
 # (a slider move, 10-40 ms) shows its result once: one batch of scene updates, one redraw
+ANSWER_FIRST_S = 0.25  # with a page's long poll waiting, the views draw a run's last layers
+# once it has answered the final state, or after this long: the answer (state, 2D overlays,
+# JSON) and the 3D batch (Python here, software WebGL in the browser) no longer share the
+# two cores; the bound keeps the views going if the page is slow to answer
 
 
-class Session:
+class Session(RunWorker):
     def __init__(
         self,
         sid: str,
@@ -49,12 +56,16 @@ class Session:
         self._on_status = on_status
         self._cond = threading.Condition()
         self._seq = 0
-        self._done_seq = 0
+        self._done_seq = 0  # the last request finished: final state out, layers drawn
+        self._answered_seq = 0  # the last request whose final state is the session's
+        self._polls = 0  # page long polls waiting for, or building, an answer
+        self._answered_version = 0  # the newest version a long poll has answered
         self._pending: Request | None = None
         self._closed = False
         self._worker: threading.Thread | None = None
         self.changes = Changes()
-        self.draw_lock = threading.RLock()
+        self.draw_lock = threading.RLock()  # the views' drawing
+        self._state_lock = threading.Lock()  # what state() and overlay() read together
         # What the user asked for most recently (the controls show this).
         self.frame_id: str | None = None
         self.params = ReconParams()
@@ -154,7 +165,8 @@ class Session:
         return 0.0 if self.views else time.monotonic() - self.last_used
 
     def wait(self, seq: int, timeout: float = 60.0) -> bool:
-        """Block until request ``seq`` (or a newer one) has finished; False on timeout."""
+        """Block until request ``seq`` (or a newer one) has finished, its layers drawn in
+        every view; False on timeout."""
         deadline = time.monotonic() + timeout
         with self._cond:
             while self._done_seq < seq and not self._closed:
@@ -165,8 +177,9 @@ class Session:
         return True
 
     async def finished(self, seq: int, timeout: float) -> bool:
-        """:meth:`wait` for the event loop, holding no thread."""
-        return await self.changes.until(lambda: self._done_seq >= seq, timeout)
+        """Wait in the event loop, holding no thread, until request ``seq`` (or a newer one)
+        has its final state (the views may still be drawing its last layers)."""
+        return await self.changes.until(lambda: self._answered_seq >= seq, timeout)
 
     async def changed(self, since: int, timeout: float) -> bool:
         """Wait in the event loop until the session's version is newer than ``since``."""
@@ -178,7 +191,28 @@ class Session:
 
     @property
     def busy(self) -> bool:
-        return self._done_seq < self._seq
+        """The state is not the latest request's final one yet."""
+        return self._answered_seq < self._seq
+
+    @contextlib.contextmanager
+    def polling(self) -> Iterator[Callable[[int], None]]:
+        """A page's long poll: while it waits and builds its answer, a run's last layers wait
+        for it (up to ``ANSWER_FIRST_S``); call the function it gives with the version the
+        answer carries once it is built."""
+        with self._cond:
+            self._polls += 1
+
+        def answered(version: int) -> None:
+            with self._cond:
+                self._answered_version = max(self._answered_version, version)
+                self._cond.notify_all()
+
+        try:
+            yield answered
+        finally:
+            with self._cond:
+                self._polls -= 1
+                self._cond.notify_all()
 
     def close(self) -> None:
         """Stop the worker and drop every result, so that the memory is freed."""
@@ -251,118 +285,44 @@ class Session:
                 self._fail(req, exc)
             finally:
                 with self._cond:
+                    news = self._answered_seq < req.seq  # not announced by _execute
                     if self._pending is None:
                         self._done_seq = max(self._done_seq, req.seq)
+                        self._answered_seq = max(self._answered_seq, req.seq)
                     self.running = None
                     self._cond.notify_all()
                 # "busy" changed: a new version, so that a long poll that answered the
                 # last one while the run was ending still gets the idle state
-                self._bump()
+                if news:
+                    self._bump()
         with self.draw_lock:
             self._release()
-
-    def _fail(self, req: Request, exc: Exception) -> None:
-        stage = self.running or STAGES[0]
-        rec = self.rec
-        runs = dict(rec.runs) if rec is not None and rec.params == req.params else {}
-        runs.pop(stage, None)
-        message = f"{stage}: internal error: {type(exc).__name__}: {exc}"
-        with self.draw_lock:
-            self.rec = Reconstruction(runs, stage, message, req.params)
-            self.metrics = {}
-            for view in list(self.views.values()):
-                with contextlib.suppress(Exception):
-                    view.show(self.rec, self.loaded)
-        self._bump()
-        self._status(req.frame_id, "failed")
-
-    def _execute(self, req: Request) -> None:
-        self.latency_ms = {}
-        try:
-            loaded = self.library.load(req.frame_id)
-            pipe = self._pipeline(req.frame_id, loaded)
-            pipe.corrections = self.library.corrections(req.frame_id)  # the worker's alone
-        except (ValueError, OSError, DomainError) as exc:  # DomainError: the correction store
-            with self.draw_lock:
-                self.loaded, self.rec, self.metrics = None, None, {}
-                self.load_error = f"cannot load frame {req.frame_id}: {exc}"
-                for view in list(self.views.values()):
-                    view.show_frame(None)
-                    view.show(None, None)
-            self._bump()
-            self._status(req.frame_id, "failed")
-            return
-        if self.loaded is not loaded:
-            with self.draw_lock:
-                self.loaded, self.rec, self.load_error, self.metrics = loaded, None, None, {}
-                for view in list(self.views.values()):
-                    view.show_frame(loaded)
-                    view.show(None, loaded)
-        self.load_error = None
-        until = STAGES[req.reveal - 1]
-        runs: dict[str, Any] = {}
-        rec: Reconstruction | None = None
-        shown: Reconstruction | None = None
-        stages = pipe.stages(req.params, until)
-        self.running = STAGES[0]
-        timing = self.timing = dict.fromkeys(TIMING_KEYS, 0.0)
-        while True:
-            with timed(timing, "compute"):
-                try:
-                    run = next(stages)
-                except StopIteration:
-                    break
-                except StageError as exc:
-                    rec = Reconstruction(dict(runs), exc.stage, exc.reason, req.params)
-                    break
-            runs[run.stage] = run
-            rec = Reconstruction(dict(runs), None, None, req.params)
-            nxt = STAGES.index(run.stage) + 1
-            self.running = STAGES[nxt] if run.stage != until and nxt < len(STAGES) else None
-            self.latency_ms[run.stage] = 1000.0 * (time.perf_counter() - req.t0)
-            # a cached stage changes no view: it is shown with the next computed one
-            if req.pause_s or run.stage == until or (not run.cached and self._slow(req)):
-                with timed(timing, "publish"):
-                    self._publish(rec, loaded)
-                shown = rec
-                self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
-            if self._superseded(req):
-                return
-            if req.pause_s and run.stage != until:
-                with self._cond:
-                    self._cond.wait_for(lambda: self._superseded(req), req.pause_s)
-                if self._superseded(req):
-                    return
-        if rec is None:
-            return
-        if rec is not shown:  # the run stopped at a failed stage
-            with timed(timing, "publish"):
-                self._publish(rec, loaded)
-            self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
-        with timed(timing, "metrics"):
-            try:
-                metrics, self.metrics_error = (
-                    evaluate_reconstruction(rec, loaded.calib, loaded.ground_truth),
-                    None,
-                )
-            except Exception as exc:  # e.g. a ground truth holding NaN: the figures say why
-                metrics, self.metrics_error = {}, f"metrics: {type(exc).__name__}: {exc}"
-        with self.draw_lock:
-            self.metrics = metrics
-        self._bump()
-        if rec.failed_stage is not None or "camera" in rec.runs:
-            self._status(req.frame_id, rec.status)
 
     @staticmethod
     def _slow(req: Request) -> bool:
         return time.perf_counter() - req.t0 >= PROGRESS_AFTER_S
 
+    def _answer_first(self, req: Request) -> None:
+        """With a page's long poll waiting for news, wait (up to ``ANSWER_FIRST_S``) until it
+        has answered the current version, unless a newer request or the session's end comes
+        first."""
+        version = self.version
+        with self._cond:
+            self._cond.wait_for(
+                lambda: (
+                    not self._polls or self._answered_version >= version or self._superseded(req)
+                ),
+                ANSWER_FIRST_S,
+            )
+
     def _publish(self, rec: Reconstruction, loaded: LoadedFrame) -> None:
+        """Make ``rec`` the session's reconstruction and draw it in every view (the caller
+        makes the new version)."""
         with self.draw_lock:
-            self.rec = rec
+            with self._state_lock:
+                self.rec = rec
             for view in list(self.views.values()):
                 view.show(rec, loaded)
-        self._bump()
 
     def _status(self, frame_id: str, status: str) -> None:
         if self._on_status is not None:
@@ -378,14 +338,17 @@ class Session:
             self._pipelines.popitem(last=False)
         return pipe
 
-    def overlay(self, known: frozenset[int] = frozenset()) -> dict[str, Any]:
+    def overlay(
+        self, known: frozenset[int] = frozenset(), keys: frozenset[str] | None = None
+    ) -> dict[str, Any]:
         """The 2D overlays of the current reconstruction (``OverlayCache.answer``: each built
-        once per set of its stage results; payloads tagged ``known`` are left out)."""
-        with self.draw_lock:
+        once per set of its stage results; payloads tagged ``known`` are left out; with
+        ``keys``, only those overlays)."""
+        with self._state_lock:
             rec, loaded, version = self.rec, self.loaded, self.version
         if rec is None or loaded is None:
             return {"frame_id": self.frame_id, "version": version}
-        out = self._overlays.answer(rec, loaded.calib, known)
+        out = self._overlays.answer(rec, loaded.calib, known, keys)
         return {**out, "frame_id": loaded.frame.id, "version": version}
 
     def shows(self, frame_id: str) -> bool:
@@ -394,6 +357,7 @@ class Session:
         return self.rec is not None and loaded is not None and loaded.frame.id == frame_id
 
     def state(self) -> dict[str, Any]:
-        """The stepper, metrics and errors, as the page polls them."""
-        with self.draw_lock:
+        """The stepper, metrics and errors, as the page polls them (never waits for the views'
+        drawing)."""
+        with self._state_lock:
             return describe(self)

@@ -54,7 +54,7 @@ class Request:
 
 
 def describe(s: Session) -> dict[str, Any]:
-    """The state of session ``s`` (the caller holds ``s.draw_lock``)."""
+    """The state of session ``s`` (the caller holds ``s._state_lock``)."""
     rec = s.rec
     stages = []
     for i, stage in enumerate(STAGES):

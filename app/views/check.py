@@ -107,7 +107,7 @@ def _confidence_overlay(rec: Reconstruction, calib: StereoCalibration) -> dict[s
         ok = np.isfinite(uv).all(axis=1)
         out[side] = {
             "points": np.round(uv[ok], 2),
-            "colors": colors[ok].tolist(),
+            "colors": colors[ok],  # a string array: one tolist(), no walk of its items
         }
     return out
 

@@ -31,11 +31,30 @@ async function refreshOverlay() {
   overlayAt = Date.now();
   try {
     const v = S.version;
-    const ov = await api("GET", `/api/sessions/${S.session}/overlay?known=${knownOverlays()}`);
+    const ov = await api("GET", `/api/sessions/${S.session}/overlay?known=${knownOverlays()}&keys=${shownOverlays()}`);
     if (v > S.overlayVersion) takeOverlay(ov, v);  // else a newer state brought its own
   } catch (e) { /* the next state refreshes it */ }
   overlayBusy = false;
   if (S.overlayVersion !== S.version) refreshOverlay();
+}
+
+// The keys of the overlays the page shows: the server builds and sends only those, and names
+// the others (`_later`); one that is turned on (or revealed by the stepper) is fetched then.
+export function shownOverlays() {
+  return S.info ? S.info.overlays.filter(overlayOn).map((o) => o.key).join(",") : "";
+}
+
+let laterBusy = false;
+async function fetchShownLater() {
+  const ov = S.overlay;
+  if (laterBusy || !ov || !ov._later || !S.info.overlays.some((o) => overlayOn(o) && ov._later.includes(o.key))) return;
+  laterBusy = true;
+  try {
+    const v = S.overlayVersion;
+    const got = await api("GET", `/api/sessions/${S.session}/overlay?known=${knownOverlays()}&keys=${shownOverlays()}`);
+    if (S.overlayVersion === v) takeOverlay(got, v);  // else a newer state brought its own
+  } catch (e) { /* the next state refreshes it */ }
+  laterBusy = false;
 }
 
 // The tags of the overlay payloads the page holds: the server leaves those out of its answer.
@@ -58,12 +77,13 @@ function takeOverlay(ov, v) {
   S.overlayVersion = v;
   if (!same) drawImages();
   S.overlayShown = { version: ov.version, at: Date.now() };  // for scripts/bench_latency.py
+  fetchShownLater();  // an overlay shown since the request (the stepper's reveal)
 }
 
 // The toggles come from /api/info (the server's overlay registry), never from a copy here.
 export function buildOverlayToggles() {
   const boxes = S.info.overlays.map((o) => h("label", {},
-    h("input", { type: "checkbox", dataset: { ov: o.key }, checked: o.on, onchange: drawImages }),
+    h("input", { type: "checkbox", dataset: { ov: o.key }, checked: o.on, onchange: () => { drawImages(); fetchShownLater(); } }),
     ` ${o.label} `, o.count ? h("span", { class: "count", dataset: { count: o.key } }) : null));
   fill("#overlay-toggles", boxes);
 }

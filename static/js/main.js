@@ -4,7 +4,7 @@ import { $, S, api, showError } from "./core.js";
 import { loadFrames, renderFrames } from "./frames.js";
 import "./stages.js";
 import "./check.js";
-import { buildOverlayToggles, knownOverlays, loadImages } from "./images.js";
+import { buildOverlayToggles, knownOverlays, loadImages, shownOverlays } from "./images.js";
 import "./rating.js";
 import "./corrections.js";
 import { loadPresetList } from "./presets.js";
@@ -27,8 +27,8 @@ function applyState(st) {
 async function poll() {
   for (;;) {
     try {
-      // a finished run's state brings the 2D overlays the page does not hold
-      const st = await api("GET", `/api/sessions/${S.session}?since=${S.version}&timeout=10&overlay=${knownOverlays()}`);
+      // a finished run's state brings the 2D overlays the page shows and does not hold
+      const st = await api("GET", `/api/sessions/${S.session}?since=${S.version}&timeout=10&overlay=${knownOverlays()}&keys=${shownOverlays()}`);
       $("#conn").textContent = "connected"; $("#conn").className = "badge ok";
       if (st.version !== S.version || !S.state) {
         S.stateAt = { version: st.version, at: Date.now() };  // for scripts/bench_latency.py

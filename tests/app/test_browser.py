@@ -372,16 +372,26 @@ def test_second_tab_does_not_disturb_the_first(tab, context, server):
 def test_ordering_graph_overlay_draws_its_costs_when_toggled(tab):
     # A generic overlay of kind "segments": its toggle draws the pieces and the labelled
     # continuations on the left image; the badge counts the cost labels the server sent.
+    # Off when the page opens, it is neither built nor sent until it is turned on.
     page = tab.page
     tab.select(TISSUE)
+    box = page.locator('[data-ov="ordering_graph"]')
+    assert not box.is_checked()  # off when the page opens
+    held = page.evaluate(
+        "(() => { const o = window.threadrecon.overlay;"
+        " return [Boolean(o.ordering_graph), o._later]; })()"
+    )
+    assert held[0] is False and "ordering_graph" in held[1]
+    before = page.evaluate("document.querySelector('#img-left').toDataURL()")
+    box.check()
+    page.wait_for_function(
+        "() => { const o = window.threadrecon.overlay; return o && o.ordering_graph; }",
+        timeout=30_000,
+    )
     payload = page.evaluate("window.threadrecon.overlay.ordering_graph.left")
     assert len(payload["segments"]) == len(payload["colors"]) > 0
     badge = page.locator('[data-count="ordering_graph"]').inner_text().strip()
     assert badge == f"({len(payload['labels'])})"
-    box = page.locator('[data-ov="ordering_graph"]')
-    assert not box.is_checked()  # off when the page opens
-    before = page.evaluate("document.querySelector('#img-left').toDataURL()")
-    box.check()
     after = page.evaluate("document.querySelector('#img-left').toDataURL()")
     assert after != before
     box.uncheck()

@@ -313,3 +313,15 @@ def test_page_spline_json_is_the_cli_schema_with_preset_and_inputs(
     assert js["preset"] == "default" and js["frame"] == "left"
     roles = {i["role"]: i["name"] for i in js["inputs"]}
     assert roles["stereo"] == "flat_1.png" and roles["calibration"] == "calibration.yaml"
+
+
+def test_json_safe_converts_a_string_array_in_one_pass(monkeypatch) -> None:
+    # an overlay's per-point CSS colours (~1,000 a slider move): no walk of the items
+    from threadrecon.app import export
+
+    calls: list[object] = []
+    original = export.json_safe
+    monkeypatch.setattr(export, "json_safe", lambda o: (calls.append(o), original(o))[1])
+    colors = np.array(["#28c850", "#e62828", "#f0c828"])
+    assert export.json_safe({"colors": colors}) == {"colors": ["#28c850", "#e62828", "#f0c828"]}
+    assert len(calls) == 2  # the dict and the array, not each string

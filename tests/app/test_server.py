@@ -328,5 +328,20 @@ def test_a_finished_run_state_brings_the_overlays_the_page_does_not_hold(client)
     assert not st["busy"] and st["overlay"]["spline"] == full["spline"]
     held = ",".join(str(t) for t in full["_tags"].values())
     st = client.get("/api/sessions/api", params={"overlay": held}).json()
-    assert set(st["overlay"]) == {"shape", "_pixels", "_tags", "frame_id", "version"}
+    assert set(st["overlay"]) == {"shape", "_pixels", "_tags", "_later", "frame_id", "version"}
     assert "overlay" not in client.get("/api/sessions/api").json()  # only when asked
+
+
+def test_a_state_brings_only_the_overlays_the_page_shows_and_names_the_others(client):
+    run(client, preset="default")
+    st = client.get("/api/sessions/api", params={"overlay": "", "keys": "spline,reliable"})
+    ov = st.json()["overlay"]
+    assert set(ov["_tags"]) == {"spline", "reliable"} and "ordering_graph" not in ov
+    assert {"ordering_graph", "confidence", "spline_initial"} <= set(ov["_later"])
+    held = ",".join(str(t) for t in ov["_tags"].values())
+    got = client.get(
+        "/api/sessions/api/overlay", params={"known": held, "keys": "spline,ordering_graph"}
+    ).json()  # the page turned the ordering graph on: only it comes
+    assert set(got["_tags"]) == {"spline", "ordering_graph"} and "spline" not in got
+    assert got["ordering_graph"]["left"]["segments"]
+    assert "reliable" in got["_later"] and "ordering_graph" not in got["_later"]

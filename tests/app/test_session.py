@@ -223,3 +223,74 @@ def test_the_end_of_a_run_is_a_new_version(library, monkeypatch):
     assert not final["busy"] and seen
     assert all(version < final["version"] for version, busy in seen if busy)
     manager.close()
+
+
+def test_a_waiting_page_has_the_final_state_before_the_views_draw_the_last_layers(
+    library, monkeypatch
+):
+    """With a page's long poll waiting, the run's final state (results, metrics, not busy) is
+    answered before the views draw its last layers; drawing them makes no new version, and
+    :meth:`Session.wait` returns once they are drawn."""
+    from threadrecon.app import session as session_module
+    from threadrecon.app.session import Session
+
+    manager = SessionManager(library)
+    s = manager.create()
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    monkeypatch.setattr(session_module, "PROGRESS_AFTER_S", 1e9)  # one publish: the last
+    events: list[tuple] = []
+    original = Session._publish
+    monkeypatch.setattr(
+        Session,
+        "_publish",
+        lambda self, rec, loaded: (
+            events.append(("drawn", self.version, tuple(rec.runs))),
+            original(self, rec, loaded),
+        ),
+    )
+    params = merge_params(s.params, {"spline": {"n_ctrl": s.params.spline.n_ctrl + 1}})
+    with s.polling() as answered:  # what the page's long poll does
+        seq = s.submit(params=params)
+        deadline = time.monotonic() + 120
+        while s.busy and time.monotonic() < deadline:
+            time.sleep(0.002)
+        st = s.state()
+        time.sleep(0.1)  # building the answer takes a while: the views wait for it
+        events.append(("answered", st["version"], st["busy"], bool(st["metrics"])))
+        answered(st["version"])
+    assert s.wait(seq, 120)
+    assert [e[0] for e in events] == ["answered", "drawn"]
+    _, version, busy, has_metrics = events[0]
+    assert not busy and has_metrics and st["stages"][-1]["status"] == "done"
+    assert events[1] == ("drawn", version, pipeline.STAGES) and s.version == version
+    assert "shown" in s.state()["latency_ms"]
+    manager.close()
+
+
+def test_the_views_draw_anyway_when_a_waiting_page_does_not_answer(library, monkeypatch):
+    from threadrecon.app import session as session_module
+
+    manager = SessionManager(library)
+    s = manager.create()
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    monkeypatch.setattr(session_module, "ANSWER_FIRST_S", 0.2)
+    params = merge_params(s.params, {"spline": {"n_ctrl": s.params.spline.n_ctrl + 1}})
+    with s.polling():  # a poll that never answers
+        t0 = time.perf_counter()
+        assert s.wait(s.submit(params=params), 120)
+        waited = time.perf_counter() - t0
+    assert 0.2 <= waited < 60 and not s.busy
+    manager.close()
+
+
+def test_the_state_is_read_while_the_views_draw(library):
+    manager = SessionManager(library)
+    s = manager.create()
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    got: list[dict] = []
+    with s.draw_lock:  # a view drawing
+        reader = threading.Thread(target=lambda: got.append(s.state()))
+        reader.start()
+        reader.join(10)
+    assert got and got[0]["status"] == "ok"
+    manager.close()

@@ -273,7 +273,7 @@ def test_overlay_cache_rebuilds_only_the_overlays_of_changed_stages():
     cache = OverlayCache()
     first = cache.answer(pipe.run(), calib)
     assert set(first["_tags"]) == set(OVERLAY_VIEWS)  # every stage ran
-    assert first == {**overlay(pipe.run(), calib), "_tags": first["_tags"]}  # same payloads
+    assert first == {**overlay(pipe.run(), calib), "_tags": first["_tags"], "_later": []}
     n_ctrl = ReconParams().spline.n_ctrl
     rec = pipe.run(merge_params(ReconParams(), {"spline": {"n_ctrl": n_ctrl + 2}}))
     known = frozenset(first["_tags"].values())
@@ -283,13 +283,44 @@ def test_overlay_cache_rebuilds_only_the_overlays_of_changed_stages():
     }
     changed = {k for k in again["_tags"] if again["_tags"][k] != first["_tags"][k]}
     assert changed == spline_only & changed and {"spline", "spline_initial"} <= changed
-    assert set(again) - {"shape", "_pixels", "_tags"} == changed  # the rest is left out
+    assert set(again) - {"shape", "_pixels", "_tags", "_later"} == changed  # the rest left out
     assert again["_pixels"] == first["_pixels"]  # decimation figures are always there
     assert cache.answer(rec, calib, known | set(again["_tags"].values())).keys() == {
         "shape",
         "_pixels",
         "_tags",
+        "_later",
     }
+
+
+def test_an_overlay_the_page_does_not_show_is_built_once_it_is_asked_for(monkeypatch):
+    # the ordering graph's overlay is off when the page opens: a slider's answer neither builds
+    # nor sends it (at 1920x1080 ~180 kB, and the graph ~90 ms), but names it for later
+    import dataclasses
+
+    from threadrecon.app.views import OverlayCache
+
+    pair, calib, _ = synthetic_case(seed=3)
+    rec = Pipeline(pair, calib).run()
+    made: list[str] = []
+    view = OVERLAY_VIEWS["ordering_graph"]
+    counted = dataclasses.replace(
+        view, make=lambda r, c: (made.append(view.key), view.make(r, c))[1]
+    )
+    monkeypatch.setitem(OVERLAY_VIEWS, "ordering_graph", counted)
+    shown = frozenset(k for k, v in OVERLAY_VIEWS.items() if v.on)
+    assert "ordering_graph" not in shown
+    cache = OverlayCache()
+    first = cache.answer(rec, calib, keys=shown)
+    assert not made and "ordering_graph" not in first and "ordering_graph" not in first["_tags"]
+    assert set(first["_later"]) == set(OVERLAY_VIEWS) - shown and set(first["_tags"]) == shown
+    held = frozenset(first["_tags"].values())
+    later = cache.answer(rec, calib, held, shown | {"ordering_graph"})  # turned on
+    assert made == ["ordering_graph"]
+    assert set(later["_later"]) == set(first["_later"]) - {"ordering_graph"}
+    assert set(later) - {"shape", "_pixels", "_tags", "_later"} == {"ordering_graph"}
+    assert later["ordering_graph"] == json.loads(json.dumps(overlay(rec, calib)["ordering_graph"]))
+    assert later["_tags"]["spline"] == first["_tags"]["spline"]  # the rest held, not rebuilt
 
 
 def test_a_layer_is_redrawn_when_any_result_it_is_drawn_from_changes():
