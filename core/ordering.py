@@ -1475,16 +1475,16 @@ def _second_pass(
     ref = _ref_disparity(walk, n, g)
     best: dict[int, float] = {}
     index: dict[int, int] | None = None
-    for J in g.adj[cur]:
-        if not visited[J] or J == prev or degree[J] < 3:
+    for jn in g.adj[cur]:
+        if not visited[jn] or jn == prev or degree[jn] < 3:
             continue
         if index is None:
             index = {int(k): i for i, k in enumerate(walk[: n - 1].tolist())}
-        i = index.get(int(J))
+        i = index.get(int(jn))
         if i is None:
             continue
         for sgn in (1, -1):  # along the path either way from the junction
-            u, j = int(J), i
+            u, j = int(jn), i
             if not 0 <= j + sgn < n - 1:
                 continue
             come = pos[u] - pos[prev if prev >= 0 else cur]  # the heading over two steps

@@ -1019,14 +1019,16 @@ def _loop_touching_its_tail() -> tuple[dict[str, int], _WalkGraph]:
         "t38": (225.7, 411.5), "t39": (217.1, 408.1), "t40": (208.3, 404.5),
         "t41": (199.5, 401.0), "t42": (190.7, 397.3), "t43": (183.7, 394.4),
     }  # fmt: skip
-    d = dict.fromkeys(xy, 36.0) | {"d3": 37.0, "d2": 37.0, "d1": 37.0, "d0": 37.0, "J9": 36.9, "k11": 37.3, "k44": 38.7, "J45": 36.2}
+    d = dict.fromkeys(xy, 36.0) | dict.fromkeys(["d3", "d2", "d1", "d0"], 37.0)
+    d |= {"J9": 36.9, "k11": 37.3, "k44": 38.7, "J45": 36.2}
     d |= {"J0": 37.0, "J37": 32.4, "t38": 32.2, "t39": 32.0, "t40": 31.8, "t41": 31.6}
     d |= {"t42": 31.4, "t43": 31.2}
     chain = ["d3", "d2", "d1", "d0", "J9", "k11", "k44", "J45", "J0", "l1", "l2", "l3", "l4"]
     chain += ["l5", "l6", "l7", "l8", "J9"]
     pairs = list(zip(chain[:-1], chain[1:], strict=True))
     pairs += [("J0", "J37"), ("J45", "J37")]
-    pairs += list(zip(["J37", "t38", "t39", "t40", "t41", "t42"], ["t38", "t39", "t40", "t41", "t42", "t43"], strict=True))
+    tail = ["J37", "t38", "t39", "t40", "t41", "t42", "t43"]
+    pairs += list(zip(tail[:-1], tail[1:], strict=True))
     ids = {name: i for i, name in enumerate(xy)}
     edges = np.array(sorted((min(ids[a], ids[b]), max(ids[a], ids[b])) for a, b in pairs))
     pos = np.array([xy[n] for n in ids], dtype=np.float64)
