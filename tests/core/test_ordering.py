@@ -470,7 +470,7 @@ def _reference_step(
         tier = 1
     if not cand:
         cand, cost, tier, _ = _continuations(np.array(walk), len(walk), visited, g, p)
-        assert tier == 2 or not cand
+        assert tier == 2 or not cand or tier == 1 and p.retrace_px > 0  # a jump, or 44's pass
         return cand, cost
     chord = pos[cand] - pos[cur]
     dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
