@@ -182,6 +182,19 @@ class OrderingParams(Params):
         "thread there, these are its own two ends). False (the default): such a jump is "
         "excluded (docs/method.md, deviation 38; True: as before, the paper; walk=bending).",
     )
+    retrace_px: float = param(
+        120.0,
+        lo=0.0,
+        hi=10000.0,
+        unit="px",
+        slider=(0.0, 300.0, 5.0),
+        label="second pass px",
+        doc="A walk that comes back to a crossing it passed, with nothing left ahead, may run on "
+        "along the path's own keypoints from there (two strands touching along a loop's "
+        "crossing) for at most this and leave through an unvisited neighbour of one of them, "
+        "each turn within max_turn_deg, the disparity agreeing (docs/method.md, deviation 44; "
+        "0: off, the walk ends there; walk=bending).",
+    )
     second_matches: bool = param(
         True,
         label="second matches by continuity",
@@ -1457,7 +1470,81 @@ def _continuations(
         across = _across_breaks(walk, n, visited, g, p)
         if across[0]:
             return across
+    if p.retrace_px > 0 and not np.isfinite(cost).any():
+        again = _second_pass(walk, n, visited, g, p)
+        if again[0]:
+            return again
     return cand, cost, tier, why
+
+
+def _second_pass(
+    walk: np.ndarray, n: int, visited: np.ndarray, g: _WalkGraph, p: OrderingParams
+) -> tuple[list[int], np.ndarray, int, list[str]]:
+    """:func:`_continuations`' last resort (deviation 44): the walk came back to a crossing it
+    passed (a junction of A on the path, adjacent to the walk's keypoint, not the step it came
+    from) and nothing is left ahead. Its strand runs on along the path's own keypoints from
+    the junction (two strands touching along a loop's crossing share their keypoints), the
+    way the walk comes in (the path's step on from the junction turning by at most
+    ``max_turn_deg`` from the walk's heading; past it the path's own turns, which the first
+    strand took), for at most ``retrace_px``; it leaves them
+    through an unvisited neighbour in A of a keypoint it passes, turning by at most
+    ``max_turn_deg`` there too, whose disparity agrees with the walk's (as a jump's, over the
+    way's length). Cost: the way's length along the shared keypoints plus the step's cost from
+    the keypoint it leaves at (tier 1, a crossing)."""
+    cur, prev = int(walk[n - 1]), int(walk[n - 2]) if n >= 2 else -1
+    degree = np.diff(g.indptr)
+    pos, disp = g.pos, g.disp
+    cos_max = _cos_deg(p.max_turn_deg)
+    ref = _ref_disparity(walk, n, g)
+    best: dict[int, float] = {}
+    index: dict[int, int] | None = None
+    for jn in g.adj[cur]:
+        if not visited[jn] or jn == prev or degree[jn] < 3:
+            continue
+        if index is None:
+            index = {int(k): i for i, k in enumerate(walk[: n - 1].tolist())}
+        i = index.get(int(jn))
+        if i is None:
+            continue
+        for sgn in (1, -1):  # along the path either way from the junction
+            u, j = int(jn), i
+            if not 0 <= j + sgn < n - 1:
+                continue
+            come = pos[u] - pos[prev if prev >= 0 else cur]  # the heading over two steps
+            on = pos[int(walk[j + sgn])] - pos[u]  # the path's own way on from the junction
+            if float(come @ on) < cos_max * float(np.hypot(*come) * np.hypot(*on)):
+                continue
+            head = pos[u] - pos[cur]
+            run = float(np.hypot(*head))
+            if run <= 0:
+                break
+            head = head / run
+            while run <= p.retrace_px:
+                for v in g.adj[u]:
+                    if visited[v]:
+                        continue
+                    out = pos[v] - pos[u]
+                    d = max(float(np.hypot(*out)), 1e-9)
+                    c = float(out @ head) / d
+                    gap = abs(float(disp[v]) - ref)
+                    if c < cos_max or gap > DISPARITY_SLACK_PX + DISPARITY_SLOPE * (run + d):
+                        continue
+                    cost = run + d * (1.0 + p.bend_weight * (1.0 - c)) + p.disparity_weight * gap
+                    if cost < best.get(v, np.inf):
+                        best[v] = cost
+                j += sgn
+                if not 0 <= j < n - 1:
+                    break
+                w = int(walk[j])
+                step = pos[w] - pos[u]
+                s = float(np.hypot(*step))
+                if s <= 0:
+                    break
+                head, run, u = step / s, run + s, w  # the path's own turns: no test
+    if not best:
+        return [], np.zeros(0), 1, []
+    cand = sorted(best)
+    return cand, np.array([best[v] for v in cand]), 1, [""] * len(cand)
 
 
 def _jumps(

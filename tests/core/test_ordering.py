@@ -470,7 +470,7 @@ def _reference_step(
         tier = 1
     if not cand:
         cand, cost, tier, _ = _continuations(np.array(walk), len(walk), visited, g, p)
-        assert tier == 2 or not cand
+        assert tier == 2 or not cand or tier == 1 and p.retrace_px > 0  # a jump, or 44's pass
         return cand, cost
     chord = pos[cand] - pos[cur]
     dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
@@ -1029,3 +1029,87 @@ def test_a_stray_keypoint_passed_by_is_reached_in_order_not_by_a_zig_zag() -> No
     # the runner-up alone (walk_runners = 1, before deviation 41) folds back over 6
     zig = _bending_walk(g, OrderingParams(walk_runners=1))
     assert len(zig) == 12 and zig not in (list(range(12)), list(range(11, -1, -1)))
+
+
+def _loop_touching_its_tail() -> tuple[dict[str, int], _WalkGraph]:
+    """Generated crossing-tissue 15162 #6 (its keypoints, px): the thread comes down (d*),
+    through the crossing's junction J9 and along the loop's bottom (k11, k44, J45), round the
+    loop (J0, l1..l8) back to J9, then along the bottom again (the same keypoints: the two
+    strands touch there, the second deeper) and out to the lower left through J37 (t*)."""
+    xy = {
+        "d3": (303.5, 358.5), "d2": (298.8, 372.4), "d1": (293.9, 386.7), "d0": (291.5, 392.7),
+        "J9": (287.9, 397.7), "k11": (289.9, 400.9), "k44": (277.3, 420.7),
+        "J45": (266.0, 423.5), "J0": (243.8, 412.4), "l1": (240.1, 405.3), "l2": (239.6, 398.2),
+        "l3": (243.3, 390.9), "l4": (250.3, 386.2), "l5": (258.4, 384.1), "l6": (267.4, 384.6),
+        "l7": (275.5, 387.0), "l8": (282.6, 391.8), "J37": (235.6, 415.2),
+        "t38": (225.7, 411.5), "t39": (217.1, 408.1), "t40": (208.3, 404.5),
+        "t41": (199.5, 401.0), "t42": (190.7, 397.3), "t43": (183.7, 394.4),
+    }  # fmt: skip
+    d = dict.fromkeys(xy, 36.0) | dict.fromkeys(["d3", "d2", "d1", "d0"], 37.0)
+    d |= {"J9": 36.9, "k11": 37.3, "k44": 38.7, "J45": 36.2}
+    d |= {"J0": 37.0, "J37": 32.4, "t38": 32.2, "t39": 32.0, "t40": 31.8, "t41": 31.6}
+    d |= {"t42": 31.4, "t43": 31.2}
+    chain = ["d3", "d2", "d1", "d0", "J9", "k11", "k44", "J45", "J0", "l1", "l2", "l3", "l4"]
+    chain += ["l5", "l6", "l7", "l8", "J9"]
+    pairs = list(zip(chain[:-1], chain[1:], strict=True))
+    pairs += [("J0", "J37"), ("J45", "J37")]
+    tail = ["J37", "t38", "t39", "t40", "t41", "t42", "t43"]
+    pairs += list(zip(tail[:-1], tail[1:], strict=True))
+    ids = {name: i for i, name in enumerate(xy)}
+    edges = np.array(sorted((min(ids[a], ids[b]), max(ids[a], ids[b])) for a, b in pairs))
+    pos = np.array([xy[n] for n in ids], dtype=np.float64)
+    disp = np.array([d[n] for n in ids], dtype=np.float64)
+    return ids, _WalkGraph.of(_adjacency(len(ids), edges), pos, disp)
+
+
+def test_a_walk_back_at_its_crossing_runs_on_along_the_touching_strand_to_the_tail() -> None:
+    # Before (retrace_px = 0, as the walk was): the walk came round the loop to l8, next to J9,
+    # which it had passed; every way on was used, the jump to the tail turns back by > 90 deg:
+    # the walk ended and the tail was dropped (the curve 25 mm short, called ok).
+    ids, g = _loop_touching_its_tail()
+    name = {i: n for n, i in ids.items()}
+    loop = ["d3", "d2", "d1", "d0", "J9", "k11", "k44", "J45", "J0", "l1", "l2", "l3", "l4"]
+    loop += ["l5", "l6", "l7", "l8"]
+    off = OrderingParams(retrace_px=0.0)
+    assert [name[k] for k in _bending_walk(g, off)] == loop
+    p = OrderingParams()
+    walk = _bending_walk(g, p)
+    assert [name[k] for k in walk] == loop + ["J37", "t38", "t39", "t40", "t41", "t42", "t43"]
+    end = next(d for d in _explain(walk, g, p, 0) if d.at == ids["l8"])
+    assert end.kind == "crossing" and end.chosen == ids["J37"]
+    # the way along the shared keypoints is limited: too short to reach J45 or J0, no step
+    short = OrderingParams(retrace_px=40.0)
+    assert [name[k] for k in _bending_walk(g, short)] == loop
+    # and the depth must agree: a tail 16 px of disparity off is another thread
+    at_l8 = np.array([ids[n] for n in loop], dtype=np.int64)
+    visited = np.zeros(len(ids), dtype=bool)
+    visited[at_l8] = True
+    cand, cost, tier, _ = _continuations(at_l8, len(at_l8), visited, g, p)
+    assert cand == [ids["J37"]] and tier == 1 and np.isfinite(cost[0])
+    g_far = replace(g, disp=np.where(np.arange(len(ids)) >= ids["J37"], 20.0, g.disp))
+    cand, cost, _, _ = _continuations(at_l8, len(at_l8), visited, g_far, p)
+    assert not np.isfinite(cost).any()
+
+
+def test_a_walk_back_at_its_crossing_does_not_turn_back_along_the_path() -> None:
+    # A strand a3 .. a0 walked west through the junction J; the walk comes back to J from the
+    # north-east (c2 -> c, heading south-west). The path's way on from J that continues that
+    # heading is west (a1, a0: nothing unvisited there); east (a2, a3, whose neighbour t is
+    # unvisited) turns back by ~125 deg: no way on, the walk ends (no jumps here).
+    xy = {"a3": (40, 0), "a2": (30, 0), "J": (20, 0), "a1": (10, 0), "a0": (0, 0)}
+    xy |= {"c2": (30, -14), "c": (24, -6), "t": (50, 8)}
+    ids = {name: i for i, name in enumerate(xy)}
+    pairs = [("a3", "a2"), ("a2", "J"), ("J", "a1"), ("a1", "a0"), ("c2", "c"), ("c", "J")]
+    pairs.append(("a3", "t"))
+    edges = np.array(sorted((min(ids[a], ids[b]), max(ids[a], ids[b])) for a, b in pairs))
+    pos = np.array([xy[n] for n in ids], dtype=np.float64)
+    g = _WalkGraph.of(_adjacency(len(ids), edges), pos, np.full(len(ids), 30.0))
+    walk = np.array([ids[n] for n in ["a3", "a2", "J", "a1", "a0", "c2", "c"]], dtype=np.int64)
+    visited = np.zeros(len(ids), dtype=bool)
+    visited[walk] = True
+    p = OrderingParams(bridge_px=0.0)
+    assert _continuations(walk, len(walk), visited, g, p)[0] == []
+    # the same junction reached heading south-east: east continues it, t is the way on
+    g2 = replace(g, pos=np.where((np.arange(len(ids)) == ids["c2"])[:, None], [10.0, -14.0], pos))
+    cand, cost, tier, _ = _continuations(walk, len(walk), visited, g2, p)
+    assert cand == [ids["t"]] and tier == 1 and np.isfinite(cost[0])
