@@ -15,6 +15,7 @@ import numpy as np
 
 from threadrecon.core.check_fast_kernel import rows_contradicted
 from threadrecon.core.check_field import derived
+from threadrecon.core.refine import row_runs
 from threadrecon.core.reliability import ReliabilityResult
 from threadrecon.core.stereo import StereoResult
 
@@ -105,7 +106,7 @@ def _contested(
     out = np.zeros(len(stereo.pixels), dtype=bool)
     out.setflags(write=False)  # every return: the cached value is shared
     sel = np.flatnonzero(rel.reliable)
-    if sel.size < 2 or not np.any(P_R):
+    if sel.size < 2:  # (no thread pixel in P_R: no run below, the same result)
         return out
     H, W = P_R.shape
     x = stereo.pixels[sel, 0].astype(np.int64)
@@ -114,28 +115,24 @@ def _contested(
     ok = np.isfinite(xr) & (y >= 0) & (y < H)
     if not ok.any():
         return out
-    y0, y1 = int(y[ok].min()), int(y[ok].max()) + 1
-    # the rows' thread pixels (flat, raster order) and their runs: a run starts where a pixel
-    # does not follow the one before it in its row; run ids count the starts (1, 2, ...)
-    flat = np.flatnonzero(P_R[y0:y1])
-    if flat.size == 0:
+    # P_R's runs (row, first and last column, row-major; cached with P_R, the refine stage
+    # reads them too); a match's run holds x - d, else x - d - 1, else x - d + 1: the last
+    # run starting at or before that column on its row, if it reaches that column
+    row, first, last = row_runs(P_R)
+    if row.size == 0:
         return out
-    start = np.ones(flat.size, dtype=bool)
-    start[1:] = (np.diff(flat) != 1) | (flat[1:] % W == 0)
-    run_of = np.cumsum(start)
-    width = np.bincount(run_of, minlength=int(run_of[-1]) + 1)
-    width[0] = 0
-    key = np.where(ok, (y - y0) * W, -(2 * W))  # off the rows: no pixel at any offset
+    width = last - first + 1
+    starts = row * W + first  # ascending
     xi = np.where(ok, xr, -1).astype(np.int64)
-    run = np.zeros(sel.size, dtype=np.int64)
-    for o in (0, -1, 1):  # the run at x - d first, else one next to it
+    run = np.full(sel.size, -1, dtype=np.int64)
+    for o in (0, -1, 1):
         xo = xi + o
         inside = ok & (xo >= 0) & (xo < W)
-        q = key + np.clip(xo, 0, W - 1)
-        at = np.minimum(np.searchsorted(flat, q), flat.size - 1)
-        hit = np.where(inside & (flat[at] == q), run_of[at], 0)
-        run = np.where(run > 0, run, hit)
-    on = run > 0
+        j = np.searchsorted(starts, np.where(inside, y * W + xo, -1), side="right") - 1
+        jj = np.maximum(j, 0)
+        hit = inside & (j >= 0) & (row[jj] == y) & (last[jj] >= xo)
+        run = np.where(run >= 0, run, np.where(hit, jj, -1))
+    on = run >= 0
     if not on.any():
         return out
     lo = np.full(width.size, _I64_MAX)
