@@ -2,11 +2,10 @@
 scipy took a full-crop scan or built a tree, with the same decisions (the check's results are
 identical to the forms they replace).
 
-``mask_rows``: a mask crop's set pixels by rows (CSR), in one scan instead of ``np.nonzero``
-(whose 2-D form costs ~3 ns a pixel: ~0.35 ms on a 640x480 thread's box). ``close_pairs``: the
-pairs of points within a distance in the image and apart along the curve, by a sweep over the
-points sorted by x, instead of a ``cKDTree`` built and queried for a few hundred points, most
-of whose pairs are neighbours along the curve (``check_fold.fold_length``).
+``close_pairs``: the pairs of points within a distance in the image and apart along the curve,
+by a sweep over the points sorted by x, instead of a ``cKDTree`` built and queried for a few
+hundred points, most of whose pairs are neighbours along the curve (``check_fold.fold_length``).
+(A mask crop's pixels by rows come from the refine stage's row runs: ``check._rows_of_runs``.)
 ``ring_level``: the median grey level of the ring around the thread and its deviation
 (``check._BareBackground``) from one pass over the window and two partitions, instead of a dozen
 numpy calls (~40 us a ring). ``rows_contradicted``: the reliable matches in a window around
@@ -25,28 +24,6 @@ from threadrecon.core.compiled import kernel
 
 
 # Compiled ahead of time once per machine (core/compiled.py), so that numba is not loaded.
-@kernel("Tuple((int64[::1], int64[::1]))(uint8[:, ::1], int64)")
-def mask_rows(mask, total):  # noqa: ANN001
-    """The set pixels of ``mask`` (h, w) by rows: row i holds the columns
-    ``cols[row_ptr[i]:row_ptr[i + 1]]`` (ascending), as ``np.nonzero`` lists them. ``total``:
-    the number of set pixels (``cols``' length); ``row_ptr[h]`` is the number found, which
-    differs from ``total`` only when ``total`` was wrong (then ``cols`` holds the first
-    ``total`` of them)."""
-    h, w = mask.shape
-    cols = np.empty(max(total, 0), np.int64)
-    row_ptr = np.empty(h + 1, np.int64)
-    k = 0
-    for i in range(h):
-        row_ptr[i] = k
-        for j in range(w):
-            if mask[i, j] != 0:
-                if k < total:
-                    cols[k] = j
-                k += 1
-    row_ptr[h] = k
-    return cols, row_ptr
-
-
 @kernel("int64[:, ::1](float64[::1], float64[::1], float64[::1], float64, float64)")
 def close_pairs(x, y, s, r, gap):  # noqa: ANN001
     """(k, 2) index pairs (i < j) of the points (x, y) whose squared distance
