@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from threadrecon.core.check_fast_kernel import rows_contradicted
+from threadrecon.core.check_fast_kernel import contested_runs, rows_contradicted
 from threadrecon.core.check_field import derived
 from threadrecon.core.refine import row_runs
 from threadrecon.core.reliability import ReliabilityResult
@@ -74,9 +74,6 @@ def _rows(
     return xs, row_ptr, y0, np.ascontiguousarray(disp)
 
 
-_I64_MAX, _I64_MIN = int(np.iinfo(np.int64).max), int(np.iinfo(np.int64).min)
-
-
 def contested(
     stereo: StereoResult, rel: ReliabilityResult, P_R: np.ndarray, slack_px: float
 ) -> np.ndarray:
@@ -104,45 +101,15 @@ def _contested(
     stereo: StereoResult, rel: ReliabilityResult, P_R: np.ndarray, slack_px: float
 ) -> np.ndarray:
     out = np.zeros(len(stereo.pixels), dtype=bool)
-    out.setflags(write=False)  # every return: the cached value is shared
     sel = np.flatnonzero(rel.reliable)
-    if sel.size < 2:  # (no thread pixel in P_R: no run below, the same result)
-        return out
-    H, W = P_R.shape
-    x = stereo.pixels[sel, 0].astype(np.int64)
-    y = stereo.pixels[sel, 1].astype(np.int64)
-    xr = np.rint(x - np.asarray(stereo.disparity, dtype=np.float64)[sel])
-    ok = np.isfinite(xr) & (y >= 0) & (y < H)
-    if not ok.any():
-        return out
-    # P_R's runs (row, first and last column, row-major; cached with P_R, the refine stage
-    # reads them too); a match's run holds x - d, else x - d - 1, else x - d + 1: the last
-    # run starting at or before that column on its row, if it reaches that column
-    row, first, last = row_runs(P_R)
-    if row.size == 0:
-        return out
-    width = last - first + 1
-    starts = row * W + first  # ascending
-    xi = np.where(ok, xr, -1).astype(np.int64)
-    run = np.full(sel.size, -1, dtype=np.int64)
-    for o in (0, -1, 1):
-        xo = xi + o
-        inside = ok & (xo >= 0) & (xo < W)
-        j = np.searchsorted(starts, np.where(inside, y * W + xo, -1), side="right") - 1
-        jj = np.maximum(j, 0)
-        hit = inside & (j >= 0) & (row[jj] == y) & (last[jj] >= xo)
-        run = np.where(run >= 0, run, np.where(hit, jj, -1))
-    on = run >= 0
-    if not on.any():
-        return out
-    lo = np.full(width.size, _I64_MAX)
-    hi = np.full(width.size, _I64_MIN)
-    np.minimum.at(lo, run[on], x[on])
-    np.maximum.at(hi, run[on], x[on])
-    k, xk = run[on], x[on]
-    reach = width[k] + slack_px
-    far = (hi[k] - xk > reach) | (xk - lo[k] > reach)
-    out = np.zeros(len(stereo.pixels), dtype=bool)
-    out[sel[on][far]] = True
-    out.setflags(write=False)
+    if sel.size >= 2:
+        H, W = P_R.shape
+        x = stereo.pixels[sel, 0].astype(np.int64)
+        y = stereo.pixels[sel, 1].astype(np.int64)
+        xr = np.rint(x - np.asarray(stereo.disparity, dtype=np.float64)[sel])
+        # P_R's runs (row, first and last column, row-major; cached with P_R, the refine
+        # stage reads them too); compiled: each match's run and the matches' spread per run
+        row, first, last = row_runs(P_R)
+        out[sel] = contested_runs(x, y, xr, row, first, last, H, W, float(slack_px))
+    out.setflags(write=False)  # the cached value is shared
     return out
