@@ -63,7 +63,7 @@ from threadrecon.core.check_beyond import (
     surface_past_end,
     thread_line_beyond,
 )
-from threadrecon.core.check_fast_kernel import flag_runs, mask_rows, ring_level
+from threadrecon.core.check_fast_kernel import flag_runs, ring_level
 from threadrecon.core.check_field import MaskField, derived, mask_field
 from threadrecon.core.check_fold import fold_length
 from threadrecon.core.check_kernel import (
@@ -83,6 +83,7 @@ from threadrecon.core.check_score import (
 from threadrecon.core.check_support import contested, contradicted, reliable_rows
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
+from threadrecon.core.refine import row_runs
 from threadrecon.core.reliability import ReliabilityResult
 from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.spline import SplineResult
@@ -994,35 +995,50 @@ def _border_distance(a: np.ndarray, b: np.ndarray, shape: tuple[int, int]) -> fl
 
 @dataclass(frozen=True)
 class _View:
-    """One view's thread mask for the coverage: ``mask`` (h, w) uint8 0/1, the thread pixels'
-    bounding box [bx, bx + w) x [by, by + h) of the image (the curve's band outside it holds no
-    thread pixel); ``x0``, ``y0`` the origin of the field's box the curve is measured from
-    (the band is drawn from the same fixed-point coordinates as on that box)."""
+    """One view's thread pixels for the coverage, by rows (CSR) on their bounding box
+    [bx, bx + w) x [by, by + h) of the image (the curve's band outside it holds no thread
+    pixel); ``x0``, ``y0`` the origin of the field's box the curve is measured from (the band
+    is drawn from the same fixed-point coordinates as on that box)."""
 
-    mask: np.ndarray
     x0: int
     y0: int
     bx: int
     by: int
     total: int
     shape: tuple[int, int]
-    cols: np.ndarray  # the thread pixels' columns of the crop, row by row (ascending)
+    cols: np.ndarray  # the thread pixels' columns of the box, row by row (ascending)
     row_ptr: np.ndarray  # row i's columns: cols[row_ptr[i]:row_ptr[i + 1]]
 
 
 def _view(mask: np.ndarray, field: MaskField) -> _View:
-    """The thread mask on its bounding box (per segmentation, cached with it)."""
+    """The thread pixels on their bounding box (per segmentation, cached with it)."""
     return derived((mask,), f"view{field.x0},{field.y0}", lambda: _crop(mask, field))
 
 
 def _crop(mask: np.ndarray, field: MaskField) -> _View:
-    bx, by, bw, bh = field.bbox
-    crop = np.ascontiguousarray(mask[by : by + bh, bx : bx + bw]).view(np.uint8)
-    crop.setflags(write=False)
-    cols, row_ptr = mask_rows(crop, field.total)  # compiled: np.nonzero's order, one scan
+    bx, by, _, bh = field.bbox
+    cols, row_ptr = _rows_of_runs(row_runs(mask), bx, by, bh)  # np.nonzero's order
     if row_ptr[-1] != field.total:
         raise ValueError(f"the thread mask changed: {row_ptr[-1]} pixels, {field.total} counted")
-    return _View(crop, field.x0, field.y0, bx, by, field.total, mask.shape, cols, row_ptr)
+    return _View(field.x0, field.y0, bx, by, field.total, mask.shape, cols, row_ptr)
+
+
+def _rows_of_runs(
+    runs: tuple[np.ndarray, np.ndarray, np.ndarray], bx: int, by: int, bh: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The set pixels of a mask by rows on their bounding box (rows by..by + bh - 1, columns
+    from bx), from the mask's row runs (``refine.row_runs``: row, first and last column,
+    row-major, cached with the mask): row i's columns ``cols[row_ptr[i]:row_ptr[i + 1]]`` (box
+    px, ascending), as ``np.nonzero`` of the box lists them, without a scan of the mask."""
+    row, first, last = runs
+    n = last - first + 1
+    ends = np.cumsum(n)
+    total = int(ends[-1]) if n.size else 0
+    # pixel j of run r: column first[r] + (j - start of run r), shifted to the crop
+    cols = np.arange(total, dtype=np.int64) + np.repeat(first - bx - (ends - n), n)
+    run_ptr = np.searchsorted(row, np.arange(by, by + bh + 1, dtype=np.int64))
+    row_ptr = np.concatenate([[0], ends])[run_ptr].astype(np.int64)
+    return cols, row_ptr
 
 
 def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> float:

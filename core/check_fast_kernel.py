@@ -2,17 +2,18 @@
 scipy took a full-crop scan or built a tree, with the same decisions (the check's results are
 identical to the forms they replace).
 
-``mask_rows``: a mask crop's set pixels by rows (CSR), in one scan instead of ``np.nonzero``
-(whose 2-D form costs ~3 ns a pixel: ~0.35 ms on a 640x480 thread's box). ``close_pairs``: the
-pairs of points within a distance in the image and apart along the curve, by a sweep over the
-points sorted by x, instead of a ``cKDTree`` built and queried for a few hundred points, most
-of whose pairs are neighbours along the curve (``check_fold.fold_length``).
+``close_pairs``: the pairs of points within a distance in the image and apart along the curve,
+by a sweep over the points sorted by x, instead of a ``cKDTree`` built and queried for a few
+hundred points, most of whose pairs are neighbours along the curve (``check_fold.fold_length``).
+(A mask crop's pixels by rows come from the refine stage's row runs: ``check._rows_of_runs``.)
 ``ring_level``: the median grey level of the ring around the thread and its deviation
 (``check._BareBackground``) from one pass over the window and two partitions, instead of a dozen
 numpy calls (~40 us a ring). ``rows_contradicted``: the reliable matches in a window around
 each curve point read from the reliable pixels' rows (``check_support``), which the check
 builds anyway, instead of a NaN image of their bounding box built per stereo result (~0.5 MB
-of fresh memory at 640x480).
+of fresh memory at 640x480). ``contested_runs``: each reliable match's right run among P_R's
+row runs and the matches' spread per run (``check_support.contested``), in one pass instead of
+some forty numpy calls (~0.3 ms a new segmentation).
 """
 
 from __future__ import annotations
@@ -25,28 +26,6 @@ from threadrecon.core.compiled import kernel
 
 
 # Compiled ahead of time once per machine (core/compiled.py), so that numba is not loaded.
-@kernel("Tuple((int64[::1], int64[::1]))(uint8[:, ::1], int64)")
-def mask_rows(mask, total):  # noqa: ANN001
-    """The set pixels of ``mask`` (h, w) by rows: row i holds the columns
-    ``cols[row_ptr[i]:row_ptr[i + 1]]`` (ascending), as ``np.nonzero`` lists them. ``total``:
-    the number of set pixels (``cols``' length); ``row_ptr[h]`` is the number found, which
-    differs from ``total`` only when ``total`` was wrong (then ``cols`` holds the first
-    ``total`` of them)."""
-    h, w = mask.shape
-    cols = np.empty(max(total, 0), np.int64)
-    row_ptr = np.empty(h + 1, np.int64)
-    k = 0
-    for i in range(h):
-        row_ptr[i] = k
-        for j in range(w):
-            if mask[i, j] != 0:
-                if k < total:
-                    cols[k] = j
-                k += 1
-    row_ptr[h] = k
-    return cols, row_ptr
-
-
 @kernel("int64[:, ::1](float64[::1], float64[::1], float64[::1], float64, float64)")
 def close_pairs(x, y, s, r, gap):  # noqa: ANN001
     """(k, 2) index pairs (i < j) of the points (x, y) whose squared distance
@@ -147,6 +126,56 @@ def rows_contradicted(xs, row_ptr, y0, disp, q, ok, qdisp, near, tol):  # noqa: 
                     if abs(v - qdisp[i]) <= tol:
                         agrees = True
         out[i] = seen and not agrees
+    return out
+
+
+@kernel(
+    "boolean[::1](int64[::1], int64[::1], float64[::1], int64[::1], int64[::1], int64[::1], "
+    "int64, int64, float64)"
+)
+def contested_runs(x, y, xr, row, first, last, h, w, slack):  # noqa: ANN001
+    """``check_support.contested`` on the reliable matches (left pixel ``x``, ``y``; right
+    position ``xr`` = rint(x - d), not finite: no match) and P_R's row runs (``row``,
+    ``first``, ``last`` column, row-major: ``refine.row_runs``) of an (h, w) mask: a match's
+    run holds xr, else xr - 1, else xr + 1 on its row (0 <= y < h, 0 <= column < w); a match
+    is contested when another of its run lies farther from it than the run's width plus
+    ``slack`` (the left x compared as numpy compares int64 with float64)."""
+    n = len(x)
+    r = len(row)
+    run = np.full(n, -1, np.int64)
+    for i in range(n):
+        if not math.isfinite(xr[i]) or y[i] < 0 or y[i] >= h:
+            continue
+        xi = np.int64(xr[i])
+        for o in (0, -1, 1):
+            v = xi + o
+            if v < 0 or v >= w:
+                continue
+            key = y[i] * w + v
+            lo, hi = 0, r  # the first run starting after key: runs sorted by row * w + first
+            while lo < hi:
+                mid = (lo + hi) >> 1
+                if row[mid] * w + first[mid] <= key:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            j = lo - 1
+            if j >= 0 and row[j] == y[i] and last[j] >= v:
+                run[i] = j
+                break
+    lo_x = np.full(r, 9223372036854775807, np.int64)
+    hi_x = np.full(r, -9223372036854775807 - 1, np.int64)
+    for i in range(n):
+        k = run[i]
+        if k >= 0:
+            lo_x[k] = min(lo_x[k], x[i])
+            hi_x[k] = max(hi_x[k], x[i])
+    out = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        k = run[i]
+        if k >= 0:
+            reach = np.float64(last[k] - first[k] + 1) + slack
+            out[i] = np.float64(hi_x[k] - x[i]) > reach or np.float64(x[i] - lo_x[k]) > reach
     return out
 
 

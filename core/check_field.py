@@ -25,6 +25,7 @@ import numpy as np
 
 from threadrecon.core.check_kernel import field_at, field_pixels, near_values
 from threadrecon.core.lru import LRU
+from threadrecon.core.refine import row_runs
 
 FIELD_CACHE = 8  # fields kept: both views of a few frames, the debugger's working set
 DERIVED_CACHE = 16  # other per-segmentation values kept (a few kinds for a few frames)
@@ -260,10 +261,14 @@ def derived(owners: tuple[np.ndarray, ...], tag: str, compute: Callable[[], T]) 
 def _compute(mask: np.ndarray, reach: float) -> MaskField:
     H, W = mask.shape
     m8 = np.ascontiguousarray(mask).view(np.uint8)
-    total = cv2.countNonZero(m8)
+    # the thread pixels' count and bounding box from the mask's row runs (cached with the
+    # mask: the refine stage scanned it already), as cv2.countNonZero and cv2.boundingRect
+    row, first, last = row_runs(mask)
+    total = int(np.sum(last - first + 1))
     if total == 0:
         return MaskField(m8, 0, 0, (0, 0), reach, 0)
-    bx, by, bw, bh = cv2.boundingRect(m8)
+    bx, by = int(first.min()), int(row[0])
+    bw, bh = int(last.max()) + 1 - bx, int(row[-1]) + 1 - by
     m = int(np.ceil(reach))
     x0, x1 = max(0, bx - m), min(W, bx + bw + m)
     y0, y1 = max(0, by - m), min(H, by + bh + m)

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from threadrecon.core.check_fast_kernel import rows_contradicted
+from threadrecon.core.check_fast_kernel import contested_runs, rows_contradicted
 from threadrecon.core.check_field import derived
+from threadrecon.core.refine import row_runs
 from threadrecon.core.reliability import ReliabilityResult
 from threadrecon.core.stereo import StereoResult
 
@@ -73,9 +74,6 @@ def _rows(
     return xs, row_ptr, y0, np.ascontiguousarray(disp)
 
 
-_I64_MAX, _I64_MIN = int(np.iinfo(np.int64).max), int(np.iinfo(np.int64).min)
-
-
 def contested(
     stereo: StereoResult, rel: ReliabilityResult, P_R: np.ndarray, slack_px: float
 ) -> np.ndarray:
@@ -103,49 +101,15 @@ def _contested(
     stereo: StereoResult, rel: ReliabilityResult, P_R: np.ndarray, slack_px: float
 ) -> np.ndarray:
     out = np.zeros(len(stereo.pixels), dtype=bool)
-    out.setflags(write=False)  # every return: the cached value is shared
     sel = np.flatnonzero(rel.reliable)
-    if sel.size < 2 or not np.any(P_R):
-        return out
-    H, W = P_R.shape
-    x = stereo.pixels[sel, 0].astype(np.int64)
-    y = stereo.pixels[sel, 1].astype(np.int64)
-    xr = np.rint(x - np.asarray(stereo.disparity, dtype=np.float64)[sel])
-    ok = np.isfinite(xr) & (y >= 0) & (y < H)
-    if not ok.any():
-        return out
-    y0, y1 = int(y[ok].min()), int(y[ok].max()) + 1
-    # the rows' thread pixels (flat, raster order) and their runs: a run starts where a pixel
-    # does not follow the one before it in its row; run ids count the starts (1, 2, ...)
-    flat = np.flatnonzero(P_R[y0:y1])
-    if flat.size == 0:
-        return out
-    start = np.ones(flat.size, dtype=bool)
-    start[1:] = (np.diff(flat) != 1) | (flat[1:] % W == 0)
-    run_of = np.cumsum(start)
-    width = np.bincount(run_of, minlength=int(run_of[-1]) + 1)
-    width[0] = 0
-    key = np.where(ok, (y - y0) * W, -(2 * W))  # off the rows: no pixel at any offset
-    xi = np.where(ok, xr, -1).astype(np.int64)
-    run = np.zeros(sel.size, dtype=np.int64)
-    for o in (0, -1, 1):  # the run at x - d first, else one next to it
-        xo = xi + o
-        inside = ok & (xo >= 0) & (xo < W)
-        q = key + np.clip(xo, 0, W - 1)
-        at = np.minimum(np.searchsorted(flat, q), flat.size - 1)
-        hit = np.where(inside & (flat[at] == q), run_of[at], 0)
-        run = np.where(run > 0, run, hit)
-    on = run > 0
-    if not on.any():
-        return out
-    lo = np.full(width.size, _I64_MAX)
-    hi = np.full(width.size, _I64_MIN)
-    np.minimum.at(lo, run[on], x[on])
-    np.maximum.at(hi, run[on], x[on])
-    k, xk = run[on], x[on]
-    reach = width[k] + slack_px
-    far = (hi[k] - xk > reach) | (xk - lo[k] > reach)
-    out = np.zeros(len(stereo.pixels), dtype=bool)
-    out[sel[on][far]] = True
-    out.setflags(write=False)
+    if sel.size >= 2:
+        H, W = P_R.shape
+        x = stereo.pixels[sel, 0].astype(np.int64)
+        y = stereo.pixels[sel, 1].astype(np.int64)
+        xr = np.rint(x - np.asarray(stereo.disparity, dtype=np.float64)[sel])
+        # P_R's runs (row, first and last column, row-major; cached with P_R, the refine
+        # stage reads them too); compiled: each match's run and the matches' spread per run
+        row, first, last = row_runs(P_R)
+        out[sel] = contested_runs(x, y, xr, row, first, last, H, W, float(slack_px))
+    out.setflags(write=False)  # the cached value is shared
     return out

@@ -564,7 +564,8 @@ def _runs(mask: np.ndarray, grey: np.ndarray, background: float) -> _Runs:
     return _derived("runs", (mask, grey), (float(background),), _Runs, background)
 
 
-DERIVED_CACHE: Final = 16  # runs of both views, a spread, H's stereo match: a few frames
+DERIVED_CACHE: Final = 24  # runs of both views (and their row runs), a spread, H's stereo
+# match: a few frames
 _DERIVED: LRU[tuple, Any] = LRU(DERIVED_CACHE)  # LRU.cached entries
 
 
@@ -593,7 +594,7 @@ class _Runs:
         H, W = mask.shape
         if grey.shape != mask.shape:
             raise ValueError(f"grey image {grey.shape} and mask {mask.shape} differ in shape")
-        self.row, a, b = _mask_runs(mask)
+        self.row, a, b = row_runs(mask)
         self.length = (b - a + 1).astype(np.float64)
         self.centre, self.var = edge_centres(
             self.row,
@@ -658,6 +659,13 @@ class _Runs:
         r = rows[use]
         out[use] = other.row_start[r] + (idx[use] - self.row_start[r])
         return out
+
+
+def row_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The (cached) horizontal runs of a mask (:func:`_mask_runs`), kept while the mask
+    object lives: the runs of P_R serve this stage and the check's contested matches
+    (core/check_support), one scan of the mask per segmentation. Shared: not to be written."""
+    return _derived("row_runs", (mask,), (), _mask_runs)
 
 
 def _mask_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

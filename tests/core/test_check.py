@@ -21,6 +21,7 @@ from threadrecon.core.check import (
     _bridge_evidence,
     _end_added_length,
     _overlap,
+    _rows_of_runs,
     _strand_samples,
     _surface_behind,
     _unmeasured_length,
@@ -30,6 +31,7 @@ from threadrecon.core.check import (
 from threadrecon.core.metrics import curve_errors, project
 from threadrecon.core.params import specs
 from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
+from threadrecon.core.refine import _mask_runs
 
 ROOT = Path(__file__).resolve().parents[2]
 TISSUE = ROOT / "sample_data" / "simulated" / "tissue"
@@ -683,3 +685,21 @@ def test_a_distractor_piece_matched_into_the_thread_strand_supports_no_depth() -
     args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
     off = check_curve(*args, rec["camera"], calib, CheckParams(contested_support=False))
     assert off.status == "ok" and off.unmeasured_mm < CheckParams().max_unmeasured_mm
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_the_coverage_rows_from_the_row_runs_list_the_pixels_as_nonzero_does(seed: int) -> None:
+    """_rows_of_runs: the mask crop's pixels by rows (CSR) from refine's row runs, in
+    np.nonzero's order, with the dtypes the coverage kernel takes."""
+    rng = np.random.default_rng(seed)
+    h, w = int(rng.integers(1, 30)), int(rng.choice([8, 16, 24, int(rng.integers(1, 30))]))
+    mask = rng.random((h, w)) < rng.uniform(0.05, 0.9)
+    mask[rng.integers(h), rng.integers(w)] = True
+    ys, xs = np.nonzero(mask)
+    bx, by, bh = int(xs.min()), int(ys.min()), int(ys.max() - ys.min() + 1)
+    cols, row_ptr = _rows_of_runs(_mask_runs(mask), bx, by, bh)
+    crop = mask[by : by + bh, bx:]
+    rr, cc = np.nonzero(crop)
+    assert cols.dtype == row_ptr.dtype == np.int64
+    assert np.array_equal(cols, cc)
+    assert np.array_equal(row_ptr, np.searchsorted(rr, np.arange(bh + 1)))

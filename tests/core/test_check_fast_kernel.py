@@ -13,24 +13,6 @@ def _pairs(p: np.ndarray) -> set[tuple[int, int]]:
     return {(int(i), int(j)) for i, j in p}
 
 
-def test_mask_rows_list_the_pixels_in_nonzeros_order() -> None:
-    rng = np.random.default_rng(11)
-    for trial in range(20):
-        h, w = rng.integers(1, 40, size=2)
-        mask = (rng.random((h, w)) < rng.uniform(0.0, 0.6)).astype(np.uint8)
-        mask[mask > 0] = rng.integers(1, 256)  # any non-zero value is a set pixel
-        cols, row_ptr = fk.mask_rows(mask, int(np.count_nonzero(mask)))
-        rows, want = np.nonzero(mask)
-        assert np.array_equal(cols, want), trial
-        assert np.array_equal(row_ptr, np.searchsorted(rows, np.arange(h + 1))), trial
-
-
-def test_mask_rows_report_a_wrong_count_in_the_last_pointer() -> None:
-    mask = np.eye(5, dtype=np.uint8)
-    cols, row_ptr = fk.mask_rows(mask, 3)
-    assert row_ptr[-1] == 5 and np.array_equal(cols, [0, 1, 2])
-
-
 @pytest.mark.parametrize("r", [0.5, 1.0, 1.5, 3.0, 7.25])
 def test_close_pairs_are_the_kd_trees_pairs(r: float) -> None:
     rng = np.random.default_rng(int(r * 100))

@@ -152,3 +152,17 @@ def test_piece_index_of_no_piece_holds_no_pixel() -> None:
     index = PieceIndex([])
     assert index.at(np.array([[0.0, 0.0], [5.0, 7.0]])).tolist() == [-1, -1]
     assert index.near(np.array([1.0, 1.0]), 2.0) == []
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_field_count_and_box_are_those_of_opencv(seed: int) -> None:
+    """The field's thread-pixel count and bounding box come from the mask's row runs
+    (refine.row_runs, shared with the refine stage): cv2.countNonZero's and boundingRect's."""
+    clear_fields()
+    rng = np.random.default_rng(seed)
+    mask = _thread(rng, (int(rng.integers(20, 90)), int(rng.integers(20, 130))))
+    field = mask_field(mask, 6.0)
+    m8 = mask.view(np.uint8)
+    assert field.total == cv2.countNonZero(m8)
+    if field.total:
+        assert field.bbox == tuple(cv2.boundingRect(m8))

@@ -180,3 +180,30 @@ def test_contested_equals_the_row_by_row_reading(seed: int) -> None:
     for slack in (0.0, 2.0, 5.0):
         want = _contested_by_rows(stereo, rel, P_R, slack)
         assert np.array_equal(contested(stereo, rel, P_R, slack), want)
+
+
+def test_contested_reads_p_rs_row_runs_once_with_the_refine_stage_and_the_field(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """P_R is scanned once per segmentation: contested, the check's field (count and box)
+    and the refine stage's runs all read refine.row_runs, cached with the mask."""
+    from threadrecon.core import refine
+    from threadrecon.core.check_field import clear_fields, mask_field
+
+    scans = []
+
+    def counted(mask: np.ndarray):
+        scans.append(mask)
+        return real(mask)
+
+    real = refine._mask_runs
+    monkeypatch.setattr(refine, "_mask_runs", counted)
+    clear_fields()
+    P_R = _rows([(5, 10, 12), (5, 30, 32)])
+    stereo, rel = _matches([(11, 5), (31, 5), (40, 5)], [0.0, 0.0, 29.0])
+    assert contested(stereo, rel, P_R, 2.0).tolist() == [True, False, True]
+    assert len(scans) == 1 and scans[0] is P_R
+    field = mask_field(P_R, 5.0)
+    assert (field.total, field.bbox) == (6, (10, 5, 23, 1))
+    refine._runs(P_R, np.zeros(P_R.shape, np.float32), 0.0)
+    assert len(scans) == 1
