@@ -31,11 +31,16 @@ async function refreshOverlay() {
   overlayAt = Date.now();
   try {
     const v = S.version;
-    const ov = await api("GET", `/api/sessions/${S.session}/overlay?known=${knownOverlays()}&keys=${shownOverlays()}`);
+    const ov = await getOverlay();
     if (v > S.overlayVersion) takeOverlay(ov, v);  // else a newer state brought its own
   } catch (e) { /* the next state refreshes it */ }
   overlayBusy = false;
   if (S.overlayVersion !== S.version) refreshOverlay();
+}
+
+// The overlays the page shows and does not hold (the route of a state's answer, asked alone).
+function getOverlay() {
+  return api("GET", `/api/sessions/${S.session}/overlay?known=${knownOverlays()}&keys=${shownOverlays()}`);
 }
 
 // The keys of the overlays the page shows: the server builds and sends only those, and names
@@ -51,7 +56,7 @@ async function fetchShownLater() {
   laterBusy = true;
   try {
     const v = S.overlayVersion;
-    const got = await api("GET", `/api/sessions/${S.session}/overlay?known=${knownOverlays()}&keys=${shownOverlays()}`);
+    const got = await getOverlay();
     if (S.overlayVersion === v) takeOverlay(got, v);  // else a newer state brought its own
   } catch (e) { /* the next state refreshes it */ }
   laterBusy = false;
