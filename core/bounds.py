@@ -28,6 +28,7 @@ from threadrecon.core.continuity import (
     DISPARITY_SLOPE,
     depth_of,
     disparity_of,
+    disparity_room,
     second_match_subpixel,
 )
 from threadrecon.core.ends import fuse_end
@@ -419,9 +420,7 @@ def _dead_end_depths(
         px = sel[on]
         d_a = float(disparity_of(stereo, z_a, px))
         first, second = stereo.disparity[px], stereo.d_next[px]
-        bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * np.hypot(
-            *(stereo.pixels[px] - path[anchor, :2]).T
-        )
+        bound = disparity_room(np.hypot(*(stereo.pixels[px] - path[anchor, :2]).T))
         if not ((np.abs(first - d_a) > bound + OUTLIER_PX) & (np.abs(second - d_a) <= bound)).any():
             continue  # no pixel has a second match the anchor's strand could reach
         t = ordering.pixel_t[px]
@@ -459,7 +458,7 @@ def _interior_depths(
     px, li = sel[cand], link[cand]
     d_path = disparity_of(stereo, path[:, 2], px)
     near = np.where(ordering.pixel_t[px] < 0.5, li, li + 1)
-    bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * np.hypot(*(stereo.pixels[px] - path[near, :2]).T)
+    bound = disparity_room(np.hypot(*(stereo.pixels[px] - path[near, :2]).T))
     first, second = stereo.disparity[px], stereo.d_next[px]
     with np.errstate(invalid="ignore"):
         gate = (np.abs(first - d_path[near]) > bound + OUTLIER_PX) & (

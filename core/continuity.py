@@ -32,7 +32,10 @@ from threadrecon.core import walk_kernel
 from threadrecon.core.segmentation import LIFT_VALUE, LiftedPair
 from threadrecon.core.stereo import StereoResult, _Box, _subpixel_kernel
 
-DISPARITY_SLACK_PX = 1.0  # the ordering's depth-continuity bound: slack + slope * distance, px
+# Depth continuity along one strand: two of its keypoints d px apart in the image differ in
+# disparity by at most DISPARITY_SLACK_PX + DISPARITY_SLOPE * d (slope <= B/Z: the thread at
+# 45 deg to the image plane; the slack covers the clusters' median disparities' noise).
+DISPARITY_SLACK_PX = 1.0
 DISPARITY_SLOPE = 0.1
 SMOOTH_TIE = 1e-6  # per px of disparity change: among choices of equal cost, the smoother
 # (the same from either end of a chain; the counts above are never outweighed)
@@ -131,10 +134,16 @@ def _inverse_depth_line(stereo: StereoResult, near: np.ndarray | None) -> tuple[
     return float("nan"), float("nan")
 
 
+def disparity_room(distance: Any) -> Any:
+    """How far one strand's disparity may change over ``distance`` px of image (its continuity
+    bound, shared by the ordering, continuity and bounds stages): slack + slope x distance."""
+    return DISPARITY_SLACK_PX + DISPARITY_SLOPE * distance
+
+
 def _breaks(da: np.ndarray, db: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
     """Steps whose disparity change exceeds one strand's continuity bound (NaN: no break)."""
     dist = np.hypot(*(pa - pb).T)
-    return np.abs(da - db) > DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
+    return np.abs(da - db) > disparity_room(dist)
 
 
 def _chains(K: int, edges: np.ndarray, through: np.ndarray | None = None) -> list[np.ndarray]:
@@ -179,7 +188,7 @@ def best_choice(first: np.ndarray, second: np.ndarray, pos: np.ndarray) -> np.nd
     if n == 0:
         return np.zeros(0, dtype=bool)
     cand = np.stack([first, second], axis=1)  # (n, 2)
-    bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * np.hypot(*np.diff(pos, axis=0).T)
+    bound = disparity_room(np.hypot(*np.diff(pos, axis=0).T))
     change = np.abs(cand[:-1, :, None] - cand[1:, None, :])  # (n-1, from, to)
     with np.errstate(invalid="ignore"):
         trans = VIOLATION_COST * (change > bound[:, None, None])

@@ -40,7 +40,7 @@ import numpy as np
 
 from threadrecon.core import walk_kernel
 from threadrecon.core.clustering import Clusters
-from threadrecon.core.continuity import depth_of, disparity_of, second_matches
+from threadrecon.core.continuity import depth_of, disparity_of, disparity_room, second_matches
 from threadrecon.core.ends import seen_in_right, tip_disparity
 from threadrecon.core.lazy import Deferred, LazyField
 from threadrecon.core.numeric import distance_to_zero
@@ -52,11 +52,6 @@ OUTLIER_PX = 2.0  # a pixel > 2 px of disparity from its cluster's median is ano
 MAX_WALKS = 24  # walks tried per frame (ends, then runner-up turns of the best): bounded time
 _NO_END_DISPARITY = np.array([[np.nan, np.inf], [np.nan, np.inf]])  # no end matched
 MAX_REJECTED = 4  # rejected continuations kept per decision: a jump may see dozens, few matter
-# Depth continuity along one strand: two of its keypoints d px apart in the image differ in
-# disparity by at most DISPARITY_SLACK_PX + DISPARITY_SLOPE * d (slope <= B/Z: the thread at
-# 45 deg to the image plane; the slack covers the clusters' median disparities' noise).
-DISPARITY_SLACK_PX = 1.0
-DISPARITY_SLOPE = 0.1
 
 
 @dataclass(frozen=True)
@@ -715,7 +710,7 @@ def _one_view_piece(
     taken from continuity: the end keypoints' least-squares line of depth against 2D arc
     length (the last ``MONO_FIT_KEYPOINTS``), extrapolated over the hidden jump and along the
     piece, its disparity held within the ordering's continuity bound from the end's
-    (``DISPARITY_SLACK_PX`` + ``DISPARITY_SLOPE`` x distance) and within the disparities the
+    (``continuity.disparity_room`` of the distance) and within the disparities the
     stereo searched. No piece where the right view shows bare background at most of those
     points (:func:`_bare_in_right`): there it would see the thread, so nothing hides it."""
     none = np.zeros((0, 3)), -1
@@ -803,7 +798,7 @@ def _one_view_piece(
     with np.errstate(divide="ignore", invalid="ignore"):
         d_lin = disparity_of(stereo, z)
     d_lin = np.where(np.isfinite(d_lin), d_lin, d_end)
-    room = DISPARITY_SLACK_PX + DISPARITY_SLOPE * s
+    room = disparity_room(s)
     d_lo, d_hi = stereo.d_range
     d_new = np.clip(np.clip(d_lin, d_end - room, d_end + room), max(d_lo, 1), d_hi)
     z = depth_of(stereo, d_new)
@@ -1527,7 +1522,7 @@ def _second_pass(
                     d = max(float(np.hypot(*out)), 1e-9)
                     c = float(out @ head) / d
                     gap = abs(float(disp[v]) - ref)
-                    if c < cos_max or gap > DISPARITY_SLACK_PX + DISPARITY_SLOPE * (run + d):
+                    if c < cos_max or gap > disparity_room(run + d):
                         continue
                     cost = run + d * (1.0 + p.bend_weight * (1.0 - c)) + p.disparity_weight * gap
                     if cost < best.get(v, np.inf):
@@ -1566,7 +1561,7 @@ def _jumps(
         free = np.flatnonzero(~visited)
         d = np.linalg.norm(pos[free] - pos[cur], axis=1)
         near = d <= p.bridge_px
-        near &= np.abs(disp[free] - ref) <= DISPARITY_SLACK_PX + DISPARITY_SLOPE * d
+        near &= np.abs(disp[free] - ref) <= disparity_room(d)
         cand = [int(v) for v in free[near]]
     if not cand:
         return [], np.zeros(0), tier, []
@@ -1623,7 +1618,7 @@ def _depth_breaks(
     degree = np.bincount(edges.ravel(), minlength=K)
     a, b = edges[:, 0], edges[:, 1]
     dist = np.hypot(*(pos[a] - pos[b]).T)
-    bound = DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
+    bound = disparity_room(dist)
     cut = (np.abs(disp[a] - disp[b]) > bound) & (degree[a] <= 2) & (degree[b] <= 2)
     if not cut.any():
         return edges, edges[:0]
@@ -1673,7 +1668,7 @@ def _ahead_cos(
     chord = pos - end
     dist = np.maximum(np.hypot(chord[:, 0], chord[:, 1]), 1e-9)
     cos = (chord @ heading) / (dist * hn)
-    same = np.abs(disp - side) <= DISPARITY_SLACK_PX + DISPARITY_SLOPE * dist
+    same = np.abs(disp - side) <= disparity_room(dist)
     same[chain + other] = False
     return float(cos[same].max()) if same.any() else -np.inf
 
