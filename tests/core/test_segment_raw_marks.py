@@ -208,3 +208,59 @@ def test_a_thread_whose_partner_lies_behind_the_shaft_keeps_that_stretch() -> No
     # instrument frame 9981 #5: a loop of thread beside the shaft in the left view runs
     # behind it in the right view (no partner candidate there)
     assert min(_raw_iou({"instrument": True}, [9981, 6, 5])) >= 0.85
+
+
+_ALL = RenderParams(
+    background="tissue", noise_sigma=3.0, blur_sigma=0.5, specular=0.3, thread_colour="random",
+    distractors=6, instrument=True, lighting=0.5, jpeg_quality=75,
+)  # fmt: skip (scripts/eval_suites.py's "all")
+
+
+@pytest.mark.parametrize("k", [1, 15])
+def test_a_light_fibre_merged_with_a_white_thread_goes_by_its_own_disparity(k: int) -> None:
+    # "all" frames (seed 15153, #1 and #15): in the right view a white thread is one piece with
+    # a light fibre of its dye that crosses it (#1) or touches it and runs beside it (#15).
+    # The blocks that hold both read the thread's disparity (the fibre's pixels there voted
+    # "in front" or undecided), so the fibre stayed: 953 and 1150 of the right mask's pixels,
+    # the curve bridged 34 mm to it (#1) or covered 65 % of the mask (#15). Per 16 px tile,
+    # the fibre's own pixels are at the tissue's disparity (25-27 px; the thread 30-36).
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=_ALL), np.random.default_rng([15153, 12, k])
+    )
+    masks = {}
+    for tiles in (False, True):
+        p = SegmentationParams(method="raw", tissue_tiles=tiles)
+        masks[tiles] = sr.segment_raw(frame.left, frame.right, p)[:2]
+    off = (masks[False][1] & ~frame.mask_right).sum()
+    on = (masks[True][1] & ~frame.mask_right).sum()
+    assert off >= 0.3 * masks[False][1].sum()  # (the fibre without the rule)
+    assert on <= 0.15 * masks[True][1].sum()
+    for P, M in zip(masks[True], (frame.mask_left, frame.mask_right), strict=True):
+        # the thread itself is kept as it was
+        assert (P & M).sum() >= 0.99 * (masks[False][0 if M is frame.mask_left else 1] & M).sum()
+
+
+def _chain(n: int) -> np.ndarray:
+    """Edges (n - 1, 2) of parts 1 .. n touching in a row (a line cut into n parts)."""
+    a = np.arange(1, n)
+    return np.c_[a, a + 1]
+
+
+def test_a_branch_at_the_tissue_s_disparity_goes_a_stretch_between_two_stays() -> None:
+    n = 9  # parts 1..8 (0: none)
+    # a thread 1-2-3-4-5 and a fibre 6-7-8 hanging off part 3
+    edges = np.r_[_chain(5), [[3, 6], [6, 7], [7, 8]]]
+    drop = np.zeros(n, bool)
+    drop[[6, 7, 8]] = True
+    assert np.array_equal(sr._branches(drop, edges, n), drop)
+    # the same parts as a stretch of the thread between two others (4-5 only joined through
+    # them): they stay
+    edges = np.r_[[[1, 2], [2, 3]], [[3, 6], [6, 7], [7, 8], [8, 4]], [[4, 5]]]
+    assert not sr._branches(drop, edges, n).any()
+    # a fibre crossing the thread: two arms off the crossing's part, both go
+    edges = np.r_[_chain(5), [[3, 6], [3, 7], [7, 8]]]
+    assert np.array_equal(sr._branches(drop, edges, n), drop)
+    # an end of the thread at the tissue's disparity hangs off one side: it is a branch too
+    end = np.zeros(n, bool)
+    end[5] = True
+    assert np.array_equal(sr._branches(end, _chain(5), n), end)
