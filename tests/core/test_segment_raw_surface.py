@@ -158,32 +158,6 @@ def test_a_pieces_own_disparity_and_the_backgrounds_are_found(seed: int, extra: 
     assert test.background_disparity(rows, cols) == D_BG
 
 
-@pytest.mark.parametrize("seed", range(3))
-def test_disparities_of_groups_are_each_groups_own(seed: int) -> None:
-    # two lines at two depths and one along the rows: each group's disparity is the one
-    # :meth:`disparity` gives it alone (-1 where it has none, or too few pixels)
-    tex = _texture(np.random.default_rng(seed))
-    left = np.ascontiguousarray(tex[:, :W])
-    right = np.ascontiguousarray(tex[:, D_BG : D_BG + W])
-    _line(left, 60)
-    _line(right, 60 - D_BG)  # on the texture
-    _line(left, 140)
-    _line(right, 140 - D_BG - 7)  # 7 px in front of it
-    left[105:108, 20:180] = 40.0  # along the rows
-    right[105:108, 8:168] = 40.0
-    parts = [_piece(60)[:2], _piece(140)[:2], tuple(a.ravel() for a in np.mgrid[105:108, 60:140])]
-    parts.append((np.array([30, 31]), np.array([61, 61])))  # two pixels: too few
-    rows = np.concatenate([p[0] for p in parts])
-    cols = np.concatenate([p[1] for p in parts])
-    group = np.concatenate([np.full(len(p[0]), g) for g, p in enumerate(parts)])
-    test = SurfaceTest(left, right, np.ones((H, W), bool), D_MAX, look_left=True)
-    got = test.disparities(rows, cols, group, len(parts))
-    assert got.tolist() == [D_BG, D_BG + 7, -1, -1]
-    for g, (r, c) in enumerate(parts[:3]):
-        own = test.disparity(r, c)
-        assert got[g] == (-1 if own is None else own)
-
-
 def test_a_line_along_the_rows_has_no_disparity_of_its_own() -> None:
     rng = np.random.default_rng(3)
     left = 128.0 + rng.normal(0.0, 1.0, (H, W)).astype(np.float32)
