@@ -17,8 +17,6 @@ from typing import TYPE_CHECKING, Final
 
 import cv2
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from threadrecon.core.grow_kernel import grow_mask_f32, grow_mask_u8
@@ -639,13 +637,6 @@ def _select(
         if by_hue:
             other |= hue <= _same_dye(d_px, d_vessel)
         sel = ~other & (v.s_lo[px] >= _CORE_FRACTION * means[lab[px]])  # (s_lo: S at them)
-        if p.tissue_tiles and not nearest_hue and sel.any():
-            # A mark merged with the thread, by its own depth (not on a blood-like thread: of
-            # little grey contrast, its parts' own disparity is at times its rim's texture's)
-            idx = np.flatnonzero(sel)
-            sel[idx[_tissue_tiles(views, i, px[idx], [on[lab_on == m] for m in marks], D)]] = (
-                False
-            )
         px = px[sel] if sel.any() else np.flatnonzero(lab == best)
         core = np.zeros(v.lo.shape, np.uint8)
         core[v.rows[px], v.cols[px]] = 1
@@ -655,148 +646,6 @@ def _select(
 
 
 _NO_VOTE: Final = np.full(1, -1, np.int8)  # a piece the surface test did not look at
-_TILE_PX: Final = 16  # a kept piece's own disparity is read per 16 px square: a thread's
-# changes by <= 1.6 px over it (_THREAD_SLOPE), a 64 px block holds a crossing's two lines
-_MIN_PART_PX: Final = 8  # a part of a tile with fewer pixels has no disparity of its own (the
-# surface test's least samples)
-
-
-def _tissue_tiles(
-    views: list[_View], i: int, px: np.ndarray, marks: list[np.ndarray], d: int
-) -> np.ndarray:
-    """(len(px),) bool: the kept lo pixels ``px`` (ascending) of view ``i`` that lie in a
-    line of a _TILE_PX tile (a connected part of the pixels within the tile) whose own
-    disparity (:meth:`SurfaceTest.disparities`, its pixels alone) is the tissue's (within
-    SAME_DISPARITY_PX of its block's background where that resolves, else of the nearest of
-    the ``marks``, lo pixels of the pieces found to be marks on it), while at least
-    _MIXED_SHARE of the pixels of parts with a disparity of their own are seen nearer than
-    that (a thread in front of the tissue); and the parts such a part continues into (touching
-    it, of a disparity of their own within SAME_DISPARITY_PX of its, and of no tissue's beside
-    them that differs).
-
-    A mark merged with the thread where they touch or cross (a light fibre and a white
-    thread, one dye; a vessel and a red thread) shares blocks with it, and the block-wise
-    surface test (:func:`_surface_votes`) reads the thread's disparity there: per part of a
-    tile, the mark's own pixels give the tissue's. A line along the rows has no disparity of
-    its own (such parts stay)."""
-    out = np.zeros(len(px), bool)
-    v = views[i]
-    if d < 1 or len(px) == 0:
-        return out
-    st = _surface_test(views, i, d)
-    rows, cols = v.rows[px], v.cols[px]
-    # parts: 8-connected within a tile (a one-pixel gap put between tiles), row-major kept
-    part = np.empty(len(px), np.int64)
-    n = label_pixels(rows + rows // _TILE_PX, cols + cols // _TILE_PX, part)
-    dt = st.disparities(rows, cols, part, n)
-    ok = dt >= 0
-    if not ok.any():
-        return out
-    cand = ok & (dt + SAME_DISPARITY_PX < dt[ok].max())  # behind some other part
-    if not cand.any():
-        return out
-    order = np.argsort(part, kind="stable")
-    size = np.bincount(part, minlength=n)
-    starts = np.cumsum(size) - size
-    near_marks: _Marks | None = None
-    background: dict[int, int | None] = {}
-    ref = np.full(n, np.nan)
-    for t in np.flatnonzero(cand).tolist():
-        at = order[starts[t] : starts[t] + size[t]]
-        block = int(rows[at[0]]) // 64 * 4096 + int(cols[at[0]]) // 64  # (a tile lies in one)
-        if block not in background:
-            background[block] = st.background_disparity(rows[at], cols[at])
-        tissue = background[block]
-        if tissue is None and marks:
-            if near_marks is None:
-                near_marks = _Marks(st, v, marks)
-            tissue = near_marks.disparity_near(rows[at], cols[at])
-        if tissue is not None:
-            ref[t] = tissue
-    on_tissue = cand & (np.abs(dt - ref) <= SAME_DISPARITY_PX)  # (nan: False)
-    if not on_tissue.any():
-        return out
-    front = ok & (dt > np.nanmax(ref[on_tissue]) + SAME_DISPARITY_PX)
-    if size[front].sum() < _MIXED_SHARE * size[ok].sum():
-        return out  # the piece lies on the tissue: the surface test's to judge
-    # The parts that touch (8-neighbour pixels of two parts, across a tile's side): the
-    # mark's parts without a tissue disparity of their own beside them, at its disparity.
-    width = v.lo.shape[1] + 2
-    key = rows.astype(np.int64) * width + cols + 1
-    pairs = []
-    for step in (1, width - 1, width, width + 1):  # right, down-left, down, down-right
-        j = np.searchsorted(key, key + step)
-        hit = j < len(key)
-        hit[hit] = key[j[hit]] == key[hit] + step
-        a, b = part[hit], part[j[hit]]
-        pairs.append(np.c_[a, b][a != b])
-    edges = np.unique(np.concatenate(pairs), axis=0)
-    nbrs: dict[int, list[int]] = {}
-    for a, b in edges.tolist():
-        nbrs.setdefault(a, []).append(b)
-        nbrs.setdefault(b, []).append(a)
-    # A crumb (too few pixels for a disparity: where a line leaves a tile's corner) passes
-    # its neighbour's disparity on; between two parts, a line's own slope over a tile is
-    # allowed.
-    crumb = size < _MIN_PART_PX
-    tol = SAME_DISPARITY_PX + _THREAD_SLOPE * _TILE_PX
-    carried = np.where(on_tissue, dt, -1)
-    todo = np.flatnonzero(on_tissue).tolist()
-    # centres of the parts: one without a tissue disparity beside it takes that of the
-    # nearest part found on the tissue (within _MAX_GAP_PX; a mark's arm across the thread)
-    cy = np.bincount(part, weights=rows, minlength=n) / np.maximum(size, 1)
-    cx = np.bincount(part, weights=cols, minlength=n) / np.maximum(size, 1)
-    while todo:
-        while todo:
-            t = todo.pop()
-            for u in nbrs.get(t, ()):
-                if on_tissue[u]:
-                    continue
-                if crumb[u] or (
-                    cand[u]
-                    and abs(dt[u] - carried[t]) <= tol
-                    and not abs(dt[u] - ref[u]) > SAME_DISPARITY_PX  # (nan: no tissue known)
-                ):
-                    on_tissue[u] = True
-                    carried[u] = carried[t] if crumb[u] else dt[u]
-                    todo.append(u)
-        found = np.flatnonzero(on_tissue & ok)
-        for u in np.flatnonzero(cand & ~on_tissue & np.isnan(ref)).tolist():
-            gap = np.hypot(cy[found] - cy[u], cx[found] - cx[u])
-            t = found[int(np.argmin(gap))]
-            if gap.min() <= _MAX_GAP_PX and abs(dt[u] - dt[t]) <= SAME_DISPARITY_PX:
-                on_tissue[u] = True
-                carried[u] = dt[u]
-                todo.append(u)
-    return _branches(on_tissue, edges, n)[part]
-
-
-def _branches(drop: np.ndarray, edges: np.ndarray, n: int) -> np.ndarray:
-    """(n,) bool: the parts ``drop`` (n,) bool that the rest hangs together without: each
-    connected set of them (``edges`` (E, 2): parts that touch) stays when the parts it
-    touches lie in two or more sets of the others that only it joins. A mark merged with
-    the thread is a branch of it (a fibre crossing it, or beside it touching it); a stretch
-    of the thread itself read at the tissue's disparity (a low grey contrast: its rim's
-    texture) lies between two of its stretches and stays."""
-    both_kept = ~drop[edges[:, 0]] & ~drop[edges[:, 1]]
-    both_drop = drop[edges[:, 0]] & drop[edges[:, 1]]
-
-    def components(sel: np.ndarray) -> np.ndarray:
-        e = edges[sel]
-        g = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-        return connected_components(g, directed=False)[1]
-
-    kept_comp, drop_comp = components(both_kept), components(both_drop)
-    out = drop.copy()
-    mixed = edges[drop[edges[:, 0]] != drop[edges[:, 1]]]
-    if len(mixed) == 0:
-        return out
-    d_side = np.where(drop[mixed[:, 0]], mixed[:, 0], mixed[:, 1])
-    k_side = np.where(drop[mixed[:, 0]], mixed[:, 1], mixed[:, 0])
-    pairs = np.unique(np.c_[drop_comp[d_side], kept_comp[k_side]], axis=0)
-    joins = np.bincount(pairs[:, 0], minlength=n) >= 2  # (per set of dropped parts)
-    out[drop & joins[drop_comp]] = False
-    return out
 _THREAD_SLOPE: Final = 0.1  # a thread's disparity changes by <= 0.1 px per px along it (its
 # depth slope: the ordering's DISPARITY_SLOPE)
 _LOCAL_PX: Final = 32  # the thread's disparity next to a fragment: its pixels within 32 px

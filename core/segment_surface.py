@@ -167,23 +167,6 @@ class SurfaceTest:
         )
         return int(res.best_d[0]) if res.defined()[0] else None
 
-    def disparities(
-        self, rows: np.ndarray, cols: np.ndarray, group: np.ndarray, n_groups: int
-    ) -> np.ndarray:
-        """(n_groups,) int: the best disparity (px) of each group of the pixels (``rows``,
-        ``cols``) (M,) (``group`` (M,) in 0 .. n_groups - 1), as :meth:`disparity` gives it
-        for one group but on all of its pixels, -1 where it is not defined."""
-        out = np.full(n_groups, -1, np.int64)
-        if len(rows) == 0 or self.dmax < 1:
-            return out
-        res = _Residuals(
-            self.this, self.other, rows, cols, group, n_groups, np.arange(self.dmax + 1),
-            self.look_left,
-        )  # fmt: skip
-        ok = res.defined()
-        out[ok] = res.best_d[ok]
-        return out
-
     def background_disparity(self, rows: np.ndarray, cols: np.ndarray) -> int | None:
         """The disparity (px) of the background (the tissue) in the block that holds most of
         the pixels (``rows``, ``cols``) (M,), over 0..D, or None where it does not resolve it

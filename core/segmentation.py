@@ -145,16 +145,6 @@ class SegmentationParams(Params):
         "merged with a fibre or vessel it runs beside, or crossing itself at a shallow angle, "
         "is wide there only. Off: the whole piece is dropped (deviation 40).",
     )
-    tissue_tiles: bool = param(
-        True,
-        label="raw: tissue parts by depth",
-        doc="raw: the kept thread pixels are judged in 16 px tiles by their own disparity: a "
-        "tile at the tissue's disparity (of its block's background where that resolves, else "
-        "of the nearest mark), in a piece seen in front of the tissue elsewhere, is a mark "
-        "merged with the thread (a light fibre crossing a white thread, a vessel a red one) "
-        "and is dropped, with the tiles it continues into at its disparity. Off: only the "
-        "block-wise surface votes drop a merged mark (deviation 45).",
-    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,
