@@ -2002,9 +2002,7 @@ def _end_state(
         elif any(  # the thread may bend where it goes under
             sh is not None and sh[0] >= HIDDEN_SHARE
             for sh in (
-                _occluded_share(
-                    grey, P, xy[0] - shift, xy[1], _turned_by(way, a), level, tol
-                )
+                _occluded_share(grey, P, xy[0] - shift, xy[1], _turned_by(way, a), level, tol)
                 for a in HIDDEN_FAN_DEG[1:]
             )
         ):

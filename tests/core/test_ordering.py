@@ -13,11 +13,11 @@ from support import calibration_for, synthetic_case, synthetic_frame
 
 from threadrecon.core.metrics import curve_errors, frame_errors, polyline_length, resample
 from threadrecon.core.ordering import (
+    _OFFSETS_8,
     HIDDEN_DISC_PX,
     HIDDEN_RIM_PX,
     HIDDEN_SEARCH_PX,
     HIDDEN_TIP_PX,
-    _OFFSETS_8,
     Ordering,
     OrderingParams,
     _adjacency,
