@@ -1877,7 +1877,6 @@ HIDDEN_RIM_PX = 1  # pixels this close to the thread's are its rim (partly cover
 HIDDEN_WINDOW_PX = 15  # half side of the window the bare background's level is taken in
 HIDDEN_BACK_STEPS = 3  # keypoints behind an end where its background level is taken
 HIDDEN_FAN_DEG = (0.0, -15.0, 15.0, -30.0, 30.0)  # rays around the end's way (its bend)
-_RIM_KERNEL = np.ones((2 * HIDDEN_RIM_PX + 1, 2 * HIDDEN_RIM_PX + 1), dtype=np.uint8)
 
 
 def _by_the_ends(
@@ -1979,7 +1978,6 @@ def _end_state(
     max(``MONO_BARE_LEVELS``, 3 robust deviations) grey levels of the median of the view's
     non-thread pixels in a window around ``inner`` (a point of the thread behind the end,
     away from what the end runs into)."""
-    steps = np.arange(0, HIDDEN_SEARCH_PX + 1, dtype=np.float64)
     states = []
     for grey, P, shift in ((lifted.grey_L, lifted.P_L, 0.0), (lifted.grey_R, lifted.P_R, d)):
         H, W = P.shape
@@ -1991,7 +1989,7 @@ def _end_state(
             return "unknown"
         level = float(np.median(side))
         tol = max(MONO_BARE_LEVELS, 3.0 * 1.4826 * float(np.median(np.abs(side - level))))
-        straight = _occluded_share(grey, P, xy[0] - shift, xy[1], way, steps, level, tol)
+        straight = _occluded_share(grey, P, xy[0] - shift, xy[1], way, level, tol)
         if straight is not None and straight[0] >= HIDDEN_SHARE:
             states.append("hidden")
         elif straight is not None and straight[1] <= HIDDEN_FREE_SHARE:
@@ -1999,9 +1997,7 @@ def _end_state(
         elif any(  # the thread may bend where it goes under
             sh is not None and sh[0] >= HIDDEN_SHARE
             for sh in (
-                _occluded_share(
-                    grey, P, xy[0] - shift, xy[1], _turned_by(way, a), steps, level, tol
-                )
+                _occluded_share(grey, P, xy[0] - shift, xy[1], _turned_by(way, a), level, tol)
                 for a in HIDDEN_FAN_DEG[1:]
             )
         ):
@@ -2023,7 +2019,6 @@ def _occluded_share(
     x0: float,
     y0: float,
     way: np.ndarray,
-    steps: np.ndarray,
     level: float,
     tol: float,
 ) -> tuple[float, float] | None:
@@ -2034,28 +2029,9 @@ def _occluded_share(
     than ``HIDDEN_TIP_PX`` ahead of where the ray left the thread (it left a strand that goes
     on by its side, not its end); None when the ray stays on the thread over the search,
     leaves the image or the disc holds thread pixels only."""
-    H, W = P.shape
-    x = np.rint(x0 + steps * way[0]).astype(np.int64)
-    y = np.rint(y0 + steps * way[1]).astype(np.int64)
-    inside = (x >= 0) & (y >= 0) & (x < W) & (y < H)
-    off = np.flatnonzero(~inside | ~P[np.clip(y, 0, H - 1), np.clip(x, 0, W - 1)])
-    if not off.size or not inside[off[0]]:
-        return None  # the thread goes on past the search, or the image border
-    cx, cy = int(x[off[0]]), int(y[off[0]])
-    r = HIDDEN_DISC_PX + HIDDEN_RIM_PX
-    xa, xb, ya, yb = max(cx - r, 0), min(cx + r + 1, W), max(cy - r, 0), min(cy + r + 1, H)
-    thread = np.ascontiguousarray(P[ya:yb, xa:xb], dtype=np.uint8)
-    dx = np.arange(xa, xb)[None, :] - cx
-    dy = np.arange(ya, yb)[:, None] - cy
-    disc = (dx * dx + dy * dy <= HIDDEN_DISC_PX * HIDDEN_DISC_PX) & (thread == 0)  # off it
-    if not disc.any():
-        return None
-    rim = cv2.dilate(thread, _RIM_KERNEL) > 0  # next to a thread pixel: partly covered by it
-    other = np.abs(np.asarray(grey[ya:yb, xa:xb], dtype=np.float64) - level) > tol
-    clean_px = disc & ~rim
-    clean = float(np.mean(other[clean_px])) if clean_px.any() else 0.0
-    near = dx * dx + dy * dy <= HIDDEN_DISC_PX * HIDDEN_DISC_PX
-    ahead = (dx * way[0] + dy * way[1] > HIDDEN_TIP_PX) & near
-    if (ahead & (thread > 0)).any():
-        clean = 1.0  # the thread goes on beside the ray: it left the strand, not its end
-    return float(np.mean(other[disc])), clean
+    found, share, clean = walk_kernel.occluded_share(
+        np.asarray(grey, dtype=np.float32), np.asarray(P, dtype=bool), float(x0), float(y0),
+        float(way[0]), float(way[1]), HIDDEN_SEARCH_PX, float(level), float(tol), HIDDEN_DISC_PX,
+        HIDDEN_RIM_PX, HIDDEN_TIP_PX,
+    )  # fmt: skip
+    return (float(share), float(clean)) if found else None

@@ -261,36 +261,18 @@ class _Box:
 
     @staticmethod
     def of(lifted: LiftedPair, d_hi: int) -> _Box:
+        """The box of P_L and its arrays (:func:`_box_kernel`: one pass over the box of P_L and
+        one over the right view's rows there, where some twenty numpy calls were)."""
         P_L = np.ascontiguousarray(lifted.P_L, dtype=bool)
         x0, y0, bw, bh = cv2.boundingRect(P_L.view(np.uint8))
         if bw == 0:
             raise ValueError("empty segmentation: no thread pixel in the left image")
-        y1, x1 = y0 + bh, x0 + bw
-        ry, rx = _nonzero(P_L[y0:y1, x0:x1])  # row-major order of P_L
-        n = ry.size
-        index = np.full((y1 - y0, x1 - x0), -1, dtype=np.int32)
-        index[ry, rx] = np.arange(n, dtype=np.int32)
-        I_L_p = lifted.I_L[ry + y0, rx + x0].astype(np.float64)
         xr0 = max(0, x0 - d_hi)
-        qy, qx = _nonzero(lifted.I_R[y0:y1, xr0:x1] != np.float32(LIFT_VALUE))
-        q_val = lifted.I_R[qy + y0, qx + xr0].astype(np.float64)
-        q_ptr = np.searchsorted(qy, np.arange(y1 - y0 + 1)).astype(np.int64)
-        q_col = (qx + xr0).astype(np.int64)
-        ends = np.flatnonzero((np.diff(q_col) != 1) | (np.diff(qy) != 0)) + 1
-        q_run = np.repeat(
-            np.append(ends, q_col.size), np.diff(np.concatenate(([0], ends, [q_col.size])))
-        )
-        return _Box(
-            y0, x0, ry.astype(np.int64), rx.astype(np.int64), index, I_L_p, q_ptr, q_col, q_val,
-            q_run.astype(np.int64),
+        ry, rx, index, I_L_p, q_ptr, q_col, q_val, q_run = _box_kernel(
+            P_L, np.asarray(lifted.I_L, dtype=np.float32), np.asarray(lifted.I_R, dtype=np.float32),
+            y0, x0, y0 + bh, x0 + bw, xr0, LIFT_VALUE,
         )  # fmt: skip
-
-
-def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``np.nonzero`` of a 2D bool array (rows, cols, row-major), through the 1D search: 3-4x
-    faster on a 1920x1080 box."""
-    flat = np.flatnonzero(mask)
-    return np.divmod(flat, mask.shape[1])
+        return _Box(y0, x0, ry, rx, index, I_L_p, q_ptr, q_col, q_val, q_run)
 
 
 def match_stereo(
@@ -685,6 +667,67 @@ def _subpixel_kernel(ry, rx, I_L_p, index, r, I_R, y0, x0, d_min, d_hi, lift):  
         count[i] = cnt
         tan2[i] = gxx / gyy if gyy > 0 else np.inf
     return out, curv, resid, count, tan2
+
+
+@kernel(
+    "Tuple((int64[::1], int64[::1], int32[:, ::1], float64[::1], int64[::1], int64[::1], "
+    "float64[::1], int64[::1]))(boolean[:, ::1], float32[:, :], float32[:, :], int64, int64, "
+    "int64, int64, int64, float64)"
+)
+def _box_kernel(P_L, I_L, I_R, y0, x0, y1, x1, xr0, lift):  # noqa: ANN001
+    """The arrays of :class:`_Box` for the box rows ``y0..y1``, columns ``x0..x1`` of P_L:
+    its pixels in row-major order (``ry``, ``rx`` in the box; ``index``; I_L there as float64)
+    and the right pixels off ``lift`` in columns ``xr0..x1`` of those rows (CSR by row,
+    absolute columns ascending, I_R as float64; each one's end of its run of adjacent
+    columns). The same arrays as the numpy form (nonzero, searchsorted, a diff of columns)."""
+    h, w = y1 - y0, x1 - x0
+    index = np.full((h, w), -1, dtype=np.int32)
+    n = 0
+    for y in range(h):  # counts without branches (vectorised), on row slices
+        row = P_L[y0 + y, x0:x1]
+        for x in range(w):
+            n += row[x]
+    ry = np.empty(n, dtype=np.int64)
+    rx = np.empty(n, dtype=np.int64)
+    I_L_p = np.empty(n)
+    k = 0
+    for y in range(h):
+        row = P_L[y0 + y, x0:x1]
+        for x in range(w):
+            if row[x]:
+                ry[k] = y
+                rx[k] = x
+                index[y, x] = k
+                I_L_p[k] = I_L[y0 + y, x0 + x]
+                k += 1
+    lift32 = np.float32(lift)  # the float32 comparison of the numpy form
+    q_ptr = np.zeros(h + 1, dtype=np.int64)
+    for y in range(h):
+        c = 0
+        row_r = I_R[y0 + y, xr0:x1]
+        for x in range(x1 - xr0):
+            c += row_r[x] != lift32
+        q_ptr[y + 1] = q_ptr[y] + c
+    m = q_ptr[h]
+    q_col = np.empty(m, dtype=np.int64)
+    q_val = np.empty(m)
+    q_run = np.empty(m, dtype=np.int64)
+    k = 0
+    for y in range(h):
+        row_r = I_R[y0 + y, xr0:x1]
+        for x in range(x1 - xr0):
+            v = row_r[x]
+            if v != lift32:
+                q_col[k] = x + xr0
+                q_val[k] = v
+                k += 1
+    for y in range(h):  # runs never cross rows: each row's last pixel ends its run
+        end = q_ptr[y + 1]
+        for j in range(q_ptr[y + 1] - 1, q_ptr[y] - 1, -1):
+            if j + 1 < q_ptr[y + 1] and q_col[j + 1] != q_col[j] + 1:
+                end = j + 1
+            q_run[j] = end
+    return ry, rx, index, I_L_p, q_ptr, q_col, q_val, q_run
 
 
 @kernel("Tuple((int64[::1], int64[::1]))(int32[:, ::1], int64[::1])")

@@ -14,6 +14,10 @@ from support import calibration_for, synthetic_case, synthetic_frame
 from threadrecon.core.metrics import curve_errors, frame_errors, polyline_length, resample
 from threadrecon.core.ordering import (
     _OFFSETS_8,
+    HIDDEN_DISC_PX,
+    HIDDEN_RIM_PX,
+    HIDDEN_SEARCH_PX,
+    HIDDEN_TIP_PX,
     Ordering,
     OrderingParams,
     _adjacency,
@@ -30,6 +34,7 @@ from threadrecon.core.ordering import (
     _GapGeodesics,
     _link_positions,
     _normalised,
+    _occluded_share,
     _PixelGrid,
     _single_steps,
     _solidify,
@@ -987,6 +992,64 @@ def test_an_ends_state_is_hidden_at_a_shaft_free_over_bare_background() -> None:
     P_L[52:56, 164:176] = True  # the strand steps aside past the ray: it goes on, no free end
     bent = replace(lifted, P_L=P_L)
     assert _end_state(bent, g.pos[3], east, 10.0, g.pos[2]) != "free"
+
+
+def _occluded_share_numpy(grey, P, x0, y0, way, level, tol):  # noqa: ANN001, ANN202
+    """The numpy form of _occluded_share before it was compiled (walk_kernel.occluded_share):
+    the reference its results must equal bit for bit."""
+    import cv2
+
+    H, W = P.shape
+    steps = np.arange(0, HIDDEN_SEARCH_PX + 1, dtype=np.float64)
+    x = np.rint(x0 + steps * way[0]).astype(np.int64)
+    y = np.rint(y0 + steps * way[1]).astype(np.int64)
+    inside = (x >= 0) & (y >= 0) & (x < W) & (y < H)
+    off = np.flatnonzero(~inside | ~P[np.clip(y, 0, H - 1), np.clip(x, 0, W - 1)])
+    if not off.size or not inside[off[0]]:
+        return None
+    cx, cy = int(x[off[0]]), int(y[off[0]])
+    r = HIDDEN_DISC_PX + HIDDEN_RIM_PX
+    xa, xb, ya, yb = max(cx - r, 0), min(cx + r + 1, W), max(cy - r, 0), min(cy + r + 1, H)
+    thread = np.ascontiguousarray(P[ya:yb, xa:xb], dtype=np.uint8)
+    dx = np.arange(xa, xb)[None, :] - cx
+    dy = np.arange(ya, yb)[:, None] - cy
+    disc = (dx * dx + dy * dy <= HIDDEN_DISC_PX * HIDDEN_DISC_PX) & (thread == 0)
+    if not disc.any():
+        return None
+    rim_kernel = np.ones((2 * HIDDEN_RIM_PX + 1, 2 * HIDDEN_RIM_PX + 1), dtype=np.uint8)
+    rim = cv2.dilate(thread, rim_kernel) > 0
+    other = np.abs(np.asarray(grey[ya:yb, xa:xb], dtype=np.float64) - level) > tol
+    clean_px = disc & ~rim
+    clean = float(np.mean(other[clean_px])) if clean_px.any() else 0.0
+    near = dx * dx + dy * dy <= HIDDEN_DISC_PX * HIDDEN_DISC_PX
+    ahead = (dx * way[0] + dy * way[1] > HIDDEN_TIP_PX) & near
+    if (ahead & (thread > 0)).any():
+        clean = 1.0
+    return float(np.mean(other[disc])), clean
+
+
+def test_occluded_share_equals_its_numpy_form_bit_for_bit() -> None:
+    # Rays from thread pixels of random blobs and strands near and across the image border,
+    # in every direction: the compiled share (walk_kernel.occluded_share) is the numpy one's.
+    rng = np.random.default_rng(16)
+    kinds = {"none": 0, "share": 0}
+    for _ in range(400):
+        H, W = int(rng.integers(20, 60)), int(rng.integers(20, 60))
+        P = rng.random((H, W)) < rng.uniform(0.1, 0.9)
+        P[int(rng.integers(0, H)), :] = True  # a strand across the image
+        grey = rng.normal(128.0, 30.0, (H, W)).astype(np.float32)
+        ys, xs = np.nonzero(P)
+        i = int(rng.integers(0, ys.size))
+        x0 = float(xs[i] + rng.uniform(-0.5, 0.5))
+        y0 = float(ys[i] + rng.uniform(-0.5, 0.5))
+        a = rng.uniform(0.0, 2.0 * np.pi)
+        way = np.array([np.cos(a), np.sin(a)])
+        level, tol = float(rng.uniform(80.0, 170.0)), float(rng.uniform(3.0, 40.0))
+        want = _occluded_share_numpy(grey, P, x0, y0, way, level, tol)
+        got = _occluded_share(grey, P, x0, y0, way, level, tol)
+        assert got == want
+        kinds["none" if want is None else "share"] += 1
+    assert min(kinds.values()) > 40  # both outcomes were exercised
 
 
 def test_two_free_ends_over_bare_background_are_not_joined() -> None:

@@ -139,6 +139,55 @@ def _random_lifted(
     return LiftedPair(I_L, I_R, P_L, P_R, grey_L, grey_R, background=(255.0, 255.0))
 
 
+def _box_numpy(lifted: LiftedPair, d_hi: int) -> tuple:
+    """The arrays of _Box.of in their numpy form (before _box_kernel): the reference."""
+    import cv2
+
+    P_L = np.ascontiguousarray(lifted.P_L, dtype=bool)
+    x0, y0, bw, bh = cv2.boundingRect(P_L.view(np.uint8))
+    y1, x1 = y0 + bh, x0 + bw
+    ry, rx = np.nonzero(P_L[y0:y1, x0:x1])
+    index = np.full((y1 - y0, x1 - x0), -1, dtype=np.int32)
+    index[ry, rx] = np.arange(ry.size, dtype=np.int32)
+    I_L_p = lifted.I_L[ry + y0, rx + x0].astype(np.float64)
+    xr0 = max(0, x0 - d_hi)
+    qy, qx = np.nonzero(lifted.I_R[y0:y1, xr0:x1] != np.float32(LIFT_VALUE))
+    q_val = lifted.I_R[qy + y0, qx + xr0].astype(np.float64)
+    q_ptr = np.searchsorted(qy, np.arange(y1 - y0 + 1)).astype(np.int64)
+    q_col = (qx + xr0).astype(np.int64)
+    ends = np.flatnonzero((np.diff(q_col) != 1) | (np.diff(qy) != 0)) + 1
+    q_run = np.repeat(
+        np.append(ends, q_col.size), np.diff(np.concatenate(([0], ends, [q_col.size])))
+    )
+    return y0, x0, ry, rx, index, I_L_p, q_ptr, q_col, q_val, q_run.astype(np.int64)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_box_arrays_equal_their_numpy_form(seed: int) -> None:
+    # _Box.of's compiled pass (_box_kernel) gives the arrays of the numpy form, value and dtype:
+    # dense and sparse masks, boxes at the image's border and inside it, runs of right pixels
+    # across rows, a NaN in I_R (off the lift value, as != says).
+    rng = np.random.default_rng(seed)
+    H, W = int(rng.integers(8, 40)), int(rng.integers(8, 60))
+    lifted = _random_lifted(rng, (H, W), rng.uniform(0.02, 0.9), rng.uniform(0.02, 0.9))
+    P_L = lifted.P_L.copy()
+    if seed % 2:  # a box inside the image
+        P_L[:2], P_L[-2:], P_L[:, :3] = False, False, False
+        P_L[H // 2, W // 2] = True
+    I_R = lifted.I_R.copy()
+    I_R[0, -1] = np.nan
+    lifted = replace(lifted, P_L=P_L, I_R=I_R)
+    d_hi = int(rng.integers(0, W))
+    box = _Box.of(lifted, d_hi)
+    want = _box_numpy(lifted, d_hi)
+    got = (box.y0, box.x0, box.ry, box.rx, box.index, box.I_L_p, box.q_ptr, box.q_col,
+           box.q_val, box.q_run)  # fmt: skip
+    for a, b in zip(got, want, strict=True):
+        a, b = np.asarray(a), np.asarray(b)
+        assert a.dtype == b.dtype and a.shape == b.shape
+        assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_energy_kernel_equals_the_definition_on_random_masks(seed: int) -> None:
     rng = np.random.default_rng(seed)
