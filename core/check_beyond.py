@@ -379,8 +379,7 @@ def surface_ahead(
     An occluder's silhouette moves with the occluder's disparity, so a patch over an occluder
     or its edge matches in front of the thread; the tissue the thread lies on matches at the
     end's depth or behind it."""
-    grey_a, grey_b = greys[side], greys[1 - side]
-    h, w = grey_a.shape
+    h, w = greys[side].shape
     r = AHEAD_HALF_PX
     t = _patch_t(offset)
     cx, cy = float(tip[0]) + t * float(way[0]), float(tip[1]) + t * float(way[1])
@@ -389,6 +388,39 @@ def surface_ahead(
     cx, cy = int(round(cx)), int(round(cy))
     if disparity <= 0 or cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
         return None, None
+    # the rest depends on the segmentation, the patch's pixel and the search's width only:
+    # kept with the segmentation for the next run of the check (most ends stay on their pixel)
+    d_hi = int(math.ceil(AHEAD_DEPTH * disparity))
+    memo = _patch_memo(greys, masks)
+    key = (side, cx, cy, d_hi)
+    found = memo.get(key)
+    if found is None:
+        found = memo[key] = _match_ahead(greys, masks, side, cx, cy, d_hi)
+    d_best, grey = found
+    return (None, grey) if d_best is None else (float(d_best - disparity), None)
+
+
+def _patch_memo(greys: tuple[np.ndarray, np.ndarray], masks: tuple[np.ndarray, np.ndarray]) -> dict:
+    """``surface_ahead``'s matches by patch, kept with the segmentation
+    (``check_field.derived``): a re-run of the check after a later stage's slider move asks
+    for the same patches where the curve's ends stay on their pixels."""
+    return derived((*greys, *masks), "ahead matches", dict)
+
+
+def _match_ahead(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    cx: int,
+    cy: int,
+    d_hi: int,
+) -> tuple[int | None, float | None]:
+    """``surface_ahead``'s match of the patch centred on pixel (cx, cy) of view ``side``
+    (inside the image) over disparities 0 .. ``d_hi``: the best disparity (None when the pair
+    cannot tell), and the patch's mean grey when it is untextured."""
+    grey_a, grey_b = greys[side], greys[1 - side]
+    w = grey_a.shape[1]
+    r = AHEAD_HALF_PX
     rows, cols = slice(cy - r, cy + r + 1), slice(cx - r, cx + r + 1)
     thread = _thread_and_edges(masks[side], cy, cx, r)
     n_thread = int(np.count_nonzero(thread))
@@ -401,7 +433,6 @@ def surface_ahead(
     if float(sd[0, 0]) <= AHEAD_LEVELS:
         return None, float(mean[0, 0])  # untextured: the pair cannot tell its depth
     # the other view sees a point of disparity d at x - d (left to right) or x + d
-    d_hi = int(math.ceil(AHEAD_DEPTH * disparity))
     x0, x1 = (cx - d_hi - r, cx + r + 1) if side == 0 else (cx - r, cx + d_hi + r + 1)
     x0, x1 = max(x0, 0), min(x1, w)
     if x1 - x0 < 2 * r + 1 + 2 * AHEAD_FAR_PX:
@@ -419,8 +450,7 @@ def surface_ahead(
         or float(np.partition(far, far.size // 2)[far.size // 2]) < rms[k] + AHEAD_LEVELS
     ):
         return None, None  # no distinct match (median cost of the far shifts): nothing measured
-    d_best = (cx - (x0 + k + r)) if side == 0 else (x0 + k + r - cx)
-    return float(d_best - disparity), None
+    return ((cx - (x0 + k + r)) if side == 0 else (x0 + k + r - cx)), None
 
 
 def _thread_and_edges(mask: np.ndarray, cy: int, cx: int, r: int) -> np.ndarray:
@@ -698,21 +728,39 @@ def plain_surface(
     cx, cy = int(round(x - r * float(way[0]))), int(round(y - r * float(way[1])))
     if min(x - q, y - q, cx - r, cy - r) < 0 or max(x + q, cx + r) >= w or max(y + q, cy + r) >= h:
         return None
+    # the levels depend on the view's image and mask and the two pixels only: kept with them
+    memo = derived((grey, mask), "plain levels", dict)
+    key = (x, y, cx, cy)
+    found = memo.get(key)
+    if found is None:
+        found = memo[key] = _plain_levels(grey, mask, x, y, cx, cy)
+    if found[0] is None:
+        return None
+    level, thread = found
+    tol = sigma * AHEAD_LEVELS
+    return (level, tol) if abs(thread - level) > tol else None
+
+
+def _plain_levels(
+    grey: np.ndarray, mask: np.ndarray, x: int, y: int, cx: int, cy: int
+) -> tuple[float | None, float | None]:
+    """``plain_surface``'s grey levels of the plain background in the square centred on pixel
+    (cx, cy) and of the thread pixels around (x, y) (both inside the image): (None, None)
+    when there are no thread pixels there, too few background pixels, or it is textured."""
+    r, q = PLAIN_HALF_PX, AHEAD_HALF_PX
     near = np.asarray(mask[y - q : y + q + 1, x - q : x + q + 1], dtype=bool)
     if not near.any():
-        return None  # no thread pixels there to measure its contrast with
+        return None, None  # no thread pixels there to measure its contrast with
     seen = ~_thread_and_edges(mask, cy, cx, r)
     n = int(np.count_nonzero(seen))
     if n < PLAIN_SHARE * seen.size:
-        return None
+        return None, None
     vals = np.asarray(grey[cy - r : cy + r + 1, cx - r : cx + r + 1], dtype=np.float64)[seen]
     level = float(np.partition(vals, n // 2)[n // 2])
     if 2 * int(np.count_nonzero(np.abs(vals - level) <= AHEAD_LEVELS / 1.4826)) < n:
-        return None  # textured: left to stereo
+        return None, None  # textured: left to stereo
     on = np.asarray(grey[y - q : y + q + 1, x - q : x + q + 1], dtype=np.float64)[near]
-    thread = float(np.partition(on, on.size // 2)[on.size // 2])
-    tol = sigma * AHEAD_LEVELS
-    return (level, tol) if abs(thread - level) > tol else None
+    return level, float(np.partition(on, on.size // 2)[on.size // 2])
 
 
 def _is_plain(grey: float | None, plain: PlainSource) -> bool:

@@ -28,7 +28,7 @@ from threadrecon.core.lru import LRU
 from threadrecon.core.refine import row_runs
 
 FIELD_CACHE = 8  # fields kept: both views of a few frames, the debugger's working set
-DERIVED_CACHE = 16  # other per-segmentation values kept (a few kinds for a few frames)
+DERIVED_CACHE = 24  # other per-segmentation values kept (a dozen kinds for two frames)
 T = TypeVar("T")
 
 

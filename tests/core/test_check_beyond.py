@@ -382,6 +382,53 @@ def test_a_dark_surface_is_no_plain_background_for_a_dark_thread() -> None:
     assert plain_surface(greys[0], masks[0], uv[0][-1], way, 2.5) is None
 
 
+def test_a_patch_is_matched_once_per_segmentation(monkeypatch) -> None:
+    # a re-run of the check (a later stage's slider) asks for the same patches beyond an end:
+    # surface_ahead matches each once while the images and masks live, with the same result
+    import cv2
+
+    from threadrecon.core import check_beyond
+    from threadrecon.core.check_field import clear_fields
+
+    greys, masks, uv = _stereo_scene((150, 200))
+    way = np.array([1.0, 0.0])
+    clear_fields()
+    fresh = [
+        surface_ahead(greys, masks, s, uv[s][-1], way, d) for s in (0, 1) for d in (20.0, 19.9)
+    ]
+    calls = []
+    match = cv2.matchTemplate
+    monkeypatch.setattr(
+        check_beyond.cv2, "matchTemplate", lambda *a, **k: calls.append(1) or match(*a, **k)
+    )
+    again = [
+        surface_ahead(greys, masks, s, uv[s][-1], way, d) for s in (0, 1) for d in (20.0, 19.9)
+    ]
+    assert again == fresh and fresh[0][0] is not None and fresh[0][0] != fresh[1][0]
+    assert not calls  # 19.9 px searches as far as 20 px (the patch's match is the same)
+    copies = (greys[0].copy(), greys[1].copy())  # another segmentation's images
+    assert surface_ahead(copies, masks, 0, uv[0][-1], way, 20.0) == fresh[0] and len(calls) == 1
+
+
+def test_the_plain_background_is_measured_once_per_segmentation(monkeypatch) -> None:
+    from threadrecon.core import check_beyond
+    from threadrecon.core.check_field import clear_fields
+
+    greys, masks, uv = _plain_scene(gap=16)
+    way = np.array([1.0, 0.0])
+    clear_fields()
+    calls = []
+    grow = check_beyond._thread_and_edges
+    monkeypatch.setattr(check_beyond, "_thread_and_edges", lambda *a: calls.append(1) or grow(*a))
+    assert plain_surface(greys[0], masks[0], uv[0][-1], way, 2.5) == (200.0, 10.0)
+    assert plain_surface(greys[0], masks[0], uv[0][-1], way, 2.0) == (200.0, 8.0)
+    assert plain_surface(greys[0], masks[0], uv[0][-1] + 0.3, way, 2.5) == (200.0, 10.0)
+    assert len(calls) == 1  # the same pixels: measured once
+    assert plain_surface(greys[0], masks[0], uv[0][-1], way, 50.0) is None  # 170 levels: too few
+    assert plain_surface(greys[0].copy(), masks[0], uv[0][-1], way, 2.5) == (200.0, 10.0)
+    assert len(calls) == 2
+
+
 def test_an_end_that_hooks_back_is_taken_where_the_curve_reaches() -> None:
     # the curve runs right to column 139, then its last samples turn back to column 131 (a
     # spline's end overshoot): the end's tip is at column 139 and its way points right
