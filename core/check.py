@@ -203,6 +203,14 @@ class CheckParams(Params):
         "standard deviations (at least 4 grey levels) of the ring around the thread near the "
         "bridge's ends (interpolated between them).",
     )  # fmt: skip
+    bare_back_px: float = param(
+        25.0, lo=0.0, unit="px", slider=(0.0, 100.0, 1.0), label="bare level reach back",
+        doc="A bridge end's bare-background level (bare_sigma) is also read on the ring around "
+        "the observed thread this far back from the end (2D, along the curve), and the ring "
+        "with the smaller spread is taken: where the thread runs under an occluder at the end, "
+        "the end's own ring holds the occluder too, and its spread lets the occluder pass for "
+        "background. 0: the end's ring only (session 15's check).",
+    )  # fmt: skip
     bridge_error: float = param(
         0.05, lo=0.0, slider=(0.0, 1.0, 0.01), label="bridge error rate",
         doc="Expected error added on an evidenced bridge per mm of distance to its nearest "
@@ -1260,6 +1268,15 @@ class _BareBackground:
         """Grey level at each (x, y) of view ``side``; NaN off the image."""
         return _sample(self.views[side][0], uv)
 
+    def quieter(self, side: int, at: np.ndarray, back: np.ndarray) -> np.ndarray:
+        """``back`` when its ring's spread is smaller than ``at``'s (or ``at`` has none), else
+        ``at``: where an end's ring holds another surface (an occluder) besides the
+        background, its spread is the larger."""
+        la, lb = self._level(side, at), self._level(side, back)
+        if lb is not None and (la is None or lb[1] < la[1]):
+            return back
+        return at
+
     def spread(self, side: int, *ends: np.ndarray) -> float:
         """Largest local spread of the background next to the thread at ``ends``."""
         levels = [self._level(side, e) for e in ends]
@@ -1400,10 +1417,20 @@ def _bridge_evidence(
                 f"{chord_px:.0f} px: a loop, not a continuation")  # fmt: skip
     if bare is not None and b - a > 1:
         hidden = slice(a + 1, b)
-        both = bare(0, uv_l[hidden], uv_l[a], uv_l[b]) & bare(1, uv_r[hidden], uv_r[a], uv_r[b])
+        # each end's background level: its own ring, or the ring farther back along the
+        # observed thread when that one is quieter (an occluder the thread runs under at the
+        # end lies in the end's own ring and would pass for background)
+        ends = [
+            tuple(
+                bare.quieter(side, uv[i], _back_along(uv, i, sign, p.bare_back_px))
+                for i, sign in ((a, -1), (b, 1))
+            )
+            for side, uv in ((0, uv_l), (1, uv_r))
+        ]
+        both = bare(0, uv_l[hidden], *ends[0]) & bare(1, uv_r[hidden], *ends[1])
         # bare tissue lies at about the thread's depth: both views see the same grey there at
         # the curve's disparity (an occluder in front of the thread is seen shifted)
-        spread = max(bare.spread(0, uv_l[a], uv_l[b]), bare.spread(1, uv_r[a], uv_r[b]))
+        spread = max(bare.spread(0, *ends[0]), bare.spread(1, *ends[1]))
         with np.errstate(invalid="ignore"):
             same = np.abs(bare.grey(0, uv_l[hidden]) - bare.grey(1, uv_r[hidden]))
             both &= same <= p.bare_sigma * spread
@@ -1413,6 +1440,19 @@ def _bridge_evidence(
                     "grey of the tissue next to the thread, the same in both), where the thread "
                     "would be seen")  # fmt: skip
     return None
+
+
+def _back_along(uv: np.ndarray, i: int, sign: int, px: float) -> np.ndarray:
+    """The sample ``px`` of 2D length from sample ``i`` of the projected curve ``uv``,
+    walking its samples in direction ``sign`` (-1: towards the start), or the curve's end
+    on that side; sample ``i`` itself for ``px`` <= 0 (or a non-finite step)."""
+    if px <= 0.0:
+        return uv[i]
+    idx = np.arange(i, -1, -1) if sign < 0 else np.arange(i, len(uv))
+    run = uv[idx]
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(run, axis=0).T))])
+    k = int(np.searchsorted(s, px))
+    return run[min(k, len(run) - 1)] if np.isfinite(s[-1]) else uv[i]
 
 
 def _end_way(uv: np.ndarray, end: str) -> np.ndarray:

@@ -18,6 +18,7 @@ from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check import (
     CheckParams,
     CheckResult,
+    _back_along,
     _bridge_evidence,
     _end_added_length,
     _overlap,
@@ -685,6 +686,48 @@ def test_a_distractor_piece_matched_into_the_thread_strand_supports_no_depth() -
     args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
     off = check_curve(*args, rec["camera"], calib, CheckParams(contested_support=False))
     assert off.status == "ok" and off.unmeasured_mm < CheckParams().max_unmeasured_mm
+
+
+def test_a_bridge_under_a_shaft_is_not_bare_background_by_the_shafts_own_ring() -> None:
+    """Hard occlusion frame 16130 #3 (hard_suites' frame, exact masks): the thread runs under a
+    shaft's tip and comes out 30 mm further along it; the curve bridges the hidden stretch
+    (e_S^max 1.4 mm). The ring around the thread at the end entering the shaft is mostly
+    shaft (grey 124 +- 22, against the flat background's 205 +- 4): with the end's own ring,
+    2.5 of its spreads took the shaft's grey for background, 78 % of the bridge "bare" in
+    both views, held to 20 mm: suspect. The ring 25 px back along the observed thread is
+    the background's: the bridge is evidenced (30.1 mm, under max_bridge_mm) and the curve ok."""
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import (
+        RenderParams,
+        SyntheticParams,
+        ThreadParams,
+        generate_frame,
+    )
+
+    syn = SyntheticParams(thread=ThreadParams(), render=RenderParams(occlusion=True))
+    frame = generate_frame(syn, np.random.default_rng([16130, 3]))
+    calib = syn.camera.calibration()
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    rec = Pipeline(pair, calib).run()
+    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert abs(e.e_length) < 5.0 and e.e_S_max < 5.0
+    chk = rec["check"]
+    assert chk.status == "ok", chk.reasons
+    assert 20.0 < chk.longest_bridge_mm < CheckParams().max_bridge_mm
+    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    before = check_curve(*args, rec["camera"], calib, CheckParams(bare_back_px=0.0))
+    assert before.status == "suspect"
+    assert any("bare background" in r for r in before.reasons), before.reasons
+
+
+def test_back_along_walks_the_curve_by_its_2d_length() -> None:
+    uv = np.column_stack([np.arange(11.0) * 5.0, np.zeros(11)])  # 5 px steps along x
+    assert np.array_equal(_back_along(uv, 6, -1, 12.0), [15.0, 0.0])  # first sample >= 12 px
+    assert np.array_equal(_back_along(uv, 6, 1, 12.0), [45.0, 0.0])
+    assert np.array_equal(_back_along(uv, 2, -1, 25.0), [0.0, 0.0])  # the curve's start
+    assert np.array_equal(_back_along(uv, 9, 1, 25.0), [50.0, 0.0])  # its end
+    assert np.array_equal(_back_along(uv, 4, -1, 0.0), uv[4])  # off: the end itself
 
 
 @pytest.mark.parametrize("seed", range(20))
