@@ -466,6 +466,8 @@ class Occluded:
     front_px: float
     hidden_px: float
     walked_out: bool = False  # the walk stopped at max_reach_px: the occluder reaches farther
+    blank: str | None = None  # the view ("left"/"right") that could not measure the occluder
+    # because it is untextured there (``untextured``), or None: both views measured it
 
     @property
     def reach_px(self) -> float:
@@ -484,6 +486,7 @@ def end_occluder(
     see_px: float,
     max_reach_px: float,
     plain_sigma: float | None = None,
+    untextured: bool = False,
 ) -> Occluded | None:
     """Whether the thread at the curve's free ``end`` runs, in both views, into an occluder.
 
@@ -505,7 +508,13 @@ def end_occluder(
     end is plain (untextured: stereo cannot measure it) and the thread stands out from it by
     more than ``plain_sigma`` noise floors, a patch of its grey and as plain is the surface
     the thread lies on, seen (``plain_surface``): a thread there would show. It ends the walk
-    like a measured surface, and before the meeting patch it makes the end free."""
+    like a measured surface, and before the meeting patch it makes the end free.
+
+    ``untextured`` (CheckParams.blank_occluder): when only one view measures a surface in
+    front and the other cannot tell because it is blank there (``_unlike_beside``: its
+    patches give no disparity, the first is untextured and unlike the surface beside the
+    end, e.g. a shaft's dark, uniform tip), the one measure is the occluder's (``blank``
+    names the other view)."""
     ext, far_px = known
     far = 0 if ext[0] >= ext[1] else 1
     fr = _end_frame(uv[far], end)
@@ -535,10 +544,21 @@ def end_occluder(
                 lambda s=side, p=xy: plain_surface(greys[s], masks[s], p, way, plain_sigma)
             )
     d_far, k = _front(greys, masks, far, at, way, disparity, plain[far])
-    if d_far is None:
+    if d_far is None and not untextured:
         return None
     d_other, k_other = _front(greys, masks, 1 - far, at + shift, way, disparity, plain[1 - far])
-    if d_other is None:
+    blank = None
+    if (d_far is None) != (d_other is None) and untextured:
+        # One view measures a surface in front; the other cannot tell, because its first
+        # patch is untextured and unlike the surface beside the thread's end (a shaft's dark,
+        # uniform tip, not the tissue or plain background the thread lies on): nothing there
+        # contradicts the measure, and no surface the thread lies on is seen (okwrong16).
+        side, xy = (1 - far, at + shift) if d_other is None else (far, at)
+        if _unlike_beside(greys, masks, side, xy, way, disparity):
+            blank = "left" if side == 0 else "right"
+            k = k if d_far is not None else k_other
+            d_far = d_other = d_far if d_far is not None else d_other
+    if d_far is None or d_other is None:
         return None
     if abs(d_far - d_other) > AHEAD_AGREE_PX:
         # Next to an occluder's edge one view sees background the other's occluder hides (a
@@ -571,7 +591,51 @@ def end_occluder(
         if ext[far] + hidden >= max_reach_px:
             break
     out = ext[far] + hidden >= max_reach_px
-    return Occluded("left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden, out)
+    return Occluded(
+        "left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden, out, blank
+    )
+
+
+UNLIKE_LEVELS = 3.0  # noise floors (AHEAD_LEVELS) between an untextured patch and the surface
+
+
+def _unlike_beside(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    xy: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+) -> bool:
+    """Whether view ``side`` cannot measure the surface beyond the thread's end at ``xy``
+    (going ``way``) because it is blank there: none of the AHEAD_MEET patches of
+    ``surface_ahead`` gives a disparity, and the first is untextured and unlike the surface
+    beside the end, i.e. that surface (the square of ``plain_surface``, thread pixels and
+    their edge left out) is textured, or its median grey lies more than UNLIKE_LEVELS noise
+    floors from the patch's mean grey."""
+    first = None
+    for k in range(AHEAD_MEET):
+        d, g = surface_ahead(greys, masks, side, xy, way, disparity, k * AHEAD_STEP_PX)
+        if d is not None:
+            return False
+        first = g if k == 0 else first
+    if first is None:
+        return False
+    grey, mask = greys[side], masks[side]
+    h, w = grey.shape
+    r = PLAIN_HALF_PX
+    cx = int(round(float(xy[0]) - r * float(way[0])))
+    cy = int(round(float(xy[1]) - r * float(way[1])))
+    if cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
+        return False
+    seen = ~_thread_and_edges(mask, cy, cx, r)
+    n = int(np.count_nonzero(seen))
+    if n < PLAIN_SHARE * seen.size:
+        return False
+    vals = np.asarray(grey[cy - r : cy + r + 1, cx - r : cx + r + 1], dtype=np.float64)[seen]
+    level = float(np.partition(vals, n // 2)[n // 2])
+    textured = 2 * int(np.count_nonzero(np.abs(vals - level) <= AHEAD_LEVELS / 1.4826)) < n
+    return textured or abs(first - level) > UNLIKE_LEVELS * AHEAD_LEVELS
 
 
 def _turned(way: np.ndarray, turn: float) -> np.ndarray:
