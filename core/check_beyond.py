@@ -554,10 +554,21 @@ def end_occluder(
         # uniform tip, not the tissue or plain background the thread lies on): nothing there
         # contradicts the measure, and no surface the thread lies on is seen (okwrong16).
         side, xy = (1 - far, at + shift) if d_other is None else (far, at)
-        if _unlike_beside(greys, masks, side, xy, way, disparity):
+        seen, xy_seen = (far, at) if d_other is None else (1 - far, at + shift)
+        d, kk = (d_far, k) if d_other is None else (d_other, k_other)
+        # the measure stands alone: the measuring view's next patch must not show the surface
+        # the thread lies on right after it (one mismatching patch, as the walk ignores), and
+        # the blank view's patch where it matched must bear it out
+        d_next, _ = surface_ahead(
+            greys, masks, seen, xy_seen, way, disparity, (kk + 1) * AHEAD_STEP_PX
+        )
+        if (
+            (d_next is None or d_next > AHEAD_NEAR_PX)
+            and _unlike_beside(greys, masks, side, xy, way, disparity)
+            and _blank_back(greys, masks, seen, xy_seen, way, disparity, d, kk)
+        ):
             blank = "left" if side == 0 else "right"
-            k = k if d_far is not None else k_other
-            d_far = d_other = d_far if d_far is not None else d_other
+            k, d_far, d_other = kk, d, d
     if d_far is None or d_other is None:
         return None
     if abs(d_far - d_other) > AHEAD_AGREE_PX:
@@ -596,6 +607,8 @@ def end_occluder(
     )
 
 
+BESIDE_BACK_PX = 18  # px farther back than plain_surface (twice its PLAIN_HALF_PX) the surface
+# beside an end is measured for `_unlike_beside`, clear of an occluder's rounded tip at the end
 UNLIKE_LEVELS = 3.0  # noise floors (AHEAD_LEVELS) between an untextured patch and the surface
 
 
@@ -610,9 +623,10 @@ def _unlike_beside(
     """Whether view ``side`` cannot measure the surface beyond the thread's end at ``xy``
     (going ``way``) because it is blank there: none of the AHEAD_MEET patches of
     ``surface_ahead`` gives a disparity, and the first is untextured and unlike the surface
-    beside the end, i.e. that surface (the square of ``plain_surface``, thread pixels and
-    their edge left out) is textured, or its median grey lies more than UNLIKE_LEVELS noise
-    floors from the patch's mean grey."""
+    beside the end: the median grey of that surface (a square of ``plain_surface``'s size,
+    BESIDE_BACK_PX farther back along the thread, clear of what lies at its end; thread
+    pixels and their edge left out) lies more than UNLIKE_LEVELS noise floors from the
+    patch's mean grey (a smooth stretch of the tissue itself has the tissue's grey)."""
     first = None
     for k in range(AHEAD_MEET):
         d, g = surface_ahead(greys, masks, side, xy, way, disparity, k * AHEAD_STEP_PX)
@@ -624,8 +638,9 @@ def _unlike_beside(
     grey, mask = greys[side], masks[side]
     h, w = grey.shape
     r = PLAIN_HALF_PX
-    cx = int(round(float(xy[0]) - r * float(way[0])))
-    cy = int(round(float(xy[1]) - r * float(way[1])))
+    back = BESIDE_BACK_PX + r  # clear of what lies at the end (an occluder's rounded tip)
+    cx = int(round(float(xy[0]) - back * float(way[0])))
+    cy = int(round(float(xy[1]) - back * float(way[1])))
     if cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
         return False
     seen = ~_thread_and_edges(mask, cy, cx, r)
@@ -634,8 +649,33 @@ def _unlike_beside(
         return False
     vals = np.asarray(grey[cy - r : cy + r + 1, cx - r : cx + r + 1], dtype=np.float64)[seen]
     level = float(np.partition(vals, n // 2)[n // 2])
-    textured = 2 * int(np.count_nonzero(np.abs(vals - level) <= AHEAD_LEVELS / 1.4826)) < n
-    return textured or abs(first - level) > UNLIKE_LEVELS * AHEAD_LEVELS
+    return abs(first - level) > UNLIKE_LEVELS * AHEAD_LEVELS
+
+
+def _blank_back(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    at: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+    d: float,
+    k: int,
+) -> bool:
+    """Whether the other view's patch where view ``side``'s patch ``k`` matched (``d`` px in
+    front of the end, as ``_matched_back``) bears the measure out: it returns ``d`` (within
+    AHEAD_AGREE_PX), or it is untextured too (the same blank surface seen there). A match
+    that lands on textured surface measuring another depth is none (a shaft along the rows
+    matches anywhere along them)."""
+    t = _patch_t(k * AHEAD_STEP_PX)
+    dx = disparity + d
+    c_other = at + t * way - np.array([dx if side == 0 else -dx, 0.0])
+    d_back, grey_back = surface_ahead(
+        greys, masks, 1 - side, c_other - t * way, way, disparity, k * AHEAD_STEP_PX
+    )
+    if d_back is not None:
+        return abs(d_back - d) <= AHEAD_AGREE_PX
+    return grey_back is not None
 
 
 def _turned(way: np.ndarray, turn: float) -> np.ndarray:
