@@ -298,12 +298,14 @@ class CheckParams(Params):
     blank_occluder: bool = param(
         True, label="a blank patch beyond an end hides",
         doc="On: at a free end where one view measures a surface in front of the end (an "
-        "occluder) and the other cannot tell because its patch just beyond the end is "
-        "untextured and unlike the surface beside the end (a shaft's dark, uniform tip: "
-        "neither the textured tissue nor the plain background the thread lies on), the end "
-        "runs into that occluder, as when both views measure it, and the occluder's reach is "
-        "walked (occluded_mm, core/check_beyond.end_occluder). Off: both views must measure "
-        "it (session 10b's rule).",
+        "occluder) and the other cannot tell because it is blank there (its patches just "
+        "beyond the end give no disparity, the first is untextured and its grey more than 3 "
+        "noise floors from the surface the thread lies on 27 px back: a shaft's dark, uniform "
+        "tip), the end runs into that occluder, as when both views measure it, and the "
+        "occluder's reach is walked (occluded_mm, core/check_beyond.end_occluder). The lone "
+        "measure must stand: the measuring view's next patch shows no surface at or behind "
+        "the end, and the blank view's patch where it matched is blank too or returns it. "
+        "Off: both views must measure it (session 10b's rule). docs/method.md, okwrong16.",
     )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
