@@ -303,6 +303,18 @@ class CheckParams(Params):
         "taken for a vessel). Default 0, off: at 0.5 it flagged a right curve on a held-out "
         "seed (docs/method.md, okwrong14).",
     )  # fmt: skip
+    blank_occluder: bool = param(
+        True, label="a blank patch beyond an end hides",
+        doc="On: at a free end where one view measures a surface in front of the end (an "
+        "occluder) and the other cannot tell because it is blank there (its patches just "
+        "beyond the end give no disparity, the first is untextured and its grey more than 3 "
+        "noise floors from the surface the thread lies on 27 px back: a shaft's dark, uniform "
+        "tip), the end runs into that occluder, as when both views measure it, and the "
+        "occluder's reach is walked (occluded_mm, core/check_beyond.end_occluder). The lone "
+        "measure must stand: the measuring view's next patch shows no surface at or behind "
+        "the end, and the blank view's patch where it matched is blank too or returns it. "
+        "Off: both views must measure it (session 10b's rule). docs/method.md, okwrong16.",
+    )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
         doc="Expected error at which the confidence is exp(-1).",
@@ -714,7 +726,7 @@ def _check(
         occ = end_occluder(
             (uv_l, uv_r), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R), end,
             f * B / z_end, known, reach, p.cover_px + BEYOND_COVER_PX, unobserved_px,
-            unobserved_px + AHEAD_STEP_PX, plain_sigma=p.bare_sigma,
+            unobserved_px + AHEAD_STEP_PX, plain_sigma=p.bare_sigma, untextured=p.blank_occluder,
         )  # fmt: skip
         # the occluder's reach, walked in both views, bounds what a cut end may hide
         bounded = occ is not None and not occ.walked_out and occ.reach_px <= unobserved_px
@@ -748,8 +760,11 @@ def _check(
         occluded = max(occluded, reach_mm)
         if occ.reach_px > unobserved_px:
             findings.append(
-                ("suspect", f"the thread at the curve's {end} runs into an occluder in both "
-                 f"views ({occ.front_px:.0f} px of disparity in front of it; the {occ.view} "
+                ("suspect", f"the thread at the curve's {end} runs into an occluder "
+                 + ("in both views " if occ.blank is None else
+                    f"(the {occ.blank} view blank there: untextured, unlike the surface "
+                    "beside the end) ")
+                 + f"({occ.front_px:.0f} px of disparity in front of it; the {occ.view} "
                  f"view sees {occ.ext_px:.0f} px of thread beyond the end): it may go on "
                  f"hidden for {'at least ' if occ.walked_out else ''}{reach_mm:.1f} mm, as far "
                  "as the occluder reaches (limit "

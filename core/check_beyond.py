@@ -496,6 +496,8 @@ class Occluded:
     front_px: float
     hidden_px: float
     walked_out: bool = False  # the walk stopped at max_reach_px: the occluder reaches farther
+    blank: str | None = None  # the view ("left"/"right") that could not measure the occluder
+    # because it is untextured there (``untextured``), or None: both views measured it
 
     @property
     def reach_px(self) -> float:
@@ -514,6 +516,7 @@ def end_occluder(
     see_px: float,
     max_reach_px: float,
     plain_sigma: float | None = None,
+    untextured: bool = False,
 ) -> Occluded | None:
     """Whether the thread at the curve's free ``end`` runs, in both views, into an occluder.
 
@@ -535,7 +538,13 @@ def end_occluder(
     end is plain (untextured: stereo cannot measure it) and the thread stands out from it by
     more than ``plain_sigma`` noise floors, a patch of its grey and as plain is the surface
     the thread lies on, seen (``plain_surface``): a thread there would show. It ends the walk
-    like a measured surface, and before the meeting patch it makes the end free."""
+    like a measured surface, and before the meeting patch it makes the end free.
+
+    ``untextured`` (CheckParams.blank_occluder): when only one view measures a surface in
+    front and the other cannot tell because it is blank there (``_unlike_beside``: its
+    patches give no disparity, the first is untextured and unlike the surface beside the
+    end, e.g. a shaft's dark, uniform tip), the one measure is the occluder's (``blank``
+    names the other view)."""
     ext, far_px = known
     far = 0 if ext[0] >= ext[1] else 1
     fr = _end_frame(uv[far], end)
@@ -565,10 +574,32 @@ def end_occluder(
                 lambda s=side, p=xy: plain_surface(greys[s], masks[s], p, way, plain_sigma)
             )
     d_far, k = _front(greys, masks, far, at, way, disparity, plain[far])
-    if d_far is None:
+    if d_far is None and not untextured:
         return None
     d_other, k_other = _front(greys, masks, 1 - far, at + shift, way, disparity, plain[1 - far])
-    if d_other is None:
+    blank = None
+    if (d_far is None) != (d_other is None) and untextured:
+        # One view measures a surface in front; the other cannot tell, because its first
+        # patch is untextured and unlike the surface beside the thread's end (a shaft's dark,
+        # uniform tip, not the tissue or plain background the thread lies on): nothing there
+        # contradicts the measure, and no surface the thread lies on is seen (okwrong16).
+        side, xy = (1 - far, at + shift) if d_other is None else (far, at)
+        seen, xy_seen = (far, at) if d_other is None else (1 - far, at + shift)
+        d, kk = (d_far, k) if d_other is None else (d_other, k_other)
+        # the measure stands alone: the measuring view's next patch must not show the surface
+        # the thread lies on right after it (one mismatching patch, as the walk ignores), and
+        # the blank view's patch where it matched must bear it out
+        d_next, _ = surface_ahead(
+            greys, masks, seen, xy_seen, way, disparity, (kk + 1) * AHEAD_STEP_PX
+        )
+        if (
+            (d_next is None or d_next > AHEAD_NEAR_PX)
+            and _unlike_beside(greys, masks, side, xy, way, disparity)
+            and _blank_back(greys, masks, seen, xy_seen, way, disparity, d, kk)
+        ):
+            blank = "left" if side == 0 else "right"
+            k, d_far, d_other = kk, d, d
+    if d_far is None or d_other is None:
         return None
     if abs(d_far - d_other) > AHEAD_AGREE_PX:
         # Next to an occluder's edge one view sees background the other's occluder hides (a
@@ -601,7 +632,80 @@ def end_occluder(
         if ext[far] + hidden >= max_reach_px:
             break
     out = ext[far] + hidden >= max_reach_px
-    return Occluded("left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden, out)
+    return Occluded(
+        "left" if far == 0 else "right", ext[far], 0.5 * (d_far + d_other), hidden, out, blank
+    )
+
+
+BESIDE_BACK_PX = 18  # px farther back than plain_surface (twice its PLAIN_HALF_PX) the surface
+# beside an end is measured for `_unlike_beside`, clear of an occluder's rounded tip at the end
+UNLIKE_LEVELS = 3.0  # noise floors (AHEAD_LEVELS) between an untextured patch and the surface
+
+
+def _unlike_beside(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    xy: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+) -> bool:
+    """Whether view ``side`` cannot measure the surface beyond the thread's end at ``xy``
+    (going ``way``) because it is blank there: none of the AHEAD_MEET patches of
+    ``surface_ahead`` gives a disparity, and the first is untextured and unlike the surface
+    beside the end: the median grey of that surface (a square of ``plain_surface``'s size,
+    BESIDE_BACK_PX farther back along the thread, clear of what lies at its end; thread
+    pixels and their edge left out) lies more than UNLIKE_LEVELS noise floors from the
+    patch's mean grey (a smooth stretch of the tissue itself has the tissue's grey)."""
+    first = None
+    for k in range(AHEAD_MEET):
+        d, g = surface_ahead(greys, masks, side, xy, way, disparity, k * AHEAD_STEP_PX)
+        if d is not None:
+            return False
+        first = g if k == 0 else first
+    if first is None:
+        return False
+    grey, mask = greys[side], masks[side]
+    h, w = grey.shape
+    r = PLAIN_HALF_PX
+    back = BESIDE_BACK_PX + r  # clear of what lies at the end (an occluder's rounded tip)
+    cx = int(round(float(xy[0]) - back * float(way[0])))
+    cy = int(round(float(xy[1]) - back * float(way[1])))
+    if cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
+        return False
+    seen = ~_thread_and_edges(mask, cy, cx, r)
+    n = int(np.count_nonzero(seen))
+    if n < PLAIN_SHARE * seen.size:
+        return False
+    vals = np.asarray(grey[cy - r : cy + r + 1, cx - r : cx + r + 1], dtype=np.float64)[seen]
+    level = float(np.partition(vals, n // 2)[n // 2])
+    return abs(first - level) > UNLIKE_LEVELS * AHEAD_LEVELS
+
+
+def _blank_back(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    at: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+    d: float,
+    k: int,
+) -> bool:
+    """Whether the other view's patch where view ``side``'s patch ``k`` matched (``d`` px in
+    front of the end, as ``_matched_back``) bears the measure out: it returns ``d`` (within
+    AHEAD_AGREE_PX), or it is untextured too (the same blank surface seen there). A match
+    that lands on textured surface measuring another depth is none (a shaft along the rows
+    matches anywhere along them)."""
+    t = _patch_t(k * AHEAD_STEP_PX)
+    dx = disparity + d
+    c_other = at + t * way - np.array([dx if side == 0 else -dx, 0.0])
+    d_back, grey_back = surface_ahead(
+        greys, masks, 1 - side, c_other - t * way, way, disparity, k * AHEAD_STEP_PX
+    )
+    if d_back is not None:
+        return abs(d_back - d) <= AHEAD_AGREE_PX
+    return grey_back is not None
 
 
 def _turned(way: np.ndarray, turn: float) -> np.ndarray:

@@ -214,6 +214,45 @@ def test_a_narrow_occluder_bounds_what_may_hide_under_it() -> None:
     assert 30.0 <= occ.hidden_px <= 40.0 / np.cos(np.radians(22.5)) + 2 * 13
 
 
+def _blank_tip_scene(blank_grey: float, plain: bool = False):
+    """``_stereo_scene`` with a textured occluder over left columns 140-399 at D_O whose
+    first 35 columns are a uniform band of ``blank_grey`` (a shaft's dark, untextured tip),
+    in both views (the right view sees it D_O px to the left): the left view's patches just
+    beyond the thread's end lie on the band, the right view's second one reaches the
+    occluder's texture past it and measures it; ``plain``: the tissue is a plain 128."""
+    greys, masks, uv = _stereo_scene((140, 400))
+    g = [greys[0].copy(), greys[1].copy()]
+    for side, d in ((0, 0), (1, D_O)):
+        if plain:
+            tissue = np.zeros(g[side].shape, bool)
+            tissue[:, : 140 - d] = True
+            g[side][tissue & ~masks[side]] = 128.0
+        g[side][:, 140 - d : 175 - d] = blank_grey
+    return (g[0], g[1]), masks, uv
+
+
+def test_an_end_whose_one_view_is_blank_at_an_occluder_the_other_measures_may_go_on_hidden():
+    # the left view's patches beyond the end are untextured and unlike the tissue beside the
+    # end, the right view measures the occluder in front: the end runs into it
+    greys, masks, uv = _blank_tip_scene(70.0)
+    known = extension_far(uv, masks, "end", 40.0, 5.0, 5.0)
+    occ = end_occluder(uv, masks, greys, "end", float(D_T), known, 40.0, 5.0, 100.0, 300.0,
+                       untextured=True)  # fmt: skip
+    assert occ is not None and occ.blank == "left" and abs(occ.front_px - (D_O - D_T)) <= 1.0
+    assert occ.hidden_px > 200.0  # walked to the border along the occluder
+    # off (session 10b's rule): both views must measure it
+    assert end_occluder(uv, masks, greys, "end", float(D_T), known, 40.0, 5.0, 100.0,
+                        300.0) is None  # fmt: skip
+
+
+def test_a_blank_patch_of_the_surface_beside_the_end_is_no_occluder():
+    # a plain background of the blank patch's own grey: the surface the thread lies on, seen
+    greys, masks, uv = _blank_tip_scene(128.0, plain=True)
+    known = extension_far(uv, masks, "end", 40.0, 5.0, 5.0)
+    assert end_occluder(uv, masks, greys, "end", float(D_T), known, 40.0, 5.0, 100.0, 300.0,
+                        untextured=True) is None  # fmt: skip
+
+
 def _strand_beside_end_scene():
     """A plain background, the thread of ``_stereo_scene`` ending at column 139 and a second
     strand of thread crossing the rows at left columns 146-149, nearer (at D_O), both blurred
@@ -564,6 +603,65 @@ def test_raw_frames_whose_thread_goes_on_under_a_shaft_are_not_ok(seed, suite_in
     rec, err = _raw_suite_frame(seed, suite_index, k, render)
     assert err.e_length > 20.0  # wrong: the curve stops at the shaft, the thread goes on
     assert rec.status == "suspect" and "runs into an occluder in both views" in rec.message
+
+
+def test_a_masked_frame_whose_thread_enters_a_shafts_blank_tip_is_not_ok() -> None:
+    """``mkcheck.sh 15150`` occlusion_3 (generate --seed 15153, frame 3, masks given): the
+    thread runs into the shaft's dark, uniform tip along the shaft's axis and on under it;
+    the left view's patches there are blank, the right view measures the shaft in front."""
+    from dataclasses import replace
+
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.pipeline import Pipeline, ReconParams
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import (
+        RenderParams,
+        SyntheticParams,
+        ThreadParams,
+        generate_frame,
+    )
+
+    rp = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, occlusion=True)
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=rp), np.random.default_rng([15153, 3])
+    )
+    calib = frame.camera.calibration()
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    rec = Pipeline(pair, calib).run(ReconParams())
+    err = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert err.e_length > 20.0  # wrong: the curve stops at the tip, the thread goes on
+    assert rec.status == "suspect" and "the right view blank" not in rec.message
+    assert "runs into an occluder (the left view blank there" in rec.message
+    off = ReconParams()
+    off = replace(off, check=replace(off.check, blank_occluder=False))
+    assert Pipeline(pair, calib).run(off).status == "ok"  # session 10b's rule: both views
+
+
+def test_a_masked_frame_with_a_smooth_stretch_of_tissue_past_a_free_end_stays_ok() -> None:
+    """``eval_suites.py --seed 16110 --suite tissue+occlusion`` frame 15 with its masks: a
+    right curve whose free end lies on a smooth stretch of tissue (untextured in the left view,
+    darker than the tissue farther back); the right view's patch mismatches 91 px "in front"
+    along the rows and its next patch shows the tissue behind the end: no occluder."""
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.pipeline import Pipeline, ReconParams
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import (
+        RenderParams,
+        SyntheticParams,
+        ThreadParams,
+        generate_frame,
+    )
+
+    rp = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, occlusion=True)
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=rp), np.random.default_rng([16110, 1, 15])
+    )
+    calib = frame.camera.calibration()
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    rec = Pipeline(pair, calib).run(ReconParams())
+    err = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert abs(err.e_length) < 5.0 and err.e_S_max < 5.0  # right
+    assert rec.status == "ok"
 
 
 def _line_scene(beyond, shift: int = 20, right_shift: int | None = None):
