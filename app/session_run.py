@@ -115,8 +115,10 @@ class RunWorker(_Base):
         with self._state_lock, self._cond:  # the run's final state
             self.rec, self.metrics = rec, metrics
             self._answered_seq = max(self._answered_seq, req.seq)
+        self.latency_ms["final"] = 1000.0 * (time.perf_counter() - req.t0)
         self._bump()
         self._answer_first(req)
+        self.latency_ms["answered"] = 1000.0 * (time.perf_counter() - req.t0)
         if rec is not shown:
             with timed(timing, "publish"):
                 self._publish(rec, loaded)
