@@ -8,6 +8,7 @@ import contextlib
 import time
 from typing import TYPE_CHECKING, Any
 
+from threadrecon.app import heap
 from threadrecon.app.dataset import evaluate_reconstruction
 from threadrecon.app.errors import DomainError
 from threadrecon.app.session_state import TIMING_KEYS, Request, timed
@@ -54,7 +55,8 @@ class RunWorker(_Base):
             self._bump()
             self._status(req.frame_id, "failed")
             return
-        if self.loaded is not loaded:
+        new_frame = self.loaded is not loaded
+        if new_frame:
             with self.draw_lock:
                 with self._state_lock:
                     self.loaded, self.rec, self.load_error, self.metrics = loaded, None, None, {}
@@ -125,3 +127,5 @@ class RunWorker(_Base):
             self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
         if rec.failed_stage is not None or "camera" in rec.runs:
             self._status(req.frame_id, rec.status)
+        if new_frame:  # a new frame's run may have compiled kernels: a slider move's may not
+            heap.settle_if_grown()

@@ -46,6 +46,7 @@ import httpx  # noqa: E402
 import uvicorn  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
+from threadrecon.app import heap  # noqa: E402
 from threadrecon.app.bench import parse_overrides  # noqa: E402
 from threadrecon.app.errors import UserError  # noqa: E402
 from threadrecon.app.library import merge_params  # noqa: E402
@@ -105,6 +106,7 @@ def running_server(data: Path, db: Path):
     thread.start()
     while not server.started:
         time.sleep(0.05)
+    heap.settle()  # as `threadrecon serve` does once it has started
     try:
         yield f"http://127.0.0.1:{port}", app.state.core
     finally:
