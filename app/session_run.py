@@ -70,6 +70,7 @@ class RunWorker(_Base):
         shown: Reconstruction | None = None
         stages = pipe.stages(req.params, until)
         self.running = STAGES[0]
+        progress_at = req.t0  # the request, then when the run last showed a stage
         timing = self.timing = dict.fromkeys(TIMING_KEYS, 0.0)
         while True:
             with timed(timing, "compute"):
@@ -91,11 +92,11 @@ class RunWorker(_Base):
             superseded = self._superseded(req)
             if run.stage == until and not superseded:
                 break
-            if req.pause_s or superseded or (not run.cached and self._slow(req)):
+            if req.pause_s or superseded or (not run.cached and self._due(progress_at)):
                 with timed(timing, "publish"):
                     self._publish(rec, loaded)
                 self._bump()
-                shown = rec
+                shown, progress_at = rec, time.perf_counter()
                 self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
             if superseded:
                 return
