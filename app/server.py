@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from threadrecon.app import heap
 from threadrecon.app.api import AppState, ServerConfig, create_app
 from threadrecon.app.dataset import discover
 from threadrecon.app.errors import UserError
@@ -45,6 +46,7 @@ def serve(config: ServerConfig, sock: socket.socket | None = None) -> None:
     async def startup(sockets: Any = None) -> None:
         await original(sockets)
         if uv.started:
+            heap.settle()  # full garbage collections skip what the start made
             print(
                 f"threadrecon debugger: open http://{config.host}:{config.port}/  "
                 f"({len(state.library.frames)} frames of {config.data_dir}; "

@@ -6,8 +6,8 @@ what they want (frame, parameters, stages to reveal); one worker thread per sess
 the newest request (latest wins: an older request still running stops at its next stage).
 Once it is done, its final state (results and metrics) becomes the session's, the page's long
 poll answers it with the 2D overlays, and only then do the 3D views draw its last layers (a
-run that has taken longer than ``PROGRESS_AFTER_S``, or is streamed, shows each stage's as
-soon as it exists). The state is read under its own lock, never behind the views' drawing.
+run that has taken longer than ``PROGRESS_AFTER_S`` shows the stages computed so far at that
+pace; a streamed one shows each stage's as soon as it exists). The state is read under its own lock, never behind the views' drawing.
 The worker survives any exception (the stage that raised shows the error; the next request
 runs). Waiting is possible from a thread (:meth:`Session.wait`: the views have drawn) or the
 event loop, holding no thread (:meth:`Session.finished`: the final state is out).
@@ -36,8 +36,12 @@ __all__ = ["FrameLibrary", "LoadedFrame", "Session", "View", "merge_params"]
 log = logging.getLogger("threadrecon.session")
 PIPELINES_PER_SESSION = 3  # frames whose stage cache a session keeps (back-and-forth browsing)
 MAX_PAUSE_S = 10.0  # longest pause between streamed stages (a watchable step, not a hang)
-PROGRESS_AFTER_S = 0.1  # a run older than this shows each stage as it comes; a quicker one
-# (a slider move, 10-40 ms) shows its result once: one batch of scene updates, one redraw
+PROGRESS_AFTER_S = 0.4  # a run shows the stages it has computed this long after the request,
+# then at most once per this long (the pace at which the page's 2D overlays follow a run,
+# images.js OVERLAY_EVERY_MS); a quicker run (a slider move) shows its result once: one batch of
+# scene updates, one redraw. Each stage of a run older than 0.1 s used to be shown: a move that
+# crossed it (1920x1080, or any size on a loaded machine) drew its intermediate 3D layers
+# before its final state, and the page waited for them
 ANSWER_FIRST_S = 0.25  # with a page's long poll waiting, the views draw a run's last layers
 # once it has answered the final state, or after this long: the answer (state, 2D overlays,
 # JSON) and the 3D batch (Python here, software WebGL in the browser) no longer share the
@@ -299,8 +303,10 @@ class Session(RunWorker):
             self._release()
 
     @staticmethod
-    def _slow(req: Request) -> bool:
-        return time.perf_counter() - req.t0 >= PROGRESS_AFTER_S
+    def _due(since: float) -> bool:
+        """A run's progress is shown: ``PROGRESS_AFTER_S`` has passed since ``since`` (the
+        request, or the run's last stage shown)."""
+        return time.perf_counter() - since >= PROGRESS_AFTER_S
 
     def _answer_first(self, req: Request) -> None:
         """With a page's long poll waiting for news, wait (up to ``ANSWER_FIRST_S``) until it

@@ -8,6 +8,7 @@ import contextlib
 import time
 from typing import TYPE_CHECKING, Any
 
+from threadrecon.app import heap
 from threadrecon.app.dataset import evaluate_reconstruction
 from threadrecon.app.errors import DomainError
 from threadrecon.app.session_state import TIMING_KEYS, Request, timed
@@ -54,7 +55,8 @@ class RunWorker(_Base):
             self._bump()
             self._status(req.frame_id, "failed")
             return
-        if self.loaded is not loaded:
+        new_frame = self.loaded is not loaded
+        if new_frame:
             with self.draw_lock:
                 with self._state_lock:
                     self.loaded, self.rec, self.load_error, self.metrics = loaded, None, None, {}
@@ -68,6 +70,7 @@ class RunWorker(_Base):
         shown: Reconstruction | None = None
         stages = pipe.stages(req.params, until)
         self.running = STAGES[0]
+        progress_at = req.t0  # the request, then when the run last showed a stage
         timing = self.timing = dict.fromkeys(TIMING_KEYS, 0.0)
         while True:
             with timed(timing, "compute"):
@@ -89,11 +92,11 @@ class RunWorker(_Base):
             superseded = self._superseded(req)
             if run.stage == until and not superseded:
                 break
-            if req.pause_s or superseded or (not run.cached and self._slow(req)):
+            if req.pause_s or superseded or (not run.cached and self._due(progress_at)):
                 with timed(timing, "publish"):
                     self._publish(rec, loaded)
                 self._bump()
-                shown = rec
+                shown, progress_at = rec, time.perf_counter()
                 self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
             if superseded:
                 return
@@ -115,11 +118,15 @@ class RunWorker(_Base):
         with self._state_lock, self._cond:  # the run's final state
             self.rec, self.metrics = rec, metrics
             self._answered_seq = max(self._answered_seq, req.seq)
+        self.latency_ms["final"] = 1000.0 * (time.perf_counter() - req.t0)
         self._bump()
         self._answer_first(req)
+        self.latency_ms["answered"] = 1000.0 * (time.perf_counter() - req.t0)
         if rec is not shown:
             with timed(timing, "publish"):
                 self._publish(rec, loaded)
             self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
         if rec.failed_stage is not None or "camera" in rec.runs:
             self._status(req.frame_id, rec.status)
+        if new_frame:  # a new frame's run may have compiled kernels: a slider move's may not
+            heap.settle_if_grown()

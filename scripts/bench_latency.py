@@ -18,6 +18,7 @@ layer is in the scene, and the overlay GET the page would make.
         [--set stereo.z_near_mm=40 --set stereo.z_far_mm=250]   # e.g. 1920x1080 frames
         [--pause-ms 300]   # a pause after each change (default 0: back to back)
         [--user-priority]   # Chromium at nice 0, as for a user who is not root
+        [--moves FILE.csv]   # one row per move: its latency and every part of it
 
 HD frames: ``threadrecon generate DIR --size 1920x1080 --count 4 --seed 5601``.
 Targets (issue #13, p90): 150 ms for eps1-3 / threshold and 80 ms for a spline slider at
@@ -28,6 +29,8 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import csv
+import gc
 import os
 import socket
 import statistics
@@ -43,6 +46,7 @@ import httpx  # noqa: E402
 import uvicorn  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
+from threadrecon.app import heap  # noqa: E402
 from threadrecon.app.bench import parse_overrides  # noqa: E402
 from threadrecon.app.errors import UserError  # noqa: E402
 from threadrecon.app.library import merge_params  # noqa: E402
@@ -102,6 +106,7 @@ def running_server(data: Path, db: Path):
     thread.start()
     while not server.started:
         time.sleep(0.05)
+    heap.settle()  # as `threadrecon serve` does once it has started
     try:
         yield f"http://127.0.0.1:{port}", app.state.core
     finally:
@@ -198,6 +203,7 @@ def _page_shown(page, version: int, timeout_s: float = 120.0) -> dict[str, float
           const gets = performance.getEntriesByType("resource").filter((e) => e.name.includes("/overlay"));
           performance.clearResourceTimings();
           return { at: S.overlayShown.at, state_at: S.stateAt.at, draw_ms: S.drawMs || 0,
+                   states: S.states || 0,
                    get_ms: gets.reduce((a, e) => a + e.duration, 0),
                    kB: gets.reduce((a, e) => a + e.encodedBodySize, 0) / 1e3 };
         }"""
@@ -267,10 +273,13 @@ def _viewer_frame(page):
     return None
 
 
-def _viewer_latencies(viewer, moves: list[tuple[float, str]]) -> list[tuple[str, float]]:
+def _viewer_latencies(
+    viewer, moves: list[tuple[float, str]], frames_out: list[tuple[int, float]] | None = None
+) -> list[tuple[str, float]]:
     """Per change (epoch ms, label): ms until the viewer finished issuing the first frame that
     began after the last message it received before the next change (the scene batch). Waits
-    for the last change's frame; clears the probe's records."""
+    for the last change's frame; clears the probe's records. ``frames_out`` gets, per change,
+    the frames the viewer drew until the next change and their ms of draw calls."""
     time.sleep(0.5)  # the last change's frame
     msgs, frames = viewer.evaluate(
         "() => { const P = window.__viewerProbe; const out = [P.msgs, P.frames];"
@@ -280,6 +289,9 @@ def _viewer_latencies(viewer, moves: list[tuple[float, str]]) -> list[tuple[str,
     ends = [t for t, _ in moves[1:]] + [float("inf")]
     for (t0, label), t1 in zip(moves, ends, strict=True):
         got = [m for m in msgs if t0 <= m < t1]
+        if frames_out is not None:
+            drawn = [f for f in frames if t0 <= f[0] < min(t1, t0 + 5000.0)]
+            frames_out.append((len(drawn), sum(b - a for a, b in drawn)))
         if not got:
             continue
         frame = next((f for f in frames if f[0] >= got[-1]), None)
@@ -320,6 +332,13 @@ def main() -> int:
         default=0.0,
         help="pause after each change before the next (0: back to back, as a dragged slider)",
     )
+    ap.add_argument(
+        "--moves",
+        metavar="FILE.csv",
+        help="write one row per move (frame, slider, ms, and every part of the breakdown, "
+        "with this process's garbage-collection pauses and the page's state answers): what "
+        "the slow moves do that the fast ones don't",
+    )
     args = ap.parse_args()
     try:
         overrides = parse_overrides(args.set)
@@ -335,8 +354,21 @@ def main() -> int:
     }
     results: dict[str, list[float]] = {k: [] for k in changes}
     shown3d: dict[str, list[float]] = {k: [] for k in changes}  # the viewer's first new frame
+    frames3d: list[tuple[int, float]] = []  # per move: the viewer's frames and their draw ms
     parts: dict[str, dict[str, list[float]]] = {k: {} for k in changes}
     sizes: set[tuple[int, int]] = set()
+    rows: list[dict[str, object]] = []  # --moves
+    gc_ms = [0.0, 0]  # this process's (the server's) collection pauses: ms, generation-2 count
+    gc_t0 = [0.0]
+
+    def on_gc(phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            gc_t0[0] = time.perf_counter()
+        else:
+            gc_ms[0] += 1000.0 * (time.perf_counter() - gc_t0[0])
+            gc_ms[1] += info.get("generation") == 2
+
+    gc.callbacks.append(on_gc)
     with (
         running_server(Path(args.data), db) as (url, state),
         browser_page(url) if args.viewer == "chromium" else contextlib.nullcontext() as page,
@@ -382,6 +414,8 @@ def main() -> int:
                 cpu0 = _chromium_cpu_ms() if page is not None else None
                 for value in values[: args.repeat]:
                     params = merge_params(session.params, {stage: {name: value}})
+                    gc0 = list(gc_ms)
+                    states0 = page.evaluate("window.threadrecon.states || 0") if page else 0
                     t_submit = time.time()
                     seq = session.submit(params=params)  # what a slider callback does
                     session.wait(seq, 120)
@@ -408,6 +442,20 @@ def main() -> int:
                         tags = ov.json().get("_tags", {})
                     for key, ms in st["timing"].items():
                         _add(part, key.removesuffix("_ms").replace("_", " "), ms)
+                    row = {"frame": frame, "change": label, "value": value}
+                    if page is not None:
+                        row |= {
+                            "ms": shown["at"] - 1000.0 * t_submit,
+                            "page_state_ms": shown["state_at"] - 1000.0 * t_submit,
+                            "overlay_get_ms": shown["get_ms"],
+                            "page_draw_ms": shown["draw_ms"],
+                            "states": shown["states"] - states0,
+                        }
+                    lat = st["latency_ms"]
+                    row |= {"final_ms": lat.get("final"), "answered_ms": lat.get("answered")}
+                    row |= {"scene_ms": lat["shown"], **st["timing"]}
+                    row |= {"gc_ms": gc_ms[0] - gc0[0], "gc2": gc_ms[1] - gc0[1]}
+                    rows.append(row)
                     if args.pause_ms:
                         time.sleep(args.pause_ms / 1000.0)
                 if cpu0 is not None and args.repeat:  # per change, spilling into the next few
@@ -415,12 +463,18 @@ def main() -> int:
                     for key, ms in cpu1.items():
                         _add(parts[label], f"{key} cpu", (ms - cpu0[key]) / args.repeat)
             if probe is not None and moves:
-                for label, ms in _viewer_latencies(probe, moves):
+                for label, ms in _viewer_latencies(probe, moves, frames3d):
                     shown3d[label].append(ms)
         viewers = len(session.views)
         stack.close()
+    gc.callbacks.remove(on_gc)
     with contextlib.suppress(OSError):
         db.unlink()
+    if args.moves and rows:
+        with open(args.moves, "w", newline="") as fh:
+            out = csv.DictWriter(fh, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
+            out.writeheader()
+            out.writerows(rows)
     print(
         f"{len(frames)} frames of {args.data}, {viewers} viewer(s) attached ({args.viewer}), "
         f"{received[0] / 1e6:.1f} MB sent to the socket viewer"
@@ -459,6 +513,14 @@ def main() -> int:
                     f"{label:<24}{len(values):>4}{statistics.median(values):>10.1f}{p90:>10.1f}"
                     f"{values[-1]:>10.1f}"
                 )
+    if frames3d:
+        n3 = sorted(n for n, _ in frames3d)
+        ms3 = sorted(ms for _, ms in frames3d)
+        print(
+            f"the viewer's frames per move (until the next): median {statistics.median(n3):.0f}, "
+            f"max {n3[-1]}; their draw calls' ms per move: median {statistics.median(ms3):.1f}, "
+            f"max {ms3[-1]:.1f}"
+        )
     print("\nbreakdown, medians (ms unless said): compute / publish / metrics = the session worker")
     print("computing the stages / drawing their 3D layers and sending them to viser / the frame's")
     print("metrics (wall and CPU of its thread); scene = request -> last layer sent; page state =")

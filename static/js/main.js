@@ -32,6 +32,7 @@ async function poll() {
       $("#conn").textContent = "connected"; $("#conn").className = "badge ok";
       if (st.version !== S.version || !S.state) {
         S.stateAt = { version: st.version, at: Date.now() };  // for scripts/bench_latency.py
+        S.states = (S.states || 0) + 1;  // states taken (scripts/bench_latency.py --moves)
         S.version = st.version;
         applyState(st);
       }

@@ -345,3 +345,39 @@ def test_a_state_brings_only_the_overlays_the_page_shows_and_names_the_others(cl
     assert set(got["_tags"]) == {"spline", "ordering_graph"} and "spline" not in got
     assert got["ordering_graph"]["left"]["segments"]
     assert "reliable" in got["_later"] and "ordering_graph" not in got["_later"]
+
+
+def test_serve_puts_the_start_up_heap_out_of_the_collectors_reach(monkeypatch, tmp_path):
+    """Once started, the server freezes what its start made: a full garbage collection (which
+    stops every thread, slider moves included) then scans only the objects made since."""
+    import asyncio
+    import gc
+
+    import uvicorn
+
+    from threadrecon.app import heap
+    from threadrecon.app import server as server_module
+    from threadrecon.app.api.state import AppState
+
+    monkeypatch.setattr(heap, "_settled", False)  # restored after: this process is no server
+
+    async def started(self, sockets=None):  # listening, the lifespan run: nothing here
+        self.started = True
+
+    monkeypatch.setattr(uvicorn.Server, "startup", started)
+    monkeypatch.setattr(AppState, "viser_port", property(lambda self: 0))
+    monkeypatch.setattr(
+        uvicorn.Server, "run", lambda self, sockets=None: asyncio.run(self.startup())
+    )
+    config = ServerConfig(
+        data_dir=SAMPLE, viser_port=free_port(), open_first=False, db_path=tmp_path / "db.sqlite3"
+    )
+    gc.unfreeze()
+    try:
+        server_module.serve(config)
+        assert gc.get_freeze_count() > 10_000  # the imports, the app
+        frozen = gc.get_freeze_count()
+        made = [[] for _ in range(10)]  # made since: the collector still sees them
+        assert gc.get_freeze_count() == frozen and any(gc.is_tracked(m) for m in made)
+    finally:
+        gc.unfreeze()

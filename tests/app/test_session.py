@@ -225,6 +225,48 @@ def test_the_end_of_a_run_is_a_new_version(library, monkeypatch):
     manager.close()
 
 
+def test_a_slow_run_shows_its_progress_at_a_pace_not_every_stage(library, monkeypatch):
+    """A run that takes long shows the stages it has computed once ``PROGRESS_AFTER_S`` has
+    passed, then at most once per ``PROGRESS_AFTER_S``: a move that is just slow does not
+    draw each of its intermediate 3D layers before its final state."""
+    from threadrecon.app import session as session_module
+    from threadrecon.app.session import Session
+
+    pace, stage_s = 0.15, 0.05
+    original_stages = pipeline.Pipeline.stages
+
+    def slow(self, params, until=None):
+        for run in original_stages(self, params, until):
+            time.sleep(stage_s)
+            yield run
+
+    manager = SessionManager(library)
+    s = manager.create()
+    assert s.wait(s.submit(frame_id=FLAT), 120)
+    monkeypatch.setattr(pipeline.Pipeline, "stages", slow)
+    monkeypatch.setattr(session_module, "PROGRESS_AFTER_S", pace)
+    shown: list[tuple[float, tuple[str, ...]]] = []
+    original = Session._publish
+    monkeypatch.setattr(
+        Session,
+        "_publish",
+        lambda self, rec, loaded: (
+            shown.append((time.perf_counter(), tuple(rec.runs))),
+            original(self, rec, loaded),
+        ),
+    )
+    params = merge_params(s.params, {"segment": {"min_component_px": 5}})  # every stage
+    t0 = time.perf_counter()
+    assert s.wait(s.submit(params=params), 120)
+    assert shown[-1][1] == pipeline.STAGES  # the final layers, always
+    progress = [t for t, runs in shown[:-1]]
+    assert progress, "a run of ~0.4 s shows some progress"
+    assert len(progress) < len(pipeline.STAGES) - 2
+    starts = [t0, *progress]
+    assert all(b - a >= pace * 0.99 for a, b in zip(starts, starts[1:], strict=False))
+    manager.close()
+
+
 def test_a_waiting_page_has_the_final_state_before_the_views_draw_the_last_layers(
     library, monkeypatch
 ):
@@ -263,7 +305,8 @@ def test_a_waiting_page_has_the_final_state_before_the_views_draw_the_last_layer
     _, version, busy, has_metrics = events[0]
     assert not busy and has_metrics and st["stages"][-1]["status"] == "done"
     assert events[1] == ("drawn", version, pipeline.STAGES) and s.version == version
-    assert "shown" in s.state()["latency_ms"]
+    latency = s.state()["latency_ms"]  # final state, answered, last layers drawn: in order
+    assert latency["check"] <= latency["final"] <= latency["answered"] <= latency["shown"]
     manager.close()
 
 
