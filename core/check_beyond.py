@@ -697,12 +697,7 @@ def _blank_back(
     AHEAD_AGREE_PX), or it is untextured too (the same blank surface seen there). A match
     that lands on textured surface measuring another depth is none (a shaft along the rows
     matches anywhere along them)."""
-    t = _patch_t(k * AHEAD_STEP_PX)
-    dx = disparity + d
-    c_other = at + t * way - np.array([dx if side == 0 else -dx, 0.0])
-    d_back, grey_back = surface_ahead(
-        greys, masks, 1 - side, c_other - t * way, way, disparity, k * AHEAD_STEP_PX
-    )
+    d_back, grey_back = _other_patch(greys, masks, side, at, way, disparity, d, k)
     if d_back is not None:
         return abs(d_back - d) <= AHEAD_AGREE_PX
     return grey_back is not None
@@ -763,13 +758,26 @@ def _matched_back(
     """The other view's measure (``surface_ahead``, px of disparity in front of the end) of
     its patch where view ``side``'s patch ``k`` beyond ``at`` along ``way`` matched, ``d`` px
     in front of the end's ``disparity``; None when it cannot tell."""
+    return _other_patch(greys, masks, side, at, way, disparity, d, k)[0]
+
+
+def _other_patch(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    at: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+    d: float,
+    k: int,
+) -> tuple[float | None, float | None]:
+    """``surface_ahead`` of the other view's patch where view ``side``'s patch ``k`` beyond
+    ``at`` along ``way`` matched, ``d`` px in front of the end's ``disparity``."""
     offset = k * AHEAD_STEP_PX
     t = _patch_t(offset)  # the patch's centre along the way
-    c = at + t * way
     dx = disparity + d  # the surface's disparity: seen dx px left in the right view
-    c_other = c - np.array([dx if side == 0 else -dx, 0.0])
-    d_back, _ = surface_ahead(greys, masks, 1 - side, c_other - t * way, way, disparity, offset)
-    return d_back
+    c_other = at + t * way - np.array([dx if side == 0 else -dx, 0.0])
+    return surface_ahead(greys, masks, 1 - side, c_other - t * way, way, disparity, offset)
 
 
 def _patch_t(offset: float) -> float:

@@ -605,12 +605,10 @@ def test_raw_frames_whose_thread_goes_on_under_a_shaft_are_not_ok(seed, suite_in
     assert rec.status == "suspect" and "runs into an occluder in both views" in rec.message
 
 
-def test_a_masked_frame_whose_thread_enters_a_shafts_blank_tip_is_not_ok() -> None:
-    """``mkcheck.sh 15150`` occlusion_3 (generate --seed 15153, frame 3, masks given): the
-    thread runs into the shaft's dark, uniform tip along the shaft's axis and on under it;
-    the left view's patches there are blank, the right view measures the shaft in front."""
-    from dataclasses import replace
-
+def _masked_occlusion_frame(key: list[int]):
+    """A generated tissue + occlusion frame (``generate --occlusion`` with tissue, noise 2 and
+    blur 0.5) run with its exact masks: (reconstruction, errors against the truth, pair,
+    calibration)."""
     from threadrecon.core.metrics import frame_errors
     from threadrecon.core.pipeline import Pipeline, ReconParams
     from threadrecon.core.segmentation import StereoPair
@@ -623,12 +621,23 @@ def test_a_masked_frame_whose_thread_enters_a_shafts_blank_tip_is_not_ok() -> No
 
     rp = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, occlusion=True)
     frame = generate_frame(
-        SyntheticParams(thread=ThreadParams(), render=rp), np.random.default_rng([15153, 3])
+        SyntheticParams(thread=ThreadParams(), render=rp), np.random.default_rng(key)
     )
     calib = frame.camera.calibration()
     pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
     rec = Pipeline(pair, calib).run(ReconParams())
-    err = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    return rec, frame_errors(rec["camera"].points, frame.truth.centerline, calib), pair, calib
+
+
+def test_a_masked_frame_whose_thread_enters_a_shafts_blank_tip_is_not_ok() -> None:
+    """``mkcheck.sh 15150`` occlusion_3 (generate --seed 15153, frame 3, masks given): the
+    thread runs into the shaft's dark, uniform tip along the shaft's axis and on under it;
+    the left view's patches there are blank, the right view measures the shaft in front."""
+    from dataclasses import replace
+
+    from threadrecon.core.pipeline import Pipeline, ReconParams
+
+    rec, err, pair, calib = _masked_occlusion_frame([15153, 3])
     assert err.e_length > 20.0  # wrong: the curve stops at the tip, the thread goes on
     assert rec.status == "suspect" and "the right view blank" not in rec.message
     assert "runs into an occluder (the left view blank there" in rec.message
@@ -642,24 +651,7 @@ def test_a_masked_frame_with_a_smooth_stretch_of_tissue_past_a_free_end_stays_ok
     right curve whose free end lies on a smooth stretch of tissue (untextured in the left view,
     darker than the tissue farther back); the right view's patch mismatches 91 px "in front"
     along the rows and its next patch shows the tissue behind the end: no occluder."""
-    from threadrecon.core.metrics import frame_errors
-    from threadrecon.core.pipeline import Pipeline, ReconParams
-    from threadrecon.core.segmentation import StereoPair
-    from threadrecon.core.synthetic import (
-        RenderParams,
-        SyntheticParams,
-        ThreadParams,
-        generate_frame,
-    )
-
-    rp = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, occlusion=True)
-    frame = generate_frame(
-        SyntheticParams(thread=ThreadParams(), render=rp), np.random.default_rng([16110, 1, 15])
-    )
-    calib = frame.camera.calibration()
-    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
-    rec = Pipeline(pair, calib).run(ReconParams())
-    err = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    rec, err, _, _ = _masked_occlusion_frame([16110, 1, 15])
     assert abs(err.e_length) < 5.0 and err.e_S_max < 5.0  # right
     assert rec.status == "ok"
 
