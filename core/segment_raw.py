@@ -515,6 +515,11 @@ def _select(
                 ):
                     # (a piece the surface test left open whose own disparity is the tissue's
                     # is a mark on it, in either pass)
+                    if not nearest_hue and p.prefer_floating and np.all(votes < 0):
+                        alt = _floating_instead(views, i, on, lab_on, k, rank, best, D, p)
+                        if alt is not None:  # (a piece seen floating, not one undecided)
+                            best, votes = alt
+                            votes_of[best], split = votes, False
                     floating &= split or _floats(votes)
                     break
             # (a blood-like piece the surface test left open, at the tissue's own disparity:
@@ -1022,6 +1027,39 @@ def _surface_votes(
     v._surface = _surface_test(views, i, d)
     px = on[sel]
     return v._surface.votes(v.rows[px], v.cols[px])
+
+
+_FLOATING_TESTS: Final = 2  # pieces, marks not counted, tried past an undecided first choice
+
+
+def _floating_instead(
+    views: list[_View],
+    i: int,
+    on: np.ndarray,
+    lab_on: np.ndarray,
+    k: np.ndarray,
+    rank: np.ndarray,
+    best: int,
+    d: int,
+    p: SegmentationParams,
+) -> tuple[int, np.ndarray] | None:
+    """The piece (and its surface votes) to choose instead of ``best``, which the surface test
+    left wholly undecided (deviation 49): the first piece by rank, at least ``keep_ratio`` as
+    salient, seen in front of the tissue (:func:`_floats`), among the next _FLOATING_TESTS
+    that are no marks on it (marks are passed over; at most _MAX_SURFACE_TESTS tested); None
+    when none is."""
+    cand = np.flatnonzero(k & (rank >= p.keep_ratio * rank[best]))
+    cand = cand[cand != best]
+    left = _FLOATING_TESTS
+    for j in cand[np.argsort(-rank[cand])][:_MAX_SURFACE_TESTS].tolist():
+        votes = _surface_votes(views, i, lab_on == j, on, d)
+        if _floats(votes):
+            return j, votes
+        if not _a_mark(votes):
+            left -= 1
+            if left == 0:
+                break
+    return None
 
 
 def _like_a_mark(v: _View, px: np.ndarray, piece: int, marks: list[int], delta: np.ndarray) -> bool:

@@ -145,6 +145,15 @@ class SegmentationParams(Params):
         "merged with a fibre or vessel it runs beside, or crossing itself at a shallow angle, "
         "is wide there only. Off: the whole piece is dropped (deviation 40).",
     )
+    prefer_floating: bool = param(
+        True,
+        label="raw: prefer a floating piece",
+        doc="raw: when the most salient piece that is no mark on the tissue is one the surface "
+        "test cannot judge (every vote undecided: dark or untextured tissue beside it), a piece "
+        "further down the rank, at least keep_ratio as salient, that the test finds in front of "
+        "the tissue is chosen instead (at most two more tested): a thread seen floating over "
+        "an undecided fibre. Off: the undecided piece is chosen (deviation 49).",
+    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,
