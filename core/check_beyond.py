@@ -607,7 +607,7 @@ def end_occluder(
         # match and measures anything. A measure the other view's own patch at the matched
         # place returns (left-right consistency) is the surface, seen in both views.
         for side, xy, d, kk in ((1 - far, at + shift, d_other, k_other), (far, at, d_far, k)):
-            back = _matched_back(greys, masks, side, xy, way, disparity, d, kk)
+            back = _other_patch(greys, masks, side, xy, way, disparity, d, kk)[0]
             if back is not None and abs(back - d) <= AHEAD_AGREE_PX:
                 d_far, d_other = d, back
                 break
@@ -693,7 +693,7 @@ def _blank_back(
     k: int,
 ) -> bool:
     """Whether the other view's patch where view ``side``'s patch ``k`` matched (``d`` px in
-    front of the end, as ``_matched_back``) bears the measure out: it returns ``d`` (within
+    front of the end, as ``_other_patch`` finds it) bears the measure out: it returns ``d`` (within
     AHEAD_AGREE_PX), or it is untextured too (the same blank surface seen there). A match
     that lands on textured surface measuring another depth is none (a shaft along the rows
     matches anywhere along them)."""
@@ -745,22 +745,6 @@ def _walk(
     return limit
 
 
-def _matched_back(
-    greys: tuple[np.ndarray, np.ndarray],
-    masks: tuple[np.ndarray, np.ndarray],
-    side: int,
-    at: np.ndarray,
-    way: np.ndarray,
-    disparity: float,
-    d: float,
-    k: int,
-) -> float | None:
-    """The other view's measure (``surface_ahead``, px of disparity in front of the end) of
-    its patch where view ``side``'s patch ``k`` beyond ``at`` along ``way`` matched, ``d`` px
-    in front of the end's ``disparity``; None when it cannot tell."""
-    return _other_patch(greys, masks, side, at, way, disparity, d, k)[0]
-
-
 def _other_patch(
     greys: tuple[np.ndarray, np.ndarray],
     masks: tuple[np.ndarray, np.ndarray],
@@ -772,7 +756,8 @@ def _other_patch(
     k: int,
 ) -> tuple[float | None, float | None]:
     """``surface_ahead`` of the other view's patch where view ``side``'s patch ``k`` beyond
-    ``at`` along ``way`` matched, ``d`` px in front of the end's ``disparity``."""
+    ``at`` along ``way`` matched, ``d`` px in front of the end's ``disparity``: its measure
+    (px of disparity in front of the end; None when it cannot tell) and its grey level."""
     offset = k * AHEAD_STEP_PX
     t = _patch_t(offset)  # the patch's centre along the way
     dx = disparity + d  # the surface's disparity: seen dx px left in the right view
@@ -959,7 +944,7 @@ def surface_past_end(
     tissue, or the thread itself where the segmentation missed it) is no occluder.
 
     A patch measured in front counts only when the other view's own patch at the matched
-    place does not measure another surface (left-right consistency, ``_matched_back``, within
+    place does not measure another surface (left-right consistency, ``_other_patch``, within
     AHEAD_AGREE_PX): an occluder's silhouette is matched back at its disparity from either
     view, while a patch holding another strand of the thread or unsegmented thread (at a
     crossing) can match a strand elsewhere on its row, far in front, where the other view's
@@ -975,7 +960,7 @@ def surface_past_end(
         if d is None and _is_plain(grey, plain):
             d = 0.0  # the plain background the thread lies on: a thread there would show
         elif d is not None and d > AHEAD_NEAR_PX:
-            back = _matched_back(greys, masks, side, tip, way, disparity, d, k)
+            back = _other_patch(greys, masks, side, tip, way, disparity, d, k)[0]
             if back is not None and abs(back - d) > AHEAD_AGREE_PX:
                 d = None  # a mismatch along the row: the pair does not show this surface
         found.append(d)
