@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from threadrecon.core.check_field import derived, piece_index
+from threadrecon.core.check_field import derived, derived_entry, piece_index
 from threadrecon.core.check_kernel import cone_pixels, covered_by
 
 END_SAMPLES = 8  # curve samples over which an end's outward direction is taken
@@ -391,20 +391,11 @@ def surface_ahead(
     # the rest depends on the segmentation, the patch's pixel and the search's width only:
     # kept with the segmentation for the next run of the check (most ends stay on their pixel)
     d_hi = int(math.ceil(AHEAD_DEPTH * disparity))
-    memo = _patch_memo(greys, masks)
-    key = (side, cx, cy, d_hi)
-    found = memo.get(key)
-    if found is None:
-        found = memo[key] = _match_ahead(greys, masks, side, cx, cy, d_hi)
-    d_best, grey = found
+    d_best, grey = derived_entry(
+        (*greys, *masks), "ahead matches", (side, cx, cy, d_hi),
+        lambda: _match_ahead(greys, masks, side, cx, cy, d_hi),
+    )  # fmt: skip
     return (None, grey) if d_best is None else (float(d_best - disparity), None)
-
-
-def _patch_memo(greys: tuple[np.ndarray, np.ndarray], masks: tuple[np.ndarray, np.ndarray]) -> dict:
-    """``surface_ahead``'s matches by patch, kept with the segmentation
-    (``check_field.derived``): a re-run of the check after a later stage's slider move asks
-    for the same patches where the curve's ends stay on their pixels."""
-    return derived((*greys, *masks), "ahead matches", dict)
 
 
 def _match_ahead(
@@ -665,7 +656,7 @@ def _unlike_beside(
         first = g if k == 0 else first
     if first is None:
         return False
-    grey, mask = greys[side], masks[side]
+    grey = greys[side]
     h, w = grey.shape
     r = PLAIN_HALF_PX
     back = BESIDE_BACK_PX + r  # clear of what lies at the end (an occluder's rounded tip)
@@ -673,13 +664,23 @@ def _unlike_beside(
     cy = int(round(float(xy[1]) - back * float(way[1])))
     if cx - r < 0 or cy - r < 0 or cx + r >= w or cy + r >= h:
         return False
+    found = _background_level(grey, masks[side], cx, cy)
+    return found is not None and abs(first - found[0]) > UNLIKE_LEVELS * AHEAD_LEVELS
+
+
+def _background_level(
+    grey: np.ndarray, mask: np.ndarray, cx: int, cy: int
+) -> tuple[float, np.ndarray] | None:
+    """The median grey of the square of half-size PLAIN_HALF_PX centred on pixel (cx, cy)
+    (inside the image), thread pixels and their edge left out, and those pixels' greys; None
+    when fewer than PLAIN_SHARE of the square is left."""
+    r = PLAIN_HALF_PX
     seen = ~_thread_and_edges(mask, cy, cx, r)
     n = int(np.count_nonzero(seen))
     if n < PLAIN_SHARE * seen.size:
-        return False
+        return None
     vals = np.asarray(grey[cy - r : cy + r + 1, cx - r : cx + r + 1], dtype=np.float64)[seen]
-    level = float(np.partition(vals, n // 2)[n // 2])
-    return abs(first - level) > UNLIKE_LEVELS * AHEAD_LEVELS
+    return float(np.partition(vals, n // 2)[n // 2]), vals
 
 
 def _blank_back(
@@ -693,10 +694,10 @@ def _blank_back(
     k: int,
 ) -> bool:
     """Whether the other view's patch where view ``side``'s patch ``k`` matched (``d`` px in
-    front of the end, as ``_other_patch`` finds it) bears the measure out: it returns ``d`` (within
-    AHEAD_AGREE_PX), or it is untextured too (the same blank surface seen there). A match
-    that lands on textured surface measuring another depth is none (a shaft along the rows
-    matches anywhere along them)."""
+    front of the end, as ``_other_patch`` finds it) bears the measure out: it returns ``d``
+    (within AHEAD_AGREE_PX), or it is untextured too (the same blank surface seen there). A
+    match that lands on textured surface measuring another depth is none (a shaft along the
+    rows matches anywhere along them)."""
     d_back, grey_back = _other_patch(greys, masks, side, at, way, disparity, d, k)
     if d_back is not None:
         return abs(d_back - d) <= AHEAD_AGREE_PX
@@ -826,14 +827,12 @@ def plain_surface(
     if min(x - q, y - q, cx - r, cy - r) < 0 or max(x + q, cx + r) >= w or max(y + q, cy + r) >= h:
         return None
     # the levels depend on the view's image and mask and the two pixels only: kept with them
-    memo = derived((grey, mask), "plain levels", dict)
-    key = (x, y, cx, cy)
-    found = memo.get(key)
-    if found is None:
-        found = memo[key] = _plain_levels(grey, mask, x, y, cx, cy)
-    if found[0] is None:
+    level, thread = derived_entry(
+        (grey, mask), "plain levels", (x, y, cx, cy),
+        lambda: _plain_levels(grey, mask, x, y, cx, cy),
+    )  # fmt: skip
+    if level is None:
         return None
-    level, thread = found
     tol = sigma * AHEAD_LEVELS
     return (level, tol) if abs(thread - level) > tol else None
 
@@ -844,17 +843,15 @@ def _plain_levels(
     """``plain_surface``'s grey levels of the plain background in the square centred on pixel
     (cx, cy) and of the thread pixels around (x, y) (both inside the image): (None, None)
     when there are no thread pixels there, too few background pixels, or it is textured."""
-    r, q = PLAIN_HALF_PX, AHEAD_HALF_PX
+    q = AHEAD_HALF_PX
     near = np.asarray(mask[y - q : y + q + 1, x - q : x + q + 1], dtype=bool)
     if not near.any():
         return None, None  # no thread pixels there to measure its contrast with
-    seen = ~_thread_and_edges(mask, cy, cx, r)
-    n = int(np.count_nonzero(seen))
-    if n < PLAIN_SHARE * seen.size:
+    found = _background_level(grey, mask, cx, cy)
+    if found is None:
         return None, None
-    vals = np.asarray(grey[cy - r : cy + r + 1, cx - r : cx + r + 1], dtype=np.float64)[seen]
-    level = float(np.partition(vals, n // 2)[n // 2])
-    if 2 * int(np.count_nonzero(np.abs(vals - level) <= AHEAD_LEVELS / 1.4826)) < n:
+    level, vals = found
+    if 2 * int(np.count_nonzero(np.abs(vals - level) <= AHEAD_LEVELS / 1.4826)) < len(vals):
         return None, None  # textured: left to stereo
     on = np.asarray(grey[y - q : y + q + 1, x - q : x + q + 1], dtype=np.float64)[near]
     return level, float(np.partition(on, on.size // 2)[on.size // 2])

@@ -16,7 +16,7 @@ segmentation, and so the mask object, is unchanged.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -256,6 +256,19 @@ def derived(owners: tuple[np.ndarray, ...], tag: str, compute: Callable[[], T]) 
     the fields): what the check derives from one segmentation or stereo result and re-reads
     after a slider move of a later stage. ``tag`` names the kind of value."""
     return _DERIVED.cached(owners, (tag,), compute)
+
+
+def derived_entry(
+    owners: tuple[np.ndarray, ...], tag: str, key: Hashable, compute: Callable[[], T]
+) -> T:
+    """``compute()`` for ``key``, kept in one dict per ``owners`` and ``tag`` (``derived``):
+    many small values of one kind (a patch's match, a square's grey levels) that a later run
+    of the check asks for again, without an LRU entry each."""
+    memo = derived(owners, tag, dict)
+    found = memo.get(key)
+    if found is None:
+        found = memo[key] = compute()
+    return found
 
 
 def _compute(mask: np.ndarray, reach: float) -> MaskField:
