@@ -5,12 +5,13 @@ latest reconstruction, and the 3D views (viser clients) that show it. Controls o
 what they want (frame, parameters, stages to reveal); one worker thread per session computes
 the newest request (latest wins: an older request still running stops at its next stage).
 Once it is done, its final state (results and metrics) becomes the session's, the page's long
-poll answers it with the 2D overlays, and only then do the 3D views draw its last layers (a
-run that has taken longer than ``PROGRESS_AFTER_S`` shows the stages computed so far at that
-pace; a streamed one shows each stage's as soon as it exists). The state is read under its own lock, never behind the views' drawing.
-The worker survives any exception (the stage that raised shows the error; the next request
-runs). Waiting is possible from a thread (:meth:`Session.wait`: the views have drawn) or the
-event loop, holding no thread (:meth:`Session.finished`: the final state is out).
+poll answers it with the 2D overlays, and only then do the 3D views draw its last layers (a run
+that has taken longer than ``PROGRESS_AFTER_S`` shows the stages computed so far at that pace;
+a streamed one shows each stage's as soon as it exists). The state is read under its own lock,
+never behind the views' drawing. The worker survives any exception (the stage that raised shows
+the error; the next request runs). Waiting is possible from a thread (:meth:`Session.wait`: the
+views have drawn) or the event loop, holding no thread (:meth:`Session.finished`: the final
+state is out).
 """
 
 from __future__ import annotations
