@@ -189,8 +189,11 @@ def refine_depth(
         iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1), shared)
     else:
         iR_rank = np.full(len(iL), -1)
-    lo, hi = bounds.lower[keep], bounds.upper[keep]
-    G = BH[keep].stack(BH[keep].scaled(-1.0))  # Eq. (7): lower <= S_z(u_H) <= upper
+    if remedy:
+        BK, lo, hi = BH[keep], bounds.lower[keep], bounds.upper[keep]
+    else:  # every bound holds: the rows themselves, not a copy of each
+        BK, lo, hi = BH, bounds.lower, bounds.upper
+    G = BK.stack(BK.scaled(-1.0))  # Eq. (7): lower <= S_z(u_H) <= upper
     h = np.concatenate([lo, -hi])
     b0 = np.ascontiguousarray(c0[:, 2])
     # The MVS curve at the points of H as a measurement of the disparity there, with the
@@ -372,7 +375,9 @@ class _Stereo:
     """What :func:`_mismatched` reads of H's stereo depths and the runs of both views: the
     same for every spline on one segmentation and one set of bounds, so cached with them
     (:data:`_DERIVED`) while a spline slider re-runs the refinement. ``result``: the
-    finished (out, shared) when no row holds three runs (``d_run`` is then not read)."""
+    finished (out, shared) when no point can be a coil's (no row holds three runs, or none
+    of H's stereo depths there names another left run's partner): ``d_run`` is then not
+    read, and a re-run neither computes it nor finds the sections again."""
 
     def __init__(self, bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float) -> None:
         H = bounds.H
@@ -390,7 +395,7 @@ class _Stereo:
         self.coil: tuple[np.ndarray, ...] | None = None  # the coil test's curve-free part
         if (self.n_L >= 3).any():
             self.coil = _coil_pairs(self, runs_L, runs_R)
-        else:  # no coil point, whatever d_run (exact)
+        if self.coil is None or not self.coil[0].any():  # no coil point, whatever d_run
             out, shared = _sections(self, runs_L, runs_R, None)
             out.setflags(write=False)
             shared.setflags(write=False)
