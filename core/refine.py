@@ -140,25 +140,15 @@ def refine_depth(
     """S with S_z refitted to the disparity of the thread along the epipolar lines."""
     if p.mode == "off":
         return spline
-    t, k, c0 = spline.knots, spline.degree, spline.ctrl
+    k = spline.degree
     fB = calib.focal * calib.baseline
-    c200 = spline.curve(200)[:, :2]
-    step = c200[1:] - c200[:-1]  # np.linalg.norm(np.diff(...), axis=1)'s own operations
-    sq = step * step
-    xy_len = float(np.sqrt(sq[:, 0] + sq[:, 1]).sum())
-    n = int(min(max(xy_len, 50), 3000))  # about one sample per px of image arc length
-    u = np.linspace(0.0, spline.length, n)
-    t = np.ascontiguousarray(t, dtype=np.float64)
-    c0 = np.ascontiguousarray(c0, dtype=np.float64)
-    Bm = _basis(t, k, u)  # the samples' basis rows, banded
-    xyz = Bm.dot(c0)
-    xy, z_c0 = xyz[:, :2], np.ascontiguousarray(xyz[:, 2])
+    c0 = np.ascontiguousarray(spline.ctrl, dtype=np.float64)
     runs_L = _runs(lifted.P_L, lifted.grey_L, lifted.background[0])
     runs_R = _runs(lifted.P_R, lifted.grey_R, lifted.background[1])
-    rows = _rows(xy[:, 1])
-    iL = runs_L.nearest_index(rows, xy[:, 0])
-    cL, lL = runs_L.at(iL)
-    okL = np.isfinite(cL) & (np.abs(cL - xy[:, 0]) <= 0.5 * lL + GATE_PX)
+    sm = _samples(spline, c0, runs_L)  # what S_x, S_y and the knots decide, kept
+    t, xy_len, Bm, rows, iL, cL, okL = sm.t, sm.xy_len, sm.Bm, sm.rows, sm.iL, sm.cL, sm.okL
+    xyz = Bm.dot(c0)
+    xy, z_c0 = xyz[:, :2], np.ascontiguousarray(xyz[:, 2])
 
     d_run = functools.partial(_run_disparity, z_c0, iL, okL, runs_L.centre.size, fB)
     mismatched, shared = _mismatched(bounds, runs_L, runs_R, fB, d_run)  # d_run: when read
@@ -177,20 +167,22 @@ def refine_depth(
     ):
         return spline  # the MVS curve lies on the thread in both views: nothing to repair
     # Smoothness: third derivative over image arc length s = u * xy_len / length.
-    uq, wq = _gauss_nodes(t, k, QUAD_PER_SPAN)
-    D3 = _basis(t, k, uq, 3)  # d^3 S_z / du^3 per control value
+    wq, D3 = sm.wq, sm.D3  # the quadrature weights, d^3 S_z / du^3 per control value
     ds_du = xy_len / spline.length
     z_mean = float(np.add.reduce(z_c0) / z_c0.size)  # np.mean's operations
     to_px = fB / z_mean**2  # depth -> disparity px at the mean depth
     S = D3.scaled(to_px / ds_du**3 * np.sqrt(p.smooth_px**5 * wq * ds_du))
 
-    BH = _basis(t, k, np.clip(spline.u_H, 0, spline.length))
+    BH = sm.BH
     if remedy:
         iR_rank = runs_L.same_rank(runs_R, rows, np.where(okL, iL, -1), shared)
     else:
         iR_rank = np.full(len(iL), -1)
-    lo, hi = bounds.lower[keep], bounds.upper[keep]
-    G = BH[keep].stack(BH[keep].scaled(-1.0))  # Eq. (7): lower <= S_z(u_H) <= upper
+    if remedy:
+        BK, lo, hi = BH[keep], bounds.lower[keep], bounds.upper[keep]
+    else:  # every bound holds: the rows themselves, not a copy of each
+        BK, lo, hi = BH, bounds.lower, bounds.upper
+    G = BK.stack(BK.scaled(-1.0))  # Eq. (7): lower <= S_z(u_H) <= upper
     h = np.concatenate([lo, -hi])
     b0 = np.ascontiguousarray(c0[:, 2])
     # The MVS curve at the points of H as a measurement of the disparity there, with the
@@ -268,6 +260,65 @@ def refine_depth(
         )
         return replace(spline, ctrl=ctrl, status="ok", message=message, bounds_dropped=dropped)
     return replace(spline, ctrl=ctrl, bounds_dropped=dropped)
+
+
+SAMPLES_CACHE: Final = 4  # the samples of a few splines: a solver slider's re-runs
+_SAMPLES: LRU[tuple, Any] = LRU(SAMPLES_CACHE)  # LRU.cached entries
+
+
+@dataclass(frozen=True)
+class _Samples:
+    """What :func:`refine_depth` derives from the knots, S_x, S_y and the points of H alone
+    (not S_z): the curve's image length, its samples' basis rows and left runs, the
+    smoothness term's quadrature and H's basis rows. A solver parameter (``data_weight``,
+    ``max_iter``, ...) changes S_z only, so its re-run finds them here. Shared: not to be
+    written (the kernels read them; flagged read-only they would be another JIT type)."""
+
+    t: np.ndarray
+    xy_len: float
+    Bm: _Basis
+    rows: np.ndarray
+    iL: np.ndarray
+    cL: np.ndarray
+    okL: np.ndarray
+    wq: np.ndarray
+    D3: _Basis
+    BH: _Basis
+
+
+def _samples(spline: SplineResult, c0: np.ndarray, runs_L: _Runs) -> _Samples:
+    """The (cached) :class:`_Samples` of ``spline`` (control points ``c0``, C order) on the
+    left runs ``runs_L``: kept by value (the knots, S_x, S_y, l and u_H: a re-run's spline
+    is a new object with the same values) while ``runs_L`` lives."""
+    key = (
+        "samples",
+        int(spline.degree),
+        float(spline.length),
+        np.ascontiguousarray(spline.knots, dtype=np.float64).tobytes(),
+        c0[:, :2].tobytes(),
+        np.ascontiguousarray(spline.u_H, dtype=np.float64).tobytes(),
+    )
+    return _SAMPLES.cached((runs_L,), key, lambda: _compute_samples(spline, c0, runs_L))
+
+
+def _compute_samples(spline: SplineResult, c0: np.ndarray, runs_L: _Runs) -> _Samples:
+    t, k = np.ascontiguousarray(spline.knots, dtype=np.float64), spline.degree
+    c200 = spline.curve(200)[:, :2]
+    step = c200[1:] - c200[:-1]  # np.linalg.norm(np.diff(...), axis=1)'s own operations
+    sq = step * step
+    xy_len = float(np.sqrt(sq[:, 0] + sq[:, 1]).sum())
+    n = int(min(max(xy_len, 50), 3000))  # about one sample per px of image arc length
+    u = np.linspace(0.0, spline.length, n)
+    Bm = _basis(t, k, u)  # the samples' basis rows, banded
+    xy = Bm.dot(c0)[:, :2]  # each column its own sums: S_z's are not read
+    rows = _rows(xy[:, 1])
+    iL = runs_L.nearest_index(rows, xy[:, 0])
+    cL, lL = runs_L.at(iL)
+    okL = np.isfinite(cL) & (np.abs(cL - xy[:, 0]) <= 0.5 * lL + GATE_PX)
+    uq, wq = _gauss_nodes(t, k, QUAD_PER_SPAN)
+    D3 = _basis(t, k, uq, 3)  # d^3 S_z / du^3 per control value
+    BH = _basis(t, k, np.clip(spline.u_H, 0, spline.length))
+    return _Samples(t, xy_len, Bm, rows, iL, cL, okL, wq, D3, BH)
 
 
 def _information_scale(lifted: LiftedPair, H: np.ndarray, use: np.ndarray) -> np.ndarray:
@@ -372,7 +423,9 @@ class _Stereo:
     """What :func:`_mismatched` reads of H's stereo depths and the runs of both views: the
     same for every spline on one segmentation and one set of bounds, so cached with them
     (:data:`_DERIVED`) while a spline slider re-runs the refinement. ``result``: the
-    finished (out, shared) when no row holds three runs (``d_run`` is then not read)."""
+    finished (out, shared) when no point can be a coil's (no row holds three runs, or none
+    of H's stereo depths there names another left run's partner): ``d_run`` is then not
+    read, and a re-run neither computes it nor finds the sections again."""
 
     def __init__(self, bounds: Bounds, runs_L: _Runs, runs_R: _Runs, fB: float) -> None:
         H = bounds.H
@@ -390,7 +443,7 @@ class _Stereo:
         self.coil: tuple[np.ndarray, ...] | None = None  # the coil test's curve-free part
         if (self.n_L >= 3).any():
             self.coil = _coil_pairs(self, runs_L, runs_R)
-        else:  # no coil point, whatever d_run (exact)
+        if self.coil is None or not self.coil[0].any():  # no coil point, whatever d_run
             out, shared = _sections(self, runs_L, runs_R, None)
             out.setflags(write=False)
             shared.setflags(write=False)

@@ -157,10 +157,10 @@ def fit_spline(
     scale = 1.0 / f0 if f0 > 0 else 1.0
     Bd = A[: len(u)]  # basis at the points of H (the first constraint points)
     w_d = p.data_weight / (len(u) * np.maximum(0.5 * (bounds.upper - bounds.lower), 1e-12) ** 2)
-    zs = max(median(half_c), 1e-12)  # constraint scaling: depths in half-widths
-    problem = _Problem(mvs, scale, Bd, np.sqrt(w_d), bounds.centre, A / zs, lo_c / zs, hi_c / zs)
+    zs, (A_s, lo_s, hi_s, E_s, e_s) = st.zs, st.scaled
+    problem = _Problem(mvs, scale, Bd, np.sqrt(w_d), bounds.centre, A_s, lo_s, hi_s)
 
-    sol = problem.solve(b0, E / zs, e_rhs / zs, p.max_iter)
+    sol = problem.solve(b0, E_s, e_s, p.max_iter, st.qp_rows)
     untipped = sol.status == "infeasible" and bounds.line_ends is not None
     if untipped:  # a tip's end value (deviation 23) against tight bounds: the lines' (paper)
         e_rhs = np.asarray(bounds.line_ends) / np.array([1.0, st.du_ds, 1.0, st.du_ds])
@@ -238,6 +238,14 @@ class _Setup:
     E: np.ndarray
     e_rhs: np.ndarray
     du_ds: float  # u per unit of H's arc length s (the end slopes' scale)
+    zs: float
+    """The constraints' scale: the median half-width of the bounds (depths in half-widths)."""
+    scaled: tuple[np.ndarray, ...]
+    """A, lo_c, hi_c, E, e_rhs divided by ``zs``: the constraints of the first solve."""
+    qp_rows: tuple[np.ndarray, ...]
+    """Their QP rows, limits and kinds (:meth:`_Problem._constraints`). DAQP and the compiled
+    kernels take writable arrays (neither writes them), so these and the scaled A are not
+    flagged read-only: not to be written."""
 
     def final(self, c: np.ndarray) -> np.ndarray:
         """Control points on the knots of the result: S_x, S_y refined, S_z re-expressed."""
@@ -264,7 +272,7 @@ def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) ->
     if P < 2 or s[-1] <= 0:
         raise ValueError("H spans no length: cannot fit a spline")
     c = bounds.centre  # np.nanmean's sum and count are np.mean's when no value is NaN
-    z_mean = float(np.nanmean(c) if np.isnan(c).any() else np.mean(c))
+    z_mean = float(np.nanmean(c) if np.isnan(c).any() else np.add.reduce(c) / c.size)
     length = float(s[-1] * z_mean / calib.focal)  # l: lateral arc length, calib units
     u = np.clip(s * (length / s[-1]), 0.0, length)
     u[-1] = length
@@ -297,7 +305,10 @@ def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) ->
             bounds.end_slopes[1] / du_ds,
         ]
     )
-    arrays = (u, t_xy, ctrl_init, xy, reexpress, lo_c, hi_c, half_c, b0, A, E, e_rhs)
+    zs = max(median(half_c), 1e-12)  # constraint scaling: depths in half-widths
+    scaled = (A / zs, lo_c / zs, hi_c / zs, E / zs, e_rhs / zs)
+    qp_rows = _constraint_rows(scaled[0], scaled[3], scaled[4], scaled[1], scaled[2])
+    arrays = (u, t_xy, ctrl_init, xy, reexpress, lo_c, hi_c, half_c, b0, A, E, e_rhs, *scaled[1:])
     for a in arrays:
         if a is not None:
             a.setflags(write=False)
@@ -319,6 +330,9 @@ def _compute_setup(bounds: Bounds, calib: StereoCalibration, p: SplineParams) ->
         E,
         e_rhs,
         du_ds,
+        zs,
+        scaled,
+        qp_rows,
     )
 
 
@@ -385,7 +399,8 @@ def _reexpress_matrix(t: np.ndarray, k: int, t_new: np.ndarray) -> np.ndarray:
     nonsingular: Schoenberg-Whitney holds for a clamped knot vector of simple interior knots)."""
     m_new = len(t_new) - k - 1
     idx = np.arange(m_new)[:, None] + np.arange(1, k + 1)[None, :]
-    g = t_new[idx].mean(axis=1) if k > 0 else 0.5 * (t_new[:-1] + t_new[1:])
+    # the Greville abscissae: np.mean's sum and division without its layers
+    g = np.add.reduce(t_new[idx], axis=1) / k if k > 0 else 0.5 * (t_new[:-1] + t_new[1:])
     return np.linalg.solve(basis_matrix(g, t_new, k), basis_matrix(g, t, k))
 
 
@@ -504,10 +519,11 @@ def _end_rows(
     """Rows giving S_z(0), S_z'(0), S_z(l), S_z'(l) from b_z; ``d1``, ``v``: the basis' first
     derivatives and values at 0 and l, ``basis_matrix(ends, t, k, 1)`` and
     ``basis_matrix(ends, t, k)``, if the caller has them."""
-    ends = np.array([0.0, length])
-    v = v if v is not None else basis_matrix(ends, t, k)
-    d1 = d1 if d1 is not None else basis_derivatives(ends, t, k, 1)[0]
-    return np.stack([v[0], d1[0], v[1], d1[1]])
+    if v is None or d1 is None:
+        ends = np.array([0.0, length])
+        v = v if v is not None else basis_matrix(ends, t, k)
+        d1 = d1 if d1 is not None else basis_derivatives(ends, t, k, 1)[0]
+    return np.array([v[0], d1[0], v[1], d1[1]])  # np.stack's rows, without its layers
 
 
 @functools.lru_cache(maxsize=16)
@@ -609,6 +625,18 @@ class _Solution:
     iterations: int
 
 
+def _constraint_rows(
+    A: np.ndarray, E: np.ndarray, e: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:meth:`_Problem._constraints` of the bound rows ``A`` (limits ``lo``, ``hi``) and the
+    equality rows ``E`` (values ``e``)."""
+    C = np.ascontiguousarray(np.vstack([A, E]))
+    upper = np.concatenate([hi, e])
+    lower = np.concatenate([lo, e])
+    sense = np.concatenate([np.zeros(len(A), np.int32), np.full(len(E), 5, np.int32)])
+    return C, upper, lower, sense
+
+
 class _Problem:
     """min_b  scale * MVS(b) + sum_j w_j (B_d b - c)_j^2  s.t.  lo <= A b <= hi,  E b = e.
 
@@ -664,13 +692,18 @@ class _Problem:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The QP's constraint rows [A; E] (contiguous), their upper and lower limits and their
         DAQP kinds: bounds on A, equalities (5) on E."""
-        C = np.ascontiguousarray(np.vstack([self.A, E]))
-        upper = np.concatenate([self.hi, e])
-        lower = np.concatenate([self.lo, e])
-        sense = np.concatenate([np.zeros(len(self.A), np.int32), np.full(len(E), 5, np.int32)])
-        return C, upper, lower, sense
+        return _constraint_rows(self.A, E, e, self.lo, self.hi)
 
-    def solve(self, b0: np.ndarray, E: np.ndarray, e: np.ndarray, max_iter: int) -> _Solution:
+    def solve(
+        self,
+        b0: np.ndarray,
+        E: np.ndarray,
+        e: np.ndarray,
+        max_iter: int,
+        rows: tuple[np.ndarray, ...] | None = None,
+    ) -> _Solution:
+        """Eq. (8) from b0 under E b = e; ``rows``: :meth:`_constraints` of (E, e) if the
+        caller has them (the set-up keeps the first solve's)."""
         m = b0.size
         n_crossed = int(np.count_nonzero(self.lo > self.hi))
         if n_crossed:
@@ -678,7 +711,7 @@ class _Problem:
             return _Solution(b0, "infeasible", msg, 0)
         # Step 0: a unit gradient step from b0 projected on the constraints (SLSQP's first QP,
         # identity Hessian); it lands on the feasible set, where the Gauss-Newton steps start.
-        C, upper, lower, sense = self._constraints(E, e)
+        C, upper, lower, sense = rows if rows is not None else self._constraints(E, e)
         r0, J0 = self.residual(b0)
         d, flag = self._qp(np.eye(m), 2.0 * (J0.T @ r0), b0, C, upper, lower, sense)
         if flag not in (1, 2):

@@ -514,6 +514,29 @@ def test_solver_parameter_changes_reuse_the_setup_and_give_the_fresh_fit(monkeyp
     assert calls
 
 
+def test_a_solver_re_run_reuses_the_set_up_s_scaled_constraints_and_qp_rows(monkeypatch) -> None:
+    """The first solve's constraints, scaled by the median half-width, and their QP rows are
+    built with the set-up: a solver parameter's re-run builds neither again, and gives the
+    fit computed from scratch to the last bit."""
+    import threadrecon.core.spline as spline_mod
+
+    pair, calib, _ = synthetic_case(3)
+    bounds = Pipeline(pair, calib).run(ReconParams(), until="bounds")["bounds"]
+    calls = []
+    rows = spline_mod._constraint_rows
+    monkeypatch.setattr(spline_mod, "_constraint_rows", lambda *a: calls.append(1) or rows(*a))
+    spline_mod._SETUPS.clear()
+    first = fit_spline(bounds, calib, SplineParams())
+    assert first.status == "ok" and len(calls) == 1  # once, in the set-up
+    calls.clear()
+    p = SplineParams(data_weight=3.0)
+    got = fit_spline(bounds, calib, p)
+    assert not calls
+    spline_mod._SETUPS.clear()
+    fresh = fit_spline(bounds, calib, p)
+    assert np.array_equal(got.ctrl, fresh.ctrl) and got.iterations == fresh.iterations
+
+
 def test_extra_points_beyond_the_depth_ratio_leave_the_window_lines() -> None:
     # Keypoints at 100 mm (s = 0, 30, 60) and extra points between them: 180 mm (1.8 x) stays,
     # 910 mm (a gap matched to nothing, generated crossing 8114 #4) and 45 mm (< 1 / 2) leave;

@@ -326,6 +326,32 @@ def test_repair_fixes_a_coil_turn_matched_to_its_neighbour(frame: int, mvs_faile
     assert rec.status == "ok", rec["check"].reasons
 
 
+def test_a_solver_re_run_reuses_the_samples_and_gives_the_fresh_refinement(monkeypatch) -> None:
+    """A solver parameter changes S_z only: the refinement's samples, their runs and bases
+    (what the knots, S_x, S_y and H decide) come from the cache, and the result equals, to
+    the last bit, one computed from scratch; a new n_ctrl computes them anew."""
+    import threadrecon.core.refine as refine_mod
+
+    pair, calib, _ = synthetic_case(3)
+    pipe = Pipeline(pair, calib)
+    base = ReconParams()
+    pipe.run(base)
+    calls = []
+    compute = refine_mod._compute_samples
+    monkeypatch.setattr(refine_mod, "_compute_samples", lambda *a: calls.append(1) or compute(*a))
+    weighted = replace(base, spline=replace(base.spline, data_weight=3.0))
+    rec = pipe.run(weighted)
+    assert not calls and rec.runs["refine"].cached is False  # re-run, samples from the cache
+    refine_mod._SAMPLES.clear()
+    fresh = refine_depth(rec["spline"], rec["bounds"], rec["segment"], calib, base.refine)
+    assert calls
+    assert np.array_equal(rec["refine"].ctrl, fresh.ctrl)
+    assert not np.array_equal(rec["refine"].ctrl, pipe.run(base)["refine"].ctrl)
+    calls.clear()
+    pipe.run(replace(base, spline=replace(base.spline, n_ctrl=base.spline.n_ctrl - 1)))
+    assert calls
+
+
 def test_runs_are_cached_per_mask() -> None:
     """The same mask and grey objects give the same cached runs, a new mask object (a new
     segmentation) or another background level new ones."""

@@ -90,3 +90,60 @@ def test_rows_of_nan_or_huge_ordinates_are_outside_the_image_without_a_warning()
         rows = _rows(y)
     assert rows.dtype == np.int64
     assert rows.tolist() == [3, 4, -1, -1, -1, -1, -2]
+
+
+def _three_strands(disparity: float) -> tuple[_Runs, _Runs, Bounds]:
+    """Rows 0-9 hold three 2 px runs in both views (a coil's turns, 10 px apart; the right
+    view's are the left's shifted by 6 px) and H runs down the middle strand with the stereo
+    depth of ``disparity``."""
+    left = np.zeros((10, 40), dtype=bool)
+    right = np.zeros_like(left)
+    for x0 in (10, 20, 30):
+        left[:, x0 : x0 + 2] = True
+        right[:, x0 - 6 : x0 - 4] = True
+    grey = np.full(left.shape, 100.0)
+    y = np.arange(10.0)
+    z = np.full(10, FB / disparity)
+    bounds = Bounds(
+        H=np.column_stack([np.full(10, 20.5), y, z]),
+        is_key=np.ones(10, bool),
+        s=y.copy(),
+        centre=z,
+        lower=0.9 * z,
+        upper=1.1 * z,
+        end_values=(float(z[0]), float(z[-1])),
+        end_slopes=(0.0, 0.0),
+        r_k=2,
+    )
+    return _Runs(left, grey, 200.0), _Runs(right, grey, 200.0), bounds
+
+
+def test_rows_of_three_runs_without_a_coil_candidate_do_not_read_the_curve() -> None:
+    # Every point's stereo depth is its own strand's (disparity 6): no point names another
+    # left run's partner, so the sections are the same whatever the curve's disparity, found
+    # once with the stereo match (a spline re-run neither computes d_run nor reads it).
+    rl, rr, bounds = _three_strands(6.0)
+
+    def unread() -> np.ndarray:
+        raise AssertionError("d_run was computed")
+
+    out, shared = _mismatched(bounds, rl, rr, FB, unread)
+    assert not out.any() and not shared.any()
+    out2, _ = _mismatched(bounds, rl, rr, FB, np.full(rl.centre.size, 16.0))
+    assert np.array_equal(out, out2)
+
+
+def test_a_coil_candidate_reads_the_curve_s_disparity() -> None:
+    # Disparity 16 (x_R = 4.5: the right partner of the left strand at 10-11) on every point:
+    # the curve's own disparity on that strand decides, so d_run is read; there it is 6 px,
+    # the rank pairing's: the middle strand was matched to its neighbour's partner.
+    rl, rr, bounds = _three_strands(16.0)
+    calls = []
+
+    def d_run() -> np.ndarray:
+        calls.append(1)
+        return np.full(rl.centre.size, 6.0)
+
+    out, shared = _mismatched(bounds, rl, rr, FB, d_run)
+    assert calls
+    assert out.all() and shared.any()
