@@ -28,7 +28,6 @@ half-width, is reported (``status``) and the initial spline is returned as a vis
 from __future__ import annotations
 
 import functools
-import warnings
 from dataclasses import dataclass
 from typing import Any, Final, Literal
 
@@ -340,13 +339,14 @@ def _init_fit(Hi: np.ndarray, u: np.ndarray, t: np.ndarray, k: int) -> np.ndarra
     """Least-squares spline through H^i with knots t: ``splprep(task=-1)``, ridge fallback."""
     m = len(t) - k - 1
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error")
-            tck, _ = splprep(Hi.T, u=u, k=k, task=-1, t=t)
+        # FITPACK's status read from full_output, not turned into an exception by
+        # warnings.catch_warnings: that swaps the process-wide filter list, and two sessions'
+        # threads fitting at once could leave "error" installed for the whole server.
+        (tck, _), _fp, ier, _msg = splprep(Hi.T, u=u, k=k, task=-1, t=t, full_output=1)
         ctrl = np.asarray(tck[1]).T[:m]
-        if np.all(np.isfinite(ctrl)):
+        if ier <= 0 and np.all(np.isfinite(ctrl)):
             return ctrl
-    except (ValueError, RuntimeWarning, UserWarning, TypeError):
+    except (ValueError, TypeError):
         pass
     # Schoenberg-Whitney fails when H is sparse in some knot span: a tiny second-difference
     # ridge keeps the least-squares problem well posed and leaves well-covered spans unchanged.

@@ -611,3 +611,28 @@ def test_the_compiled_tracker_takes_the_reference_rules_steps(seed: int) -> None
     assert np.array_equal(
         _track(40.0, first, second, xy), _track_reference(40.0, first, second, xy)
     )
+
+
+def test_the_initial_fit_reads_fitpack_s_status_without_touching_the_warning_filters(
+    monkeypatch,
+) -> None:
+    """The debugger fits in several sessions' threads at once: warnings.catch_warnings swaps
+    the process-wide filter list, so the initial fit reads splprep's status instead. A good fit
+    is FITPACK's; a knot span with no data (Schoenberg-Whitney fails) gives the ridge fit."""
+    import warnings
+
+    import threadrecon.core.spline as spline_mod
+
+    def no_filter_swaps(*a, **kw):
+        raise AssertionError("warnings.catch_warnings used in the hot path")
+
+    monkeypatch.setattr(warnings, "catch_warnings", no_filter_swaps)
+    u = np.linspace(0.0, 1.0, 30)
+    Hi = np.c_[u, u**2, np.sin(u)]
+    t = np.r_[[0.0] * 4, 0.2, 0.4, 0.6, 0.8, [1.0] * 4]
+    ctrl = spline_mod._init_fit(Hi, u, t, 3)
+    assert_close(BSpline(t, ctrl, 3)(u), Hi, atol=1e-3)
+    gap = np.r_[np.linspace(0.0, 0.3, 15), np.linspace(0.7, 1.0, 15)]
+    t_gap = np.r_[[0.0] * 4, 0.4, 0.45, 0.5, 0.55, 0.6, [1.0] * 4]
+    ctrl = spline_mod._init_fit(np.c_[gap, gap**2, gap], gap, t_gap, 3)
+    assert ctrl.shape == (len(t_gap) - 4, 3) and np.all(np.isfinite(ctrl))
