@@ -585,6 +585,11 @@ def _wide_parts(
     not the background between two darker objects (a thread along a shaft's dark edge, which
     the disc would otherwise fit across and the rim swallow; deviation 39)."""
     closed = cv2.morphologyEx(off8, cv2.MORPH_CLOSE, _GAP_DISC)  # a shading splits none
+    # What the square's erosion reads below lies inside ``closed`` (a closing keeps its input,
+    # and the gaps joined are some of its): no square in ``closed``, none there (exact), and
+    # the usual thin thread skips the shading's two dilations and five masks.
+    if dark8 is not None and not cv2.countNonZero(cv2.erode(closed, _INSCRIBED_SQUARE)):
+        return None
     if dark8 is None:
         off8 = closed
     else:  # a gap is closed between a darker and a lighter pixel only (a shading, one object)
