@@ -30,6 +30,7 @@ from threadrecon.core.compiled import kernel
 from threadrecon.core.instrument import drop_attached
 from threadrecon.core.lazy import Deferred, LazyField
 from threadrecon.core.params import Params, param
+from threadrecon.core.ridge_kernel import small_components
 from threadrecon.core.segment_raw import drop_specks, segment_raw
 
 LIFT_VALUE = 255.0  # Eq. (1): unsegmented pixels are set to 255
@@ -456,7 +457,10 @@ def _threshold_auto8(
     if bw == 0:
         return out, None
     box = (slice(y0 + by, y0 + by + bh), slice(x0 + bx, x0 + bx + bw))
-    out[box] = drop_specks(P[by : by + bh, bx : bx + bw].view(bool), p.min_component_px)
+    Pb = P[by : by + bh, bx : bx + bw]  # P's own bounding box: drop_specks' box, no copy
+    if p.min_component_px > 1:  # :func:`drop_specks` in place (P is this call's own array)
+        small_components(Pb, p.min_component_px, True)
+    out[box] = Pb.view(bool)
     return out, box
 
 

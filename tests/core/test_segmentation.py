@@ -391,6 +391,37 @@ def test_the_wide_parts_shading_is_skipped_when_the_closing_holds_no_square(
     assert seg._wide_parts(thread, thread.copy()) is None
 
 
+def test_the_auto_threshold_drops_specks_in_place_on_its_own_box(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The auto threshold clears the small components on P's own bounding box, in place: no
+    copy of the box and no second bounding box (:func:`drop_specks` is not called), and the
+    same masks as drop_specks on the whole image."""
+    from threadrecon.core import segmentation as seg
+    from threadrecon.core.segment_raw import drop_specks
+
+    rng = np.random.default_rng(11)
+    img = np.full((90, 120), 200, np.uint8)
+    cv2.polylines(img, [np.array([[5, 10], [60, 70], [115, 30]], np.int32)], False, 60, 2)
+    img[rng.integers(0, 90, 15), rng.integers(0, 120, 15)] = 50  # specks
+    img[40:42, 100:102] = 50  # a 4 px component
+    pair = StereoPair(img, img.copy())
+    for min_px in (0, 1, 3, 5, 30):
+        p = SegmentationParams(method="auto", flat_share=0.0, min_component_px=min_px)
+        grey = img.astype(np.float32)
+        expected = drop_specks(grey < 200 - p.seg_delta, min_px)
+        with monkeypatch.context() as m:
+
+            def no_copy(*args: object, **kwargs: object) -> None:
+                raise AssertionError("the auto threshold called drop_specks")
+
+            m.setattr(seg, "drop_specks", no_copy)
+            lifted = segment(pair, p)
+        assert np.array_equal(lifted.P_L, expected)
+        assert np.array_equal(lifted.P_R, expected)
+        assert (expected.sum() < (grey < 200 - p.seg_delta).sum()) == (min_px > 1)
+
+
 def test_raw_mask_of_a_thin_thread_is_not_wider_than_its_coverage() -> None:
     # A 1-2 px thread steps from one pixel row to the next: the two pixels sharing it hold less
     # than 1.5 px of coverage, and the exact mask (coverage >= 0.5) takes one of them.
