@@ -30,6 +30,7 @@ from threadrecon.core.compiled import kernel
 from threadrecon.core.instrument import drop_attached
 from threadrecon.core.lazy import Deferred, LazyField
 from threadrecon.core.params import Params, param
+from threadrecon.core.ridge_kernel import small_components
 from threadrecon.core.segment_raw import drop_specks, segment_raw
 
 LIFT_VALUE = 255.0  # Eq. (1): unsegmented pixels are set to 255
@@ -456,7 +457,10 @@ def _threshold_auto8(
     if bw == 0:
         return out, None
     box = (slice(y0 + by, y0 + by + bh), slice(x0 + bx, x0 + bx + bw))
-    out[box] = drop_specks(P[by : by + bh, bx : bx + bw].view(bool), p.min_component_px)
+    Pb = P[by : by + bh, bx : bx + bw]  # P's own bounding box: drop_specks' box, no copy
+    if p.min_component_px > 1:  # :func:`drop_specks` in place (P is this call's own array)
+        small_components(Pb, p.min_component_px, True)
+    out[box] = Pb.view(bool)
     return out, box
 
 
@@ -585,6 +589,11 @@ def _wide_parts(
     not the background between two darker objects (a thread along a shaft's dark edge, which
     the disc would otherwise fit across and the rim swallow; deviation 39)."""
     closed = cv2.morphologyEx(off8, cv2.MORPH_CLOSE, _GAP_DISC)  # a shading splits none
+    # What the square's erosion reads below lies inside ``closed`` (a closing keeps its input,
+    # and the gaps joined are some of its): no square in ``closed``, none there (exact), and
+    # the usual thin thread skips the shading's two dilations and five masks.
+    if dark8 is not None and not cv2.countNonZero(cv2.erode(closed, _INSCRIBED_SQUARE)):
+        return None
     if dark8 is None:
         off8 = closed
     else:  # a gap is closed between a darker and a lighter pixel only (a shading, one object)

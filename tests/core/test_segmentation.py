@@ -341,6 +341,87 @@ def test_the_wide_parts_quick_reject_is_exact() -> None:
         assert not (by_disc & ~by_square).any()
 
 
+def _wide_parts_in_full(off8: np.ndarray, dark8: np.ndarray) -> np.ndarray:
+    """The shading-aware off-level pixels of :func:`_wide_parts` computed in full: the image
+    whose square and disc erosions decide whether there is a wide part."""
+    from threadrecon.core import segmentation as seg
+
+    closed = cv2.morphologyEx(off8, cv2.MORPH_CLOSE, seg._GAP_DISC)
+    light8 = cv2.bitwise_and(off8, cv2.compare(dark8, 0, cv2.CMP_EQ))
+    both = cv2.bitwise_and(cv2.dilate(light8, seg._GAP_DISC), cv2.dilate(dark8, seg._GAP_DISC))
+    return cv2.bitwise_or(off8, cv2.bitwise_and(closed, both))
+
+
+def test_the_wide_parts_shading_is_skipped_when_the_closing_holds_no_square(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A thin thread: no square fits in the closed off-level pixels, so none in the shading-aware
+    ones (they lie inside the closing), and _wide_parts answers None without the shading's
+    dilations; on random blobs (some wide, some crossing the box's border) its answer is the
+    one of the full computation."""
+    from threadrecon.core import segmentation as seg
+
+    rng = np.random.default_rng(7)
+    square = seg._INSCRIBED_SQUARE
+    decided = {True: 0, False: 0}
+    for _ in range(60):
+        off = np.zeros((90, 120), np.uint8)
+        dark = np.zeros_like(off)
+        for _ in range(int(rng.integers(1, 5))):
+            c = (int(rng.integers(-5, 125)), int(rng.integers(-5, 95)))
+            img = dark if rng.random() < 0.5 else off
+            cv2.circle(img, c, int(rng.integers(2, 14)), 255, -1)
+        off |= dark
+        full = _wide_parts_in_full(off, dark)
+        assert not (full & ~cv2.morphologyEx(off, cv2.MORPH_CLOSE, seg._GAP_DISC)).any()
+        wide = cv2.countNonZero(cv2.erode(full, square)) > 0
+        got = seg._wide_parts(off, dark)
+        if not wide:
+            assert got is None
+        decided[wide] += 1
+    assert decided[True] and decided[False]
+
+    thread = np.zeros((60, 200), np.uint8)
+    cv2.line(thread, (5, 10), (190, 50), 255, 3)
+
+    def no_dilation(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the shading's dilation ran for a thin thread")
+
+    monkeypatch.setattr(seg.cv2, "dilate", no_dilation)
+    assert seg._wide_parts(thread, thread.copy()) is None
+
+
+def test_the_auto_threshold_drops_specks_in_place_on_its_own_box(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The auto threshold clears the small components on P's own bounding box, in place: no
+    copy of the box and no second bounding box (:func:`drop_specks` is not called), and the
+    same masks as drop_specks on the whole image."""
+    from threadrecon.core import segmentation as seg
+    from threadrecon.core.segment_raw import drop_specks
+
+    rng = np.random.default_rng(11)
+    img = np.full((90, 120), 200, np.uint8)
+    cv2.polylines(img, [np.array([[5, 10], [60, 70], [115, 30]], np.int32)], False, 60, 2)
+    img[rng.integers(0, 90, 15), rng.integers(0, 120, 15)] = 50  # specks
+    img[40:42, 100:102] = 50  # a 4 px component
+    pair = StereoPair(img, img.copy())
+    for min_px in (0, 1, 3, 5, 30):
+        p = SegmentationParams(method="auto", flat_share=0.0, min_component_px=min_px)
+        grey = img.astype(np.float32)
+        expected = drop_specks(grey < 200 - p.seg_delta, min_px)
+        with monkeypatch.context() as m:
+
+            def no_copy(*args: object, **kwargs: object) -> None:
+                raise AssertionError("the auto threshold called drop_specks")
+
+            m.setattr(seg, "drop_specks", no_copy)
+            lifted = segment(pair, p)
+        assert np.array_equal(lifted.P_L, expected)
+        assert np.array_equal(lifted.P_R, expected)
+        assert (expected.sum() < (grey < 200 - p.seg_delta).sum()) == (min_px > 1)
+
+
 def test_raw_mask_of_a_thin_thread_is_not_wider_than_its_coverage() -> None:
     # A 1-2 px thread steps from one pixel row to the next: the two pixels sharing it hold less
     # than 1.5 px of coverage, and the exact mask (coverage >= 0.5) takes one of them.
