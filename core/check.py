@@ -607,6 +607,8 @@ def _check(
         bridge_gap[i0:i1] = np.maximum(
             bridge_gap[i0:i1], np.minimum(s3[i0:i1] - s3[a], s3[b] - s3[i0:i1])
         )
+        if not len3 > min(p.max_bridge_mm, p.max_unobserved_mm):
+            continue  # within either limit: the evidence (its costly part) cannot matter
         why = _bridge_evidence(pts, uv_l, uv_r, s3, step, a, b, mm, bare, p)
         limit = p.max_bridge_mm if why is None else p.max_unobserved_mm
         # an evidenced bridge is judged by how far its occluder lets the hidden thread stray,
