@@ -80,7 +80,7 @@ from threadrecon.core.check_score import (
     point_errors,
     quality_score,
 )
-from threadrecon.core.check_support import contested, contradicted, reliable_rows
+from threadrecon.core.check_support import contradicted, reliable_rows, uncontested
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.refine import row_runs
@@ -834,9 +834,9 @@ def _check(
     # view to be that strand is no observation of the depth (one of the two is not seen)
     rel_s = rel
     if p.contested_support and lifted.P_R is not None:
-        clash = contested(stereo, rel, lifted.P_R, CONTEST_SLACK_PX)
-        if clash.any():
-            rel_s = replace(rel, reliable=rel.reliable & ~clash)
+        kept = uncontested(stereo, rel, lifted.P_R, CONTEST_SLACK_PX)  # cached: one array
+        if kept is not None:
+            rel_s = replace(rel, reliable=kept)
     r = _disparity_residual(stereo, rel_s, uv_l, f * B / z_pos, p.support_px)
     supported = r <= p.support_tol_px
     strand = _strand_samples(crossings, in_l & (rho_l <= p.jump_px), supported, step, p)
