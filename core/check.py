@@ -80,7 +80,7 @@ from threadrecon.core.check_score import (
     point_errors,
     quality_score,
 )
-from threadrecon.core.check_support import contested, contradicted, reliable_rows
+from threadrecon.core.check_support import contradicted, reliable_rows, uncontested
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.refine import row_runs
@@ -607,6 +607,8 @@ def _check(
         bridge_gap[i0:i1] = np.maximum(
             bridge_gap[i0:i1], np.minimum(s3[i0:i1] - s3[a], s3[b] - s3[i0:i1])
         )
+        if not len3 > min(p.max_bridge_mm, p.max_unobserved_mm):
+            continue  # within either limit: the evidence (its costly part) cannot matter
         why = _bridge_evidence(pts, uv_l, uv_r, s3, step, a, b, mm, bare, p)
         limit = p.max_bridge_mm if why is None else p.max_unobserved_mm
         # an evidenced bridge is judged by how far its occluder lets the hidden thread stray,
@@ -832,9 +834,9 @@ def _check(
     # view to be that strand is no observation of the depth (one of the two is not seen)
     rel_s = rel
     if p.contested_support and lifted.P_R is not None:
-        clash = contested(stereo, rel, lifted.P_R, CONTEST_SLACK_PX)
-        if clash.any():
-            rel_s = replace(rel, reliable=rel.reliable & ~clash)
+        kept = uncontested(stereo, rel, lifted.P_R, CONTEST_SLACK_PX)  # cached: one array
+        if kept is not None:
+            rel_s = replace(rel, reliable=kept)
     r = _disparity_residual(stereo, rel_s, uv_l, f * B / z_pos, p.support_px)
     supported = r <= p.support_tol_px
     strand = _strand_samples(crossings, in_l & (rho_l <= p.jump_px), supported, step, p)

@@ -54,10 +54,11 @@ class MaskField:
     crop value is an upper bound and the box's value at least HV e. tests/core/test_check_field
     checks this against the whole box on random masks. A point of the curve is read from a
     crop around its run of CHUNK points (NEAR_PX margin), else from a crop reaching ``reach``
-    px around it, else from the whole box (also when the crops would cover more than
-    CROPS_SHARE of it: many points far off the thread). Most points of a curve lie on or next to a thread
-    pixel, where the value is one of a few constants (``check_kernel.near_values``): only the
-    others need a crop."""
+    px around it, else from the whole box (also when the crops, with those of the field's
+    earlier reads, would cover more than CROPS_SHARE of it: many points far off the thread,
+    now or on the check's earlier runs; the box is then kept for every later read). Most
+    points of a curve lie on or next to a thread pixel, where the value is one of a few
+    constants (``check_kernel.near_values``): only the others need a crop."""
 
     mask: np.ndarray
     x0: int
@@ -127,18 +128,25 @@ class MaskField:
         out = near_values(self.mask, self.x0, self.y0, pix)  # on or next to the thread
         todo = np.flatnonzero((out < 0) & (pix[:, 0] >= 0))
         far = int(np.ceil(self.reach / HV)) + 2  # HV (far - 1) > reach: certified or saturated
+        spent = self._state.get("cropped", 0)  # px of crops transformed by earlier reads
         for margin in (NEAR_PX, far):
             if todo.size == 0:
                 return out
-            todo = todo[~self._chunks(pix[todo], margin, out, todo)]
+            todo = todo[~self._chunks(pix[todo], margin, out, todo, spent)]
         if todo.size:  # not certain from the crops (none, normally): the whole box
             out[todo] = self.dist[pix[todo, 1], pix[todo, 0]]
         return out
 
-    def _chunks(self, p: np.ndarray, margin: int, out: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    def _chunks(
+        self, p: np.ndarray, margin: int, out: np.ndarray, idx: np.ndarray, spent: int = 0
+    ) -> np.ndarray:
         """Read the pixels ``p`` (k, 2) of the curve points ``idx`` (ascending) into ``out[idx]``
         from one crop around each run of up to CHUNK consecutive points; which were certain
-        (exact, or saturated: at least ``reach``)."""
+        (exact, or saturated: at least ``reach``). The whole box instead when the crops, with
+        the ``spent`` px of crops of earlier reads of this field, would cover more than
+        CROPS_SHARE of it: a curve that reads far off the thread once does so again on the
+        check's next run (the debugger's slider moves re-check the same segmentation), and
+        the whole box, computed once, serves every later read (the same values)."""
         h, w = self.shape
         brk = np.r_[True, np.diff(idx) > 1]  # a run of consecutive curve points: a compact crop
         run_start = np.flatnonzero(brk)
@@ -149,9 +157,11 @@ class MaskField:
         y0 = np.maximum(np.minimum.reduceat(p[:, 1], starts) - margin, 0)
         x1 = np.minimum(np.maximum.reduceat(p[:, 0], starts) + margin + 1, w)
         y1 = np.minimum(np.maximum.reduceat(p[:, 1], starts) + margin + 1, h)
-        if np.sum((x1 - x0) * (y1 - y0)) > CROPS_SHARE * h * w:  # crops cost more than the box
+        area = int(np.sum((x1 - x0) * (y1 - y0)))
+        if spent + area > CROPS_SHARE * h * w:  # crops cost more than the box
             out[idx] = self.dist[p[:, 1], p[:, 0]]
             return np.ones(len(p), dtype=bool)
+        self._state["cropped"] = self._state.get("cropped", 0) + area
         c = np.empty(len(p), np.float32)
         for a, b, c0, r0, c1, r1 in zip(
             starts.tolist(), [*starts[1:].tolist(), len(p)], x0.tolist(), y0.tolist(),

@@ -97,6 +97,31 @@ def contested(
     )  # fmt: skip  (read-only: cached while the stereo result and P_R live)
 
 
+def uncontested(
+    stereo: StereoResult, rel: ReliabilityResult, P_R: np.ndarray, slack_px: float
+) -> np.ndarray | None:
+    """``rel.reliable`` less the ``contested`` matches (read-only), or None when no match is
+    contested. Cached with the stereo result and P_R like ``contested``: every run of the
+    check then passes one array on, and ``reliable_rows`` built from it is cached too (a new
+    array per run was a cache miss each time, and an LRU entry that pushed others out)."""
+    return derived(
+        (stereo.pixels, stereo.disparity, rel.reliable, P_R),
+        f"uncontested {slack_px:g}",
+        lambda: _uncontested(stereo, rel, P_R, slack_px),
+    )  # fmt: skip
+
+
+def _uncontested(
+    stereo: StereoResult, rel: ReliabilityResult, P_R: np.ndarray, slack_px: float
+) -> np.ndarray | None:
+    clash = _contested(stereo, rel, P_R, slack_px)
+    if not clash.any():
+        return None  # (not rel.reliable itself: the cache holds its owners weakly)
+    kept = rel.reliable & ~clash
+    kept.setflags(write=False)
+    return kept
+
+
 def _contested(
     stereo: StereoResult, rel: ReliabilityResult, P_R: np.ndarray, slack_px: float
 ) -> np.ndarray:

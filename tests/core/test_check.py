@@ -14,6 +14,7 @@ from threadpoolctl import threadpool_limits
 
 from threadrecon.app.dataset import discover, load_frame
 from threadrecon.app.io import load_calibration, load_ground_truth, load_pair
+from threadrecon.core import check as check_module
 from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check import (
     CheckParams,
@@ -396,6 +397,28 @@ def test_a_bridge_over_bare_background_is_not_evidenced() -> None:
     assert chk.status == "suspect"
     assert any("bare background" in r for r in chk.reasons), chk.reasons
     assert check_curve(lifted, *args, calib, CheckParams()).status == "ok"  # short enough
+
+
+def test_a_bridge_within_both_limits_is_not_looked_at(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A bridge no longer than max_bridge_mm and max_unobserved_mm passes whatever its
+    evidence says: the evidence (its bare-background rings and stereo match, ~1 ms a bridge,
+    the development split's slowest checks) is not gathered; a longer one still is (ck17)."""
+    pair, calib, _ = synthetic_case(0)
+    rec = Pipeline(pair, calib).run()
+    lifted = _hide_middle(rec, calib, bare=True)
+    args = [rec[s] for s in ("stereo", "reliability", "ordering", "bounds", "spline", "camera")]
+    want = check_curve(lifted, *args, calib, CheckParams())
+    asked = []
+    real = check_module._bridge_evidence
+    monkeypatch.setattr(
+        check_module, "_bridge_evidence", lambda *a: asked.append(a[5:7]) or real(*a)
+    )
+    got = check_curve(lifted, *args, calib, CheckParams())
+    assert 0 < got.longest_bridge_mm < CheckParams().max_unobserved_mm and not asked
+    assert got.status == want.status == "ok" and got.evidence() == want.evidence()
+    assert np.array_equal(got.confidence, want.confidence)
+    tight = check_curve(lifted, *args, calib, CheckParams(max_unobserved_mm=1.0))
+    assert asked and tight.status == "suspect"  # past a limit the evidence is asked for
 
 
 def test_a_bridge_that_turns_back_is_a_loop_not_a_continuation() -> None:

@@ -7,6 +7,7 @@ import pytest
 
 from threadrecon.core.check_beyond import (
     _end_frame,
+    _Once,
     beyond_ends,
     bridge_stray,
     cut_end,
@@ -719,3 +720,14 @@ def test_a_raw_frame_whose_thread_loop_the_segmentation_dropped_is_flagged_by_it
     rec, err = _raw_suite_frame(13173, 12, 17, render, params)
     assert err.e_length > 20.0
     assert rec.status == "suspect" and "a thread line goes on" in rec.message
+
+
+def test_once_computes_on_the_first_call_only() -> None:
+    """end_occluder's lazy plain background (ck17: in place of functools.cache): nothing is
+    computed until asked, then once, None included."""
+    calls = []
+    once = _Once(lambda: calls.append(1) or (12.0, 3.0))
+    assert calls == []
+    assert once() == (12.0, 3.0) and once() == (12.0, 3.0) and calls == [1]
+    none = _Once(lambda: calls.append(2))
+    assert none() is None and none() is None and calls == [1, 2]

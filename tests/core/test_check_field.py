@@ -8,7 +8,7 @@ import pytest
 from scipy.ndimage import distance_transform_edt
 
 from threadrecon.core.check_beyond import pieces
-from threadrecon.core.check_field import PieceIndex, clear_fields, mask_field
+from threadrecon.core.check_field import CROPS_SHARE, PieceIndex, clear_fields, mask_field
 
 TRIALS = 30
 
@@ -88,6 +88,40 @@ def test_field_read_from_crops_equals_the_whole_box_transform_bit_for_bit(seed: 
                     cols.start - field.x0 : cols.stop - field.x0]  # fmt: skip
         assert d.shape == full.shape
         assert np.array_equal(d[full <= 9.0], full[full <= 9.0]) and np.all(d[full > 9.0] > 9.0)
+
+
+def test_field_read_off_the_thread_again_and_again_takes_the_whole_box_once() -> None:
+    """Crops are counted over the field's reads: once they add up to more than CROPS_SHARE of
+    the box, the whole box's transform is computed and kept, and every read after it takes
+    its values from there: the same values (ck17: the check's re-runs on one segmentation
+    re-read a bridge's points far off the thread, ~1 ms a view in crops each time)."""
+    clear_fields()
+    mask = np.zeros((220, 220), dtype=bool)
+    mask[10, 10:200] = True  # a thread along a row and a speck far below it: a tall box
+    mask[200, 100] = True
+    field = mask_field(mask, 12.0)
+    pts = np.column_stack([np.arange(20.0, 120.0), np.full(100, 16.0)])  # 6 px off the thread
+    first = field.at(pts)
+    area = field._state["cropped"]  # px of crops a read takes
+    assert "dist" not in field._state and 0 < area
+    h, w = field.shape
+    reads = 1
+    while "dist" not in field._state:
+        assert np.array_equal(field.at(pts + 0.1 * reads), _fresh(mask, pts + 0.1 * reads))
+        reads += 1
+        assert reads <= 2 + CROPS_SHARE * h * w / area
+    assert reads > 1  # the first read took crops only
+    assert np.array_equal(field.at(pts), first)
+    assert np.array_equal(field.at(pts[::-1]), first[::-1])
+
+
+def _fresh(mask: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """A reading of a new field of ``mask`` (its first: crops)."""
+    clear_fields()
+    fresh = mask_field(mask.copy(), 12.0)
+    got = fresh.at(pts)
+    assert "dist" not in fresh._state
+    return got
 
 
 def test_field_is_cached_by_the_mask_object_not_its_content() -> None:

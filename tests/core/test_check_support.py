@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from threadrecon.core.check_support import contested, contradicted
+from threadrecon.core.check_support import contested, contradicted, reliable_rows, uncontested
 
 
 def _matches(xy: list[tuple[int, int]], disp: list[float]):
@@ -207,3 +207,29 @@ def test_contested_reads_p_rs_row_runs_once_with_the_refine_stage_and_the_field(
     assert (field.total, field.bbox) == (6, (10, 5, 23, 1))
     refine._runs(P_R, np.zeros(P_R.shape, np.float32), 0.0)
     assert len(scans) == 1
+
+
+def test_uncontested_is_one_cached_array_so_the_reliable_rows_are_built_once(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The reliable matches less the contested ones: the same read-only array on every run of
+    the check (its reliable rows then come from the cache), None when nothing is contested
+    (ck17: a new array per run rebuilt the rows each time)."""
+    from threadrecon.core import check_support
+    from threadrecon.core.check_field import clear_fields
+
+    clear_fields()
+    stereo, rel = _matches([(20, 10), (21, 10), (22, 10), (27, 10)], [10.0, 10.0, 10.0, 16.0])
+    P_R = _rows([(10, 10, 12)])
+    kept = uncontested(stereo, rel, P_R, 2.0)
+    assert kept.tolist() == [False, False, True, False] and not kept.flags.writeable
+    assert uncontested(stereo, rel, P_R, 2.0) is kept
+    built = []
+    real = check_support._rows
+    monkeypatch.setattr(check_support, "_rows", lambda s, r: built.append(r) or real(s, r))
+    for _ in range(3):  # the check's rel_s, replaced on each run around the one array
+        rows = reliable_rows(stereo, SimpleNamespace(reliable=uncontested(stereo, rel, P_R, 2.0)))
+    assert len(built) == 1 and rows[0].tolist() == [22]
+    apart = _rows([(10, 10, 12), (10, 17, 19)])  # a right strand for each: no contest
+    stereo2, rel2 = _matches([(20, 10), (27, 10)], [10.0, 10.0])
+    assert uncontested(stereo2, rel2, apart, 2.0) is None
