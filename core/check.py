@@ -65,7 +65,7 @@ from threadrecon.core.check_beyond import (
 )
 from threadrecon.core.check_fast_kernel import flag_runs, ring_level
 from threadrecon.core.check_field import MaskField, derived, mask_field
-from threadrecon.core.check_fold import fold_length
+from threadrecon.core.check_fold import end_reversal, fold_length
 from threadrecon.core.check_kernel import (
     coverage_count,
     nearest_residual,
@@ -314,6 +314,16 @@ class CheckParams(Params):
         "measure must stand: the measuring view's next patch shows no surface at or behind "
         "the end, and the blank view's patch where it matched is blank too or returns it. "
         "Off: both views must measure it (session 10b's rule). docs/method.md, okwrong16.",
+    )  # fmt: skip
+    end_reversal: bool = param(
+        True, label="a branch joined where the curve turns back",
+        doc="On: suspect when the curve's left projection turns back by more than 120 deg "
+        "within 12 px (sharper than a thread bends: two lines joined at a point, as a fibre "
+        "touching the thread) and runs on from there heading back (the 40 px chord either "
+        "side and the chord to the end each turn more than 120 deg from the way in) for more "
+        "than max_unobserved_mm to an end: that branch may be another line's "
+        "(core/check_fold.end_reversal). Off: no such test (before session 17). "
+        "docs/method.md, okwrong17.",
     )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
@@ -854,6 +864,16 @@ def _check(
              f"limit {p.max_overlap_px:g} px)")
         )  # fmt: skip
 
+    # A point where the projection turns back, sharper than a thread bends, with the curve
+    # heading back from it to an end: two lines joined there (core/check_fold.end_reversal).
+    rev = end_reversal(uv_l, s3) if p.end_reversal else None
+    if rev is not None and rev.length > p.max_unobserved_mm:
+        findings.append(
+            ("suspect", f"the curve turns back by {rev.turn_deg:.0f} deg at a point (left "
+             f"({rev.at[0]:.0f}, {rev.at[1]:.0f}) px, sharper than a thread bends) and runs "
+             f"back from it {rev.length:.1f} mm to its {rev.end}: that branch may be another "
+             f"line joined to the thread there (limit {p.max_unobserved_mm:g} mm)")
+        )  # fmt: skip
     # Per-point expected error and confidence.
     unsupported = _unsupported_travel(z, supported) * mm
     if unsupported > p.max_unsupported_mm:

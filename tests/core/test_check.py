@@ -746,3 +746,37 @@ def test_the_coverage_rows_from_the_row_runs_list_the_pixels_as_nonzero_does(see
     assert cols.dtype == row_ptr.dtype == np.int64
     assert np.array_equal(cols, cc)
     assert np.array_equal(row_ptr, np.searchsorted(rr, np.arange(bh + 1)))
+
+
+def test_a_fibre_joined_where_the_curve_turns_back_is_suspect() -> None:
+    """Raw "all" frame 16153 #7 (eval_suites' frame, masks withheld): a light fibre on the
+    tissue touches a white thread where the thread goes under a shaft; the segmentation holds
+    the fibre with the thread and the curve turns back at the shaft's edge (134 deg within
+    12 px) and runs up the fibre for 40 mm to its start (e_l 27.9 mm, e_S^max 44.2 mm). Every
+    other test passed it: "ok" and wrong. With the turn-back test: suspect."""
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import (
+        RenderParams,
+        SyntheticParams,
+        ThreadParams,
+        generate_frame,
+    )
+
+    render = RenderParams(
+        background="tissue", noise_sigma=3.0, blur_sigma=0.5, thread_colour="random",
+        distractors=6, instrument=True, lighting=0.5, jpeg_quality=75, specular=0.3,
+    )  # fmt: skip
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng([16153, 12, 7])
+    )
+    calib = frame.camera.calibration()
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run()
+    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert e.e_length > 20.0 and e.e_S_max > 20.0
+    chk = rec["check"]
+    assert chk.status == "suspect", chk.reasons
+    assert any("turns back" in r for r in chk.reasons), chk.reasons
+    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    off = check_curve(*args, rec["camera"], calib, CheckParams(end_reversal=False))
+    assert off.status == "ok", off.reasons
