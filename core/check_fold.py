@@ -76,12 +76,13 @@ class Reversal:
 
     ``end``: "start" or "end", the end the branch runs to; ``length``: the branch's 3D length
     (the unit of the lengths given); ``turn_deg``: the turn over 2 ``REVERSAL_ARM_PX`` at the
-    point; ``at``: (x, y) the point, px."""
+    point; ``at``: (x, y) the point, px; ``at_px``: its 2D arc length from the start, px."""
 
     end: str
     length: float
     turn_deg: float
     at: tuple[float, float]
+    at_px: float = 0.0
 
 
 def end_reversal(uv: np.ndarray, s3: np.ndarray) -> Reversal | None:
@@ -89,15 +90,18 @@ def end_reversal(uv: np.ndarray, s3: np.ndarray) -> Reversal | None:
     back, or None.
 
     A thread bends over at least its own width: its projection turns by more than 120 deg
-    within 2 ``REVERSAL_ARM_PX`` only where the curve was joined at a point from two lines (the
-    ordering walked from the thread into a fibre or vessel that touches it), or where it makes
-    a small hook out and back (a few px of the curve off and on one strand). A joined branch
-    keeps heading back: the chord ``REVERSAL_CHORD_PX`` px along the curve on either side of the
-    point, and the chord from the point to the branch's end, each turn more than 120 deg from
-    the other side's way in. A hook turns back again (the branch's end lies ahead), a hairpin
-    turns over more than 2 ``REVERSAL_ARM_PX``. ``uv``: (N, 2) left projection; ``s3``: (N,)
-    the curve's cumulative 3D length. The branch is the stretch from the point to that end
-    (the shorter one when both sides head back)."""
+    within 2 ``REVERSAL_ARM_PX`` where the curve was joined at a point from two lines (the
+    ordering walked from the thread into a fibre that touches it), where it makes a small hook
+    out and back (a few px of the curve off and on one strand), or where the thread runs along
+    the line of sight (the apex of a narrow loop: the development split's blend6_4). A joined
+    branch and such a loop keep heading back: the chord ``REVERSAL_CHORD_PX`` px along the
+    curve on either side of the point, and the chord from the point to the branch's end, each
+    turn more than 120 deg from the other side's way in. A hook and a zig-zag go on the way
+    they came, a hairpin seen across turns back over more than 2 ``REVERSAL_ARM_PX``. The
+    geometry alone does not tell a joined branch from a loop (the check's stereo test of the
+    surface beside it does: core/check.py). ``uv``: (N, 2) left projection; ``s3``: (N,) the
+    curve's cumulative 3D length. The branch is the stretch from the point to that end (the
+    shorter one when both sides head back)."""
     uv = np.asarray(uv, dtype=np.float64)
     if len(uv) < 3 or not np.all(np.isfinite(uv)):
         return None
@@ -141,5 +145,5 @@ def end_reversal(uv: np.ndarray, s3: np.ndarray) -> Reversal | None:
     return Reversal(
         ("start", "end")[side[k]], float(length[k]),
         float(np.degrees(np.arccos(np.clip(turn[c[k]], -1.0, 1.0)))),
-        (float(pc[k, 0]), float(pc[k, 1])),
+        (float(pc[k, 0]), float(pc[k, 1])), float(sc[k]),
     )  # fmt: skip

@@ -29,6 +29,7 @@ from threadrecon.core.check import (
     _unsupported_travel,
     check_curve,
 )
+from threadrecon.core.check_fold import end_reversal
 from threadrecon.core.metrics import curve_errors, project
 from threadrecon.core.params import specs
 from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
@@ -780,3 +781,21 @@ def test_a_fibre_joined_where_the_curve_turns_back_is_suspect() -> None:
     args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
     off = check_curve(*args, rec["camera"], calib, CheckParams(end_reversal=False))
     assert off.status == "ok", off.reasons
+
+
+@needs_paper
+def test_a_narrow_loop_turning_back_in_its_projection_is_no_joined_mark() -> None:
+    """blend6_4 (development split): a narrow hairpin loop runs along the line of sight at its
+    apex, so the curve's left projection turns back there by 145 deg within 12 px and runs
+    back 40 mm to its start: the turn-back geometry of a joined fibre. The background is
+    plain, the pair cannot tell the surface's depth beside the curve: nothing shows a mark
+    on the surface, and the right curve stays "ok"."""
+    rec, _, _ = _paper("blend6_4")
+    chk = rec["check"]
+    assert chk.status == "ok", chk.reasons
+    curve = rec["camera"]
+    calib = load_frame(next(f for f in discover(PAPER) if f.name == "blend6_4"))[1]
+    h = np.column_stack([curve.points, np.ones(len(curve.points))]) @ calib.P1.T
+    s3 = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve.points, axis=0), axis=1))])
+    rev = end_reversal(h[:, :2] / h[:, 2:3], s3 * calib.mm_per_unit)
+    assert rev is not None and rev.length > CheckParams().max_unobserved_mm  # the geometry fires
