@@ -132,8 +132,9 @@ def end_reversal(uv: np.ndarray, s3: np.ndarray) -> Reversal | None:
     s3c = np.interp(sc, s, s3)
     way_back = pc - ahead  # the way into the point from the end side
     way_on = pc - back  # the way into the point from the start side
-    to_start = (cos(way_back, back - pc) < REVERSAL_COS) & (cos(way_back, uv[0] - pc) < REVERSAL_COS)
-    to_end = (cos(way_on, ahead - pc) < REVERSAL_COS) & (cos(way_on, uv[-1] - pc) < REVERSAL_COS)
+    back_cos = np.maximum(cos(way_back, back - pc), cos(way_back, uv[0] - pc))
+    on_cos = np.maximum(cos(way_on, ahead - pc), cos(way_on, uv[-1] - pc))
+    to_start, to_end = back_cos < REVERSAL_COS, on_cos < REVERSAL_COS
     # the branch beyond the point to each end; both sides heading back: the shorter one
     lengths = np.column_stack([s3c - s3[0], s3[-1] - s3c])
     lengths = np.where(np.column_stack([to_start, to_end]), lengths, np.inf)
