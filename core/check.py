@@ -60,12 +60,13 @@ from threadrecon.core.check_beyond import (
     end_occluder,
     extension_far,
     plain_surface,
+    surface_ahead,
     surface_past_end,
     thread_line_beyond,
 )
 from threadrecon.core.check_fast_kernel import flag_runs, ring_level
 from threadrecon.core.check_field import MaskField, derived, mask_field
-from threadrecon.core.check_fold import fold_length
+from threadrecon.core.check_fold import Reversal, end_reversal, fold_length
 from threadrecon.core.check_kernel import (
     coverage_count,
     nearest_residual,
@@ -314,6 +315,18 @@ class CheckParams(Params):
         "measure must stand: the measuring view's next patch shows no surface at or behind "
         "the end, and the blank view's patch where it matched is blank too or returns it. "
         "Off: both views must measure it (session 10b's rule). docs/method.md, okwrong16.",
+    )  # fmt: skip
+    end_reversal: bool = param(
+        True, label="a mark joined where the curve turns back",
+        doc="On: suspect when the curve's left projection turns back by more than 120 deg "
+        "within 12 px and runs on from there heading back (the 40 px chord either side and "
+        "the chord to the end each turn more than 120 deg from the way in) for more than "
+        "max_unobserved_mm to an end (core/check_fold.end_reversal), and stereo shows that "
+        "branch on the surface beside it while the curve on the other side of the turn floats "
+        "in front of its surface: a mark on the surface (a fibre) joined to the thread. A "
+        "thread running along the line of sight turns back at a point in its projection too "
+        "(a narrow loop): the surface test keeps it. Off: no such test (before session 17). "
+        "docs/method.md, okwrong17.",
     )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
@@ -856,6 +869,22 @@ def _check(
              f"limit {p.max_overlap_px:g} px)")
         )  # fmt: skip
 
+    # A point where the projection turns back, with the curve heading back from it to an end
+    # (core/check_fold.end_reversal), the branch on the surface and the rest in front of it:
+    # a mark on the surface joined to the thread there.
+    rev = end_reversal(uv_l, s3) if p.end_reversal else None
+    if (
+        rev is not None
+        and rev.length > p.max_unobserved_mm
+        and _mark_joined(lifted, uv_l, f * B / np.maximum(z, 1e-12), rev)
+    ):
+        findings.append(
+            ("suspect", f"the curve turns back by {rev.turn_deg:.0f} deg at a point of the left "
+             f"view ({rev.at[0]:.0f}, {rev.at[1]:.0f} px) and runs "
+             f"back from it {rev.length:.1f} mm to its {rev.end}, on the surface beside it "
+             "while the curve before the turn floats in front of it: that branch may be a mark "
+             f"on the surface joined to the thread there (limit {p.max_unobserved_mm:g} mm)")
+        )  # fmt: skip
     # Per-point expected error and confidence.
     unsupported = _unsupported_travel(z, supported) * mm
     if unsupported > p.max_unsupported_mm:
@@ -961,6 +990,46 @@ def _check(
         end_added_mm=end_added,
         occluded_mm=occluded,
     )
+
+
+BESIDE_STEP_PX = 10.0  # px along the curve between the surface's measures beside it
+BESIDE_SAMPLES = 12  # measures a side of the turn, each on both sides of the curve
+FLOAT_PX = 2.0 * AHEAD_NEAR_PX  # the surface this far behind the curve: the thread floats
+
+
+def _mark_joined(lifted: LiftedPair, uv: np.ndarray, disp: np.ndarray, rev: Reversal) -> bool:
+    """Whether the branch beyond a turn back lies on the surface beside it while the curve on
+    the other side of the turn floats in front of its surface: a mark on the surface (a fibre,
+    a vessel) joined to the thread. The surface is matched by stereo beside the curve's left
+    projection (core/check_beyond.surface_ahead, the patch just off the thread on either side,
+    every BESIDE_STEP_PX along it from the turn, BESIDE_SAMPLES a side); a side is judged by
+    its median measure, with at least two. Where the pair cannot tell (an untextured
+    background), nothing is found: a thread can turn back at a point in its projection where
+    it runs along the line of sight (a narrow loop: the development split's blend6_4)."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
+    greys, masks = (lifted.grey_L, lifted.grey_R), (lifted.P_L, lifted.P_R)
+    fronts = []
+    for sign in (-1.0, 1.0):  # towards the start, towards the end
+        at = rev.at_px + sign * BESIDE_STEP_PX * np.arange(1, BESIDE_SAMPLES + 1)
+        at = at[(at > 0.0) & (at < s[-1])]
+        got = []
+        for v in at:
+            i = int(np.clip(np.searchsorted(s, v), 1, len(uv) - 2))
+            t = uv[i + 1] - uv[i - 1]
+            nt = float(np.hypot(*t))
+            if nt <= 0.0 or not np.isfinite(disp[i]):
+                continue
+            normal = np.array([-t[1], t[0]]) / nt
+            for way in (normal, -normal):
+                front, _ = surface_ahead(greys, masks, 0, uv[i], way, float(disp[i]))
+                if front is not None:
+                    got.append(front)
+        fronts.append(float(np.median(got)) if len(got) >= 2 else None)
+    branch, rest = fronts if rev.end == "start" else fronts[::-1]
+    return (
+        branch is not None and rest is not None
+        and abs(branch) <= AHEAD_NEAR_PX and rest < -FLOAT_PX
+    )  # fmt: skip
 
 
 def _failed_early(

@@ -12,6 +12,8 @@ differ in disparity: none of them is a fold.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from threadrecon.core.check_fast_kernel import close_pairs
@@ -61,3 +63,88 @@ def fold_length(
     hit[i[keep]] = True
     hit[j[keep]] = True
     return float(0.5 * np.sum(seg * (hit[1:] & hit[:-1])))
+
+
+REVERSAL_ARM_PX = 6.0  # the turn at a point: between the chords this long before and after it
+REVERSAL_COS = float(np.cos(np.radians(120.0)))  # a turn of more than 120 deg turns back
+REVERSAL_CHORD_PX = 40.0  # the way either side of a turn: the chord this long along the curve
+
+
+@dataclass(frozen=True)
+class Reversal:
+    """An end branch joined at a point where the curve's left projection turns back.
+
+    ``end``: "start" or "end", the end the branch runs to; ``length``: the branch's 3D length
+    (the unit of the lengths given); ``turn_deg``: the turn over 2 ``REVERSAL_ARM_PX`` at the
+    point; ``at``: (x, y) the point, px; ``at_px``: its 2D arc length from the start, px."""
+
+    end: str
+    length: float
+    turn_deg: float
+    at: tuple[float, float]
+    at_px: float = 0.0
+
+
+def end_reversal(uv: np.ndarray, s3: np.ndarray) -> Reversal | None:
+    """The longest end branch of the curve beyond a point where its left projection turns
+    back, or None.
+
+    A thread bends over at least its own width: its projection turns by more than 120 deg
+    within 2 ``REVERSAL_ARM_PX`` where the curve was joined at a point from two lines (the
+    ordering walked from the thread into a fibre that touches it), where it makes a small hook
+    out and back (a few px of the curve off and on one strand), or where the thread runs along
+    the line of sight (the apex of a narrow loop: the development split's blend6_4). A joined
+    branch and such a loop keep heading back: the chord ``REVERSAL_CHORD_PX`` px along the
+    curve on either side of the point, and the chord from the point to the branch's end, each
+    turn more than 120 deg from the other side's way in. A hook and a zig-zag go on the way
+    they came, a hairpin seen across turns back over more than 2 ``REVERSAL_ARM_PX``. The
+    geometry alone does not tell a joined branch from a loop (the check's stereo test of the
+    surface beside it does: core/check.py). ``uv``: (N, 2) left projection; ``s3``: (N,) the
+    curve's cumulative 3D length. The branch is the stretch from the point to that end (the
+    shorter one when both sides head back)."""
+    uv = np.asarray(uv, dtype=np.float64)
+    if len(uv) < 3 or not np.all(np.isfinite(uv)):
+        return None
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
+    arm, chord = REVERSAL_ARM_PX, REVERSAL_CHORD_PX
+    if s[-1] < 2.0 * arm + 2.0:
+        return None
+
+    def at(v: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.interp(v, s, uv[:, 0]), np.interp(v, s, uv[:, 1])])
+
+    def cos(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        na, nb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
+        return np.sum(a * b, axis=-1) / np.maximum(na * nb, 1e-12)
+
+    ss = np.arange(arm, s[-1] - arm, 1.0)
+    here = at(ss)
+    turn = cos(here - at(ss - arm), at(ss + arm) - here)
+    sharp = turn < REVERSAL_COS
+    if not sharp.any():
+        return None
+    # one point per sharp run: its sharpest sample
+    idx = np.flatnonzero(sharp)
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    c = np.array([r[np.argmin(turn[r])] for r in runs])
+    sc, pc = ss[c], here[c]
+    back, ahead = at(np.maximum(sc - chord, 0.0)), at(np.minimum(sc + chord, s[-1]))
+    s3c = np.interp(sc, s, s3)
+    way_back = pc - ahead  # the way into the point from the end side
+    way_on = pc - back  # the way into the point from the start side
+    back_cos = np.maximum(cos(way_back, back - pc), cos(way_back, uv[0] - pc))
+    on_cos = np.maximum(cos(way_on, ahead - pc), cos(way_on, uv[-1] - pc))
+    to_start, to_end = back_cos < REVERSAL_COS, on_cos < REVERSAL_COS
+    # the branch beyond the point to each end; both sides heading back: the shorter one
+    lengths = np.column_stack([s3c - s3[0], s3[-1] - s3c])
+    lengths = np.where(np.column_stack([to_start, to_end]), lengths, np.inf)
+    side = np.argmin(lengths, axis=1)
+    length = lengths[np.arange(len(c)), side]
+    if not np.isfinite(length).any():
+        return None
+    k = int(np.argmax(np.where(np.isfinite(length), length, -1.0)))
+    return Reversal(
+        ("start", "end")[side[k]], float(length[k]),
+        float(np.degrees(np.arccos(np.clip(turn[c[k]], -1.0, 1.0)))),
+        (float(pc[k, 0]), float(pc[k, 1])), float(sc[k]),
+    )  # fmt: skip

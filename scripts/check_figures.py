@@ -155,6 +155,7 @@ REASON_KINDS = {  # a keyword of each kind of reason (core/check.py) -> a short 
     "runs twice over": "fold",
     "last knot span": "end depth change",
     "runs into an occluder": "occluded end",
+    "turns back by": "turn back",
 }
 
 

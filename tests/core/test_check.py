@@ -30,6 +30,7 @@ from threadrecon.core.check import (
     _unsupported_travel,
     check_curve,
 )
+from threadrecon.core.check_fold import end_reversal
 from threadrecon.core.metrics import curve_errors, project
 from threadrecon.core.params import specs
 from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
@@ -769,3 +770,55 @@ def test_the_coverage_rows_from_the_row_runs_list_the_pixels_as_nonzero_does(see
     assert cols.dtype == row_ptr.dtype == np.int64
     assert np.array_equal(cols, cc)
     assert np.array_equal(row_ptr, np.searchsorted(rr, np.arange(bh + 1)))
+
+
+def test_a_fibre_joined_where_the_curve_turns_back_is_suspect() -> None:
+    """Raw "all" frame 16153 #7 (eval_suites' frame, masks withheld): a light fibre on the
+    tissue touches a white thread where the thread goes under a shaft; the segmentation holds
+    the fibre with the thread and the curve turns back at the shaft's edge (134 deg within
+    12 px) and runs up the fibre for 40 mm to its start (e_l 27.9 mm, e_S^max 44.2 mm). Every
+    other test passed it: "ok" and wrong. With the turn-back test: suspect."""
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import (
+        RenderParams,
+        SyntheticParams,
+        ThreadParams,
+        generate_frame,
+    )
+
+    render = RenderParams(
+        background="tissue", noise_sigma=3.0, blur_sigma=0.5, thread_colour="random",
+        distractors=6, instrument=True, lighting=0.5, jpeg_quality=75, specular=0.3,
+    )  # fmt: skip
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng([16153, 12, 7])
+    )
+    calib = frame.camera.calibration()
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run()
+    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert e.e_length > 20.0 and e.e_S_max > 20.0
+    chk = rec["check"]
+    assert chk.status == "suspect", chk.reasons
+    assert any("turns back" in r for r in chk.reasons), chk.reasons
+    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    off = check_curve(*args, rec["camera"], calib, CheckParams(end_reversal=False))
+    assert off.status == "ok", off.reasons
+
+
+@needs_paper
+def test_a_narrow_loop_turning_back_in_its_projection_is_no_joined_mark() -> None:
+    """blend6_4 (development split): a narrow hairpin loop runs along the line of sight at its
+    apex, so the curve's left projection turns back there by 145 deg within 12 px and runs
+    back 40 mm to its start: the turn-back geometry of a joined fibre. The background is
+    plain, the pair cannot tell the surface's depth beside the curve: nothing shows a mark
+    on the surface, and the right curve stays "ok"."""
+    rec, _, _ = _paper("blend6_4")
+    chk = rec["check"]
+    assert chk.status == "ok", chk.reasons
+    curve = rec["camera"]
+    calib = load_frame(next(f for f in discover(PAPER) if f.name == "blend6_4"))[1]
+    h = np.column_stack([curve.points, np.ones(len(curve.points))]) @ calib.P1.T
+    s3 = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve.points, axis=0), axis=1))])
+    rev = end_reversal(h[:, :2] / h[:, 2:3], s3 * calib.mm_per_unit)
+    assert rev is not None and rev.length > CheckParams().max_unobserved_mm  # the geometry fires

@@ -1,12 +1,13 @@
 """Tests of core/check_fold.py: a curve that runs twice over one strand is a fold; two strands,
-a crossing and a hairpin are not."""
+a crossing and a hairpin are not. A curve joined at a point from two lines turns back there,
+sharper than a thread bends; a hairpin, a hook out and back and a zig-zag do not head back."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from threadrecon.core.check_fold import fold_length
+from threadrecon.core.check_fold import end_reversal, fold_length
 
 
 def _steps(uv: np.ndarray) -> np.ndarray:
@@ -58,3 +59,44 @@ def test_passes_at_different_depths_are_strands_over_each_other() -> None:
 def test_fold_length_rejects_mismatched_shapes() -> None:
     with pytest.raises(ValueError, match="fold_length needs"):
         fold_length(np.zeros((5, 3)), np.zeros(4), np.ones(5, bool), np.zeros(5), 3.0, 1.0)
+
+
+def _s3(uv: np.ndarray, mm_per_px: float = 0.2) -> np.ndarray:
+    return np.concatenate([[0.0], np.cumsum(_steps(uv))]) * mm_per_px
+
+
+def test_a_branch_joined_where_the_curve_turns_back_at_a_point_is_measured() -> None:
+    # 16153 all #7's shape: the thread comes in from the right (heading left, a little down),
+    # and the curve turns back at a point, up and to the right along a fibre for 150 px
+    uv = _polyline((400, 200), (165, 247), (269, 141))
+    rev = end_reversal(uv, _s3(uv))
+    assert rev is not None and rev.end == "end"
+    assert rev.turn_deg > 130.0
+    assert rev.length == pytest.approx(0.2 * np.hypot(104, 106), rel=0.02)
+    assert np.hypot(rev.at[0] - 165, rev.at[1] - 247) < 2.0
+    back = end_reversal(uv[::-1], _s3(uv[::-1]))  # the same curve from the other end
+    assert back is not None and back.end == "start"
+    assert back.length == pytest.approx(rev.length, rel=0.02)
+
+
+def test_a_hairpin_a_hook_and_a_zig_zag_are_no_branch_turning_back() -> None:
+    a = np.linspace(-np.pi / 2, np.pi / 2, 60)
+    bend = np.column_stack([200 + 8 * np.cos(a), 8 + 8 * np.sin(a)])  # a U of radius 8 px
+    hairpin = np.concatenate(
+        [_polyline((0, 0), (200, 0))[:-1], bend, _polyline((200, 16), (0, 16))[1:]]
+    )
+    assert end_reversal(hairpin, _s3(hairpin)) is None
+    assert end_reversal(_polyline((0, 0), (300, 0)), _s3(_polyline((0, 0), (300, 0)))) is None
+    # a hook: down the thread, 30 px out into a fibre, back, and on down the thread
+    hook = _polyline((440, 0), (446, 160), (423, 190), (441, 176), (440, 400))
+    assert end_reversal(hook, _s3(hook)) is None
+    # a zig-zag of 20 px on the way down: the curve goes on the way it came
+    zig = _polyline((290, 200), (286, 400), (284, 380), (274, 500))
+    assert end_reversal(zig, _s3(zig)) is None
+
+
+def test_a_turn_back_counts_the_branch_only_not_the_rest_of_the_curve() -> None:
+    # a short branch of 30 px after the turn: its 3D length, not the 400 px before it
+    uv = _polyline((400, 0), (0, 0), (30, 5))
+    rev = end_reversal(uv, _s3(uv, 1.0))
+    assert rev is not None and rev.end == "end" and rev.length == pytest.approx(30.4, abs=1.0)
