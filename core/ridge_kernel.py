@@ -126,26 +126,25 @@ def _reflect(i, n):  # noqa: ANN001
 
 
 @helper(inline="always")
-def _mixed_row(src, c, w, lut, mix, logs, row):  # noqa: ANN001
+def _mixed_row(src, c, w, lut, mix, row):  # noqa: ANN001
     """One image row ``src`` (W, c) uint8 as log channels into ``row`` (c, W + 4): channel j
-    at row[j, x + 2] is ``mix[j]`` of lut[value] of (R, G, B) (lut[value] for one channel),
-    and two columns on each side are reflect-101 copies (for the 5-tap filter). ``logs``
-    (c, W): scratch for lut[value]."""
+    at row[j, x + 2] is ``mix[j]`` of lut[value] of (R, G, B) (lut[value] for one channel;
+    m0 lr + m1 lg + m2 lb, added left to right), and two columns on each side are
+    reflect-101 copies (for the 5-tap filter)."""
     if c == 1:
         r0 = row[0]
         for x in range(w):
             r0[x + 2] = lut[src[x, 0]]
     else:
-        for j in range(3):
-            lj = logs[j]
-            for x in range(w):
-                lj[x] = lut[src[x, j]]
-        lr, lg, lb = logs[0], logs[1], logs[2]
-        for j in range(3):
-            rj = row[j]
-            m0, m1, m2 = mix[j, 0], mix[j, 1], mix[j, 2]
-            for x in range(w):
-                rj[x + 2] = m0 * lr[x] + m1 * lg[x] + m2 * lb[x]
+        y0, y1, y2 = row[0], row[1], row[2]
+        a0, a1, a2 = mix[0, 0], mix[0, 1], mix[0, 2]
+        b0, b1, b2 = mix[1, 0], mix[1, 1], mix[1, 2]
+        c0, c1, c2 = mix[2, 0], mix[2, 1], mix[2, 2]
+        for x in range(w):
+            lr, lg, lb = lut[src[x, 0]], lut[src[x, 1]], lut[src[x, 2]]
+            y0[x + 2] = a0 * lr + a1 * lg + a2 * lb
+            y1[x + 2] = b0 * lr + b1 * lg + b2 * lb
+            y2[x + 2] = c0 * lr + c1 * lg + c2 * lb
     for j in range(c):
         rj = row[j]
         for p in (0, 1, w + 2, w + 3):
@@ -169,9 +168,7 @@ def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
     # The mixed rows of the last five input rows (each row is mixed once): slot r % 5.
     cache = np.empty((5, c, w + 4), np.float32)
     cached = np.full(5, -1, np.int64)
-    logs = np.empty((c, w), np.float32)
-    acc = np.empty((c, w + 4), np.float32)
-    one = np.float32(1.0)
+    acc = np.empty(w + 4, np.float32)
     four = np.float32(4.0)
     six = np.float32(6.0)
     scale = np.float32(1.0 / 256.0)
@@ -179,28 +176,28 @@ def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
         for k in range(5):
             r = _reflect(2 * y2 + k - 2, h_in)
             slot = r % 5
-            row = cache[slot]
             if cached[slot] != r:
-                _mixed_row(img[r], c, w, lut, mix, logs, row)
+                row = cache[slot]
+                _mixed_row(img[r], c, w, lut, mix, row)
                 cached[slot] = r
                 g, r0 = grey[r], row[0]
                 for x in range(w):
                     g[x] = r0[x + 2]
-            tk = one if k == 0 or k == 4 else (four if k == 1 or k == 3 else six)
-            for j in range(c):
-                aj, rj = acc[j], row[j]
-                if k == 0:
-                    for x in range(w + 4):
-                        aj[x] = rj[x]
-                else:
-                    for x in range(w + 4):
-                        aj[x] += tk * rj[x]
+        s0 = cache[_reflect(2 * y2 - 2, h_in) % 5]
+        s1 = cache[_reflect(2 * y2 - 1, h_in) % 5]
+        s2 = cache[_reflect(2 * y2, h_in) % 5]
+        s3 = cache[_reflect(2 * y2 + 1, h_in) % 5]
+        s4 = cache[_reflect(2 * y2 + 2, h_in) % 5]
         for j in range(c):
-            aj = acc[j]
+            # the five rows' taps [1 4 6 4 1] added in turn, one pass (the order of the sums
+            # of one tap after another)
+            a0, a1, a2, a3, a4 = s0[j], s1[j], s2[j], s3[j], s4[j]
+            for x in range(w + 4):
+                acc[x] = (((a0[x] + four * a1[x]) + six * a2[x]) + four * a3[x]) + a4[x]
             out = half[j * h2 + y2]
             for x2 in range(w2):
                 p = 2 * x2
-                v = aj[p] + four * aj[p + 1] + six * aj[p + 2] + four * aj[p + 3] + aj[p + 4]
+                v = acc[p] + four * acc[p + 1] + six * acc[p + 2] + four * acc[p + 3] + acc[p + 4]
                 out[x2] = v * scale
     return half
 
