@@ -279,7 +279,7 @@ class _View:
         rows, cols = at_least(S, np.float32(p.ridge_lo * level), lo)
         a_q = _quarter(img if img.ndim == 3 else img[:, :, None])[:, :, :c]
         if c > 1 and len(rows):
-            tool = _instrument_mask(_log_of(a_q))
+            tool = _instrument_mask(_log_of(a_q, levels=img.dtype == np.uint8))
             if tool.any():  # its jaws: grey parts wider than a thread, attached to it
                 h, w = lo.shape
                 full = tool[_qi(np.arange(h), tool.shape[0])][:, _qi(np.arange(w), tool.shape[1])]
@@ -364,10 +364,16 @@ def _reversed(a: np.ndarray) -> np.ndarray | None:
     return rev if rev.flags.c_contiguous else None
 
 
-def _log_of(a: np.ndarray) -> np.ndarray:
+def _log_of(a: np.ndarray, levels: bool = False) -> np.ndarray:
     """The channels of :func:`_log_channels` of a small float image (h, w, C): the log of
-    block means stands for the block mean of the logs (texture within a block is small)."""
-    logs = _LOG_SCALE * np.log(a + _LOG_OFFSET)
+    block means stands for the block mean of the logs (texture within a block is small).
+    ``levels``: ``a`` holds whole levels 0..255 only (the rounded block means of a uint8
+    image, :func:`_quarter`), whose logs are looked up (:data:`_LOG_LUT32`: the same float32
+    values, ~7x faster)."""
+    if levels:
+        logs = cv2.LUT(a.astype(np.uint8), _LOG_LUT32).reshape(a.shape)
+    else:
+        logs = _LOG_SCALE * np.log(a + _LOG_OFFSET)
     if logs.shape[2] == 1:
         return logs
     return cv2.transform(logs, _LOG_MIX)
@@ -1290,6 +1296,9 @@ def _log_channels(img: np.ndarray) -> np.ndarray:
 _LOG_LUT: Final = (_LOG_SCALE * np.log(np.arange(256, dtype=np.float64) + _LOG_OFFSET)).astype(
     np.float32
 )
+# _LOG_SCALE log(level + _LOG_OFFSET) of every level as :func:`_log_of` computes it, in
+# float32 (_LOG_LUT rounds the float64 logs: the two may differ in the last bit)
+_LOG_LUT32: Final = _LOG_SCALE * np.log(np.arange(256, dtype=np.float32) + _LOG_OFFSET)
 _LOG_MIX: Final = np.array(
     [[0.299, 0.587, 0.114], [1.0, -1.0, 0.0], [0.0, -1.0, 1.0]], np.float32
 )  # (brightness, log R/G, log B/G) from (log R, log G, log B)
