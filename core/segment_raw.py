@@ -32,7 +32,7 @@ from threadrecon.core.ridge_kernel import (
     label_pixels,
     line_response,
     log_planes,
-    piece_boxes,
+    piece_stats,
     pixels_at,
     small_components,
     upsample_max,
@@ -1410,10 +1410,12 @@ def _pieces(
     lab = np.empty(len(rows), np.int64)
     n = label_pixels(rows, cols, lab)
     s_px = v.s_lo if sub is None else v.s_lo[sub]
-    area = np.bincount(lab, minlength=n).astype(np.float64)
-    means = np.bincount(lab, weights=s_px, minlength=n) / np.maximum(area, 1.0)
-    seeded = np.zeros(n, bool)
-    seeded[lab[s_px >= p.ridge_hi * v.level]] = True
+    # pixels, summed S, seeds (S >= ridge_hi level, compared in float32 as numpy compares
+    # float32 S with a Python float) and bounding boxes of the pieces, in one pass
+    area, sums, seeded, boxes = piece_stats(
+        lab, rows, cols, s_px, np.float32(p.ridge_hi * v.level), n
+    )
+    means = sums / np.maximum(area, 1.0)
     # Half-width of a piece: its largest distance to the outside; length: area / width (a loop
     # or a coil is long in a small box), at least the bounding box diagonal. Both only matter
     # for seeded pieces that can reach min_length_px: length <= max(diag, area / (2 a)), a =
@@ -1421,7 +1423,6 @@ def _pieces(
     # sides are <= its area). Those are few (a few % of the pieces); each is measured alone.
     cands = seeded & (np.sqrt(2.0) * area >= p.min_length_px)
     cands[0] = False
-    boxes = piece_boxes(lab, rows, cols, n)
     boxes *= cands  # the other pieces' boxes are not needed (0, as their length)
     r0, r1, c0, c1 = boxes
     diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
