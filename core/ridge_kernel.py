@@ -18,11 +18,12 @@ figures were unchanged. :func:`kth_smallest`, :func:`at_least` and
 The raw segmentation's pieces (:func:`segment_raw._pieces`) come from the candidate pixels'
 row-major lists (a few % of the view): :func:`label_pixels` joins their row runs (union-find,
 as :func:`small_components`) instead of labelling an (H, W) image, numbered as
-cv2.connectedComponents numbers them, and :func:`piece_boxes` and :func:`half_widths` measure
-the pieces from the same lists (:func:`piece_stats`). The boxes, counts and sums are exact; the half-width is cv2's 3x3 chamfer
-distance (DIST_L2, mask 3) with its float32 steps; cv2 (IPP) reaches some pixels along another
-path of the same steps, so its float32 sum can differ in the last bit: on the 36,470 pieces of
->= 10 px of 105 raw frames of 15 suites, 2 differed, by one ulp, and the masks were identical.
+cv2.connectedComponents numbers them, and :func:`piece_stats` and :func:`half_widths` measure
+the pieces from the same lists. The boxes, counts and sums are exact; the half-width is cv2's
+3x3 chamfer distance (DIST_L2, mask 3) with its float32 steps; cv2 (IPP) reaches some pixels
+along another path of the same steps, so its float32 sum can differ in the last bit: on the
+36,470 pieces of >= 10 px of 105 raw frames of 15 suites, 2 differed, by one ulp, and the
+masks were identical.
 
 :func:`block_residuals` gives the surface test's grey residuals (core/segment_surface.py) at
 a piece's pixels and a range of disparities and their mean per block: exactly numpy's clipped
@@ -586,7 +587,7 @@ def half_widths(lab, rows, cols, ids, boxes, h, w):  # noqa: ANN001
     """(n,) largest 3x3 chamfer distance (cv2.distanceTransform, DIST_L2, mask 3) of the
     pixels of each piece ``ids`` to the outside of its own mask in the (h, w) image, 0 for the
     other labels; ``lab`` (M,) the label of each pixel (rows, cols), ``boxes`` (4, n) the
-    labels' first and last rows and columns (:func:`piece_boxes`). The outside of the image
+    labels' first and last rows and columns (:func:`piece_stats`). The outside of the image
     is far, as in cv2. Per piece, on its box grown by one pixel where that stays inside the
     image: the two raster passes of the chamfer transform with cv2's float32 steps 0.955 and
     1.3693, visiting the piece's own pixels only (cv2's to the last bit or so: see above)."""
