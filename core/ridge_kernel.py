@@ -18,11 +18,12 @@ figures were unchanged. :func:`kth_smallest`, :func:`at_least` and
 The raw segmentation's pieces (:func:`segment_raw._pieces`) come from the candidate pixels'
 row-major lists (a few % of the view): :func:`label_pixels` joins their row runs (union-find,
 as :func:`small_components`) instead of labelling an (H, W) image, numbered as
-cv2.connectedComponents numbers them, and :func:`piece_boxes` and :func:`half_widths` measure
-the pieces from the same lists. The boxes are exact; the half-width is cv2's 3x3 chamfer
-distance (DIST_L2, mask 3) with its float32 steps; cv2 (IPP) reaches some pixels along another
-path of the same steps, so its float32 sum can differ in the last bit: on the 36,470 pieces of
->= 10 px of 105 raw frames of 15 suites, 2 differed, by one ulp, and the masks were identical.
+cv2.connectedComponents numbers them, and :func:`piece_stats` and :func:`half_widths` measure
+the pieces from the same lists. The boxes, counts and sums are exact; the half-width is cv2's
+3x3 chamfer distance (DIST_L2, mask 3) with its float32 steps; cv2 (IPP) reaches some pixels
+along another path of the same steps, so its float32 sum can differ in the last bit: on the
+36,470 pieces of >= 10 px of 105 raw frames of 15 suites, 2 differed, by one ulp, and the
+masks were identical.
 
 :func:`block_residuals` gives the surface test's grey residuals (core/segment_surface.py) at
 a piece's pixels and a range of disparities and their mean per block: exactly numpy's clipped
@@ -126,26 +127,25 @@ def _reflect(i, n):  # noqa: ANN001
 
 
 @helper(inline="always")
-def _mixed_row(src, c, w, lut, mix, logs, row):  # noqa: ANN001
+def _mixed_row(src, c, w, lut, mix, row):  # noqa: ANN001
     """One image row ``src`` (W, c) uint8 as log channels into ``row`` (c, W + 4): channel j
-    at row[j, x + 2] is ``mix[j]`` of lut[value] of (R, G, B) (lut[value] for one channel),
-    and two columns on each side are reflect-101 copies (for the 5-tap filter). ``logs``
-    (c, W): scratch for lut[value]."""
+    at row[j, x + 2] is ``mix[j]`` of lut[value] of (R, G, B) (lut[value] for one channel;
+    m0 lr + m1 lg + m2 lb, added left to right), and two columns on each side are
+    reflect-101 copies (for the 5-tap filter)."""
     if c == 1:
         r0 = row[0]
         for x in range(w):
             r0[x + 2] = lut[src[x, 0]]
     else:
-        for j in range(3):
-            lj = logs[j]
-            for x in range(w):
-                lj[x] = lut[src[x, j]]
-        lr, lg, lb = logs[0], logs[1], logs[2]
-        for j in range(3):
-            rj = row[j]
-            m0, m1, m2 = mix[j, 0], mix[j, 1], mix[j, 2]
-            for x in range(w):
-                rj[x + 2] = m0 * lr[x] + m1 * lg[x] + m2 * lb[x]
+        y0, y1, y2 = row[0], row[1], row[2]
+        a0, a1, a2 = mix[0, 0], mix[0, 1], mix[0, 2]
+        b0, b1, b2 = mix[1, 0], mix[1, 1], mix[1, 2]
+        c0, c1, c2 = mix[2, 0], mix[2, 1], mix[2, 2]
+        for x in range(w):
+            lr, lg, lb = lut[src[x, 0]], lut[src[x, 1]], lut[src[x, 2]]
+            y0[x + 2] = a0 * lr + a1 * lg + a2 * lb
+            y1[x + 2] = b0 * lr + b1 * lg + b2 * lb
+            y2[x + 2] = c0 * lr + c1 * lg + c2 * lb
     for j in range(c):
         rj = row[j]
         for p in (0, 1, w + 2, w + 3):
@@ -169,9 +169,7 @@ def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
     # The mixed rows of the last five input rows (each row is mixed once): slot r % 5.
     cache = np.empty((5, c, w + 4), np.float32)
     cached = np.full(5, -1, np.int64)
-    logs = np.empty((c, w), np.float32)
-    acc = np.empty((c, w + 4), np.float32)
-    one = np.float32(1.0)
+    acc = np.empty(w + 4, np.float32)
     four = np.float32(4.0)
     six = np.float32(6.0)
     scale = np.float32(1.0 / 256.0)
@@ -179,28 +177,28 @@ def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
         for k in range(5):
             r = _reflect(2 * y2 + k - 2, h_in)
             slot = r % 5
-            row = cache[slot]
             if cached[slot] != r:
-                _mixed_row(img[r], c, w, lut, mix, logs, row)
+                row = cache[slot]
+                _mixed_row(img[r], c, w, lut, mix, row)
                 cached[slot] = r
                 g, r0 = grey[r], row[0]
                 for x in range(w):
                     g[x] = r0[x + 2]
-            tk = one if k == 0 or k == 4 else (four if k == 1 or k == 3 else six)
-            for j in range(c):
-                aj, rj = acc[j], row[j]
-                if k == 0:
-                    for x in range(w + 4):
-                        aj[x] = rj[x]
-                else:
-                    for x in range(w + 4):
-                        aj[x] += tk * rj[x]
+        s0 = cache[_reflect(2 * y2 - 2, h_in) % 5]
+        s1 = cache[_reflect(2 * y2 - 1, h_in) % 5]
+        s2 = cache[_reflect(2 * y2, h_in) % 5]
+        s3 = cache[_reflect(2 * y2 + 1, h_in) % 5]
+        s4 = cache[_reflect(2 * y2 + 2, h_in) % 5]
         for j in range(c):
-            aj = acc[j]
+            # the five rows' taps [1 4 6 4 1] added in turn, one pass (the order of the sums
+            # of one tap after another)
+            a0, a1, a2, a3, a4 = s0[j], s1[j], s2[j], s3[j], s4[j]
+            for x in range(w + 4):
+                acc[x] = (((a0[x] + four * a1[x]) + six * a2[x]) + four * a3[x]) + a4[x]
             out = half[j * h2 + y2]
             for x2 in range(w2):
                 p = 2 * x2
-                v = aj[p] + four * aj[p + 1] + six * aj[p + 2] + four * aj[p + 3] + aj[p + 4]
+                v = acc[p] + four * acc[p + 1] + six * acc[p + 2] + four * acc[p + 3] + acc[p + 4]
                 out[x2] = v * scale
     return half
 
@@ -553,24 +551,35 @@ def label_pixels(rows, cols, lab):  # noqa: ANN001
     return len(roots) + 1
 
 
-@kernel("int64[:, ::1](int64[::1], int64[::1], int64[::1], int64)")
-def piece_boxes(lab, rows, cols, n):  # noqa: ANN001
-    """(4, n): first and last row, first and last column of the pixels of each label
-    (``lab`` (M,) in 0..n-1 of the pixels (rows, cols)), 0 for labels without pixels."""
-    out = np.zeros((4, n), np.int64)
-    seen = np.zeros(n, np.bool_)
+@kernel(
+    "Tuple((float64[::1], float64[::1], boolean[::1], int64[:, ::1]))(int64[::1], int64[::1], "
+    "int64[::1], float32[::1], float32, int64)"
+)
+def piece_stats(lab, rows, cols, s, seed, n):  # noqa: ANN001
+    """Per label 0..n-1 of the pixels (rows, cols) (``lab`` (M,)) with values ``s`` (M,), in
+    one pass: (n,) pixel counts as float64 (``np.bincount(lab).astype(float)``), (n,) sums of
+    the values (``np.bincount(lab, weights=s)``: float64, added in pixel order), (n,) whether
+    a value is >= ``seed`` (a seed of the hysteresis), and (4, n) the first and last row and
+    first and last column of the pixels (0 for labels without pixels)."""
+    area = np.zeros(n, np.float64)
+    sums = np.zeros(n, np.float64)
+    seeded = np.zeros(n, np.bool_)
+    boxes = np.zeros((4, n), np.int64)
     for i in range(len(lab)):
         k = lab[i]
         r, c = rows[i], cols[i]
-        if not seen[k]:
-            seen[k] = True
-            out[0, k], out[1, k], out[2, k], out[3, k] = r, r, c, c
+        if area[k] == 0.0:
+            boxes[0, k], boxes[1, k], boxes[2, k], boxes[3, k] = r, r, c, c
         else:
-            out[0, k] = min(out[0, k], r)
-            out[1, k] = max(out[1, k], r)
-            out[2, k] = min(out[2, k], c)
-            out[3, k] = max(out[3, k], c)
-    return out
+            boxes[0, k] = min(boxes[0, k], r)
+            boxes[1, k] = max(boxes[1, k], r)
+            boxes[2, k] = min(boxes[2, k], c)
+            boxes[3, k] = max(boxes[3, k], c)
+        area[k] += 1.0
+        sums[k] += np.float64(s[i])
+        if s[i] >= seed:
+            seeded[k] = True
+    return area, sums, seeded, boxes
 
 
 @kernel("float64[::1](int64[::1], int64[::1], int64[::1], int64[::1], int64[:, ::1], int64, int64)")
@@ -578,7 +587,7 @@ def half_widths(lab, rows, cols, ids, boxes, h, w):  # noqa: ANN001
     """(n,) largest 3x3 chamfer distance (cv2.distanceTransform, DIST_L2, mask 3) of the
     pixels of each piece ``ids`` to the outside of its own mask in the (h, w) image, 0 for the
     other labels; ``lab`` (M,) the label of each pixel (rows, cols), ``boxes`` (4, n) the
-    labels' first and last rows and columns (:func:`piece_boxes`). The outside of the image
+    labels' first and last rows and columns (:func:`piece_stats`). The outside of the image
     is far, as in cv2. Per piece, on its box grown by one pixel where that stays inside the
     image: the two raster passes of the chamfer transform with cv2's float32 steps 0.955 and
     1.3693, visiting the piece's own pixels only (cv2's to the last bit or so: see above)."""

@@ -87,6 +87,54 @@ def test_log_planes_are_the_log_channels_and_their_pyrdown(
     np.testing.assert_allclose(half, want, rtol=0, atol=1e-4)
 
 
+def _reflect101(i: np.ndarray, n: int) -> np.ndarray:
+    """Indices with cv2's BORDER_REFLECT_101 (..., 2, 1, 0, 1, 2, ...) into 0..n-1."""
+    if n == 1:
+        return np.zeros_like(i)
+    period = 2 * n - 2
+    i = np.abs(i) % period
+    return np.where(i >= n, period - i, i)
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (37, 51), (5, 9), (2, 3), (1, 1), (1, 7), (6, 1)])
+@pytest.mark.parametrize("channels", [1, 3])
+def test_log_planes_are_their_float32_steps_bit_for_bit(
+    shape: tuple[int, int], channels: int
+) -> None:
+    """log_planes against its float32 steps in numpy, in the kernel's order (each operation
+    rounds to float32 alike): the channels m0 lut[R] + m1 lut[G] + m2 lut[B] left to right,
+    each row of the half-resolution planes ((((r0 + 4 r1) + 6 r2) + 4 r3) + r4) down the five
+    reflected rows, then the same taps along it at the even columns, times 1/256. Equal to
+    the last bit, so a faster form of the kernel gives the same masks."""
+    from threadrecon.core.segment_raw import _LOG_LUT, _LOG_MIX, _log_planes
+
+    rng = np.random.default_rng(shape[0] * 7 + channels)
+    img = rng.integers(0, 256, (*shape, 3), dtype=np.uint8)[:, :, ::-1]  # a strided view
+    img = img if channels == 3 else img[:, :, :1]
+    grey, half = _log_planes(img)
+    logs = _LOG_LUT[img]  # (H, W, c) float32
+    if channels == 3:
+        m = _LOG_MIX
+        f = [(m[j, 0] * logs[:, :, 0] + m[j, 1] * logs[:, :, 1]) + m[j, 2] * logs[:, :, 2]
+             for j in range(3)]  # fmt: skip
+    else:
+        f = [logs[:, :, 0]]
+    h, w = shape
+    assert np.array_equal(grey, f[0])
+    taps = [np.float32(t) for t in (1, 4, 6, 4, 1)]
+    ys, xs = 2 * np.arange((h + 1) // 2), 2 * np.arange((w + 1) // 2)
+    for j, plane in enumerate(f):
+        rows = [plane[_reflect101(ys + k - 2, h)] for k in range(5)]
+        v = rows[0]
+        for k in range(1, 5):
+            v = v + taps[k] * rows[k] if k < 4 else v + rows[k]
+        cols = [v[:, _reflect101(xs + k - 2, w)] for k in range(5)]
+        out = cols[0]
+        for k in range(1, 5):
+            out = out + taps[k] * cols[k] if k < 4 else out + cols[k]
+        assert np.array_equal(half[j], out * np.float32(1.0 / 256.0)), j
+
+
 def test_achromatic_is_the_log_chroma_of_every_colour_pair_below_the_limit() -> None:
     """The kernel against the steps it replaces (segment_raw._View.build, instrument frames):
     the full-resolution log channels, max(|log R/G|, |log B/G|) by cv2, compared with

@@ -94,3 +94,20 @@ def test_deferred_scores_keep_no_line_response_alive() -> None:
         assert isinstance(d, Deferred)
         assert not any(isinstance(a, np.ndarray) and a.dtype == np.float32 for a in d.args)
         assert any(a is img for a in d.args)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_logs_of_whole_levels_are_looked_up_as_computed(seed: int) -> None:
+    """_log_of(levels=True) (a table of every level's float32 log) gives _log_of's computed
+    float32 logs bit for bit: for the block means of uint8 views (every layout) and for every
+    level at every position of a vector of the computation (numpy's SIMD log and its tail)."""
+    rng = np.random.default_rng(seed)
+    for name, img in _layouts(rng).items():
+        a = img if img.ndim == 3 else img[:, :, None]
+        a_q = sr._quarter(a[:, :, :3])
+        assert np.array_equal(a_q, np.round(a_q)), name  # whole levels
+        assert np.array_equal(sr._log_of(a_q, levels=True), sr._log_of(a_q)), name
+    for n in range(1, 40):  # every level at each of the first positions, the rest random
+        levels = np.roll(np.arange(256), seed * 40 + n)[: 256 - n % 7]
+        a = levels.astype(np.float32).reshape(1, -1, 1)
+        assert np.array_equal(sr._log_of(a, levels=True), sr._log_of(a))
