@@ -508,6 +508,7 @@ def end_occluder(
     max_reach_px: float,
     plain_sigma: float | None = None,
     untextured: bool = False,
+    both_walks: bool = False,
 ) -> Occluded | None:
     """Whether the thread at the curve's free ``end`` runs, in both views, into an occluder.
 
@@ -535,7 +536,13 @@ def end_occluder(
     front and the other cannot tell because it is blank there (``_unlike_beside``: its
     patches give no disparity, the first is untextured and unlike the surface beside the
     end, e.g. a shaft's dark, uniform tip), the one measure is the occluder's (``blank``
-    names the other view)."""
+    names the other view).
+
+    ``both_walks`` (CheckParams.occluder_both_views): each way is walked in the other view too,
+    from the same point at the end's disparity, and the shorter walk is that way's reach: the
+    thread hidden along it must be hidden in both views, so where one view's patches show the
+    surface at or behind the end's depth (the other's untextured, or mismatching), it ended
+    before."""
     ext, far_px = known
     far = 0 if ext[0] >= ext[1] else 1
     fr = _end_frame(uv[far], end)
@@ -619,6 +626,14 @@ def end_occluder(
         start = float((k + 1) * AHEAD_STEP_PX) if i == 0 else 0.0  # past the meeting patch
         limit = min(_to_border(at, ray, greys[far].shape), budget)
         walked = _walk(greys, masks, far, at, ray, disparity, start, limit, plain[far])
+        if both_walks:
+            # a thread hidden this far along the ray is hidden in both views: the other view's
+            # occluder must reach as far (its walk from the same point at the end's depth)
+            near = min(_to_border(at + shift, ray, greys[far].shape), walked)
+            other = _walk(greys, masks, 1 - far, at + shift, ray, disparity, start, near,
+                          plain[1 - far])  # fmt: skip
+            if other < near:  # that view shows the surface the thread lies on before
+                walked = other
         hidden = max(hidden, walked)
         if ext[far] + hidden >= max_reach_px:
             break
