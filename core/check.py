@@ -317,11 +317,11 @@ class CheckParams(Params):
     )  # fmt: skip
     occluder_both_views: bool = param(
         True, label="an occluder hides in both views",
-        doc="On: the reach of an occluder a free end runs into (occluded_mm) is walked in both "
-        "views along each way, from the same point at the end's depth, and a way's reach is "
-        "the shorter: a thread hidden there is hidden in both views, so where either view's "
-        "patches show the surface at or behind the end's depth (where the other's are "
-        "untextured or mismatch), the hidden thread has ended before "
+        doc="On: the reach of an occluder a free end runs into (occluded_mm) is also walked "
+        "in the other view, along each way from the same point at the end's depth; where that "
+        "walk shows the surface at or behind the end's depth first and the first view's "
+        "patches there cannot tell (no occluder measured: untextured, or no distinct match), "
+        "the hidden thread would be seen: that walk is the way's reach "
         "(core/check_beyond.end_occluder). Off: walked in the view that sees the thread "
         "farther only (session 10b's rule). docs/method.md, flag17.",
     )  # fmt: skip

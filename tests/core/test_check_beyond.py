@@ -640,6 +640,18 @@ def test_a_raw_frame_whose_occluder_one_view_shows_ending_is_ok() -> None:
     assert rec_off.status == "suspect" and "runs into an occluder" in rec_off.message
 
 
+def test_a_raw_frame_whose_occluder_the_views_see_shifted_keeps_its_reach() -> None:
+    """``eval_suites.py --seed 16111 --suite flat+occlusion`` frame 13, masks withheld: wrong
+    (the thread goes on 23 mm under the shaft). Along one way of the walk's fan the right view
+    measures the shaft 11 px in front out to the limit, the left view the plain background from
+    104 px on: the shaft's silhouette shifted by its disparity. Both views measure there, so
+    the right view's walk stands (at least 21.9 mm)."""
+    render = dict(background="flat", noise_sigma=0.0, blur_sigma=0.0, occlusion=True)
+    rec, err = _raw_suite_frame(16111, 18, 13, render)
+    assert err.e_length > 20.0  # wrong
+    assert rec.status == "suspect" and "runs into an occluder in both views" in rec.message
+
+
 def _masked_occlusion_frame(key: list[int]):
     """A generated tissue + occlusion frame (``generate --occlusion`` with tissue, noise 2 and
     blur 0.5) run with its exact masks: (reconstruction, errors against the truth, pair,
