@@ -315,16 +315,6 @@ class CheckParams(Params):
         "the end, and the blank view's patch where it matched is blank too or returns it. "
         "Off: both views must measure it (session 10b's rule). docs/method.md, okwrong16.",
     )  # fmt: skip
-    occluder_both_views: bool = param(
-        True, label="an occluder hides in both views",
-        doc="On: the reach of an occluder a free end runs into (occluded_mm) is also walked "
-        "in the other view, along each way from the same point at the end's depth; where that "
-        "walk shows the surface at or behind the end's depth first and the first view's "
-        "patches there cannot tell (no occluder measured: untextured, or no distinct match), "
-        "the hidden thread would be seen: that walk is the way's reach "
-        "(core/check_beyond.end_occluder). Off: walked in the view that sees the thread "
-        "farther only (session 10b's rule). docs/method.md, flag17.",
-    )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
         doc="Expected error at which the confidence is exp(-1).",
@@ -737,7 +727,6 @@ def _check(
             (uv_l, uv_r), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R), end,
             f * B / z_end, known, reach, p.cover_px + BEYOND_COVER_PX, unobserved_px,
             unobserved_px + AHEAD_STEP_PX, plain_sigma=p.bare_sigma, untextured=p.blank_occluder,
-            both_walks=p.occluder_both_views,
         )  # fmt: skip
         # the occluder's reach, walked in both views, bounds what a cut end may hide
         bounded = occ is not None and not occ.walked_out and occ.reach_px <= unobserved_px

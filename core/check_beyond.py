@@ -508,7 +508,6 @@ def end_occluder(
     max_reach_px: float,
     plain_sigma: float | None = None,
     untextured: bool = False,
-    both_walks: bool = False,
 ) -> Occluded | None:
     """Whether the thread at the curve's free ``end`` runs, in both views, into an occluder.
 
@@ -536,16 +535,7 @@ def end_occluder(
     front and the other cannot tell because it is blank there (``_unlike_beside``: its
     patches give no disparity, the first is untextured and unlike the surface beside the
     end, e.g. a shaft's dark, uniform tip), the one measure is the occluder's (``blank``
-    names the other view).
-
-    ``both_walks`` (CheckParams.occluder_both_views): each way is walked in the other view too,
-    from the same point at the end's disparity; where that walk stops first (two patches in a
-    row show the surface at or behind the end's depth) and this view's two patches there show
-    no occluder in front (``_occluder_at``: they cannot tell, e.g. untextured), the thread
-    hidden along the way would be seen there in the other view: it is hidden in both views or
-    not at all, so the other walk is the way's reach. Where this view measures the occluder
-    there, the views disagree (an occluder's silhouette shifts with its disparity) and this
-    view's walk stands."""
+    names the other view)."""
     ext, far_px = known
     far = 0 if ext[0] >= ext[1] else 1
     fr = _end_frame(uv[far], end)
@@ -629,16 +619,6 @@ def end_occluder(
         start = float((k + 1) * AHEAD_STEP_PX) if i == 0 else 0.0  # past the meeting patch
         limit = min(_to_border(at, ray, greys[far].shape), budget)
         walked = _walk(greys, masks, far, at, ray, disparity, start, limit, plain[far])
-        if both_walks:
-            # a thread hidden this far along the ray is hidden in both views: where the other
-            # view shows the surface the thread lies on (its walk from the same point at the
-            # end's depth) and this view's patches there show no occluder (they cannot tell),
-            # the thread would be seen: it ended before
-            near = min(_to_border(at + shift, ray, greys[far].shape), walked)
-            other = _walk(greys, masks, 1 - far, at + shift, ray, disparity, start, near,
-                          plain[1 - far])  # fmt: skip
-            if other < near and not _occluder_at(greys, masks, far, at, ray, disparity, other):
-                walked = other
         hidden = max(hidden, walked)
         if ext[far] + hidden >= max_reach_px:
             break
@@ -764,25 +744,6 @@ def _walk(
             return bare  # the thread, had it gone on this way, would be seen: it ended before
         offset += AHEAD_STEP_PX
     return limit
-
-
-def _occluder_at(
-    greys: tuple[np.ndarray, np.ndarray],
-    masks: tuple[np.ndarray, np.ndarray],
-    side: int,
-    at: np.ndarray,
-    way: np.ndarray,
-    disparity: float,
-    offset: float,
-) -> bool:
-    """Whether either of view ``side``'s two patches from ``offset`` past ``at`` along ``way``
-    (where a walk stops: two patches in a row) measures a surface in front of the end (more
-    than AHEAD_NEAR_PX px of disparity): an occluder seen there."""
-    for o in (offset, offset + AHEAD_STEP_PX):
-        d, _ = surface_ahead(greys, masks, side, at, way, disparity, o)
-        if d is not None and d > AHEAD_NEAR_PX:
-            return True
-    return False
 
 
 def _other_patch(
