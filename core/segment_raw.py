@@ -102,13 +102,14 @@ def segment_raw(
        flat parts) minus 2 sigma |gradient| (zero on step edges), max over two scales.
     2. Hysteresis: pieces of S >= ridge_lo * level holding a pixel of S >= ridge_hi * level,
        ``level`` being the image's typical response (90th percentile): no absolute contrast.
-       Large unsaturated regions (instruments) hold no candidate. Before the pieces are
-       formed, pixels darker and redder than the tissue around them (blood: vessels; redder by
-       more than ``blood_rg`` or by >= _BLOOD_RATIO of their darkening, which holds for a
-       vessel of any strength) are set aside; they come back when they stand out
-       _RED_THREAD_GAIN times more than anything else and their hue differs from the mean of
-       the frame's other blood-like pixels by more than ~8 degrees (a red thread; the vessels
-       of a frame share one hue), keeping only pixels nearer the thread's hue. A lone
+       Large unsaturated regions (instruments) hold no candidate, nor their rim of
+       ``tool_rim_px`` (:func:`_on_tool`; a coloured thread beside them does). Before the
+       pieces are formed, pixels darker and redder than the tissue around them (blood:
+       vessels; redder by more than ``blood_rg`` or by >= _BLOOD_RATIO of their darkening,
+       which holds for a vessel of any strength) are set aside; they come back when they
+       stand out _RED_THREAD_GAIN times more than anything else and their hue differs from
+       the mean of the frame's other blood-like pixels by more than ~8 degrees (a red thread;
+       the vessels of a frame share one hue), keeping only pixels nearer the thread's hue. A lone
        blood-like line (too few other blood-like pixels) is a vessel. They come back too when
        the line chosen without them runs along them in both views (the highlight on a red
        thread) and the blood-like line chosen lies along it.

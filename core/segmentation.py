@@ -163,8 +163,9 @@ class SegmentationParams(Params):
         doc="raw: the candidate pixels an instrument takes are those of its coarse mask "
         "(found at quarter resolution and grown by ~8 px) within this distance of one of its "
         "unsaturated pixels (its grey body and its blurred edge); a coloured line farther out "
-        "(a thread running along a shaft) stays a candidate. 0: every candidate in the coarse "
-        "mask is the instrument's (deviation 50).",
+        "(a thread running along a shaft) stays a candidate; the thread's mask leaves that "
+        "body and rim out, and the local background the instrument. 0: every candidate in the "
+        "coarse mask is the instrument's, the background as before (deviation 50).",
         slider=(0, 16, 1),
     )
     ridge_hi: float = param(
