@@ -102,13 +102,14 @@ def segment_raw(
        flat parts) minus 2 sigma |gradient| (zero on step edges), max over two scales.
     2. Hysteresis: pieces of S >= ridge_lo * level holding a pixel of S >= ridge_hi * level,
        ``level`` being the image's typical response (90th percentile): no absolute contrast.
-       Large unsaturated regions (instruments) hold no candidate. Before the pieces are
-       formed, pixels darker and redder than the tissue around them (blood: vessels; redder by
-       more than ``blood_rg`` or by >= _BLOOD_RATIO of their darkening, which holds for a
-       vessel of any strength) are set aside; they come back when they stand out
-       _RED_THREAD_GAIN times more than anything else and their hue differs from the mean of
-       the frame's other blood-like pixels by more than ~8 degrees (a red thread; the vessels
-       of a frame share one hue), keeping only pixels nearer the thread's hue. A lone
+       Large unsaturated regions (instruments) hold no candidate, nor their rim of
+       ``tool_rim_px`` (:func:`_on_tool`; a coloured thread beside them does). Before the
+       pieces are formed, pixels darker and redder than the tissue around them (blood:
+       vessels; redder by more than ``blood_rg`` or by >= _BLOOD_RATIO of their darkening,
+       which holds for a vessel of any strength) are set aside; they come back when they
+       stand out _RED_THREAD_GAIN times more than anything else and their hue differs from
+       the mean of the frame's other blood-like pixels by more than ~8 degrees (a red thread;
+       the vessels of a frame share one hue), keeping only pixels nearer the thread's hue. A lone
        blood-like line (too few other blood-like pixels) is a vessel. They come back too when
        the line chosen without them runs along them in both views (the highlight on a red
        thread) and the blood-like line chosen lies along it.
@@ -194,6 +195,8 @@ def segment_raw(
         # where its axis passes between pixel centres (coverage < 0.5 on both sides), and its
         # parts stay one piece through the core's pixels there.
         mask = _grow_mask(v, core)
+        if v.tool_body is not None:  # the instrument's body and rim are no thread pixels
+            mask &= ~v.tool_body
         if v.grey_core:  # a highlight on it is not told from its body by colour
             mask = _fill_across(mask, _HIGHLIGHT_PX)
         mask &= drop_specks(mask | core.view(bool), max(int(p.min_length_px), 1))
@@ -233,6 +236,8 @@ class _View:
     pieces: tuple = ()
     grey_core: bool = False  # the chosen core's contrast is near grey (:func:`_grey_contrast`)
     tool: np.ndarray | None = None  # (H, W) bool, the instrument found in the view, if any
+    tool_body: np.ndarray | None = None  # (H, W) bool, what of it takes candidates (its body
+    # and rim, :func:`_on_tool`; None: all of ``tool``)
     _grey: np.ndarray | None = None
     _far: np.ndarray | None = None
     _surface: SurfaceTest | None = None
@@ -278,16 +283,18 @@ class _View:
         lo = np.empty(S.shape, np.uint8)  # cv2.compare(S, ridge_lo level, CMP_GE) and its points
         rows, cols = at_least(S, np.float32(p.ridge_lo * level), lo)
         a_q = _quarter(img if img.ndim == 3 else img[:, :, None])[:, :, :c]
+        tool_q = None
         if c > 1 and len(rows):
             tool = _instrument_mask(_log_of(a_q, levels=img.dtype == np.uint8))
             if tool.any():  # its jaws: grey parts wider than a thread, attached to it
+                tool_q = tool
                 h, w = lo.shape
                 full = tool[_qi(np.arange(h), tool.shape[0])][:, _qi(np.arange(w), tool.shape[1])]
                 # full resolution, on instrument frames only: chroma of _log_channels below
                 # _GREY_TOOL, from the uint8 pixels in one pass
                 unsat = achromatic(_uint8(img), _LOG_LUT, _GREY_LIMIT, np.empty((h, w), np.uint8))
                 tool = grow_into_attached(unsat.view(bool), full, _JAW_MIN_PX)
-                on_tool = tool[rows, cols]
+                on_tool, body = _on_tool(tool, unsat, rows, cols, p.tool_rim_px)
             else:
                 on_tool = np.zeros(len(rows), bool)
             if on_tool.any():
@@ -295,7 +302,13 @@ class _View:
                 rows, cols = rows[~on_tool], cols[~on_tool]
         else:
             tool = None
+        if tool is None or not tool.any():
+            body = None
         free = _free_blocks(rows, cols, a_q.shape[:2])
+        if tool_q is not None and p.tool_rim_px > 0:
+            # the instrument's blocks are no background either: a thread kept beside it
+            # (deviation 50) is measured against the tissue, not against the shaft's grey
+            free[tool_q] = 0.0
         bg_rgb = _background(a_q, free)
         bg = _log_of(bg_rgb)
         delta = _log_at(img, rows, cols) - blocks_at(bg, rows, cols, _Q)
@@ -310,7 +323,7 @@ class _View:
         s_lo = values_at(S, rows, cols)
         v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb, s_lo)
         if tool is not None and tool.shape == lo.shape and tool.any():
-            v.tool = tool
+            v.tool, v.tool_body = tool, body
         v.pieces = _pieces(~blood if blood.any() else None, v, p)
         return v
 
@@ -1277,6 +1290,28 @@ def _instrument_mask(f_q: np.ndarray) -> np.ndarray:
     if np.count_nonzero(tool) > 0.5 * tool.size:  # a grey scene (flat background), not a tool
         return np.zeros(tool.shape, bool)
     return tool.view(bool)
+
+
+def _on_tool(
+    tool: np.ndarray, unsat: np.ndarray, rows: np.ndarray, cols: np.ndarray, rim_px: int
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(M,) bool: the candidate pixels (``rows``, ``cols``) the instrument takes: those of its
+    mask ``tool`` (H, W) bool (quarter resolution, grown by a 5 x 5 disc there: ~8 px beyond
+    its grey body, and into its jaws) within ``rim_px`` (an ellipse) of one of its unsaturated
+    pixels (``unsat`` (H, W) uint8, 1 where unsaturated): its grey body and the blurred edge
+    whose line response runs along it. A coloured thread running beside a shaft lies in the
+    coarse mask's margin, farther out, and stays a candidate (deviation 50). ``rim_px`` 0:
+    every candidate in ``tool``. Also returns that part of ``tool``, (H, W) bool (the
+    thread's mask grown around its core leaves it out: a dark edge of the shaft blends like
+    a thread), None with ``rim_px`` 0."""
+    on = tool[rows, cols]
+    if rim_px <= 0:
+        return on, None
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rim_px + 1, 2 * rim_px + 1))
+    body = cv2.dilate(cv2.bitwise_and(unsat, tool.view(np.uint8)), disc).view(bool) & tool
+    sel = np.flatnonzero(on)
+    on[sel[~body[rows[sel], cols[sel]]]] = False
+    return on, body
 
 
 def _log_channels(img: np.ndarray) -> np.ndarray:

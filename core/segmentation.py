@@ -155,6 +155,20 @@ class SegmentationParams(Params):
         "the tissue is chosen instead (at most two more tested): a thread seen floating over "
         "an undecided fibre. Off: the undecided piece is chosen (deviation 49).",
     )
+    tool_rim_px: int = param(
+        3,
+        lo=0,
+        hi=64,
+        unit="px",
+        label="raw: instrument rim",
+        doc="raw: the candidate pixels an instrument takes are those of its coarse mask "
+        "(found at quarter resolution and grown by ~8 px) within this distance of one of its "
+        "unsaturated pixels (its grey body and its blurred edge); a coloured line farther out "
+        "(a thread running along a shaft) stays a candidate; the thread's mask leaves that "
+        "body and rim out, and the local background the instrument. 0: every candidate in the "
+        "coarse mask is the instrument's, the background as before (deviation 50).",
+        slider=(0, 16, 1),
+    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,
