@@ -16,8 +16,9 @@ from typing import Final
 import cv2
 import numpy as np
 
-from threadrecon.core.instrument_kernel import attached, label_lookup, ridge_values
+from threadrecon.core.instrument_kernel import label_lookup, ridge_values
 from threadrecon.core.numeric import distance_to_zero
+from threadrecon.core.ridge_kernel import attached
 
 WIDER_THAN_THREAD: Final = 1.5  # a piece 1.5x as wide as the thread is not the same thread
 # (the width of a 1-6 px thread varies by < 30 % along it at this resolution; a jaw is >= 2x)

@@ -12,8 +12,9 @@ all channels) straight from the uint8 image, without the (H, W, 3) float image, 
 Exactness: these three compute cv2's formulas in float32 in another order, so the response
 differs from the cv2 calls' in the last bits (~1e-5 relative); on 195 raw frames of 15 suites
 (two seeds) the masks were the same but for one pixel of one frame, and the held-out suites'
-figures were unchanged. :func:`kth_smallest`, :func:`at_least` and
-:func:`small_components` give exactly the values of the numpy/cv2 code they replace.
+figures were unchanged. :func:`kth_smallest`, :func:`at_least`, :func:`small_components`
+and :func:`attached` (the instrument's components that hold a seed, core/instrument.py) give
+exactly the values of the numpy/cv2 code they replace.
 
 The raw segmentation's pieces (:func:`segment_raw._pieces`) come from the candidate pixels'
 row-major lists (a few % of the view): :func:`label_pixels` joins their row runs (union-find,
@@ -385,6 +386,69 @@ def small_components(mask, min_px, clear):  # noqa: ANN001
                 for x in range(start[r], stop[r]):
                     mask[row[r], x] = 0
     return small
+
+
+@kernel("uint8[:, ::1](uint8[:, ::1], uint8[:, ::1], uint8[:, ::1])")
+def attached(mask, seeds, out):  # noqa: ANN001
+    """``out`` (H, W) = 1 on the 8-connected components of ``mask | seeds`` (uint8, nonzero
+    set) that hold a pixel of ``seeds``, else 0; returns ``out``. As cv2.connectedComponents
+    (connectivity 8) of ``mask | seeds``, ``touching[labels[seeds > 0]] = True``, label 0
+    cleared, and ``touching[labels]``: a component is a union of row runs (a run touches the
+    runs of the row above that overlap it grown by one column)."""
+    h, w = mask.shape
+    n = 0
+    for y in range(h):
+        prev = False
+        my, sy = mask[y], seeds[y]
+        for x in range(w):
+            on = my[x] != 0 or sy[x] != 0
+            if on and not prev:
+                n += 1
+            prev = on
+    start = np.empty(n, np.int64)
+    stop = np.empty(n, np.int64)  # exclusive
+    seeded = np.zeros(n, np.bool_)
+    row_of = np.empty(h + 1, np.int64)  # the runs of row y: row_of[y] .. row_of[y + 1] - 1
+    i = 0
+    for y in range(h):
+        row_of[y] = i
+        my, sy = mask[y], seeds[y]
+        x = 0
+        while x < w:
+            if my[x] == 0 and sy[x] == 0:
+                x += 1
+                continue
+            a = x
+            hit = False
+            while x < w and (my[x] != 0 or sy[x] != 0):
+                hit = hit or sy[x] != 0
+                x += 1
+            start[i], stop[i], seeded[i] = a, x, hit
+            i += 1
+    row_of[h] = i
+    parent = np.arange(n)
+    for y in range(1, h):
+        j, above1 = row_of[y - 1], row_of[y]
+        for r in range(row_of[y], row_of[y + 1]):
+            a, b = start[r], stop[r]
+            while j < above1 and stop[j] < a:  # ends before column a - 1
+                j += 1
+            k = j
+            while k < above1 and start[k] <= b:  # starts by column b (the run's end + 1)
+                _union(parent, r, k)
+                k += 1
+    for r in range(n):
+        if seeded[r]:
+            seeded[_root(parent, r)] = True
+    for y in range(h):
+        o = out[y]
+        for x in range(w):
+            o[x] = 0
+        for r in range(row_of[y], row_of[y + 1]):
+            if seeded[_root(parent, r)]:
+                for x in range(start[r], stop[r]):
+                    o[x] = 1
+    return out
 
 
 @helper()

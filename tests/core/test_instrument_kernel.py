@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from support import random_mask
 
-from threadrecon.core.instrument_kernel import attached, label_lookup, ridge_values
+from threadrecon.core.instrument_kernel import label_lookup, ridge_values
 
 _SHAPES = [(1, 1), (1, 7), (7, 1), (2, 3), (37, 51), (120, 160)]
 
@@ -42,39 +42,6 @@ def test_ridge_values_are_the_distances_on_the_dilation_maximum(
     got = ridge_values(dist, u8)
     assert got.dtype == np.float32
     np.testing.assert_array_equal(got, want)
-
-
-@pytest.mark.parametrize("shape", _SHAPES)
-@pytest.mark.parametrize("seed", range(6))
-def test_attached_is_the_components_holding_a_seed(shape: tuple[int, int], seed: int) -> None:
-    """The 8-connected components of mask | seeds that hold a seed pixel, as
-    cv2.connectedComponents labels them (diagonal contacts, runs at the image's edges, seeds
-    outside the mask, no seed at all)."""
-    rng = np.random.default_rng([3, seed])
-    mask = _mask(shape, seed + 20)
-    seeds = (rng.random(shape) < (0.0 if seed == 5 else 0.01 * (1 + seed))).astype(np.uint8)
-    if seed % 2:  # seeds as blocks (an instrument), partly outside the mask
-        seeds = cv2.dilate(seeds, np.ones((3, 3), np.uint8))
-    both = mask | seeds
-    n, labels = cv2.connectedComponents(both, connectivity=8, ltype=cv2.CV_32S)
-    touching = np.zeros(n, bool)
-    touching[labels[seeds > 0]] = True
-    touching[0] = False
-    out = np.full(shape, 7, np.uint8)  # every pixel is written
-    got = attached(mask, seeds, out)
-    assert got is out
-    np.testing.assert_array_equal(got, touching[labels].view(np.uint8))
-
-
-def test_attached_joins_runs_that_touch_at_a_corner_only() -> None:
-    mask = np.zeros((4, 8), np.uint8)
-    mask[0, 0:2] = 1
-    mask[1, 2:4] = 1  # touches (0, 1) diagonally
-    mask[2, 5:7] = 1  # one column apart from (1, 3): not touching
-    seeds = np.zeros_like(mask)
-    seeds[0, 0] = 1
-    got = attached(mask, seeds, np.empty_like(mask))
-    assert got[0, 0:2].all() and got[1, 2:4].all() and not got[2].any()
 
 
 def test_ridge_values_of_no_piece_are_empty() -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from support import random_mask
 
 from threadrecon.core import ridge_kernel as rk
 
@@ -329,3 +330,36 @@ def test_values_at_equals_the_fancy_index() -> None:
     a = rng.random((30, 40), dtype=np.float32)
     rows, cols = rng.integers(0, 30, 100), rng.integers(0, 40, 100)
     assert np.array_equal(rk.values_at(a, rows, cols), a[rows, cols])
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 7), (7, 1), (2, 3), (37, 51), (120, 160)])
+@pytest.mark.parametrize("seed", range(6))
+def test_attached_is_the_components_holding_a_seed(shape: tuple[int, int], seed: int) -> None:
+    """The 8-connected components of mask | seeds that hold a seed pixel, as
+    cv2.connectedComponents labels them (diagonal contacts, runs at the image's edges, seeds
+    outside the mask, no seed at all)."""
+    rng = np.random.default_rng([3, seed])
+    mask = random_mask(shape, seed + 20, fill=(0.1, 0.95), close_px=5)
+    seeds = (rng.random(shape) < (0.0 if seed == 5 else 0.01 * (1 + seed))).astype(np.uint8)
+    if seed % 2:  # seeds as blocks (an instrument), partly outside the mask
+        seeds = cv2.dilate(seeds, np.ones((3, 3), np.uint8))
+    both = mask | seeds
+    n, labels = cv2.connectedComponents(both, connectivity=8, ltype=cv2.CV_32S)
+    touching = np.zeros(n, bool)
+    touching[labels[seeds > 0]] = True
+    touching[0] = False
+    out = np.full(shape, 7, np.uint8)  # every pixel is written
+    got = rk.attached(mask, seeds, out)
+    assert got is out
+    np.testing.assert_array_equal(got, touching[labels].view(np.uint8))
+
+
+def test_attached_joins_runs_that_touch_at_a_corner_only() -> None:
+    mask = np.zeros((4, 8), np.uint8)
+    mask[0, 0:2] = 1
+    mask[1, 2:4] = 1  # touches (0, 1) diagonally
+    mask[2, 5:7] = 1  # one column apart from (1, 3): not touching
+    seeds = np.zeros_like(mask)
+    seeds[0, 0] = 1
+    got = rk.attached(mask, seeds, np.empty_like(mask))
+    assert got[0, 0:2].all() and got[1, 2:4].all() and not got[2].any()
