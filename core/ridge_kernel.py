@@ -367,12 +367,7 @@ def small_components(mask, min_px, clear):  # noqa: ANN001
             while x < w and mask[y, x] != 0:
                 x += 1
             row[i], start[i], stop[i] = y, a, x
-            while j < above1 and stop[j] < a:  # ends before column a - 1
-                j += 1
-            k = j
-            while k < above1 and start[k] <= x:  # starts by column x (the run's end + 1)
-                _union(parent, i, k)
-                k += 1
+            j = _join_above(parent, start, stop, i, j, above1)
             i += 1
         above0, above1 = first, i
     size = np.zeros(n, np.int64)
@@ -430,13 +425,7 @@ def attached(mask, seeds, out):  # noqa: ANN001
     for y in range(1, h):
         j, above1 = row_of[y - 1], row_of[y]
         for r in range(row_of[y], row_of[y + 1]):
-            a, b = start[r], stop[r]
-            while j < above1 and stop[j] < a:  # ends before column a - 1
-                j += 1
-            k = j
-            while k < above1 and start[k] <= b:  # starts by column b (the run's end + 1)
-                _union(parent, r, k)
-                k += 1
+            j = _join_above(parent, start, stop, r, j, above1)
     for r in range(n):
         if seeded[r]:
             seeded[_root(parent, r)] = True
@@ -449,6 +438,21 @@ def attached(mask, seeds, out):  # noqa: ANN001
                 for x in range(start[r], stop[r]):
                     o[x] = 1
     return out
+
+
+@helper(inline="always")
+def _join_above(parent, start, stop, r, j, above1):  # noqa: ANN001
+    """Join run ``r`` to the runs ``j .. above1 - 1`` of the row above that touch it (8-connected:
+    they overlap its columns grown by one); returns the first of them that can touch the next
+    run of its row (runs are in column order)."""
+    a, b = start[r], stop[r]
+    while j < above1 and stop[j] < a:  # ends before column a - 1
+        j += 1
+    k = j
+    while k < above1 and start[k] <= b:  # starts by column b (the run's end + 1)
+        _union(parent, r, k)
+        k += 1
+    return j
 
 
 @helper()

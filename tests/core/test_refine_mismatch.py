@@ -32,11 +32,16 @@ def _bounds(x: np.ndarray, disparity: float) -> Bounds:
     """Points of H on row ``ROW`` at columns ``x`` with the stereo depth of ``disparity``."""
     n = len(x)
     z = np.full(n, FB / disparity)
-    H = np.column_stack([x, np.full(n, float(ROW)), z])
+    return _bounds_at(np.column_stack([x, np.full(n, float(ROW)), z]), np.asarray(x, float) - x[0])
+
+
+def _bounds_at(H: np.ndarray, s: np.ndarray) -> Bounds:
+    """Bounds of the points H (every one a keypoint) at arc lengths s, +-10 % of their depth."""
+    z = H[:, 2]
     return Bounds(
         H=H,
-        is_key=np.ones(n, bool),
-        s=np.asarray(x, float) - x[0],
+        is_key=np.ones(len(H), bool),
+        s=s,
         centre=z,
         lower=0.9 * z,
         upper=1.1 * z,
@@ -104,17 +109,7 @@ def _three_strands(disparity: float) -> tuple[_Runs, _Runs, Bounds]:
     grey = np.full(left.shape, 100.0)
     y = np.arange(10.0)
     z = np.full(10, FB / disparity)
-    bounds = Bounds(
-        H=np.column_stack([np.full(10, 20.5), y, z]),
-        is_key=np.ones(10, bool),
-        s=y.copy(),
-        centre=z,
-        lower=0.9 * z,
-        upper=1.1 * z,
-        end_values=(float(z[0]), float(z[-1])),
-        end_slopes=(0.0, 0.0),
-        r_k=2,
-    )
+    bounds = _bounds_at(np.column_stack([np.full(10, 20.5), y, z]), y.copy())
     return _Runs(left, grey, 200.0), _Runs(right, grey, 200.0), bounds
 
 
