@@ -13,6 +13,10 @@ Eq. (7) puts the bounds at k_{i,z} -+ ``bound_scale`` * |L_{k_i}(k_i) - k_{i,z}|
 the bounds are interpolated linearly. A half-width below ``widen_px`` pixels of disparity, i.e.
 ``widen_px * Z^2 / (f B)`` in depth, is widened to it: a unit-free threshold that follows the
 depth resolution of the rig (the paper leaves this threshold unstated).
+
+Eq. (8)'s end values and slopes are the end keypoints' window lines; extra points where the
+thread runs along the image rows and off the keypoints' strand leave those two lines (their
+depth is one of the many the rows allow), not the half-widths (deviation 52).
 """
 
 from __future__ import annotations
@@ -68,6 +72,18 @@ class BoundsParams(Params):
     """Leave extra points whose disparity lies > ``OUTLIER_PX`` from the keypoints' out of the
     window lines of Eq. (7) (docs/method.md, deviation 21; measured better on held-out
     generated frames, not yet the default: it changes the repair's test frames)."""
+    end_epipolar_deg: float = param(
+        15.0,
+        lo=0,
+        hi=45,
+        unit="deg",
+        slider=(0.0, 45.0, 1.0),
+        label="end lines: epipolar angle",
+        doc="Eq. (8)'s end values and slopes come from window lines without the extra points "
+        "where the thread runs within this angle of the image rows (the SSD along the rows fits "
+        "many depths there) and whose disparity is off the keypoints' by > 2 px; Eq. (7)'s "
+        "half-widths keep them (0: off, the paper; docs/method.md, deviation 52).",
+    )
     second_matches: bool = param(
         True,
         label="gap pixels' second matches",
@@ -133,12 +149,27 @@ def depth_bounds(
     z_fit = _off_by_ratio(H, is_key, s, key_idx, p.depth_ratio)
     z_fit = np.where(np.isnan(z_rel), np.nan, z_fit) if p.drop_outliers else z_fit
     line_at_key, slopes = _window_line_fits(s, z_fit, key_idx, r_k)
+    line_7 = line_at_key  # Eq. (7)'s lines, every extra point in
+    z_end = _off_epipolar(H, is_key, z_fit, z_rel, p.end_epipolar_deg)
+    ends = [  # the end keypoints whose window lost a point (the others: bit for bit the same)
+        e
+        for e, i in ((0, 0), (-1, len(key_idx) - 1))
+        if np.isnan(z_end[_window(key_idx, i, r_k)]).sum()
+        > np.isnan(z_fit[_window(key_idx, i, r_k)]).sum()
+    ]
+    if ends:  # their values and slopes without the near-epipolar extra points
+        line_e, slope_e = _window_line_fits(s, z_end, key_idx, r_k)
+        line_at_key, slopes = line_at_key.copy(), slopes.copy()
+        line_at_key[ends], slopes[ends] = line_e[ends], slope_e[ends]
     paper_ends = (line_at_key[0], slopes[0], line_at_key[-1], slopes[-1])
     line_at_key, slopes = _tip_ends(
         line_at_key, slopes, ordering.end_disparity, s, z_rel, key_idx, r_k, fB
     )
     tipped = (line_at_key[0], slopes[0], line_at_key[-1], slopes[-1]) != paper_ends
     half = p.bound_scale * np.abs(line_at_key - z_key)  # Eq. (7)
+    if ends:  # an end's half-width keeps the doubt of all its extra points
+        line_7 = _tip_ends(line_7, slopes, ordering.end_disparity, s, z_rel, key_idx, r_k, fB)[0]
+        half = np.maximum(half, p.bound_scale * np.abs(line_7 - z_key))
     min_half = p.widen_px * z_key**2 / (calib.focal * calib.baseline)
     half = np.maximum(half, min_half)
     centre = np.interp(s, s[key_idx], z_key)
@@ -155,6 +186,34 @@ def depth_bounds(
         r_k=r_k,
         line_ends=tuple(float(v) for v in paper_ends) if tipped else None,  # type: ignore[arg-type]
     )
+
+
+def _window(key_idx: np.ndarray, i: int, r_k: int) -> slice:
+    """The points of H in keypoint i's window of Eq. (7): keypoints i - r_k .. i + r_k."""
+    M = len(key_idx)
+    return slice(int(key_idx[max(0, i - r_k)]), int(key_idx[min(M - 1, i + r_k)]) + 1)
+
+
+def _off_epipolar(
+    H: np.ndarray, is_key: np.ndarray, z: np.ndarray, z_rel: np.ndarray, deg: float
+) -> np.ndarray:
+    """``z`` (P,) with the extra points of H where the image curve runs within ``deg`` of the
+    rows and whose disparity lies off the keypoints' (``z_rel`` NaN: more than ``OUTLIER_PX``
+    from the keypoints' disparity interpolated along H, :func:`_fit_depths`) left out (NaN);
+    ``z`` itself when there are none (or ``deg`` is 0). Along the rows the SSD of Eq. (2)
+    shifts a window along the thread itself: both views agree with many depths, and a gap's
+    median depth there is whichever plateau the matching settled on (raw 16153 lighting #17:
+    12.6 to 26.6 px of disparity in turn where the truth is 33.5 px). Such a depth is kept
+    only where it continues the keypoints' strand. The direction at a point is that of the
+    chord between its neighbours along H."""
+    if deg <= 0 or len(H) < 3:
+        return z
+    g = np.empty((len(H), 2))
+    g[1:-1] = H[2:, :2] - H[:-2, :2]
+    g[0], g[-1] = H[1, :2] - H[0, :2], H[-1, :2] - H[-2, :2]
+    along = np.abs(g[:, 1]) <= np.tan(np.radians(deg)) * np.abs(g[:, 0])
+    off = ~is_key & along & np.isfinite(z) & np.isnan(z_rel)
+    return np.where(off, np.nan, z) if off.any() else z
 
 
 def _tip_ends(

@@ -636,3 +636,62 @@ def test_the_initial_fit_reads_fitpack_s_status_without_touching_the_warning_fil
     t_gap = np.r_[[0.0] * 4, 0.4, 0.45, 0.5, 0.55, 0.6, [1.0] * 4]
     ctrl = spline_mod._init_fit(np.c_[gap, gap**2, gap], gap, t_gap, 3)
     assert ctrl.shape == (len(t_gap) - 4, 3) and np.all(np.isfinite(ctrl))
+
+
+def test_extra_points_along_the_rows_leave_the_end_lines_only() -> None:
+    # Points of H along a row (extra points within 15 deg of it) are left out (NaN); steep
+    # extra points and keypoints along the rows stay; 0 deg (the paper) returns z itself.
+    from threadrecon.core.bounds import _off_epipolar
+
+    # Only those off the keypoints' strand (z_rel NaN, _fit_depths) leave.
+    H = np.array(
+        [[0, 0, 100.0], [10, 1, 160.0], [20, 2, 90.0], [25, 2, 101.0], [30, 2, 100.0]]
+        + [[33, 12, 120.0], [36, 22, 101.0], [38, 32, 102.0]]
+    )
+    is_key = np.array([True, False, False, False, True, False, False, True])
+    z0 = H[:, 2].copy()
+    z_rel = _fit_depths(H, is_key, H[:, 0], np.flatnonzero(is_key), 4000.0)
+    assert np.isnan(z_rel[[1, 2, 5]]).all() and np.isfinite(np.delete(z_rel, [1, 2, 5])).all()
+    z = _off_epipolar(H, is_key, z0, z_rel, 15.0)
+    assert np.isnan(z[[1, 2]]).all()  # 3 (on the strand) and 5 (steep) stay
+    assert_close(np.delete(z, [1, 2]), np.delete(z0, [1, 2]))
+    assert _off_epipolar(H, is_key, z0, z_rel, 0.0) is z0
+    assert _off_epipolar(H, np.ones(8, bool), z0, z_rel, 15.0) is z0  # keypoints only
+    assert _off_epipolar(H, is_key, z0, z0, 15.0) is z0  # all on the strand
+
+
+def test_a_dead_end_along_the_rows_is_interpolated_not_extrapolated() -> None:
+    # Generated lighting frame (raw suite 16153 lighting #17, exact masks): the thread's last
+    # 270 px run along the rows with no reliable match; the gap's median depths sit on
+    # whichever plateau the SSD settled on (167 to 1585 mm where the truth is 123-133 mm), and
+    # the window line through them set Eq. (8)'s end value at 173 mm, slope -0.2 mm/px: the
+    # curve dipped 10 mm below the truth and came back (the check: suspect, unsupported
+    # depth travel 22.6 mm). Without those off the keypoints' strand the end line is the
+    # strand's; the half-width keeps their doubt, so the two-view refinement is free to move
+    # the end.
+    from threadrecon.core.bounds import BoundsParams as BP
+    from threadrecon.core.metrics import curve_errors
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import (
+        RenderParams,
+        SyntheticParams,
+        ThreadParams,
+        generate_frame,
+    )
+
+    render = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, lighting=0.6)
+    syn = SyntheticParams(thread=ThreadParams(), render=render)
+    fr = generate_frame(syn, np.random.default_rng([16153, 9, 17]))
+    pipe = Pipeline(
+        StereoPair(fr.left, fr.right, fr.mask_left, fr.mask_right), fr.camera.calibration()
+    )
+    off = pipe.run(replace(ReconParams(), bounds=BP(end_epipolar_deg=0.0)))
+    on = pipe.run(ReconParams())
+    e_off = curve_errors(off["camera"].points, fr.truth.centerline)
+    e_on = curve_errors(on["camera"].points, fr.truth.centerline)
+    assert off["bounds"].end_values[0] > 150.0 and 120.0 < on["bounds"].end_values[0] < 135.0
+    # the half-width at the end is the same: the doubt stays
+    width = [r["bounds"].upper[0] - r["bounds"].lower[0] for r in (on, off)]
+    assert_close(width[0], width[1])
+    assert off.status == "suspect" and e_off.e_S_max > 7.5 and abs(e_off.e_length) > 7.0
+    assert on.status == "ok" and e_on.e_S_max < 5.0 and abs(e_on.e_length) < 1.0
