@@ -150,7 +150,9 @@ def depth_bounds(
     z_fit = np.where(np.isnan(z_rel), np.nan, z_fit) if p.drop_outliers else z_fit
     line_at_key, slopes = _window_line_fits(s, z_fit, key_idx, r_k)
     line_7 = line_at_key  # Eq. (7)'s lines, every extra point in
-    z_end = _off_epipolar(H, is_key, z_fit, z_rel, p.end_epipolar_deg)
+    measured = np.zeros(len(H), dtype=bool)  # keypoints with a depth of their own
+    measured[key_idx] = ordering.order >= 0  # (an extension keypoint's is its neighbour's)
+    z_end = _off_epipolar(H, is_key, measured, s, z_fit, fB, p.end_epipolar_deg, r_k)
     ends = [  # the end keypoints whose window lost a point (the others: bit for bit the same)
         e
         for e, i in ((0, 0), (-1, len(key_idx) - 1))
@@ -195,24 +197,61 @@ def _window(key_idx: np.ndarray, i: int, r_k: int) -> slice:
 
 
 def _off_epipolar(
-    H: np.ndarray, is_key: np.ndarray, z: np.ndarray, z_rel: np.ndarray, deg: float
+    H: np.ndarray,
+    is_key: np.ndarray,
+    measured: np.ndarray,
+    s: np.ndarray,
+    z: np.ndarray,
+    fB: float,
+    deg: float,
+    r_k: int,
 ) -> np.ndarray:
-    """``z`` (P,) with the extra points of H where the image curve runs within ``deg`` of the
-    rows and whose disparity lies off the keypoints' (``z_rel`` NaN: more than ``OUTLIER_PX``
-    from the keypoints' disparity interpolated along H, :func:`_fit_depths`) left out (NaN);
-    ``z`` itself when there are none (or ``deg`` is 0). Along the rows the SSD of Eq. (2)
-    shifts a window along the thread itself: both views agree with many depths, and a gap's
-    median depth there is whichever plateau the matching settled on (raw 16153 lighting #17:
-    12.6 to 26.6 px of disparity in turn where the truth is 33.5 px). Such a depth is kept
-    only where it continues the keypoints' strand. The direction at a point is that of the
-    chord between its neighbours along H."""
+    """``z`` (P,) with the extra points of the two end keypoints' windows (keypoints 0..r_k and
+    M-1-r_k..M-1) left out (NaN) where the image curve runs within ``deg`` of the rows and the
+    depth does not continue the strand of a measured keypoint (``measured``: a keypoint with
+    a depth of its own); ``z`` itself when there are none (or ``deg`` is 0). Along the rows
+    the SSD of Eq. (2) shifts a window along the thread itself: both views agree with many
+    depths, and a gap's median depth there is whichever plateau the matching settled on (raw
+    16153 lighting #17: 35.5, 32.3, 27.0, 33.5, 24.0, 14.2, 2.8, 12.6, 26.6 px of disparity
+    in turn outwards from the last keypoint, where the truth runs from 36 to 33.4 px). From
+    each measured keypoint of a link its extra points are followed in order while each lies
+    within the continuity bound (:func:`disparity_room` over the arc length from the last one
+    kept, plus ``OUTLIER_PX``, the ordering's "another match") of the last one kept; the first
+    that does not ends the follow. A point no follow reached is left out if it lies along the
+    rows. The direction at a point is that of the chord between its neighbours along H."""
     if deg <= 0 or len(H) < 3:
         return z
     g = np.empty((len(H), 2))
     g[1:-1] = H[2:, :2] - H[:-2, :2]
     g[0], g[-1] = H[1, :2] - H[0, :2], H[-1, :2] - H[-2, :2]
-    along = np.abs(g[:, 1]) <= np.tan(np.radians(deg)) * np.abs(g[:, 0])
-    off = ~is_key & along & np.isfinite(z) & np.isnan(z_rel)
+    along = ~is_key & (np.abs(g[:, 1]) <= np.tan(np.radians(deg)) * np.abs(g[:, 0]))
+    along &= np.isfinite(z)
+    key_idx = np.flatnonzero(is_key)
+    M = len(key_idx)
+    near_end = np.zeros(len(H), dtype=bool)
+    near_end[: key_idx[min(M - 1, r_k)] + 1] = True
+    near_end[key_idx[max(0, M - 1 - r_k)] :] = True
+    along &= near_end
+    if not along.any():
+        return z
+    kept = np.zeros(len(H), dtype=bool)
+    with np.errstate(divide="ignore"):
+        d = np.where(z > 0, fB / z, np.nan)
+    for a, b in zip(key_idx[:-1], key_idx[1:], strict=True):
+        if b - a < 2 or not along[a + 1 : b].any():
+            continue
+        for anchor, seq in ((a, range(a + 1, b)), (b, range(b - 1, a, -1))):
+            if not (measured[anchor] and np.isfinite(d[anchor])):
+                continue
+            d_last, s_last = d[anchor], s[anchor]
+            for i in seq:
+                if not np.isfinite(d[i]):
+                    continue  # no depth (left out by the ratio): neither kept nor a break
+                if abs(d[i] - d_last) > disparity_room(abs(s[i] - s_last)) + OUTLIER_PX:
+                    break
+                kept[i] = True
+                d_last, s_last = d[i], s[i]
+    off = along & ~kept
     return np.where(off, np.nan, z) if off.any() else z
 
 

@@ -639,25 +639,31 @@ def test_the_initial_fit_reads_fitpack_s_status_without_touching_the_warning_fil
 
 
 def test_extra_points_along_the_rows_leave_the_end_lines_only() -> None:
-    # Points of H along a row (extra points within 15 deg of it) are left out (NaN); steep
-    # extra points and keypoints along the rows stay; 0 deg (the paper) returns z itself.
+    # A dead end along the rows: keypoint 0 is an extension (its depth copied, not measured),
+    # keypoint 7 measured at 40 px of disparity (fB = 4000: 100 mm). Followed from keypoint 7
+    # outwards, the extra points at 40.2 and 40.5 px continue its strand; the one at 27 px
+    # breaks it (13 px over 10 px of arc), so it and every point beyond (a plateau at 40 px
+    # again included) leave. A steep extra point (5) on the other side stays.
     from threadrecon.core.bounds import _off_epipolar
 
-    # Only those off the keypoints' strand (z_rel NaN, _fit_depths) leave.
-    H = np.array(
-        [[0, 0, 100.0], [10, 1, 160.0], [20, 2, 90.0], [25, 2, 101.0], [30, 2, 100.0]]
-        + [[33, 12, 120.0], [36, 22, 101.0], [38, 32, 102.0]]
-    )
-    is_key = np.array([True, False, False, False, True, False, False, True])
+    fB = 4000.0
+    x = np.array([0.0, 10, 20, 30, 40, 50, 60, 70, 73, 76, 79])
+    y = np.array([0.0, 1, 1, 2, 2, 2, 3, 3, 13, 23, 33])
+    disp = np.array([40.0, 40.0, 40.0, 27.0, 40.5, 40.2, 40.0, 40.0, 39.0, 38.0, 37.0])
+    H = np.column_stack([x, y, fB / disp])
+    is_key = np.array([True, False, False, False, False, False, False, True, False, True, True])
+    measured = is_key.copy()
+    measured[0] = False
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(H[:, :2], axis=0).T))])
     z0 = H[:, 2].copy()
-    z_rel = _fit_depths(H, is_key, H[:, 0], np.flatnonzero(is_key), 4000.0)
-    assert np.isnan(z_rel[[1, 2, 5]]).all() and np.isfinite(np.delete(z_rel, [1, 2, 5])).all()
-    z = _off_epipolar(H, is_key, z0, z_rel, 15.0)
-    assert np.isnan(z[[1, 2]]).all()  # 3 (on the strand) and 5 (steep) stay
-    assert_close(np.delete(z, [1, 2]), np.delete(z0, [1, 2]))
-    assert _off_epipolar(H, is_key, z0, z_rel, 0.0) is z0
-    assert _off_epipolar(H, np.ones(8, bool), z0, z_rel, 15.0) is z0  # keypoints only
-    assert _off_epipolar(H, is_key, z0, z0, 15.0) is z0  # all on the strand
+    z = _off_epipolar(H, is_key, measured, s, z0, fB, 15.0, 1)
+    assert np.isnan(z[[1, 2, 3]]).all()  # beyond the break, the plateau at 40 px too
+    assert_close(np.delete(z, [1, 2, 3]), np.delete(z0, [1, 2, 3]))  # 4-6 continue, 8 steep
+    # keypoint 0 measured: its own follow keeps 1 and 2 (3 still breaks both follows)
+    z = _off_epipolar(H, is_key, np.ones(11, bool) & is_key, s, z0, fB, 15.0, 1)
+    assert np.isnan(z[3]) and np.isfinite(np.delete(z, 3)).all()
+    assert _off_epipolar(H, is_key, measured, s, z0, fB, 0.0, 1) is z0  # off: the paper
+    assert _off_epipolar(H, np.ones(11, bool), measured, s, z0, fB, 15.0, 1) is z0
 
 
 def test_a_dead_end_along_the_rows_is_interpolated_not_extrapolated() -> None:
@@ -666,9 +672,9 @@ def test_a_dead_end_along_the_rows_is_interpolated_not_extrapolated() -> None:
     # whichever plateau the SSD settled on (167 to 1585 mm where the truth is 123-133 mm), and
     # the window line through them set Eq. (8)'s end value at 173 mm, slope -0.2 mm/px: the
     # curve dipped 10 mm below the truth and came back (the check: suspect, unsupported
-    # depth travel 22.6 mm). Without those off the keypoints' strand the end line is the
-    # strand's; the half-width keeps their doubt, so the two-view refinement is free to move
-    # the end.
+    # depth travel 22.6 mm). Without those that break the last keypoint's strand the end
+    # line is the strand's; the half-width keeps their doubt, so the two-view refinement is
+    # free to move the end.
     from threadrecon.core.bounds import BoundsParams as BP
     from threadrecon.core.metrics import curve_errors
     from threadrecon.core.segmentation import StereoPair
