@@ -13,10 +13,6 @@ Eq. (7) puts the bounds at k_{i,z} -+ ``bound_scale`` * |L_{k_i}(k_i) - k_{i,z}|
 the bounds are interpolated linearly. A half-width below ``widen_px`` pixels of disparity, i.e.
 ``widen_px * Z^2 / (f B)`` in depth, is widened to it: a unit-free threshold that follows the
 depth resolution of the rig (the paper leaves this threshold unstated).
-
-Eq. (8)'s end values and slopes are the end keypoints' window lines; extra points where the
-thread runs along the image rows and off the keypoints' strand leave those two lines (their
-depth is one of the many the rows allow), not the half-widths (deviation 52).
 """
 
 from __future__ import annotations
@@ -72,18 +68,6 @@ class BoundsParams(Params):
     """Leave extra points whose disparity lies > ``OUTLIER_PX`` from the keypoints' out of the
     window lines of Eq. (7) (docs/method.md, deviation 21; measured better on held-out
     generated frames, not yet the default: it changes the repair's test frames)."""
-    end_epipolar_deg: float = param(
-        15.0,
-        lo=0,
-        hi=45,
-        unit="deg",
-        slider=(0.0, 45.0, 1.0),
-        label="end lines: epipolar angle",
-        doc="Eq. (8)'s end values and slopes come from window lines without the extra points "
-        "where the thread runs within this angle of the image rows (the SSD along the rows fits "
-        "many depths there) and whose disparity is off the keypoints' by > 2 px; Eq. (7)'s "
-        "half-widths keep them (0: off, the paper; docs/method.md, deviation 52).",
-    )
     second_matches: bool = param(
         True,
         label="gap pixels' second matches",
@@ -149,29 +133,12 @@ def depth_bounds(
     z_fit = _off_by_ratio(H, is_key, s, key_idx, p.depth_ratio)
     z_fit = np.where(np.isnan(z_rel), np.nan, z_fit) if p.drop_outliers else z_fit
     line_at_key, slopes = _window_line_fits(s, z_fit, key_idx, r_k)
-    line_7 = line_at_key  # Eq. (7)'s lines, every extra point in
-    measured = np.zeros(len(H), dtype=bool)  # keypoints with a depth of their own
-    measured[key_idx] = ordering.order >= 0  # (an extension keypoint's is its neighbour's)
-    z_end = _off_epipolar(H, is_key, measured, s, z_fit, fB, p.end_epipolar_deg, r_k)
-    ends = [  # the end keypoints whose window lost a point (the others: bit for bit the same)
-        e
-        for e, i in ((0, 0), (-1, len(key_idx) - 1))
-        if np.isnan(z_end[_window(key_idx, i, r_k)]).sum()
-        > np.isnan(z_fit[_window(key_idx, i, r_k)]).sum()
-    ]
-    if ends:  # their values and slopes without the near-epipolar extra points
-        line_e, slope_e = _window_line_fits(s, z_end, key_idx, r_k)
-        line_at_key, slopes = line_at_key.copy(), slopes.copy()
-        line_at_key[ends], slopes[ends] = line_e[ends], slope_e[ends]
     paper_ends = (line_at_key[0], slopes[0], line_at_key[-1], slopes[-1])
     line_at_key, slopes = _tip_ends(
         line_at_key, slopes, ordering.end_disparity, s, z_rel, key_idx, r_k, fB
     )
     tipped = (line_at_key[0], slopes[0], line_at_key[-1], slopes[-1]) != paper_ends
     half = p.bound_scale * np.abs(line_at_key - z_key)  # Eq. (7)
-    if ends:  # an end's half-width keeps the doubt of all its extra points
-        line_7 = _tip_ends(line_7, slopes, ordering.end_disparity, s, z_rel, key_idx, r_k, fB)[0]
-        half = np.maximum(half, p.bound_scale * np.abs(line_7 - z_key))
     min_half = p.widen_px * z_key**2 / (calib.focal * calib.baseline)
     half = np.maximum(half, min_half)
     centre = np.interp(s, s[key_idx], z_key)
@@ -188,71 +155,6 @@ def depth_bounds(
         r_k=r_k,
         line_ends=tuple(float(v) for v in paper_ends) if tipped else None,  # type: ignore[arg-type]
     )
-
-
-def _window(key_idx: np.ndarray, i: int, r_k: int) -> slice:
-    """The points of H in keypoint i's window of Eq. (7): keypoints i - r_k .. i + r_k."""
-    M = len(key_idx)
-    return slice(int(key_idx[max(0, i - r_k)]), int(key_idx[min(M - 1, i + r_k)]) + 1)
-
-
-def _off_epipolar(
-    H: np.ndarray,
-    is_key: np.ndarray,
-    measured: np.ndarray,
-    s: np.ndarray,
-    z: np.ndarray,
-    fB: float,
-    deg: float,
-    r_k: int,
-) -> np.ndarray:
-    """``z`` (P,) with the extra points of the two end keypoints' windows (keypoints 0..r_k and
-    M-1-r_k..M-1) left out (NaN) where the image curve runs within ``deg`` of the rows and the
-    depth does not continue the strand of a measured keypoint (``measured``: a keypoint with
-    a depth of its own); ``z`` itself when there are none (or ``deg`` is 0). Along the rows
-    the SSD of Eq. (2) shifts a window along the thread itself: both views agree with many
-    depths, and a gap's median depth there is whichever plateau the matching settled on (raw
-    16153 lighting #17: 35.5, 32.3, 27.0, 33.5, 24.0, 14.2, 2.8, 12.6, 26.6 px of disparity
-    in turn outwards from the last keypoint, where the truth runs from 36 to 33.4 px). From
-    each measured keypoint of a link its extra points are followed in order while each lies
-    within the continuity bound (:func:`disparity_room` over the arc length from the last one
-    kept, plus ``OUTLIER_PX``, the ordering's "another match") of the last one kept; the first
-    that does not ends the follow. A point no follow reached is left out if it lies along the
-    rows. The direction at a point is that of the chord between its neighbours along H."""
-    if deg <= 0 or len(H) < 3:
-        return z
-    g = np.empty((len(H), 2))
-    g[1:-1] = H[2:, :2] - H[:-2, :2]
-    g[0], g[-1] = H[1, :2] - H[0, :2], H[-1, :2] - H[-2, :2]
-    along = ~is_key & (np.abs(g[:, 1]) <= np.tan(np.radians(deg)) * np.abs(g[:, 0]))
-    along &= np.isfinite(z)
-    key_idx = np.flatnonzero(is_key)
-    M = len(key_idx)
-    near_end = np.zeros(len(H), dtype=bool)
-    near_end[: key_idx[min(M - 1, r_k)] + 1] = True
-    near_end[key_idx[max(0, M - 1 - r_k)] :] = True
-    along &= near_end
-    if not along.any():
-        return z
-    kept = np.zeros(len(H), dtype=bool)
-    with np.errstate(divide="ignore"):
-        d = np.where(z > 0, fB / z, np.nan)
-    for a, b in zip(key_idx[:-1], key_idx[1:], strict=True):
-        if b - a < 2 or not along[a + 1 : b].any():
-            continue
-        for anchor, seq in ((a, range(a + 1, b)), (b, range(b - 1, a, -1))):
-            if not (measured[anchor] and np.isfinite(d[anchor])):
-                continue
-            d_last, s_last = d[anchor], s[anchor]
-            for i in seq:
-                if not np.isfinite(d[i]):
-                    continue  # no depth (left out by the ratio): neither kept nor a break
-                if abs(d[i] - d_last) > disparity_room(abs(s[i] - s_last)) + OUTLIER_PX:
-                    break
-                kept[i] = True
-                d_last, s_last = d[i], s[i]
-    off = along & ~kept
-    return np.where(off, np.nan, z) if off.any() else z
 
 
 def _tip_ends(
