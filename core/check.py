@@ -66,7 +66,7 @@ from threadrecon.core.check_beyond import (
 )
 from threadrecon.core.check_fast_kernel import flag_runs, ring_level
 from threadrecon.core.check_field import MaskField, derived, mask_field
-from threadrecon.core.check_fold import Reversal, end_reversal, fold_length
+from threadrecon.core.check_fold import Reversal, end_reversal, fold_length, self_contact
 from threadrecon.core.check_kernel import (
     coverage_count,
     nearest_residual,
@@ -327,6 +327,15 @@ class CheckParams(Params):
         "thread running along the line of sight turns back at a point in its projection too "
         "(a narrow loop): the surface test keeps it. Off: no such test (before session 17). "
         "docs/method.md, okwrong17.",
+    )  # fmt: skip
+    self_contact: bool = param(
+        True, label="the curve passes through itself",
+        doc="On: suspect when two points of the curve more than max_unobserved_mm apart along "
+        "it lie closer in 3D than half a thread's width (fold_px at their depth) with their "
+        "left projections within fold_px (core/check_fold.self_contact): two strands of a "
+        "thread lie a width or more apart, so the curve left a strand and came back to the "
+        "same point of it (a wrong order of its pieces). Off: no such test (before session "
+        "17). docs/method.md, okw17b.",
     )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
@@ -869,6 +878,21 @@ def _check(
              f"limit {p.max_overlap_px:g} px)")
         )  # fmt: skip
 
+    # Two points far apart along the curve at one place in 3D (core/check_fold.self_contact):
+    # the thread cannot pass through itself, the curve came back to a strand it left.
+    touch = (
+        self_contact(uv_l, pts * mm, s3, p.fold_px, f, p.max_unobserved_mm)
+        if p.self_contact
+        else None
+    )
+    if touch is not None:
+        findings.append(
+            ("suspect", f"the curve passes through itself: two of its points {touch.apart:.0f} "
+             f"mm apart along it lie {touch.distance:.2f} mm apart (less than half a thread's "
+             f"width, {touch.limit:.2f} mm) at a point of the left view ({touch.at[0]:.0f}, "
+             f"{touch.at[1]:.0f} px): a thread's strands lie a width apart, so its pieces may "
+             f"be joined in a wrong order (limit {p.max_unobserved_mm:g} mm apart)")
+        )  # fmt: skip
     # A point where the projection turns back, with the curve heading back from it to an end
     # (core/check_fold.end_reversal), the branch on the surface and the rest in front of it:
     # a mark on the surface joined to the thread there.

@@ -827,3 +827,35 @@ def test_a_narrow_loop_turning_back_in_its_projection_is_no_joined_mark() -> Non
     s3 = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve.points, axis=0), axis=1))])
     rev = end_reversal(h[:, :2] / h[:, 2:3], s3 * calib.mm_per_unit)
     assert rev is not None and rev.length > CheckParams().max_unobserved_mm  # the geometry fires
+
+
+def test_a_curve_through_itself_under_a_shaft_is_suspect() -> None:
+    """Masked 17145 instrument #7 (okw17b): the thread loops over a shaft, passing under it
+    twice; the ordering bridged both hidden stretches to one point in the middle of the
+    visible lower strand, so the curve passes through that point twice (72 mm apart along
+    it, 0.12 mm apart in 3D): e_l 21.6 mm. Every other test passed it: "ok" and wrong.
+    With the self-contact test: suspect."""
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import (
+        RenderParams,
+        SyntheticParams,
+        ThreadParams,
+        generate_frame,
+    )
+
+    render = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, instrument=True)
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng([17145, 6, 7])
+    )
+    calib = frame.camera.calibration()
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    rec = Pipeline(pair, calib).run()
+    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert e.e_length > 20.0
+    chk = rec["check"]
+    assert chk.status == "suspect", chk.reasons
+    assert any("passes through itself" in r for r in chk.reasons), chk.reasons
+    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    off = check_curve(*args, rec["camera"], calib, CheckParams(self_contact=False))
+    assert off.status == "ok", off.reasons

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from threadrecon.core.check_fold import end_reversal, fold_length
+from threadrecon.core.check_fold import end_reversal, fold_length, self_contact
 
 
 def _steps(uv: np.ndarray) -> np.ndarray:
@@ -100,3 +100,40 @@ def test_a_turn_back_counts_the_branch_only_not_the_rest_of_the_curve() -> None:
     uv = _polyline((400, 0), (0, 0), (30, 5))
     rev = end_reversal(uv, _s3(uv, 1.0))
     assert rev is not None and rev.end == "end" and rev.length == pytest.approx(30.4, abs=1.0)
+
+
+F_PX = 900.0  # focal length of the self-contact tests, px (a width of 6 px is 0.87 mm at 130 mm)
+
+
+def _lift(uv: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A curve at depths ``z`` (mm) whose left projection is ``uv`` (px from the principal point):
+    its 3D points and cumulative 3D length."""
+    pts = np.column_stack([uv * z[:, None] / F_PX, z])
+    s3 = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    return uv, pts, s3
+
+
+def test_a_curve_coming_back_through_a_point_of_itself_passes_through_itself() -> None:
+    # right 200 px, a loop up and back down across the first pass at x = 100, on at one depth
+    uv = _polyline((0, 0), (200, 0), (200, -150), (100, -150), (100, 150), spacing=1.0)
+    got = self_contact(*_lift(uv, np.full(len(uv), 130.0)), 3.0, F_PX, 20.0)
+    assert got is not None
+    assert got.distance < 0.1 and got.limit == pytest.approx(3.0 * 130.0 / F_PX)
+    assert got.apart > 50.0 and abs(got.at[0] - 100.0) <= 1.5 and abs(got.at[1]) <= 1.5
+
+
+def test_strands_a_width_apart_a_crossing_in_front_and_a_short_loop_do_not_touch() -> None:
+    # the same crossing with the second pass 2 mm in front of the first: a thread crossing over
+    uv = _polyline((0, 0), (200, 0), (200, -150), (100, -150), (100, 150), spacing=1.0)
+    z = np.full(len(uv), 130.0)
+    z[np.arange(len(uv)) > 400] = 128.0
+    z = np.convolve(np.pad(z, 20, mode="edge"), np.ones(41) / 41, mode="valid")  # smooth step
+    assert self_contact(*_lift(uv, z), 3.0, F_PX, 20.0) is None
+    # a hairpin, its legs 6 px (a thread's width) apart at one depth
+    pin = _polyline((0, 0), (200, 0), (200, 6), (0, 6), spacing=1.0)
+    assert self_contact(*_lift(pin, np.full(len(pin), 130.0)), 3.0, F_PX, 20.0) is None
+    # a loop closing on itself within the gap along the curve (a small curl, not far apart)
+    curl = _polyline((0, 0), (40, 0), (40, -20), (20, -20), (20, 20), spacing=1.0)
+    lifted = _lift(curl, np.full(len(curl), 130.0))
+    assert lifted[2][-1] < 20.0 and self_contact(*lifted, 3.0, F_PX, 20.0) is None
+    assert self_contact(*lifted, 3.0, F_PX, 5.0) is not None  # the same curl, a shorter gap
