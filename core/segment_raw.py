@@ -639,6 +639,13 @@ def _select(
                     along is not None
                     and _holds(along[i], *_rc(v, on[lab_on == j]), p.min_length_px)
                 )
+                or (
+                    p.first_marks
+                    and np.all(votes < 0)
+                    and _nearer_than_tissue(
+                        views, i, on[lab_on == j], [on[lab_on == m] for m in marks] + known, D
+                    )
+                )
             )
             if is_mark:
                 marks.append(j)
