@@ -821,10 +821,12 @@ def _nearer_than_tissue(
     views: list[_View], i: int, px: np.ndarray, marks: list[np.ndarray], d: int
 ) -> bool:
     """Whether the piece of view ``i`` of lo pixels ``px`` has a disparity of its own
-    (:meth:`SurfaceTest.disparity`) more than _NEARER_PX above the tissue's: of the background
-    of its block where that resolves, else the median of the _TISSUE_MARKS nearest of the
-    ``marks`` (lo pixels of the marks found on the tissue; one line at another depth, an
-    instrument's edge taken for a mark, does not move it). The counterpart of
+    (:meth:`SurfaceTest.disparity`) more than _NEARER_PX above the tissue's, by each of its
+    two readings that resolves (at least one): the background of its block, and the median of
+    the _TISSUE_MARKS nearest of the ``marks`` (lo pixels of the marks found on the tissue;
+    one line at another depth, an instrument's edge taken for a mark, does not move it; in a
+    view without marks, the other view's). A block beside the instrument can resolve at a
+    disparity off the tissue's (the shaft's edge in it). The counterpart of
     :func:`_at_tissue_disparity`: a blood-like line the block-wise surface test leaves open
     (the tissue beside it seldom resolves) is seen in front of the tissue by its own depth,
     which a vessel, lying on it, is not (deviation 53)."""
@@ -834,12 +836,14 @@ def _nearer_than_tissue(
     own = st.disparity(rows, cols)
     if own is None:
         return False
-    tissue = st.background_disparity(rows, cols)
-    if tissue is None:
-        tissue = _Marks(st, v, marks).disparity_of_nearest(rows, cols, _TISSUE_MARKS)
-    if tissue is None:  # no mark found in this view yet: the other view's, on the same rows
-        tissue = _other_view_tissue(views, i, rows, cols, d)
-    return tissue is not None and own > tissue + _NEARER_PX
+    tissue = [
+        st.background_disparity(rows, cols),
+        _Marks(st, v, marks).disparity_of_nearest(rows, cols, _TISSUE_MARKS),
+    ]
+    if tissue[1] is None:  # no mark found in this view yet: the other view's, on the same rows
+        tissue[1] = _other_view_tissue(views, i, rows, cols, d)
+    known = [t for t in tissue if t is not None]
+    return bool(known) and all(own > t + _NEARER_PX for t in known)
 
 
 def _other_view_tissue(
