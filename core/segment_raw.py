@@ -797,9 +797,9 @@ def _contradicted(
     block-wise surface test voted in front of the tissue (``votes`` == 0, per pixel) is not
     seen nearer than the tissue by its own disparity (:meth:`SurfaceTest.disparity`): at most
     SAME_DISPARITY_PX above the tissue's (of its block's background where that resolves, else
-    of the nearest of the marks found on it, lo pixels of each as ``marks()`` gives them). In front of the tissue means nearer the cameras, a larger
-    disparity; the two depth cues disagree, and a red thread of the vessels' hue is told from
-    them by depth only. Uneven light (vignetting, fixed in the image, not on the tissue)
+    of the nearest of the marks found on it, lo pixels of each as ``marks()`` gives them). In
+    front of the tissue means nearer the cameras, a larger disparity; the two depth cues
+    disagree, and a red thread of the vessels' hue is told from them by depth only. Uneven light (vignetting, fixed in the image, not on the tissue)
     biases a dark block's matches towards disparity 0, so that a vessel there seemed to
     float; a thread merged with a vessel is judged by its own part."""
     front = px[votes == 0]
@@ -895,7 +895,11 @@ def _nearest(tree: cKDTree, xy: np.ndarray, sample: dict, keys: list[int]) -> tu
 
 
 def _at_tissue_disparity(
-    views: list[_View], i: int, px: np.ndarray, marks: list[np.ndarray], d: int,
+    views: list[_View],
+    i: int,
+    px: np.ndarray,
+    marks: list[np.ndarray],
+    d: int,
     other: bool = False,
 ) -> bool:
     """Whether the piece of view ``i`` of lo pixels ``px`` has a disparity of its own
