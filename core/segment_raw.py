@@ -12,7 +12,7 @@ sorted-key search. Every shortcut gives the same masks as the plain computation
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Final
 
 import cv2
@@ -242,6 +242,10 @@ class _View:
     _far: np.ndarray | None = None
     _surface: SurfaceTest | None = None
     _tool_counts: tuple | None = None
+    # lo pixels of each mark on the tissue the first pass found (:func:`_select`), which the red
+    # pass's views share: the tissue's disparity beside a vessel (deviation 53)
+    first_marks: list[np.ndarray] = field(default_factory=list)
+    red_marks: list[np.ndarray] = field(default_factory=list)  # and those the red pass found
 
     def far(self) -> np.ndarray:
         """(H, W) bool: background pixels beyond _BAND_PX of every candidate (lo) pixel, where
@@ -469,6 +473,14 @@ def _select(
         # Among blood-like pieces (vessels are marks too) the one left must be seen in front
         # of the tissue, not merely undecided (a small leftover).
         marks: list[int] = []  # pieces found to be marks on the tissue, most salient first
+        # The red pass reads the tissue's disparity from the first pass's marks too (fibres
+        # moving with the tissue; the vessels of a thread's hue are its own marks).
+        known = v.first_marks if nearest_hue and p.first_marks else []
+
+        def tissue(marks: list[int] = marks, on: np.ndarray = on, lab_on: np.ndarray = lab_on,
+                   known: list[np.ndarray] = known) -> list[np.ndarray]:  # fmt: skip
+            return [on[lab_on == m] for m in marks] + known
+
         votes_of: dict[int, np.ndarray] = {}  # surface votes of the pieces tested
         skipped = 0  # blood-like pieces passed over as not seen in front of the tissue
         for _ in range(_MAX_RED_TESTS if nearest_hue else _MAX_SURFACE_TESTS):
@@ -494,11 +506,20 @@ def _select(
                     or _like_a_mark(v, on[lab_on == best], best, marks, delta)
                 )
             ):
+                # (an undecided blood-like piece whose own disparity lies well above the
+                # tissue's beside it is in front of it: a thread, not a vessel)
+                nearer = (
+                    nearest_hue
+                    and p.first_marks
+                    and np.all(votes < 0)
+                    and _nearer_than_tissue(views, i, on[lab_on == best], tissue(), D)
+                )
                 if (
                     nearest_hue
+                    and not nearer
                     and not _floats(votes)
                     and not _at_tissue_disparity(
-                        views, i, on[lab_on == best], [on[lab_on == m] for m in marks], D
+                        views, i, on[lab_on == best], tissue(), D, other=p.first_marks
                     )
                 ):
                     # undecided or moving with the tissue in part: not told from a vessel of
@@ -521,8 +542,8 @@ def _select(
                     continue
                 if (
                     nearest_hue
-                    and _floats(votes)
-                    and not _contradicted(views, i, on, lab_on, best, votes, marks, D)
+                    and (nearer or _floats(votes))
+                    and not _contradicted(views, i, on[lab_on == best], votes, tissue, D)
                 ) or (
                     not nearest_hue
                     and not (
@@ -544,6 +565,7 @@ def _select(
             # (a blood-like piece the surface test left open, at the tissue's own disparity:
             # a vessel, as a mark)
             marks.append(best)
+            (v.red_marks if nearest_hue else v.first_marks).append(on[lab_on == best])
             k[best] = False
             rank[best] = -1.0
             best = int(np.argmax(rank))
@@ -558,10 +580,10 @@ def _select(
             return None, salience + top, 1.0, False
         salience += float(rank[best])
         chosen.append((v, lab, means, length, on, lab_on, k, n, area, delta, rank, best, marks,
-                       votes_of))  # fmt: skip
+                       votes_of, known))  # fmt: skip
     # The pieces that join the chosen ones (tested only once both views have chosen one).
     for i, (v, lab, means, length, on, lab_on, k, n, area, delta, rank, best, marks,
-            votes_of) in enumerate(chosen):  # fmt: skip
+            votes_of, known) in enumerate(chosen):  # fmt: skip
         # A piece of two dyes (a thread merged with a fibre where they cross) is of the dye
         # of its part seen in front of the tissue: the thread's other pieces join it.
         delta[best] = _main_dye(v.delta[on[lab_on == best]], votes_of[best], delta[best])
@@ -617,9 +639,18 @@ def _select(
                     along is not None
                     and _holds(along[i], *_rc(v, on[lab_on == j]), p.min_length_px)
                 )
+                or (
+                    p.first_marks
+                    and np.all(votes < 0)
+                    and _nearer_than_tissue(
+                        views, i, on[lab_on == j], [on[lab_on == m] for m in marks] + known, D
+                    )
+                )
             )
             if is_mark:
                 marks.append(j)
+                if not nearest_hue:
+                    v.first_marks.append(on[lab_on == j])
         # An undecided piece that is a fragment of a mark of its dye (as in the choice above)
         # does not join either: a fibre cut in two by a faint stretch or by the instrument;
         # nor, in the first pass, one whose own disparity is the tissue's (a fibre of a white
@@ -645,7 +676,7 @@ def _select(
             floating_px = np.concatenate(
                 [on[lab_on == j][votes_of[j] != 1] for j in np.flatnonzero(k) if j in votes_of]
             )
-            marks_px = [on[lab_on == j] for j in marks]
+            marks_px = [on[lab_on == j] for j in marks] + known
             for j in _at_thread_disparity(
                 views, i, on, lab_on, floating_px, marks_px, undecided, D
             ):
@@ -757,31 +788,79 @@ def _at_thread_disparity(
 def _contradicted(
     views: list[_View],
     i: int,
-    on: np.ndarray,
-    lab_on: np.ndarray,
-    best: int,
+    px: np.ndarray,
     votes: np.ndarray,
-    marks: list[int],
+    marks: Callable[[], list[np.ndarray]],
     d: int,
 ) -> bool:
-    """Whether the part of the blood-like piece ``best`` of view ``i`` (pieces ``lab_on`` of
-    its lo pixels ``on``) that the block-wise surface test voted in front of the tissue
-    (``votes`` == 0, per pixel) is not seen nearer than the tissue by its own disparity
-    (:meth:`SurfaceTest.disparity`): at most SAME_DISPARITY_PX above the tissue's (of its
-    block's background where that resolves, else of the nearest of the pieces ``marks``
-    found to be marks on it). In front of the tissue means nearer the cameras, a larger
-    disparity; the two depth cues disagree, and a red thread of the vessels' hue is told from
-    them by depth only. Uneven light (vignetting, fixed in the image, not on the tissue)
+    """Whether the part of the blood-like piece of view ``i`` of lo pixels ``px`` that the
+    block-wise surface test voted in front of the tissue (``votes`` == 0, per pixel) is not
+    seen nearer than the tissue by its own disparity (:meth:`SurfaceTest.disparity`): at most
+    SAME_DISPARITY_PX above the tissue's (of its block's background where that resolves, else
+    of the nearest of the marks found on it, lo pixels of each as ``marks()`` gives them). In
+    front of the tissue means nearer the cameras, a larger disparity; the two depth cues
+    disagree, and a red thread of the vessels' hue is told from them by depth only. Uneven light (vignetting, fixed in the image, not on the tissue)
     biases a dark block's matches towards disparity 0, so that a vessel there seemed to
     float; a thread merged with a vessel is judged by its own part."""
-    front = on[lab_on == best][votes == 0]
+    front = px[votes == 0]
     if len(front) == 0:
         return False
-    own, tissue = _own_and_tissue(views, i, front, lambda: [on[lab_on == m] for m in marks], d)
+    own, tissue = _own_and_tissue(views, i, front, marks, d)
     if own is None:
         return False
     first = next((t for t in tissue if t is not None), None)
     return first is not None and own <= first + SAME_DISPARITY_PX
+
+
+_NEARER_PX: Final = 2 * SAME_DISPARITY_PX  # a piece nearer than the tissue by its own disparity:
+# above the tissue's by more than two of the test's steps (deviation 53)
+_TISSUE_MARKS: Final = 3  # the tissue's disparity off a resolving block: of the 3 nearest marks
+
+
+def _nearer_than_tissue(
+    views: list[_View], i: int, px: np.ndarray, marks: list[np.ndarray], d: int
+) -> bool:
+    """Whether the piece of view ``i`` of lo pixels ``px`` has a disparity of its own
+    (:meth:`SurfaceTest.disparity`) more than _NEARER_PX above the tissue's, by each of its
+    two readings that resolves (at least one): the background of its block, and the median of
+    the _TISSUE_MARKS nearest of the ``marks`` (lo pixels of the marks found on the tissue;
+    one line at another depth, an instrument's edge taken for a mark, does not move it; in a
+    view without marks, the other view's). A block beside the instrument can resolve at a
+    disparity off the tissue's (the shaft's edge in it). The counterpart of
+    :func:`_at_tissue_disparity`: a blood-like line the block-wise surface test leaves open
+    (the tissue beside it seldom resolves) is seen in front of the tissue by its own depth,
+    which a vessel, lying on it, is not (deviation 53)."""
+    v = views[i]
+    st = _surface_test(views, i, d)
+    rows, cols = v.rows[px], v.cols[px]
+    own = st.disparity(rows, cols)
+    if own is None:
+        return False
+    tissue = [
+        st.background_disparity(rows, cols),
+        _Marks(st, v, marks).disparity_of_nearest(rows, cols, _TISSUE_MARKS),
+    ]
+    if tissue[1] is None:  # no mark found in this view yet: the other view's, on the same rows
+        tissue[1] = _other_view_tissue(views, i, rows, cols, d)
+    known = [t for t in tissue if t is not None]
+    return bool(known) and all(own > t + _NEARER_PX for t in known)
+
+
+def _other_view_tissue(
+    views: list[_View], i: int, rows: np.ndarray, cols: np.ndarray, d: int
+) -> float | None:
+    """The tissue's disparity near the pixels (``rows``, ``cols``) of view ``i`` read from the
+    marks found in the other view (by either pass): the median of the _TISSUE_MARKS nearest to
+    the same pixels there (a disparity is the same number in both views; the marks' positions
+    are off by it, a few tens of px, which the median of the nearest marks spans). None
+    without any. A red pass that found no mark in this view yet is not left without the
+    tissue's depth (deviation 53)."""
+    o = views[1 - i]
+    marks = o.first_marks + o.red_marks
+    if not marks:
+        return None
+    st = _surface_test(views, 1 - i, d)
+    return _Marks(st, o, marks).disparity_of_nearest(rows, cols, _TISSUE_MARKS)
 
 
 def _gap_off_tool(tool: np.ndarray, sample: np.ndarray, at: np.ndarray, gap: float) -> float:
@@ -816,21 +895,32 @@ def _nearest(tree: cKDTree, xy: np.ndarray, sample: dict, keys: list[int]) -> tu
 
 
 def _at_tissue_disparity(
-    views: list[_View], i: int, px: np.ndarray, marks: list[np.ndarray], d: int
+    views: list[_View],
+    i: int,
+    px: np.ndarray,
+    marks: list[np.ndarray],
+    d: int,
+    other: bool = False,
 ) -> bool:
     """Whether the piece of view ``i`` of lo pixels ``px`` has a disparity of its own
     (:meth:`SurfaceTest.disparity`) within SAME_DISPARITY_PX of the tissue's: of the background
     of its block (where that resolves) or of the nearest of the ``marks`` (lo pixels of the
     pieces found to be marks on the tissue). A piece the block-wise surface test left open
-    (too few blocks resolve) that matches the tissue's disparity is a mark on it too."""
-    own, tissue = _own_and_tissue(views, i, px, lambda: marks, d)
+    (too few blocks resolve) that matches the tissue's disparity is a mark on it too.
+    ``other``: or of the marks found in the other view (:func:`_other_view_tissue`)."""
+    own, tissue = _own_and_tissue(views, i, px, lambda: marks, d, other)
     return own is not None and any(
         t is not None and abs(own - t) <= SAME_DISPARITY_PX for t in tissue
     )
 
 
 def _own_and_tissue(
-    views: list[_View], i: int, px: np.ndarray, marks: Callable[[], list[np.ndarray]], d: int
+    views: list[_View],
+    i: int,
+    px: np.ndarray,
+    marks: Callable[[], list[np.ndarray]],
+    d: int,
+    other: bool = False,
 ) -> tuple[float | None, Iterator[float | None]]:
     """The disparity of view ``i``'s lo pixels ``px`` of their own
     (:meth:`SurfaceTest.disparity`; None where it does not resolve), and the tissue's beside
@@ -844,6 +934,8 @@ def _own_and_tissue(
     def tissue() -> Iterator[float | None]:
         yield st.background_disparity(rows, cols)
         yield _Marks(st, v, marks()).disparity_near(rows, cols)
+        if other:
+            yield _other_view_tissue(views, i, rows, cols, d)
 
     return st.disparity(rows, cols), tissue()
 
@@ -885,6 +977,30 @@ class _Marks:
             px = self.marks[m]
             self.known[m] = self.st.disparity(self.v.rows[px], self.v.cols[px])
         return self.known[m]
+
+    def disparity_of_nearest(self, rows: np.ndarray, cols: np.ndarray, n: int) -> float | None:
+        """The median disparity of the ``n`` marks nearest to the pixels (``rows``, ``cols``)
+        (on <= 64 of them; of those whose disparity resolves), None without any: the tissue's
+        beside them, which one line at another depth (an instrument's edge taken for a mark)
+        does not move."""
+        if self.tree is None or len(rows) == 0:
+            return None
+        step = max(len(rows) // 64, 1)
+        dist, _ = cKDTree(np.c_[rows[::step], cols[::step]].astype(np.float64)).query(
+            self.tree.data
+        )  # each mark's sampled pixels to the nearest of those pixels
+        least = np.full(len(self.marks), np.inf)
+        np.minimum.at(least, self.owner, dist)
+        found = []
+        for m in np.argsort(least).tolist():
+            if m not in self.known:
+                px = self.marks[m]
+                self.known[m] = self.st.disparity(self.v.rows[px], self.v.cols[px])
+            if self.known[m] is not None:
+                found.append(self.known[m])
+            if len(found) == n:
+                break
+        return float(np.median(found)) if found else None
 
 
 def _near_blood(v: _View, core: np.ndarray) -> bool:

@@ -169,6 +169,16 @@ class SegmentationParams(Params):
         "coarse mask is the instrument's, the background as before (deviation 50).",
         slider=(0, 16, 1),
     )
+    first_marks: bool = param(
+        True,
+        label="raw: red pass knows the marks",
+        doc="raw: the red pass (a blood-like thread among vessels of its hue) reads the "
+        "tissue's disparity beside a blood-like piece from the marks on the tissue it found "
+        "itself and from those the first pass found (fibres, non-blood lines moving with the "
+        "tissue): a vessel the block-wise surface test leaves open, at the disparity of the "
+        "tissue's marks beside it, is a mark too, not a reason to give the pass up. Off: the "
+        "red pass's own marks only (deviation 53).",
+    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,

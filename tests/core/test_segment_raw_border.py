@@ -106,6 +106,65 @@ def test_a_red_thread_s_stretch_beyond_the_shaft_joins_it() -> None:
     assert (lifted.P_L & beyond & ~frame.mask_left).sum() <= 0.5 * truth.sum()
 
 
+def test_a_red_thread_nearer_than_the_tissue_s_marks_is_found() -> None:
+    """ "all", seed 16153, frame 1 (deviation 53): a red thread of the vessels' hue, undecided
+    by the block test (no block beside it resolves), was given up at the first vessel the red
+    pass met (undecided too, and no mark of its own pass to compare with). With the marks the
+    first pass found on the tissue (fibres at 27 px) the vessels are at the tissue's disparity
+    (27 px) and the thread, at 33 px, nearer than it: it is chosen. The right view, whose first
+    pass found no mark, reads the tissue from the left view's. Off: no thread found."""
+    frame = _all_frame(16153, 1)
+    pair = StereoPair(frame.left, frame.right)
+    with pytest.raises(ValueError, match="no thread found"):
+        segment(pair, replace(_P, first_marks=False))
+    lifted = segment(pair, _P)
+    for P, M in ((lifted.P_L, frame.mask_left), (lifted.P_R, frame.mask_right)):
+        assert (P & M).sum() / (P | M).sum() >= 0.5
+        assert (P & M).sum() >= 0.8 * M.sum()
+
+
+def test_a_red_thread_s_piece_nearer_than_the_tissue_joins_it() -> None:
+    """ "all", seed 16153, frame 13 (deviation 53 (d)): in the right view the red thread's lower
+    half is a piece the block test leaves undecided, with an own disparity of 30 px where the
+    tissue beside it is at 26 px; it did not join (in the red pass only a piece voted in front
+    did), and the right view's mask held the upper half only (IoU 0.37). Nearer than the
+    tissue, it joins (IoU >= 0.7)."""
+    frame = _all_frame(16153, 13)
+    pair = StereoPair(frame.left, frame.right)
+
+    def right_iou(p: SegmentationParams) -> float:
+        lifted = segment(pair, p)
+        P, M = lifted.P_R, frame.mask_right
+        return float((P & M).sum() / (P | M).sum())
+
+    assert right_iou(replace(_P, first_marks=False)) < 0.45
+    assert right_iou(_P) >= 0.7
+
+
+def test_the_tissue_beside_a_line_is_the_median_of_its_nearest_marks() -> None:
+    """The tissue's disparity off a resolving block is the median of the 3 nearest marks' (of
+    those that resolve): one line at another depth (an instrument's edge taken for a mark, 48
+    px) beside the piece does not move it; marks farther away than the three do not count."""
+    v = sr._View.__new__(sr._View)
+    v.rows = np.array([10, 11, 12, 50, 51, 52, 90, 91, 92, 300, 301, 10, 11])
+    v.cols = np.array([20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 20, 60, 60])
+    marks = [np.array([0, 1, 2]), np.array([3, 4, 5]), np.array([6, 7, 8]), np.array([9, 10]),
+             np.array([11, 12])]  # fmt: skip
+    depth = {10: 48, 50: 27, 90: 28, 300: 40}  # by the first row of each mark
+    unresolved = {60}  # (by column: the mark at column 60 resolves no disparity)
+
+    class _St:
+        def disparity(self, rows: np.ndarray, cols: np.ndarray) -> int | None:
+            return None if int(cols[0]) in unresolved else depth[int(rows[0])]
+
+    near = sr._Marks(_St(), v, marks)  # type: ignore[arg-type]
+    rows, cols = np.array([20, 21]), np.array([24, 24])  # beside the 48 px line
+    assert near.disparity_near(rows, cols) == 48
+    assert near.disparity_of_nearest(rows, cols, 3) == 28.0  # median of 48, 27, 28
+    assert near.disparity_of_nearest(rows, cols, 1) == 48.0
+    assert sr._Marks(_St(), v, []).disparity_of_nearest(rows, cols, 3) is None
+
+
 def _all_frame(seed: int, k: int):  # noqa: ANN202
     """Frame ``k`` of scripts/eval_suites.py's "all" suite (index 12) for ``seed``."""
     render = RenderParams(
