@@ -12,6 +12,7 @@ from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.metrics import project
 from threadrecon.core.segmentation import StereoPair
 from threadrecon.core.synthetic import (
+    RenderParams,
     StereoCamera,
     SyntheticFrame,
     SyntheticParams,
@@ -66,6 +67,13 @@ def calibration_for(camera: StereoCamera) -> StereoCalibration:
 def synthetic_frame(seed: int, **thread_kwargs: object) -> SyntheticFrame:
     """Flat-background synthetic frame for ``seed``; ``thread_kwargs`` go to ThreadParams."""
     return generate_frame(SyntheticParams(thread=ThreadParams(**thread_kwargs)), rng=seed)
+
+
+def suite_frame(key: list[int], **render: object) -> SyntheticFrame:
+    """A frame as ``scripts/eval_suites.py`` draws it: the default thread, ``render`` as
+    RenderParams, the generator seeded with ``key`` ([seed, suite index, frame index])."""
+    params = SyntheticParams(thread=ThreadParams(), render=RenderParams(**render))
+    return generate_frame(params, np.random.default_rng(key))
 
 
 @functools.lru_cache(maxsize=64)

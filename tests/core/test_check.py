@@ -9,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from support import synthetic_case
+from support import suite_frame, synthetic_case
 from threadpoolctl import threadpool_limits
 
 from threadrecon.app.dataset import discover, load_frame
@@ -47,6 +47,17 @@ def _run(seed: int, params: ReconParams | None = None) -> Reconstruction:
     return Pipeline(pair, calib).run(params or ReconParams())
 
 
+def _check_again(
+    rec: Reconstruction, calib, curve: CameraCurve | None = None, **params
+) -> CheckResult:
+    """The check of ``rec``'s stages run again on ``curve`` (its own camera curve by default)
+    with CheckParams(**params)."""
+    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    return check_curve(
+        *args, rec["camera"] if curve is None else curve, calib, CheckParams(**params)
+    )
+
+
 def _recheck(seed: int, change) -> CheckResult:
     """The check of seed's reconstruction with its camera-frame curve changed by ``change``."""
     pair, calib, _ = synthetic_case(seed)
@@ -56,8 +67,7 @@ def _recheck(seed: int, change) -> CheckResult:
     with np.errstate(invalid="ignore"):
         length = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
     curve = CameraCurve(cam.ctrl, cam.knots, cam.degree, points, length, cam.unit)
-    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
-    return check_curve(*args, curve, calib, CheckParams())
+    return _check_again(rec, calib, curve)
 
 
 def test_check_is_the_last_stage_and_sets_the_status() -> None:
@@ -142,8 +152,7 @@ def test_depth_beyond_the_searched_far_depth_fails() -> None:
     points[200:] *= 1.5 * z_far / (points[200:, 2].min() * calib.mm_per_unit)  # same rays
     length = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
     curve = CameraCurve(cam.ctrl, cam.knots, cam.degree, points, length, cam.unit)
-    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
-    chk = check_curve(*args, curve, calib, CheckParams())
+    chk = _check_again(rec, calib, curve)
     assert chk.status == "failed"
     assert any("disparity search allows" in r for r in chk.reasons)
     fB = calib.focal * calib.baseline
@@ -447,13 +456,11 @@ def test_border_rule_without_border_suspect_asks_for_a_free_end() -> None:
     shorter than the grasp reach stays suspect either way."""
     pair, calib, _ = synthetic_case(3, leaves_image=True)
     rec = Pipeline(pair, calib).run()
-    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
-    chk = check_curve(*args, rec["camera"], calib, CheckParams(border_suspect=True))
+    chk = _check_again(rec, calib, border_suspect=True)
     assert len(chk.ends_at_border) == 1, chk.ends_at_border
     assert any("image border" in r for r in chk.reasons), chk.reasons
-    loose = CheckParams()
-    assert not loose.border_suspect
-    off = check_curve(*args, rec["camera"], calib, loose)
+    assert not CheckParams().border_suspect
+    off = _check_again(rec, calib)
     assert rec["check"].reasons == off.reasons
     assert not any("border" in r for r in off.reasons), off.reasons
     assert off.grasp is not None and off.grasp.from_end not in chk.ends_at_border
@@ -464,7 +471,7 @@ def test_border_rule_without_border_suspect_asks_for_a_free_end() -> None:
     pts = cam.points[keep]
     length = float(np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
     short = CameraCurve(cam.ctrl, cam.knots, cam.degree, pts, length, cam.unit)
-    chk_short = check_curve(*args, short, calib, loose)
+    chk_short = _check_again(rec, calib, short)
     assert chk_short.status == "suspect"
     assert any("shorter than the grasp reach" in r for r in chk_short.reasons), chk_short.reasons
 
@@ -687,16 +694,9 @@ def test_a_distractor_piece_matched_into_the_thread_strand_supports_no_depth() -
     two left strands share one right strand: neither match measures the depth."""
     from threadrecon.core.metrics import frame_errors
     from threadrecon.core.segmentation import StereoPair
-    from threadrecon.core.synthetic import (
-        RenderParams,
-        SyntheticParams,
-        ThreadParams,
-        generate_frame,
-    )
 
-    render = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, distractors=8)
-    frame = generate_frame(
-        SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng([14111, 5, 15])
+    frame = suite_frame(
+        [14111, 5, 15], background="tissue", noise_sigma=2.0, blur_sigma=0.5, distractors=8
     )
     calib = frame.camera.calibration()
     # the walk of the okwrong14d round (the runner-up alternatives only): with deviation 41's
@@ -707,8 +707,7 @@ def test_a_distractor_piece_matched_into_the_thread_strand_supports_no_depth() -
     assert frame_errors(rec["camera"].points, frame.truth.centerline, calib).e_length > 20.0
     assert rec["check"].status == "suspect", rec["check"].reasons
     assert rec["check"].unmeasured_mm > CheckParams().max_unmeasured_mm
-    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
-    off = check_curve(*args, rec["camera"], calib, CheckParams(contested_support=False))
+    off = _check_again(rec, calib, contested_support=False)
     assert off.status == "ok" and off.unmeasured_mm < CheckParams().max_unmeasured_mm
 
 
@@ -739,8 +738,7 @@ def test_a_bridge_under_a_shaft_is_not_bare_background_by_the_shafts_own_ring() 
     chk = rec["check"]
     assert chk.status == "ok", chk.reasons
     assert 20.0 < chk.longest_bridge_mm < CheckParams().max_bridge_mm
-    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
-    before = check_curve(*args, rec["camera"], calib, CheckParams(bare_back_px=0.0))
+    before = _check_again(rec, calib, bare_back_px=0.0)
     assert before.status == "suspect"
     assert any("bare background" in r for r in before.reasons), before.reasons
 
@@ -783,20 +781,12 @@ def test_a_fibre_joined_where_the_curve_turns_back_is_suspect() -> None:
     wrong again (docs/method.md, session 17)."""
     from threadrecon.core.metrics import frame_errors
     from threadrecon.core.segmentation import StereoPair
-    from threadrecon.core.synthetic import (
-        RenderParams,
-        SyntheticParams,
-        ThreadParams,
-        generate_frame,
-    )
 
-    render = RenderParams(
-        background="tissue", noise_sigma=3.0, blur_sigma=0.5, thread_colour="random",
-        distractors=6, instrument=True, lighting=0.5, jpeg_quality=75, specular=0.3,
+    frame = suite_frame(
+        [16153, 12, 7], background="tissue", noise_sigma=3.0, blur_sigma=0.5,
+        thread_colour="random", distractors=6, instrument=True, lighting=0.5, jpeg_quality=75,
+        specular=0.3,
     )  # fmt: skip
-    frame = generate_frame(
-        SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng([16153, 12, 7])
-    )
     calib = frame.camera.calibration()
     params = ReconParams()
     params = replace(params, segment=replace(params.segment, tool_rim_px=0))
@@ -806,8 +796,7 @@ def test_a_fibre_joined_where_the_curve_turns_back_is_suspect() -> None:
     chk = rec["check"]
     assert chk.status == "suspect", chk.reasons
     assert any("turns back" in r for r in chk.reasons), chk.reasons
-    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
-    off = check_curve(*args, rec["camera"], calib, CheckParams(end_reversal=False))
+    off = _check_again(rec, calib, end_reversal=False)
     assert off.status == "ok", off.reasons
 
 
@@ -837,16 +826,9 @@ def test_a_curve_through_itself_under_a_shaft_is_suspect() -> None:
     With the self-contact test: suspect."""
     from threadrecon.core.metrics import frame_errors
     from threadrecon.core.segmentation import StereoPair
-    from threadrecon.core.synthetic import (
-        RenderParams,
-        SyntheticParams,
-        ThreadParams,
-        generate_frame,
-    )
 
-    render = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, instrument=True)
-    frame = generate_frame(
-        SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng([17145, 6, 7])
+    frame = suite_frame(
+        [17145, 6, 7], background="tissue", noise_sigma=2.0, blur_sigma=0.5, instrument=True
     )
     calib = frame.camera.calibration()
     pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
@@ -856,6 +838,5 @@ def test_a_curve_through_itself_under_a_shaft_is_suspect() -> None:
     chk = rec["check"]
     assert chk.status == "suspect", chk.reasons
     assert any("passes through itself" in r for r in chk.reasons), chk.reasons
-    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
-    off = check_curve(*args, rec["camera"], calib, CheckParams(self_contact=False))
+    off = _check_again(rec, calib, self_contact=False)
     assert off.status == "ok", off.reasons

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from support import suite_frame
 
 from threadrecon.core.check_beyond import (
     _end_frame,
@@ -572,18 +573,9 @@ def _raw_suite_frame(seed: int, suite_index: int, k: int, render: dict, params=N
     from threadrecon.core.metrics import frame_errors
     from threadrecon.core.pipeline import Pipeline, ReconParams
     from threadrecon.core.segmentation import StereoPair
-    from threadrecon.core.synthetic import (
-        RenderParams,
-        SyntheticParams,
-        ThreadParams,
-        generate_frame,
-    )
 
-    rp = RenderParams(**(dict(background="tissue", noise_sigma=2.0, blur_sigma=0.5) | render))
-    frame = generate_frame(
-        SyntheticParams(thread=ThreadParams(), render=rp),
-        np.random.default_rng([seed, suite_index, k]),
-    )
+    tissue = dict(background="tissue", noise_sigma=2.0, blur_sigma=0.5)
+    frame = suite_frame([seed, suite_index, k], **(tissue | render))
     calib = frame.camera.calibration()
     rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(params or ReconParams())
     return rec, frame_errors(rec["camera"].points, frame.truth.centerline, calib)
@@ -613,17 +605,8 @@ def _masked_occlusion_frame(key: list[int]):
     from threadrecon.core.metrics import frame_errors
     from threadrecon.core.pipeline import Pipeline, ReconParams
     from threadrecon.core.segmentation import StereoPair
-    from threadrecon.core.synthetic import (
-        RenderParams,
-        SyntheticParams,
-        ThreadParams,
-        generate_frame,
-    )
 
-    rp = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, occlusion=True)
-    frame = generate_frame(
-        SyntheticParams(thread=ThreadParams(), render=rp), np.random.default_rng(key)
-    )
+    frame = suite_frame(key, background="tissue", noise_sigma=2.0, blur_sigma=0.5, occlusion=True)
     calib = frame.camera.calibration()
     pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
     rec = Pipeline(pair, calib).run(ReconParams())
