@@ -287,7 +287,7 @@ class _View:
         lo = np.empty(S.shape, np.uint8)  # cv2.compare(S, ridge_lo level, CMP_GE) and its points
         rows, cols = at_least(S, np.float32(p.ridge_lo * level), lo)
         a_q = _quarter(img if img.ndim == 3 else img[:, :, None])[:, :, :c]
-        tool_q = None
+        tool_q = body = None  # the instrument at quarter resolution, its body and rim
         if c > 1 and len(rows):
             tool = _instrument_mask(_log_of(a_q, levels=img.dtype == np.uint8))
             if tool.any():  # its jaws: grey parts wider than a thread, attached to it
@@ -306,8 +306,6 @@ class _View:
                 rows, cols = rows[~on_tool], cols[~on_tool]
         else:
             tool = None
-        if tool is None or not tool.any():
-            body = None
         free = _free_blocks(rows, cols, a_q.shape[:2])
         if tool_q is not None and p.tool_rim_px > 0:
             # the instrument's blocks are no background either: a thread kept beside it
