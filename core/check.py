@@ -58,6 +58,7 @@ from threadrecon.core.check_beyond import (
     bridge_stray,
     cut_end,
     end_occluder,
+    extension,
     extension_far,
     plain_surface,
     surface_ahead,
@@ -337,6 +338,16 @@ class CheckParams(Params):
         "same point of it (a wrong order of its pieces). Off: no such test (before session "
         "17). docs/method.md, okw17b.",
     )  # fmt: skip
+    seen_beyond: bool = param(
+        True, label="thread seen past an end",
+        doc="On: suspect when the thread pixels of a free end's own piece go on, uncovered by "
+        "the curve and within 30 deg of its way, more than max_unobserved_mm (at the end's "
+        "depth) past the end in both views (core/check_beyond.extension): the curve stops "
+        "short of thread both views show (a walk that ended at a crossing, a tail along the "
+        "image rows without a reliable match). Off: the end's own piece is measured only up "
+        "to cut_end_px + 35 px, for an end cut in one view (before session 18). "
+        "docs/method.md, session 18.",
+    )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
         doc="Expected error at which the confidence is exp(-1).",
@@ -420,8 +431,9 @@ class CheckResult:
     bounds (fraction of the half-width), ``solver_status`` the spline's, ``longest_jump_px``
     the longest run of the left projection off the thread, ``overlap_px`` the length of the
     left projection running over another part of the curve, ``beyond_mm`` how far (mm, at the
-    end's depth) a piece of thread pixels beyond a free end across an occluder reaches
-    (core/check_beyond.py; 0 when there is none), ``fold_px`` the length of the left
+    end's depth) thread pixels beyond a free end reach: a piece across an occluder, or the
+    end's own piece seen on in one view or in both (core/check_beyond.py; 0 when there is
+    none), ``fold_px`` the length of the left
     projection running twice over one strand (core/check_fold.py), ``end_added_mm`` the
     length the depth change over a free end's last knot span adds (mm), ``occluded_mm`` how
     far (mm, at the end's depth) the thread at a free end may run on hidden under an occluder
@@ -724,6 +736,19 @@ def _check(
         reach = min(unobserved_px, p.cut_end_px + CUT_REACH_PX)
         known = extension_far((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach,
                               p.cover_px + BEYOND_COVER_PX, p.cut_end_px)  # fmt: skip
+        if p.seen_beyond and min(known[0]) + 2.0 >= reach:  # both views see on to the reach
+            seen = extension((uv_l, uv_r), (lifted.P_L, lifted.P_R), end,
+                             unobserved_px + AHEAD_STEP_PX, p.cover_px + BEYOND_COVER_PX,
+                             p.cut_end_px)  # fmt: skip
+            seen_px = min(seen)
+            missing = max(missing, seen_px * z_end / f * mm)
+            if seen_px > unobserved_px:
+                findings.append(
+                    ("suspect", f"the thread goes on {seen_px:.0f} px "
+                     f"({seen_px * z_end / f * mm:.1f} mm) past the curve's {end} in both "
+                     "views, not covered by the curve: the curve stops short of thread both "
+                     f"views show (limit {p.max_unobserved_mm:g} mm)")
+                )  # fmt: skip
         cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach, p.cut_end_px,
                       p.cover_px + BEYOND_COVER_PX, bare, p.bare_share, see_px=unobserved_px,
                       known=known[0])  # fmt: skip

@@ -55,11 +55,6 @@ from scipy import sparse
 from scipy.linalg.lapack import dpbsv, dptsv
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-try:  # the routine behind reverse_cuthill_mckee (tests/core/test_stereo.py compares the two)
-    from scipy.sparse.csgraph._reordering import _reverse_cuthill_mckee
-except ImportError:  # another scipy: the public function
-    _reverse_cuthill_mckee = None
-
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.compiled import helper, kernel
 from threadrecon.core.params import Params, param
@@ -393,14 +388,12 @@ def _continuity(
 
 def _rcm(indices: np.ndarray, indptr: np.ndarray, m: int) -> np.ndarray:
     """scipy's reverse Cuthill-McKee order of the symmetric (m, m) pattern (CSR ``indices``,
-    ``indptr``), from its ordering routine on the arrays a ``csr_matrix`` would hold (int32
-    indices), without building the matrix (its checks cost more than the order at 640x480)."""
-    if _reverse_cuthill_mckee is not None and m < 2**31 and indices.size < 2**31:
-        try:
-            return _reverse_cuthill_mckee(indices.astype(np.int32), indptr.astype(np.int32), m)
-        except (TypeError, ValueError):  # a scipy whose routine takes other arguments
-            pass
-    pattern = sparse.csr_matrix((np.ones(indices.size), indices, indptr), shape=(m, m))
+    ``indptr``), through its public function on an int32 ``csr_array`` (the private routine
+    behind it saved ~0.1 ms a frame; the public API is kept)."""
+    idx = np.int32 if m < 2**31 and indices.size < 2**31 else np.int64
+    pattern = sparse.csr_array(
+        (np.ones(indices.size), indices.astype(idx), indptr.astype(idx)), shape=(m, m)
+    )
     return reverse_cuthill_mckee(pattern, symmetric_mode=True)
 
 

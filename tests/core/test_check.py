@@ -840,3 +840,32 @@ def test_a_curve_through_itself_under_a_shaft_is_suspect() -> None:
     assert any("passes through itself" in r for r in chk.reasons), chk.reasons
     off = _check_again(rec, calib, self_contact=False)
     assert off.status == "ok", off.reasons
+
+
+def _cut_short(rec, calib, cut_mm: float) -> tuple[CameraCurve, str]:
+    """The camera curve of ``rec`` without its last ``cut_mm`` at a free end (the masks keep
+    the thread), and that end."""
+    cam = rec["camera"]
+    end = "end" if "end" not in rec["check"].ends_at_border else "start"
+    pts = cam.points if end == "end" else cam.points[::-1]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    kept = pts[s <= s[-1] - cut_mm / calib.mm_per_unit]
+    kept = kept if end == "end" else kept[::-1]
+    length = float(np.sum(np.linalg.norm(np.diff(kept, axis=0), axis=1)))
+    return CameraCurve(cam.ctrl, cam.knots, cam.degree, kept, length, cam.unit), end
+
+
+@pytest.mark.parametrize("cut_mm", [8.0, 30.0])
+def test_a_curve_that_stops_short_of_thread_both_views_show_is_suspect(cut_mm: float) -> None:
+    """The curve stops ``cut_mm`` short of the thread's free end, the masks of both views show
+    the thread going on (a walk that ended at a crossing, a tail along the rows without a
+    reliable match): past max_unobserved_mm it is suspect, and only with ``seen_beyond``."""
+    pair, calib, _ = synthetic_case(0)
+    rec = Pipeline(pair, calib).run()
+    short, end = _cut_short(rec, calib, cut_mm)
+    args = [rec[k] for k in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    p = CheckParams()
+    says = [any("stops short of thread both views show" in r for r in check_curve(
+        *args, short, calib, replace(p, seen_beyond=on)).reasons) for on in (True, False)]  # fmt: skip
+    assert says == [cut_mm > p.max_unobserved_mm, False]
+    assert check_curve(*args, short, calib, p).beyond_mm > 0.5 * min(cut_mm, p.max_unobserved_mm)
