@@ -736,3 +736,6 @@ def test_thread_and_edges_is_the_grown_mask_of_a_copied_crop() -> None:
         got = _thread_and_edges(mask, cy, cx, r)
         assert got.dtype == bool and np.array_equal(got, grown[ys, xs])
     assert not _thread_and_edges(np.zeros((60, 80), bool), 30, 40, 6).any()
+    as255 = _thread_and_edges(mask.astype(np.uint8) * np.uint8(255), 30, 40, 6)  # not 0 / 1
+    assert as255.view(np.uint8).max() == 1
+    assert np.array_equal(as255, _thread_and_edges(mask, 30, 40, 6))
