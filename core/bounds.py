@@ -32,6 +32,7 @@ from threadrecon.core.continuity import (
     second_match_subpixel,
 )
 from threadrecon.core.ends import fuse_end
+from threadrecon.core.numeric import row_norms
 from threadrecon.core.ordering import OUTLIER_PX, Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.stereo import StereoResult
@@ -122,7 +123,7 @@ def depth_bounds(
     fB = calib.focal * calib.baseline
     path = _border_depths(path, fB)
     H, is_key = _extra_points(stereo, ordering, path, p.extra_px, fB, p.second_matches)
-    seg = np.linalg.norm(np.diff(H[:, :2], axis=0), axis=1)
+    seg = row_norms(np.diff(H[:, :2], axis=0))
     s = np.concatenate([[0.0], np.cumsum(seg)])
     key_idx = np.flatnonzero(is_key)
     z_key = H[key_idx, 2]

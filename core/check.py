@@ -83,6 +83,7 @@ from threadrecon.core.check_score import (
     quality_score,
 )
 from threadrecon.core.check_support import contradicted, reliable_rows, uncontested
+from threadrecon.core.numeric import row_norms
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.refine import row_runs
@@ -602,9 +603,9 @@ def _check(
     # The distances of a bridge's points measure the occluder's width, not an error: a bridge
     # is left out of the reprojection figures and judged by its unobserved 3D length instead.
     mm = calib.mm_per_unit
-    step3 = np.linalg.norm(np.diff(pts, axis=0), axis=1) * mm
-    step = np.linalg.norm(np.diff(uv_l, axis=0), axis=1)
-    step_r = np.linalg.norm(np.diff(uv_r, axis=0), axis=1)
+    step3 = row_norms(np.diff(pts, axis=0)) * mm
+    step = row_norms(np.diff(uv_l, axis=0))
+    step_r = row_norms(np.diff(uv_r, axis=0))
     off_l, off_r = in_l & (rho_l > p.jump_px), in_r & (rho_r > p.jump_px)
     run_l, run3_l, bridge_l = _off_thread_runs(off_l, step, step3)
     run_r, run3_r, bridge_r = _off_thread_runs(off_r, step_r, step3)
@@ -1055,7 +1056,7 @@ def _mark_joined(lifted: LiftedPair, uv: np.ndarray, disp: np.ndarray, rev: Reve
     its median measure, with at least two. Where the pair cannot tell (an untextured
     background), nothing is found: a thread can turn back at a point in its projection where
     it runs along the line of sight (a narrow loop: the development split's blend6_4)."""
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
+    s = np.concatenate([[0.0], np.cumsum(row_norms(np.diff(uv, axis=0)))])
     greys, masks = (lifted.grey_L, lifted.grey_R), (lifted.P_L, lifted.P_R)
     fronts = []
     for sign in (-1.0, 1.0):  # towards the start, towards the end

@@ -456,11 +456,13 @@ def _thread_and_edges(mask: np.ndarray, cy: int, cx: int, r: int) -> np.ndarray:
         max(cx - r - e, 0),
         min(cx + r + e + 1, w),
     )
-    crop = np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8)
+    crop = mask[y0:y1, x0:x1].view(np.uint8)  # cv2 reads the rows in place: no copy first
     if not crop.any():
         return np.zeros((2 * r + 1, 2 * r + 1), dtype=bool)
     grown = cv2.dilate(crop, _EDGE_KERNEL)
-    return grown[cy - r - y0 : cy + r + 1 - y0, cx - r - x0 : cx + r + 1 - x0].astype(bool)
+    patch = grown[cy - r - y0 : cy + r + 1 - y0, cx - r - x0 : cx + r + 1 - x0]
+    # a bool mask grows to 0 and 1: viewed as bool, no conversion
+    return patch.view(bool) if mask.dtype == bool else patch.astype(bool)
 
 
 AHEAD_NEAR_PX = 2.0  # a surface this much nearer than the end still carries it (the thread's

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from threadrecon.core.check_fast_kernel import close_pairs
+from threadrecon.core.numeric import row_norms
 
 FOLD_COS = float(np.cos(np.radians(30.0)))  # passes within 30 deg of one line run along it
 
@@ -55,7 +56,7 @@ def fold_length(
     if not len(pairs):
         return 0.0
     t = np.gradient(uv, axis=0)
-    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
+    t /= np.maximum(row_norms(t)[:, None], 1e-12)
     i, j = idx[pairs[:, 0]], idx[pairs[:, 1]]
     along = np.abs(np.sum(t[i] * t[j], axis=1)) > FOLD_COS
     keep = (np.abs(s[i] - s[j]) > gap) & along & (np.abs(disp[i] - disp[j]) < dtol)
@@ -68,6 +69,7 @@ def fold_length(
 REVERSAL_ARM_PX = 6.0  # the turn at a point: between the chords this long before and after it
 REVERSAL_COS = float(np.cos(np.radians(120.0)))  # a turn of more than 120 deg turns back
 REVERSAL_CHORD_PX = 40.0  # the way either side of a turn: the chord this long along the curve
+_ARM_STEPS = int(REVERSAL_ARM_PX)  # the arm in 1 px samples (end_reversal reads a 1 px grid)
 
 
 @dataclass(frozen=True)
@@ -105,7 +107,7 @@ def end_reversal(uv: np.ndarray, s3: np.ndarray) -> Reversal | None:
     uv = np.asarray(uv, dtype=np.float64)
     if len(uv) < 3 or not np.all(np.isfinite(uv)):
         return None
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
+    s = np.concatenate([[0.0], np.cumsum(row_norms(np.diff(uv, axis=0)))])
     arm, chord = REVERSAL_ARM_PX, REVERSAL_CHORD_PX
     if s[-1] < 2.0 * arm + 2.0:
         return None
@@ -118,11 +120,21 @@ def end_reversal(uv: np.ndarray, s3: np.ndarray) -> Reversal | None:
         return np.sum(a * b, axis=-1) / np.maximum(na * nb, 1e-12)
 
     ss = np.arange(arm, s[-1] - arm, 1.0)
-    here = at(ss)
-    turn = cos(here - at(ss - arm), at(ss + arm) - here)
+    # The samples ss - arm, ss and ss + arm are the whole numbers 0 .. len(ss) + 2 arm - 1
+    # (arange's start + i step, exact): the curve is read once at each (the same values as
+    # three reads), and the turn is cos's own operations written per coordinate.
+    n, k = len(ss), _ARM_STEPS
+    grid = np.arange(n + 2 * k, dtype=np.float64)
+    gx, gy = np.interp(grid, s, uv[:, 0]), np.interp(grid, s, uv[:, 1])
+    hx, hy = gx[k : k + n], gy[k : k + n]
+    ax, ay = hx - gx[:n], hy - gy[:n]
+    bx, by = gx[2 * k :] - hx, gy[2 * k :] - hy
+    norms = np.sqrt(ax * ax + ay * ay) * np.sqrt(bx * bx + by * by)
+    turn = (ax * bx + ay * by) / np.maximum(norms, 1e-12)
     sharp = turn < REVERSAL_COS
     if not sharp.any():
         return None
+    here = np.column_stack([hx, hy])
     # one point per sharp run: its sharpest sample
     idx = np.flatnonzero(sharp)
     runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)

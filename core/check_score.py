@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from threadrecon.core.bounds import Bounds
+from threadrecon.core.numeric import row_norms
 from threadrecon.core.spline import SplineResult
 
 if TYPE_CHECKING:
@@ -193,7 +194,7 @@ def grasp_point(
     p: CheckParams,
 ) -> GraspPoint | None:
     """The most confident point within ``grasp_window_mm`` of ``grasp_mm`` from the free end."""
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))]) * mm
+    s = np.concatenate([[0.0], np.cumsum(row_norms(np.diff(pts, axis=0)))]) * mm
     if not np.isfinite(s[-1]):
         return None
     from_start, from_end = s, s[-1] - s

@@ -29,6 +29,19 @@ def median(a: np.ndarray) -> float:
     return float((part[h - 1] + part[h]) / 2.0)
 
 
+def row_norms(v: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(v, axis=1)`` of an (N, 2) or (N, 3) float64 array, bit for bit: numpy's
+    own operations in its order (the squares, their sum over a row from its first column on,
+    the square root) without its generic layers (a third to a half of its time)."""
+    if v.ndim != 2 or v.shape[1] not in (2, 3) or v.dtype != np.float64:
+        return np.linalg.norm(v, axis=1)
+    sq = v * v
+    total = sq[:, 0] + sq[:, 1]
+    if v.shape[1] == 3:
+        total += sq[:, 2]
+    return np.sqrt(total)
+
+
 def distance_to_zero(image: np.ndarray) -> np.ndarray:
     """(H, W) float32, the Euclidean distance (px) of each pixel of the (H, W) uint8 ``image``
     to its nearest zero pixel: ``cv2.distanceTransform(image, DIST_L2, DIST_MASK_PRECISE)`` as

@@ -43,7 +43,7 @@ from threadrecon.core.clustering import Clusters
 from threadrecon.core.continuity import depth_of, disparity_of, disparity_room, second_matches
 from threadrecon.core.ends import seen_in_right, tip_disparity
 from threadrecon.core.lazy import Deferred, LazyField
-from threadrecon.core.numeric import distance_to_zero
+from threadrecon.core.numeric import distance_to_zero, row_norms
 from threadrecon.core.params import Params, param
 from threadrecon.core.segmentation import LiftedPair
 from threadrecon.core.stereo import StereoResult
@@ -577,16 +577,17 @@ def _window_is_own(
     cx, cy = np.round(tip[:2])
     if grid is None:
         inbox = np.all(np.abs(pixels - np.array([cx, cy])) <= radius, axis=1)
-        nodes = np.unique(pixel_node[inbox])
+        window = pixel_node[inbox]
     else:
-        nodes = np.unique(pixel_node[grid.window(cx, cy, radius)])
+        window = pixel_node[grid.window(cx, cy, radius)]
+    nodes = set(window.tolist())  # each node once (the test below reads no order)
     xy = key_px[seq, :2]
     arc = np.linalg.norm(xy[0] - tip[:2]) + np.concatenate(
-        [[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]
+        [[0.0], np.cumsum(row_norms(np.diff(xy, axis=0)))]
     )
     own = set(seq[: int(np.searchsorted(arc, 3.0 * radius, side="right")) + 1])
     own_gaps = set().union(*(cluster_gaps.get(c, set()) for c in own))
-    return all((n in own) if n < K else (n in own_gaps) for n in nodes.tolist())
+    return all((n in own) if n < K else (n in own_gaps) for n in nodes)
 
 
 class _GapGeodesics:
@@ -780,7 +781,7 @@ def _one_view_piece(
     kp = kp[-MONO_FIT_KEYPOINTS:]
     if not len(kp) or not np.all(np.isfinite(kp[:, 2]) & (kp[:, 2] > 0)):
         return none
-    s_kp = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(kp[:, :2], axis=0), axis=1))])
+    s_kp = np.concatenate([[0.0], np.cumsum(row_norms(np.diff(kp[:, :2], axis=0)))])
     s_kp -= s_kp[-1]
     z0, slope = float(kp[-1, 2]), 0.0
     if len(kp) >= 2:

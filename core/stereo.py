@@ -341,9 +341,9 @@ def _continuity(
     solved for (the others are fixed at ``d_hat``); ``at``: (N,) int64 flat box positions of
     the pixels (:func:`_positions`, computed when None). Returns the (N,) disparities."""
     at = _positions(index) if at is None else at
-    a, b = _neighbour_pairs_kernel(index, at)
-    touch = free[a] | free[b]
-    a, b = a[touch], b[touch]
+    # the pairs of _neighbour_pairs that touch a free pixel, in their order (one compiled pass:
+    # not every pair of P_L, then a selection of them)
+    a, b = _free_pairs_kernel(index, at, np.ascontiguousarray(free, dtype=bool))
     fi = np.flatnonzero(free)
     m = fi.size
     pos = np.full(d_hat.size, -1, dtype=np.int64)
@@ -740,6 +740,27 @@ def _neighbour_pairs_kernel(index, at):  # noqa: ANN001
             if y < h and 0 <= x < w and index[y, x] >= 0:
                 a[m], b[m] = i, index[y, x]
                 m += 1
+    return a[:m].copy(), b[:m].copy()
+
+
+@kernel("Tuple((int64[::1], int64[::1]))(int32[:, ::1], int64[::1], boolean[::1])")
+def _free_pairs_kernel(index, at, free):  # noqa: ANN001
+    """The pairs (a, b) of :func:`_neighbour_pairs_kernel` of which ``free[a]`` or ``free[b]``
+    holds, in its order: per direction, the pixels of P_L in row-major order."""
+    h, w = index.shape
+    dirs = ((0, 1), (1, -1), (1, 0), (1, 1))
+    n = at.size
+    a = np.empty(4 * n, dtype=np.int64)
+    b = np.empty(4 * n, dtype=np.int64)
+    m = 0
+    for dy, dx in dirs:
+        for i in range(n):
+            y, x = at[i] // w + dy, at[i] % w + dx
+            if y < h and 0 <= x < w:
+                j = index[y, x]
+                if j >= 0 and (free[i] or free[j]):
+                    a[m], b[m] = i, j
+                    m += 1
     return a[:m].copy(), b[:m].copy()
 
 

@@ -714,3 +714,28 @@ def test_once_computes_on_the_first_call_only() -> None:
     assert once() == (12.0, 3.0) and once() == (12.0, 3.0) and calls == [1]
     none = _Once(lambda: calls.append(2))
     assert none() is None and none() is None and calls == [1, 2]
+
+
+def test_thread_and_edges_is_the_grown_mask_of_a_copied_crop() -> None:
+    # the crop read in place (cv2 takes its rows' stride) and the grown 0/1 values viewed as
+    # bool: the copy and conversion they replace give the same patch, at the image's borders too
+    import cv2
+
+    from threadrecon.core.check_beyond import _EDGE_KERNEL, AHEAD_EDGE_PX, _thread_and_edges
+
+    rng = np.random.default_rng(5)
+    mask = rng.random((60, 80)) < 0.08
+    mask[30:34, :] = True  # a strand
+    e = AHEAD_EDGE_PX
+    for cy, cx, r in [(6, 6, 6), (53, 73, 6), (30, 40, 6), (9, 70, 9), (45, 10, 9), (20, 20, 2)]:
+        y0, y1 = max(cy - r - e, 0), min(cy + r + e + 1, 60)
+        x0, x1 = max(cx - r - e, 0), min(cx + r + e + 1, 80)
+        crop = np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8)
+        grown = cv2.dilate(crop, _EDGE_KERNEL).astype(bool)
+        ys, xs = slice(cy - r - y0, cy + r + 1 - y0), slice(cx - r - x0, cx + r + 1 - x0)
+        got = _thread_and_edges(mask, cy, cx, r)
+        assert got.dtype == bool and np.array_equal(got, grown[ys, xs])
+    assert not _thread_and_edges(np.zeros((60, 80), bool), 30, 40, 6).any()
+    as255 = _thread_and_edges(mask.astype(np.uint8) * np.uint8(255), 30, 40, 6)  # not 0 / 1
+    assert as255.view(np.uint8).max() == 1
+    assert np.array_equal(as255, _thread_and_edges(mask, 30, 40, 6))

@@ -7,7 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from threadrecon.core.check_fold import end_reversal, fold_length, self_contact
+from threadrecon.core.check_fold import (
+    REVERSAL_ARM_PX,
+    REVERSAL_COS,
+    end_reversal,
+    fold_length,
+    self_contact,
+)
 
 
 def _steps(uv: np.ndarray) -> np.ndarray:
@@ -100,6 +106,50 @@ def test_a_turn_back_counts_the_branch_only_not_the_rest_of_the_curve() -> None:
     uv = _polyline((400, 0), (0, 0), (30, 5))
     rev = end_reversal(uv, _s3(uv, 1.0))
     assert rev is not None and rev.end == "end" and rev.length == pytest.approx(30.4, abs=1.0)
+
+
+def _turn_three_reads(uv: np.ndarray) -> np.ndarray:
+    """end_reversal's turn at every 1 px sample as it first read the curve: three reads of
+    it (at s - arm, s, s + arm) and np.linalg.norm."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
+    arm = REVERSAL_ARM_PX
+
+    def at(v: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.interp(v, s, uv[:, 0]), np.interp(v, s, uv[:, 1])])
+
+    ss = np.arange(arm, s[-1] - arm, 1.0)
+    here = at(ss)
+    a, b = here - at(ss - arm), at(ss + arm) - here
+    na, nb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
+    return np.sum(a * b, axis=-1) / np.maximum(na * nb, 1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_end_reversal_reads_the_turns_of_three_reads_bit_for_bit(seed: int) -> None:
+    # one read of the curve on the whole-px grid, the turn written per coordinate: the same
+    # turns to the bit (random walks, spirals, hairpins, out and back), so the same reversals
+    rng = np.random.default_rng(seed)
+    for t in range(60):
+        n = int(rng.integers(4, 300))
+        if t % 3 == 0:
+            uv = 300 + np.cumsum(rng.normal(0.0, rng.uniform(0.3, 6.0), (n, 2)), axis=0)
+        elif t % 3 == 1:
+            a = np.linspace(0.0, rng.uniform(1.0, 12.0), n)
+            uv = 200 + rng.uniform(5, 80) * np.column_stack([np.cos(a), np.sin(a * 1.7)])
+        else:
+            half = np.linspace(0.0, 1.0, n // 2)
+            uv = np.column_stack([np.linspace(0, rng.uniform(1, 60), n),
+                                  np.concatenate([half, half[::-1], [0.0] * (n % 2)]) * 200])  # fmt: skip
+        turn = _turn_three_reads(uv)
+        s3 = np.cumsum(rng.uniform(0.01, 2.0, n))
+        rev = end_reversal(uv, s3)
+        if not (turn < REVERSAL_COS).any():
+            assert rev is None
+            continue
+        if rev is not None:  # (a sharp turn with neither side heading back is none)
+            c = np.flatnonzero(turn < REVERSAL_COS)
+            degs = np.degrees(np.arccos(np.clip(turn[c], -1.0, 1.0)))
+            assert rev.turn_deg in degs.tolist()
 
 
 F_PX = 900.0  # focal length of the self-contact tests, px (a width of 6 px is 0.87 mm at 130 mm)

@@ -358,6 +358,7 @@ def test_continuity_set_up_kernels_give_the_numpy_formulations_exactly(seed: int
     from scipy import sparse
 
     from threadrecon.core.stereo import (
+        _free_pairs_kernel,
         _free_pattern_kernel,
         _local_median,
         _neighbour_pairs,
@@ -405,6 +406,13 @@ def test_continuity_set_up_kernels_give_the_numpy_formulations_exactly(seed: int
     sym = (pattern + pattern.T).tocsr()
     indptr, indices = _free_pattern_kernel(index, _positions(index)[fi], pos)
     assert np.array_equal(indptr, sym.indptr) and np.array_equal(indices, sym.indices)
+
+    # the pairs touching a free pixel, in the pairs' order (what the continuity MAP reads)
+    touch = free[a] | free[b]
+    fa, fb = _free_pairs_kernel(index, _positions(index), free)
+    assert np.array_equal(fa, a[touch]) and np.array_equal(fb, b[touch])
+    none = _free_pairs_kernel(index, _positions(index), np.zeros(n, dtype=bool))
+    assert none[0].size == 0 and none[1].size == 0
 
 
 @pytest.mark.parametrize("seed", range(6))
