@@ -62,10 +62,32 @@ def polyline_length(points: np.ndarray) -> float:
 
 def curve_errors(points: np.ndarray, points_gt: np.ndarray) -> CurveErrors:
     """e_S, e_S^max and e_l between two dense polylines (N, 3), (M, 3)."""
-    a, b = resample(points), resample(points_gt)
-    d_ab = cKDTree(b).query(a)[0]
-    d_ba = cKDTree(a).query(b)[0]
-    la, lb = polyline_length(points), polyline_length(points_gt)
+    return _errors_against(points, _Truth.of(points_gt))
+
+
+@dataclass(frozen=True)
+class _Truth:
+    """What e_S, e_S^max and e_l read of a true curve: its resampling (read-only), a k-d tree
+    of it and its length. They depend on the truth alone, so the debugger's re-scoring after
+    every slider move (the same frame's truth) keeps them (``_visible_truth``)."""
+
+    points: np.ndarray
+    tree: cKDTree
+    length: float
+
+    @classmethod
+    def of(cls, points_gt: np.ndarray) -> _Truth:
+        b = resample(points_gt)
+        b.setflags(write=False)
+        return cls(b, cKDTree(b), polyline_length(points_gt))
+
+
+def _errors_against(points: np.ndarray, truth: _Truth) -> CurveErrors:
+    """:func:`curve_errors` of ``points`` against a prepared truth (the same operations)."""
+    a = resample(points)
+    d_ab = truth.tree.query(a)[0]
+    d_ba = cKDTree(a).query(truth.points)[0]
+    la, lb = polyline_length(points), truth.length
     return CurveErrors(
         e_S=float(0.5 * (d_ab.mean() + d_ba.mean())),
         e_S_max=float(max(d_ab.max(), d_ba.max())),
@@ -82,9 +104,34 @@ def frame_errors(
     centerline (M, 3) that both rectified views see (``visible_part``), both in the camera frame
     in ``calib``'s unit. The one metric of every evaluation (``evaluate``, the scripts): a thread
     that leaves the image is judged on what the cameras can show."""
-    truth = visible_part(truth_points, calib.P1, calib.P2, calib.image_size)
     mm = calib.mm_per_unit
-    return curve_errors(_check_points(points) * mm, truth * mm)
+    return _errors_against(_check_points(points) * mm, _visible_truth(truth_points, calib))
+
+
+def _visible_truth(truth_points: np.ndarray, calib: StereoCalibration) -> _Truth:
+    """The (cached) :class:`_Truth` of the visible part of ``truth_points`` in mm, by content:
+    the truth's and the calibration's values (a spline move at 640x480 re-scored its frame's
+    truth in ~0.7 ms of the metrics' ~3.3: its visible part, resampling, k-d tree and length)."""
+    truth = _check_points(truth_points)
+    mm = calib.mm_per_unit
+    key = (
+        truth.shape,
+        hashlib.blake2b(truth.tobytes(), digest_size=16).digest(),
+        np.asarray(calib.P1, dtype=np.float64).tobytes(),
+        np.asarray(calib.P2, dtype=np.float64).tobytes(),
+        tuple(calib.image_size),
+        float(mm),
+    )
+    hit = _TRUTHS.get(key)
+    if hit is not MISSING:
+        return hit  # type: ignore[return-value]
+    prepared = _Truth.of(visible_part(truth, calib.P1, calib.P2, calib.image_size) * mm)
+    _TRUTHS.put(key, prepared)
+    return prepared
+
+
+TRUTH_CACHE = 8  # true curves kept: a few frames' (the debugger re-scores after every move)
+_TRUTHS: LRU[tuple, _Truth] = LRU(TRUTH_CACHE)
 
 
 def visible_part(

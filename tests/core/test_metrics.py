@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from support import assert_close
 
+from threadrecon.core import metrics
 from threadrecon.core.calibration import make_calibration
 from threadrecon.core.metrics import (
     _zhang_suen,
@@ -171,6 +172,33 @@ def test_frame_errors_judge_a_thread_leaving_the_view_on_its_visible_part() -> N
     assert_close(frame_errors(truth, truth, calib).length_gt, e.length_gt)
     with pytest.raises(ValueError, match="N >= 2"):
         frame_errors(np.zeros((1, 3)), truth, calib)
+
+
+def test_frame_errors_keep_the_truth_between_reconstructions(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The truth's visible part, resampling, k-d tree and length are kept by content: a second
+    reconstruction of the frame (a slider move) builds only its own tree, with the values of
+    the computation from scratch; another truth of the same shape gets its own."""
+    K = np.array([[100.0, 0, 50], [0, 100.0, 40], [0, 0, 1]])
+    calib = make_calibration(K, np.zeros(5), K, np.zeros(5), np.eye(3), [-0.5, 0, 0], (80, 100),
+                             unit="cm")  # fmt: skip
+    x = np.linspace(-1.0, 6.0, 141)
+    truth = np.column_stack([x, 0.1 * np.sin(x), np.full_like(x, 10.0)])
+    built = []
+    real = metrics.cKDTree
+    monkeypatch.setattr(metrics, "cKDTree", lambda data: built.append(len(data)) or real(data))
+    for k, shift in enumerate((0.0, 0.02, 0.05)):
+        curve = truth + np.array([0.0, shift, 0.01 * k])
+        before = len(built)
+        e = frame_errors(curve, truth, calib)
+        assert k == 0 or len(built) - before == 1  # the truth's tree: once
+        seen = visible_part(truth, calib.P1, calib.P2, calib.image_size)
+        assert e == curve_errors(curve * 10, seen * 10)  # bit for bit
+    other = truth + np.array([0.0, 0.03, 0.0])
+    e = frame_errors(truth, other, calib)
+    assert e == curve_errors(truth * 10, visible_part(other, calib.P1, calib.P2, (80, 100)) * 10)
+    assert e.e_S > 0.29  # mm: the other truth, not the kept one
 
 
 def test_hidden_ends_measure_the_truth_no_view_shows() -> None:
