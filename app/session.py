@@ -166,8 +166,12 @@ class Session(RunWorker):
         self.last_used = time.monotonic()
 
     def idle_for(self) -> float:
-        """Seconds since the session was last used (0 while a 3D view is attached)."""
-        return 0.0 if self.views else time.monotonic() - self.last_used
+        """Seconds since the session was last used or its last run ended (0 while a 3D view
+        is attached or a run is pending: a first run that compiles the kernels may take longer
+        than the idle timeout, and its request waits for it)."""
+        if self.views or self.busy:
+            return 0.0
+        return time.monotonic() - self.last_used
 
     def wait(self, seq: int, timeout: float = 60.0) -> bool:
         """Block until request ``seq`` (or a newer one) has finished, its layers drawn in
@@ -295,6 +299,7 @@ class Session(RunWorker):
                         self._done_seq = max(self._done_seq, req.seq)
                         self._answered_seq = max(self._answered_seq, req.seq)
                     self.running = None
+                    self.last_used = time.monotonic()  # idle from the run's end
                     self._cond.notify_all()
                 # "busy" changed: a new version, so that a long poll that answered the
                 # last one while the run was ending still gets the idle state

@@ -103,6 +103,23 @@ def test_idle_sessions_expire_but_ones_with_a_view_stay(library):
     assert manager.find(viewed.id) is viewed and manager.find(idle.id) is None
 
 
+def test_a_session_whose_run_outlasts_the_idle_timeout_is_not_expired(library):
+    """A run longer than the idle timeout (a first run that compiles the kernels, a slow
+    machine) keeps its session: the request waiting for it gets its answer, and the idle time
+    counts from the run's end."""
+    manager = SessionManager(library, idle_timeout_s=0.2)
+    s = manager.create()
+    seq = s.submit(frame_id=FLAT, pause_s=0.1)  # ten stages, 0.1 s apart: ~1 s of run
+    t0 = time.monotonic()
+    while s.busy and time.monotonic() - t0 < 60:
+        assert manager.expire() == []
+        time.sleep(0.05)
+    assert time.monotonic() - t0 > 0.4 and s.wait(seq, 5) and s.rec is not None
+    assert manager.expire() == [] and manager.find(s.id) is s  # idle from the run's end
+    time.sleep(0.3)
+    assert manager.expire() == [s.id]
+
+
 def test_the_number_of_sessions_is_bounded(library):
     manager = SessionManager(library, max_sessions=5)
     for _ in range(12):
