@@ -1422,7 +1422,14 @@ def _on_tool(
     if rim_px <= 0:
         return on, None
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rim_px + 1, 2 * rim_px + 1))
-    body = cv2.dilate(cv2.bitwise_and(unsat, tool.view(np.uint8)), disc).view(bool) & tool
+    # On the mask's bounding box: what is dilated lies in it, and the result is cut to it.
+    tool8 = np.ascontiguousarray(tool, dtype=bool).view(np.uint8)
+    body = np.zeros(tool.shape, bool)
+    x, y, w, h = cv2.boundingRect(tool8)
+    if w > 0:
+        t8 = tool8[y : y + h, x : x + w]
+        grown = cv2.dilate(cv2.bitwise_and(unsat[y : y + h, x : x + w], t8), disc)
+        body[y : y + h, x : x + w] = grown.view(bool) & t8.view(bool)
     sel = np.flatnonzero(on)
     on[sel[~body[rows[sel], cols[sel]]]] = False
     return on, body

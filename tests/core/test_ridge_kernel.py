@@ -224,6 +224,27 @@ def test_kth_smallest_of_a_strided_view_is_partition_of_its_values(trial: int) -
             assert rk.kth_smallest(view, k) == np.partition(flat, k)[k]
 
 
+def test_kth_smallest_gathers_its_bin_exactly_at_every_rank() -> None:
+    # The bin's values are gathered at the next free slot, which only they advance: a bin
+    # holding every value, none but the last, or values of one level (ties, zeros with the
+    # sign set), and every rank, including the last value of the array in the bin.
+    rng = np.random.default_rng(93)
+    mostly_zero = np.where(rng.random(301) < 0.8, 0.0, rng.random(301)).astype(np.float32)
+    mostly_zero[::7] = -0.0
+    cases = [
+        np.full(13, 2.5, np.float32),
+        np.r_[np.full(40, 7.0), 1.0].astype(np.float32),  # the k-th smallest comes last
+        np.r_[rng.random(50) + 100.0, 1.0, 1.0 + 2**-20].astype(np.float32),
+        mostly_zero,
+        (1.0 + rng.integers(0, 4, 64) * 2**-22).astype(np.float32),  # one sub-bin, four levels
+    ]
+    for x in cases:
+        for view in (x[None], x[None, ::-1], x[: len(x) - len(x) % 3].reshape(-1, 3)[:, ::2]):
+            flat = view.ravel()
+            for k in range(flat.size):
+                assert rk.kth_smallest(view, k) == np.partition(flat, k)[k]
+
+
 def _drop_specks_by_labels(mask: np.ndarray, min_px: int) -> np.ndarray:
     """The plain computation: cv2's 8-connected labels of the whole mask, sizes, keep."""
     n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)

@@ -234,6 +234,28 @@ def test_the_instrument_takes_the_candidates_near_its_grey_body_only() -> None:
     assert on0.tolist() == [True] * 6 + [False, False] and body0 is None
 
 
+@pytest.mark.parametrize("trial", range(12))
+def test_the_instruments_body_on_its_box_is_the_whole_images(trial: int) -> None:
+    # _on_tool dilates the unsaturated pixels of the mask on the mask's bounding box only:
+    # the same body as the whole image's dilation cut to the mask, whatever the rim, with the
+    # mask at the image's edges, in several parts, or empty.
+    rng = np.random.default_rng([17, trial])
+    h, w = int(rng.integers(20, 90)), int(rng.integers(20, 90))
+    tool = np.zeros((h, w), bool)
+    for _ in range(int(rng.integers(0, 4))):
+        r0, c0 = int(rng.integers(-10, h)), int(rng.integers(-10, w))
+        r1, c1 = r0 + int(rng.integers(1, 40)), c0 + int(rng.integers(1, 40))
+        tool[max(r0, 0) : r1, max(c0, 0) : c1] = True
+    unsat = (rng.random((h, w)) < rng.random()).astype(np.uint8)
+    rows, cols = np.nonzero(rng.random((h, w)) < 0.3)
+    for rim in (1, 3, 5):
+        on, body = sr._on_tool(tool, unsat, rows, cols, rim)
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rim + 1, 2 * rim + 1))
+        want = cv2.dilate(unsat & tool.view(np.uint8), disc).view(bool) & tool
+        np.testing.assert_array_equal(body, want)
+        np.testing.assert_array_equal(on, want[rows, cols])
+
+
 def _occlusion_frame(seed: int, k: int):  # noqa: ANN202
     """Frame ``k`` of scripts/eval_suites.py's "tissue+occlusion" suite (index 1)."""
     render = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, occlusion=True)
