@@ -246,13 +246,18 @@ class _View:
     # pass's views share: the tissue's disparity beside a vessel (deviation 53)
     first_marks: list[np.ndarray] = field(default_factory=list)
     red_marks: list[np.ndarray] = field(default_factory=list)  # and those the red pass found
+    off_tool: bool = False  # the surface test's background leaves ``tool`` out (deviation 56)
 
     def far(self) -> np.ndarray:
         """(H, W) bool: background pixels beyond _BAND_PX of every candidate (lo) pixel, where
-        no line, nor its blurred rim, is (computed once, on demand)."""
+        no line, nor its blurred rim, is (computed once, on demand); with ``off_tool``, not on
+        the instrument either (its shaft is no tissue: a line at its depth beside it does not
+        move with the tissue, deviation 56)."""
         if self._far is None:
             k = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * _BAND_PX + 1, 2 * _BAND_PX + 1))
             self._far = cv2.dilate(self.lo, k) == 0
+            if self.off_tool and self.tool is not None:
+                self._far &= ~self.tool
         return self._far
 
     def tool_counts(self) -> tuple[int, int, np.ndarray] | None:
@@ -326,6 +331,7 @@ class _View:
         v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb, s_lo)
         if tool is not None and tool.shape == lo.shape and tool.any():
             v.tool, v.tool_body = tool, body
+        v.off_tool = p.tissue_surface
         v.pieces = _pieces(~blood if blood.any() else None, v, p)
         return v
 
