@@ -126,7 +126,8 @@ def segment_raw(
     5. Selection: the most salient piece (mean S x sqrt(length)) is the thread; other pieces
        and pixels join it when they share its dye (direction of the colour contrast; a piece
        merged with a fibre by its part of that dye) and their mean S is >= keep_ratio of its.
-       Pieces moving with the tissue are marks on it (:mod:`core.segment_surface`), and so
+       Pieces moving with the tissue are marks on it (:mod:`core.segment_surface`; the
+       tissue's samples are off the instrument, :meth:`_View.far`: a shaft is none), and so
        are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`),
        chosen or joining; a kept piece moving with the tissue in part loses that part
        (:func:`_mark_part`), and a piece of two dyes takes that of its part in front of the
