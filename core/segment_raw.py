@@ -126,7 +126,8 @@ def segment_raw(
     5. Selection: the most salient piece (mean S x sqrt(length)) is the thread; other pieces
        and pixels join it when they share its dye (direction of the colour contrast; a piece
        merged with a fibre by its part of that dye) and their mean S is >= keep_ratio of its.
-       Pieces moving with the tissue are marks on it (:mod:`core.segment_surface`), and so
+       Pieces moving with the tissue are marks on it (:mod:`core.segment_surface`; the
+       tissue's samples are off the instrument, :meth:`_View.far`: a shaft is none), and so
        are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`),
        chosen or joining; a kept piece moving with the tissue in part loses that part
        (:func:`_mark_part`), and a piece of two dyes takes that of its part in front of the
@@ -246,13 +247,18 @@ class _View:
     # pass's views share: the tissue's disparity beside a vessel (deviation 53)
     first_marks: list[np.ndarray] = field(default_factory=list)
     red_marks: list[np.ndarray] = field(default_factory=list)  # and those the red pass found
+    off_tool: bool = False  # the surface test's background leaves ``tool`` out (deviation 56)
 
     def far(self) -> np.ndarray:
         """(H, W) bool: background pixels beyond _BAND_PX of every candidate (lo) pixel, where
-        no line, nor its blurred rim, is (computed once, on demand)."""
+        no line, nor its blurred rim, is (computed once, on demand); with ``off_tool``, not on
+        the instrument either (its shaft is no tissue: a line at its depth beside it does not
+        move with the tissue, deviation 56)."""
         if self._far is None:
             k = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * _BAND_PX + 1, 2 * _BAND_PX + 1))
             self._far = cv2.dilate(self.lo, k) == 0
+            if self.off_tool and self.tool is not None:
+                self._far &= ~self.tool
         return self._far
 
     def tool_counts(self) -> tuple[int, int, np.ndarray] | None:
@@ -326,6 +332,7 @@ class _View:
         v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb, s_lo)
         if tool is not None and tool.shape == lo.shape and tool.any():
             v.tool, v.tool_body = tool, body
+        v.off_tool = p.tissue_surface
         v.pieces = _pieces(~blood if blood.any() else None, v, p)
         return v
 

@@ -179,6 +179,15 @@ class SegmentationParams(Params):
         "tissue's marks beside it, is a mark too, not a reason to give the pass up. Off: the "
         "red pass's own marks only (deviation 53).",
     )
+    tissue_surface: bool = param(
+        True,
+        label="raw: tissue-only surface test",
+        doc="raw: the surface test (does a line move with the tissue beside it?) reads the "
+        "tissue's disparity from background pixels off the instrument found in the view: a "
+        "shaft is no tissue, and a thread beside it at its depth is not a mark on the tissue "
+        "(nor a mark beside it a floating line). Off: the instrument's pixels are background "
+        "samples too (deviation 56).",
+    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,

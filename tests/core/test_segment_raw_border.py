@@ -307,3 +307,32 @@ def test_the_mask_grown_beside_a_shaft_leaves_its_grey_body_out() -> None:
         assert not (P & v.tool_body).any()
         near = cv2.dilate(v.tool_body.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
         assert (P & near & M).any()  # the thread is found up to the body's rim
+
+
+def test_the_surface_test_samples_no_instrument_as_tissue() -> None:
+    """The surface test's background pixels (:meth:`sr._View.far`) are off the instrument
+    found in the view with ``tissue_surface`` (deviation 56), on it without."""
+    frame = _occlusion_frame(17153, 20)
+    on = sr._View.build(frame.left, _P)
+    off = sr._View.build(frame.left, replace(_P, tissue_surface=False))
+    assert on.tool is not None and on.tool.sum() > 10_000
+    assert not (on.far() & on.tool).any()
+    assert (off.far() & off.tool).sum() > 0.5 * off.tool.sum()
+    assert np.array_equal(on.far(), off.far() & ~off.tool)
+
+
+def test_a_thread_at_the_shafts_depth_beside_it_is_no_mark_on_the_tissue() -> None:
+    """ "tissue+occlusion", seed 17153, frame 20: in the left view the navy thread's stretch
+    beyond the shaft (~180 px, at 42-45 px of disparity) runs beside the shaft, which sits
+    at 44 px; the tissue is at 27. Its 64 px blocks' background held the shaft's grey
+    body, resolved at the shaft's disparity, and the stretch "moved with" it: a mark, lost
+    (left IoU 0.57, the curve suspect). Read off the instrument, those blocks' background is
+    the tissue's, and the stretch is the thread's (deviation 56)."""
+    frame = _occlusion_frame(17153, 20)
+
+    def iou(p: SegmentationParams) -> float:
+        P, M = segment(StereoPair(frame.left, frame.right), p).P_L, frame.mask_left
+        return float((P & M).sum() / (P | M).sum())
+
+    assert iou(_P) >= 0.9
+    assert iou(replace(_P, tissue_surface=False)) < 0.65
