@@ -402,10 +402,10 @@ def segment(pair: StereoPair, p: SegmentationParams = SegmentationParams()) -> L
             P_L, P_R, score_L, score_R = segment_raw(
                 pair.left, pair.right, p, greys=greys, defer_score=True
             )
-    if not P_L.any():
-        raise ValueError("empty segmentation: no thread pixel in the left image")
-    if not P_R.any():
-        raise ValueError("empty segmentation: no thread pixel in the right image")
+    for side, P in (("left", P_L), ("right", P_R)):
+        if not P.any():  # the raw method's cleaning can leave a view empty: no thread there
+            what = "no thread found" if method == "raw" else "empty segmentation"
+            raise ValueError(f"{what}: no thread pixel in the {side} image")
     I_L = _lift(views[0].f32, P_L, p.lift_dilate_px, box_L)
     I_R = _lift(views[1].f32, P_R, p.lift_dilate_px, box_R)
     return LiftedPair(

@@ -214,6 +214,22 @@ def test_thread_free_tissue_frames_are_no_thread_found(render: RenderParams, see
         segment(StereoPair(empty.left, empty.right), SegmentationParams(method="raw"))
 
 
+@pytest.mark.parametrize("side", [0, 1])
+def test_a_raw_view_left_empty_after_cleaning_is_no_thread_found(monkeypatch, side: int) -> None:
+    """The raw method's last cleaning (specks) can leave one view without a pixel: that view
+    shows no thread, the frame's answer is "no thread found" (a threshold's empty view stays
+    an "empty segmentation")."""
+    from threadrecon.core import segmentation as seg_module
+
+    frame = generate_frame(SyntheticParams(render=TISSUE), 101)
+    masks = [frame.mask_left.copy(), frame.mask_right.copy()]
+    masks[side][:] = False
+    monkeypatch.setattr(seg_module, "segment_raw", lambda *a, **k: (*masks, None, None))
+    name = ("left", "right")[side]
+    with pytest.raises(ValueError, match=f"^no thread found: no thread pixel in the {name} image"):
+        segment(StereoPair(frame.left, frame.right), SegmentationParams(method="raw"))
+
+
 @pytest.mark.parametrize("seed", [101, 102])
 def test_thread_free_frames_with_a_grasper_are_no_thread_found(seed: int) -> None:
     render = replace(TISSUE, instrument=True)
