@@ -138,3 +138,59 @@ def _contested(
         out[sel] = contested_runs(x, y, xr, row, first, last, H, W, float(slack_px))
     out.setflags(write=False)  # the cached value is shared
     return out
+
+
+def unpaired_pieces(
+    mask: np.ndarray,
+    other: np.ndarray,
+    uv: np.ndarray,
+    reach_px: float,
+    left: bool,
+    d_range: tuple[float, float],
+) -> int:
+    """Thread pixels of ``mask`` (H, W) bool in pieces no other view pairs: a piece (8-connected)
+    none of whose pixels lies within ``reach_px`` of the curve's projection ``uv`` (N, 2) (x, y),
+    of which fewer than half have a thread pixel of ``other`` on their row at a disparity in
+    ``d_range`` (px; ``left``: ``mask`` is the left view, so the partner lies at x - d, else at
+    x + d). Such a piece is seen in one view only at any depth the search allows: no thread
+    of the pair (a distractor, a mark). A piece that touches the curve's band is never
+    counted (a stretch of thread the other view's segmentation lost)."""
+    from scipy import ndimage
+    from scipy.spatial import cKDTree
+
+    uv = np.asarray(uv, dtype=np.float64)
+    uv = uv[np.all(np.isfinite(uv), axis=1)]
+    if uv.shape[0] < 2 or not mask.any():
+        return 0
+    # the projection at <= 0.5 px steps: the nearest sample is within 0.25 px of the polyline
+    step = np.linalg.norm(np.diff(uv, axis=0), axis=1)
+    parts = np.maximum(np.ceil(step / 0.5).astype(np.int64), 1)
+    seg = np.repeat(np.arange(len(step)), parts)
+    t = (np.arange(seg.size) - np.repeat(np.cumsum(parts) - parts, parts)) / parts[seg]
+    dense = np.vstack([uv[seg] + t[:, None] * (uv[seg + 1] - uv[seg]), uv[-1:]])
+    labels, n = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
+    ys, xs = np.nonzero(mask)
+    lab = labels[ys, xs]
+    dist, _ = cKDTree(dense).query(np.column_stack([xs, ys]), distance_upper_bound=reach_px)
+    near = np.zeros(n + 1, dtype=bool)
+    near[lab[np.isfinite(dist)]] = True
+    far = ~near[lab]
+    if not far.any():
+        return 0
+    # a partner: a pixel of ``other`` on the row within the disparity range (row sums)
+    cs = np.zeros((other.shape[0], other.shape[1] + 1), dtype=np.int64)
+    np.cumsum(other, axis=1, out=cs[:, 1:])
+    w = other.shape[1]
+    d_lo, d_hi = d_range
+    y, x = ys[far], xs[far]
+    if left:
+        lo, hi = np.floor(x - d_hi), np.ceil(x - d_lo)
+    else:
+        lo, hi = np.floor(x + d_lo), np.ceil(x + d_hi)
+    lo = np.clip(lo, 0, w).astype(np.int64)
+    hi = np.clip(hi + 1, 0, w).astype(np.int64)
+    paired = (hi > lo) & (cs[y, hi] - cs[y, np.minimum(lo, hi)] > 0)
+    count = np.bincount(lab[far], minlength=n + 1)
+    hits = np.bincount(lab[far], weights=paired, minlength=n + 1)
+    alone = (count > 0) & (hits < 0.5 * count)
+    return int(count[alone].sum())
