@@ -81,12 +81,7 @@ from threadrecon.core.check_score import (
     point_errors,
     quality_score,
 )
-from threadrecon.core.check_support import (
-    contradicted,
-    reliable_rows,
-    uncontested,
-    unpaired_pieces,
-)
+from threadrecon.core.check_support import contradicted, reliable_rows, uncontested
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.refine import row_runs
@@ -308,17 +303,6 @@ class CheckParams(Params):
         "(core/check_beyond.thread_line_beyond): thread the segmentation dropped (a loop "
         "taken for a vessel). Default 0, off: at 0.5 it flagged a right curve on a held-out "
         "seed (docs/method.md, okwrong14).",
-    )  # fmt: skip
-    paired_coverage: bool = param(
-        True, label="coverage of paired pieces only",
-        doc="On: where a view's coverage falls short, a piece of its thread pixels (8-connected) "
-        "that comes nowhere near the curve (no pixel within cover_px + 10 px of its "
-        "projection) leaves that view's count when fewer than half of its pixels have a "
-        "thread pixel of the other view on their row at a disparity the search allows: a "
-        "piece one view shows at no depth is no thread of the pair (a distractor, a mark). A "
-        "piece touching the curve's band counts always (thread the other view's segmentation "
-        "lost), as does a piece both views show (thread beyond an occluder). Off: every "
-        "thread pixel counts (before session 18). docs/method.md, flag18.",
     )  # fmt: skip
     blank_occluder: bool = param(
         True, label="a blank patch beyond an end hides",
@@ -690,17 +674,6 @@ def _check(
 
     cov_l = _coverage(view_l, uv_l, in_l, p.cover_px)
     cov_r = _coverage(view_r, uv_r, in_r, p.cover_px)
-    if p.paired_coverage and min(cov_l, cov_r) < p.coverage_min:
-        # pieces one view shows apart from the curve, with no partner in the other view at any
-        # depth the search allows, are no thread of the pair: out of that view's count
-        reach = p.cover_px + BAND_PX + 2.0
-        d_range = (d_lo, float(alpha))
-        if cov_l < p.coverage_min:
-            alone = unpaired_pieces(lifted.P_L, lifted.P_R, uv_l[in_l], reach, True, d_range)
-            cov_l = cov_l * view_l.total / max(view_l.total - alone, 1)
-        if cov_r < p.coverage_min:
-            alone = unpaired_pieces(lifted.P_R, lifted.P_L, uv_r[in_r], reach, False, d_range)
-            cov_r = cov_r * view_r.total / max(view_r.total - alone, 1)
     for side, cov in (("left", cov_l), ("right", cov_r)):
         if cov < p.coverage_min:
             findings.append(

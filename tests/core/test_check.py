@@ -840,26 +840,3 @@ def test_a_curve_through_itself_under_a_shaft_is_suspect() -> None:
     assert any("passes through itself" in r for r in chk.reasons), chk.reasons
     off = _check_again(rec, calib, self_contact=False)
     assert off.status == "ok", off.reasons
-
-
-def test_a_piece_one_view_shows_at_no_depth_leaves_the_coverage() -> None:
-    """Raw 17153 all #2 (flag18): the left raw mask holds a distractor's piece (246 px, rows
-    222-236) apart from the thread that the right mask has nowhere on those rows at a
-    disparity the search allows; the curve is right (e_l 0.3 mm, e_S^max 1.6 mm) but covered
-    83 % of the left thread pixels: suspect. Counted out, "ok"."""
-    from threadrecon.core.metrics import frame_errors
-    from threadrecon.core.segmentation import StereoPair
-
-    frame = suite_frame(
-        [17153, 12, 2], background="tissue", noise_sigma=3.0, blur_sigma=0.5,
-        thread_colour="random", distractors=6, instrument=True, lighting=0.5, jpeg_quality=75,
-        specular=0.3,
-    )  # fmt: skip
-    calib = frame.camera.calibration()
-    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run()
-    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
-    assert abs(e.e_length) < 2.0 and e.e_S_max < 2.0
-    assert rec["check"].status == "ok", rec["check"].reasons
-    off = _check_again(rec, calib, paired_coverage=False)
-    assert off.status == "suspect"
-    assert any("covers 83 % of the left" in r for r in off.reasons), off.reasons

@@ -8,13 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from threadrecon.core.check_support import (
-    contested,
-    contradicted,
-    reliable_rows,
-    uncontested,
-    unpaired_pieces,
-)
+from threadrecon.core.check_support import contested, contradicted, reliable_rows, uncontested
 
 
 def _matches(xy: list[tuple[int, int]], disp: list[float]):
@@ -239,47 +233,3 @@ def test_uncontested_is_one_cached_array_so_the_reliable_rows_are_built_once(
     apart = _rows([(10, 10, 12), (10, 17, 19)])  # a right strand for each: no contest
     stereo2, rel2 = _matches([(20, 10), (27, 10)], [10.0, 10.0])
     assert uncontested(stereo2, rel2, apart, 2.0) is None
-
-
-def _pieces() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A left view whose thread runs along row 50 (x 20..180), the curve on it, and a piece
-    of 3 x 30 px apart from it at rows 100..102, x 100..129; the right view holds the thread
-    20 px to the left and nothing else."""
-    left = np.zeros((160, 240), dtype=bool)
-    right = np.zeros_like(left)
-    left[49:52, 20:181] = True
-    right[49:52, 0:161] = True
-    left[100:103, 100:130] = True
-    uv = np.column_stack([np.linspace(20.0, 180.0, 81), np.full(81, 50.0)])
-    return left, right, uv
-
-
-def test_a_piece_apart_from_the_curve_that_no_other_view_pairs_is_counted() -> None:
-    left, right, uv = _pieces()
-    assert unpaired_pieces(left, right, uv, 13.0, True, (1.0, 64.0)) == 90
-    # the right view shows it too, 20 px of disparity to the left: a piece of the pair
-    right[100:103, 80:110] = True
-    assert unpaired_pieces(left, right, uv, 13.0, True, (1.0, 64.0)) == 0
-    # ... but not at a disparity the search allows (every right pixel right of the left
-    # piece's: behind infinity)
-    right[100:103, 80:110] = False
-    right[100:103, 131:161] = True
-    assert unpaired_pieces(left, right, uv, 13.0, True, (1.0, 64.0)) == 90
-    # the same seen from the right view: its partner in the left lies at x + d
-    right[100:103, 131:161] = False
-    right[100:103, 80:110] = True
-    assert unpaired_pieces(right, left, uv - [20.0, 0.0], 13.0, False, (1.0, 64.0)) == 0
-    left[100:103, 100:130] = False
-    assert unpaired_pieces(right, left, uv - [20.0, 0.0], 13.0, False, (1.0, 64.0)) == 90
-
-
-def test_a_piece_touching_the_curves_band_is_never_counted() -> None:
-    # a branch joined to the covered thread (thread the other view's segmentation lost, or a
-    # distractor's branch): the other view's evidence is what the coverage measures
-    left, right, uv = _pieces()
-    left[52:100, 110:113] = True  # joins the piece to the thread
-    assert unpaired_pieces(left, right, uv, 13.0, True, (1.0, 64.0)) == 0
-    left, right, uv = _pieces()
-    assert unpaired_pieces(left, right, uv[uv[:, 0] < 90], 13.0, True, (1.0, 64.0)) == 90
-    # the part of the thread itself beyond the curve's end is a piece the curve touches
-    assert unpaired_pieces(left, right, uv[uv[:, 0] < 90], 60.0, True, (1.0, 64.0)) == 0
