@@ -65,6 +65,10 @@ class SplineParams(Params):
     """Solve the MVS problem; False keeps the initial spline (for comparison)."""
     relax_slopes: bool = True
     """When Eq. (8) is infeasible, retry once with only the endpoint values fixed (False: paper)."""
+    relax_ends: bool = True
+    """When Eq. (8) stays infeasible with only the endpoint values fixed (the lines' and the
+    tips'), retry once with the bounds alone, no end constraint (False: report the failure and
+    show the initial spline). Deviation 57, docs/method.md."""
     data_weight: float = param(
         10.0, lo=0, hi=1000000000.0, slider=(0.0, 100.0, 0.5), label="data weight"
     )
@@ -179,6 +183,15 @@ def fit_spline(
         if retry.status == "ok":
             sol, relaxed, untipped = retry, True, False
             E, e_rhs = st.E[0:4:2], st.e_rhs[0:4:2]
+    freed = False
+    if sol.status == "infeasible" and p.relax_ends:
+        # No end value either: the bounds alone (deviation 57). Every end constraint of Eq. (8)
+        # is a line fitted through the measured depths near the end, or a tip's depth; when
+        # none of them fits the bounds of the points beside it, the bounds (the measured
+        # depths themselves) decide the ends, as they decide every other point.
+        retry = problem.solve(b0, st.E[:0] / zs, st.e_rhs[:0] / zs, p.max_iter)
+        if retry.status == "ok":
+            sol, freed, relaxed, untipped = retry, True, False, False
     b = sol.x
     viol = _violation(A @ b, lo_c, hi_c, half_c) if np.all(np.isfinite(b)) else np.inf
     status: Status = sol.status
@@ -194,6 +207,7 @@ def fit_spline(
     ctrl = ctrl_init.copy()
     ctrl[:, 2] = b
     msg = sol.message + (" (endpoint slope constraints relaxed)" if relaxed else "")
+    msg += " (no end constraint: the bounds admit none of the end values)" if freed else ""
     msg += " (the window lines' end values: the tips' were infeasible)" if untipped else ""
     return SplineResult(
         t_xy,
@@ -217,8 +231,8 @@ SETUP_CACHE: Final = 8  # set-ups kept: a few frames' spline stage in the debugg
 class _Setup:
     """What :func:`fit_spline` derives from H, its bounds and the knots alone, before the
     solve: the same for every value of the solver's parameters (``data_weight``,
-    ``max_iter``, ``bound_tol``, ``relax_slopes``, ``optimise``), so a slider of those re-runs
-    the solve only. Read-only: results get copies (``final``, ``u``, ``t_xy``)."""
+    ``max_iter``, ``bound_tol``, ``relax_slopes``, ``relax_ends``, ``optimise``), so a slider
+    of those re-runs the solve only. Read-only: results get copies (``final``, ``u``, ``t_xy``)."""
 
     k: int
     length: float

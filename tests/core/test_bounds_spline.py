@@ -326,7 +326,7 @@ def test_contradictory_endpoint_slopes_are_relaxed_or_reported_infeasible() -> N
         end_slopes=(20.0 * float(half.max()), b.end_slopes[1]),  # per px: leaves at once
         line_ends=None,  # no tip's values to fall back from (deviation 23)
     )
-    strict = fit_spline(tight, calib, SplineParams(relax_slopes=False))
+    strict = fit_spline(tight, calib, SplineParams(relax_slopes=False, relax_ends=False))
     assert strict.status == "infeasible" and not strict.ok
     assert "infeasible" in strict.message
     assert_close(strict.ctrl, strict.ctrl_init)
@@ -343,11 +343,35 @@ def test_infeasible_tip_end_values_fall_back_to_the_window_lines() -> None:
     half = 0.5 * (b.upper - b.lower)
     paper = (b.end_values[0], b.end_slopes[0], b.end_values[1], b.end_slopes[1])
     tipped = replace(b, end_values=(float(b.centre[0]) + 50.0 * float(half.max()), b.end_values[1]))
-    assert fit_spline(replace(tipped, line_ends=None), calib).status == "infeasible"
+    strict_ends = SplineParams(relax_ends=False)
+    assert fit_spline(replace(tipped, line_ends=None), calib, strict_ends).status == "infeasible"
     sp = fit_spline(replace(tipped, line_ends=paper), calib)
     assert sp.status == "ok", sp.message
     assert "window lines' end values" in sp.message
     assert_close(sp.ctrl, fit_spline(replace(b, line_ends=None), calib).ctrl)
+
+
+def test_end_values_no_spline_inside_the_bounds_reaches_are_dropped() -> None:
+    # Deviation 57: both end values (a window line's, a tip's) far outside the bounds of the
+    # points next to the ends, with or without their slopes: Eq. (8) stays infeasible after
+    # deviation 8's relaxation. The bounds alone then decide the ends, not the initial spline.
+    b, calib = _bounds(2)
+    half = 0.5 * (b.upper - b.lower)
+    off = 50.0 * float(half.max())
+    far = replace(
+        b, end_values=(float(b.centre[0]) + off, float(b.centre[-1]) - off), line_ends=None
+    )
+    strict = fit_spline(far, calib, SplineParams(relax_ends=False))
+    assert strict.status == "infeasible" and not strict.ok
+    assert_close(strict.ctrl, strict.ctrl_init)
+    freed = fit_spline(far, calib)
+    assert freed.status == "ok", freed.message
+    assert "no end constraint" in freed.message
+    assert freed.max_violation <= SplineParams().bound_tol
+    assert not np.allclose(freed.ctrl[:, 2], freed.ctrl_init[:, 2])  # Eq. (8) was solved
+    z = freed.curve(2)[:, 2]  # the end depths: inside the bounds, not at the far end values
+    assert b.lower[0] - half[0] <= z[0] <= b.upper[0] + half[0]
+    assert b.lower[-1] - half[-1] <= z[-1] <= b.upper[-1] + half[-1]
 
 
 def test_a_border_keypoint_with_a_cut_search_takes_its_neighbours_depth() -> None:
