@@ -128,6 +128,17 @@ class OrderingParams(Params):
         "direction, passed by the cheapest step, was then reached only by a zig-zag back "
         "over the strand (walk=bending).",
     )
+    dead_end_tip: bool = param(
+        True,
+        label="dead end's tip depth",
+        doc="Deviation 55: the tip of an endpoint extension (a dead end, often along the "
+        "image rows where no window inside it matches) is matched in both views beyond "
+        "end_window_px of the end keypoint's disparity, following the SSD's descent within "
+        "the continuity bound over the dead end (continuity.disparity_room) and cut to the "
+        "right image, and the extension takes the tip's depth instead of the end keypoint's: "
+        "the dead end is interpolated between the two. Off: deviation 23's tip (the "
+        "extension's depth copied, the tip only moves Eq. (8)'s end value).",
+    )
     mono_reach_px: float = param(
         0.0,
         lo=0.0,
@@ -457,8 +468,17 @@ def order_keypoints(
                 stereo.pixels, pixel_node, K, seq, key_px, cluster_gaps, path[e], r, grid
             )
             if own and e not in cut_tips and not mono[row]:  # what only the left sees
-                m = tip_disparity(lifted.I_L, lifted.I_R, path[e][:2], disp[k], r)
+                dead = p.dead_end_tip and order[e] < 0  # an extension: a dead end's tip
+                reach = (
+                    float(disparity_room(np.linalg.norm(path[e][:2] - key_px[k, :2])))
+                    if dead
+                    else 0.0
+                )
+                m = tip_disparity(lifted.I_L, lifted.I_R, path[e][:2], disp[k], r, reach)
                 end_disparity[row] = (m.disparity, m.var)
+                z_tip = float(depth_of(stereo, np.array([m.disparity]))[0]) if dead else np.nan
+                if np.isfinite(z_tip):  # the tip's own depth, not the end keypoint's copy
+                    path[e] = np.array([path[e][0], path[e][1], z_tip])
 
     kept = set(walk)
     dropped = np.array([k for k in range(K) if k not in kept], dtype=np.int64)
