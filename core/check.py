@@ -426,7 +426,10 @@ class CheckResult:
     length the depth change over a free end's last knot span adds (mm), ``occluded_mm`` how
     far (mm, at the end's depth) the thread at a free end may run on hidden under an occluder
     it runs into in both views (its thread beyond the curve's end and the occluder's reach;
-    0 when no end meets one).
+    0 when no end meets one), ``untipped_ends`` the ends ("start", "end") whose endpoint
+    extension (a dead end of thread pixels beyond the last keypoint) holds no tip matched in
+    both views: the dead end carries no measured depth at all, its depth is the end keypoint's
+    copied out to the tip (deviation 55; with a tip matched it is interpolated to the tip's).
     """
 
     status: Status
@@ -464,6 +467,7 @@ class CheckResult:
     fold_px: float = 0.0
     end_added_mm: float = 0.0
     occluded_mm: float = 0.0
+    untipped_ends: tuple[str, ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -504,6 +508,7 @@ class CheckResult:
             "fold_px": self.fold_px,
             "end_added_mm": self.end_added_mm,
             "occluded_mm": self.occluded_mm,
+            "untipped_ends": list(self.untipped_ends),
         }
 
 
@@ -1013,6 +1018,21 @@ def _check(
         fold_px=fold,
         end_added_mm=end_added,
         occluded_mm=occluded,
+        untipped_ends=untipped_ends(ordering),
+    )
+
+
+def untipped_ends(ordering: Ordering) -> tuple[str, ...]:
+    """The ends of the ordered path ("start", "end") that are an endpoint extension (order -1,
+    not a piece only the left view shows) whose tip was not matched in both views
+    (``Ordering.end_disparity`` NaN): the extension's depth is the end keypoint's, copied."""
+    return tuple(
+        end
+        for row, (end, i) in enumerate((("start", 0), ("end", -1)))
+        if len(ordering.order)
+        and ordering.order[i] < 0
+        and not ordering.mono[row]
+        and not np.isfinite(ordering.end_disparity[row, 0])
     )
 
 

@@ -840,3 +840,25 @@ def test_a_curve_through_itself_under_a_shaft_is_suspect() -> None:
     assert any("passes through itself" in r for r in chk.reasons), chk.reasons
     off = _check_again(rec, calib, self_contact=False)
     assert off.status == "ok", off.reasons
+
+
+def test_the_evidence_names_an_extension_whose_tip_did_not_match() -> None:
+    """Deviation 55: an end whose dead end (an endpoint extension) has no tip matched in both
+    views carries the end keypoint's depth copied: the evidence says so (``untipped_ends``)."""
+    pair, calib, _ = synthetic_case(2)
+    rec = Pipeline(pair, calib).run()
+    o = rec["ordering"]
+    assert (o.order[[0, -1]] < 0).all() and np.isfinite(o.end_disparity).all()
+    assert rec["check"].untipped_ends == () and rec["check"].evidence()["untipped_ends"] == []
+    lost = o.end_disparity.copy()
+    lost[1] = (np.nan, np.inf)
+    assert check_module.untipped_ends(replace(o, end_disparity=lost)) == ("end",)
+    lost[0] = (np.nan, np.inf)
+    assert check_module.untipped_ends(replace(o, end_disparity=lost)) == ("start", "end")
+    # a piece only the left view shows has no tip to match: not named
+    assert check_module.untipped_ends(replace(o, end_disparity=lost, mono=(1, 0))) == ("end",)
+    keyed = o.order.copy()
+    keyed[0] = 3  # an end keypoint itself: no extension, its depth is its own match
+    assert check_module.untipped_ends(replace(o, end_disparity=lost, order=keyed)) == ("end",)
+    off = ReconParams(ordering=replace(ReconParams().ordering, end_window_px=0))
+    assert Pipeline(pair, calib).run(off)["check"].untipped_ends == ("start", "end")
