@@ -426,10 +426,11 @@ class CheckResult:
     length the depth change over a free end's last knot span adds (mm), ``occluded_mm`` how
     far (mm, at the end's depth) the thread at a free end may run on hidden under an occluder
     it runs into in both views (its thread beyond the curve's end and the occluder's reach;
-    0 when no end meets one), ``untipped_ends`` the ends ("start", "end") whose endpoint
-    extension (a dead end of thread pixels beyond the last keypoint) holds no tip matched in
-    both views: the dead end carries no measured depth at all, its depth is the end keypoint's
-    copied out to the tip (deviation 55; with a tip matched it is interpolated to the tip's).
+    0 when no end meets one), ``untipped_ends`` the ends ("start", "end") whose dead end (an
+    endpoint extension longer than the tip's window, ``Ordering.dead_end``) holds no tip
+    matched in both views: the dead end carries no measured depth at all, its depth is the
+    end keypoint's copied out to the tip (deviation 55; with a tip matched it is interpolated
+    to the tip's).
     """
 
     status: Status
@@ -1023,16 +1024,14 @@ def _check(
 
 
 def untipped_ends(ordering: Ordering) -> tuple[str, ...]:
-    """The ends of the ordered path ("start", "end") that are an endpoint extension (order -1,
-    not a piece only the left view shows) whose tip was not matched in both views
-    (``Ordering.end_disparity`` NaN): the extension's depth is the end keypoint's, copied."""
+    """The ends of the ordered path ("start", "end") that are a dead end's tip
+    (``Ordering.dead_end``: an endpoint extension longer than the tip's window) not matched
+    in both views (``Ordering.end_disparity`` NaN): the dead end's depth is the end
+    keypoint's, copied."""
     return tuple(
         end
-        for row, (end, i) in enumerate((("start", 0), ("end", -1)))
-        if len(ordering.order)
-        and ordering.order[i] < 0
-        and not ordering.mono[row]
-        and not np.isfinite(ordering.end_disparity[row, 0])
+        for row, end in enumerate(("start", "end"))
+        if ordering.dead_end[row] and not np.isfinite(ordering.end_disparity[row, 0])
     )
 
 
