@@ -485,8 +485,11 @@ def order_keypoints(
                 reach = float(disparity_room(length)) if dead_end[row] else 0.0
                 m = tip_disparity(lifted.I_L, lifted.I_R, path[e][:2], disp[k], r, reach)
                 end_disparity[row] = (m.disparity, m.var)
-                if dead_end[row] and np.isfinite(m.disparity):
-                    # the tip's own depth, not the end keypoint's copied
+                # the tip's own depth, not the end keypoint's copied, where one strand can
+                # run from the keypoint to it (the continuity bound over the dead end; else
+                # the keypoint or the tip is wrong, and which is not known: the copy stays,
+                # and the tip only moves Eq. (8)'s end value, as deviation 23's)
+                if dead_end[row] and abs(m.disparity - disp[k]) <= reach:
                     z_tip = float(depth_of(stereo, np.array([m.disparity]))[0])
                     if np.isfinite(z_tip):
                         path[e] = np.array([path[e][0], path[e][1], z_tip])
