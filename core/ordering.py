@@ -470,9 +470,9 @@ def order_keypoints(
         r = p.end_window_px
         for row, (e, k) in enumerate(((0, walk[0]), (-1, walk[-1]))):
             # Deviation 55: an extension longer than the tip's window is a dead end, whose
-            # tip lies beyond the end keypoint's own evidence (a shorter one's tip is matched
-            # no better than the keypoint: 95 ends of 16153's raw suites, 2-8 px long, tip
-            # 0.17 px off the truth on average, the keypoint 0.10)
+            # tip lies beyond the end keypoint's own evidence (16153's raw suites, masks
+            # given: over 90 extensions of 2-15 px the tip's disparity is 0.13 px off the
+            # truth on average, the keypoint's 0.10; over 14 of 15-266 px 0.19 and 0.91)
             length = float(np.linalg.norm(path[e][:2] - key_px[k, :2]))
             dead_end[row] = (
                 p.dead_end_tip and order[e] < 0 and not mono[row] and length > 2 * r + 1
