@@ -2,6 +2,8 @@
 matched in both views gives the end's disparity, and Eq. (8)'s end value weighs it against the
 window line of Eq. (7) by their variances (deviation 23)."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -328,3 +330,27 @@ def test_a_dead_end_along_the_rows_is_interpolated_to_its_tip() -> None:
     assert abs(o_off.path_px[0, 2] - true_tip) > 8.0  # the end keypoint's copy
     assert abs(o_on.path_px[0, 2] - true_tip) < 2.0  # the tip's own depth
     assert e_off.e_S_max > 7.0 and e_on.e_S_max < 4.0, (e_off, e_on)
+
+
+_PAPER = Path(__file__).resolve().parents[3] / "shared" / "data" / "paper-dataset"
+
+
+@pytest.mark.skipif(not _PAPER.is_dir(), reason="../shared/data/paper-dataset absent")
+def test_a_dead_end_tip_out_of_one_strands_reach_keeps_the_copy() -> None:
+    """The development split's real thread2_116: a 28 px dead end whose tip matched 4.7 px
+    from its end keypoint's disparity, beyond one strand's continuity bound over 28 px (3.8
+    px): keypoint or tip is wrong, the extension keeps the keypoint's depth (deviation 55's
+    gate; without it the first knot span fell 24 mm to the tip and the curve was suspect)."""
+    from threadrecon.app.dataset import discover, load_frame
+    from threadrecon.core.continuity import disparity_room
+
+    frame = next(f for f in discover(_PAPER) if f.id.endswith("thread2_116_final"))
+    pair, calib, _ = load_frame(frame)
+    rec = Pipeline(pair, calib).run()
+    o = rec["ordering"]
+    assert o.dead_end[0] and np.isfinite(o.end_disparity[0, 0])
+    fB = calib.focal * calib.baseline
+    length = float(np.linalg.norm(o.path_px[0, :2] - o.path_px[1, :2]))
+    assert abs(o.end_disparity[0, 0] - fB / o.path_px[1, 2]) > disparity_room(length)
+    assert o.path_px[0, 2] == o.path_px[1, 2]  # the copy
+    assert rec.status == "ok", rec.message
