@@ -136,7 +136,9 @@ def _ssd_curves(A: np.ndarray, strip: np.ndarray, radius: int, shifts: int) -> n
     cols = (shifts - 1 - np.arange(shifts))[:, None] + np.arange(n)[None, :]
     return np.stack(
         [
-            np.mean((A[None, :, :] - strip[t : t + n][:, cols].transpose(1, 0, 2)) ** 2, axis=(1, 2))
+            np.mean(
+                (A[None, :, :] - strip[t : t + n][:, cols].transpose(1, 0, 2)) ** 2, axis=(1, 2)
+            )
             for t in range(2 * ROW_SLACK + 1)
         ]
     )

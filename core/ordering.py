@@ -474,9 +474,7 @@ def order_keypoints(
             # given: over 90 extensions of 2-15 px the tip's disparity is 0.13 px off the
             # truth on average, the keypoint's 0.10; over 14 of 15-266 px 0.19 and 0.91)
             length = float(np.linalg.norm(path[e][:2] - key_px[k, :2]))
-            dead_end[row] = (
-                p.dead_end_tip and order[e] < 0 and not mono[row] and length > 2 * r + 1
-            )
+            dead_end[row] = p.dead_end_tip and order[e] < 0 and not mono[row] and length > 2 * r + 1
             seq = walk if e == 0 else walk[::-1]
             own = _window_is_own(
                 stereo.pixels, pixel_node, K, seq, key_px, cluster_gaps, path[e], r, grid
