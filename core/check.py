@@ -439,7 +439,11 @@ class CheckResult:
     length the depth change over a free end's last knot span adds (mm), ``occluded_mm`` how
     far (mm, at the end's depth) the thread at a free end may run on hidden under an occluder
     it runs into in both views (its thread beyond the curve's end and the occluder's reach;
-    0 when no end meets one).
+    0 when no end meets one), ``untipped_ends`` the ends ("start", "end") whose dead end (an
+    endpoint extension longer than the tip's window, ``Ordering.dead_end``) holds no tip
+    matched in both views: the dead end carries no measured depth at all, its depth is the
+    end keypoint's copied out to the tip (deviation 55; with a tip matched it is interpolated
+    to the tip's).
     """
 
     status: Status
@@ -477,6 +481,7 @@ class CheckResult:
     fold_px: float = 0.0
     end_added_mm: float = 0.0
     occluded_mm: float = 0.0
+    untipped_ends: tuple[str, ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -517,6 +522,7 @@ class CheckResult:
             "fold_px": self.fold_px,
             "end_added_mm": self.end_added_mm,
             "occluded_mm": self.occluded_mm,
+            "untipped_ends": list(self.untipped_ends),
         }
 
 
@@ -1039,6 +1045,19 @@ def _check(
         fold_px=fold,
         end_added_mm=end_added,
         occluded_mm=occluded,
+        untipped_ends=untipped_ends(ordering),
+    )
+
+
+def untipped_ends(ordering: Ordering) -> tuple[str, ...]:
+    """The ends of the ordered path ("start", "end") that are a dead end's tip
+    (``Ordering.dead_end``: an endpoint extension longer than the tip's window) not matched
+    in both views (``Ordering.end_disparity`` NaN): the dead end's depth is the end
+    keypoint's, copied."""
+    return tuple(
+        end
+        for row, end in enumerate(("start", "end"))
+        if ordering.dead_end[row] and not np.isfinite(ordering.end_disparity[row, 0])
     )
 
 

@@ -42,7 +42,12 @@ NO_MATCH = TipMatch(float("nan"), float("inf"))
 
 
 def tip_disparity(
-    I_L: np.ndarray, I_R: np.ndarray, tip_xy: np.ndarray, d_ref: float, radius: int
+    I_L: np.ndarray,
+    I_R: np.ndarray,
+    tip_xy: np.ndarray,
+    d_ref: float,
+    radius: int,
+    reach: float = 0.0,
 ) -> TipMatch:
     """Match the (2 radius + 1)^2 window of ``I_L`` centred on ``tip_xy`` (x, y px) along its
     row in ``I_R`` over disparities ``d_ref`` +- ``radius`` px (SSD, mean over the window), on
@@ -50,13 +55,22 @@ def tip_disparity(
     development split's real frames the right view's thread lies a row higher than the left's,
     and a thread running along the rows then matches at a wrong shift).
 
+    ``reach`` > 0 (deviation 55): the tip of a dead end along the rows lies at a disparity of
+    its own, which the end keypoint's ``d_ref`` (copied along the dead end) may miss by more
+    than ``radius``: the search is cut to the shifts whose right window lies inside the right
+    image (a tip near the left border), and where its best shift lies on the edge of
+    ``d_ref`` +- ``radius`` (the SSD still falling outwards), the SSD's descent is followed
+    outwards to its minimum as long as that lies within ``radius`` + ``reach`` px of ``d_ref``
+    (``reach``: how far the thread's disparity may change between the end keypoint and the
+    tip). ``reach`` = 0 is deviation 23's search.
+
     ``I_L``, ``I_R``: (H, W) lifted images of Eq. (1). No match (:data:`NO_MATCH`) when the
     window leaves either image (a thread that leaves the view has no tip there), when the best
     shift lies on the edge of the search, or when the SSD curve is flat (nothing in the window
     fixes the shift)."""
     if I_L.shape != I_R.shape or I_L.ndim != 2:
         raise ValueError(f"tip_disparity needs two (H, W) images, got {I_L.shape}, {I_R.shape}")
-    if radius < 1 or not np.isfinite(d_ref):
+    if radius < 1 or not np.isfinite(d_ref) or not reach >= 0:
         return NO_MATCH
     H, W = I_L.shape
     x, y = int(round(float(tip_xy[0]))), int(round(float(tip_xy[1])))
@@ -68,17 +82,31 @@ def tip_disparity(
         or x + radius >= W
     ):
         return NO_MATCH
-    if x - radius - d0 - radius < 0 or x + radius - d0 + radius >= W:
+    extra = int(np.floor(reach))
+    lo, hi = d0 - radius - extra, d0 + radius + extra  # shifts searched, inclusive
+    if extra > 0:  # only shifts whose right window lies inside the right image
+        lo, hi = max(lo, x + radius - W + 1), min(hi, x - radius)
+        if hi - lo < 2:
+            return NO_MATCH
+    elif x - radius - d0 - radius < 0 or x + radius - d0 + radius >= W:
         return NO_MATCH
     A = I_L[y - radius : y + radius + 1, x - radius : x + radius + 1].astype(np.float64)
-    # shift d = d0 - radius + k lays the window on right columns x - radius - d + (0..n-1),
-    # on the row itself or ROW_SLACK above or below: every cost of the three rows at once
+    # shift d = lo + k lays the window on right columns x - radius - d + (0..n-1), on the row
+    # itself or ROW_SLACK above or below: every cost of the three rows at once
     rows = slice(y - ROW_SLACK - radius, y + ROW_SLACK + radius + 1)
-    strip = I_R[rows, x - 2 * radius - d0 : x + 2 * radius - d0 + 1].astype(np.float64)
-    costs = walk_kernel.tip_costs(np.ascontiguousarray(A), strip, radius, ROW_SLACK)
+    strip = I_R[rows, x - radius - hi : x + radius - lo + 1].astype(np.float64)
+    costs = _ssd_curves(np.ascontiguousarray(A), strip, radius, hi - lo + 1)
     best: tuple[float, int, np.ndarray] | None = None
+    inner = slice(max(d0 - radius, lo) - lo, min(d0 + radius, hi) - lo + 1)
+    if inner.start >= inner.stop:
+        return NO_MATCH
     for cost in costs:  # rows y - ROW_SLACK .. y + ROW_SLACK: a handful of items
-        i = int(np.argmin(cost))
+        i = inner.start + int(np.argmin(cost[inner]))
+        if extra > 0:  # follow the descent outwards from the inner search's edge
+            while i > 0 and cost[i - 1] < cost[i]:
+                i -= 1
+            while i < len(cost) - 1 and cost[i + 1] < cost[i]:
+                i += 1
         if best is None or cost[i] < best[0]:
             best = (float(cost[i]), i, cost)
     assert best is not None
@@ -93,7 +121,27 @@ def tip_disparity(
     # Least-squares shift: var = sigma^2 / G with sigma^2 the residual per pixel (c1), plus
     # the quantisation of the tip's pixels (a noise-free render still ends on a pixel).
     var = 2.0 * c1 / (A.size * curv) + QUANT_VAR
-    return TipMatch(float(d0 - radius + i + off), float(var))
+    return TipMatch(float(lo + i + off), float(var))
+
+
+def _ssd_curves(A: np.ndarray, strip: np.ndarray, radius: int, shifts: int) -> np.ndarray:
+    """(2 ROW_SLACK + 1, ``shifts``) SSD curves of :func:`tip_disparity`: row t (right row
+    offset t - ``ROW_SLACK``), column k the mean squared difference of the left window ``A``
+    and the right one at rows t..t+n-1 and columns ``shifts`` - 1 - k .. of ``strip``. The
+    compiled kernel for deviation 23's search (``shifts`` = n), the same means in numpy (the
+    (shifts, n, n) block's ``np.mean``, as the kernel sums) for a wider one."""
+    n = 2 * radius + 1
+    if shifts == n:
+        return walk_kernel.tip_costs(A, strip, radius, ROW_SLACK)
+    cols = (shifts - 1 - np.arange(shifts))[:, None] + np.arange(n)[None, :]
+    return np.stack(
+        [
+            np.mean(
+                (A[None, :, :] - strip[t : t + n][:, cols].transpose(1, 0, 2)) ** 2, axis=(1, 2)
+            )
+            for t in range(2 * ROW_SLACK + 1)
+        ]
+    )
 
 
 def seen_in_right(px: np.ndarray, P_R: np.ndarray, d_ref: float, tol: int) -> np.ndarray:

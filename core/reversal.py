@@ -36,4 +36,5 @@ def reversed_ordering(o: Ordering) -> Ordering:
         pixel_link=pixel_link,
         graph=dataclasses.replace(o.graph, decisions=decisions[::-1]),
         end_disparity=o.end_disparity[::-1].copy(),
+        dead_end=o.dead_end[::-1],
     )

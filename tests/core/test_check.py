@@ -869,3 +869,43 @@ def test_a_curve_that_stops_short_of_thread_both_views_show_is_suspect(cut_mm: f
         *args, short, calib, replace(p, seen_beyond=on)).reasons) for on in (True, False)]  # fmt: skip
     assert says == [cut_mm > p.max_unobserved_mm, False]
     assert check_curve(*args, short, calib, p).beyond_mm > 0.5 * min(cut_mm, p.max_unobserved_mm)
+
+def test_the_evidence_names_an_extension_whose_tip_did_not_match() -> None:
+    """Deviation 55: an end whose dead end (an endpoint extension) has no tip matched in both
+    views carries the end keypoint's depth copied: the evidence says so (``untipped_ends``)."""
+    pair, calib, _ = synthetic_case(2)
+    rec = Pipeline(pair, calib).run()
+    o = rec["ordering"]
+    assert (o.order[[0, -1]] < 0).all() and np.isfinite(o.end_disparity).all()
+    assert rec["check"].untipped_ends == () and rec["check"].evidence()["untipped_ends"] == []
+    assert o.dead_end == (False, False)  # extensions of a few px: no dead end, nothing named
+    lost = o.end_disparity.copy()
+    lost[1] = (np.nan, np.inf)
+    assert check_module.untipped_ends(replace(o, end_disparity=lost)) == ()
+    dead = replace(o, dead_end=(True, True))
+    assert check_module.untipped_ends(dead) == ()  # both tips matched
+    assert check_module.untipped_ends(replace(dead, end_disparity=lost)) == ("end",)
+    lost[0] = (np.nan, np.inf)
+    assert check_module.untipped_ends(replace(dead, end_disparity=lost)) == ("start", "end")
+    assert check_module.untipped_ends(replace(o, end_disparity=lost, dead_end=(False, True))) == (
+        "end",
+    )
+    from threadrecon.core.segmentation import StereoPair
+
+    # raw 16153 lighting #17's 270 px dead end to the left border: its tip matched (55); with
+    # its tip taken away, the evidence names that end
+    frame = suite_frame(
+        [16153, 9, 17], background="tissue", noise_sigma=2.0, blur_sigma=0.5, lighting=0.6
+    )
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    calib = frame.camera.calibration()
+    rec = Pipeline(pair, calib).run()
+    assert rec["ordering"].dead_end == (True, False) and rec["check"].untipped_ends == ()
+    o = rec["ordering"]
+    gone = o.end_disparity.copy()
+    gone[0] = (np.nan, np.inf)
+    chk = check_curve(
+        rec["segment"], rec["stereo"], rec["reliability"], replace(o, end_disparity=gone),
+        rec["bounds"], rec["spline"], rec["camera"], calib, CheckParams(),
+    )  # fmt: skip
+    assert chk.untipped_ends == ("start",) and chk.evidence()["untipped_ends"] == ["start"]

@@ -2,6 +2,8 @@
 matched in both views gives the end's disparity, and Eq. (8)'s end value weighs it against the
 window line of Eq. (7) by their variances (deviation 23)."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -65,6 +67,49 @@ def test_a_window_leaving_either_image_gives_no_match(tip) -> None:
     assert np.isnan(m.disparity) and m.var == np.inf
 
 
+def test_a_tip_beyond_the_window_search_is_found_by_following_the_descent() -> None:
+    # Deviation 55: a dead end along the rows whose tip lies 9 px of disparity beyond the end
+    # keypoint's (copied along the dead end): the best shift of d_ref +- 7 lies on the search's
+    # edge (no match); with reach the SSD's descent is followed out to the tip's own shift.
+    tip = np.array([150.0, 80.0])
+    left = _thread((160, 240), tip, (-1.0, 0.0), length=80.0)
+    right = _thread((160, 240), tip - (39.0, 0.0), (-1.0, 0.0), length=80.0)
+    assert tip_disparity(left, right, tip, d_ref=30.0, radius=7) == NO_MATCH
+    m = tip_disparity(left, right, tip, d_ref=30.0, radius=7, reach=10.0)
+    assert abs(m.disparity - 39.0) < 0.35, m
+    # ... but not beyond the reach: the minimum then lies on the edge of the wider search
+    assert tip_disparity(left, right, tip, d_ref=30.0, radius=7, reach=1.0) == NO_MATCH
+    # a tip within the window's search is found as before, reach or not
+    near = tip_disparity(left, right, tip, d_ref=36.0, radius=7)
+    assert tip_disparity(left, right, tip, d_ref=36.0, radius=7, reach=10.0) == near
+
+
+def test_a_tip_near_the_left_border_is_searched_inside_the_right_image() -> None:
+    # Raw 16153 lighting #17's tip: x = 43, disparity 33.4, d_ref 36.3: the search d_ref +- 7
+    # leaves the right image (no match); with reach it is cut to the shifts inside it.
+    tip = np.array([43.0, 80.0])
+    left = _thread((160, 240), tip, (-1.0, 0.0), length=150.0)
+    right = _thread((160, 240), tip - (33.4, 0.0), (-1.0, 0.0), length=150.0)
+    assert tip_disparity(left, right, tip, d_ref=36.3, radius=7) == NO_MATCH
+    m = tip_disparity(left, right, tip, d_ref=36.3, radius=7, reach=2.0)
+    assert abs(m.disparity - 33.4) < 0.35, m
+    # the shifts left inside the right image hold no minimum: no match
+    assert tip_disparity(left, right, tip, d_ref=45.0, radius=7, reach=2.0) == NO_MATCH
+
+
+@pytest.mark.parametrize("radius", [2, 7])
+def test_ssd_curves_of_a_wider_search_extend_the_kernels(radius: int) -> None:
+    from threadrecon.core.ends import _ssd_curves
+
+    rng = np.random.default_rng(radius)
+    n, extra = 2 * radius + 1, 5
+    strip = rng.normal(100, 40, (n + 2, 4 * radius + 1 + 2 * extra))
+    A = np.ascontiguousarray(rng.normal(100, 40, (n, n)))
+    wide = _ssd_curves(A, strip, radius, n + 2 * extra)
+    inner = _ssd_curves(A, np.ascontiguousarray(strip[:, extra:-extra]), radius, n)
+    assert np.array_equal(wide[:, extra:-extra], inner)  # the kernel's means bit for bit
+
+
 def test_tip_disparity_rejects_mismatched_images() -> None:
     with pytest.raises(ValueError, match="two \\(H, W\\) images"):
         tip_disparity(np.zeros((10, 10)), np.zeros((10, 12)), (5.0, 5.0), 2.0, 2)
@@ -111,7 +156,9 @@ def test_end_window_zero_is_the_papers_extension() -> None:
     o_off, o_on = rec_off["ordering"], rec_on["ordering"]
     assert np.isnan(o_off.end_disparity[:, 0]).all() and np.isinf(o_off.end_disparity[:, 1]).all()
     assert np.isfinite(o_on.end_disparity).all()  # a generated thread ends inside both views
-    assert np.array_equal(o_off.path_px, o_on.path_px)  # the ordering itself is unchanged
+    # the ordering itself is unchanged: its extensions are a few px long, no dead end (55)
+    assert o_on.dead_end == (False, False) and (o_on.order[[0, -1]] < 0).all()
+    assert np.array_equal(o_off.path_px, o_on.path_px)
     b_off = rec_off["bounds"]
     line, _ = _window_line_fits(b_off.s, b_off.H[:, 2], np.flatnonzero(b_off.is_key), b_off.r_k)
     assert b_off.end_values == (float(line[0]), float(line[-1]))
@@ -252,3 +299,58 @@ def test_tip_costs_are_the_numpy_means_bit_for_bit(radius: int) -> None:
             rows = strip[t : t + n]
             want = np.mean((A[None, :, :] - rows[:, cols].transpose(1, 0, 2)) ** 2, axis=(1, 2))
             assert np.array_equal(got[t], want), (trial, t)
+
+
+def test_a_dead_end_along_the_rows_is_interpolated_to_its_tip() -> None:
+    """Raw 16153 ``lighting`` #17 (masks given): the thread's last 270 px run along the rows
+    with no reliable match to the left border. Deviation 23's tip search (the end keypoint's
+    disparity +- 7 px) left the right image: no tip, the extension copied 122.6 mm (truth 133)
+    and the curve dipped 10 mm. Deviation 55 matches the tip (33.4 px) and the dead end is
+    interpolated to it (docs/method.md)."""
+    from support import suite_frame
+
+    from threadrecon.core.metrics import frame_errors
+
+    frame = suite_frame(
+        [16153, 9, 17], background="tissue", noise_sigma=2.0, blur_sigma=0.5, lighting=0.6
+    )
+    calib = frame.camera.calibration()
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    true_tip = frame.truth.centerline[0, 2]
+    runs = {}
+    for on in (True, False):
+        params = ReconParams(ordering=OrderingParams(dead_end_tip=on))
+        rec = Pipeline(pair, calib).run(params)
+        e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+        runs[on] = (rec["ordering"], e)
+    (o_on, e_on), (o_off, e_off) = runs[True], runs[False]
+    assert o_on.order[0] < 0 and o_on.path_px[0, 0] < 50  # the extension to the left border
+    assert o_on.dead_end == (True, False) and o_off.dead_end == (False, False)
+    assert np.isnan(o_off.end_disparity[0, 0])
+    assert abs(o_off.path_px[0, 2] - true_tip) > 8.0  # the end keypoint's copy
+    assert abs(o_on.path_px[0, 2] - true_tip) < 2.0  # the tip's own depth
+    assert e_off.e_S_max > 7.0 and e_on.e_S_max < 4.0, (e_off, e_on)
+
+
+_PAPER = Path(__file__).resolve().parents[3] / "shared" / "data" / "paper-dataset"
+
+
+@pytest.mark.skipif(not _PAPER.is_dir(), reason="../shared/data/paper-dataset absent")
+def test_a_dead_end_tip_out_of_one_strands_reach_keeps_the_copy() -> None:
+    """The development split's real thread2_116: a 28 px dead end whose tip matched 4.7 px
+    from its end keypoint's disparity, beyond one strand's continuity bound over 28 px (3.8
+    px): keypoint or tip is wrong, the extension keeps the keypoint's depth (deviation 55's
+    gate; without it the first knot span fell 24 mm to the tip and the curve was suspect)."""
+    from threadrecon.app.dataset import discover, load_frame
+    from threadrecon.core.continuity import disparity_room
+
+    frame = next(f for f in discover(_PAPER) if f.id.endswith("thread2_116_final"))
+    pair, calib, _ = load_frame(frame)
+    rec = Pipeline(pair, calib).run()
+    o = rec["ordering"]
+    assert o.dead_end[0] and np.isfinite(o.end_disparity[0, 0])
+    fB = calib.focal * calib.baseline
+    length = float(np.linalg.norm(o.path_px[0, :2] - o.path_px[1, :2]))
+    assert abs(o.end_disparity[0, 0] - fB / o.path_px[1, 2]) > disparity_room(length)
+    assert o.path_px[0, 2] == o.path_px[1, 2]  # the copy
+    assert rec.status == "ok", rec.message

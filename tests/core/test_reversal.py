@@ -1,6 +1,8 @@
 """Tests of core/reversal.py and of the stages after the ordering: the same ordering walked
 from the other end gives the same curve, traversed the other way (issue 12)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -46,6 +48,8 @@ def test_reversed_ordering_twice_is_the_ordering() -> None:
         assert np.array_equal(getattr(back, name), getattr(o, name)), name
     assert back.links == o.links
     np.testing.assert_allclose(back.pixel_t, o.pixel_t, atol=1e-15)
+    one = dataclasses.replace(o, dead_end=(True, False))  # deviation 55's dead end: its end
+    assert reversed_ordering(one).dead_end == (False, True)
 
 
 @pytest.mark.parametrize("seed", TRIALS)
