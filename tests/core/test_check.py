@@ -870,6 +870,7 @@ def test_a_curve_that_stops_short_of_thread_both_views_show_is_suspect(cut_mm: f
     assert says == [cut_mm > p.max_unobserved_mm, False]
     assert check_curve(*args, short, calib, p).beyond_mm > 0.5 * min(cut_mm, p.max_unobserved_mm)
 
+
 def test_the_evidence_names_an_extension_whose_tip_did_not_match() -> None:
     """Deviation 55: an end whose dead end (an endpoint extension) has no tip matched in both
     views carries the end keypoint's depth copied: the evidence says so (``untipped_ends``)."""
