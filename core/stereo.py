@@ -341,7 +341,7 @@ def _continuity(
     solved for (the others are fixed at ``d_hat``); ``at``: (N,) int64 flat box positions of
     the pixels (:func:`_positions`, computed when None). Returns the (N,) disparities."""
     at = _positions(index) if at is None else at
-    # the pairs of _neighbour_pairs that touch a free pixel, in their order (one compiled pass:
+    # the neighbour pairs that touch a free pixel, in their order (one compiled pass:
     # not every pair of P_L, then a selection of them)
     a, b = _free_pairs_kernel(index, at, np.ascontiguousarray(free, dtype=bool))
     fi = np.flatnonzero(free)
@@ -426,13 +426,6 @@ def _local_median(index: np.ndarray, values: np.ndarray, which: np.ndarray) -> n
 def _positions(index: np.ndarray) -> np.ndarray:
     """(N,) flat box position of each pixel of the box image ``index`` (row-major order)."""
     return np.flatnonzero(index >= 0)
-
-
-def _neighbour_pairs(index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(E,) index pairs of 8-connected pixels of P_L in the box image ``index``, each once:
-    the right, lower-left, lower and lower-right neighbour of each pixel, in that order of
-    directions and row-major order within each."""
-    return _neighbour_pairs_kernel(index, _positions(index))
 
 
 def reproject(x: np.ndarray, y: np.ndarray, disparity: np.ndarray, Q: np.ndarray) -> np.ndarray:
@@ -723,30 +716,12 @@ def _box_kernel(P_L, I_L, I_R, y0, x0, y1, x1, xr0, lift):  # noqa: ANN001
     return ry, rx, index, I_L_p, q_ptr, q_col, q_val, q_run
 
 
-@kernel("Tuple((int64[::1], int64[::1]))(int32[:, ::1], int64[::1])")
-def _neighbour_pairs_kernel(index, at):  # noqa: ANN001
-    """The pairs of :func:`_neighbour_pairs`: per direction (dy, dx) in (0, 1), (1, -1), (1, 0),
-    (1, 1), every pixel of P_L (row-major; ``at``: flat box positions) whose neighbour in that
-    direction is in P_L."""
-    h, w = index.shape
-    dirs = ((0, 1), (1, -1), (1, 0), (1, 1))
-    n = at.size
-    a = np.empty(4 * n, dtype=np.int64)
-    b = np.empty(4 * n, dtype=np.int64)
-    m = 0
-    for dy, dx in dirs:
-        for i in range(n):
-            y, x = at[i] // w + dy, at[i] % w + dx
-            if y < h and 0 <= x < w and index[y, x] >= 0:
-                a[m], b[m] = i, index[y, x]
-                m += 1
-    return a[:m].copy(), b[:m].copy()
-
-
 @kernel("Tuple((int64[::1], int64[::1]))(int32[:, ::1], int64[::1], boolean[::1])")
 def _free_pairs_kernel(index, at, free):  # noqa: ANN001
-    """The pairs (a, b) of :func:`_neighbour_pairs_kernel` of which ``free[a]`` or ``free[b]``
-    holds, in its order: per direction, the pixels of P_L in row-major order."""
+    """The index pairs (a, b) of 8-connected pixels of P_L in the box image ``index`` (each
+    once: the right, lower-left, lower and lower-right neighbour of each pixel; ``at``: their
+    flat box positions) of which ``free[a]`` or ``free[b]`` holds, per direction in that order
+    and row-major within each."""
     h, w = index.shape
     dirs = ((0, 1), (1, -1), (1, 0), (1, 1))
     n = at.size

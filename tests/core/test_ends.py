@@ -67,13 +67,20 @@ def test_a_window_leaving_either_image_gives_no_match(tip) -> None:
     assert np.isnan(m.disparity) and m.var == np.inf
 
 
+def _along_the_rows(tip: np.ndarray, disparity: float, length: float) -> tuple[np.ndarray, ...]:
+    """Both views of a thread ending at ``tip`` that runs ``length`` px along the rows,
+    seen at ``disparity``."""
+    left = _thread((160, 240), tip, (-1.0, 0.0), length=length)
+    right = _thread((160, 240), tip - (disparity, 0.0), (-1.0, 0.0), length=length)
+    return left, right
+
+
 def test_a_tip_beyond_the_window_search_is_found_by_following_the_descent() -> None:
     # Deviation 55: a dead end along the rows whose tip lies 9 px of disparity beyond the end
     # keypoint's (copied along the dead end): the best shift of d_ref +- 7 lies on the search's
     # edge (no match); with reach the SSD's descent is followed out to the tip's own shift.
     tip = np.array([150.0, 80.0])
-    left = _thread((160, 240), tip, (-1.0, 0.0), length=80.0)
-    right = _thread((160, 240), tip - (39.0, 0.0), (-1.0, 0.0), length=80.0)
+    left, right = _along_the_rows(tip, 39.0, 80.0)
     assert tip_disparity(left, right, tip, d_ref=30.0, radius=7) == NO_MATCH
     m = tip_disparity(left, right, tip, d_ref=30.0, radius=7, reach=10.0)
     assert abs(m.disparity - 39.0) < 0.35, m
@@ -88,8 +95,7 @@ def test_a_tip_near_the_left_border_is_searched_inside_the_right_image() -> None
     # Raw 16153 lighting #17's tip: x = 43, disparity 33.4, d_ref 36.3: the search d_ref +- 7
     # leaves the right image (no match); with reach it is cut to the shifts inside it.
     tip = np.array([43.0, 80.0])
-    left = _thread((160, 240), tip, (-1.0, 0.0), length=150.0)
-    right = _thread((160, 240), tip - (33.4, 0.0), (-1.0, 0.0), length=150.0)
+    left, right = _along_the_rows(tip, 33.4, 150.0)
     assert tip_disparity(left, right, tip, d_ref=36.3, radius=7) == NO_MATCH
     m = tip_disparity(left, right, tip, d_ref=36.3, radius=7, reach=2.0)
     assert abs(m.disparity - 33.4) < 0.35, m
