@@ -129,7 +129,7 @@ class OrderingParams(Params):
         "over the strand (walk=bending).",
     )
     dead_end_tip: bool = param(
-        True,
+        False,
         label="dead end's tip depth",
         doc="Deviation 55: the tip of an endpoint extension (a dead end, often along the "
         "image rows where no window inside it matches) is matched in both views beyond "

@@ -32,6 +32,7 @@ from threadrecon.core.check import (
 )
 from threadrecon.core.check_fold import end_reversal
 from threadrecon.core.metrics import curve_errors, project
+from threadrecon.core.ordering import OrderingParams
 from threadrecon.core.params import specs
 from threadrecon.core.pipeline import STAGES, Pipeline, ReconParams, Reconstruction
 from threadrecon.core.refine import _mask_runs
@@ -900,7 +901,7 @@ def test_the_evidence_names_an_extension_whose_tip_did_not_match() -> None:
     )
     pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
     calib = frame.camera.calibration()
-    rec = Pipeline(pair, calib).run()
+    rec = Pipeline(pair, calib).run(ReconParams(ordering=OrderingParams(dead_end_tip=True)))
     assert rec["ordering"].dead_end == (True, False) and rec["check"].untipped_ends == ()
     o = rec["ordering"]
     gone = o.end_disparity.copy()

@@ -352,7 +352,7 @@ def test_a_dead_end_tip_out_of_one_strands_reach_keeps_the_copy() -> None:
 
     frame = next(f for f in discover(_PAPER) if f.id.endswith("thread2_116_final"))
     pair, calib, _ = load_frame(frame)
-    rec = Pipeline(pair, calib).run()
+    rec = Pipeline(pair, calib).run(ReconParams(ordering=OrderingParams(dead_end_tip=True)))
     o = rec["ordering"]
     assert o.dead_end[0] and np.isfinite(o.end_disparity[0, 0])
     fB = calib.focal * calib.baseline
