@@ -180,7 +180,7 @@ class SegmentationParams(Params):
         "red pass's own marks only (deviation 53).",
     )
     tissue_surface: bool = param(
-        True,
+        False,
         label="raw: tissue-only surface test",
         doc="raw: the surface test (does a line move with the tissue beside it?) reads the "
         "tissue's disparity from background pixels off the instrument found in the view: a "
