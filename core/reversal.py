@@ -18,10 +18,10 @@ from threadrecon.core.ordering import Ordering
 
 
 def reversed_ordering(o: Ordering) -> Ordering:
-    """``o`` walked from its last keypoint to its first: ``order``, ``path_px``, ``links`` and
-    the ends' tip disparities reversed; every gap pixel's link renumbered from the other end
-    and its position t along the link mirrored (1 - t); the walk's decisions re-indexed. The
-    graph A, the pixels and their nodes are the same."""
+    """``o`` walked from its last keypoint to its first: ``order``, ``path_px``, ``links``,
+    the ends' tip disparities, dead ends and one-view end points reversed; every gap pixel's
+    link renumbered from the other end and its position t along the link mirrored (1 - t);
+    the walk's decisions re-indexed. The graph A, the pixels and their nodes are the same."""
     M = len(o.order)
     on_link = o.pixel_link >= 0
     pixel_link = np.where(on_link, (M - 2) - o.pixel_link, -1)
@@ -37,4 +37,5 @@ def reversed_ordering(o: Ordering) -> Ordering:
         graph=dataclasses.replace(o.graph, decisions=decisions[::-1]),
         end_disparity=o.end_disparity[::-1].copy(),
         dead_end=o.dead_end[::-1],
+        mono=o.mono[::-1],
     )

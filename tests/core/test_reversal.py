@@ -50,6 +50,8 @@ def test_reversed_ordering_twice_is_the_ordering() -> None:
     np.testing.assert_allclose(back.pixel_t, o.pixel_t, atol=1e-15)
     one = dataclasses.replace(o, dead_end=(True, False))  # deviation 55's dead end: its end
     assert reversed_ordering(one).dead_end == (False, True)
+    seen = dataclasses.replace(o, mono=(3, 0))  # deviation 33: 3 start points the left sees only
+    assert reversed_ordering(seen).mono == (0, 3)
 
 
 @pytest.mark.parametrize("seed", TRIALS)
