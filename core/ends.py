@@ -95,7 +95,7 @@ def tip_disparity(
     # itself or ROW_SLACK above or below: every cost of the three rows at once
     rows = slice(y - ROW_SLACK - radius, y + ROW_SLACK + radius + 1)
     strip = I_R[rows, x - radius - hi : x + radius - lo + 1].astype(np.float64)
-    costs = _ssd_curves(np.ascontiguousarray(A), strip, radius, hi - lo + 1)
+    costs = walk_kernel.tip_costs(np.ascontiguousarray(A), strip, radius, ROW_SLACK, hi - lo + 1)
     best: tuple[float, int, np.ndarray] | None = None
     inner = slice(max(d0 - radius, lo) - lo, min(d0 + radius, hi) - lo + 1)
     if inner.start >= inner.stop:
@@ -122,26 +122,6 @@ def tip_disparity(
     # the quantisation of the tip's pixels (a noise-free render still ends on a pixel).
     var = 2.0 * c1 / (A.size * curv) + QUANT_VAR
     return TipMatch(float(lo + i + off), float(var))
-
-
-def _ssd_curves(A: np.ndarray, strip: np.ndarray, radius: int, shifts: int) -> np.ndarray:
-    """(2 ROW_SLACK + 1, ``shifts``) SSD curves of :func:`tip_disparity`: row t (right row
-    offset t - ``ROW_SLACK``), column k the mean squared difference of the left window ``A``
-    and the right one at rows t..t+n-1 and columns ``shifts`` - 1 - k .. of ``strip``. The
-    compiled kernel for deviation 23's search (``shifts`` = n), the same means in numpy (the
-    (shifts, n, n) block's ``np.mean``, as the kernel sums) for a wider one."""
-    n = 2 * radius + 1
-    if shifts == n:
-        return walk_kernel.tip_costs(A, strip, radius, ROW_SLACK)
-    cols = (shifts - 1 - np.arange(shifts))[:, None] + np.arange(n)[None, :]
-    return np.stack(
-        [
-            np.mean(
-                (A[None, :, :] - strip[t : t + n][:, cols].transpose(1, 0, 2)) ** 2, axis=(1, 2)
-            )
-            for t in range(2 * ROW_SLACK + 1)
-        ]
-    )
 
 
 def seen_in_right(px: np.ndarray, P_R: np.ndarray, d_ref: float, tol: int) -> np.ndarray:

@@ -538,20 +538,21 @@ def _pairwise_sum(a, lo, n):  # noqa: ANN001
             top -= 1
 
 
-@kernel("float64[:, ::1](float64[:, ::1], float64[:, ::1], int64, int64)")
-def tip_costs(A, strip, radius, slack):  # noqa: ANN001
+@kernel("float64[:, ::1](float64[:, ::1], float64[:, ::1], int64, int64, int64)")
+def tip_costs(A, strip, radius, slack, shifts):  # noqa: ANN001
     """The SSD curves of :func:`threadrecon.core.ends.tip_disparity`: row t (the right row
-    offset t - ``slack``), column k (shift d0 - radius + k) is the mean of the squared
-    differences between the left window ``A`` (n, n), n = 2 radius + 1, and the right window
-    at rows t..t+n-1 and columns 2 radius - k .. 3 radius - k + n - 1 of ``strip`` (n + 2
-    slack, 4 radius + 1), summed as ``np.mean`` of the (shifts, n, n) block does: each
-    shift's n^2 squares in one pairwise sum, then divided by n^2."""
+    offset t - ``slack``), column k (the k-th of ``shifts`` shifts, the smallest first) is the
+    mean of the squared differences between the left window ``A`` (n, n), n = 2 radius + 1,
+    and the right window at rows t..t+n-1 and columns ``shifts`` - 1 - k .. ``shifts`` - 2 -
+    k + n of ``strip`` (n + 2 slack, n + ``shifts`` - 1), summed as ``np.mean`` of the
+    (shifts, n, n) block does: each shift's n^2 squares in one pairwise sum, then divided by
+    n^2. Deviation 23's search has ``shifts`` = n; deviation 55's dead end a wider one."""
     n = 2 * radius + 1
-    out = np.empty((2 * slack + 1, n))
+    out = np.empty((2 * slack + 1, shifts))
     sq = np.empty(n * n)
     for t in range(2 * slack + 1):
-        for k in range(n):
-            c0 = 2 * radius - k
+        for k in range(shifts):
+            c0 = shifts - 1 - k
             for r in range(n):
                 for j in range(n):
                     v = A[r, j] - strip[t + r, c0 + j]

@@ -105,15 +105,20 @@ def test_a_tip_near_the_left_border_is_searched_inside_the_right_image() -> None
 
 @pytest.mark.parametrize("radius", [2, 7])
 def test_ssd_curves_of_a_wider_search_extend_the_kernels(radius: int) -> None:
-    from threadrecon.core.ends import _ssd_curves
+    from threadrecon.core.walk_kernel import tip_costs
 
     rng = np.random.default_rng(radius)
     n, extra = 2 * radius + 1, 5
     strip = rng.normal(100, 40, (n + 2, 4 * radius + 1 + 2 * extra))
     A = np.ascontiguousarray(rng.normal(100, 40, (n, n)))
-    wide = _ssd_curves(A, strip, radius, n + 2 * extra)
-    inner = _ssd_curves(A, np.ascontiguousarray(strip[:, extra:-extra]), radius, n)
-    assert np.array_equal(wide[:, extra:-extra], inner)  # the kernel's means bit for bit
+    wide = tip_costs(A, strip, radius, 1, n + 2 * extra)
+    inner = tip_costs(A, np.ascontiguousarray(strip[:, extra:-extra]), radius, 1, n)
+    assert np.array_equal(wide[:, extra:-extra], inner)  # the same means bit for bit
+    k = np.arange(n + 2 * extra)
+    cols = (n + 2 * extra - 1 - k)[:, None] + np.arange(n)[None, :]
+    for t in range(3):  # and numpy's own np.mean of the (shifts, n, n) block
+        block = (A[None, :, :] - strip[t : t + n][:, cols].transpose(1, 0, 2)) ** 2
+        assert np.array_equal(wide[t], np.mean(block, axis=(1, 2)))
 
 
 def test_tip_disparity_rejects_mismatched_images() -> None:
@@ -298,7 +303,7 @@ def test_tip_costs_are_the_numpy_means_bit_for_bit(radius: int) -> None:
         A = rng.integers(0, 256, (n, n)).astype(np.float64)
         if trial % 2:
             strip, A = strip + rng.normal(0, 30, shape), A * 0.37 + rng.normal(0, 3, (n, n))
-        got = tip_costs(A, strip, radius, 1)
+        got = tip_costs(A, strip, radius, 1, n)
         k = np.arange(n)
         cols = (2 * radius - k)[:, None] + np.arange(n)[None, :]
         for t in range(3):
