@@ -804,9 +804,10 @@ def _contradicted(
     SAME_DISPARITY_PX above the tissue's (of its block's background where that resolves, else
     of the nearest of the marks found on it, lo pixels of each as ``marks()`` gives them). In
     front of the tissue means nearer the cameras, a larger disparity; the two depth cues
-    disagree, and a red thread of the vessels' hue is told from them by depth only. Uneven light (vignetting, fixed in the image, not on the tissue)
-    biases a dark block's matches towards disparity 0, so that a vessel there seemed to
-    float; a thread merged with a vessel is judged by its own part."""
+    disagree, and a red thread of the vessels' hue is told from them by depth only. Uneven
+    light (vignetting, fixed in the image, not on the tissue) biases a dark block's matches
+    towards disparity 0, so that a vessel there seemed to float; a thread merged with a
+    vessel is judged by its own part."""
     front = px[votes == 0]
     if len(front) == 0:
         return False
