@@ -566,7 +566,7 @@ def _check(
     findings: list[tuple[Status, str]] = []
     unit = calib.unit
 
-    if not np.all(np.isfinite(pts)):
+    if not np.isfinite(pts).all():
         bad = int(np.sum(~np.all(np.isfinite(pts), axis=1)))
         return _failed_early(
             f"the curve is not finite ({bad} of {n} points are NaN or infinite)",
@@ -579,7 +579,7 @@ def _check(
     hom = np.column_stack([pts, np.ones(n)])
     h_r = hom @ calib.P2.T  # the right view's projection; its third row: the right depths
     z_right = h_r[:, 2]
-    if np.any(z <= 0) or np.any(z_right <= 0):
+    if (z <= 0).any() or (z_right <= 0).any():
         findings.append(
             ("failed", f"{int(np.sum((z <= 0) | (z_right <= 0)))} of {n} points lie behind a "
              f"camera (depth {depth_range[0]:.4g} to {depth_range[1]:.4g} {unit})")
@@ -628,9 +628,9 @@ def _check(
     hidden_l = _hidden_end(off_l & ~bridge_l, ~off_l & in_l, off_r, uv_l, 0, bare, p)
     hidden_r = _hidden_end(off_r & ~bridge_r, ~off_r & in_r, off_l, uv_r, 1, bare, p)
     overshoot = float(
-        max(np.max(run_l * ~(bridge_l | hidden_l)), np.max(run_r * ~(bridge_r | hidden_r)))
+        max((run_l * ~(bridge_l | hidden_l)).max(), (run_r * ~(bridge_r | hidden_r)).max())
     )
-    longest_bridge = float(max(np.max(run3_l * bridge_l), np.max(run3_r * bridge_r)))
+    longest_bridge = float(max((run3_l * bridge_l).max(), (run3_r * bridge_r).max()))
     if overshoot > p.max_jump_px:
         findings.append(
             ("suspect", f"an end of the curve runs {overshoot:.0f} px off the thread pixels "
@@ -700,8 +700,8 @@ def _check(
                  f"(at least {100 * p.coverage_min:.0f} % expected)")
             )  # fmt: skip
     one_view = (in_l & ~in_r) | hidden_l | hidden_r
-    unseen_px = float(np.sum(np.where(one_view, np.append(step, 0.0), 0.0)))
-    unseen_mm = float(np.sum(np.where(one_view, np.append(step3, 0.0), 0.0)))
+    unseen_px = float(np.where(one_view, np.append(step, 0.0), 0.0).sum())
+    unseen_mm = float(np.where(one_view, np.append(step3, 0.0), 0.0).sum())
     if unseen_mm > p.max_unobserved_mm:
         findings.append(
             ("suspect", f"{unseen_mm:.1f} mm ({unseen_px:.0f} px) of the curve lie outside the "
@@ -1005,7 +1005,7 @@ def _check(
     e_free = (z_pos**2 / (f * B)) * np.sqrt(p.sigma_disparity_px**2 + r**2 + h_free**2) * mm
     e_free = np.where(np.isfinite(e_mm), e_free + lateral, np.inf)
     amb = e_free > p.ambiguous_mm
-    ambiguous = float(np.sum(step3 * (amb[1:] | amb[:-1])))
+    ambiguous = float((step3 * (amb[1:] | amb[:-1])).sum())
     status: Status = max((s for s, _ in findings), key=_RANK.__getitem__, default="ok")
     score, rating = quality_score(e_mm, status, p)
     grasp = grasp_point(pts, conf, uv_l, uv_r, (H, W), mm, p)
@@ -1267,7 +1267,7 @@ def _excursion(
         out = out[where[i]]
     if out.size == 0:
         return 0.0
-    if not np.all(np.isfinite(out)):
+    if not np.isfinite(out).all():
         return float("inf")
     return float(max(0.0, out.max()))
 

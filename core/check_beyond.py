@@ -127,13 +127,16 @@ def _end_frame(uv: np.ndarray, end: str) -> tuple[np.ndarray, np.ndarray, np.nda
     them, and the direction is taken over the END_SAMPLES samples behind that tip. The thread
     ends where the curve reaches, and what lies beyond the end is beyond that point, not back
     over the curve's own thread."""
-    curve = uv if np.isfinite(uv).all() else uv[np.all(np.isfinite(uv), axis=1)]
+    curve = uv if np.isfinite(uv).all() else uv[np.isfinite(uv).all(axis=1)]
     if len(curve) < END_SAMPLES + 1:
         return None
     seq = curve if end == "start" else curve[::-1]  # seq[0] is the end's sample
     j = 0
     if len(seq) > 2 * END_SAMPLES:
-        (x0, y0), (x1, y1), (xe, ye), (xb, yb) = seq[[0, 1, END_SAMPLES, 2 * END_SAMPLES]].tolist()
+        # the samples 0, 1, END_SAMPLES and 2 END_SAMPLES, read by slices (a fancy index of
+        # four rows costs several times as much)
+        (x0, y0), (x1, y1) = seq[:2].tolist()
+        (xe, ye), (xb, yb) = seq[END_SAMPLES : 2 * END_SAMPLES + 1 : END_SAMPLES].tolist()
         bx, by = xe - xb, ye - yb  # the way into the end's window
         if (x0 - x1) * bx + (y0 - y1) * by < 0.0:  # the last step turns back: a hook
             j = int(np.argmax((seq[: END_SAMPLES + 1] - seq[END_SAMPLES]) @ np.array([bx, by])))
@@ -821,10 +824,11 @@ def plain_surface(
     surface the thread lies on)."""
     h, w = grey.shape
     r, q = PLAIN_HALF_PX, AHEAD_HALF_PX
-    if not (np.all(np.isfinite(xy)) and np.all(np.isfinite(way))):
-        return None
-    x, y = int(round(float(xy[0]))), int(round(float(xy[1])))
-    cx, cy = int(round(x - r * float(way[0]))), int(round(y - r * float(way[1])))
+    xf, yf, wx, wy = float(xy[0]), float(xy[1]), float(way[0]), float(way[1])
+    if not (math.isfinite(xf) and math.isfinite(yf) and math.isfinite(wx) and math.isfinite(wy)):
+        return None  # (math.isfinite on the four numbers: np.all's layers cost ~20 times more)
+    x, y = int(round(xf)), int(round(yf))
+    cx, cy = int(round(x - r * wx)), int(round(y - r * wy))
     if min(x - q, y - q, cx - r, cy - r) < 0 or max(x + q, cx + r) >= w or max(y + q, cy + r) >= h:
         return None
     # the levels depend on the view's image and mask and the two pixels only: kept with them

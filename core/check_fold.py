@@ -46,7 +46,7 @@ def fold_length(
             f"{np.shape(step)}, {np.shape(on)}, {np.shape(disp)}"
         )
     seg = np.where(np.isfinite(step), step, 0.0)
-    idx = np.flatnonzero(on & np.all(np.isfinite(uv), axis=1) & np.isfinite(disp))
+    idx = np.flatnonzero(on & np.isfinite(uv).all(axis=1) & np.isfinite(disp))
     if idx.size < 3 or radius <= 0:
         return 0.0
     s = np.concatenate([[0.0], np.cumsum(seg)])
@@ -105,7 +105,7 @@ def end_reversal(uv: np.ndarray, s3: np.ndarray) -> Reversal | None:
     curve's cumulative 3D length. The branch is the stretch from the point to that end (the
     shorter one when both sides head back)."""
     uv = np.asarray(uv, dtype=np.float64)
-    if len(uv) < 3 or not np.all(np.isfinite(uv)):
+    if len(uv) < 3 or not np.isfinite(uv).all():
         return None
     s = np.concatenate([[0.0], np.cumsum(row_norms(np.diff(uv, axis=0)))])
     arm, chord = REVERSAL_ARM_PX, REVERSAL_CHORD_PX
@@ -204,7 +204,7 @@ def self_contact(
             f"{pts.shape}, {s3.shape}"
         )
     idx = np.flatnonzero(
-        np.all(np.isfinite(uv), axis=1) & np.all(np.isfinite(pts), axis=1) & (pts[:, 2] > 0)
+        np.isfinite(uv).all(axis=1) & np.isfinite(pts).all(axis=1) & (pts[:, 2] > 0)
     )
     if idx.size < 2 or radius <= 0 or focal <= 0:
         return None

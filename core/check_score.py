@@ -221,7 +221,7 @@ def grasp_point(
         cand = np.array([int(np.argmin(np.abs(dist - p.grasp_mm)))])
     i = int(cand[np.argmax(conf[cand])])
     tangent = _gradient_at(pts, i)
-    norm = np.linalg.norm(tangent)
+    norm = np.sqrt(tangent.dot(tangent))  # np.linalg.norm's own operations, without its layers
     tangent = tangent / norm if norm > 0 else np.zeros(3)
     dist = from_start if best == "start" else from_end
     return GraspPoint(

@@ -38,7 +38,7 @@ def contradicted(
     n = len(uv_l)
     if xs.size == 0 or n == 0:
         return np.zeros(n, dtype=bool)
-    ok = np.all(np.isfinite(uv_l), axis=1) & np.isfinite(disp_curve)
+    ok = np.isfinite(uv_l).all(axis=1) & np.isfinite(disp_curve)
     q = np.rint(np.where(ok[:, None], uv_l, -1e6)).astype(np.int64)
     disp = np.ascontiguousarray(disp_curve, dtype=np.float64)
     # compiled: each point's window read from the rows (no image of the reliable pixels' box)

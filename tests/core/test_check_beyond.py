@@ -485,6 +485,56 @@ def test_an_end_that_hooks_back_is_taken_where_the_curve_reaches() -> None:
     assert tip[0] == 139.0 and way[0] > 0.99
 
 
+
+def _end_frame_by_definition(uv: np.ndarray, end: str):
+    """``_end_frame`` as its docstring defines it, with numpy's general operations."""
+    curve = uv[np.all(np.isfinite(uv), axis=1)]
+    if len(curve) < 9:
+        return None
+    seq = curve if end == "start" else curve[::-1]
+    j = 0
+    if len(seq) > 16:
+        into = seq[8] - seq[16]
+        if float(np.dot(seq[0] - seq[1], into)) < 0.0:
+            j = int(np.argmax((seq[:9] - seq[8]) @ into))
+    way = seq[j] - seq[j + 8]
+    norm = float(np.hypot(way[0], way[1]))
+    return None if norm == 0.0 else (curve, seq[j], way / norm)
+
+
+def test_the_end_frame_is_its_definition_bit_for_bit() -> None:
+    # the end's samples are read by slices (issue 13): the same tip and way on random curves,
+    # hooks, non-finite samples and short curves, both ends
+    rng = np.random.default_rng(19)
+    for trial in range(400):
+        uv = np.cumsum(rng.normal(size=(int(rng.integers(4, 40)), 2)), axis=0)
+        if trial % 3 == 0:
+            uv[rng.integers(len(uv))] = [np.nan, np.inf][trial % 2]
+        if trial % 5 == 0 and len(uv) > 20:  # a hook: the last steps turn back
+            uv[-3:] = uv[-4] - np.cumsum(np.ones((3, 2)), axis=0)
+            uv[:3] = uv[3] + np.cumsum(np.ones((3, 2)), axis=0)[::-1]
+        for end in ("start", "end"):
+            got, want = _end_frame(uv, end), _end_frame_by_definition(uv, end)
+            assert (got is None) == (want is None)
+            if got is not None:
+                for a, b in zip(got, want, strict=True):
+                    assert a.tobytes() == b.tobytes()
+
+
+def test_plain_surface_of_a_non_finite_end_is_none() -> None:
+    greys, masks, uv = _plain_scene(gap=16)
+    way = np.array([1.0, 0.0])
+    assert plain_surface(greys[0], masks[0], uv[0][-1], way, 2.5) == (200.0, 10.0)
+    for bad in (np.nan, np.inf, -np.inf):
+        for k in (0, 1):
+            xy = uv[0][-1].copy()
+            xy[k] = bad
+            assert plain_surface(greys[0], masks[0], xy, way, 2.5) is None
+            w = way.copy()
+            w[k] = bad
+            assert plain_surface(greys[0], masks[0], uv[0][-1], w, 2.5) is None
+
+
 def _bridge_scene(shaft_half_px: float):
     """Textured tissue at D_BG, a shaft at D_O along the rows (rows 50 +- ``shaft_half_px``,
     left columns 100-300), and a bridge of the curve under it along row 50 from column 100 to
