@@ -609,9 +609,10 @@ def _check(
     # The distances of a bridge's points measure the occluder's width, not an error: a bridge
     # is left out of the reprojection figures and judged by its unobserved 3D length instead.
     mm = calib.mm_per_unit
-    step3 = row_norms(np.diff(pts, axis=0)) * mm
-    step = row_norms(np.diff(uv_l, axis=0))
-    step_r = row_norms(np.diff(uv_r, axis=0))
+    # (np.diff's own subtraction, without its layers)
+    step3 = row_norms(pts[1:] - pts[:-1]) * mm
+    step = row_norms(uv_l[1:] - uv_l[:-1])
+    step_r = row_norms(uv_r[1:] - uv_r[:-1])
     off_l, off_r = in_l & (rho_l > p.jump_px), in_r & (rho_r > p.jump_px)
     run_l, run3_l, bridge_l = _off_thread_runs(off_l, step, step3)
     run_r, run3_r, bridge_r = _off_thread_runs(off_r, step_r, step3)
@@ -830,8 +831,9 @@ def _check(
     # what lies beyond it (an occluder's edge pulls the depth towards its own): a depth change
     # over the end's last knot span is length the matches there cannot vouch for.
     n_spans = max(len(spline.ctrl) - int(spline.degree), 1)
+    s2 = _arc_px(step)  # the left projection's arc length, read by both ends and the strands
     for end in free:
-        added = _end_added_length(step3, step, z, f / mm, n_spans, end)
+        added = _end_added_length(step3, step, z, f / mm, n_spans, end, s2)
         end_added = max(end_added, added)
         if added > p.max_unmeasured_mm:
             findings.append(
@@ -893,7 +895,7 @@ def _check(
             rel_s = replace(rel, reliable=kept)
     r = _disparity_residual(stereo, rel_s, uv_l, f * B / z_pos, p.support_px)
     supported = r <= p.support_tol_px
-    strand = _strand_samples(crossings, in_l & (rho_l <= p.jump_px), supported, step, p)
+    strand = _strand_samples(crossings, in_l & (rho_l <= p.jump_px), supported, step, p, s2)
     overlap = _overlap(uv_l, step, p.loop_px, f * B / z_pos, strand, p.crossing_disparity_px)
     if overlap > p.max_overlap_px:
         findings.append(
@@ -1263,7 +1265,9 @@ def _excursion(
     if where is not None:
         n = len(where)
         u = spline.u_H / spline.length if spline.length > 0 else np.zeros(len(out))
-        i = np.clip(np.rint(np.nan_to_num(u) * (n - 1)), 0, n - 1).astype(np.intp)
+        if not np.isfinite(u).all():  # (nan_to_num leaves a finite array as it is)
+            u = np.nan_to_num(u)
+        i = np.clip(np.rint(u * (n - 1)), 0, n - 1).astype(np.intp)
         out = out[where[i]]
     if out.size == 0:
         return 0.0
@@ -1322,14 +1326,26 @@ def _unmeasured_length(
     )  # fmt: skip
 
 
+def _arc_px(step: np.ndarray) -> np.ndarray:
+    """(N,) cumulative 2D length (px) of the steps ``step`` (N-1,) from 0, a non-finite step
+    counted as 0."""
+    return np.concatenate([[0.0], np.where(np.isfinite(step), step, 0.0).cumsum()])
+
+
 def _end_added_length(
-    step3: np.ndarray, step: np.ndarray, z: np.ndarray, f_mm: float, n_spans: int, end: str
+    step3: np.ndarray,
+    step: np.ndarray,
+    z: np.ndarray,
+    f_mm: float,
+    n_spans: int,
+    end: str,
+    s: np.ndarray | None = None,
 ) -> float:
     """Length (mm) the depth change adds over the curve's last knot span at ``end`` (2D length
     of the left projection / ``n_spans``): each step's 3D length less the same 2D step at
-    constant depth (``_unmeasured_length`` with no step measured)."""
-    seg = np.where(np.isfinite(step), step, 0.0)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
+    constant depth (``_unmeasured_length`` with no step measured). ``s``: ``_arc_px(step)``
+    when the caller has it."""
+    s = _arc_px(step) if s is None else s
     span = s[-1] / n_spans
     k = int(np.searchsorted(s, span)) if end == "start" else int(np.searchsorted(s, s[-1] - span))
     sl = slice(0, max(k, 1)) if end == "start" else slice(min(k, len(step) - 1), len(step))
@@ -1338,15 +1354,21 @@ def _end_added_length(
 
 
 def _strand_samples(
-    crossings: int, on_l: np.ndarray, supported: np.ndarray, step: np.ndarray, p: CheckParams
+    crossings: int,
+    on_l: np.ndarray,
+    supported: np.ndarray,
+    step: np.ndarray,
+    p: CheckParams,
+    s: np.ndarray | None = None,
 ) -> np.ndarray:
     """Samples that may belong to a strand crossing another (``crossing_disparity_px``): the
     thread pixels cross at a keypoint, the sample lies on the left thread pixels and a
-    supported sample lies within ``crossing_support_px`` of it along the curve (2D)."""
+    supported sample lies within ``crossing_support_px`` of it along the curve (2D). ``s``:
+    ``_arc_px(step)`` when the caller has it."""
     n = len(on_l)
     if crossings == 0 or not supported.any():
         return np.zeros(n, dtype=bool)
-    s = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))])
+    s = _arc_px(step) if s is None else s
     ss = s[supported]
     k = np.searchsorted(ss, s)
     before = np.abs(s - ss[np.maximum(k - 1, 0)])
@@ -1406,7 +1428,7 @@ class _BareBackground:
 
     def _level(self, side: int, xy: np.ndarray) -> tuple[float, float] | None:
         """Median and spread of the ring around the thread within REACH_PX of ``xy``."""
-        if not np.all(np.isfinite(xy)):
+        if not np.isfinite(xy).all():
             return None
         x, y = int(round(xy[0])), int(round(xy[1]))
         if (side, x, y) not in self._cache:
@@ -1446,7 +1468,7 @@ class _BareBackground:
         """(len(uv),) bool: sample k of the bridge (uv in order from end a to end b) is bare."""
         out = np.zeros(len(uv), dtype=bool)
         la, lb = self._level(side, end_a), self._level(side, end_b)
-        ok = np.all(np.isfinite(uv), axis=1)
+        ok = np.isfinite(uv).all(axis=1)
         if la is None or lb is None or not ok.any():
             return out  # no background next to the thread to compare with: not known bare
         g, mask, _ = self.views[side]
