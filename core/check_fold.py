@@ -107,7 +107,7 @@ def end_reversal(uv: np.ndarray, s3: np.ndarray) -> Reversal | None:
     uv = np.asarray(uv, dtype=np.float64)
     if len(uv) < 3 or not np.isfinite(uv).all():
         return None
-    s = np.concatenate([[0.0], np.cumsum(row_norms(np.diff(uv, axis=0)))])
+    s = np.concatenate([[0.0], row_norms(uv[1:] - uv[:-1]).cumsum()])  # (np.diff's subtraction)
     arm, chord = REVERSAL_ARM_PX, REVERSAL_CHORD_PX
     if s[-1] < 2.0 * arm + 2.0:
         return None

@@ -146,8 +146,8 @@ def bound_halfwidth_px(spline: SplineResult, bounds: Bounds, n: int, fB: float) 
 def _typical(e_mm: np.ndarray) -> float:
     """The typical expected error of a curve (mm): the geometric mean of e_i (a few points of
     large e_i, e.g. an interpolated stretch, do not swamp it; 1e6 for a non-finite one)."""
-    with np.errstate(divide="ignore"):
-        return float(np.exp(np.mean(np.log(np.clip(e_mm, 1e-9, 1e6)))))
+    # np.clip's values (NaN stays NaN) without its layers; the log then never divides by zero
+    return float(np.exp(np.log(np.minimum(np.maximum(e_mm, 1e-9), 1e6)).mean()))
 
 
 def _rating(error_mm: float, status: Status, score_mm: float, step: float) -> float:
@@ -194,7 +194,7 @@ def grasp_point(
     p: CheckParams,
 ) -> GraspPoint | None:
     """The most confident point within ``grasp_window_mm`` of ``grasp_mm`` from the free end."""
-    s = np.concatenate([[0.0], np.cumsum(row_norms(np.diff(pts, axis=0)))]) * mm
+    s = np.concatenate([[0.0], row_norms(pts[1:] - pts[:-1]).cumsum()]) * mm  # (np.diff's)
     if not np.isfinite(s[-1]):
         return None
     from_start, from_end = s, s[-1] - s
