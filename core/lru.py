@@ -51,8 +51,12 @@ class LRU(Generic[K, V]):
         when a later stage re-runs (a slider move)."""
         full = (*key, *map(id, owners))
         hit: Any = self.get(full)  # type: ignore[arg-type]
-        if hit is not MISSING and all(r() is o for r, o in zip(hit[0], owners, strict=True)):
-            return hit[1]
+        if hit is not MISSING:  # (a loop: all() over a generator costs as much as the lookup)
+            for ref, owner in zip(hit[0], owners, strict=True):
+                if ref() is not owner:
+                    break
+            else:
+                return hit[1]
         value = compute()
         self.put(full, (tuple(weakref.ref(o) for o in owners), value))  # type: ignore[arg-type]
         return value

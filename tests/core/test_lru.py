@@ -54,3 +54,18 @@ def test_cached_values_live_with_their_owners_and_a_reused_id_never_hits() -> No
             break
     if b is not None and id(b) == a_id:
         assert cache.cached((b,), ("k",), lambda: "value of b") == "value of b"
+
+
+def test_a_cached_value_hits_only_when_every_owner_is_the_same_object() -> None:
+    import weakref
+
+    import numpy as np
+
+    cache: LRU[tuple, object] = LRU(4)
+    a, b, c = np.zeros(1), np.zeros(1), np.zeros(1)
+    # an entry under a and b's ids whose second owner is another object (an id reused)
+    cache.put(("k", id(a), id(b)), ((weakref.ref(a), weakref.ref(c)), "stale"))
+    assert cache.cached((a, b), ("k",), lambda: "fresh") == "fresh"
+    assert cache.cached((a, b), ("k",), lambda: "again") == "fresh"  # now a hit
+    cache.put(("j", id(a), id(b)), ((weakref.ref(c), weakref.ref(b)), "stale"))
+    assert cache.cached((a, b), ("j",), lambda: "fresh j") == "fresh j"
