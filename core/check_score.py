@@ -9,6 +9,7 @@ capped by the check's status.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -136,11 +137,19 @@ def _local_mean(x: np.ndarray, s: np.ndarray, width: float) -> np.ndarray:
 
 def bound_halfwidth_px(spline: SplineResult, bounds: Bounds, n: int, fB: float) -> np.ndarray:
     """Bound half-width of Eq. (7) at each curve point, in px of disparity (|dd/dz| = fB/z^2)."""
-    u = np.linspace(0.0, 1.0, n)
+    u = _unit_grid(n)
     uh = spline.u_H / spline.length if spline.length > 0 else np.linspace(0, 1, len(spline.u_H))
     half = np.interp(u, uh, 0.5 * (bounds.upper - bounds.lower))
     centre = np.maximum(np.interp(u, uh, bounds.centre), 1e-12)
     return half * fB / centre**2
+
+
+@functools.lru_cache(maxsize=8)
+def _unit_grid(n: int) -> np.ndarray:
+    """``np.linspace(0.0, 1.0, n)``, read-only and kept (the curve's n is the same every run)."""
+    u = np.linspace(0.0, 1.0, n)
+    u.setflags(write=False)
+    return u
 
 
 def _typical(e_mm: np.ndarray) -> float:
@@ -207,9 +216,12 @@ def grasp_point(
         H, W = shape
         at_border = {}
         for end, i in (("start", 0), ("end", -1)):
-            xs = np.array([uv_l[i, 0], uv_r[i, 0]])
-            ys = np.array([uv_l[i, 1], uv_r[i, 1]])
-            m = min(xs.min(), ys.min(), W - 1 - xs.max(), H - 1 - ys.max())
+            x0, x1, y0, y1 = uv_l[i, 0], uv_r[i, 0], uv_l[i, 1], uv_r[i, 1]
+            if x0 == x0 and x1 == x1 and y0 == y0 and y1 == y1:  # no NaN: numpy's min and max
+                m = min(min(x0, x1), min(y0, y1), W - 1 - max(x0, x1), H - 1 - max(y0, y1))
+            else:  # (of two numbers, without two arrays and four reductions)
+                xs, ys = np.array([x0, x1]), np.array([y0, y1])
+                m = min(xs.min(), ys.min(), W - 1 - xs.max(), H - 1 - ys.max())
             at_border[end] = not (m >= p.border_px)
         ends = [e for e in ("start", "end") if not at_border[e]] or ["start", "end"]
         best = max(ends, key=lambda e: float(conf[near[e]].mean()) if near[e].any() else -1.0)

@@ -14,7 +14,9 @@ from threadrecon.core.check_score import (
     _rating,
     _score,
     _typical,
+    _unit_grid,
     _unsupported_gap,
+    grasp_point,
     point_errors,
 )
 from threadrecon.core.pipeline import Pipeline
@@ -129,3 +131,38 @@ def test_typical_error_is_not_swamped_by_a_few_large_points() -> None:
     e[:3] = 50.0  # an interpolated stretch
     assert _typical(e) < 0.25 < float(np.mean(e))
     assert _typical(np.full(5, np.inf)) == pytest.approx(1e6)
+
+
+def test_typical_error_is_the_clipped_geometric_mean_bit_for_bit() -> None:
+    # np.clip's values by np.minimum / np.maximum (issue 13): NaN stays NaN, inf clips to 1e6
+    rng = np.random.default_rng(19)
+    for e in (rng.lognormal(size=400), np.array([0.0, 1e-12, 2.0, np.inf]), np.array([np.nan, 1.0])):
+        with np.errstate(divide="ignore"):
+            want = float(np.exp(np.mean(np.log(np.clip(e, 1e-9, 1e6)))))
+        got = _typical(e)
+        assert got == want or (np.isnan(got) and np.isnan(want))
+
+
+def test_unit_grid_is_linspace_and_read_only() -> None:
+    for n in (2, 3, 400, 401):
+        u = _unit_grid(n)
+        assert u.tobytes() == np.linspace(0.0, 1.0, n).tobytes() and not u.flags.writeable
+    assert _unit_grid(400) is _unit_grid(400)
+
+
+def test_grasp_point_takes_the_free_end_away_from_the_border() -> None:
+    # the start lies at the image border in the right view (or is not finite there): the grasp
+    # point is taken from the end, whatever the confidence near the start
+    p = CheckParams()
+    n = 200
+    x = np.linspace(2.0, 300.0, n)
+    pts = np.column_stack([x * 0.1, np.full(n, 5.0), np.full(n, 100.0)])
+    uv_l = np.column_stack([x + 20.0, np.full(n, 240.0)])
+    conf = np.linspace(1.0, 0.1, n)  # the start is the more confident
+    for bad in (2.0, np.nan):
+        uv_r = uv_l - [20.0, 0.0]
+        uv_r[0, 0] = bad
+        g = grasp_point(pts, conf, uv_l, uv_r, (480, 640), 1.0, p)
+        assert g is not None and g.from_end == "end"
+    g = grasp_point(pts, conf, uv_l, uv_l - [10.0, 0.0], (480, 640), 1.0, p)
+    assert g is not None and g.from_end == "start"
