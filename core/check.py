@@ -77,6 +77,7 @@ from threadrecon.core.check_kernel import (
 )
 from threadrecon.core.check_score import (
     GraspPoint,
+    arc_px,
     bound_halfwidth_px,
     grasp_point,
     point_errors,
@@ -831,7 +832,7 @@ def _check(
     # what lies beyond it (an occluder's edge pulls the depth towards its own): a depth change
     # over the end's last knot span is length the matches there cannot vouch for.
     n_spans = max(len(spline.ctrl) - int(spline.degree), 1)
-    s2 = _arc_px(step)  # the left projection's arc length, read by both ends and the strands
+    s2 = arc_px(step)  # the left projection's arc length: both ends, the strands, the errors
     for end in free:
         added = _end_added_length(step3, step, z, f / mm, n_spans, end, s2)
         end_added = max(end_added, added)
@@ -996,7 +997,8 @@ def _check(
         np.where(in_r & ~bridge_r & ~hidden_r, rho_r, 0.0),
     )
     pe = point_errors(
-        z_pos, (z <= 0) | (z_right <= 0), r, rho, bridge_gap, step, s3, spline, f, f * B, mm, p
+        z_pos, (z <= 0) | (z_right <= 0), r, rho, bridge_gap, step, s3, spline, f, f * B, mm, p,
+        s2=s2,
     )
     e_mm, lateral, conf = pe.e_mm, pe.lateral_mm, pe.confidence
 
@@ -1326,12 +1328,6 @@ def _unmeasured_length(
     )  # fmt: skip
 
 
-def _arc_px(step: np.ndarray) -> np.ndarray:
-    """(N,) cumulative 2D length (px) of the steps ``step`` (N-1,) from 0, a non-finite step
-    counted as 0."""
-    return np.concatenate([[0.0], np.where(np.isfinite(step), step, 0.0).cumsum()])
-
-
 def _end_added_length(
     step3: np.ndarray,
     step: np.ndarray,
@@ -1343,9 +1339,9 @@ def _end_added_length(
 ) -> float:
     """Length (mm) the depth change adds over the curve's last knot span at ``end`` (2D length
     of the left projection / ``n_spans``): each step's 3D length less the same 2D step at
-    constant depth (``_unmeasured_length`` with no step measured). ``s``: ``_arc_px(step)``
+    constant depth (``_unmeasured_length`` with no step measured). ``s``: ``arc_px(step)``
     when the caller has it."""
-    s = _arc_px(step) if s is None else s
+    s = arc_px(step) if s is None else s
     span = s[-1] / n_spans
     k = int(np.searchsorted(s, span)) if end == "start" else int(np.searchsorted(s, s[-1] - span))
     sl = slice(0, max(k, 1)) if end == "start" else slice(min(k, len(step) - 1), len(step))
@@ -1364,11 +1360,11 @@ def _strand_samples(
     """Samples that may belong to a strand crossing another (``crossing_disparity_px``): the
     thread pixels cross at a keypoint, the sample lies on the left thread pixels and a
     supported sample lies within ``crossing_support_px`` of it along the curve (2D). ``s``:
-    ``_arc_px(step)`` when the caller has it."""
+    ``arc_px(step)`` when the caller has it."""
     n = len(on_l)
     if crossings == 0 or not supported.any():
         return np.zeros(n, dtype=bool)
-    s = _arc_px(step) if s is None else s
+    s = arc_px(step) if s is None else s
     ss = s[supported]
     k = np.searchsorted(ss, s)
     before = np.abs(s - ss[np.maximum(k - 1, 0)])

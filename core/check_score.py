@@ -66,6 +66,7 @@ def point_errors(
     fB: float,
     mm: float,
     p: CheckParams,
+    s2: np.ndarray | None = None,
 ) -> PointErrors:
     """The expected error e_i and confidence of each curve point (core/check.py's docstring).
 
@@ -73,11 +74,12 @@ def point_errors(
     camera; ``r``: (N,) disparity residuals (px); ``rho``: (N,) reprojection distance (px, 0
     where the view does not count); ``bridge_gap``: (N,) mm into a bridge; ``step``: (N-1,) px
     steps of the left projection; ``s3``: (N,) arc length (mm); ``f``, ``fB`` in px and
-    px * calib units; ``mm``: mm per calib unit.
+    px * calib units; ``mm``: mm per calib unit; ``s2``: ``arc_px(step)`` when the caller
+    has it.
     """
     rho = np.maximum(rho - PIXEL_HALF_DIAGONAL, 0.0)  # inside a thread pixel's cell: on it
     lateral = z_pos / f * rho * mm + p.bridge_error * bridge_gap  # bridges: interpolated
-    e_mm = _expected_error(z_pos, r, step, s3, spline, fB, p)
+    e_mm = _expected_error(z_pos, r, step, s3, spline, fB, p, s2)
     # unsupported stretches are interpolated like a bridge: drift from the nearest supported point
     drift = p.bridge_error * np.maximum(bridge_gap, _unsupported_gap(s3, r <= p.support_tol_px))
     e_mm = e_mm * mm + z_pos / f * rho * mm + drift
@@ -94,6 +96,7 @@ def _expected_error(
     spline: SplineResult,
     fB: float,
     p: CheckParams,
+    s2: np.ndarray | None = None,
 ) -> np.ndarray:
     """Depth part of the expected error e_i (calib units): the depth size of a pixel of
     disparity z^2 / (f B) times the local disparity error sqrt(sigma_d^2 + rbar_i^2), rbar_i
@@ -107,11 +110,17 @@ def _expected_error(
     ignored); the depth there is interpolated from the supported points around it, and
     ``point_errors`` adds the drift of that interpolation."""
     n_spans = max(len(spline.ctrl) - int(spline.degree), 1)
-    s2 = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))])
+    s2 = arc_px(step) if s2 is None else s2
     r_local = _local_mean(np.minimum(r, p.support_tol_px), s2, s2[-1] / n_spans)
     d = np.sqrt(p.sigma_disparity_px**2 + r_local**2)
     end = np.minimum(s3, s3[-1] - s3)  # mm to the nearer end
     return z**2 / fB * d * (1.0 + np.exp(-end / p.end_mm))
+
+
+def arc_px(step: np.ndarray) -> np.ndarray:
+    """(N,) cumulative 2D length (px) of the steps ``step`` (N-1,) from 0, a non-finite step
+    counted as 0 (the check reads it for the ends, the strands and the expected errors)."""
+    return np.concatenate([[0.0], np.where(np.isfinite(step), step, 0.0).cumsum()])
 
 
 def _unsupported_gap(s3: np.ndarray, supported: np.ndarray) -> np.ndarray:

@@ -615,6 +615,12 @@ def test_end_added_length_counts_only_the_last_knot_span() -> None:
     flat = np.sum(step[-10:] * 0.5 * (z[-11:-1] + z[-10:]) / f_mm)
     assert added == pytest.approx(np.sum(step3[-10:]) - flat)
     assert added > 0.0
+    # the arc length the check passes in (issue 13) gives the same bits
+    s = np.concatenate([[0.0], np.cumsum(step)])
+    for end in ("start", "end"):
+        assert _end_added_length(step3, step, z, f_mm, 10, end, s) == _end_added_length(
+            step3, step, z, f_mm, 10, end
+        )
 
 
 def test_an_end_the_left_segmentation_misses_is_not_cut_by_an_occluder() -> None:

@@ -16,6 +16,7 @@ from threadrecon.core.check_score import (
     _typical,
     _unit_grid,
     _unsupported_gap,
+    arc_px,
     grasp_point,
     point_errors,
 )
@@ -166,3 +167,24 @@ def test_grasp_point_takes_the_free_end_away_from_the_border() -> None:
         assert g is not None and g.from_end == "end"
     g = grasp_point(pts, conf, uv_l, uv_l - [10.0, 0.0], (480, 640), 1.0, p)
     assert g is not None and g.from_end == "start"
+
+
+def test_the_arc_length_given_or_computed_gives_the_same_errors() -> None:
+    # the check passes the left projection's arc length it already has (issue 13): the same
+    # bits as point_errors computing it, non-finite steps counted as 0
+    rng = np.random.default_rng(7)
+    n, p = 60, CheckParams()
+    step = rng.uniform(0.5, 2.0, n - 1)
+    step[[5, 40]] = [np.nan, np.inf]
+    s2 = arc_px(step)
+    assert s2[0] == 0.0 and s2.tobytes() == np.concatenate(
+        [[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))]
+    ).tobytes()
+    args = (
+        rng.uniform(80, 120, n), np.zeros(n, dtype=bool), rng.uniform(0, 3, n),
+        rng.uniform(0, 2, n), np.zeros(n), step, np.arange(n) * 1.5, _FakeSpline(), 500.0,
+        5e4, 1.0, p,
+    )  # fmt: skip
+    a, b = point_errors(*args), point_errors(*args, s2=s2)
+    assert a.e_mm.tobytes() == b.e_mm.tobytes()
+    assert a.confidence.tobytes() == b.confidence.tobytes()
