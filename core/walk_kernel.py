@@ -668,3 +668,94 @@ def occluded_share(grey, P, x0, y0, wx, wy, search, level, tol, disc, rim, tip):
     if beside:
         out[2] = 1.0
     return out
+
+
+@kernel(
+    "Tuple((int64[::1], int64[::1], float64[::1], float64[::1]))(int64[::1], float64[::1], "
+    "int64[:, :], int64[::1], int64[::1], int64[::1], float64)"
+)
+def extra_runs(link, t, xy, count, n_extra, sel, tie):  # noqa: ANN001
+    """The runs of bounds._extra_points in one pass over the gap pixels sorted by link, then
+    by position ``t`` along it (``xy``: (N, 2) pixels; ``sel``: the sorted pixels' indices into
+    it; ``count``: pixels per link; ``n_extra``: runs per link, ``count // extra_px``). A
+    link's pixel j of c (its tie group, ``t`` within ``tie`` of the one before, at the group's
+    mean j) goes to run floor((j + 1/2) n / c), a pixel exactly on a run boundary to none.
+    Returns the kept pixels' positions in the sorted order, their global run ids (in the order
+    of H) and the runs' centroids: their sums taken pixel by pixel in that order, as
+    np.bincount's weights are, divided by max(size, 1)."""
+    m = link.size
+    n_links = count.size
+    run_start = np.zeros(n_links + 1, dtype=np.int64)
+    for k in range(n_links):
+        run_start[k + 1] = run_start[k] + n_extra[k]
+    n_runs = run_start[n_links]
+    pos = np.empty(m, dtype=np.int64)
+    group = np.empty(m, dtype=np.int64)
+    sx = np.zeros(n_runs)
+    sy = np.zeros(n_runs)
+    size = np.zeros(n_runs, dtype=np.int64)
+    out = 0
+    i = 0
+    while i < m:  # one link's pixels: i .. e - 1
+        k = link[i]
+        e = i
+        while e < m and link[e] == k:
+            e += 1
+        n = n_extra[k]
+        if n > 0:
+            c = count[k]
+            g = i
+            while g < e:  # one tie group: g .. h - 1, at positions g - i .. h - 1 - i
+                h = g + 1
+                while h < e and not (t[h] - t[h - 1] > tie):
+                    h += 1
+                num = ((g - i) + (h - 1 - i) + 1) * n
+                run = num // (2 * c)
+                if not (num % (2 * c) == 0 and run > 0):
+                    for q in range(g, h):
+                        r = run_start[k] + run
+                        pos[out] = q
+                        group[out] = r
+                        out += 1
+                g = h
+        i = e
+    for q in range(out):  # the centroids, summed in the kept pixels' order
+        r = group[q]
+        s = sel[pos[q]]
+        sx[r] += float(xy[s, 0])
+        sy[r] += float(xy[s, 1])
+        size[r] += 1
+    for r in range(n_runs):
+        d = float(max(size[r], 1))
+        sx[r] /= d
+        sy[r] /= d
+    return pos[:out].copy(), group[:out].copy(), sx, sy
+
+
+@kernel("Tuple((float64[::1], boolean[::1]))(int64[::1], float64[::1], int64)")
+def run_medians(group, depth, n_runs):  # noqa: ANN001
+    """(n_runs,) the median of each run's finite ``depth`` values (NaN: none) and whether it
+    has one; ``group``: the run of each value. The mean of the two middle values of the sorted
+    run (one value of an odd run twice), as bounds._extra_points took them."""
+    n_f = np.zeros(n_runs + 1, dtype=np.int64)
+    for q in range(group.size):
+        if math.isfinite(depth[q]):
+            n_f[group[q] + 1] += 1
+    for r in range(n_runs):
+        n_f[r + 1] += n_f[r]  # now the start of each run's values
+    vals = np.empty(n_f[n_runs])
+    fill = n_f[:n_runs].copy()
+    for q in range(group.size):
+        if math.isfinite(depth[q]):
+            vals[fill[group[q]]] = depth[q]
+            fill[group[q]] += 1
+    med = np.full(n_runs, np.nan)
+    has = np.zeros(n_runs, dtype=np.bool_)
+    for r in range(n_runs):
+        a, b = n_f[r], n_f[r + 1]
+        if b > a:
+            v = np.sort(vals[a:b])
+            k = b - a
+            med[r] = 0.5 * (v[(k - 1) // 2] + v[k // 2])
+            has[r] = True
+    return med, has

@@ -9,7 +9,9 @@ from scipy.interpolate import BSpline
 from support import assert_close, synthetic_case
 from threadpoolctl import threadpool_limits
 
+from threadrecon.core import walk_kernel
 from threadrecon.core.bounds import (
+    T_TIE,
     Bounds,
     BoundsParams,
     _border_depths,
@@ -660,3 +662,106 @@ def test_the_initial_fit_reads_fitpack_s_status_without_touching_the_warning_fil
     t_gap = np.r_[[0.0] * 4, 0.4, 0.45, 0.5, 0.55, 0.6, [1.0] * 4]
     ctrl = spline_mod._init_fit(np.c_[gap, gap**2, gap], gap, t_gap, 3)
     assert ctrl.shape == (len(t_gap) - 4, 3) and np.all(np.isfinite(ctrl))
+
+
+def _runs_reference(
+    link: np.ndarray, t: np.ndarray, xy: np.ndarray, n_links: int, extra_px: int
+) -> tuple[np.ndarray, ...]:
+    """The runs of _extra_points as its grouped numpy operations took them (before the
+    compiled pass): kept positions, run ids, centroids, medians of a depth per pixel."""
+    count = np.bincount(link, minlength=n_links)
+    n_extra = count // extra_px
+    pos = np.arange(link.size)
+    keep = n_extra[link] > 0
+    pos, link = pos[keep], link[keep]
+    start = np.concatenate([[0], np.cumsum(count)])[:-1]
+    start = start - np.concatenate([[0], np.cumsum(np.where(n_extra > 0, 0, count))])[:-1]
+    j = np.arange(pos.size) - start[link]
+    n, c = n_extra[link], count[link]
+    t = t[keep]
+    new = np.ones(pos.size, dtype=bool)
+    new[1:] = (link[1:] != link[:-1]) | (t[1:] - t[:-1] > T_TIE)
+    gs = np.flatnonzero(new)
+    ge = np.append(gs[1:], pos.size)[: gs.size] - 1
+    grp = np.cumsum(new) - 1
+    first, last = j[gs][grp], j[ge][grp]
+    num = (first + last + 1) * n
+    run = num // (2 * c)
+    keep2 = ~((num % (2 * c) == 0) & (run > 0))
+    pos, link, run = pos[keep2], link[keep2], run[keep2]
+    group = np.concatenate([[0], np.cumsum(n_extra)])[:-1][link] + run
+    n_runs = int(n_extra.sum())
+    p = xy[pos].astype(np.float64)
+    size = np.bincount(group, minlength=n_runs)
+    cx = np.bincount(group, weights=p[:, 0], minlength=n_runs) / np.maximum(size, 1)
+    cy = np.bincount(group, weights=p[:, 1], minlength=n_runs) / np.maximum(size, 1)
+    return pos, group, cx, cy, n_runs
+
+
+def _medians_reference(group: np.ndarray, depth: np.ndarray, n_runs: int) -> tuple[np.ndarray, ...]:
+    fin = np.isfinite(depth)
+    g_f, d_f = group[fin], depth[fin]
+    o = np.lexsort((d_f, g_f))
+    g_f, d_f = g_f[o], d_f[o]
+    n_f = np.bincount(g_f, minlength=n_runs)
+    first = np.concatenate([[0], np.cumsum(n_f)])[:-1]
+    has = n_f > 0
+    med = np.full(n_runs, np.nan)
+    if d_f.size:
+        lo = np.minimum(first + np.maximum(n_f - 1, 0) // 2, d_f.size - 1)
+        hi = np.minimum(first + n_f // 2, d_f.size - 1)
+        med[has] = 0.5 * (d_f[lo[has]] + d_f[hi[has]])
+    return med, has
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_compiled_extra_runs_equal_the_grouped_operations_bit_for_bit(seed: int) -> None:
+    """walk_kernel.extra_runs and run_medians (bounds._extra_points' runs in one pass each)
+    give the kept pixels, run ids, centroids and medians of the grouped numpy operations they
+    replace, to the bit: ties in t (a tie group at its mean position), pixels exactly on a run
+    boundary (dropped), links too short for a run, empty links, NaN and infinite depths."""
+    rng = np.random.default_rng(seed)
+    n_links = int(rng.integers(1, 9))
+    extra_px = int(rng.integers(1, 6))
+    sizes = rng.integers(0, 40, n_links) * (rng.random(n_links) < 0.85)
+    link = np.repeat(np.arange(n_links), sizes).astype(np.int64)
+    # positions along each link: few distinct values, so that ties (equal or within T_TIE) occur
+    t = np.round(rng.uniform(0.01, 0.99, link.size), int(rng.integers(1, 3)))
+    t = t + rng.choice([0.0, 0.3 * T_TIE, 2 * T_TIE], link.size)
+    order = np.lexsort((t, link))
+    link, t = link[order], t[order]
+    pixels = rng.integers(0, 640, (300, 2)).astype(np.int64)
+    sel = rng.choice(300, link.size, replace=True).astype(np.int64)
+    xy = pixels[sel]
+    count = np.bincount(link, minlength=n_links)
+    kept, group, cx, cy = walk_kernel.extra_runs(
+        link, t, pixels, count, count // extra_px, sel, T_TIE
+    )
+    pos, group_ref, cx_ref, cy_ref, n_runs = _runs_reference(link, t, xy, n_links, extra_px)
+    np.testing.assert_array_equal(kept, pos)
+    np.testing.assert_array_equal(group, group_ref)
+    assert cx.tobytes() == cx_ref.tobytes() and cy.tobytes() == cy_ref.tobytes()
+    depth = rng.uniform(50, 150, group.size)
+    depth[rng.random(group.size) < 0.2] = np.nan
+    depth[rng.random(group.size) < 0.05] = np.inf
+    depth[: group.size // 3] = np.round(depth[: group.size // 3])  # equal values in a run
+    med, has = walk_kernel.run_medians(group, depth, n_runs)
+    med_ref, has_ref = _medians_reference(group, depth, n_runs)
+    np.testing.assert_array_equal(has, has_ref)
+    assert med.tobytes() == med_ref.tobytes()
+
+
+def test_extra_runs_drop_a_pixel_on_a_run_boundary() -> None:
+    """The middle pixel of a 5-px link in 2 runs lies on the boundary between them: it goes to
+    neither run (the same from either end of the link)."""
+    link = np.zeros(5, np.int64)
+    t = np.array([0.1, 0.3, 0.5, 0.7, 0.9])
+    pixels = np.arange(10, dtype=np.int64).reshape(5, 2)
+    count = np.array([5], np.int64)
+    kept, group, cx, cy = walk_kernel.extra_runs(
+        link, t, pixels, count, count // 2, np.arange(5, dtype=np.int64), T_TIE
+    )
+    np.testing.assert_array_equal(kept, [0, 1, 3, 4])
+    np.testing.assert_array_equal(group, [0, 0, 1, 1])
+    np.testing.assert_array_equal(cx, [1.0, 7.0])
+    np.testing.assert_array_equal(cy, [2.0, 8.0])

@@ -14,6 +14,7 @@ from threadrecon.core.segmentation import (
     LIFT_VALUE,
     SegmentationParams,
     StereoPair,
+    _lift,
     segment,
     split_side_by_side,
 )
@@ -69,6 +70,28 @@ def test_lifting_keeps_intensities_on_the_dilated_mask(dilate: int) -> None:
     near = dist <= dilate
     assert_close(lifted.I_L[near], pair.left.astype(np.float32)[near])
     assert np.all(lifted.I_L[~near] == LIFT_VALUE)
+
+
+@pytest.mark.parametrize("dilate", [0, 1, 3])
+def test_lift_writes_the_box_of_a_strided_mask_in_place(dilate: int) -> None:
+    """_lift reads P's box through its strides and writes the box of its output in place
+    (cv2's masked copy): the same values as Eq. (1) on the whole image, for a mask that is a
+    strided view, boxes at the image's borders and a given box."""
+    rng = np.random.default_rng(5)
+    grey = rng.uniform(0, 250, (40, 70)).astype(np.float32)
+    wide = np.zeros((40, 140), bool)
+    P = wide[:, ::2]  # a view with a column stride of 2
+    P[0:6, 60:70] = rng.random((6, 10)) < 0.4
+    P[30:40, 0:5] = True
+    P[20, 33] = True
+    k = np.ones((2 * dilate + 1, 2 * dilate + 1), np.uint8)
+    near = cv2.dilate(P.astype(np.uint8), k, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+    expected = np.where(near, grey, np.float32(LIFT_VALUE))
+    for box in (None, (slice(0, 40), slice(0, 70)), (slice(0, 40), slice(0, 70, 1))):
+        got = _lift(grey, P, dilate, box)
+        assert got.dtype == np.float32 and got.flags.c_contiguous
+        np.testing.assert_array_equal(got, expected)
+    assert not wide[:, 1::2].any()  # the mask is read, never written
 
 
 def test_given_masks_replace_thresholding() -> None:
