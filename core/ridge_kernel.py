@@ -537,6 +537,23 @@ def pixels_at(img, rows, cols):  # noqa: ANN001
     return out
 
 
+@helper(inline="always")
+def _shift_of(q):  # noqa: ANN001
+    """log2 ``q`` when ``q`` >= 1 is a power of two, else -1."""
+    sh = 0
+    while (1 << sh) < q:
+        sh += 1
+    return sh if (1 << sh) == q else -1
+
+
+@helper(inline="always")
+def _block_of(i, q, sh, n):  # noqa: ANN001
+    """min(i // q, n - 1) of a pixel index i >= 0; a shift when q = 2^sh (sh >= 0): the same
+    integer without a division."""
+    b = (i >> sh) if sh >= 0 else i // q
+    return min(b, n - 1)
+
+
 @kernel("float32[:, ::1](float32[:, :, ::1], int64[::1], int64[::1], int64)")
 def blocks_at(a, rows, cols, q):  # noqa: ANN001
     """(M, c) values of the block image ``a`` (h, w, c) at the blocks of the full-resolution
@@ -545,9 +562,9 @@ def blocks_at(a, rows, cols, q):  # noqa: ANN001
     h, w, c = a.shape
     m = len(rows)
     out = np.empty((m, c), np.float32)
+    sh = _shift_of(q)
     for i in range(m):
-        r = min(rows[i] // q, h - 1)
-        k = min(cols[i] // q, w - 1)
+        r, k = _block_of(rows[i], q, sh, h), _block_of(cols[i], q, sh, w)
         for j in range(c):
             out[i, j] = a[r, k, j]
     return out

@@ -50,7 +50,9 @@ _EDGE_K: Final = 2.0  # gradient penalty; 2 cancels both lobes of a step edge be
 _LOG_OFFSET: Final = 16.0  # log(I + 16): lighting is a product, contrast a ratio; 16 tames noise
 _BAND_PX: Final = 4  # the mask is grown at most this far from a kept piece (half of 6 px + 1)
 _BG_SIGMA: Final = 8.0  # local background colour: thread-free Gaussian average, px
-_Q: Final = 4  # the local background and the instrument mask are computed at 1/4 resolution
+_Q_SHIFT: Final = 2
+_Q: Final = 1 << _Q_SHIFT  # the local background and the instrument mask are computed at 1/4
+# resolution
 _CORE_FRACTION: Final = 0.4  # core pixels respond >= 40 % of their piece's mean
 _SAME_DYE_COS: Final = 0.8  # pieces of one thread: colour contrasts within ~37 degrees
 _SAME_DYE_COS_PX: Final = 0.5  # per pixel (noisier): within 60 degrees
@@ -352,8 +354,9 @@ def _points(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _qi(index: np.ndarray, n: int) -> np.ndarray:
-    """Quarter-resolution index of full-resolution rows or columns, clipped to ``n``."""
-    return np.minimum(index // _Q, n - 1)
+    """Quarter-resolution index of full-resolution rows or columns (>= 0), clipped to ``n``
+    (a shift: _Q is a power of two, and an integer division costs ~5x more)."""
+    return np.minimum(index >> _Q_SHIFT, n - 1)
 
 
 def _quarter(a: np.ndarray) -> np.ndarray:
@@ -404,9 +407,9 @@ def _log_of(a: np.ndarray, levels: bool = False) -> np.ndarray:
 def _free_blocks(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """(h, w) float32, 1 on quarter-resolution blocks that hold no candidate pixel (a
     candidate's colour is not the background's)."""
-    free = np.ones(shape, np.float32)
-    free[_qi(rows, shape[0]), _qi(cols, shape[1])] = 0.0
-    return free
+    free = np.ones(shape[0] * shape[1], np.float32)  # a flat index: ~2.5x faster than two
+    free[_qi(rows, shape[0]) * shape[1] + _qi(cols, shape[1])] = 0.0
+    return free.reshape(shape)
 
 
 def _background(a_q: np.ndarray, free: np.ndarray) -> np.ndarray:

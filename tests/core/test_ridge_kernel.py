@@ -322,6 +322,11 @@ def test_pixels_and_blocks_at_are_numpy_indexing(m: int) -> None:
     a = rng.random((9, 12, 3)).astype(np.float32)  # 37 // 4 = 9 rows: the last takes 4 + 1
     got = rk.blocks_at(a, rows, cols, 4)
     np.testing.assert_array_equal(got, a[np.minimum(rows // 4, 8), np.minimum(cols // 4, 11)])
+    # a block side that is a power of two is a shift, any other a division: the same blocks
+    for q in (1, 2, 3, 5, 8):
+        b = rng.random((37 // q, 51 // q, 2)).astype(np.float32)
+        want = b[np.minimum(rows // q, 37 // q - 1), np.minimum(cols // q, 51 // q - 1)]
+        np.testing.assert_array_equal(rk.blocks_at(b, rows, cols, q), want, err_msg=str(q))
 
 
 @pytest.mark.parametrize("shape", [(480, 640), (8, 12), (4, 4)])

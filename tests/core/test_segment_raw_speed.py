@@ -111,3 +111,22 @@ def test_logs_of_whole_levels_are_looked_up_as_computed(seed: int) -> None:
         levels = np.roll(np.arange(256), seed * 40 + n)[: 256 - n % 7]
         a = levels.astype(np.float32).reshape(1, -1, 1)
         assert np.array_equal(sr._log_of(a, levels=True), sr._log_of(a))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_free_blocks_and_quarter_index_are_the_divisions(seed: int) -> None:
+    """_qi shifts and _free_blocks writes a flat index: the values of index // _Q clipped
+    and of the two-index assignment, at every row and column (the last block taking the
+    rest of a side that is no multiple of 4)."""
+    rng = np.random.default_rng(seed)
+    h, w = 4 * 30 + seed, 4 * 41 + 2 * seed
+    index = np.arange(max(h, w))
+    for n in (h // 4, w // 4):
+        np.testing.assert_array_equal(sr._qi(index, n), np.minimum(index // 4, n - 1))
+    rows, cols = rng.integers(0, h, 900), rng.integers(0, w, 900)
+    shape = (h // 4, w // 4)
+    want = np.ones(shape, np.float32)
+    want[np.minimum(rows // 4, shape[0] - 1), np.minimum(cols // 4, shape[1] - 1)] = 0.0
+    got = sr._free_blocks(rows, cols, shape)
+    assert got.shape == shape and got.dtype == np.float32
+    np.testing.assert_array_equal(got, want)
