@@ -4,7 +4,10 @@ The check stage scores every frame on the paper's 1-5 scale (``CheckResult.score
 each evaluation row as ``auto_score``); where a person has rated frames (the ratings store),
 this module puts the two side by side: a 5x5 confusion table (rows: the person's rating,
 columns: the automatic score), the Spearman rank correlation, and the shares of exact and
-within-one agreement, so a lab can calibrate the score to its own ratings.
+within-one agreement, so a lab can calibrate the score to its own ratings. The table compares
+integers (the score's class, ``auto_score``); the rank correlation reads the continuous score
+(``auto_rating``) where the evaluation stored it, so frames of one class still rank by their
+expected error.
 """
 
 from __future__ import annotations
@@ -49,10 +52,15 @@ class Agreement:
         }
 
 
-def agreement(pairs: Iterable[tuple[int, int]]) -> Agreement:
-    """The agreement of ``(automatic, human)`` score pairs, each an integer 1-5.
+def agreement(
+    pairs: Iterable[tuple[int, int]], ratings: Iterable[float] | None = None
+) -> Agreement:
+    """The agreement of ``(automatic, human)`` score pairs, each an integer 1-5. ``ratings``:
+    the continuous automatic score of each pair (1-5), ranked in the Spearman correlation
+    instead of the integer classes when given.
 
-    Raises ValueError naming the first pair that is not two integers in 1..5."""
+    Raises ValueError naming the first pair that is not two integers in 1..5, or when
+    ``ratings`` does not give one finite value per pair."""
     a_list, h_list = [], []
     for i, pair in enumerate(pairs):
         try:
@@ -66,16 +74,21 @@ def agreement(pairs: Iterable[tuple[int, int]]) -> Agreement:
         h_list.append(int(h))
     auto, human = np.array(a_list, dtype=int), np.array(h_list, dtype=int)
     n = len(auto)
+    ranked = auto.astype(float)
+    if ratings is not None:
+        ranked = np.array(list(ratings), dtype=float)
+        if ranked.shape != (n,) or not np.all(np.isfinite(ranked)):
+            raise ValueError(f"ratings must be {n} finite values, one per pair, got {ranked}")
     confusion = np.zeros((5, 5), dtype=int)
     np.add.at(confusion, (human - 1, auto - 1), 1)
     rho, note = None, ""
     if n < MIN_PAIRS_RHO:
         note = f"needs at least {MIN_PAIRS_RHO} rated frames with a score, got {n}"
-    elif len(set(a_list)) == 1 or len(set(h_list)) == 1:
-        side = "automatic score" if len(set(a_list)) == 1 else "rating"
+    elif len(set(ranked.tolist())) == 1 or len(set(h_list)) == 1:
+        side = "automatic score" if len(set(ranked.tolist())) == 1 else "rating"
         note = f"every {side} is the same: no ranking to compare"
     else:
-        rho = float(spearmanr(auto, human)[0])
+        rho = float(spearmanr(ranked, human)[0])
     diff = auto - human
     return Agreement(
         n=n,
@@ -100,12 +113,25 @@ def automatic_score(row: Mapping[str, Any]) -> int | None:
     return None
 
 
+def automatic_rating(row: Mapping[str, Any]) -> float | None:
+    """The continuous automatic score of an evaluation row: its ``auto_rating``; 1.0 for a
+    frame that failed before the check (as its score); None when the row has none (an
+    evaluation older than the continuous score)."""
+    v = row.get("auto_rating")
+    if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v):
+        return float(v)
+    if row.get("status") == "failed" and "auto_rating" in row:
+        return 1.0
+    return None
+
+
 def rated_pairs(
     ratings: Mapping[str, int], rows: Iterable[Mapping[str, Any]]
 ) -> tuple[list[dict[str, Any]], list[str]]:
     """Join the latest rating per frame (``frame id -> score``) with the evaluation rows.
 
-    Returns the joined frames (``frame``, ``human``, ``auto``, ``status``) in frame order and
+    Returns the joined frames (``frame``, ``human``, ``auto``, ``auto_rating`` (None when the
+    row has no continuous score), ``status``) in frame order and
     the rated frames that have no automatic score in ``rows`` (not evaluated, or evaluated
     before the score existed)."""
     by_frame = {r.get("frame"): r for r in rows}
@@ -118,6 +144,7 @@ def rated_pairs(
             continue
         joined.append(
             {"frame": frame_id, "human": int(ratings[frame_id]), "auto": auto,
+             "auto_rating": automatic_rating(row) if row is not None else None,
              "status": row.get("status") if row is not None else None}
         )  # fmt: skip
     return joined, missing

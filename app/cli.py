@@ -325,7 +325,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         return EXIT_FAILED
     summary = (
         f"{len(data['points'])} points, length {data['length']:.2f} {data['unit']}, "
-        f"frame {data['frame']}, score {data['score']}/5, "
+        f"frame {data['frame']}, score {data['rating']:.2f}/5 (class {data['score']}), "
         f"{sum(result.timings_ms.values()):.0f} ms -> {out}"
     )
     if result.status == "suspect":

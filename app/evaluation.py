@@ -31,7 +31,7 @@ def evaluate_frame(
         rec = Pipeline(pair, calib, frame.corrections).run(params)
     except Exception as exc:  # any frame's error is that frame's failed row, never the run's
         row.update(status="failed", error=_describe(exc), **{c: math.nan for c in METRIC_COLUMNS})
-        row.update(check="failed", reasons=row["error"], auto_score=math.nan)
+        row.update(check="failed", reasons=row["error"], auto_score=math.nan, auto_rating=math.nan)
         row["grasp_confidence"] = math.nan
         return row, None
     row.update(status=rec.status, error=rec.message or "")
@@ -56,20 +56,23 @@ def evaluate_frame(
     return row, rec
 
 
-CHECK_COLUMNS = ("check", "reasons", "auto_score", "grasp_confidence")
+CHECK_COLUMNS = ("check", "reasons", "auto_score", "auto_rating", "grasp_confidence")
 """The check stage's verdict in every row: its status (before the ground-truth length test),
-every reason (joined by "; "), the automatic 1-5 score and the grasp point's confidence."""
+every reason (joined by "; "), the automatic score on the paper's 1-5 scale as its integer
+class (``auto_score``, for the confusion table against a person's ratings) and continuous
+(``auto_rating``, the value that ranks frames) and the grasp point's confidence."""
 
 
 def _check_columns(rec: Reconstruction) -> dict[str, Any]:
     if "check" not in rec.runs:  # a stage before the check failed: that stage's reason
         return {"check": rec.status, "reasons": rec.message or "", "auto_score": math.nan,
-                "grasp_confidence": math.nan}  # fmt: skip
+                "auto_rating": math.nan, "grasp_confidence": math.nan}  # fmt: skip
     chk = rec["check"]
     return {
         "check": chk.status,
         "reasons": "; ".join(chk.reasons),
         "auto_score": chk.score,
+        "auto_rating": chk.rating,
         "grasp_confidence": chk.grasp.confidence if chk.grasp is not None else math.nan,
     }
 

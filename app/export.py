@@ -200,6 +200,7 @@ def result_json(
         g = chk.grasp
         out.update(
             score=chk.score,
+            rating=chk.rating,
             confidence=chk.confidence,
             grasp=None
             if g is None

@@ -69,8 +69,10 @@ class ThreadResult:
     stage's result (in the left rectified frame, on the rectified pair); ``rectification``:
     how the raw pair was rectified (``R1``: p_rect = R1 p_left; identity for a rectified pair).
     ``confidence``: (n,) per point in [0, 1]; ``grasp``: the most confident point at the
-    configured distance from the free end (:class:`Grasp`); ``score``: the automatic 1-5
-    rating. These three are None when the check stage did not run (a failed stage).
+    configured distance from the free end (:class:`Grasp`); ``rating``: the automatic
+    quality score on the paper's 1-5 scale, continuous; ``score``: its integer class (for a
+    person's 1-5 ratings). These four are None when the check stage did not run (a failed
+    stage).
     ``point_at(0.5)``: the point halfway along the curve.
     """
 
@@ -86,6 +88,7 @@ class ThreadResult:
     confidence: np.ndarray | None
     grasp: Grasp | None
     score: int | None
+    rating: float | None
     timings_ms: dict[str, float]
     params: ReconParams
     preset: str | None
@@ -196,7 +199,17 @@ def _result(
     inputs: Sequence[InputFile],
 ) -> ThreadResult:
     fields: dict[str, Any] = dict.fromkeys(
-        ("points", "control_points", "knots", "degree", "length", "confidence", "grasp", "score")
+        (
+            "points",
+            "control_points",
+            "knots",
+            "degree",
+            "length",
+            "confidence",
+            "grasp",
+            "score",
+            "rating",
+        )
     )
     unit = rect.calib.unit
     if "camera" in rec.runs:
@@ -210,7 +223,7 @@ def _result(
         )
     if "check" in rec.runs:
         chk = rec["check"]
-        fields.update(confidence=chk.confidence, score=chk.score)
+        fields.update(confidence=chk.confidence, score=chk.score, rating=chk.rating)
         if chk.grasp is not None:
             g = chk.grasp
             fields["grasp"] = Grasp(

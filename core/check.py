@@ -356,7 +356,7 @@ class CheckParams(Params):
     )  # fmt: skip
     score_mm: float = param(
         0.25, lo=1e-6, unit="mm", slider=(0.05, 10.0, 0.005), label="score scale",
-        doc="Quality score from the typical expected error e (geometric mean of e_i): 5 below "
+        doc="Quality score from the typical expected error e (score_average): 5 below "
         "this, 4 below score_step x this, 3 below score_step^2 x, 2 below score_step^3 x, else "
         "1; suspect curves score at most 2, failed ones 1 (core/check_score.py). Default: the "
         "paper's scale, where a rating below 3 is a failure: 3 still means a curve within about "
@@ -367,6 +367,14 @@ class CheckParams(Params):
     score_step: float = param(
         2.0, lo=1.01, slider=(1.05, 4.0, 0.01), label="score step",
         doc="Factor of typical expected error between two neighbouring scores.",
+    )  # fmt: skip
+    score_average: Literal["confidence", "geometric"] = param(
+        "confidence", label="score's typical error",
+        doc="How the score reads the curve's typical expected error e from the points' e_i: "
+        "'confidence': the error whose confidence is the curve's mean confidence, -conf_mm "
+        "ln(mean exp(-e_i / conf_mm)) (a point counts by its confidence: an untrusted stretch "
+        "weighs by its share of the curve, never more); 'geometric': the geometric mean of e_i "
+        "(before session 19). docs/method.md, score19.",
     )  # fmt: skip
     grasp_mm: float = param(
         10.0, lo=0.0, unit="mm", slider=(0.0, 100.0, 1.0), label="grasp distance",

@@ -3,8 +3,9 @@
 Per-point confidence (core/check.py's module docstring gives the formula): each point i of the
 dense curve gets an expected 3D error e_i from the evidence near it, and the confidence
 exp(-e_i / ``conf_mm``). The grasp point is the most confident point near ``grasp_mm`` from the
-free end; the score rates the curve on the paper's 1-5 scale (Sec. IV-B) from the typical e_i,
-capped by the check's status.
+free end; the score rates the curve on the paper's 1-5 scale (Sec. IV-B) from the typical e_i
+(the error whose confidence is the curve's mean confidence), capped by the check's status: a
+continuous rating, and the integer class it rounds to (for a person's 1-5 ratings).
 """
 
 from __future__ import annotations
@@ -161,11 +162,21 @@ def _unit_grid(n: int) -> np.ndarray:
     return u
 
 
-def _typical(e_mm: np.ndarray) -> float:
-    """The typical expected error of a curve (mm): the geometric mean of e_i (a few points of
-    large e_i, e.g. an interpolated stretch, do not swamp it; 1e6 for a non-finite one)."""
-    # np.clip's values (NaN stays NaN) without its layers; the log then never divides by zero
-    return float(np.exp(np.log(np.minimum(np.maximum(e_mm, 1e-9), 1e6)).mean()))
+def _typical(e_mm: np.ndarray, conf_mm: float, average: str = "confidence") -> float:
+    """The typical expected error of a curve (mm) behind its score.
+
+    "confidence": the error whose confidence is the curve's mean confidence,
+    e = -conf_mm ln(mean_i exp(-e_i / conf_mm)). Equal e_i give that e; a point counts by its
+    confidence, so a stretch of large or infinite e_i raises e by at most -conf_mm ln(1 - q) for
+    its share q of the curve (the score reads the share of the curve a gripper may trust, the
+    page's mean confidence), while the small e_i of good stretches rank curves as a mean of e_i
+    does (docs/method.md, score19). "geometric": the geometric mean of e_i (1e6 for a
+    non-finite one), before session 19."""
+    if average == "geometric":
+        # np.clip's values (NaN stays NaN) without its layers; the log never divides by zero
+        return float(np.exp(np.log(np.minimum(np.maximum(e_mm, 1e-9), 1e6)).mean()))
+    mean_conf = float(np.mean(np.exp(-np.asarray(e_mm, dtype=np.float64) / conf_mm)))
+    return -conf_mm * math.log(mean_conf) if mean_conf > 0.0 else math.inf
 
 
 def _rating(error_mm: float, status: Status, score_mm: float, step: float) -> float:
@@ -195,7 +206,7 @@ def _score(error_mm: float, status: Status, score_mm: float, step: float) -> int
 def quality_score(e_mm: np.ndarray, status: Status, p: CheckParams) -> tuple[int, float]:
     """The automatic quality score (1-5, the paper's rating scale) of a checked curve and the
     continuous rating behind it (module docstring)."""
-    typical = _typical(e_mm)
+    typical = _typical(e_mm, p.conf_mm, p.score_average)
     return (
         _score(typical, status, p.score_mm, p.score_step),
         _rating(typical, status, p.score_mm, p.score_step),

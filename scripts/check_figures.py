@@ -4,7 +4,8 @@
 
 For every frame: the check's status against the truth ("wrong": |length error| > 20 mm or
 max curve error > 20 mm), the rank correlation of per-point confidence with the true 3D error
-of each point, the grasp point's true error, the score against e_S, and the check's time.
+of each point, the grasp point's true error, the score against e_S (its integer class and the
+continuous rating, the score the product reports), and the check's time.
 Frames without ground truth (real) only count towards the status table. Each flagged frame's
 reasons are tallied by kind, on wrong and on right frames. Errors are ``metrics.frame_errors``
 (the one metric of ``evaluate``: a thread leaving the view is judged on the part both views
@@ -225,8 +226,8 @@ def report(rows: list[dict], point_sets: list, label: str) -> None:
         e = np.where(np.isfinite(e), e, 1e9)
         hist = np.bincount(s.astype(int), minlength=6)[1:].tolist()
         print(
-            f"  score vs e_S, Spearman: {spearmanr(s, e)[0]:.3f} (negative = agrees; scores 1-5: "
-            f"{hist}); continuous rating: {spearmanr(x, e)[0]:.3f}"
+            f"  score vs e_S, Spearman: {spearmanr(s, e)[0]:.3f} (negative = agrees; integer classes "
+            f"1-5: {hist}); continuous rating (the score reported): {spearmanr(x, e)[0]:.3f}"
         )
     _per_suite(gt_rows, sets)
     ms = [r["ms_check"] for r in rows if "ms_check" in r]

@@ -109,8 +109,9 @@ def ratings_summary(state: State, session: str | None = None) -> JSONResponse:
 @router.get("/api/ratings/agreement")
 def ratings_agreement(state: State, session: str | None = None) -> JSONResponse:
     """The automatic 1-5 score against the person's latest rating of each rated frame: a 5x5
-    confusion table (rows: rating, columns: automatic score) and the Spearman rank
-    correlation. The automatic scores are those stored by the saved evaluation that
+    confusion table (rows: rating, columns: automatic score's class) and the Spearman rank
+    correlation (of the continuous automatic score, where the evaluation stored it). The
+    automatic scores are those stored by the saved evaluation that
     ``/api/ratings/summary`` uses (current parameters, else the newest); ``missing`` lists
     the rated frames that evaluation has no score for."""
     s = state.session(session)
@@ -118,7 +119,11 @@ def ratings_agreement(state: State, session: str | None = None) -> JSONResponse:
     ev = state.store.last_evaluation(params_hash=current) or state.store.last_evaluation()
     ratings = {f: r.score for f, r in state.store.latest_all().items() if f in state.library.frames}
     frames, missing = rated_pairs(ratings, ev["rows"] if ev is not None else [])
-    agree = agreement((f["auto"], f["human"]) for f in frames)
+    continuous = [f["auto_rating"] for f in frames]  # None in an evaluation before session 19
+    agree = agreement(
+        [(f["auto"], f["human"]) for f in frames],
+        continuous if all(v is not None for v in continuous) else None,
+    )
     source = None
     if ev is not None:
         source = {k: ev[k] for k in ("id", "preset", "params_hash", "created_at")}

@@ -82,7 +82,11 @@ class CheckState(BaseModel):
     status: Literal["ok", "suspect", "failed"]
     reasons: list[str]
     score: int
-    """The automatic quality score, 1-5 (the paper's rating scale)."""
+    """The automatic quality score's class, 1-5 (the paper's integer rating scale): the
+    continuous ``rating`` rounded, for the confusion table against a person's ratings."""
+    rating: float
+    """The automatic quality score on the paper's 1-5 scale, continuous (core/check_score.py):
+    what ranks frames by their expected error."""
     confidence_min: float | None
     confidence_mean: float | None
     grasp: GraspState | None

@@ -33,7 +33,8 @@ def _css(rgb: np.ndarray) -> list[str]:
 
 
 def check_json(rec: Reconstruction | None) -> dict[str, Any] | None:
-    """The check's verdict for the status panel: status, every reason, score and grasp point
+    """The check's verdict for the status panel: status, every reason, score (the integer class
+    and the continuous rating it rounds) and grasp point
     (None before the check stage has run)."""
     if rec is None or "check" not in rec.runs:
         return None
@@ -44,6 +45,7 @@ def check_json(rec: Reconstruction | None) -> dict[str, Any] | None:
         "status": chk.status,
         "reasons": list(chk.reasons),
         "score": chk.score,
+        "rating": chk.rating,
         "confidence_min": float(conf.min()) if conf.size else None,
         "confidence_mean": float(conf.mean()) if conf.size else None,
         "grasp": None

@@ -2,7 +2,7 @@
 // of rated frames (its figures are the stored ones of a saved evaluation).
 import { $, S, api, cell, fill, h, metricLabel } from "./core.js";
 
-const EVAL_COLUMNS = ["status", "auto_score", "e_S_mm", "e_S_max_mm", "e_length_mm", "left_mean_px", "right_mean_px",
+const EVAL_COLUMNS = ["status", "auto_rating", "auto_score", "e_S_mm", "e_S_max_mm", "e_length_mm", "left_mean_px", "right_mean_px",
   "coverage_left", "coverage_right", "n_keypoints", "ms_total", "error"];
 const STATUSES = ["ok", "suspect", "failed"];
 const COMPARE_COLUMNS = ["e_S_mm", "e_S_max_mm", "e_length_mm", "left_mean_px", "right_mean_px", "coverage_left", "coverage_right"];

@@ -12,7 +12,7 @@ from scipy.stats import spearmanr
 from test_server import FLAT, SAMPLE, url
 from test_server_workflows import CONFIGS, _wait_job, client_for
 
-from threadrecon.app.agreement import agreement, automatic_score, rated_pairs
+from threadrecon.app.agreement import agreement, automatic_rating, automatic_score, rated_pairs
 from threadrecon.app.dataset import discover
 from threadrecon.app.evaluation import CHECK_COLUMNS, evaluate_frame, status_counts, summarise
 from threadrecon.core.pipeline import ReconParams
@@ -35,6 +35,22 @@ def test_confusion_table_counts_each_pair_in_its_cell():
 def test_perfect_and_reversed_rankings_give_plus_and_minus_one():
     assert agreement([(s, s) for s in (1, 2, 3, 4, 5)]).spearman == pytest.approx(1.0)
     assert agreement([(s, 6 - s) for s in (1, 2, 3, 4, 5)]).spearman == pytest.approx(-1.0)
+
+
+def test_the_rank_correlation_reads_the_continuous_score_the_table_its_classes():
+    """Two frames of one class rank by their continuous score: a person who rated the worse
+    one lower agrees fully, which the tied integers cannot show."""
+    pairs = [(4, 5), (4, 4), (2, 2)]
+    ties = agreement(pairs)
+    got = agreement(pairs, [4.4, 3.6, 2.1])
+    assert got.confusion == ties.confusion and got.exact == ties.exact
+    assert got.spearman == pytest.approx(1.0) and ties.spearman < 0.9
+    flat = agreement([(4, 1), (4, 4), (4, 5)], [4.0, 4.0, 4.0])
+    assert flat.spearman is None and "automatic score is the same" in flat.spearman_note
+    with pytest.raises(ValueError, match="one per pair"):
+        agreement(pairs, [4.4, math.nan, 2.1])
+    with pytest.raises(ValueError, match="one per pair"):
+        agreement(pairs, [4.4])
 
 
 def test_too_few_or_constant_pairs_give_no_correlation_and_say_why():
@@ -60,6 +76,9 @@ def test_rows_without_a_score_are_missing_and_failed_frames_score_one():
         {"frame": "d", "status": "suspect", "auto_score": 2.0},
     ]
     assert automatic_score(rows[1]) == 1 and automatic_score(rows[2]) is None
+    assert automatic_rating({"status": "ok", "auto_rating": 3.7}) == 3.7
+    assert automatic_rating({"status": "failed", "auto_rating": math.nan}) == 1.0
+    assert automatic_rating(rows[0]) is None  # an evaluation before the continuous score
     joined, missing = rated_pairs({"a": 5, "b": 1, "c": 3, "d": 2, "e": 4}, rows)
     assert [(j["frame"], j["auto"], j["human"]) for j in joined] == [
         ("a", 4, 5), ("b", 1, 1), ("d", 2, 2)
@@ -73,6 +92,7 @@ def test_evaluation_rows_carry_status_reasons_and_score_and_the_summary_counts_t
     assert rec is not None and set(CHECK_COLUMNS) <= set(row)
     chk = rec["check"]
     assert row["check"] == chk.status and row["auto_score"] == chk.score
+    assert row["auto_rating"] == chk.rating and abs(chk.rating - chk.score) <= 0.5
     assert row["reasons"] == "; ".join(chk.reasons)
     rows = [
         row,
@@ -105,4 +125,6 @@ def test_agreement_endpoint_joins_ratings_with_the_saved_scores(tmp_path):
         assert [(f["auto"], f["human"]) for f in got["frames"]] == pairs
         assert got["confusion"] == agreement(pairs).to_dict()["confusion"]
         assert sum(map(sum, got["confusion"])) == 3
-        assert got["spearman"] == agreement(pairs).spearman
+        continuous = [saved[f]["auto_rating"] for f in sorted(ratings)]
+        assert [f["auto_rating"] for f in got["frames"]] == continuous
+        assert got["spearman"] == agreement(pairs, continuous).spearman

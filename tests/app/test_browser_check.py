@@ -56,7 +56,11 @@ def test_status_panel_overlays_and_agreement_render(tmp_path, new_context):
         check = _wait_check(page, FLAT)
         page.wait_for_selector(f'#check-status[data-status="{check["status"]}"]', state="attached")
         _wait_text(page, "#check-status", check["status"])
-        _wait_text(page, "#check-score", f"automatic score {check['score']}/5")
+        _wait_text(
+            page,
+            "#check-score",
+            f"automatic score {check['rating']:.2f}/5 (class {check['score']})",
+        )
         assert "grasp point: confidence" in page.locator("#check-grasp").text_content()
         assert page.locator("#check-reasons li").all_text_contents() == check["reasons"]
         for key in ("confidence", "grasp", "grasp_tangent"):

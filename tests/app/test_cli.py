@@ -267,6 +267,7 @@ def test_reconstruct_ok_json_has_confidence_grasp_and_score(
     assert len(data["confidence"]) == len(data["points"])
     assert data["grasp"]["point"] == data["points"][data["grasp"]["index"]]
     assert 1 <= data["score"] <= 5 and "coverage_left" in data["check"]
+    assert 1.0 <= data["rating"] <= 5.0 and abs(data["rating"] - data["score"]) <= 0.5
 
 
 def test_non_finite_values_are_written_as_null(tmp_path: Path) -> None:

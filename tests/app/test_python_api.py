@@ -131,6 +131,7 @@ def test_grasp_point_lies_on_the_curve_with_its_confidence(from_opencv: ThreadRe
     step = r.points[min(i + 1, len(r.points) - 1)] - r.points[max(i - 1, 0)]
     assert float(g.tangent @ step) > 0.9 * np.linalg.norm(step)  # along the curve, start -> end
     assert r.confidence.shape == (len(r.points),) and 1 <= r.score <= 5
+    assert r.rating == r.reconstruction["check"].rating and abs(r.rating - r.score) <= 0.5
     assert r.reasons == r.reconstruction.reasons
 
 

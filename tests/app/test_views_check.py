@@ -79,6 +79,7 @@ def test_check_json_names_status_reasons_score_and_grasp(case):
     chk = rec["check"]
     assert got["status"] == chk.status and got["reasons"] == list(chk.reasons)
     assert got["score"] == chk.score and 1 <= got["score"] <= 5
+    assert got["rating"] == chk.rating and abs(got["rating"] - got["score"]) <= 0.5
     assert got["grasp"]["confidence"] == chk.grasp.confidence
     assert 0 <= got["confidence_min"] <= got["confidence_mean"] <= 1
 

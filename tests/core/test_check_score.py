@@ -19,6 +19,7 @@ from threadrecon.core.check_score import (
     arc_px,
     grasp_point,
     point_errors,
+    quality_score,
 )
 from threadrecon.core.pipeline import Pipeline
 
@@ -130,8 +131,34 @@ def test_score_is_the_rounded_rating_and_falls_with_the_typical_error() -> None:
 def test_typical_error_is_not_swamped_by_a_few_large_points() -> None:
     e = np.full(100, 0.2)
     e[:3] = 50.0  # an interpolated stretch
-    assert _typical(e) < 0.25 < float(np.mean(e))
-    assert _typical(np.full(5, np.inf)) == pytest.approx(1e6)
+    assert _typical(e, 2.0, "geometric") < 0.25 < float(np.mean(e))
+    assert _typical(np.full(5, np.inf), 2.0, "geometric") == pytest.approx(1e6)
+    # the mean-confidence error: the stretch counts by its share of the curve, never more
+    assert _typical(e, 2.0) < 0.2 - 2.0 * np.log(1.0 - 0.03) < 0.3 < float(np.mean(e))
+    assert _typical(np.full(5, np.inf), 2.0) == np.inf
+
+
+def test_typical_error_is_the_error_of_the_curves_mean_confidence() -> None:
+    """Equal e_i give that e; otherwise exp(-e / conf_mm) is the mean of the points'
+    confidences, and the error lies between the geometric and the arithmetic mean of e_i for
+    a spread of small errors (it ranks curves by their mean error, not by a few good points)."""
+    assert _typical(np.full(7, 0.4), 2.0) == pytest.approx(0.4)
+    e = np.array([0.1, 0.2, 0.4, 0.8, 1.6])
+    t = _typical(e, 2.0)
+    assert np.exp(-t / 2.0) == pytest.approx(np.mean(np.exp(-e / 2.0)))
+    assert _typical(e, 2.0, "geometric") < t < float(np.mean(e))
+    # two curves of one geometric mean: the one with the larger mean error reads worse
+    a, b = np.array([0.2, 0.2]), np.array([0.04, 1.0])
+    assert _typical(a, 2.0, "geometric") == pytest.approx(_typical(b, 2.0, "geometric"))
+    assert _typical(b, 2.0) > _typical(a, 2.0)
+
+
+def test_quality_score_reads_the_configured_average() -> None:
+    e = np.array([0.04, 1.0])  # geometric mean 0.2 (score 5), mean-confidence error 0.46 (4)
+    assert quality_score(e, "ok", CheckParams(score_average="geometric"))[0] == 5
+    score, rating = quality_score(e, "ok", CheckParams())
+    assert score == 4 and rating == pytest.approx(_rating(_typical(e, 2.0), "ok", 0.25, 2.0))
+
 
 
 def test_typical_error_is_the_clipped_geometric_mean_bit_for_bit() -> None:
@@ -140,7 +167,7 @@ def test_typical_error_is_the_clipped_geometric_mean_bit_for_bit() -> None:
     for e in (rng.lognormal(size=400), np.array([0.0, 1e-12, 2.0, np.inf]), np.array([np.nan, 1.0])):
         with np.errstate(divide="ignore"):
             want = float(np.exp(np.mean(np.log(np.clip(e, 1e-9, 1e6)))))
-        got = _typical(e)
+        got = _typical(e, 2.0, "geometric")
         assert got == want or (np.isnan(got) and np.isnan(want))
 
 
@@ -188,3 +215,4 @@ def test_the_arc_length_given_or_computed_gives_the_same_errors() -> None:
     a, b = point_errors(*args), point_errors(*args, s2=s2)
     assert a.e_mm.tobytes() == b.e_mm.tobytes()
     assert a.confidence.tobytes() == b.confidence.tobytes()
+
