@@ -1007,7 +1007,7 @@ def _check(
     pe = point_errors(
         z_pos, (z <= 0) | (z_right <= 0), r, rho, bridge_gap, step, s3, spline, f, f * B, mm, p,
         s2=s2,
-    )
+    )  # fmt: skip
     e_mm, lateral, conf = pe.e_mm, pe.lateral_mm, pe.confidence
 
     # Ambiguous depth (evidence only): a wide bound where no agreeing reliable match pins the

@@ -485,7 +485,6 @@ def test_an_end_that_hooks_back_is_taken_where_the_curve_reaches() -> None:
     assert tip[0] == 139.0 and way[0] > 0.99
 
 
-
 def _end_frame_by_definition(uv: np.ndarray, end: str):
     """``_end_frame`` as its docstring defines it, with numpy's general operations."""
     curve = uv[np.all(np.isfinite(uv), axis=1)]

@@ -164,7 +164,11 @@ def test_quality_score_reads_the_configured_average() -> None:
 def test_typical_error_is_the_clipped_geometric_mean_bit_for_bit() -> None:
     # np.clip's values by np.minimum / np.maximum (issue 13): NaN stays NaN, inf clips to 1e6
     rng = np.random.default_rng(19)
-    for e in (rng.lognormal(size=400), np.array([0.0, 1e-12, 2.0, np.inf]), np.array([np.nan, 1.0])):
+    for e in (
+        rng.lognormal(size=400),
+        np.array([0.0, 1e-12, 2.0, np.inf]),
+        np.array([np.nan, 1.0]),
+    ):
         with np.errstate(divide="ignore"):
             want = float(np.exp(np.mean(np.log(np.clip(e, 1e-9, 1e6)))))
         got = _typical(e, 2.0, "geometric")
@@ -204,9 +208,11 @@ def test_the_arc_length_given_or_computed_gives_the_same_errors() -> None:
     step = rng.uniform(0.5, 2.0, n - 1)
     step[[5, 40]] = [np.nan, np.inf]
     s2 = arc_px(step)
-    assert s2[0] == 0.0 and s2.tobytes() == np.concatenate(
-        [[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))]
-    ).tobytes()
+    assert (
+        s2[0] == 0.0
+        and s2.tobytes()
+        == np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))]).tobytes()
+    )
     args = (
         rng.uniform(80, 120, n), np.zeros(n, dtype=bool), rng.uniform(0, 3, n),
         rng.uniform(0, 2, n), np.zeros(n), step, np.arange(n) * 1.5, _FakeSpline(), 500.0,
