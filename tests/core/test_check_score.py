@@ -160,7 +160,6 @@ def test_quality_score_reads_the_configured_average() -> None:
     assert score == 4 and rating == pytest.approx(_rating(_typical(e, 2.0), "ok", 0.25, 2.0))
 
 
-
 def test_typical_error_is_the_clipped_geometric_mean_bit_for_bit() -> None:
     # np.clip's values by np.minimum / np.maximum (issue 13): NaN stays NaN, inf clips to 1e6
     rng = np.random.default_rng(19)
@@ -221,4 +220,3 @@ def test_the_arc_length_given_or_computed_gives_the_same_errors() -> None:
     a, b = point_errors(*args), point_errors(*args, s2=s2)
     assert a.e_mm.tobytes() == b.e_mm.tobytes()
     assert a.confidence.tobytes() == b.confidence.tobytes()
-
