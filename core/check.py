@@ -401,6 +401,16 @@ class CheckParams(Params):
         "of the thread), or one end at the border and the curve shorter than grasp_mm + "
         "grasp_window_mm (the grasp window would reach the border end).",
     )  # fmt: skip
+    front_excluded: bool = param(
+        True, label="bare bridge: nothing matches in front",
+        doc="On: a bridge over bare-looking pixels (bare_share) is also known to lie over a "
+        "surface at or behind the curve when its best match is there and every shift more "
+        "than 2 px of disparity in front of the curve matches worse by the noise floor (4 "
+        "grey levels): no occluder in front could hide the thread, although the tissue's "
+        "smooth texture leaves its own disparity broad (the median cost of the shifts 6 px "
+        "from the best not 4 levels higher). Off: the best shift must be distinct by that "
+        "median alone (before session 19). docs/method.md, okw19.",
+    )  # fmt: skip
     contested_support: bool = param(
         True, label="contested matches support nothing",
         doc="On: a reliable match whose right position lies on the same strand of the right "
@@ -1466,7 +1476,9 @@ class _BareBackground:
     def behind(self, uv_l: np.ndarray, uv_r: np.ndarray) -> bool:
         """Whether the stereo pair shows the surface under a run of curve samples at or
         behind the curve's depth, or cannot tell (``_surface_behind``)."""
-        return _surface_behind(self.views[0][0], self.views[1][0], uv_l, uv_r)
+        return _surface_behind(
+            self.views[0][0], self.views[1][0], uv_l, uv_r, self.p.front_excluded
+        )
 
     def __call__(self, side: int, uv: np.ndarray, end_a: np.ndarray, end_b: np.ndarray):
         """(len(uv),) bool: sample k of the bridge (uv in order from end a to end b) is bare."""
@@ -1498,7 +1510,11 @@ TEXTURE_LEVELS = 4.0  # grey levels: the spread floor of the ring (sensor noise 
 
 
 def _surface_behind(
-    grey_l: np.ndarray, grey_r: np.ndarray, uv_l: np.ndarray, uv_r: np.ndarray
+    grey_l: np.ndarray,
+    grey_r: np.ndarray,
+    uv_l: np.ndarray,
+    uv_r: np.ndarray,
+    front_excluded: bool = False,
 ) -> bool:
     """Whether the stereo pair shows the surface under a run of curve samples at or behind
     the curve's depth (so that a thread there would be seen in front of it), or cannot tell.
@@ -1511,7 +1527,10 @@ def _surface_behind(
     curve's (within NEAR_PX) is True; in front (an occluder) is False. A match that says
     nothing about depth (a uniform or row-aligned occluder such as a shaft along the rows)
     is False: nothing shows the thread would be seen. An untextured run (a flat background)
-    cannot be told by stereo and is True: left to the grey levels."""
+    cannot be told by stereo and is True: left to the grey levels. ``front_excluded``: a best
+    shift at or behind the curve also counts when every shift more than NEAR_PX in front of
+    the curve costs TEXTURE_LEVELS more than it (smooth tissue matches over a broad valley
+    behind the thread, but no occluder in front matches at all)."""
     gl = _sample(grey_l, uv_l)
     ok = np.isfinite(gl)
     if ok.sum() < 3:
@@ -1532,6 +1551,11 @@ def _surface_behind(
     k = int(np.argmin(cost))
     far = cost[(np.abs(delta - delta[k]) >= FAR_PX) & np.isfinite(cost)]
     distinct = far.size > 0 and float(np.median(far)) >= cost[k] + TEXTURE_LEVELS
+    if not distinct and front_excluded and delta[k] <= NEAR_PX:
+        front = cost[delta > NEAR_PX]
+        distinct = bool(np.all(np.isfinite(front))) and float(front.min()) >= (
+            cost[k] + TEXTURE_LEVELS
+        )
     return distinct and delta[k] <= NEAR_PX
 
 

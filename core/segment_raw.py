@@ -551,7 +551,9 @@ def _select(
                 if (
                     nearest_hue
                     and (nearer or _floats(votes))
-                    and not _contradicted(views, i, on[lab_on == best], votes, tissue, D)
+                    and not _contradicted(
+                        views, i, on[lab_on == best], votes, tissue, D, p.contradicted_any
+                    )
                 ) or (
                     not nearest_hue
                     and not (
@@ -800,6 +802,7 @@ def _contradicted(
     votes: np.ndarray,
     marks: Callable[[], list[np.ndarray]],
     d: int,
+    any_reading: bool = False,
 ) -> bool:
     """Whether the part of the blood-like piece of view ``i`` of lo pixels ``px`` that the
     block-wise surface test voted in front of the tissue (``votes`` == 0, per pixel) is not
@@ -810,13 +813,17 @@ def _contradicted(
     disagree, and a red thread of the vessels' hue is told from them by depth only. Uneven
     light (vignetting, fixed in the image, not on the tissue) biases a dark block's matches
     towards disparity 0, so that a vessel there seemed to float; a thread merged with a
-    vessel is judged by its own part."""
+    vessel is judged by its own part. ``any_reading`` (deviation 58): either reading that
+    resolves contradicts, not the first alone: the same light biases the block's background
+    itself (a vessel at the marks' disparity, its block's background 3-5 px below it)."""
     front = px[votes == 0]
     if len(front) == 0:
         return False
     own, tissue = _own_and_tissue(views, i, front, marks, d)
     if own is None:
         return False
+    if any_reading:
+        return any(t is not None and own <= t + SAME_DISPARITY_PX for t in tissue)
     first = next((t for t in tissue if t is not None), None)
     return first is not None and own <= first + SAME_DISPARITY_PX
 

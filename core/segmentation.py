@@ -179,6 +179,16 @@ class SegmentationParams(Params):
         "tissue's marks beside it, is a mark too, not a reason to give the pass up. Off: the "
         "red pass's own marks only (deviation 53).",
     )
+    contradicted_any: bool = param(
+        True,
+        label="raw: any tissue reading contradicts",
+        doc="raw: a blood-like piece the block-wise surface test votes in front of the tissue is "
+        "contradicted (a vessel) when its own disparity is not above the tissue's by either "
+        "reading that resolves, its block's background or the nearest mark on the tissue. "
+        "Uneven light, fixed in the image, biases a block's background towards disparity 0 "
+        "while the marks (vessels, fibres) keep the tissue's own. Off: the first reading that "
+        "resolves (the block's background) decides alone (deviation 58).",
+    )
     tissue_surface: bool = param(
         False,
         label="raw: tissue-only surface test",

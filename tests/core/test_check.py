@@ -807,6 +807,31 @@ def test_a_fibre_joined_where_the_curve_turns_back_is_suspect() -> None:
     assert off.status == "ok", off.reasons
 
 
+def test_a_bridge_over_bare_tissue_matched_behind_the_curve_is_contradicted() -> None:
+    """Raw distractors frame 18140 #11 (eval_suites' frame, masks withheld; okw19): the
+    thread's two free ends lie ~65 px apart and the ordering bridged them, 23.4 mm over bare
+    tissue in both views (e_l 33.5 mm). The bridge's samples match best 9 px of disparity
+    behind the curve (the tissue), but the smooth texture leaves the valley broad, so the
+    median cost of the shifts 6 px away was not 4 grey levels higher and the stereo pair was
+    taken to say nothing: "ok". No shift in front of the curve matches (all 4 levels worse
+    than the best): no occluder hides a thread there, and the bridge is contradicted."""
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.segmentation import StereoPair
+
+    frame = suite_frame(
+        [18140, 5, 11], background="tissue", noise_sigma=2.0, blur_sigma=0.5, distractors=8
+    )
+    calib = frame.camera.calibration()
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
+    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert e.e_length > 20.0
+    chk = rec["check"]
+    assert chk.status == "suspect", chk.reasons
+    assert any("bare background in both views" in r for r in chk.reasons), chk.reasons
+    off = _check_again(rec, calib, front_excluded=False)
+    assert off.status == "ok", off.reasons
+
+
 @needs_paper
 def test_a_narrow_loop_turning_back_in_its_projection_is_no_joined_mark() -> None:
     """blend6_4 (development split): a narrow hairpin loop runs along the line of sight at its

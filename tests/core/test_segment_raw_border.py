@@ -75,6 +75,26 @@ def test_a_vessel_in_a_dark_corner_at_the_tissue_s_disparity_is_no_thread() -> N
         segment(StereoPair(frame.left, frame.right), _P)
 
 
+def test_a_vessel_whose_block_reads_the_light_is_told_by_the_marks() -> None:
+    """empty-lighting, seed 18253, frame 18 (okw19): the block test votes a vessel's lower
+    stretch in front of the tissue, and its block's background, biased by the light, resolves
+    at 29 px (left) and 31 px (right) against the vessel's own 34-35 px; the nearest mark on
+    the tissue (another vessel) reads 34 px, the vessel's own: contradicted by either reading
+    (deviation 58), no thread. With the first reading alone it was taken for a red thread
+    (a 26 mm curve, "ok")."""
+    render = RenderParams(background="tissue", noise_sigma=2.0, blur_sigma=0.5, lighting=0.6)
+    frame = generate_frame(
+        SyntheticParams(thread=ThreadParams(diameter_mm=1e-6), render=render),
+        np.random.default_rng([18253, 14, 18]),
+    )
+    assert not frame.mask_left.any()
+    pair = StereoPair(frame.left, frame.right)
+    with pytest.raises(ValueError, match="no thread found"):
+        segment(pair, _P)
+    lifted = segment(pair, replace(_P, contradicted_any=False))
+    assert lifted.P_L.sum() > 300 and lifted.P_R.sum() > 300
+
+
 def test_a_gap_across_the_instrument_counts_only_off_it() -> None:
     tool = np.zeros((200, 300), bool)
     tool[:, 100:180] = True  # a shaft 80 px wide
