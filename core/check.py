@@ -318,6 +318,15 @@ class CheckParams(Params):
         "the end, and the blank view's patch where it matched is blank too or returns it. "
         "Off: both views must measure it (session 10b's rule). docs/method.md, okwrong16.",
     )  # fmt: skip
+    blank_next_measure: bool = param(
+        True, label="a blank view's occluder not contradicted farther on",
+        doc="On (with blank_occluder): where one view measures an occluder in front of a free "
+        "end whose other view is blank there, the first patch farther along the end's way "
+        "that the view seeing farther can measure must not show the surface the thread lies "
+        "on (at or behind the end's depth): the lone measure was then a mismatch of faint "
+        "texture on a smooth stretch of tissue. Off: only the measuring view's next patch is "
+        "looked at (okwrong16's rule). docs/method.md, prec19.",
+    )  # fmt: skip
     end_reversal: bool = param(
         True, label="a mark joined where the curve turns back",
         doc="On: suspect when the curve's left projection turns back by more than 120 deg "
@@ -783,6 +792,7 @@ def _check(
             (uv_l, uv_r), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R), end,
             f * B / z_end, known, reach, p.cover_px + BEYOND_COVER_PX, unobserved_px,
             unobserved_px + AHEAD_STEP_PX, plain_sigma=p.bare_sigma, untextured=p.blank_occluder,
+            next_measure=p.blank_next_measure,
         )  # fmt: skip
         # the occluder's reach, walked in both views, bounds what a cut end may hide
         bounded = occ is not None and not occ.walked_out and occ.reach_px <= unobserved_px
