@@ -129,6 +129,15 @@ class CheckParams(Params):
         doc="Suspect when a smaller share of the thread pixels lies near the projected curve "
         "(within cover_px plus the thread's half-width) in either view.",
     )  # fmt: skip
+    coverage_seen_both: bool = param(
+        True, label="coverage of thread both views can see",
+        doc="On: a view's thread pixels that the other view cannot see at any depth of the "
+        "curve (a strip along the image's side as wide as the curve's smallest disparity: the "
+        "right view's right side, the left view's left side) leave that view's coverage: a "
+        "thread that leaves the image shows there in one view only, and no curve (nor the "
+        "truth scored, the part both views see) covers it. Off: every thread pixel counts. "
+        "docs/method.md, prec19.",
+    )  # fmt: skip
     cover_px: float = param(
         3.0, lo=0.0, unit="px", slider=(0.0, 10.0, 0.5), label="coverage distance",
         doc="A thread pixel is covered when the projected curve passes within this distance "
@@ -700,6 +709,15 @@ def _check(
                  f"{p.reproj_max_px:g} px)")
             )  # fmt: skip
 
+    if p.coverage_seen_both:
+        # a thread pixel the other view cannot see at any depth of the curve (a strip along
+        # the image's side as wide as the curve's smallest disparity) no curve can cover
+        disp = uv_l[:, 0] - uv_r[:, 0]
+        disp = disp[in_l & in_r & np.isfinite(disp)]
+        if disp.size:
+            d_lo = float(np.min(disp))
+            view_l = _columns_within(view_l, d_lo, float(W))  # the right view sees x - d
+            view_r = _columns_within(view_r, float("-inf"), W - 1 - d_lo + 1e-9)
     cov_l = _coverage(view_l, uv_l, in_l, p.cover_px)
     cov_r = _coverage(view_r, uv_r, in_r, p.cover_px)
     for side, cov in (("left", cov_l), ("right", cov_r)):
@@ -1212,6 +1230,17 @@ def _rows_of_runs(
     run_ptr = np.searchsorted(row, np.arange(by, by + bh + 1, dtype=np.int64))
     row_ptr = np.concatenate([[0], ends])[run_ptr].astype(np.int64)
     return cols, row_ptr
+
+
+def _columns_within(v: _View, lo: float, hi: float) -> _View:
+    """``v`` with only its thread pixels whose column x (image px) lies in [lo, hi]."""
+    cols = v.cols
+    if cols.size == 0 or (v.bx + int(cols.min()) >= lo and v.bx + int(cols.max()) <= hi):
+        return v
+    x = cols + v.bx
+    keep = (x >= lo) & (x <= hi)
+    kept = np.concatenate([[0], np.cumsum(keep, dtype=np.int64)])
+    return replace(v, total=int(kept[-1]), cols=cols[keep], row_ptr=kept[v.row_ptr])
 
 
 def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> float:
