@@ -130,6 +130,15 @@ class CheckParams(Params):
         doc="Suspect when a smaller share of the thread pixels lies near the projected curve "
         "(within cover_px plus the thread's half-width) in either view.",
     )  # fmt: skip
+    coverage_seen_both: bool = param(
+        True, label="coverage of thread both views can see",
+        doc="On: a view's thread pixels that the other view cannot see at any depth of the "
+        "curve (a strip along the image's side as wide as the curve's smallest disparity: the "
+        "right view's right side, the left view's left side) leave that view's coverage: a "
+        "thread that leaves the image shows there in one view only, and no curve (nor the "
+        "truth scored, the part both views see) covers it. Off: every thread pixel counts. "
+        "docs/method.md, prec19.",
+    )  # fmt: skip
     cover_px: float = param(
         3.0, lo=0.0, unit="px", slider=(0.0, 10.0, 0.5), label="coverage distance",
         doc="A thread pixel is covered when the projected curve passes within this distance "
@@ -318,6 +327,15 @@ class CheckParams(Params):
         "measure must stand: the measuring view's next patch shows no surface at or behind "
         "the end, and the blank view's patch where it matched is blank too or returns it. "
         "Off: both views must measure it (session 10b's rule). docs/method.md, okwrong16.",
+    )  # fmt: skip
+    blank_next_measure: bool = param(
+        True, label="a blank view's occluder not contradicted farther on",
+        doc="On (with blank_occluder): where one view measures an occluder in front of a free "
+        "end whose other view is blank there, the first patch farther along the end's way "
+        "that the view seeing farther can measure must not show the surface the thread lies "
+        "on (at or behind the end's depth): the lone measure was then a mismatch of faint "
+        "texture on a smooth stretch of tissue. Off: only the measuring view's next patch is "
+        "looked at (okwrong16's rule). docs/method.md, prec19.",
     )  # fmt: skip
     end_reversal: bool = param(
         True, label="a mark joined where the curve turns back",
@@ -711,6 +729,15 @@ def _check(
                  f"{p.reproj_max_px:g} px)")
             )  # fmt: skip
 
+    if p.coverage_seen_both:
+        # a thread pixel the other view cannot see at any depth of the curve (a strip along
+        # the image's side as wide as the curve's smallest disparity) no curve can cover
+        disp = uv_l[:, 0] - uv_r[:, 0]
+        disp = disp[in_l & in_r & np.isfinite(disp)]
+        if disp.size:
+            d_lo = float(np.min(disp))
+            view_l = _columns_within(view_l, d_lo, float(W))  # the right view sees x - d
+            view_r = _columns_within(view_r, float("-inf"), W - 1 - d_lo + 1e-9)
     cov_l = _coverage(view_l, uv_l, in_l, p.cover_px)
     cov_r = _coverage(view_r, uv_r, in_r, p.cover_px)
     for side, cov in (("left", cov_l), ("right", cov_r)):
@@ -803,6 +830,7 @@ def _check(
             (uv_l, uv_r), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R), end,
             f * B / z_end, known, reach, p.cover_px + BEYOND_COVER_PX, unobserved_px,
             unobserved_px + AHEAD_STEP_PX, plain_sigma=p.bare_sigma, untextured=p.blank_occluder,
+            next_measure=p.blank_next_measure,
         )  # fmt: skip
         # the occluder's reach, walked in both views, bounds what a cut end may hide
         bounded = occ is not None and not occ.walked_out and occ.reach_px <= unobserved_px
@@ -1224,6 +1252,17 @@ def _rows_of_runs(
     run_ptr = np.searchsorted(row, np.arange(by, by + bh + 1, dtype=np.int64))
     row_ptr = np.concatenate([[0], ends])[run_ptr].astype(np.int64)
     return cols, row_ptr
+
+
+def _columns_within(v: _View, lo: float, hi: float) -> _View:
+    """``v`` with only its thread pixels whose column x (image px) lies in [lo, hi]."""
+    cols = v.cols
+    if cols.size == 0 or (v.bx + int(cols.min()) >= lo and v.bx + int(cols.max()) <= hi):
+        return v
+    x = cols + v.bx
+    keep = (x >= lo) & (x <= hi)
+    kept = np.concatenate([[0], np.cumsum(keep, dtype=np.int64)])
+    return replace(v, total=int(kept[-1]), cols=cols[keep], row_ptr=kept[v.row_ptr])
 
 
 def _coverage(v: _View, uv: np.ndarray, inside: np.ndarray, cover_px: float) -> float:

@@ -512,6 +512,7 @@ def end_occluder(
     max_reach_px: float,
     plain_sigma: float | None = None,
     untextured: bool = False,
+    next_measure: bool = False,
 ) -> Occluded | None:
     """Whether the thread at the curve's free ``end`` runs, in both views, into an occluder.
 
@@ -539,7 +540,11 @@ def end_occluder(
     front and the other cannot tell because it is blank there (``_unlike_beside``: its
     patches give no disparity, the first is untextured and unlike the surface beside the
     end, e.g. a shaft's dark, uniform tip), the one measure is the occluder's (``blank``
-    names the other view)."""
+    names the other view). ``next_measure`` (CheckParams.blank_next_measure): nor may the
+    first patch farther along the way that the walk's view (the one that sees farther) can
+    measure show the surface the thread lies on (at or behind the end's depth): a faint
+    texture on a smooth stretch of tissue mismatches once, and the tissue measured farther on
+    tells it; a shaft's texture past its blank tip measures the shaft again."""
     ext, far_px = known
     far = 0 if ext[0] >= ext[1] else 1
     fr = _end_frame(uv[far], end)
@@ -587,8 +592,15 @@ def end_occluder(
         d_next, _ = surface_ahead(
             greys, masks, seen, xy_seen, way, disparity, (kk + 1) * AHEAD_STEP_PX
         )
+        stands = d_next is None or d_next > AHEAD_NEAR_PX
+        if stands and next_measure:
+            # and the first patch farther along the way that the walk's view can measure must
+            # not show the surface the thread lies on: the lone measure was a mismatch there
+            limit = min(_to_border(at, way, greys[far].shape), max(max_reach_px - ext[far], 0.0))
+            farther = _next_measure(greys, masks, far, at, way, disparity, kk + 1, limit)
+            stands = farther is None or farther > AHEAD_NEAR_PX
         if (
-            (d_next is None or d_next > AHEAD_NEAR_PX)
+            stands
             and _unlike_beside(greys, masks, side, xy, way, disparity)
             and _blank_back(greys, masks, seen, xy_seen, way, disparity, d, kk)
         ):
@@ -635,6 +647,28 @@ def end_occluder(
 BESIDE_BACK_PX = 18  # px farther back than plain_surface (twice its PLAIN_HALF_PX) the surface
 # beside an end is measured for `_unlike_beside`, clear of an occluder's rounded tip at the end
 UNLIKE_LEVELS = 3.0  # noise floors (AHEAD_LEVELS) between an untextured patch and the surface
+
+
+def _next_measure(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    side: int,
+    at: np.ndarray,
+    way: np.ndarray,
+    disparity: float,
+    k: int,
+    limit: float,
+) -> float | None:
+    """The first measure (px of disparity in front of the end) of ``surface_ahead``'s patches
+    of view ``side`` beyond ``at`` along ``way`` from patch ``k`` on, while the patch's offset
+    is under ``limit`` px; None when the pair can tell none of them."""
+    offset = float(k * AHEAD_STEP_PX)
+    while offset < limit:
+        d, _ = surface_ahead(greys, masks, side, at, way, disparity, offset)
+        if d is not None:
+            return d
+        offset += AHEAD_STEP_PX
+    return None
 
 
 def _unlike_beside(

@@ -21,6 +21,8 @@ from threadrecon.core.check import (
     CheckResult,
     _back_along,
     _bridge_evidence,
+    _columns_within,
+    _crop,
     _end_added_length,
     _overlap,
     _rows_of_runs,
@@ -775,6 +777,57 @@ def test_the_coverage_rows_from_the_row_runs_list_the_pixels_as_nonzero_does(see
     assert cols.dtype == row_ptr.dtype == np.int64
     assert np.array_equal(cols, cc)
     assert np.array_equal(row_ptr, np.searchsorted(rr, np.arange(bh + 1)))
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_the_coverage_rows_within_columns_keep_exactly_those_pixels(seed: int) -> None:
+    """_columns_within: the view's pixels (CSR by rows) whose image column lies in [lo, hi],
+    as a new CSR of the same rows, in np.nonzero's order."""
+    from threadrecon.core.check_field import mask_field
+
+    rng = np.random.default_rng(seed)
+    mask = rng.random((40, 90)) < 0.3
+    view = _crop(mask, mask_field(mask, 5.0))
+    lo, hi = float(rng.uniform(0, 40)), float(rng.uniform(50, 90))
+    kept = _columns_within(view, lo, hi)
+    inside = mask.copy()
+    x = np.arange(90)
+    inside[:, (x < lo) | (x > hi)] = False
+    ys, xs = np.nonzero(inside[view.by : view.by + len(view.row_ptr) - 1])
+    assert kept.total == int(inside.sum()) and kept.bx == view.bx
+    assert np.array_equal(kept.cols + kept.bx, xs)
+    assert np.array_equal(kept.row_ptr, np.searchsorted(ys, np.arange(len(view.row_ptr))))
+    assert _columns_within(view, -1.0, 90.0) is view  # nothing outside: the view itself
+
+
+def test_a_thread_leaving_the_image_is_covered_where_both_views_see_it() -> None:
+    """Raw tissue+leaving frame 18253 #7 (eval_suites' frame) with its exact masks: the thread
+    leaves the left image at its right side; the right view sees it run on ~150 px up along
+    its own right side, where the left view cannot see it at any depth of the curve (within
+    32-48 px of disparity of the border). The curve is right (e_S^max 0.3 mm) and covers every
+    left thread pixel but 79 % of the right view's: suspect with ``coverage_seen_both`` off,
+    ok with it (the right view's strip as wide as the curve's smallest disparity left out)."""
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.segmentation import StereoPair
+    from threadrecon.core.synthetic import (
+        RenderParams,
+        SyntheticParams,
+        ThreadParams,
+        generate_frame,
+    )
+
+    render = dict(background="tissue", noise_sigma=2.0, blur_sigma=0.5)
+    params = SyntheticParams(thread=ThreadParams(leaves_image=True), render=RenderParams(**render))
+    frame = generate_frame(params, np.random.default_rng([18253, 2, 7]))
+    calib = frame.camera.calibration()
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    rec = Pipeline(pair, calib).run(ReconParams())
+    err = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert abs(err.e_length) < 1.0 and err.e_S_max < 1.0  # right
+    assert rec.status == "ok" and rec["check"].coverage_right > 0.85
+    off = _check_again(rec, calib, coverage_seen_both=False)
+    assert off.status == "suspect" and off.coverage_right < 0.85
+    assert "right thread pixels" in off.reasons[0]
 
 
 def test_a_fibre_joined_where_the_curve_turns_back_is_suspect() -> None:

@@ -245,6 +245,10 @@ def test_an_end_whose_one_view_is_blank_at_an_occluder_the_other_measures_may_go
     # off (session 10b's rule): both views must measure it
     assert end_occluder(uv, masks, greys, "end", float(D_T), known, 40.0, 5.0, 100.0,
                         300.0) is None  # fmt: skip
+    # the right view measures the occluder patch after patch: corroborated (prec19)
+    twice = end_occluder(uv, masks, greys, "end", float(D_T), known, 40.0, 5.0, 100.0, 300.0,
+                         untextured=True, next_measure=True)  # fmt: skip
+    assert twice is not None and twice.blank == "left" and twice.hidden_px > 200.0
 
 
 def test_a_blank_patch_of_the_surface_beside_the_end_is_no_occluder():
@@ -687,6 +691,32 @@ def test_a_masked_frame_with_a_smooth_stretch_of_tissue_past_a_free_end_stays_ok
     rec, err, _, _ = _masked_occlusion_frame([16110, 1, 15])
     assert abs(err.e_length) < 5.0 and err.e_S_max < 5.0  # right
     assert rec.status == "ok"
+
+
+def test_a_masked_frame_whose_end_lies_on_smooth_tissue_is_not_called_occluded() -> None:
+    """``mkcheck.sh 18250`` tissue_5 (generate --seed 18251, frame 5, tissue, no occluder in
+    the scene), masks given: a right curve whose start lies on a smooth, blotchy stretch of
+    tissue. The right view's patches past it are untextured (grey 118, 18 levels under the
+    tissue 27 px back), the left view's first patch (sd 5, barely textured) mismatches 15 px
+    "in front" and its next patch cannot tell: one measure, never made again. Called occluded
+    (walked out over the untextured tissue) with ``blank_next_measure`` off."""
+    from dataclasses import replace
+
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.pipeline import Pipeline, ReconParams
+    from threadrecon.core.segmentation import StereoPair
+
+    frame = suite_frame([18251, 5], background="tissue", noise_sigma=2.0, blur_sigma=0.5)
+    calib = frame.camera.calibration()
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    rec = Pipeline(pair, calib).run(ReconParams())
+    err = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert abs(err.e_length) < 1.0 and err.e_S_max < 1.0  # right
+    assert rec.status == "ok"
+    off = ReconParams()
+    off = replace(off, check=replace(off.check, blank_next_measure=False))
+    old = Pipeline(pair, calib).run(off)
+    assert old.status == "suspect" and "the right view blank there" in old.message
 
 
 def _line_scene(beyond, shift: int = 20, right_shift: int | None = None):
