@@ -155,8 +155,8 @@ def test_typical_error_is_the_error_of_the_curves_mean_confidence() -> None:
 
 def test_quality_score_reads_the_configured_average() -> None:
     e = np.array([0.04, 1.0])  # geometric mean 0.2 (score 5), mean-confidence error 0.46 (4)
-    assert quality_score(e, "ok", CheckParams(score_average="geometric"))[0] == 5
-    score, rating = quality_score(e, "ok", CheckParams())
+    assert quality_score(e, "ok", CheckParams())[0] == 5  # the default: the geometric mean
+    score, rating = quality_score(e, "ok", CheckParams(score_average="confidence"))
     assert score == 4 and rating == pytest.approx(_rating(_typical(e, 2.0), "ok", 0.25, 2.0))
 
 
