@@ -136,9 +136,10 @@ def segment_raw(
        are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`),
        chosen or joining; a kept piece moving with the tissue in part loses that part
        (:func:`_mark_part`; not a block where the thread's own disparity goes on from its
-       floating part beside it, :func:`_thread_through`), and a piece of two dyes takes that of its part in front of the
-       tissue (:func:`_main_dye`); it is no mark when that part, tested alone, floats (a
-       thread merged with the fibres it crosses, :func:`_a_mark_of_one_dye`). Among
+       floating part beside it, :func:`_thread_through`), and a piece of two dyes takes that
+       of its part in front of the tissue (:func:`_main_dye`); it is no mark when that part,
+       tested alone, floats (a thread merged with the fibres it crosses,
+       :func:`_a_mark_of_one_dye`). Among
        blood-like pieces, one the surface test leaves open at the tissue's own disparity is a
        vessel (:func:`_at_tissue_disparity`; in the first pass too, any undecided piece
        chosen or joining), and so is one voted in front of it whose own disparity is not above the
@@ -1364,11 +1365,7 @@ def _thread_through(v: _View, px: np.ndarray, votes: np.ndarray) -> np.ndarray:
             continue
         for f in beside.tolist():
             d_f = floating_d(f)
-            if (
-                d_f is not None
-                and d_f - tissue >= _RESOLVED_PX
-                and abs(d - d_f) < abs(d - tissue)
-            ):
+            if d_f is not None and d_f - tissue >= _RESOLVED_PX and abs(d - d_f) < abs(d - tissue):
                 out[sel] = True
                 break
     return out
