@@ -38,7 +38,12 @@ from threadrecon.core.ridge_kernel import (
     upsample_max,
     values_at,
 )
-from threadrecon.core.segment_surface import SAME_DISPARITY_PX, SurfaceTest, undecidable
+from threadrecon.core.segment_surface import (
+    SAME_DISPARITY_PX,
+    SurfaceTest,
+    block_of,
+    undecidable,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -132,9 +137,11 @@ def segment_raw(
        tissue's samples are off the instrument, :meth:`_View.far`: a shaft is none), and so
        are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`),
        chosen or joining; a kept piece moving with the tissue in part loses that part
-       (:func:`_mark_part`), and a piece of two dyes takes that of its part in front of the
-       tissue (:func:`_main_dye`); it is no mark when that part, tested alone, floats (a
-       thread merged with the fibres it crosses, :func:`_a_mark_of_one_dye`). Among
+       (:func:`_mark_part`; not a block where the thread's own disparity goes on from its
+       floating part beside it, :func:`_thread_through`), and a piece of two dyes takes that
+       of its part in front of the tissue (:func:`_main_dye`); it is no mark when that part,
+       tested alone, floats (a thread merged with the fibres it crosses,
+       :func:`_a_mark_of_one_dye`). Among
        blood-like pieces, one the surface test leaves open at the tissue's own disparity is a
        vessel (:func:`_at_tissue_disparity`; in the first pass too, any undecided piece
        chosen or joining), and so is one voted in front of it whose own disparity is not above the
@@ -698,7 +705,7 @@ def _select(
         d_px = v.delta[px]
         hue = _same_dye(d_px, d_best)
         other = _other_dye_px(d_px, d_best, hue)
-        other |= _mark_part(px, on, lab_on, votes_of, k)
+        other |= _mark_part(px, on, lab_on, votes_of, k, v if p.thread_through else None)
         if by_hue:
             other |= hue <= _same_dye(d_px, d_vessel)
         sel = ~other & (v.s_lo[px] >= _CORE_FRACTION * means[lab[px]])  # (s_lo: S at them)
@@ -1292,13 +1299,20 @@ def _direction_cos(r1: np.ndarray, c1: np.ndarray, r2: np.ndarray, c2: np.ndarra
 
 
 def _mark_part(
-    px: np.ndarray, on: np.ndarray, lab_on: np.ndarray, votes_of: dict, keep: np.ndarray
+    px: np.ndarray,
+    on: np.ndarray,
+    lab_on: np.ndarray,
+    votes_of: dict,
+    keep: np.ndarray,
+    v: _View | None = None,
 ) -> np.ndarray:
     """(len(px),) bool: of the lo pixels ``px`` (ascending) of the kept pieces (``keep`` (n,)),
     those voted "on the surface" (:func:`_surface_votes`, ``votes_of`` by piece) in a piece
     that moves with the tissue in part: more of its decided votes than the block test's errors
     (over 1 - _MARK_SHARE of them) say so. ``on`` (M,) indexes the view's lo pixels of the
-    shape-ok pieces (ascending), ``lab_on`` (M,) their pieces."""
+    shape-ok pieces (ascending), ``lab_on`` (M,) their pieces. Given the view ``v`` (its
+    surface test, ``thread_through``), not those of a block where the thread goes on
+    (:func:`_thread_through`)."""
     out = np.zeros(len(px), bool)
     for j, votes in votes_of.items():
         if not keep[j]:
@@ -1307,8 +1321,63 @@ def _mark_part(
         surface = votes == 1
         if decided == 0 or np.count_nonzero(surface) <= (1.0 - _MARK_SHARE) * decided:
             continue
+        if v is not None:
+            surface &= ~_thread_through(v, on[lab_on == j], votes)
         # the piece's pixels on[lab_on == j] are ascending, as px: find them in px
         out[np.searchsorted(px, on[lab_on == j][surface])] = True
+    return out
+
+
+_RESOLVED_PX: Final = 2.0 * SAME_DISPARITY_PX  # disparities this far apart are two surfaces
+# to the block test (its _RESOLVE_PX)
+
+
+def _thread_through(v: _View, px: np.ndarray, votes: np.ndarray) -> np.ndarray:
+    """(len(px),) bool: of a kept piece's lo pixels ``px`` (surface ``votes`` (len(px),)),
+    those voted "on the surface" in a block (:func:`segment_surface.block_of`) where their own
+    disparity is nearer that of the piece's part seen in front of the tissue in a block beside
+    it (8-neighbours) than the tissue's disparity in their block (the background the vote
+    compared them with, :meth:`SurfaceTest.background_disparity_near`), that part being
+    itself in front of that tissue by _RESOLVED_PX at least: the thread goes on through that
+    block, nearer the tissue than the block test resolves (~3 px), and no mark (at the
+    tissue's depth) merged with it is there. A mark's own floating vote (a block test's error)
+    is at the tissue's disparity and keeps nothing; nor does a block where a disparity is not
+    defined.
+    (Deviation 60.)"""
+    out = np.zeros(len(px), bool)
+    st = v._surface  # the view's surface test that gave ``votes``
+    if st is None or not np.any(votes == 0):
+        return out
+    rows, cols = v.rows[px], v.cols[px]
+    br, bc = block_of(rows, cols)
+    nb = int(bc.max()) + 2  # (a block beside the last column keys apart from the next row)
+    key = br * nb + bc
+    floating = np.unique(key[votes == 0])
+    own: dict[int, int | None] = {}  # the floating part's disparity in its blocks
+
+    def floating_d(f: int) -> int | None:
+        if f not in own:
+            sel = (key == f) & (votes == 0)
+            own[f] = st.disparity(rows[sel], cols[sel])
+        return own[f]
+
+    for b in np.unique(key[votes == 1]).tolist():
+        beside = floating[(np.abs(floating // nb - b // nb) <= 1)
+                          & (np.abs(floating % nb - b % nb) <= 1)]  # fmt: skip
+        if not len(beside):
+            continue
+        sel = (key == b) & (votes == 1)
+        d = st.disparity(rows[sel], cols[sel])
+        if d is None:
+            continue
+        tissue = st.background_disparity_near(rows[sel], cols[sel], d)
+        if tissue is None:
+            continue
+        for f in beside.tolist():
+            d_f = floating_d(f)
+            if d_f is not None and d_f - tissue >= _RESOLVED_PX and abs(d - d_f) < abs(d - tissue):
+                out[sel] = True
+                break
     return out
 
 

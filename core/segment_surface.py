@@ -60,6 +60,12 @@ def undecidable(rows: np.ndarray, cols: np.ndarray, width: int) -> bool:
     return len(np.unique(_block_keys(rows, cols, nb))) < _MIN_VOTES
 
 
+def block_of(rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Block row and block column (M,) of the pixels (``rows``, ``cols``) on the grid of
+    _BLOCK_PX squares that :meth:`SurfaceTest.votes` votes on (one vote a block)."""
+    return rows // _BLOCK_PX, cols // _BLOCK_PX
+
+
 def _blocks_across(width: int) -> int:
     return (width + _BLOCK_PX - 1) // _BLOCK_PX
 
@@ -186,6 +192,23 @@ class SurfaceTest:
             1,
             np.arange(self.dmax + 1),
             self.look_left,
+        )
+        return int(bg.best_d[0]) if bg.resolves(0) else None
+
+    def background_disparity_near(self, rows: np.ndarray, cols: np.ndarray, d: int) -> int | None:
+        """The background's best disparity (px) within _WINDOW_PX of ``d`` in the block that
+        holds most of the pixels (``rows``, ``cols``) (M,): the tissue a piece of disparity
+        ``d`` there is compared with (:meth:`votes`), or None where it does not resolve it
+        (:meth:`_Residuals.resolves`; too few samples)."""
+        if len(rows) == 0 or self.dmax < 1:
+            return None
+        keys = _block_keys(rows, cols, self.nb)
+        rr, cc = self._background(int(np.bincount(keys).argmax()))
+        if len(rr) < _MIN_BLOCK_SAMPLES:
+            return None
+        ds = np.arange(max(d - _WINDOW_PX, 0), min(d + _WINDOW_PX, self.dmax) + 1)
+        bg = _Residuals(
+            self.this, self.other, rr, cc, np.zeros(len(rr), np.intp), 1, ds, self.look_left
         )
         return int(bg.best_d[0]) if bg.resolves(0) else None
 

@@ -198,6 +198,15 @@ class SegmentationParams(Params):
         "(nor a mark beside it a floating line). Off: the instrument's pixels are background "
         "samples too (deviation 56).",
     )
+    thread_through: bool = param(
+        True,
+        label="raw: thread through a near block",
+        doc="raw: of a kept piece that moves with the tissue in part (a mark merged with the "
+        "thread), a block voted 'on the surface' keeps its pixels when their own disparity is "
+        "nearer that of the piece's floating part in a block beside it than the tissue's "
+        "there: the thread goes on, nearer the tissue than the block test resolves (~3 px). "
+        "Off: every such block's pixels are cut as the mark's (deviation 60).",
+    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,

@@ -238,3 +238,67 @@ def test_a_floating_thread_is_chosen_over_a_fibre_the_surface_test_cannot_judge(
         [16153, 12, 17], SegmentationParams(prefer_floating=False)
     )
     assert not on_thread_off and max(iou_off) == 0.0  # the fibre alone: no thread pixel
+
+
+class _BlockDisparities:
+    """A surface test's stand-in: each 64 px block's own disparity of the pixels given (by
+    their block row) and the tissue's there, as :func:`sr._thread_through` asks them."""
+
+    def __init__(self, piece: dict[int, int], tissue: dict[int, int]) -> None:
+        self.piece, self.tissue = piece, tissue
+
+    def disparity(self, rows: np.ndarray, cols: np.ndarray) -> int | None:
+        return self.piece.get(int(np.bincount(rows // 64).argmax()))
+
+    def background_disparity_near(self, rows: np.ndarray, cols: np.ndarray, d: int) -> int | None:
+        return self.tissue.get(int(np.bincount(rows // 64).argmax()))
+
+
+def _vertical_piece(piece: dict[int, int], tissue: dict[int, int]) -> tuple:
+    """A line down three blocks (rows 0..191, 3 px wide), its votes 0, 1, 0 block by block
+    (the middle block "moves with the tissue"), and its view with the stand-in test."""
+    rows, cols = (a.ravel() for a in np.mgrid[0:192, 100:103])
+    votes = np.where(rows // 64 == 1, 1, 0).astype(np.int8)
+    v = SimpleNamespace(rows=rows, cols=cols, _surface=_BlockDisparities(piece, tissue))
+    return v, np.arange(len(rows)), votes
+
+
+def test_a_thread_nearer_the_tissue_than_the_block_test_resolves_goes_on_through_the_block() -> (
+    None
+):
+    # all frame 18253 #2: a navy thread 3.7 px of disparity in front of the tissue; one block
+    # of its piece votes "on the surface" (its background resolves 1 px high), the thread's
+    # own disparity there is that of its floating blocks beside it (deviation 60)
+    v, px, votes = _vertical_piece({0: 30, 1: 30, 2: 31}, {0: 26, 1: 27, 2: 26})
+    through = sr._thread_through(v, px, votes)
+    assert through[votes == 1].all() and not through[votes == 0].any()
+    lab_on = np.ones(len(px), np.int64)
+    keep = np.array([False, True])
+    cut = sr._mark_part(px, px, lab_on, {1: votes}, keep)  # (without the view: as before)
+    assert np.array_equal(cut, votes == 1)
+    assert not sr._mark_part(px, px, lab_on, {1: votes}, keep, v).any()
+
+
+@pytest.mark.parametrize(
+    ("piece", "tissue"),
+    [
+        ({0: 30, 1: 27, 2: 31}, {0: 26, 1: 27, 2: 26}),  # a mark merged: the tissue's disparity
+        ({0: 28, 1: 27, 2: 28}, {0: 27, 1: 27, 2: 27}),  # a fibre's false floating votes
+        ({0: 30, 1: None, 2: 31}, {0: 26, 1: 27, 2: 26}),  # no disparity of its own there
+        ({0: 30, 1: 30, 2: 31}, {0: 26, 2: 26}),  # the tissue's not resolved there
+    ],
+)
+def test_a_block_at_the_tissue_s_disparity_or_undecided_stays_a_mark_part(
+    piece: dict, tissue: dict
+) -> None:
+    v, px, votes = _vertical_piece(piece, tissue)
+    assert not sr._thread_through(v, px, votes).any()
+
+
+def test_a_thread_s_stretch_voted_on_the_surface_is_no_longer_cut() -> None:
+    # all frame 18253 #17: a grey-green thread ~4 px in front of the tissue; block 34 of the
+    # left piece votes "on the surface" (background at 28 px, the thread at 31 as in the
+    # blocks beside it) and lost ~150 px of the thread's mask (deviation 60)
+    iou, _ = _all_suite_masks([18253, 12, 17], SegmentationParams())
+    iou_off, _ = _all_suite_masks([18253, 12, 17], SegmentationParams(thread_through=False))
+    assert iou[0] >= iou_off[0] + 0.04 and iou[1] == iou_off[1]
