@@ -1337,7 +1337,7 @@ def _thread_through(v: _View, px: np.ndarray, votes: np.ndarray) -> np.ndarray:
     those voted "on the surface" in a block (:func:`segment_surface.block_of`) where their own
     disparity is nearer that of the piece's part seen in front of the tissue in a block beside
     it (8-neighbours) than the tissue's disparity in their block (the background the vote
-    compared them with, :meth:`SurfaceTest.background_disparity_near`), that part being
+    compared them with, :meth:`SurfaceTest.background_disparity` near it), that part being
     itself in front of that tissue by _RESOLVED_PX at least: the thread goes on through that
     block, nearer the tissue than the block test resolves (~3 px), and no mark (at the
     tissue's depth) merged with it is there. A mark's own floating vote (a block test's error)
@@ -1370,7 +1370,7 @@ def _thread_through(v: _View, px: np.ndarray, votes: np.ndarray) -> np.ndarray:
         d = st.disparity(rows[sel], cols[sel])
         if d is None:
             continue
-        tissue = st.background_disparity_near(rows[sel], cols[sel], d)
+        tissue = st.background_disparity(rows[sel], cols[sel], near=d)
         if tissue is None:
             continue
         for f in beside.tolist():

@@ -173,40 +173,24 @@ class SurfaceTest:
         )
         return int(res.best_d[0]) if res.defined()[0] else None
 
-    def background_disparity(self, rows: np.ndarray, cols: np.ndarray) -> int | None:
+    def background_disparity(
+        self, rows: np.ndarray, cols: np.ndarray, near: int | None = None
+    ) -> int | None:
         """The disparity (px) of the background (the tissue) in the block that holds most of
         the pixels (``rows``, ``cols``) (M,), over 0..D, or None where it does not resolve it
-        (:meth:`_Residuals.resolves`: a flat or shaded background, too few samples)."""
+        (:meth:`_Residuals.resolves`: a flat or shaded background, too few samples). Given
+        ``near``: the best disparity within _WINDOW_PX of it (the tissue a piece of disparity
+        ``near`` there is compared with, :meth:`votes`)."""
         if len(rows) == 0 or self.dmax < 1:
             return None
         keys = _block_keys(rows, cols, self.nb)
         rr, cc = self._background(int(np.bincount(keys).argmax()))
         if len(rr) < _MIN_BLOCK_SAMPLES:
             return None
-        bg = _Residuals(
-            self.this,
-            self.other,
-            rr,
-            cc,
-            np.zeros(len(rr), np.intp),
-            1,
-            np.arange(self.dmax + 1),
-            self.look_left,
-        )
-        return int(bg.best_d[0]) if bg.resolves(0) else None
-
-    def background_disparity_near(self, rows: np.ndarray, cols: np.ndarray, d: int) -> int | None:
-        """The background's best disparity (px) within _WINDOW_PX of ``d`` in the block that
-        holds most of the pixels (``rows``, ``cols``) (M,): the tissue a piece of disparity
-        ``d`` there is compared with (:meth:`votes`), or None where it does not resolve it
-        (:meth:`_Residuals.resolves`; too few samples)."""
-        if len(rows) == 0 or self.dmax < 1:
-            return None
-        keys = _block_keys(rows, cols, self.nb)
-        rr, cc = self._background(int(np.bincount(keys).argmax()))
-        if len(rr) < _MIN_BLOCK_SAMPLES:
-            return None
-        ds = np.arange(max(d - _WINDOW_PX, 0), min(d + _WINDOW_PX, self.dmax) + 1)
+        if near is None:
+            ds = np.arange(self.dmax + 1)
+        else:
+            ds = np.arange(max(near - _WINDOW_PX, 0), min(near + _WINDOW_PX, self.dmax) + 1)
         bg = _Residuals(
             self.this, self.other, rr, cc, np.zeros(len(rr), np.intp), 1, ds, self.look_left
         )

@@ -250,7 +250,10 @@ class _BlockDisparities:
     def disparity(self, rows: np.ndarray, cols: np.ndarray) -> int | None:
         return self.piece.get(int(np.bincount(rows // 64).argmax()))
 
-    def background_disparity_near(self, rows: np.ndarray, cols: np.ndarray, d: int) -> int | None:
+    def background_disparity(
+        self, rows: np.ndarray, cols: np.ndarray, near: int | None = None
+    ) -> int | None:
+        assert near is not None  # the tissue near the piece's own disparity
         return self.tissue.get(int(np.bincount(rows // 64).argmax()))
 
 
