@@ -101,28 +101,30 @@ def agreement(
     )
 
 
+def _automatic(row: Mapping[str, Any], key: str) -> float | None:
+    """An evaluation row's finite number under ``key``; 1 for a frame that failed before the
+    check could score it (the check's score of a failed curve); None when the row has none."""
+    v = row.get(key)
+    if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v):
+        return float(v)
+    if row.get("status") == "failed" and key in row:
+        return 1.0
+    return None
+
+
 def automatic_score(row: Mapping[str, Any]) -> int | None:
     """The automatic score of an evaluation row: its ``auto_score``; a frame that failed
     before the check could score it (no score, status failed) scores 1, the check's score of
     a failed curve; None when the row has no score (an evaluation older than the score)."""
-    v = row.get("auto_score")
-    if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v):
-        return int(v)
-    if row.get("status") == "failed" and "auto_score" in row:
-        return 1
-    return None
+    v = _automatic(row, "auto_score")
+    return None if v is None else int(v)
 
 
 def automatic_rating(row: Mapping[str, Any]) -> float | None:
     """The continuous automatic score of an evaluation row: its ``auto_rating``; 1.0 for a
     frame that failed before the check (as its score); None when the row has none (an
     evaluation older than the continuous score)."""
-    v = row.get("auto_rating")
-    if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v):
-        return float(v)
-    if row.get("status") == "failed" and "auto_rating" in row:
-        return 1.0
-    return None
+    return _automatic(row, "auto_rating")
 
 
 def rated_pairs(
