@@ -77,14 +77,13 @@ from threadrecon.core.check_kernel import (
 )
 from threadrecon.core.check_score import (
     GraspPoint,
-    arc_px,
     bound_halfwidth_px,
     grasp_point,
     point_errors,
     quality_score,
 )
 from threadrecon.core.check_support import contradicted, reliable_rows, uncontested
-from threadrecon.core.numeric import row_norms
+from threadrecon.core.numeric import arc_px, row_norms
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
 from threadrecon.core.refine import row_runs
@@ -879,7 +878,7 @@ def _check(
     # what lies beyond it (an occluder's edge pulls the depth towards its own): a depth change
     # over the end's last knot span is length the matches there cannot vouch for.
     n_spans = max(len(spline.ctrl) - int(spline.degree), 1)
-    s2 = arc_px(step)  # the left projection's arc length: both ends, the strands, the errors
+    s2 = arc_px(step)  # the left projection's arc length: ends, strands, folds, errors
     for end in free:
         added = _end_added_length(step3, step, z, f / mm, n_spans, end, s2)
         end_added = max(end_added, added)
@@ -951,8 +950,9 @@ def _check(
              f"doubling back the thread pixels do not show; limit {p.max_overlap_px:g} px)")
         )  # fmt: skip
     fold = fold_length(
-        uv_l, step, in_l & (rho_l <= p.jump_px), f * B / z_pos, p.fold_px, p.crossing_disparity_px
-    )
+        uv_l, step, in_l & (rho_l <= p.jump_px), f * B / z_pos, p.fold_px,
+        p.crossing_disparity_px, s2,
+    )  # fmt: skip
     if fold > p.max_overlap_px:
         findings.append(
             ("suspect", f"the curve runs twice over {fold:.0f} px of one strand (a fold: back and "

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from threadrecon.core.check_fast_kernel import close_pairs
-from threadrecon.core.numeric import row_norms
+from threadrecon.core.numeric import arc_px, row_norms
 
 FOLD_COS = float(np.cos(np.radians(30.0)))  # passes within 30 deg of one line run along it
 
@@ -29,6 +29,7 @@ def fold_length(
     disp: np.ndarray,
     radius: float,
     dtol: float,
+    s: np.ndarray | None = None,
 ) -> float:
     """2D length (px) of the curve running over a stretch another part of it already covers.
 
@@ -37,7 +38,8 @@ def fold_length(
     px, two passes closer than this run over one strand; ``dtol``: px, passes whose disparities
     differ by this or more are strands over each other. Samples count when they are more than
     pi * radius + 3 px apart along the curve (a bend's own samples are closer). Half the length
-    of the steps between two such samples (each fold is counted on both its passes)."""
+    of the steps between two such samples (each fold is counted on both its passes). ``s``:
+    ``numeric.arc_px(step)`` when the caller has it."""
     uv = np.asarray(uv, dtype=np.float64)
     n = len(uv)
     if uv.ndim != 2 or uv.shape[1] != 2 or len(step) != n - 1 or len(on) != n or len(disp) != n:
@@ -45,11 +47,10 @@ def fold_length(
             f"fold_length needs uv (N, 2), step (N-1,), on and disp (N,); got {uv.shape}, "
             f"{np.shape(step)}, {np.shape(on)}, {np.shape(disp)}"
         )
-    seg = np.where(np.isfinite(step), step, 0.0)
     idx = np.flatnonzero(on & np.isfinite(uv).all(axis=1) & np.isfinite(disp))
     if idx.size < 3 or radius <= 0:
         return 0.0
-    s = np.concatenate([[0.0], np.cumsum(seg)])
+    s = arc_px(step) if s is None else s
     gap = np.pi * radius + 3.0
     q = uv[idx]  # compiled: cKDTree.query_pairs' pairs, only those more than gap apart along
     pairs = close_pairs(q[:, 0].copy(), q[:, 1].copy(), s[idx], float(radius), gap)
@@ -63,6 +64,7 @@ def fold_length(
     hit = np.zeros(n, dtype=bool)
     hit[i[keep]] = True
     hit[j[keep]] = True
+    seg = np.where(np.isfinite(step), step, 0.0)
     return float(0.5 * np.sum(seg * (hit[1:] & hit[:-1])))
 
 

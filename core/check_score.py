@@ -4,8 +4,9 @@ Per-point confidence (core/check.py's module docstring gives the formula): each 
 dense curve gets an expected 3D error e_i from the evidence near it, and the confidence
 exp(-e_i / ``conf_mm``). The grasp point is the most confident point near ``grasp_mm`` from the
 free end; the score rates the curve on the paper's 1-5 scale (Sec. IV-B) from the typical e_i
-(the error whose confidence is the curve's mean confidence), capped by the check's status: a
-continuous rating, and the integer class it rounds to (for a person's 1-5 ratings).
+(their geometric mean, or the error of the curve's mean confidence: ``score_average``), capped
+by the check's status: a continuous rating, and the integer class it rounds to (for a person's
+1-5 ratings).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from threadrecon.core.bounds import Bounds
-from threadrecon.core.numeric import row_norms
+from threadrecon.core.numeric import arc_px, row_norms
 from threadrecon.core.spline import SplineResult
 
 if TYPE_CHECKING:
@@ -118,12 +119,6 @@ def _expected_error(
     return z**2 / fB * d * (1.0 + np.exp(-end / p.end_mm))
 
 
-def arc_px(step: np.ndarray) -> np.ndarray:
-    """(N,) cumulative 2D length (px) of the steps ``step`` (N-1,) from 0, a non-finite step
-    counted as 0 (the check reads it for the ends, the strands and the expected errors)."""
-    return np.concatenate([[0.0], np.where(np.isfinite(step), step, 0.0).cumsum()])
-
-
 def _unsupported_gap(s3: np.ndarray, supported: np.ndarray) -> np.ndarray:
     """Arc length (mm) from each point to the nearest supported point (0 on one; the curve's
     whole length when none is supported)."""
@@ -162,7 +157,7 @@ def _unit_grid(n: int) -> np.ndarray:
     return u
 
 
-def _typical(e_mm: np.ndarray, conf_mm: float, average: str = "confidence") -> float:
+def _typical(e_mm: np.ndarray, conf_mm: float, average: str) -> float:
     """The typical expected error of a curve (mm) behind its score.
 
     "confidence": the error whose confidence is the curve's mean confidence,
@@ -171,7 +166,7 @@ def _typical(e_mm: np.ndarray, conf_mm: float, average: str = "confidence") -> f
     its share q of the curve (the score reads the share of the curve a gripper may trust, the
     page's mean confidence), while the small e_i of good stretches rank curves as a mean of e_i
     does (docs/method.md, score19). "geometric": the geometric mean of e_i (1e6 for a
-    non-finite one), before session 19."""
+    non-finite one), the default (``CheckParams.score_average``)."""
     if average == "geometric":
         # np.clip's values (NaN stays NaN) without its layers; the log never divides by zero
         return float(np.exp(np.log(np.minimum(np.maximum(e_mm, 1e-9), 1e6)).mean()))

@@ -42,6 +42,13 @@ def row_norms(v: np.ndarray) -> np.ndarray:
     return np.sqrt(total)
 
 
+def arc_px(step: np.ndarray) -> np.ndarray:
+    """(N,) cumulative 2D length (px) of the steps ``step`` (N-1,) from 0, a non-finite step
+    counted as 0 (the check reads it for the ends, the strands, the folds and the expected
+    errors)."""
+    return np.concatenate([[0.0], np.where(np.isfinite(step), step, 0.0).cumsum()])
+
+
 def distance_to_zero(image: np.ndarray) -> np.ndarray:
     """(H, W) float32, the Euclidean distance (px) of each pixel of the (H, W) uint8 ``image``
     to its nearest zero pixel: ``cv2.distanceTransform(image, DIST_L2, DIST_MASK_PRECISE)`` as

@@ -14,6 +14,7 @@ from threadrecon.core.check_fold import (
     fold_length,
     self_contact,
 )
+from threadrecon.core.numeric import arc_px
 
 
 def _steps(uv: np.ndarray) -> np.ndarray:
@@ -41,6 +42,17 @@ def test_a_z_fold_over_one_strand_is_measured() -> None:
     uv = _polyline((100, 0), (100, 60), (101, 20), (102, 120))
     got = _fold(uv)
     assert 60.0 <= got <= 110.0  # about the 40 px walked back, counted on both passes
+
+
+def test_fold_length_reads_the_arc_length_given_as_it_computes_it() -> None:
+    # the check passes the left projection's arc length it already has (numeric.arc_px)
+    uv = _polyline((100, 0), (100, 60), (101, 20), (102, 120))
+    step = _steps(uv)
+    step[7] = np.nan  # a non-finite step counts as 0 either way
+    n = len(uv)
+    args = (uv, step, np.ones(n, dtype=bool), np.full(n, 40.0), 3.0, 1.0)
+    got = fold_length(*args)
+    assert got > 0.0 and fold_length(*args, arc_px(step)) == got
 
 
 def test_two_strands_a_width_apart_a_crossing_and_a_straight_thread_are_no_fold() -> None:

@@ -16,11 +16,11 @@ from threadrecon.core.check_score import (
     _typical,
     _unit_grid,
     _unsupported_gap,
-    arc_px,
     grasp_point,
     point_errors,
     quality_score,
 )
+from threadrecon.core.numeric import arc_px
 from threadrecon.core.pipeline import Pipeline
 
 
@@ -134,30 +134,32 @@ def test_typical_error_is_not_swamped_by_a_few_large_points() -> None:
     assert _typical(e, 2.0, "geometric") < 0.25 < float(np.mean(e))
     assert _typical(np.full(5, np.inf), 2.0, "geometric") == pytest.approx(1e6)
     # the mean-confidence error: the stretch counts by its share of the curve, never more
-    assert _typical(e, 2.0) < 0.2 - 2.0 * np.log(1.0 - 0.03) < 0.3 < float(np.mean(e))
-    assert _typical(np.full(5, np.inf), 2.0) == np.inf
+    assert _typical(e, 2.0, "confidence") < 0.2 - 2.0 * np.log(1.0 - 0.03) < 0.3 < float(np.mean(e))
+    assert _typical(np.full(5, np.inf), 2.0, "confidence") == np.inf
 
 
 def test_typical_error_is_the_error_of_the_curves_mean_confidence() -> None:
     """Equal e_i give that e; otherwise exp(-e / conf_mm) is the mean of the points'
     confidences, and the error lies between the geometric and the arithmetic mean of e_i for
     a spread of small errors (it ranks curves by their mean error, not by a few good points)."""
-    assert _typical(np.full(7, 0.4), 2.0) == pytest.approx(0.4)
+    assert _typical(np.full(7, 0.4), 2.0, "confidence") == pytest.approx(0.4)
     e = np.array([0.1, 0.2, 0.4, 0.8, 1.6])
-    t = _typical(e, 2.0)
+    t = _typical(e, 2.0, "confidence")
     assert np.exp(-t / 2.0) == pytest.approx(np.mean(np.exp(-e / 2.0)))
     assert _typical(e, 2.0, "geometric") < t < float(np.mean(e))
     # two curves of one geometric mean: the one with the larger mean error reads worse
     a, b = np.array([0.2, 0.2]), np.array([0.04, 1.0])
     assert _typical(a, 2.0, "geometric") == pytest.approx(_typical(b, 2.0, "geometric"))
-    assert _typical(b, 2.0) > _typical(a, 2.0)
+    assert _typical(b, 2.0, "confidence") > _typical(a, 2.0, "confidence")
 
 
 def test_quality_score_reads_the_configured_average() -> None:
     e = np.array([0.04, 1.0])  # geometric mean 0.2 (score 5), mean-confidence error 0.46 (4)
     assert quality_score(e, "ok", CheckParams())[0] == 5  # the default: the geometric mean
     score, rating = quality_score(e, "ok", CheckParams(score_average="confidence"))
-    assert score == 4 and rating == pytest.approx(_rating(_typical(e, 2.0), "ok", 0.25, 2.0))
+    assert score == 4 and rating == pytest.approx(
+        _rating(_typical(e, 2.0, "confidence"), "ok", 0.25, 2.0)
+    )
 
 
 def test_typical_error_is_the_clipped_geometric_mean_bit_for_bit() -> None:
