@@ -61,6 +61,22 @@ def _check_again(
     )
 
 
+def _wrong_and_caught(rec: Reconstruction, frame, calib, reason: str, **rule_off):
+    """Asserts ``rec``'s curve of the generated ``frame`` is wrong (e_l > 20 mm), the check
+    calls it suspect with a reason holding ``reason``, and "ok" with the rule off
+    (``rule_off``: CheckParams); returns the curve's errors."""
+    from threadrecon.core.metrics import frame_errors
+
+    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert e.e_length > 20.0
+    chk = rec["check"]
+    assert chk.status == "suspect", chk.reasons
+    assert any(reason in r for r in chk.reasons), chk.reasons
+    off = _check_again(rec, calib, **rule_off)
+    assert off.status == "ok", off.reasons
+    return e
+
+
 def _recheck(seed: int, change) -> CheckResult:
     """The check of seed's reconstruction with its camera-frame curve changed by ``change``."""
     pair, calib, _ = synthetic_case(seed)
@@ -839,7 +855,6 @@ def test_a_fibre_joined_where_the_curve_turns_back_is_suspect() -> None:
     is the one the rule was found on (``tool_rim_px = 0``): with deviation 50's rim the mask
     changes beside the shaft, the curve's turn spreads over ~20 px and the frame is "ok" and
     wrong again (docs/method.md, session 17)."""
-    from threadrecon.core.metrics import frame_errors
     from threadrecon.core.segmentation import StereoPair
 
     frame = suite_frame(
@@ -851,13 +866,8 @@ def test_a_fibre_joined_where_the_curve_turns_back_is_suspect() -> None:
     params = ReconParams()
     params = replace(params, segment=replace(params.segment, tool_rim_px=0))
     rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(params)
-    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
-    assert e.e_length > 20.0 and e.e_S_max > 20.0
-    chk = rec["check"]
-    assert chk.status == "suspect", chk.reasons
-    assert any("turns back" in r for r in chk.reasons), chk.reasons
-    off = _check_again(rec, calib, end_reversal=False)
-    assert off.status == "ok", off.reasons
+    e = _wrong_and_caught(rec, frame, calib, "turns back", end_reversal=False)
+    assert e.e_S_max > 20.0
 
 
 def test_a_bridge_over_bare_tissue_matched_behind_the_curve_is_contradicted() -> None:
@@ -868,7 +878,6 @@ def test_a_bridge_over_bare_tissue_matched_behind_the_curve_is_contradicted() ->
     median cost of the shifts 6 px away was not 4 grey levels higher and the stereo pair was
     taken to say nothing: "ok". No shift in front of the curve matches (all 4 levels worse
     than the best): no occluder hides a thread there, and the bridge is contradicted."""
-    from threadrecon.core.metrics import frame_errors
     from threadrecon.core.segmentation import StereoPair
 
     frame = suite_frame(
@@ -876,13 +885,7 @@ def test_a_bridge_over_bare_tissue_matched_behind_the_curve_is_contradicted() ->
     )
     calib = frame.camera.calibration()
     rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
-    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
-    assert e.e_length > 20.0
-    chk = rec["check"]
-    assert chk.status == "suspect", chk.reasons
-    assert any("bare background in both views" in r for r in chk.reasons), chk.reasons
-    off = _check_again(rec, calib, front_excluded=False)
-    assert off.status == "ok", off.reasons
+    _wrong_and_caught(rec, frame, calib, "bare background in both views", front_excluded=False)
 
 
 @needs_paper
@@ -909,7 +912,6 @@ def test_a_curve_through_itself_under_a_shaft_is_suspect() -> None:
     visible lower strand, so the curve passes through that point twice (72 mm apart along
     it, 0.12 mm apart in 3D): e_l 21.6 mm. Every other test passed it: "ok" and wrong.
     With the self-contact test: suspect."""
-    from threadrecon.core.metrics import frame_errors
     from threadrecon.core.segmentation import StereoPair
 
     frame = suite_frame(
@@ -918,13 +920,7 @@ def test_a_curve_through_itself_under_a_shaft_is_suspect() -> None:
     calib = frame.camera.calibration()
     pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
     rec = Pipeline(pair, calib).run()
-    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
-    assert e.e_length > 20.0
-    chk = rec["check"]
-    assert chk.status == "suspect", chk.reasons
-    assert any("passes through itself" in r for r in chk.reasons), chk.reasons
-    off = _check_again(rec, calib, self_contact=False)
-    assert off.status == "ok", off.reasons
+    _wrong_and_caught(rec, frame, calib, "passes through itself", self_contact=False)
 
 
 def _cut_short(rec, calib, cut_mm: float) -> tuple[CameraCurve, str]:
