@@ -32,6 +32,11 @@ CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
     "--no-sandbox",
     "--disable-gpu",
+    # software WebGL on a loaded 2-core machine: a GL call that takes seconds must not get the
+    # GPU process killed by its watchdog, nor repeated restarts block WebGL for the page (the
+    # viser client then never mounts its panel)
+    "--disable-gpu-watchdog",
+    "--disable-gpu-process-crash-limit",
     "--disable-background-networking",
     "--disable-component-update",
     "--disable-sync",

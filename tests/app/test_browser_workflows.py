@@ -36,10 +36,21 @@ CHANGED = {  # viser folder -> (slider index in the folder, value) set through t
 def open_page(new_context: Any, server: Server) -> Any:
     page = new_context(viewport=VIEWPORT).new_page()
     errors: list[str] = []
-    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    notes: list[str] = []  # the viser client's messages and the server's log, on failure only
+    viser = f":{server.viser_port}"
+
+    def on_error(exc: Any) -> None:
+        (notes if viser in (getattr(exc, "stack", "") or "") else errors).append(str(exc))
+
+    def on_console(msg: Any) -> None:
+        if msg.type in ("error", "warning"):
+            notes.append(f"{msg.type} at {(msg.location or {}).get('url', '')}: {msg.text}")
+
+    page.on("pageerror", on_error)
+    page.on("console", on_console)
     page.goto(server.url + "/")
     page.wait_for_function("window.threadrecon && window.threadrecon.state", timeout=60_000)
-    page.errors = errors
+    page.errors, page.notes, page.server = errors, notes, server
     return page
 
 
@@ -50,7 +61,14 @@ def select(page: Any, frame_id: str) -> None:
 
 def slider_value(page: Any, folder: str, index: int) -> float:
     header = page.frame_locator("#viewer").get_by_text(folder, exact=True)
-    header.wait_for(timeout=60_000)
+    try:
+        header.wait_for(timeout=60_000)
+    except Exception as exc:  # say what the viser client and the server reported
+        raise AssertionError(
+            f"the viser panel shows no folder {folder!r}: {exc}\nviser client and page:\n"
+            + "\n".join(page.notes[-30:])
+            + f"\nserver log:\n{page.server.log()}"
+        ) from None
     sliders = header.locator("xpath=..").get_by_role("slider")
     if sliders.count() == 0:
         header.click()
