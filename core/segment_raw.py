@@ -606,7 +606,7 @@ def _select(
         delta[best] = _main_dye(v.delta[on[lab_on == best]], votes_of[best], delta[best])
         # The frame's vessel hue: mean contrast of its blood-like pixels off the chosen piece.
         vessel = v.blood & (lab != best)
-        d_vessel = v.delta[vessel].mean(axis=0) if vessel.sum() >= _MIN_VESSEL_PX else None
+        d_vessel = _mean_rows(v.delta, vessel) if vessel.sum() >= _MIN_VESSEL_PX else None
         cos_vessels = max(
             cos_vessels, 1.0 if d_vessel is None else _cosine(d_vessel[1:], delta[best, 1:])
         )
@@ -1451,6 +1451,16 @@ def _row_norms(a: np.ndarray) -> np.ndarray:
     return np.sqrt(s)
 
 
+def _mean_rows(a: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """``a[where].mean(axis=0)`` of a float (M, C) ``a`` and (M,) bool ``where`` (some True),
+    bit for bit: numpy adds the rows in order in a's dtype (each column's running sum, here
+    np.cumsum's, without numpy's reduction over C elements a row) and divides by their count
+    in float64 (an np.intp) before rounding to a's dtype; ~2x faster."""
+    at = np.flatnonzero(where)
+    sums = np.cumsum(np.take(a.T, at, axis=1), axis=1)[:, -1]  # (C,) in a's dtype
+    return (sums.astype(np.float64) / len(at)).astype(a.dtype)
+
+
 def _dye_part(
     delta: np.ndarray, lab: np.ndarray, ref: np.ndarray, n: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -1662,10 +1672,11 @@ def _pieces(
     With ``p.split_wide`` (deviation 40), a long piece too wide for a thread loses its wide
     part (:func:`_wide_part`; those pixels belong to no piece) and the pieces are formed again
     without it (``thin_only``: once; no piece is wider then)."""
-    rows, cols = (v.rows, v.cols) if sub is None else (v.rows[sub], v.cols[sub])
+    at = None if sub is None else np.flatnonzero(sub)  # (gathers by index: ~2x by mask)
+    rows, cols = (v.rows, v.cols) if at is None else (v.rows[at], v.cols[at])
     lab = np.empty(len(rows), np.int64)
     n = label_pixels(rows, cols, lab)
-    s_px = v.s_lo if sub is None else v.s_lo[sub]
+    s_px = v.s_lo if at is None else v.s_lo[at]
     # pixels, summed S, seeds (S >= ridge_hi level, compared in float32 as numpy compares
     # float32 S with a Python float) and bounding boxes of the pieces, in one pass
     area, sums, seeded, boxes = piece_stats(
@@ -1699,7 +1710,7 @@ def _pieces(
             return _pieces(keep, v, p, thin_only=True)
     means[0] = 0.0
     on = ok[lab]
-    lab_all = lab if sub is None else _scatter(lab, sub)
+    lab_all = lab if at is None else _scatter(lab, at, len(sub))
     return lab_all, (rows[on], cols[on]), means, length, ok
 
 
@@ -1762,10 +1773,10 @@ def _along_border(boxes: np.ndarray, h: int, w: int) -> np.ndarray:
     return (r1 < m) | (r0 >= h - m) | (c1 < m) | (c0 >= w - m)
 
 
-def _scatter(values: np.ndarray, where: np.ndarray) -> np.ndarray:
-    """(len(where),) array holding ``values`` where ``where`` is True and 0 elsewhere."""
-    out = np.zeros(len(where), values.dtype)
-    out[where] = values
+def _scatter(values: np.ndarray, at: np.ndarray, n: int) -> np.ndarray:
+    """(n,) array holding ``values`` at the indices ``at`` (increasing) and 0 elsewhere."""
+    out = np.zeros(n, values.dtype)
+    out[at] = values
     return out
 
 

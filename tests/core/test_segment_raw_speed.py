@@ -171,3 +171,15 @@ def test_same_dye_equals_its_plain_cosines() -> None:
                 )
                 want = np.where(same_sign, cos, np.minimum(cos, whole))
             assert np.array_equal(sr._same_dye(delta, ref), want)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_mean_rows_is_numpy_s_mean_of_the_selected_rows_bit_for_bit(dtype: type) -> None:
+    rng = np.random.default_rng(11)
+    for size in (1, 2, 7, 8, 9, 100, 4096, 20001):  # below and above numpy's blocks of 8
+        a = (rng.standard_normal((size, 3)) * 10.0 ** rng.integers(-3, 4)).astype(dtype)
+        where = rng.random(size) < rng.random()
+        where[rng.integers(size)] = True
+        got, want = sr._mean_rows(a, where), a[where].mean(axis=0)
+        assert got.dtype == want.dtype
+        assert np.array_equal(got.view(np.uint8), want.view(np.uint8))
