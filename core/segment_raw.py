@@ -1095,7 +1095,7 @@ def _main_dye(d_px: np.ndarray, votes: np.ndarray, mean: np.ndarray) -> np.ndarr
     if floats[0] == floats[1]:
         return mean  # nothing tells the two apart
     part = dark if floats[0] > floats[1] else ~dark
-    return d_px[part].mean(axis=0)
+    return _mean_rows(d_px, part)
 
 
 def _two_dyes(d_px: np.ndarray, min_px: float | None = None) -> np.ndarray | None:
@@ -1108,7 +1108,7 @@ def _two_dyes(d_px: np.ndarray, min_px: float | None = None) -> np.ndarray | Non
     least = _MIXED_SHARE * len(dark) if min_px is None else min(_MIXED_SHARE * len(dark), min_px)
     if min(n_dark, len(dark) - n_dark) < least:
         return None
-    parts = [d_px[dark].mean(axis=0), d_px[~dark].mean(axis=0)]
+    parts = [_mean_rows(d_px, dark), _mean_rows(d_px, ~dark)]
     if _same_dye(parts[0][None], parts[1])[0] >= _SAME_DYE_COS:
         return None
     return dark
@@ -1452,11 +1452,14 @@ def _row_norms(a: np.ndarray) -> np.ndarray:
 
 
 def _mean_rows(a: np.ndarray, where: np.ndarray) -> np.ndarray:
-    """``a[where].mean(axis=0)`` of a float (M, C) ``a`` and (M,) bool ``where`` (some True),
-    bit for bit: numpy adds the rows in order in a's dtype (each column's running sum, here
+    """``a[where].mean(axis=0)`` of a float (M, C) ``a`` and (M,) bool ``where``, bit for bit:
+    for C = 2, 3 numpy adds the rows in order in a's dtype (each column's running sum, here
     np.cumsum's, without numpy's reduction over C elements a row) and divides by their count
-    in float64 (an np.intp) before rounding to a's dtype; ~2x faster."""
+    in float64 (an np.intp) before rounding to a's dtype; ~2x faster. One column (numpy sums
+    it pairwise), or no row: numpy's own."""
     at = np.flatnonzero(where)
+    if len(at) == 0 or a.shape[1] not in (2, 3):
+        return a[at].mean(axis=0)
     sums = np.cumsum(np.take(a.T, at, axis=1), axis=1)[:, -1]  # (C,) in a's dtype
     return (sums.astype(np.float64) / len(at)).astype(a.dtype)
 
@@ -1783,7 +1786,9 @@ def _scatter(values: np.ndarray, at: np.ndarray, n: int) -> np.ndarray:
 def _row_keys(rows: np.ndarray, cols: np.ndarray, width: int, d: int) -> np.ndarray:
     """(M,) sorted keys ``row (width + d + 1) + col`` of pixels: a window of d + 1 columns
     never spans two rows."""
-    return np.sort(rows.astype(np.int64) * (width + d + 1) + cols)
+    keys = rows.astype(np.int64) * (width + d + 1) + cols
+    # pixels in row-major order (the lo pixels, subsets of them) give them sorted already
+    return keys if np.all(keys[1:] >= keys[:-1]) else np.sort(keys)
 
 
 def _has_partner(

@@ -174,12 +174,23 @@ def test_same_dye_equals_its_plain_cosines() -> None:
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_mean_rows_is_numpy_s_mean_of_the_selected_rows_bit_for_bit(dtype: type) -> None:
+@pytest.mark.parametrize("columns", [1, 2, 3])
+def test_mean_rows_is_numpy_s_mean_of_the_selected_rows_bit_for_bit(
+    dtype: type, columns: int
+) -> None:
     rng = np.random.default_rng(11)
     for size in (1, 2, 7, 8, 9, 100, 4096, 20001):  # below and above numpy's blocks of 8
-        a = (rng.standard_normal((size, 3)) * 10.0 ** rng.integers(-3, 4)).astype(dtype)
+        scale = 10.0 ** rng.integers(-3, 4)
+        a = (rng.standard_normal((size, columns)) * scale).astype(dtype)
         where = rng.random(size) < rng.random()
         where[rng.integers(size)] = True
         got, want = sr._mean_rows(a, where), a[where].mean(axis=0)
         assert got.dtype == want.dtype
         assert np.array_equal(got.view(np.uint8), want.view(np.uint8))
+
+
+def test_row_keys_are_sorted_for_pixels_in_any_order() -> None:
+    rng = np.random.default_rng(5)
+    rows, cols = np.divmod(np.sort(rng.choice(480 * 640, 3000, replace=False)), 640)
+    for r, c in ((rows, cols), (rows[::-1], cols[::-1]), (rows[rng.permutation(3000)], cols)):
+        assert np.array_equal(sr._row_keys(r, c, 640, 60), np.sort(r * (640 + 61) + c))
