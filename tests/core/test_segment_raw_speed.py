@@ -130,3 +130,67 @@ def test_free_blocks_and_quarter_index_are_the_divisions(seed: int) -> None:
     got = sr._free_blocks(rows, cols, shape)
     assert got.shape == shape and got.dtype == np.float32
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("columns", [1, 2, 3])
+def test_row_norms_are_numpy_s_row_norms_bit_for_bit(dtype: type, columns: int) -> None:
+    rng = np.random.default_rng(columns)
+    # contrasts of every magnitude, signed zeros, and the extremes of the dtype
+    a = rng.standard_normal((5000, columns)) * 10.0 ** rng.integers(-6, 6, (5000, 1))
+    a[:10] = 0.0
+    a[10:20] = -0.0
+    a[20, 0] = np.finfo(dtype).max
+    a[21, -1] = np.finfo(dtype).tiny
+    a[22, 0] = np.inf
+    a = a.astype(dtype)
+    for x in (a, a[:, ::-1], a[::3]):  # contiguous and strided, as _same_dye's slices
+        got, want = sr._row_norms(x), np.linalg.norm(x, axis=1)
+        assert got.dtype == want.dtype
+        assert np.array_equal(got.view(np.uint8), want.view(np.uint8))
+
+
+def test_same_dye_equals_its_plain_cosines() -> None:
+    """_same_dye (row norms by :func:`_row_norms`) against the cosines written out with
+    numpy's norms, for coloured and grey references, pieces' (float64) and pixels' (float32)
+    contrasts."""
+    rng = np.random.default_rng(7)
+    for dtype in (np.float64, np.float32):
+        delta = (rng.standard_normal((3000, 3)) * 20.0).astype(dtype)
+        for ref in (np.array([-5.0, 3.0, -2.0]), np.array([8.0, 0.01, -0.02])):
+            d, r = delta[:, 1:], ref[1:]
+            same_sign = delta[:, 0] * ref[0] >= 0
+            nr = float(np.linalg.norm(r))
+            if nr < sr._GREY_CHROMA:
+                ok = (np.linalg.norm(d, axis=1) < 2 * sr._GREY_CHROMA) & same_sign
+                want = np.where(ok, 1.0, -1.0)
+            else:
+                cos = (d @ r) / np.maximum(np.linalg.norm(d, axis=1) * nr, 1e-9)
+                whole = (delta @ ref) / np.maximum(
+                    np.linalg.norm(delta, axis=1) * np.linalg.norm(ref), 1e-9
+                )
+                want = np.where(same_sign, cos, np.minimum(cos, whole))
+            assert np.array_equal(sr._same_dye(delta, ref), want)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("columns", [1, 2, 3])
+def test_mean_rows_is_numpy_s_mean_of_the_selected_rows_bit_for_bit(
+    dtype: type, columns: int
+) -> None:
+    rng = np.random.default_rng(11)
+    for size in (1, 2, 7, 8, 9, 100, 4096, 20001):  # below and above numpy's blocks of 8
+        scale = 10.0 ** rng.integers(-3, 4)
+        a = (rng.standard_normal((size, columns)) * scale).astype(dtype)
+        where = rng.random(size) < rng.random()
+        where[rng.integers(size)] = True
+        got, want = sr._mean_rows(a, where), a[where].mean(axis=0)
+        assert got.dtype == want.dtype
+        assert np.array_equal(got.view(np.uint8), want.view(np.uint8))
+
+
+def test_row_keys_are_sorted_for_pixels_in_any_order() -> None:
+    rng = np.random.default_rng(5)
+    rows, cols = np.divmod(np.sort(rng.choice(480 * 640, 3000, replace=False)), 640)
+    for r, c in ((rows, cols), (rows[::-1], cols[::-1]), (rows[rng.permutation(3000)], cols)):
+        assert np.array_equal(sr._row_keys(r, c, 640, 60), np.sort(r * (640 + 61) + c))
