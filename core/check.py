@@ -57,6 +57,7 @@ from threadrecon.core.check_beyond import (
     beyond_ends,
     bridge_stray,
     cut_end,
+    end_frames_kept,
     end_occluder,
     extension,
     extension_far,
@@ -575,7 +576,9 @@ def check_curve(
     p: CheckParams = CheckParams(),
 ) -> CheckResult:
     """Check the camera-frame curve against the images, the depth range and the bounds."""
-    with np.errstate(all="ignore"):  # a diverged curve overflows: it is reported, not warned
+    # a diverged curve overflows: it is reported, not warned; each free end's frame is taken
+    # once a run (check_beyond.end_frames_kept)
+    with np.errstate(all="ignore"), end_frames_kept():
         return _check(lifted, stereo, rel, ordering, bounds, spline, curve, calib, p)
 
 
@@ -647,7 +650,8 @@ def _check(
     # is left out of the reprojection figures and judged by its unobserved 3D length instead.
     mm = calib.mm_per_unit
     # (np.diff's own subtraction, without its layers)
-    step3 = row_norms(pts[1:] - pts[:-1]) * mm
+    d3 = row_norms(pts[1:] - pts[:-1])  # 3D steps, calib units (the grasp point's too)
+    step3 = d3 * mm
     step = row_norms(uv_l[1:] - uv_l[:-1])
     step_r = row_norms(uv_r[1:] - uv_r[:-1])
     off_l, off_r = in_l & (rho_l > p.jump_px), in_r & (rho_r > p.jump_px)
@@ -978,7 +982,7 @@ def _check(
     # A point where the projection turns back, with the curve heading back from it to an end
     # (core/check_fold.end_reversal), the branch on the surface and the rest in front of it:
     # a mark on the surface joined to the thread there.
-    rev = end_reversal(uv_l, s3) if p.end_reversal else None
+    rev = end_reversal(uv_l, s3, step) if p.end_reversal else None
     if (
         rev is not None
         and rev.length > p.max_unobserved_mm
@@ -1045,7 +1049,7 @@ def _check(
     )
     pe = point_errors(
         z_pos, (z <= 0) | (z_right <= 0), r, rho, bridge_gap, step, s3, spline, f, f * B, mm, p,
-        s2=s2,
+        s2=s2, supported=supported,
     )  # fmt: skip
     e_mm, lateral, conf = pe.e_mm, pe.lateral_mm, pe.confidence
 
@@ -1059,7 +1063,7 @@ def _check(
     ambiguous = float((step3 * (amb[1:] | amb[:-1])).sum())
     status: Status = max((s for s, _ in findings), key=_RANK.__getitem__, default="ok")
     score, rating = quality_score(e_mm, status, p)
-    grasp = grasp_point(pts, conf, uv_l, uv_r, (H, W), mm, p)
+    grasp = grasp_point(pts, conf, uv_l, uv_r, (H, W), mm, p, d3)
     return CheckResult(
         status=status,
         reasons=tuple(msg for _, msg in sorted(findings, key=lambda x: -_RANK[x[0]])),
