@@ -681,7 +681,7 @@ def _check(
     # Each bridge is judged by what can be checked (no loop, not over bare background); an
     # evidenced one is allowed up to max_bridge_mm, any other one up to
     # max_unobserved_mm. Its points get a growing expected error (below) instead.
-    s3 = np.concatenate([[0.0], np.cumsum(step3)])
+    s3 = np.concatenate([[0.0], step3.cumsum()])
     bridge_gap = np.zeros(n)  # mm along the curve to the nearest observed end of a bridge
     worst: tuple[float, str] | None = None
     for i0, i1 in _runs(bridge_l) + _runs(bridge_r):
@@ -715,11 +715,13 @@ def _check(
         ("right", rho_r, in_r & ~bridge_r & ~hidden_r),
     )
     for side, rho, inside in views:
-        if inside.sum() < 2:
+        count = int(inside.sum())
+        if count < 2:
             findings.append(("failed", f"the curve lies outside the {side} image"))
             rep += [float("nan"), float("nan")]
             continue
-        mean, mx = float(rho[inside].mean()), float(rho[inside].max())
+        seen = rho[inside]  # the mean as np.mean takes it: numpy's sum over the count
+        mean, mx = float(seen.sum() / count), float(seen.max())
         rep += [mean, mx]
         if mx > p.reproj_fail_px:
             findings.append(
@@ -739,7 +741,7 @@ def _check(
         disp = uv_l[:, 0] - uv_r[:, 0]
         disp = disp[in_l & in_r & np.isfinite(disp)]
         if disp.size:
-            d_lo = float(np.min(disp))
+            d_lo = float(disp.min())
             view_l = _columns_within(view_l, d_lo, float(W))  # the right view sees x - d
             view_r = _columns_within(view_r, float("-inf"), W - 1 - d_lo + 1e-9)
     cov_l = _coverage(view_l, uv_l, in_l, p.cover_px)
@@ -751,8 +753,10 @@ def _check(
                  f"(at least {100 * p.coverage_min:.0f} % expected)")
             )  # fmt: skip
     one_view = (in_l & ~in_r) | hidden_l | hidden_r
-    unseen_px = float(np.where(one_view, np.append(step, 0.0), 0.0).sum())
-    unseen_mm = float(np.where(one_view, np.append(step3, 0.0), 0.0).sum())
+    unseen_px = unseen_mm = 0.0  # (a sum of zeros: no point seen in one view only)
+    if one_view.any():
+        unseen_px = float(np.where(one_view, np.concatenate((step, [0.0])), 0.0).sum())
+        unseen_mm = float(np.where(one_view, np.concatenate((step3, [0.0])), 0.0).sum())
     if unseen_mm > p.max_unobserved_mm:
         findings.append(
             ("suspect", f"{unseen_mm:.1f} mm ({unseen_px:.0f} px) of the curve lie outside the "
@@ -910,8 +914,8 @@ def _check(
 
     # Length against the 2D path length and the depth span of the bounds.
     path_px = float(bounds.s[-1])
-    z_lo = float(max(np.min(bounds.lower), z_allowed[0]))
-    z_hi = float(min(np.max(bounds.upper), z_allowed[1]))
+    z_lo = float(max(bounds.lower.min(), z_allowed[0]))
+    z_hi = float(min(bounds.upper.max(), z_allowed[1]))
     L_min = path_px * z_lo / f
     L_max = path_px * z_hi / f + p.depth_turns * max(z_hi - z_lo, 0.0)
     length = float(curve.length)
@@ -935,7 +939,7 @@ def _check(
     # Ordering anomalies (2): crossings of the thread pixels, overlaps the pixels do not show.
     K = ordering.n_clusters
     degree = np.bincount(ordering.edges.ravel(), minlength=K) if ordering.edges.size else []
-    crossings = int(np.sum(np.asarray(degree) >= p.crossing_degree))
+    crossings = int((np.asarray(degree) >= p.crossing_degree).sum())
     z_pos = np.maximum(z, 1e-12)
     # a reliable match sharing its right strand with one of its row too far away in the left
     # view to be that strand is no observation of the depth (one of the two is not seen)
@@ -1331,7 +1335,8 @@ def _excursion(
         u = spline.u_H / spline.length if spline.length > 0 else np.zeros(len(out))
         if not np.isfinite(u).all():  # (nan_to_num leaves a finite array as it is)
             u = np.nan_to_num(u)
-        i = np.clip(np.rint(u * (n - 1)), 0, n - 1).astype(np.intp)
+        # np.clip's values on a finite u (an overflow to inf clips to n - 1), without its layers
+        i = np.minimum(np.maximum(np.rint(u * (n - 1)), 0), n - 1).astype(np.intp)
         out = out[where[i]]
     if out.size == 0:
         return 0.0
