@@ -57,6 +57,7 @@ from threadrecon.core.check_beyond import (
     beyond_ends,
     bridge_stray,
     cut_end,
+    end_frames_kept,
     end_occluder,
     extension,
     extension_far,
@@ -575,7 +576,9 @@ def check_curve(
     p: CheckParams = CheckParams(),
 ) -> CheckResult:
     """Check the camera-frame curve against the images, the depth range and the bounds."""
-    with np.errstate(all="ignore"):  # a diverged curve overflows: it is reported, not warned
+    # a diverged curve overflows: it is reported, not warned; each free end's frame is taken
+    # once a run (check_beyond.end_frames_kept)
+    with np.errstate(all="ignore"), end_frames_kept():
         return _check(lifted, stereo, rel, ordering, bounds, spline, curve, calib, p)
 
 
@@ -647,7 +650,8 @@ def _check(
     # is left out of the reprojection figures and judged by its unobserved 3D length instead.
     mm = calib.mm_per_unit
     # (np.diff's own subtraction, without its layers)
-    step3 = row_norms(pts[1:] - pts[:-1]) * mm
+    d3 = row_norms(pts[1:] - pts[:-1])  # 3D steps, calib units (the grasp point's too)
+    step3 = d3 * mm
     step = row_norms(uv_l[1:] - uv_l[:-1])
     step_r = row_norms(uv_r[1:] - uv_r[:-1])
     off_l, off_r = in_l & (rho_l > p.jump_px), in_r & (rho_r > p.jump_px)
@@ -677,7 +681,7 @@ def _check(
     # Each bridge is judged by what can be checked (no loop, not over bare background); an
     # evidenced one is allowed up to max_bridge_mm, any other one up to
     # max_unobserved_mm. Its points get a growing expected error (below) instead.
-    s3 = np.concatenate([[0.0], np.cumsum(step3)])
+    s3 = np.concatenate([[0.0], step3.cumsum()])
     bridge_gap = np.zeros(n)  # mm along the curve to the nearest observed end of a bridge
     worst: tuple[float, str] | None = None
     for i0, i1 in _runs(bridge_l) + _runs(bridge_r):
@@ -711,11 +715,13 @@ def _check(
         ("right", rho_r, in_r & ~bridge_r & ~hidden_r),
     )
     for side, rho, inside in views:
-        if inside.sum() < 2:
+        count = int(inside.sum())
+        if count < 2:
             findings.append(("failed", f"the curve lies outside the {side} image"))
             rep += [float("nan"), float("nan")]
             continue
-        mean, mx = float(rho[inside].mean()), float(rho[inside].max())
+        seen = rho[inside]  # the mean as np.mean takes it: numpy's sum over the count
+        mean, mx = float(seen.sum() / count), float(seen.max())
         rep += [mean, mx]
         if mx > p.reproj_fail_px:
             findings.append(
@@ -735,7 +741,7 @@ def _check(
         disp = uv_l[:, 0] - uv_r[:, 0]
         disp = disp[in_l & in_r & np.isfinite(disp)]
         if disp.size:
-            d_lo = float(np.min(disp))
+            d_lo = float(disp.min())
             view_l = _columns_within(view_l, d_lo, float(W))  # the right view sees x - d
             view_r = _columns_within(view_r, float("-inf"), W - 1 - d_lo + 1e-9)
     cov_l = _coverage(view_l, uv_l, in_l, p.cover_px)
@@ -747,8 +753,10 @@ def _check(
                  f"(at least {100 * p.coverage_min:.0f} % expected)")
             )  # fmt: skip
     one_view = (in_l & ~in_r) | hidden_l | hidden_r
-    unseen_px = float(np.where(one_view, np.append(step, 0.0), 0.0).sum())
-    unseen_mm = float(np.where(one_view, np.append(step3, 0.0), 0.0).sum())
+    unseen_px = unseen_mm = 0.0  # (a sum of zeros: no point seen in one view only)
+    if one_view.any():
+        unseen_px = float(np.where(one_view, np.concatenate((step, [0.0])), 0.0).sum())
+        unseen_mm = float(np.where(one_view, np.concatenate((step3, [0.0])), 0.0).sum())
     if unseen_mm > p.max_unobserved_mm:
         findings.append(
             ("suspect", f"{unseen_mm:.1f} mm ({unseen_px:.0f} px) of the curve lie outside the "
@@ -906,8 +914,8 @@ def _check(
 
     # Length against the 2D path length and the depth span of the bounds.
     path_px = float(bounds.s[-1])
-    z_lo = float(max(np.min(bounds.lower), z_allowed[0]))
-    z_hi = float(min(np.max(bounds.upper), z_allowed[1]))
+    z_lo = float(max(bounds.lower.min(), z_allowed[0]))
+    z_hi = float(min(bounds.upper.max(), z_allowed[1]))
     L_min = path_px * z_lo / f
     L_max = path_px * z_hi / f + p.depth_turns * max(z_hi - z_lo, 0.0)
     length = float(curve.length)
@@ -931,7 +939,7 @@ def _check(
     # Ordering anomalies (2): crossings of the thread pixels, overlaps the pixels do not show.
     K = ordering.n_clusters
     degree = np.bincount(ordering.edges.ravel(), minlength=K) if ordering.edges.size else []
-    crossings = int(np.sum(np.asarray(degree) >= p.crossing_degree))
+    crossings = int((np.asarray(degree) >= p.crossing_degree).sum())
     z_pos = np.maximum(z, 1e-12)
     # a reliable match sharing its right strand with one of its row too far away in the left
     # view to be that strand is no observation of the depth (one of the two is not seen)
@@ -978,7 +986,7 @@ def _check(
     # A point where the projection turns back, with the curve heading back from it to an end
     # (core/check_fold.end_reversal), the branch on the surface and the rest in front of it:
     # a mark on the surface joined to the thread there.
-    rev = end_reversal(uv_l, s3) if p.end_reversal else None
+    rev = end_reversal(uv_l, s3, step) if p.end_reversal else None
     if (
         rev is not None
         and rev.length > p.max_unobserved_mm
@@ -1045,7 +1053,7 @@ def _check(
     )
     pe = point_errors(
         z_pos, (z <= 0) | (z_right <= 0), r, rho, bridge_gap, step, s3, spline, f, f * B, mm, p,
-        s2=s2,
+        s2=s2, supported=supported,
     )  # fmt: skip
     e_mm, lateral, conf = pe.e_mm, pe.lateral_mm, pe.confidence
 
@@ -1059,7 +1067,7 @@ def _check(
     ambiguous = float((step3 * (amb[1:] | amb[:-1])).sum())
     status: Status = max((s for s, _ in findings), key=_RANK.__getitem__, default="ok")
     score, rating = quality_score(e_mm, status, p)
-    grasp = grasp_point(pts, conf, uv_l, uv_r, (H, W), mm, p)
+    grasp = grasp_point(pts, conf, uv_l, uv_r, (H, W), mm, p, d3)
     return CheckResult(
         status=status,
         reasons=tuple(msg for _, msg in sorted(findings, key=lambda x: -_RANK[x[0]])),
@@ -1327,7 +1335,8 @@ def _excursion(
         u = spline.u_H / spline.length if spline.length > 0 else np.zeros(len(out))
         if not np.isfinite(u).all():  # (nan_to_num leaves a finite array as it is)
             u = np.nan_to_num(u)
-        i = np.clip(np.rint(u * (n - 1)), 0, n - 1).astype(np.intp)
+        # np.clip's values on a finite u (an overflow to inf clips to n - 1), without its layers
+        i = np.minimum(np.maximum(np.rint(u * (n - 1)), 0), n - 1).astype(np.intp)
         out = out[where[i]]
     if out.size == 0:
         return 0.0

@@ -13,8 +13,10 @@ Thread pixels are split into 8-connected pieces once per segmentation (``check_f
 
 from __future__ import annotations
 
+import contextlib
 import math
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -117,7 +119,40 @@ def beyond_ends(
     return found
 
 
+_FRAMES = threading.local()  # .memo: one check run's end frames (end_frames_kept), or None
+
+
+@contextlib.contextmanager
+def end_frames_kept() -> Iterator[None]:
+    """Within this block (one run of the check, whose curve projections are not changed after
+    they are made), ``_end_frame`` keeps its result for each projection object and end: the
+    rules that read a free end's tip and way (the extension, the cut, the occluder, the pieces
+    beyond) take it ~6 times a run from two or four distinct (view, end) pairs. Per thread
+    (the server runs pipelines in several); the results are dropped at the block's end."""
+    before = getattr(_FRAMES, "memo", None)
+    _FRAMES.memo = {}
+    try:
+        yield
+    finally:
+        _FRAMES.memo = before
+
+
 def _end_frame(uv: np.ndarray, end: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """``_end_frame_of(uv, end)``, kept by the object ``uv`` inside ``end_frames_kept`` (the
+    same result: the function of the same array; the entry holds ``uv``, so its id is not
+    reused while kept)."""
+    memo = getattr(_FRAMES, "memo", None)
+    if memo is None:
+        return _end_frame_of(uv, end)
+    hit = memo.get((id(uv), end))
+    if hit is not None and hit[0] is uv:
+        return hit[1]
+    fr = _end_frame_of(uv, end)
+    memo[(id(uv), end)] = (uv, fr)
+    return fr
+
+
+def _end_frame_of(uv: np.ndarray, end: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The finite curve samples, the ``end``'s tip and its outward unit direction (over
     END_SAMPLES samples); None for a curve too short or without direction.
 

@@ -89,7 +89,7 @@ class Reversal:
     at_px: float = 0.0
 
 
-def end_reversal(uv: np.ndarray, s3: np.ndarray) -> Reversal | None:
+def end_reversal(uv: np.ndarray, s3: np.ndarray, step: np.ndarray | None = None) -> Reversal | None:
     """The longest end branch of the curve beyond a point where its left projection turns
     back, or None.
 
@@ -104,12 +104,15 @@ def end_reversal(uv: np.ndarray, s3: np.ndarray) -> Reversal | None:
     they came, a hairpin seen across turns back over more than 2 ``REVERSAL_ARM_PX``. The
     geometry alone does not tell a joined branch from a loop (the check's stereo test of the
     surface beside it does: core/check.py). ``uv``: (N, 2) left projection; ``s3``: (N,) the
-    curve's cumulative 3D length. The branch is the stretch from the point to that end (the
-    shorter one when both sides head back)."""
+    curve's cumulative 3D length; ``step``: (N-1,) ``row_norms(uv[1:] - uv[:-1])`` when the
+    caller has it. The branch is the stretch from the point to that end (the shorter one when
+    both sides head back)."""
     uv = np.asarray(uv, dtype=np.float64)
     if len(uv) < 3 or not np.isfinite(uv).all():
         return None
-    s = np.concatenate([[0.0], row_norms(uv[1:] - uv[:-1]).cumsum()])  # (np.diff's subtraction)
+    if step is None:
+        step = row_norms(uv[1:] - uv[:-1])  # (np.diff's subtraction)
+    s = np.concatenate([[0.0], step.cumsum()])
     arm, chord = REVERSAL_ARM_PX, REVERSAL_CHORD_PX
     if s[-1] < 2.0 * arm + 2.0:
         return None

@@ -69,6 +69,7 @@ def point_errors(
     mm: float,
     p: CheckParams,
     s2: np.ndarray | None = None,
+    supported: np.ndarray | None = None,
 ) -> PointErrors:
     """The expected error e_i and confidence of each curve point (core/check.py's docstring).
 
@@ -76,14 +77,16 @@ def point_errors(
     camera; ``r``: (N,) disparity residuals (px); ``rho``: (N,) reprojection distance (px, 0
     where the view does not count); ``bridge_gap``: (N,) mm into a bridge; ``step``: (N-1,) px
     steps of the left projection; ``s3``: (N,) arc length (mm); ``f``, ``fB`` in px and
-    px * calib units; ``mm``: mm per calib unit; ``s2``: ``arc_px(step)`` when the caller
-    has it.
+    px * calib units; ``mm``: mm per calib unit; ``s2``: ``arc_px(step)`` and ``supported``:
+    ``r <= p.support_tol_px`` when the caller has them.
     """
     rho = np.maximum(rho - PIXEL_HALF_DIAGONAL, 0.0)  # inside a thread pixel's cell: on it
     lateral = z_pos / f * rho * mm + p.bridge_error * bridge_gap  # bridges: interpolated
     e_mm = _expected_error(z_pos, r, step, s3, spline, fB, p, s2)
     # unsupported stretches are interpolated like a bridge: drift from the nearest supported point
-    drift = p.bridge_error * np.maximum(bridge_gap, _unsupported_gap(s3, r <= p.support_tol_px))
+    if supported is None:
+        supported = r <= p.support_tol_px
+    drift = p.bridge_error * np.maximum(bridge_gap, _unsupported_gap(s3, supported))
     e_mm = e_mm * mm + z_pos / f * rho * mm + drift
     e_mm[behind] = np.inf
     conf = np.exp(-e_mm / p.conf_mm)
@@ -216,9 +219,13 @@ def grasp_point(
     shape: tuple[int, int],
     mm: float,
     p: CheckParams,
+    d3: np.ndarray | None = None,
 ) -> GraspPoint | None:
-    """The most confident point within ``grasp_window_mm`` of ``grasp_mm`` from the free end."""
-    s = np.concatenate([[0.0], row_norms(pts[1:] - pts[:-1]).cumsum()]) * mm  # (np.diff's)
+    """The most confident point within ``grasp_window_mm`` of ``grasp_mm`` from the free end.
+    ``d3``: (N-1,) ``row_norms(pts[1:] - pts[:-1])`` (calib units) when the caller has it."""
+    if d3 is None:
+        d3 = row_norms(pts[1:] - pts[:-1])  # (np.diff's subtraction)
+    s = np.concatenate([[0.0], d3.cumsum()]) * mm
     if not np.isfinite(s[-1]):
         return None
     from_start, from_end = s, s[-1] - s
@@ -239,7 +246,7 @@ def grasp_point(
                 m = min(xs.min(), ys.min(), W - 1 - xs.max(), H - 1 - ys.max())
             at_border[end] = not (m >= p.border_px)
         ends = [e for e in ("start", "end") if not at_border[e]] or ["start", "end"]
-        best = max(ends, key=lambda e: float(conf[near[e]].mean()) if near[e].any() else -1.0)
+        best = max(ends, key=lambda e: _mean(conf[near[e]]) if near[e].any() else -1.0)
     else:
         best = p.free_end
     cand = np.flatnonzero(near[best])
@@ -259,6 +266,12 @@ def grasp_point(
         from_end=best,
         distance=float(dist[i] / mm),
     )
+
+
+def _mean(x: np.ndarray) -> float:
+    """``float(x.mean())`` of a non-empty 1-D float64 array: numpy's sum (the same pairwise
+    reduction) over the count, without ``_methods._mean``'s layers."""
+    return float(x.sum() / x.size)
 
 
 def _gradient_at(pts: np.ndarray, i: int) -> np.ndarray:

@@ -8,10 +8,12 @@ from support import suite_frame
 
 from threadrecon.core.check_beyond import (
     _end_frame,
+    _end_frame_of,
     _Once,
     beyond_ends,
     bridge_stray,
     cut_end,
+    end_frames_kept,
     end_occluder,
     extension,
     extension_far,
@@ -522,6 +524,29 @@ def test_the_end_frame_is_its_definition_bit_for_bit() -> None:
             if got is not None:
                 for a, b in zip(got, want, strict=True):
                     assert a.tobytes() == b.tobytes()
+
+
+def test_end_frames_kept_in_a_run_are_each_arrays_own() -> None:
+    """Inside ``end_frames_kept`` (one check run) an array's end frame is taken once and read
+    again as the same objects; another array, even with the values of the first changed, has
+    its own; outside the block nothing is kept (a caller may change its array between calls)."""
+    rng = np.random.default_rng(20)
+    uv = np.cumsum(rng.normal(size=(40, 2)), axis=0)
+    other = uv.copy()
+    other[-9:] += 5.0
+    with end_frames_kept():
+        first = _end_frame(uv, "end")
+        assert _end_frame(uv, "end") is first
+        for a, b in zip(first, _end_frame_of(uv, "end"), strict=True):
+            assert a.tobytes() == b.tobytes()
+        for a, b in zip(_end_frame(other, "end"), _end_frame_of(other, "end"), strict=True):
+            assert a.tobytes() == b.tobytes()
+        start = _end_frame(uv, "start")
+        assert start is not first
+        assert start[1].tobytes() == _end_frame_of(uv, "start")[1].tobytes()
+    before = _end_frame(uv, "end")[1].copy()  # (the tip is a view of uv)
+    uv[-9:] += 5.0  # changed in place: outside a run the frame is taken anew
+    assert _end_frame(uv, "end")[1].tobytes() != before.tobytes()
 
 
 def test_plain_surface_of_a_non_finite_end_is_none() -> None:

@@ -57,6 +57,46 @@ def test_band_counts_at_or_above_the_stop_distance_are_exact() -> None:
                 assert np.count_nonzero(fast <= T) == np.count_nonzero(exact <= T)
 
 
+def _band_two_passes(cols, row_ptr, ox, oy, xy, r, done):  # noqa: ANN001, ANN202
+    """``_band_best`` as two full passes over every thread pixel (the kernel's own pass run as
+    Python): the first over the boxes grown by sqrt(done), the second over the r boxes."""
+    m = len(xy)
+    seg = np.zeros((max(m - 1, 1), 5))
+    for k in range(len(seg)):
+        k1 = min(k + 1, m - 1)
+        dx, dy = xy[k1, 0] - xy[k, 0], xy[k1, 1] - xy[k, 1]
+        ll = dx * dx + dy * dy
+        seg[k] = xy[k, 0], xy[k, 1], dx, dy, 1.0 / ll if ll > 0.0 else 0.0
+    best = np.full(len(cols), np.inf)
+    band_pass = check_kernel._band_pass.fn
+    if done > 0.0:
+        band_pass(cols, row_ptr, ox, oy, xy, seg, best, min(math.sqrt(done), r), done)
+    band_pass(cols, row_ptr, ox, oy, xy, seg, best, r, done)
+    return best[best <= r * r]
+
+
+def test_band_second_pass_over_the_unsettled_pixels_is_both_full_passes() -> None:
+    """The kernel's second pass runs over the pixels the first left above ``done`` only: bit
+    for bit the values of two passes over every pixel (a settled pixel is skipped by its
+    first test there), and above ``done`` the exact distances."""
+    rng = np.random.default_rng(12)
+    for trial in range(12):
+        mask = (rng.random((50, 64)) < (0.2, 0.5, 0.9)[trial % 3]).astype(np.uint8)
+        xy = np.ascontiguousarray(np.cumsum(rng.normal(0, 2.5, (30, 2)), axis=0) + [32, 25])
+        rows, cols = np.nonzero(mask)
+        row_ptr = np.searchsorted(rows, np.arange(mask.shape[0] + 1)).astype(np.int64)
+        cols = cols.astype(np.int64)
+        for r, done in ((11.5, 4.5**2), (11.5, 3.5**2), (3.0, 4.5**2), (9.5, 0.0)):
+            got = check_kernel.band_d2(cols, row_ptr, -2.0, 1.0, xy, r, done)
+            want = _band_two_passes(cols, row_ptr, -2.0, 1.0, xy, r, done)
+            assert got.tobytes() == want.tobytes()
+            if r * r < done:
+                continue  # (a band narrower than the stop distance: only counts above it hold)
+            exact = band_d2(mask, -2.0, 1.0, xy, r)
+            assert got[exact > done].tobytes() == exact[exact > done].tobytes()
+            assert np.array_equal(got <= done, exact <= done)
+
+
 def test_band_counts_agree_with_a_drawn_thick_polyline() -> None:
     """The geometric band (centre within r + 1.5: OpenCV's rectangles of half-width r + 1 and
     discs of radius r + 1 for a line 2 r + 1 px wide, grown by the half pixel its filling
