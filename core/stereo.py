@@ -470,6 +470,7 @@ def _energy_kernel(
     c0 = np.empty(n)  # (I_L(p') - lift)^2: the cost against the lifted background
     for j in range(n):
         c0[j] = (I_L_p[j] - lift) ** 2
+    q_rev = q_val[::-1].copy()  # a run of right pixels meets the disparities in reverse
     d_from = 0 if store else d_lo
     out = np.empty((t if store else 0, d_hi + 1), dtype=np.float32)
     row = np.empty(d_hi + 1, dtype=np.float32)
@@ -490,14 +491,14 @@ def _energy_kernel(
         yi, xi = ty[i], tx[i]
         if yi == prev_y and xi - prev_x <= 2 * r:
             for x in range(prev_x + 1, xi + 1):  # slide the window one column at a time
-                _add_column(x - 1 - r, yi, -1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base, cursor[1], stamp[1], gen)  # fmt: skip
-                _add_column(x + r, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base, cursor[0], stamp[0], gen)  # fmt: skip
+                _add_column(x - 1 - r, yi, -1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_rev, q_run, x0, d_from, d_hi, acc, base, cursor[1], stamp[1], gen)  # fmt: skip
+                _add_column(x + r, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_rev, q_run, x0, d_from, d_hi, acc, base, cursor[0], stamp[0], gen)  # fmt: skip
         else:
             acc[:] = 0.0
             base[0] = 0.0
             gen += 1  # a new window: every cursor is stale
             for xx in range(xi - r, xi + r + 1):
-                _add_column(xx, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base, cursor[0], stamp[0], gen)  # fmt: skip
+                _add_column(xx, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_rev, q_run, x0, d_from, d_hi, acc, base, cursor[0], stamp[0], gen)  # fmt: skip
         d_min[i], d_next[i], E_min[i], E_next[i] = _fill_best_two(
             row, base[0], acc, d_from, d_lo, NEXT_GAP
         )
@@ -520,7 +521,7 @@ def _add_column(
     I_L_p,
     q_ptr,
     q_col,
-    q_val,
+    q_rev,
     q_run,
     x0,
     d_from,
@@ -531,9 +532,11 @@ def _add_column(
     stamp,
     gen,
 ):  # noqa: ANN001
-    """Add (sign 1) or remove (-1) the window column xx of the pixel in row yi. ``cursor``,
-    ``stamp``: this side's per-row first right pixel with d <= d_hi, and the window (``gen``)
-    it was found for (else a binary search finds it)."""
+    """Add (sign 1) or remove (-1) the window column xx of the pixel in row yi. ``q_rev``:
+    the right pixels' I_R in reverse order (``q_val[::-1]``). ``cursor``, ``stamp``: this
+    side's per-row first right pixel with d <= d_hi, and the window (``gen``) it was found for
+    (else a binary search finds it)."""
+    nq = q_rev.size
     if xx < 0 or xx >= w:
         return
     xa = xx + x0
@@ -555,8 +558,13 @@ def _add_column(
         while k < q_b and q_col[k] <= xa - d_from:  # d >= d_from
             dk = xa - q_col[k]  # a run of adjacent columns: consecutive disparities from dk down
             e = min(q_run[k], k + dk - d_from + 1)
-            for i in range(e - k):  # each d once: the same sums in the same order per d
-                acc[dk - i] += sign * ((vl - q_val[k + i]) ** 2 - cj)
+            # d = dk - i takes q_val[k + i] = q_rev[nq - 1 - k - i]: both read forwards on
+            # slices (indices from 0, no wraparound test), so the loop vectorises; each d once,
+            # the same sum in the same order per d
+            a = acc[dk - (e - k) + 1 : dk + 1]
+            b = q_rev[nq - e : nq - k]
+            for i in range(e - k):
+                a[i] += sign * ((vl - b[i]) ** 2 - cj)
             k = e
 
 
