@@ -571,30 +571,59 @@ def _add_column(
 @helper(inline="always")
 def _fill_best_two(row, base, acc, d_from, d_lo, gap):  # noqa: ANN001
     """Write one pixel's curve row[d] = base + acc[d] (float32, d = d_from..d_hi) and apply
-    Eq. (3) to it: d_min = argmin over [d_lo, d_hi] (found while writing: one pass less);
-    d_next = argmin over |d - d_min| > gap (first index on ties, as np.argmin); E_next = inf
-    when no such d exists."""
+    Eq. (3) to it: d_min = argmin over [d_lo, d_hi]; d_next = argmin over |d - d_min| > gap
+    (first index on ties, as np.argmin); E_next = inf when no such d exists."""
     m = row.size
-    for d in range(d_from, d_lo):
-        row[d] = base + acc[d]
-    vb = np.float32(base + acc[d_lo])
-    row[d_lo] = vb
-    best = d_lo
-    for d in range(d_lo + 1, m):
-        v = np.float32(base + acc[d])
-        row[d] = v
-        if v < vb:
-            best, vb = d, v
-    nxt, vn = -1, np.float32(np.inf)
-    for d in range(d_lo, max(d_lo, best - gap)):
-        if row[d] < vn:
-            nxt, vn = d, row[d]
-    for d in range(best + gap + 1, m):
-        if row[d] < vn:
-            nxt, vn = d, row[d]
+    r_s, a_s = row[d_from:], acc[d_from:]
+    for t in range(m - d_from):  # one vectorised pass
+        r_s[t] = base + a_s[t]
+    best, vb = _first_min(row, d_lo, m)
+    if best < 0 or row[d_lo] != row[d_lo]:  # nothing below inf, or a NaN first: a scan from
+        best, vb = d_lo, row[d_lo]  # row[d_lo] keeps it
+    nxt, vn = _first_min(row, d_lo, max(d_lo, best - gap))
+    n2, v2 = _first_min(row, best + gap + 1, m)
+    if n2 >= 0 and (nxt < 0 or v2 < vn):  # the lower range wins ties: the first index
+        nxt, vn = n2, v2
     if nxt < 0:
         return best, (d_lo if best - d_lo > gap else m - 1), float(vb), np.inf
     return best, nxt, float(vb), float(vn)
+
+
+@helper(inline="always")
+def _first_min(v, lo, hi):  # noqa: ANN001
+    """What the scan ``i, x = -1, inf; for t in lo..hi-1: if v[t] < x: i, x = t, v[t]`` finds:
+    the first index of the least value below inf, NaN skipped (-1, inf when none). Eight
+    running minima over interleaved elements (they vectorise; one running minimum with its
+    index does not), then the first element equal to their least (-0.0 == 0.0: the first of
+    either, as the scan)."""
+    n = hi - lo
+    inf = np.float32(np.inf)
+    if n <= 0:
+        return -1, inf
+    s = v[lo:hi]
+    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = inf
+    for b in range(n >> 3):
+        o = b << 3
+        x0, x1, x2, x3 = s[o], s[o + 1], s[o + 2], s[o + 3]
+        x4, x5, x6, x7 = s[o + 4], s[o + 5], s[o + 6], s[o + 7]
+        m0 = x0 if x0 < m0 else m0
+        m1 = x1 if x1 < m1 else m1
+        m2 = x2 if x2 < m2 else m2
+        m3 = x3 if x3 < m3 else m3
+        m4 = x4 if x4 < m4 else m4
+        m5 = x5 if x5 < m5 else m5
+        m6 = x6 if x6 < m6 else m6
+        m7 = x7 if x7 < m7 else m7
+    for t in range((n >> 3) << 3, n):
+        m0 = s[t] if s[t] < m0 else m0
+    for x in (m1, m2, m3, m4, m5, m6, m7):
+        m0 = x if x < m0 else m0
+    if not m0 < inf:
+        return -1, inf
+    for t in range(n):
+        if s[t] == m0:
+            return lo + t, s[t]
+    return -1, inf  # not reached: m0 is one of s
 
 
 @kernel(
