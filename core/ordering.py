@@ -1526,15 +1526,25 @@ def _second_pass(
     cos_max = _cos_deg(p.max_turn_deg)
     ref = _ref_disparity(walk, n, g)
     best: dict[int, float] = {}
-    index: dict[int, int] | None = None
+    path_l: list[int] | None = None
     for jn in g.adj[cur]:
         if not visited[jn] or jn == prev or degree[jn] < 3:
             continue
-        if index is None:
-            index = {int(k): i for i, k in enumerate(walk[: n - 1].tolist())}
-        i = index.get(int(jn))
-        if i is None:
+        if path_l is None:
+            path = walk[: n - 1]
+            path_l = path.tolist()
+            # once per call: the path's step lengths (the same hypot per step, either way), and
+            # which of its keypoints have an unvisited neighbour (the only ones a way can leave
+            # at: past the others the way only runs on, and their heading is never read)
+            step_px = np.diff(pos[path], axis=0)
+            step_px = np.hypot(step_px[:, 0], step_px[:, 1]).tolist()
+            exit_kp = np.zeros(len(degree), dtype=bool)
+            exit_kp[np.repeat(np.arange(len(degree)), degree)[~visited[g.indices]]] = True
+            exits = exit_kp[path].tolist()
+        at = np.flatnonzero(path == jn)  # a walk visits a keypoint once
+        if not at.size:
             continue
+        i = int(at[0])
         for sgn in (1, -1):  # along the path either way from the junction
             u, j = int(jn), i
             if not 0 <= j + sgn < n - 1:
@@ -1549,7 +1559,7 @@ def _second_pass(
                 break
             head = head / run
             while run <= p.retrace_px:
-                for v in g.adj[u]:
+                for v in g.adj[u] if exits[j] else ():
                     if visited[v]:
                         continue
                     out = pos[v] - pos[u]
@@ -1564,12 +1574,13 @@ def _second_pass(
                 j += sgn
                 if not 0 <= j < n - 1:
                     break
-                w = int(walk[j])
-                step = pos[w] - pos[u]
-                s = float(np.hypot(*step))
+                w = path_l[j]
+                s = step_px[j - 1 if sgn > 0 else j]  # |pos[w] - pos[u]|
                 if s <= 0:
                     break
-                head, run, u = step / s, run + s, w  # the path's own turns: no test
+                if exits[j]:
+                    head = (pos[w] - pos[u]) / s
+                run, u = run + s, w  # the path's own turns: no test
     if not best:
         return [], np.zeros(0), 1, []
     cand = sorted(best)
