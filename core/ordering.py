@@ -1013,7 +1013,7 @@ def _split_shared(
         if not sel.size:
             continue
         xy = pixels[sel].astype(np.int64)
-        D = np.column_stack([_curve_distance(xy, i, path_xy) for i in ls])
+        D = _curve_distances(xy, ls, path_xy)
         best = np.argmin(D, axis=1)
         tie = np.sort(D, axis=1)[:, 1] == D[np.arange(len(sel)), best]
         out[sel] = np.where(tie, -1, np.array(ls)[best])
@@ -1026,6 +1026,47 @@ def _with_node(geo: _GapGeodesics, node: np.ndarray) -> _GapGeodesics:
     split = copy.copy(geo)
     split.node = node
     return split
+
+
+_PAIRS_DIRECT = 50_000  # pixels x curve samples up to which a gap's links are measured at once
+# by the least integer squared distance ((P, M) int64: 0.4 MB), above by a transform per link
+
+
+def _curve_distances(xy: np.ndarray, links: list[int], path_xy: np.ndarray) -> np.ndarray:
+    """(P, m) px: :func:`_curve_distance` of the pixels ``xy`` (P, 2) int to each link of
+    ``links`` (m), the same values: the curves sampled and rounded as it does (its linspace's
+    and polynomial's operations, element by element, on every link's samples at once) and the
+    distance transform's value, the float32 square root of the least integer squared distance
+    to a sample, taken directly (a gap on several links is ~5 links of a few px at 1920x1080,
+    where each transform and its curve cost ~25 numpy calls)."""
+    i = np.asarray(links, dtype=np.int64)
+    last = len(path_xy) - 1
+    a, b = path_xy[i], path_xy[i + 1]
+    chord = b - a
+    L = np.hypot(chord[:, 0], chord[:, 1])
+    num = np.maximum(2, np.ceil(2 * L).astype(np.int64) + 1)
+    if len(xy) * int(num.sum()) > _PAIRS_DIRECT:
+        return np.column_stack([_curve_distance(xy, k, path_xy) for k in links])
+    t_a = np.where((i >= 1)[:, None], a - path_xy[np.maximum(i - 1, 0)], chord)
+    t_b = np.where((i + 2 <= last)[:, None], path_xy[np.minimum(i + 2, last)] - b, chord)
+    t_a = t_a / np.maximum(np.hypot(t_a[:, 0], t_a[:, 1]), 1e-9)[:, None] * L[:, None]
+    t_b = t_b / np.maximum(np.hypot(t_b[:, 0], t_b[:, 1]), 1e-9)[:, None] * L[:, None]
+    starts = np.cumsum(num) - num
+    link = np.repeat(np.arange(len(i)), num)
+    s = (np.arange(len(link)) - starts[link]).astype(np.float64)  # np.linspace(0, 1, num):
+    s *= (1.0 / (num - 1))[link]  # k * (1 / (num - 1)) + 0.0, its last 1.0
+    s += 0.0
+    s[starts + num - 1] = 1.0
+    s = s[:, None]
+    curve = (
+        (1 + 2 * s) * (1 - s) ** 2 * a[link]
+        + s * (1 - s) ** 2 * t_a[link]
+        + s**2 * (3 - 2 * s) * b[link]
+        - s**2 * (1 - s) * t_b[link]
+    )
+    c = np.round(curve).astype(np.int64)
+    d2 = ((xy[:, None, :] - c[None, :, :]) ** 2).sum(axis=2)
+    return np.sqrt(np.minimum.reduceat(d2, starts, axis=1).astype(np.float32)).astype(np.float64)
 
 
 def _curve_distance(xy: np.ndarray, i: int, path_xy: np.ndarray) -> np.ndarray:
