@@ -1013,7 +1013,7 @@ def _split_shared(
         if not sel.size:
             continue
         xy = pixels[sel].astype(np.int64)
-        D = np.column_stack([_curve_distance(xy, i, path_xy) for i in ls])
+        D = _curve_distances(xy, ls, path_xy)
         best = np.argmin(D, axis=1)
         tie = np.sort(D, axis=1)[:, 1] == D[np.arange(len(sel)), best]
         out[sel] = np.where(tie, -1, np.array(ls)[best])
@@ -1026,6 +1026,47 @@ def _with_node(geo: _GapGeodesics, node: np.ndarray) -> _GapGeodesics:
     split = copy.copy(geo)
     split.node = node
     return split
+
+
+_PAIRS_DIRECT = 50_000  # pixels x curve samples up to which a gap's links are measured at once
+# by the least integer squared distance ((P, M) int64: 0.4 MB), above by a transform per link
+
+
+def _curve_distances(xy: np.ndarray, links: list[int], path_xy: np.ndarray) -> np.ndarray:
+    """(P, m) px: :func:`_curve_distance` of the pixels ``xy`` (P, 2) int to each link of
+    ``links`` (m), the same values: the curves sampled and rounded as it does (its linspace's
+    and polynomial's operations, element by element, on every link's samples at once) and the
+    distance transform's value, the float32 square root of the least integer squared distance
+    to a sample, taken directly (a gap on several links is ~5 links of a few px at 1920x1080,
+    where each transform and its curve cost ~25 numpy calls)."""
+    i = np.asarray(links, dtype=np.int64)
+    last = len(path_xy) - 1
+    a, b = path_xy[i], path_xy[i + 1]
+    chord = b - a
+    L = np.hypot(chord[:, 0], chord[:, 1])
+    num = np.maximum(2, np.ceil(2 * L).astype(np.int64) + 1)
+    if len(xy) * int(num.sum()) > _PAIRS_DIRECT:
+        return np.column_stack([_curve_distance(xy, k, path_xy) for k in links])
+    t_a = np.where((i >= 1)[:, None], a - path_xy[np.maximum(i - 1, 0)], chord)
+    t_b = np.where((i + 2 <= last)[:, None], path_xy[np.minimum(i + 2, last)] - b, chord)
+    t_a = t_a / np.maximum(np.hypot(t_a[:, 0], t_a[:, 1]), 1e-9)[:, None] * L[:, None]
+    t_b = t_b / np.maximum(np.hypot(t_b[:, 0], t_b[:, 1]), 1e-9)[:, None] * L[:, None]
+    starts = np.cumsum(num) - num
+    link = np.repeat(np.arange(len(i)), num)
+    s = (np.arange(len(link)) - starts[link]).astype(np.float64)  # np.linspace(0, 1, num):
+    s *= (1.0 / (num - 1))[link]  # k * (1 / (num - 1)) + 0.0, its last 1.0
+    s += 0.0
+    s[starts + num - 1] = 1.0
+    s = s[:, None]
+    curve = (
+        (1 + 2 * s) * (1 - s) ** 2 * a[link]
+        + s * (1 - s) ** 2 * t_a[link]
+        + s**2 * (3 - 2 * s) * b[link]
+        - s**2 * (1 - s) * t_b[link]
+    )
+    c = np.round(curve).astype(np.int64)
+    d2 = ((xy[:, None, :] - c[None, :, :]) ** 2).sum(axis=2)
+    return np.sqrt(np.minimum.reduceat(d2, starts, axis=1).astype(np.float32)).astype(np.float64)
 
 
 def _curve_distance(xy: np.ndarray, i: int, path_xy: np.ndarray) -> np.ndarray:
@@ -1526,15 +1567,25 @@ def _second_pass(
     cos_max = _cos_deg(p.max_turn_deg)
     ref = _ref_disparity(walk, n, g)
     best: dict[int, float] = {}
-    index: dict[int, int] | None = None
+    path_l: list[int] | None = None
     for jn in g.adj[cur]:
         if not visited[jn] or jn == prev or degree[jn] < 3:
             continue
-        if index is None:
-            index = {int(k): i for i, k in enumerate(walk[: n - 1].tolist())}
-        i = index.get(int(jn))
-        if i is None:
+        if path_l is None:
+            path = walk[: n - 1]
+            path_l = path.tolist()
+            # once per call: the path's step lengths (the same hypot per step, either way), and
+            # which of its keypoints have an unvisited neighbour (the only ones a way can leave
+            # at: past the others the way only runs on, and their heading is never read)
+            step_px = np.diff(pos[path], axis=0)
+            step_px = np.hypot(step_px[:, 0], step_px[:, 1]).tolist()
+            exit_kp = np.zeros(len(degree), dtype=bool)
+            exit_kp[np.repeat(np.arange(len(degree)), degree)[~visited[g.indices]]] = True
+            exits = exit_kp[path].tolist()
+        at = np.flatnonzero(path == jn)  # a walk visits a keypoint once
+        if not at.size:
             continue
+        i = int(at[0])
         for sgn in (1, -1):  # along the path either way from the junction
             u, j = int(jn), i
             if not 0 <= j + sgn < n - 1:
@@ -1549,7 +1600,7 @@ def _second_pass(
                 break
             head = head / run
             while run <= p.retrace_px:
-                for v in g.adj[u]:
+                for v in g.adj[u] if exits[j] else ():
                     if visited[v]:
                         continue
                     out = pos[v] - pos[u]
@@ -1564,12 +1615,13 @@ def _second_pass(
                 j += sgn
                 if not 0 <= j < n - 1:
                     break
-                w = int(walk[j])
-                step = pos[w] - pos[u]
-                s = float(np.hypot(*step))
+                w = path_l[j]
+                s = step_px[j - 1 if sgn > 0 else j]  # |pos[w] - pos[u]|
                 if s <= 0:
                     break
-                head, run, u = step / s, run + s, w  # the path's own turns: no test
+                if exits[j]:
+                    head = (pos[w] - pos[u]) / s
+                run, u = run + s, w  # the path's own turns: no test
     if not best:
         return [], np.zeros(0), 1, []
     cand = sorted(best)

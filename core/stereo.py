@@ -470,6 +470,7 @@ def _energy_kernel(
     c0 = np.empty(n)  # (I_L(p') - lift)^2: the cost against the lifted background
     for j in range(n):
         c0[j] = (I_L_p[j] - lift) ** 2
+    q_rev = q_val[::-1].copy()  # a run of right pixels meets the disparities in reverse
     d_from = 0 if store else d_lo
     out = np.empty((t if store else 0, d_hi + 1), dtype=np.float32)
     row = np.empty(d_hi + 1, dtype=np.float32)
@@ -490,14 +491,14 @@ def _energy_kernel(
         yi, xi = ty[i], tx[i]
         if yi == prev_y and xi - prev_x <= 2 * r:
             for x in range(prev_x + 1, xi + 1):  # slide the window one column at a time
-                _add_column(x - 1 - r, yi, -1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base, cursor[1], stamp[1], gen)  # fmt: skip
-                _add_column(x + r, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base, cursor[0], stamp[0], gen)  # fmt: skip
+                _add_column(x - 1 - r, yi, -1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_rev, q_run, x0, d_from, d_hi, acc, base, cursor[1], stamp[1], gen)  # fmt: skip
+                _add_column(x + r, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_rev, q_run, x0, d_from, d_hi, acc, base, cursor[0], stamp[0], gen)  # fmt: skip
         else:
             acc[:] = 0.0
             base[0] = 0.0
             gen += 1  # a new window: every cursor is stale
             for xx in range(xi - r, xi + r + 1):
-                _add_column(xx, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_val, q_run, x0, d_from, d_hi, acc, base, cursor[0], stamp[0], gen)  # fmt: skip
+                _add_column(xx, yi, 1.0, r, index, h, w, c0, I_L_p, q_ptr, q_col, q_rev, q_run, x0, d_from, d_hi, acc, base, cursor[0], stamp[0], gen)  # fmt: skip
         d_min[i], d_next[i], E_min[i], E_next[i] = _fill_best_two(
             row, base[0], acc, d_from, d_lo, NEXT_GAP
         )
@@ -520,7 +521,7 @@ def _add_column(
     I_L_p,
     q_ptr,
     q_col,
-    q_val,
+    q_rev,
     q_run,
     x0,
     d_from,
@@ -531,9 +532,11 @@ def _add_column(
     stamp,
     gen,
 ):  # noqa: ANN001
-    """Add (sign 1) or remove (-1) the window column xx of the pixel in row yi. ``cursor``,
-    ``stamp``: this side's per-row first right pixel with d <= d_hi, and the window (``gen``)
-    it was found for (else a binary search finds it)."""
+    """Add (sign 1) or remove (-1) the window column xx of the pixel in row yi. ``q_rev``:
+    the right pixels' I_R in reverse order (``q_val[::-1]``). ``cursor``, ``stamp``: this
+    side's per-row first right pixel with d <= d_hi, and the window (``gen``) it was found for
+    (else a binary search finds it)."""
+    nq = q_rev.size
     if xx < 0 or xx >= w:
         return
     xa = xx + x0
@@ -555,38 +558,72 @@ def _add_column(
         while k < q_b and q_col[k] <= xa - d_from:  # d >= d_from
             dk = xa - q_col[k]  # a run of adjacent columns: consecutive disparities from dk down
             e = min(q_run[k], k + dk - d_from + 1)
-            for i in range(e - k):  # each d once: the same sums in the same order per d
-                acc[dk - i] += sign * ((vl - q_val[k + i]) ** 2 - cj)
+            # d = dk - i takes q_val[k + i] = q_rev[nq - 1 - k - i]: both read forwards on
+            # slices (indices from 0, no wraparound test), so the loop vectorises; each d once,
+            # the same sum in the same order per d
+            a = acc[dk - (e - k) + 1 : dk + 1]
+            b = q_rev[nq - e : nq - k]
+            for i in range(e - k):
+                a[i] += sign * ((vl - b[i]) ** 2 - cj)
             k = e
 
 
 @helper(inline="always")
 def _fill_best_two(row, base, acc, d_from, d_lo, gap):  # noqa: ANN001
     """Write one pixel's curve row[d] = base + acc[d] (float32, d = d_from..d_hi) and apply
-    Eq. (3) to it: d_min = argmin over [d_lo, d_hi] (found while writing: one pass less);
-    d_next = argmin over |d - d_min| > gap (first index on ties, as np.argmin); E_next = inf
-    when no such d exists."""
+    Eq. (3) to it: d_min = argmin over [d_lo, d_hi]; d_next = argmin over |d - d_min| > gap
+    (first index on ties, as np.argmin); E_next = inf when no such d exists."""
     m = row.size
-    for d in range(d_from, d_lo):
-        row[d] = base + acc[d]
-    vb = np.float32(base + acc[d_lo])
-    row[d_lo] = vb
-    best = d_lo
-    for d in range(d_lo + 1, m):
-        v = np.float32(base + acc[d])
-        row[d] = v
-        if v < vb:
-            best, vb = d, v
-    nxt, vn = -1, np.float32(np.inf)
-    for d in range(d_lo, max(d_lo, best - gap)):
-        if row[d] < vn:
-            nxt, vn = d, row[d]
-    for d in range(best + gap + 1, m):
-        if row[d] < vn:
-            nxt, vn = d, row[d]
+    r_s, a_s = row[d_from:], acc[d_from:]
+    for t in range(m - d_from):  # one vectorised pass
+        r_s[t] = base + a_s[t]
+    best, vb = _first_min(row, d_lo, m)
+    if best < 0 or row[d_lo] != row[d_lo]:  # nothing below inf, or a NaN first: a scan from
+        best, vb = d_lo, row[d_lo]  # row[d_lo] keeps it
+    nxt, vn = _first_min(row, d_lo, max(d_lo, best - gap))
+    n2, v2 = _first_min(row, best + gap + 1, m)
+    if n2 >= 0 and (nxt < 0 or v2 < vn):  # the lower range wins ties: the first index
+        nxt, vn = n2, v2
     if nxt < 0:
         return best, (d_lo if best - d_lo > gap else m - 1), float(vb), np.inf
     return best, nxt, float(vb), float(vn)
+
+
+@helper(inline="always")
+def _first_min(v, lo, hi):  # noqa: ANN001
+    """What the scan ``i, x = -1, inf; for t in lo..hi-1: if v[t] < x: i, x = t, v[t]`` finds:
+    the first index of the least value below inf, NaN skipped (-1, inf when none). Eight
+    running minima over interleaved elements (they vectorise; one running minimum with its
+    index does not), then the first element equal to their least (-0.0 == 0.0: the first of
+    either, as the scan)."""
+    n = hi - lo
+    inf = np.float32(np.inf)
+    if n <= 0:
+        return -1, inf
+    s = v[lo:hi]
+    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = inf
+    for b in range(n >> 3):
+        o = b << 3
+        x0, x1, x2, x3 = s[o], s[o + 1], s[o + 2], s[o + 3]
+        x4, x5, x6, x7 = s[o + 4], s[o + 5], s[o + 6], s[o + 7]
+        m0 = x0 if x0 < m0 else m0
+        m1 = x1 if x1 < m1 else m1
+        m2 = x2 if x2 < m2 else m2
+        m3 = x3 if x3 < m3 else m3
+        m4 = x4 if x4 < m4 else m4
+        m5 = x5 if x5 < m5 else m5
+        m6 = x6 if x6 < m6 else m6
+        m7 = x7 if x7 < m7 else m7
+    for t in range((n >> 3) << 3, n):
+        m0 = s[t] if s[t] < m0 else m0
+    for x in (m1, m2, m3, m4, m5, m6, m7):
+        m0 = x if x < m0 else m0
+    if not m0 < inf:
+        return -1, inf
+    for t in range(n):
+        if s[t] == m0:
+            return lo + t, s[t]
+    return -1, inf  # not reached: m0 is one of s
 
 
 @kernel(

@@ -26,6 +26,8 @@ from threadrecon.core.ordering import (
     _cluster_median,
     _ClusterGaps,
     _continuations,
+    _curve_distance,
+    _curve_distances,
     _decision_steps,
     _depth_breaks,
     _edges,
@@ -1178,3 +1180,25 @@ def test_a_walk_back_at_its_crossing_does_not_turn_back_along_the_path() -> None
     g2 = replace(g, pos=np.where((np.arange(len(ids)) == ids["c2"])[:, None], [10.0, -14.0], pos))
     cand, cost, tier, _ = _continuations(walk, len(walk), visited, g2, p)
     assert cand == [ids["t"]] and tier == 1 and np.isfinite(cost[0])
+
+
+@pytest.mark.parametrize("seed", TRIALS)
+def test_curve_distances_of_a_gaps_links_at_once_equal_one_link_at_a_time(seed: int) -> None:
+    # A path of keypoints (steps from 0 to ~40 px, whole and fractional positions, a repeated
+    # keypoint), a gap's pixels around it and several of its links, the first and the last
+    # among them (the chord as tangent): the links' distances at once, direct or (past
+    # _PAIRS_DIRECT pairs) by a transform per link, are those of _curve_distance, bit for bit.
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(3, 12))
+    steps = rng.choice([0.0, 1.0, 3.0, 8.0, 40.0], (n, 2)) * rng.choice([-1.0, 1.0], (n, 2))
+    path_xy = 200.0 + np.cumsum(steps, axis=0)
+    if seed % 2:
+        path_xy += rng.uniform(-0.5, 0.5, path_xy.shape)
+    links = sorted({0, n - 2, *rng.integers(0, n - 1, 3).tolist()})
+    for count in (int(rng.integers(1, 40)), 3000):
+        xy = np.round(path_xy[rng.integers(0, n, count)] + rng.normal(0, 6, (count, 2)))
+        xy = xy.astype(np.int64)
+        want = np.column_stack([_curve_distance(xy, i, path_xy) for i in links])
+        got = _curve_distances(xy, links, path_xy)
+        assert got.dtype == want.dtype and got.shape == want.shape
+        assert got.tobytes() == want.tobytes()

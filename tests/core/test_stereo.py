@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial import cKDTree
 from support import assert_close, calibration_for, synthetic_case, synthetic_frame
 
+from threadrecon.core import stereo
 from threadrecon.core.metrics import resample
 from threadrecon.core.segmentation import LIFT_VALUE, LiftedPair, StereoPair, segment
 from threadrecon.core.stereo import (
@@ -17,6 +18,7 @@ from threadrecon.core.stereo import (
     _Box,
     _continuity,
     _energy_kernel,
+    _fill_best_two,
     match_stereo,
     reproject,
 )
@@ -224,6 +226,55 @@ def test_energy_kernel_on_a_disparity_window_equals_the_definition(seed: int) ->
         nxt = int(np.flatnonzero(far)[np.argmin(E[i, far])])
         assert (d_min[i], E_min[i]) == (best, E[i, best])
         assert (d_next[i], E_next[i]) == (nxt, E[i, nxt])
+
+
+def _best_two_by_scan(
+    row: np.ndarray, base: float, acc: np.ndarray, d_from: int, d_lo: int, gap: int
+) -> tuple[int, int, float, float]:
+    """Eq. (3) as one scan per minimum (strict <, the first index on ties): the reference of
+    _fill_best_two's eight running minima."""
+    m = row.size
+    row[d_from:] = base + acc[d_from:]
+    best, vb = d_lo, row[d_lo]
+    for d in range(d_lo + 1, m):
+        if row[d] < vb:
+            best, vb = d, row[d]
+    nxt, vn = -1, np.float32(np.inf)
+    for d in [*range(d_lo, max(d_lo, best - gap)), *range(best + gap + 1, m)]:
+        if row[d] < vn:
+            nxt, vn = d, row[d]
+    if nxt < 0:
+        return best, (d_lo if best - d_lo > gap else m - 1), float(vb), np.inf
+    return best, nxt, float(vb), float(vn)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_best_two_by_running_minima_equals_the_scan(
+    seed: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Ties (a few levels only), -0.0 against 0.0, inf and NaN anywhere (also first), curves
+    # shorter and longer than the eight minima, a minimum at either end: the same d_min,
+    # d_next, E_min and E_next (and the same row) as the scan, bit for bit.
+    rng = np.random.default_rng(seed)
+    fill = _fill_best_two.fn  # the helpers' source, run by Python: what the kernel compiles
+    monkeypatch.setattr(stereo, "_first_min", stereo._first_min.fn)
+    for _ in range(300):
+        m = int(rng.integers(NEXT_GAP + 2, 40))
+        acc = rng.integers(-3, 4, m).astype(np.float64) * rng.choice([1.0, 0.5])
+        special = rng.random(m)
+        acc[special < 0.08] = -0.0
+        acc[(special > 0.08) & (special < 0.12)] = np.inf
+        if seed % 2:
+            acc[special > 0.95] = np.nan
+        base = float(rng.choice([0.0, -0.0, 2.0]))
+        d_from = int(rng.integers(0, 2))
+        d_lo = int(rng.integers(d_from, m - 1))
+        want_row, got_row = np.zeros(m, np.float32), np.zeros(m, np.float32)
+        want = _best_two_by_scan(want_row, base, acc, d_from, d_lo, NEXT_GAP)
+        got = fill(got_row, base, acc, d_from, d_lo, NEXT_GAP)
+        assert got_row.tobytes() == want_row.tobytes()
+        assert (int(got[0]), int(got[1])) == want[:2]
+        assert np.array([got[2:]]).tobytes() == np.array([want[2:]]).tobytes()
 
 
 def test_search_range_follows_depth_through_f_times_b() -> None:
