@@ -2043,10 +2043,12 @@ def _end_state(
     "unknown" (also at the image border, or where the thread goes on). Bare: within
     max(``MONO_BARE_LEVELS``, 3 robust deviations) grey levels of the median of the view's
     non-thread pixels in a window around ``inner`` (a point of the thread behind the end,
-    away from what the end runs into). With ``clear``, "free" also asks that at most
-    ``HIDDEN_FREE_SHARE`` of the pixels within ``FREE_CLEAR_PX`` of the tip (off the thread
-    and its rim) are no bare background (:func:`_share_around_tip`), else "unknown": an end
-    beside an occluder it does not point at may still bend under it (deviation 61)."""
+    away from what the end runs into). With ``clear``, "free" also asks for a plain
+    background (its tolerance at the floor, ``MONO_BARE_LEVELS``: on a textured one an
+    occluder's grey may pass for the background's) and that at most ``HIDDEN_FREE_SHARE`` of
+    the pixels within ``FREE_CLEAR_PX`` of the tip (off the thread and its rim) are no bare
+    background (:func:`_share_around_tip`), else "unknown": an end beside an occluder it does
+    not point at may still bend under it (deviation 61)."""
     states = []
     for grey, P, shift in ((lifted.grey_L, lifted.P_L, 0.0), (lifted.grey_R, lifted.P_R, d)):
         H, W = P.shape
@@ -2062,6 +2064,8 @@ def _end_state(
         if straight is not None and straight[0] >= HIDDEN_SHARE:
             states.append("hidden")
         elif straight is not None and straight[1] <= HIDDEN_FREE_SHARE:
+            if clear and tol > MONO_BARE_LEVELS:
+                return "unknown"  # a textured background: its grey cannot rule an occluder out
             # clear: bare background all around the tip too (however the thread would bend)
             wide = (
                 _share_around_tip(grey, P, xy[0] - shift, xy[1], way, level, tol) if clear else 0.0

@@ -1101,6 +1101,29 @@ def test_a_hidden_end_is_not_joined_to_a_free_end_across_bare_background() -> No
     assert len(_bending_walk(_two_pieces_in_line(occluder=True), OrderingParams())) == 4
 
 
+def test_a_free_end_on_a_textured_background_does_not_rule_a_jump_out() -> None:
+    # On textured tissue an occluder's grey may pass for the background's (generated raw
+    # tissue suites: bare tolerances of 30-50 grey levels, a shaft's edge read "free"): the
+    # background's grey vouches for a free end only where it is plain.
+    g = _hidden_then_free(40)
+    assert g.lifted is not None
+    rng = np.random.default_rng(20)
+    greys = []
+    for grey, P in ((g.lifted.grey_L, g.lifted.P_L), (g.lifted.grey_R, g.lifted.P_R)):
+        bare = (grey == 200.0) & ~P
+        bare[:, :150] = False  # the tissue past the shaft, around the second piece
+        textured = grey.copy()
+        textured[bare] += rng.normal(0.0, 6.0, int(bare.sum())).astype(np.float32)
+        greys.append(textured)
+    lifted = replace(g.lifted, grey_L=greys[0], grey_R=greys[1])
+    g = replace(g, lifted=lifted, states={})
+    east, west = np.array([1.0, 0.0]), np.array([-1.0, 0.0])
+    assert _end_state(lifted, g.pos[1], east, 10.0, g.pos[0]) == "hidden"
+    assert _end_state(lifted, g.pos[2], west, 10.0, g.pos[3]) == "free"
+    assert _end_state(lifted, g.pos[2], west, 10.0, g.pos[3], clear=True) == "unknown"
+    assert len(_bending_walk(g, OrderingParams())) == 4  # the jump stays, as before
+
+
 def test_a_generated_thread_under_the_shaft_is_not_bridged_over_bare_background() -> None:
     syn = SyntheticParams(render=RenderParams(occlusion=True))
     frame = generate_frame(syn, np.random.default_rng([19262, 20]))
