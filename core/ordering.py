@@ -188,6 +188,15 @@ class OrderingParams(Params):
         "thread there, these are its own two ends). False (the default): such a jump is "
         "excluded (docs/method.md, deviation 38; True: as before, the paper; walk=bending).",
     )
+    join_one_free_end: bool = param(
+        False,
+        label="join a free end to a hidden one",
+        doc="A jump may join an end that stops over bare background in both views (free) to "
+        "one that runs under an occluder in both views (hidden). False (the default): such a "
+        "jump is excluded: the hidden stretch would have to leave the free end over the bare "
+        "background, where the thread would be seen (docs/method.md, deviation 61; True: as "
+        "before; walk=bending).",
+    )
     retrace_px: float = param(
         120.0,
         lo=0.0,
@@ -1382,18 +1391,22 @@ class _WalkGraph:
     lifted: LiftedPair | None = None
     """The views, for what they show at a jump's ends (:func:`_end_state`); None: no such
     test (every jump turns by at most 90 deg each, free ends are joined)."""
-    states: dict[tuple[int, int, int], str] = field(default_factory=dict)
+    states: dict[tuple[int, int, int, bool], str] = field(default_factory=dict)
     """:func:`_end_state` per (end keypoint, the keypoint its way is taken from, the one its
-    background is taken at), filled as the walks ask."""
+    background is taken at, ``clear``), filled as the walks ask."""
 
-    def end_state(self, k: int, toward: int, behind: int, way: np.ndarray) -> str:
+    def end_state(
+        self, k: int, toward: int, behind: int, way: np.ndarray, clear: bool = False
+    ) -> str:
         """:func:`_end_state` of the end at keypoint ``k``, outward unit direction ``way`` (from
         keypoint ``toward``), its background taken at keypoint ``behind``."""
-        key = (k, toward, behind)
+        key = (k, toward, behind, clear)
         if key not in self.states:
             assert self.lifted is not None
             inner = self.pos[behind]
-            self.states[key] = _end_state(self.lifted, self.pos[k], way, float(self.disp[k]), inner)
+            self.states[key] = _end_state(
+                self.lifted, self.pos[k], way, float(self.disp[k]), inner, clear
+            )
         return self.states[key]
 
     @classmethod
@@ -1982,11 +1995,12 @@ def _by_the_ends(
     """Deviation 38 on the jumps of :func:`_jumps` (``ok``, ``why`` updated in place): a jump
     turning by more than 90 deg in or out (at most ``hidden_turn_deg`` each) is allowed when
     both its ends run under an occluder in both views; a jump between two free ends is not
-    (``join_free_ends`` False). Only a jump onto a piece's end is judged (a jump into a
-    piece's middle has no end's way to look along). Candidates are judged cheapest first
-    until two are left allowed: the walk takes the cheapest and branches at the runner-up,
-    no other is ever taken (the views are read a few times per jump, not for every keypoint
-    in reach)."""
+    (``join_free_ends`` False), nor, deviation 61, one between a hidden end and a free one with
+    bare background all around its tip (``join_one_free_end`` False). Only a jump onto a piece's
+    end is judged (a jump into a piece's middle has no end's way to look along). Candidates are
+    judged cheapest first until two are left allowed: the walk takes the cheapest and branches
+    at the runner-up, no other is ever taken (the views are read a few times per jump, not for
+    every keypoint in reach)."""
     wide = p.hidden_turn_deg
     pos, adj = g.pos, g.adj
     cur = int(walk[n - 1])
@@ -2006,7 +2020,8 @@ def _by_the_ends(
             back = int(walk[n - 3] if n >= 3 else walk[0])
             back_k = int(walk[max(n - 1 - HIDDEN_BACK_STEPS, 0)])  # background behind the end
             here = g.end_state(cur, back, back_k, heading)
-        if here == "unknown" or (bend and here != "hidden") or (ok[i] and here != "free"):
+        one_free = ok[i] and not p.join_one_free_end and here == "hidden"
+        if (bend and here != "hidden") or (ok[i] and here != "free" and not one_free):
             left -= int(ok[i])
             continue
         v = cand[i]
@@ -2018,8 +2033,20 @@ def _by_the_ends(
         if wn > 0:
             behind = _into_piece(v, adj, visited, HIDDEN_BACK_STEPS)
             there = g.end_state(v, nb, behind, way / wn)
-        if ok[i] and there == "free":  # the thread's own two ends: the views show no thread
+        if ok[i] and there == "free" and here == "free":  # the thread's own two ends
             ok[i], why[i] = False, "two free ends"
+        elif (
+            ok[i]
+            and not p.join_one_free_end
+            and {here, there} == {"free", "hidden"}
+            and (
+                g.end_state(cur, back, back_k, heading, clear=True)
+                if here == "free"
+                else g.end_state(v, nb, behind, way / wn, clear=True)
+            )
+            == "free"
+        ):  # deviation 61: bare background all around the free end's tip in both views
+            ok[i], why[i] = False, "a free end and a hidden one"
         elif bend and there == "hidden":  # a bend under an occluder in both views
             ok[i], why[i] = True, ""
         left -= int(ok[i])
@@ -2049,7 +2076,12 @@ def _into_piece(v: int, adj: list[list[int]], visited: np.ndarray, steps: int) -
 
 
 def _end_state(
-    lifted: LiftedPair, xy: np.ndarray, way: np.ndarray, d: float, inner: np.ndarray
+    lifted: LiftedPair,
+    xy: np.ndarray,
+    way: np.ndarray,
+    d: float,
+    inner: np.ndarray,
+    clear: bool = False,
 ) -> Literal["hidden", "free", "unknown"]:
     """What the views show where the thread at an end keypoint ``xy`` (left view, px) stops.
     Along a ray from the end, to where it leaves the thread pixels (P_L; P_R at the end's
@@ -2063,7 +2095,12 @@ def _end_state(
     "unknown" (also at the image border, or where the thread goes on). Bare: within
     max(``MONO_BARE_LEVELS``, 3 robust deviations) grey levels of the median of the view's
     non-thread pixels in a window around ``inner`` (a point of the thread behind the end,
-    away from what the end runs into)."""
+    away from what the end runs into). With ``clear``, "free" also asks for a plain
+    background (its tolerance at the floor, ``MONO_BARE_LEVELS``: on a textured one an
+    occluder's grey may pass for the background's) and that at most ``HIDDEN_FREE_SHARE`` of
+    the pixels within ``FREE_CLEAR_PX`` of the tip (off the thread and its rim) are no bare
+    background (:func:`_share_around_tip`), else "unknown": an end beside an occluder it does
+    not point at may still bend under it (deviation 61)."""
     states = []
     for grey, P, shift in ((lifted.grey_L, lifted.P_L, 0.0), (lifted.grey_R, lifted.P_R, d)):
         H, W = P.shape
@@ -2079,6 +2116,14 @@ def _end_state(
         if straight is not None and straight[0] >= HIDDEN_SHARE:
             states.append("hidden")
         elif straight is not None and straight[1] <= HIDDEN_FREE_SHARE:
+            if clear and tol > MONO_BARE_LEVELS:
+                return "unknown"  # a textured background: its grey cannot rule an occluder out
+            # clear: bare background all around the tip too (however the thread would bend)
+            wide = (
+                _share_around_tip(grey, P, xy[0] - shift, xy[1], way, level, tol) if clear else 0.0
+            )
+            if wide is None or wide > HIDDEN_FREE_SHARE:
+                return "unknown"
             states.append("free")
         elif any(  # the thread may bend where it goes under
             sh is not None and sh[0] >= HIDDEN_SHARE
@@ -2091,6 +2136,38 @@ def _end_state(
         else:
             return "unknown"
     return states[0] if states[0] == states[1] else "unknown"
+
+
+FREE_CLEAR_PX = 15  # a clear free end: bare background within this of its tip (half the
+# thread's search past its end keypoint: a bend of 30 deg under an occluder starts within it)
+
+
+def _share_around_tip(
+    grey: np.ndarray, P: np.ndarray, x0: float, y0: float, way: np.ndarray, level: float, tol: float
+) -> float | None:
+    """The share of the pixels within FREE_CLEAR_PX of where the ray from (x0, y0) along
+    ``way`` (unit) leaves the thread pixels ``P`` (the end's tip), off the thread and its
+    1 px rim, that are no bare background (grey further than ``tol`` from ``level``); None
+    when the ray stays on the thread or leaves the image, or no such pixel is left."""
+    H, W = P.shape
+    steps = np.arange(HIDDEN_SEARCH_PX + 1, dtype=np.float64)
+    x = np.rint(x0 + steps * way[0]).astype(np.int64)
+    y = np.rint(y0 + steps * way[1]).astype(np.int64)
+    inside = (x >= 0) & (y >= 0) & (x < W) & (y < H)
+    off = np.flatnonzero(~inside | ~P[np.clip(y, 0, H - 1), np.clip(x, 0, W - 1)])
+    if not off.size or not inside[off[0]]:
+        return None
+    cx, cy, r = int(x[off[0]]), int(y[off[0]]), FREE_CLEAR_PX
+    xa, xb, ya, yb = max(cx - r, 0), min(cx + r + 1, W), max(cy - r, 0), min(cy + r + 1, H)
+    thread = np.ascontiguousarray(P[ya:yb, xa:xb], dtype=np.uint8)
+    rim = cv2.dilate(thread, np.ones((2 * HIDDEN_RIM_PX + 1,) * 2, np.uint8)) > 0
+    dx = np.arange(xa, xb)[None, :] - cx
+    dy = np.arange(ya, yb)[:, None] - cy
+    disc = (dx * dx + dy * dy <= r * r) & ~rim
+    if not disc.any():
+        return None
+    other = np.abs(np.asarray(grey[ya:yb, xa:xb], dtype=np.float64) - level) > tol
+    return float(np.mean(other[disc]))
 
 
 def _turned_by(way: np.ndarray, deg: float) -> np.ndarray:
