@@ -60,6 +60,7 @@ from threadrecon.core.check_beyond import (
     end_occluder,
     extension,
     extension_far,
+    left_behind,
     plain_surface,
     surface_ahead,
     surface_past_end,
@@ -366,6 +367,16 @@ class CheckParams(Params):
         "image rows without a reliable match). Off: the end's own piece is measured only up "
         "to cut_end_px + 35 px, for an end cut in one view (before session 18). "
         "docs/method.md, session 18.",
+    )  # fmt: skip
+    bridge_left_behind: bool = param(
+        True, label="thread left behind at a bridge",
+        doc="On: a bridge (a run of the curve across unsegmented pixels) longer than "
+        "max_unobserved_mm where, at one of its ends, the thread pixels the curve leaves "
+        "branch on, covered by no part of the curve, over a path longer than half "
+        "max_unobserved_mm (at that end's depth) in both views (core/check_beyond.left_behind) "
+        "is no continuation of the thread (the thread did not pass out of sight there: the walk "
+        "took a branch onto another strand) and is held to max_unobserved_mm, not "
+        "max_bridge_mm. Off: before session 20. docs/method.md, okw20.",
     )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
@@ -689,6 +700,8 @@ def _check(
         if not len3 > min(p.max_bridge_mm, p.max_unobserved_mm):
             continue  # within either limit: the evidence (its costly part) cannot matter
         why = _bridge_evidence(pts, uv_l, uv_r, s3, step, a, b, mm, bare, p)
+        if why is None and p.bridge_left_behind and len3 > p.max_unobserved_mm:
+            why = _left_behind(uv_l, uv_r, lifted, z, a, b, f, mm, p)
         limit = p.max_bridge_mm if why is None else p.max_unobserved_mm
         # an evidenced bridge is judged by how far its occluder lets the hidden thread stray,
         # where that can be measured
@@ -1708,6 +1721,37 @@ def _end_way(uv: np.ndarray, end: str) -> np.ndarray:
     way = tip - back
     norm = float(np.hypot(way[0], way[1]))
     return way / norm if norm > 0.0 else np.zeros(2)
+
+
+def _left_behind(
+    uv_l: np.ndarray,
+    uv_r: np.ndarray,
+    lifted: LiftedPair,
+    z: np.ndarray,
+    a: int,
+    b: int,
+    f: float,
+    mm: float,
+    p: CheckParams,
+) -> str | None:
+    """Why the bridge from observed sample ``a`` to ``b`` is no continuation of the thread:
+    at one of its ends the thread pixels branch on, uncovered by the curve, for more than half
+    of max_unobserved_mm (at that end's depth) in both views (core/check_beyond.left_behind),
+    the bound of how far the thread under a bridge of that length strays from it; else None."""
+    for at, where in ((a, "before"), (b, "after")):
+        if not 0 <= at < len(z):
+            continue
+        half_px = 0.5 * p.max_unobserved_mm / mm * f / z[at]  # half the limit, at that end
+        ext = left_behind((uv_l, uv_r), (lifted.P_L, lifted.P_R), at, 2.0 * half_px,
+                          p.cover_px + BEYOND_COVER_PX, p.jump_px + 0.5)  # fmt: skip
+        seen = min(ext)
+        if seen > half_px:
+            return (
+                f"the thread goes on {seen:.0f} px ({seen * z[at] / f * mm:.1f} mm) in "
+                f"both views where the curve leaves it (the observed part {where} the "
+                "bridge), not covered by the curve: the curve left the thread it followed"
+            )
+    return None
 
 
 def _bridge_confined(

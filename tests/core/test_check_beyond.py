@@ -15,6 +15,7 @@ from threadrecon.core.check_beyond import (
     end_occluder,
     extension,
     extension_far,
+    left_behind,
     pieces,
     plain_surface,
     surface_ahead,
@@ -818,3 +819,34 @@ def test_thread_and_edges_is_the_grown_mask_of_a_copied_crop() -> None:
     as255 = _thread_and_edges(mask.astype(np.uint8) * np.uint8(255), 30, 40, 6)  # not 0 / 1
     assert as255.view(np.uint8).max() == 1
     assert np.array_equal(as255, _thread_and_edges(mask, 30, 40, 6))
+
+
+def _branch_masks(branch: bool) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """Both views' thread masks of a line along row 100 from column 20 to 120 and, with
+    ``branch``, a strand turning back from its end at 135 deg (60 px, up and to the left);
+    the curve follows the line to column 120 and then bridges down to (160, 180)."""
+    mask = np.zeros((200, 240), bool)
+    mask[99:102, 20:121] = True
+    if branch:
+        for t in range(60):
+            x, y = 120 - int(round(t * 0.7071)), 100 - int(round(t * 0.7071))
+            mask[y - 1 : y + 2, x - 1 : x + 2] = True
+    line = np.column_stack([np.arange(20.0, 121.0), np.full(101, 100.0)])
+    bridge = np.linspace([120.0, 100.0], [160.0, 180.0], 40)[1:]
+    uv = np.vstack([line, bridge])
+    return (mask, mask.copy()), uv
+
+
+def test_left_behind_measures_a_branch_where_the_curve_leaves_the_thread() -> None:
+    masks, uv = _branch_masks(branch=True)
+    at = 100  # the last observed sample before the bridge (column 120)
+    got = left_behind((uv, uv), masks, at, 200.0, 5.0, 3.5)
+    assert all(50.0 < g < 70.0 for g in got), got  # ~60 px of strand, less the covered disc
+    # a branch in one view only is no thread both views show
+    none = left_behind((uv, uv), (masks[0], np.zeros_like(masks[1])), at, 200.0, 5.0, 3.5)
+    assert none == (0.0, 0.0)
+
+
+def test_left_behind_is_zero_where_the_thread_stops_at_the_bridge() -> None:
+    masks, uv = _branch_masks(branch=False)
+    assert left_behind((uv, uv), masks, 100, 200.0, 5.0, 3.5) == (0.0, 0.0)
