@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -367,6 +368,15 @@ class CheckParams(Params):
         "image rows without a reliable match). Off: the end's own piece is measured only up "
         "to cut_end_px + 35 px, for an end cut in one view (before session 18). "
         "docs/method.md, session 18.",
+    )  # fmt: skip
+    cut_front_stereo: bool = param(
+        True, label="a cut end's occluder measured by stereo",
+        doc="On: where one view sees the thread go on past a free end (cut_end_px) and the "
+        "other view's pixels just past the end look like bare background by their grey, the "
+        "end is still cut when stereo measures the surface there in front of the end "
+        "(core/check_beyond.surface_past_end: an instrument's shaded side can have the "
+        "tissue's grey); then as any cut end (the occluder's reach bounds what may hide). "
+        "Off: the grey alone makes such an end free (before session 20). docs/method.md, okw20.",
     )  # fmt: skip
     bridge_left_behind: bool = param(
         True, label="thread left behind at a bridge",
@@ -816,9 +826,16 @@ def _check(
                      "views, not covered by the curve: the curve stops short of thread both "
                      f"views show (limit {p.max_unobserved_mm:g} mm)")
                 )  # fmt: skip
+        # the stopping view's patches past the end measured in front of it: an occluder there,
+        # whatever its grey (core/check_beyond.surface_past_end)
+        front_past = (
+            partial(_measured_in_front, (uv_l, uv_r), lifted, end, f * B / z_end)
+            if p.cut_front_stereo
+            else None
+        )
         cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach, p.cut_end_px,
                       p.cover_px + BEYOND_COVER_PX, bare, p.bare_share, see_px=unobserved_px,
-                      known=known[0])  # fmt: skip
+                      known=known[0], front_past=front_past)  # fmt: skip
         # seen: the far view's thread stops inside see_px = unobserved_px (core/check_beyond)
         hidden = cut is not None and not cut.seen
         if hidden and max(cut.ext) + 2.0 <= unobserved_px:
@@ -1721,6 +1738,17 @@ def _end_way(uv: np.ndarray, end: str) -> np.ndarray:
     way = tip - back
     norm = float(np.hypot(way[0], way[1]))
     return way / norm if norm > 0.0 else np.zeros(2)
+
+
+def _measured_in_front(
+    uv: tuple[np.ndarray, np.ndarray], lifted: LiftedPair, end: str, disparity: float, side: int
+) -> bool:
+    """Whether stereo measures the surface just past the curve's ``end`` in view ``side`` in
+    front of the end (more than AHEAD_NEAR_PX of ``disparity``, the end's): an occluder."""
+    front = surface_past_end(
+        uv[side], (lifted.grey_L, lifted.grey_R), (lifted.P_L, lifted.P_R), side, end, disparity
+    )
+    return front is not None and front > AHEAD_NEAR_PX
 
 
 def _left_behind(

@@ -374,13 +374,17 @@ def cut_end(
     bare_share: float,
     see_px: float = 0.0,
     known: tuple[float, float] | None = None,
+    front_past: Callable[[int], bool] | None = None,
 ) -> CutEnd | None:
     """Whether the curve's free ``end`` is cut by an occluder in one view: one view sees the
     thread (``extension`` up to ``reach_px``) more than ``cut_px`` farther beyond it than the
     other, and in the other view the CUT_PROBE_PX px just beyond the end are not bare
     background (more than ``bare_share`` not bare). None when not. The view that sees farther
     is followed up to ``see_px`` (when larger) to find where its thread stops (``seen``).
-    ``known``: ``extension`` with these arguments, when the caller has it."""
+    ``known``: ``extension`` with these arguments, when the caller has it. ``front_past``:
+    whether stereo measures a surface in front of the end just past it in the given view (an
+    occluder); where it does, pixels past the end that look like bare background by their
+    grey (an instrument's shaded side can have the tissue's grey) do not make the end free."""
     ext = extension(uv, masks, end, reach_px, cover_px, cut_px) if known is None else known
     if abs(ext[0] - ext[1]) <= cut_px:
         return None
@@ -389,7 +393,9 @@ def cut_end(
     if fr is None:
         return None
     _, tip, way = fr
-    if _bare_beyond(bare, stop, tip, way, 0.0, bare_share):
+    if _bare_beyond(bare, stop, tip, way, 0.0, bare_share) and not (
+        front_past is not None and front_past(stop)
+    ):
         return None  # bare background just beyond the end there: a free end
     far = 1 - stop
     seen = False  # the far view's thread stops inside the search, before bare background

@@ -1018,3 +1018,23 @@ def test_a_bridge_that_leaves_thread_both_views_show_is_suspect() -> None:
     rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
     e = _wrong_and_caught(rec, frame, calib, "where the curve leaves it", bridge_left_behind=False)
     assert e.e_S_max > 20.0
+
+
+def test_an_end_cut_by_a_shaft_of_the_tissues_grey_is_suspect() -> None:
+    """Masked instrument #1 of seed 17253 (eval_suites' frame; okw20): the thread runs under
+    the shaft in the left view at the curve's start and on beside it in the right view, 138 px
+    past the end (e_l 28.7 mm). The left view's pixels just past the end lie on the shaft's
+    shaded underside, whose grey passes for the tissue's: the end was taken as free, "ok".
+    Stereo measures that surface in front of the end: an occluder, the end is cut."""
+    from threadrecon.core.segmentation import StereoPair
+
+    frame = suite_frame(
+        [17253, 6, 1], background="tissue", noise_sigma=2.0, blur_sigma=0.5, instrument=True
+    )
+    calib = frame.camera.calibration()
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    rec = Pipeline(pair, calib).run()
+    e = _wrong_and_caught(
+        rec, frame, calib, "the end is cut by an occluder", cut_front_stereo=False
+    )
+    assert e.e_S_max > 20.0

@@ -111,6 +111,22 @@ def test_an_end_the_other_view_sees_further_over_no_bare_background_is_cut() -> 
     assert cut_end(uv, masks, "start", 100.0, 5.0, 5.0, _occluder_bare, 0.5) is None
 
 
+def test_an_end_past_an_occluder_of_the_backgrounds_grey_is_cut_when_stereo_says_front() -> None:
+    masks, uv = _cut_scene(20)
+    everywhere_bare = lambda s, xy, a, b: np.ones(len(xy), bool)  # noqa: E731
+    asked = []
+
+    def front(stop: int) -> bool:
+        asked.append(stop)
+        return True
+
+    cut = cut_end(uv, masks, "end", 100.0, 5.0, 5.0, everywhere_bare, 0.5, front_past=front)
+    assert cut is not None and cut.view == "right" and asked == [0]  # the left view stops
+    behind = cut_end(uv, masks, "end", 100.0, 5.0, 5.0, everywhere_bare, 0.5,
+                     front_past=lambda stop: False)  # fmt: skip
+    assert behind is None  # the surface there is the tissue: a free end, as by its grey
+
+
 def test_an_end_both_views_see_stop_at_the_same_point_is_not_cut() -> None:
     masks, uv = _cut_scene(3)  # within the cut tolerance (the thread's rounded tip)
     assert cut_end(uv, masks, "end", 100.0, 5.0, 5.0, _occluder_bare, 0.5) is None
