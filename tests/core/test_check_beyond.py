@@ -696,8 +696,14 @@ def test_a_masked_frame_whose_thread_enters_a_shafts_blank_tip_is_not_ok() -> No
     assert rec.status == "suspect" and "the right view blank" not in rec.message
     assert "runs into an occluder (the left view blank there" in rec.message
     off = ReconParams()
-    off = replace(off, check=replace(off.check, blank_occluder=False))
-    assert Pipeline(pair, calib).run(off).status == "ok"  # session 10b's rule: both views
+    # session 10b's rule (both views) and without okw20's stereo test of a cut end (the
+    # right view's thread goes on past the end, the left view's pixels there measure the
+    # shaft in front: cut, suspect on its own)
+    pipe = Pipeline(pair, calib)
+    off = replace(off, check=replace(off.check, blank_occluder=False, cut_front_stereo=False))
+    assert pipe.run(off).status == "ok"
+    stereo = replace(off, check=replace(off.check, cut_front_stereo=True))
+    assert pipe.run(stereo).status == "suspect"
 
 
 def test_a_masked_frame_with_a_smooth_stretch_of_tissue_past_a_free_end_stays_ok() -> None:
