@@ -318,7 +318,10 @@ def left_behind(
         px = np.concatenate([parts[i] for i in near])
         rel = px - tip
         px = px[np.hypot(rel[:, 0], rel[:, 1]) <= reach_px]
-        px = px[~covered_by(px, np.ascontiguousarray(curve, dtype=np.float64), cover_px**2)]
+        # only the samples within reach_px + cover_px of the sample can cover these pixels
+        d = curve - tip
+        near_curve = curve[np.hypot(d[:, 0], d[:, 1]) <= reach_px + cover_px]
+        px = px[~covered_by(px, np.ascontiguousarray(near_curve, dtype=np.float64), cover_px**2)]
         if not len(px):
             return (0.0, 0.0)
         # the uncovered pixels 8-connected to the sample's projection (one small raster)
