@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -61,6 +62,7 @@ from threadrecon.core.check_beyond import (
     end_occluder,
     extension,
     extension_far,
+    left_behind,
     plain_surface,
     surface_ahead,
     surface_past_end,
@@ -367,6 +369,25 @@ class CheckParams(Params):
         "image rows without a reliable match). Off: the end's own piece is measured only up "
         "to cut_end_px + 35 px, for an end cut in one view (before session 18). "
         "docs/method.md, session 18.",
+    )  # fmt: skip
+    cut_front_stereo: bool = param(
+        True, label="a cut end's occluder measured by stereo",
+        doc="On: where one view sees the thread go on past a free end (cut_end_px) and the "
+        "other view's pixels just past the end look like bare background by their grey, the "
+        "end is still cut when stereo measures the surface there in front of the end "
+        "(core/check_beyond.surface_past_end: an instrument's shaded side can have the "
+        "tissue's grey); then as any cut end (the occluder's reach bounds what may hide). "
+        "Off: the grey alone makes such an end free (before session 20). docs/method.md, okw20.",
+    )  # fmt: skip
+    bridge_left_behind: bool = param(
+        True, label="thread left behind at a bridge",
+        doc="On: a bridge (a run of the curve across unsegmented pixels) longer than "
+        "max_unobserved_mm where, at one of its ends, the thread pixels the curve leaves "
+        "branch on, covered by no part of the curve, over a path longer than half "
+        "max_unobserved_mm (at that end's depth) in both views (core/check_beyond.left_behind) "
+        "is no continuation of the thread (the thread did not pass out of sight there: the walk "
+        "took a branch onto another strand) and is held to max_unobserved_mm, not "
+        "max_bridge_mm. Off: before session 20. docs/method.md, okw20.",
     )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
@@ -693,6 +714,8 @@ def _check(
         if not len3 > min(p.max_bridge_mm, p.max_unobserved_mm):
             continue  # within either limit: the evidence (its costly part) cannot matter
         why = _bridge_evidence(pts, uv_l, uv_r, s3, step, a, b, mm, bare, p)
+        if why is None and p.bridge_left_behind and len3 > p.max_unobserved_mm:
+            why = _left_behind(uv_l, uv_r, lifted, z, a, b, f, mm, p)
         limit = p.max_bridge_mm if why is None else p.max_unobserved_mm
         # an evidenced bridge is judged by how far its occluder lets the hidden thread stray,
         # where that can be measured
@@ -811,9 +834,16 @@ def _check(
                      "views, not covered by the curve: the curve stops short of thread both "
                      f"views show (limit {p.max_unobserved_mm:g} mm)")
                 )  # fmt: skip
+        # the stopping view's patches past the end measured in front of it: an occluder there,
+        # whatever its grey (core/check_beyond.surface_past_end)
+        front_past = (
+            partial(_measured_in_front, (uv_l, uv_r), lifted, end, f * B / z_end)
+            if p.cut_front_stereo
+            else None
+        )
         cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach, p.cut_end_px,
                       p.cover_px + BEYOND_COVER_PX, bare, p.bare_share, see_px=unobserved_px,
-                      known=known[0])  # fmt: skip
+                      known=known[0], front_past=front_past)  # fmt: skip
         # seen: the far view's thread stops inside see_px = unobserved_px (core/check_beyond)
         hidden = cut is not None and not cut.seen
         if hidden and max(cut.ext) + 2.0 <= unobserved_px:
@@ -1717,6 +1747,48 @@ def _end_way(uv: np.ndarray, end: str) -> np.ndarray:
     way = tip - back
     norm = float(np.hypot(way[0], way[1]))
     return way / norm if norm > 0.0 else np.zeros(2)
+
+
+def _measured_in_front(
+    uv: tuple[np.ndarray, np.ndarray], lifted: LiftedPair, end: str, disparity: float, side: int
+) -> bool:
+    """Whether stereo measures the surface just past the curve's ``end`` in view ``side`` in
+    front of the end (more than AHEAD_NEAR_PX of ``disparity``, the end's): an occluder."""
+    front = surface_past_end(
+        uv[side], (lifted.grey_L, lifted.grey_R), (lifted.P_L, lifted.P_R), side, end, disparity
+    )
+    return front is not None and front > AHEAD_NEAR_PX
+
+
+def _left_behind(
+    uv_l: np.ndarray,
+    uv_r: np.ndarray,
+    lifted: LiftedPair,
+    z: np.ndarray,
+    a: int,
+    b: int,
+    f: float,
+    mm: float,
+    p: CheckParams,
+) -> str | None:
+    """Why the bridge from observed sample ``a`` to ``b`` is no continuation of the thread:
+    at one of its ends the thread pixels branch on, uncovered by the curve, for more than half
+    of max_unobserved_mm (at that end's depth) in both views (core/check_beyond.left_behind),
+    the bound of how far the thread under a bridge of that length strays from it; else None."""
+    for at, where in ((a, "before"), (b, "after")):
+        if not 0 <= at < len(z):
+            continue
+        half_px = 0.5 * p.max_unobserved_mm / mm * f / z[at]  # half the limit, at that end
+        ext = left_behind((uv_l, uv_r), (lifted.P_L, lifted.P_R), at, 2.0 * half_px,
+                          p.cover_px + BEYOND_COVER_PX, p.jump_px + 0.5)  # fmt: skip
+        seen = min(ext)
+        if seen > half_px:
+            return (
+                f"the thread goes on {seen:.0f} px ({seen * z[at] / f * mm:.1f} mm) in "
+                f"both views where the curve leaves it (the observed part {where} the "
+                "bridge), not covered by the curve: the curve left the thread it followed"
+            )
+    return None
 
 
 def _bridge_confined(

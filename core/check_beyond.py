@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
 
 from threadrecon.core.check_field import derived, derived_entry, piece_index
 from threadrecon.core.check_kernel import cone_pixels, covered_by
@@ -315,6 +317,90 @@ def extension_far(
     return (out[0], out[1]), (far[0], far[1])
 
 
+def left_behind(
+    uv: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    at: int,
+    reach_px: float,
+    cover_px: float,
+    near_px: float,
+) -> tuple[float, float]:
+    """Per view: the length (px, a path along the pixels) of the thread pixels that branch off
+    where the curve leaves the thread at its sample ``at`` (a bridge's end): the pixels of
+    the piece that sample lies on, within ``reach_px`` of it, farther than
+    ``cover_px`` from every curve sample and 8-connected among themselves to the sample's
+    projection (the first within ``cover_px`` + ``near_px`` of it). The sample is observed: its
+    projection lies within ``near_px`` of a thread pixel. 0 when there are none.
+
+    The thread a curve leaves for a bridge passes out of sight there. Thread pixels that go
+    on from that point, whichever way they turn (a branch can turn back as sharply as the
+    curve turns onto its bridge), and that no part of the curve picks up again, are thread the
+    curve left: the path along them from that point bounds how much of it the curve does not
+    hold (the thread runs at least that far past where the curve leaves it)."""
+    out = [0.0, 0.0]
+    for side in (0, 1):
+        full = uv[side]
+        curve = full[np.isfinite(full).all(axis=1)]
+        tip = full[at]
+        if not np.isfinite(tip).all() or len(curve) < 2:
+            return (0.0, 0.0)
+        mask = masks[side]
+        parts = pieces(mask)
+        index = piece_index(mask, lambda m=mask: pieces(m))
+        near = index.near(tip, near_px)  # the pieces the sample's projection lies on
+        if not near:
+            return (0.0, 0.0)
+        px = np.concatenate([parts[i] for i in near])
+        rel = px - tip
+        px = px[np.hypot(rel[:, 0], rel[:, 1]) <= reach_px]
+        # only the samples within reach_px + cover_px of the sample can cover these pixels
+        d = curve - tip
+        near_curve = curve[np.hypot(d[:, 0], d[:, 1]) <= reach_px + cover_px]
+        px = px[~covered_by(px, np.ascontiguousarray(near_curve, dtype=np.float64), cover_px**2)]
+        if not len(px):
+            return (0.0, 0.0)
+        # the uncovered pixels 8-connected to the sample's projection (one small raster)
+        x0, y0 = px.min(axis=0).astype(int)
+        x1, y1 = px.max(axis=0).astype(int)
+        box = np.zeros((y1 - y0 + 1, x1 - x0 + 1), np.uint8)
+        ix, iy = px[:, 0].astype(int) - x0, px[:, 1].astype(int) - y0
+        box[iy, ix] = 1
+        _, labels = cv2.connectedComponents(box, connectivity=8)
+        lab = labels[iy, ix]
+        touch = np.hypot(px[:, 0] - tip[0], px[:, 1] - tip[1]) <= cover_px + near_px
+        if not touch.any():
+            return (0.0, 0.0)
+        keep = np.isin(lab, np.unique(lab[touch]))
+        out[side] = _geodesic_reach(ix[keep], iy[keep], touch[keep])
+        if out[side] == 0.0:
+            return (0.0, 0.0)
+    return (out[0], out[1])
+
+
+def _geodesic_reach(ix: np.ndarray, iy: np.ndarray, start: np.ndarray) -> float:
+    """The longest shortest path (px, 8-connected steps of 1 and sqrt 2) from the pixels
+    ``start`` to any pixel of the set (ix, iy) (integer columns and rows): the length of
+    thread a branch of pixels holds (a path along it, not a chord across it)."""
+    n = len(ix)
+    if n < 2:
+        return 0.0
+    box = np.full((int(iy.max()) + 2, int(ix.max()) + 2), -1, np.int64)
+    box[iy, ix] = np.arange(n)
+    rows, cols, wts = [], [], []
+    for dy, dx, w in ((0, 1, 1.0), (1, 0, 1.0), (1, 1, math.sqrt(2.0)), (1, -1, math.sqrt(2.0))):
+        j = box[iy + dy, ix + dx]  # index -1 wraps to the padding column: no pixel there
+        ok = j >= 0
+        rows.append(np.flatnonzero(ok))
+        cols.append(j[ok])
+        wts.append(np.full(int(ok.sum()), w))
+    graph = csr_matrix(
+        (np.concatenate(wts), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
+    )
+    dist = dijkstra(graph, directed=False, indices=np.flatnonzero(start), min_only=True)
+    dist = dist[np.isfinite(dist)]
+    return float(dist.max()) if dist.size else 0.0
+
+
 def cut_end(
     uv: tuple[np.ndarray, np.ndarray],
     masks: tuple[np.ndarray, np.ndarray],
@@ -326,13 +412,17 @@ def cut_end(
     bare_share: float,
     see_px: float = 0.0,
     known: tuple[float, float] | None = None,
+    front_past: Callable[[int], bool] | None = None,
 ) -> CutEnd | None:
     """Whether the curve's free ``end`` is cut by an occluder in one view: one view sees the
     thread (``extension`` up to ``reach_px``) more than ``cut_px`` farther beyond it than the
     other, and in the other view the CUT_PROBE_PX px just beyond the end are not bare
     background (more than ``bare_share`` not bare). None when not. The view that sees farther
     is followed up to ``see_px`` (when larger) to find where its thread stops (``seen``).
-    ``known``: ``extension`` with these arguments, when the caller has it."""
+    ``known``: ``extension`` with these arguments, when the caller has it. ``front_past``:
+    whether stereo measures a surface in front of the end just past it in the given view (an
+    occluder); where it does, pixels past the end that look like bare background by their
+    grey (an instrument's shaded side can have the tissue's grey) do not make the end free."""
     ext = extension(uv, masks, end, reach_px, cover_px, cut_px) if known is None else known
     if abs(ext[0] - ext[1]) <= cut_px:
         return None
@@ -341,7 +431,9 @@ def cut_end(
     if fr is None:
         return None
     _, tip, way = fr
-    if _bare_beyond(bare, stop, tip, way, 0.0, bare_share):
+    if _bare_beyond(bare, stop, tip, way, 0.0, bare_share) and not (
+        front_past is not None and front_past(stop)
+    ):
         return None  # bare background just beyond the end there: a free end
     far = 1 - stop
     seen = False  # the far view's thread stops inside the search, before bare background

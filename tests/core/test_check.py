@@ -991,3 +991,50 @@ def test_the_evidence_names_an_extension_whose_tip_did_not_match() -> None:
         rec["bounds"], rec["spline"], rec["camera"], calib, CheckParams(),
     )  # fmt: skip
     assert chk.untipped_ends == ("start",) and chk.evidence()["untipped_ends"] == ["start"]
+
+
+def test_a_bridge_that_leaves_thread_both_views_show_is_suspect() -> None:
+    """Raw all #16 of seed 19253 (eval_suites' frame, masks withheld; okw20): the walk reached
+    the thread's sharp bend and bridged 27.8 mm across tissue onto a vessel, while the thread
+    itself turns back there and goes on, segmented in both views and covered by no part of the
+    curve (17 mm of pixels). The bridge crosses no bare background and is no loop, so it was
+    held to max_bridge_mm (40 mm): "ok", e_l 61.7 mm. The thread branching on where the curve
+    leaves it says the bridge is no continuation: held to max_unobserved_mm, suspect."""
+    from threadrecon.core.segmentation import StereoPair
+
+    frame = suite_frame(
+        [19253, 12, 16],
+        background="tissue",
+        noise_sigma=3.0,
+        blur_sigma=0.5,
+        thread_colour="random",
+        distractors=6,
+        instrument=True,
+        lighting=0.5,
+        jpeg_quality=75,
+        specular=0.3,
+    )
+    calib = frame.camera.calibration()
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
+    e = _wrong_and_caught(rec, frame, calib, "where the curve leaves it", bridge_left_behind=False)
+    assert e.e_S_max > 20.0
+
+
+def test_an_end_cut_by_a_shaft_of_the_tissues_grey_is_suspect() -> None:
+    """Masked instrument #1 of seed 17253 (eval_suites' frame; okw20): the thread runs under
+    the shaft in the left view at the curve's start and on beside it in the right view, 138 px
+    past the end (e_l 28.7 mm). The left view's pixels just past the end lie on the shaft's
+    shaded underside, whose grey passes for the tissue's: the end was taken as free, "ok".
+    Stereo measures that surface in front of the end: an occluder, the end is cut."""
+    from threadrecon.core.segmentation import StereoPair
+
+    frame = suite_frame(
+        [17253, 6, 1], background="tissue", noise_sigma=2.0, blur_sigma=0.5, instrument=True
+    )
+    calib = frame.camera.calibration()
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    rec = Pipeline(pair, calib).run()
+    e = _wrong_and_caught(
+        rec, frame, calib, "the end is cut by an occluder", cut_front_stereo=False
+    )
+    assert e.e_S_max > 20.0

@@ -17,6 +17,7 @@ from threadrecon.core.check_beyond import (
     end_occluder,
     extension,
     extension_far,
+    left_behind,
     pieces,
     plain_surface,
     surface_ahead,
@@ -110,6 +111,22 @@ def test_an_end_the_other_view_sees_further_over_no_bare_background_is_cut() -> 
     everywhere_bare = lambda s, xy, a, b: np.ones(len(xy), bool)  # noqa: E731
     assert cut_end(uv, masks, "end", 100.0, 5.0, 5.0, everywhere_bare, 0.5) is None
     assert cut_end(uv, masks, "start", 100.0, 5.0, 5.0, _occluder_bare, 0.5) is None
+
+
+def test_an_end_past_an_occluder_of_the_backgrounds_grey_is_cut_when_stereo_says_front() -> None:
+    masks, uv = _cut_scene(20)
+    everywhere_bare = lambda s, xy, a, b: np.ones(len(xy), bool)  # noqa: E731
+    asked = []
+
+    def front(stop: int) -> bool:
+        asked.append(stop)
+        return True
+
+    cut = cut_end(uv, masks, "end", 100.0, 5.0, 5.0, everywhere_bare, 0.5, front_past=front)
+    assert cut is not None and cut.view == "right" and asked == [0]  # the left view stops
+    behind = cut_end(uv, masks, "end", 100.0, 5.0, 5.0, everywhere_bare, 0.5,
+                     front_past=lambda stop: False)  # fmt: skip
+    assert behind is None  # the surface there is the tissue: a free end, as by its grey
 
 
 def test_an_end_both_views_see_stop_at_the_same_point_is_not_cut() -> None:
@@ -704,8 +721,14 @@ def test_a_masked_frame_whose_thread_enters_a_shafts_blank_tip_is_not_ok() -> No
     assert rec.status == "suspect" and "the right view blank" not in rec.message
     assert "runs into an occluder (the left view blank there" in rec.message
     off = ReconParams()
-    off = replace(off, check=replace(off.check, blank_occluder=False))
-    assert Pipeline(pair, calib).run(off).status == "ok"  # session 10b's rule: both views
+    # session 10b's rule (both views) and without okw20's stereo test of a cut end (the
+    # right view's thread goes on past the end, the left view's pixels there measure the
+    # shaft in front: cut, suspect on its own)
+    pipe = Pipeline(pair, calib)
+    off = replace(off, check=replace(off.check, blank_occluder=False, cut_front_stereo=False))
+    assert pipe.run(off).status == "ok"
+    stereo = replace(off, check=replace(off.check, cut_front_stereo=True))
+    assert pipe.run(stereo).status == "suspect"
 
 
 def test_a_masked_frame_with_a_smooth_stretch_of_tissue_past_a_free_end_stays_ok() -> None:
@@ -843,3 +866,34 @@ def test_thread_and_edges_is_the_grown_mask_of_a_copied_crop() -> None:
     as255 = _thread_and_edges(mask.astype(np.uint8) * np.uint8(255), 30, 40, 6)  # not 0 / 1
     assert as255.view(np.uint8).max() == 1
     assert np.array_equal(as255, _thread_and_edges(mask, 30, 40, 6))
+
+
+def _branch_masks(branch: bool) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """Both views' thread masks of a line along row 100 from column 20 to 120 and, with
+    ``branch``, a strand turning back from its end at 135 deg (60 px, up and to the left);
+    the curve follows the line to column 120 and then bridges down to (160, 180)."""
+    mask = np.zeros((200, 240), bool)
+    mask[99:102, 20:121] = True
+    if branch:
+        for t in range(60):
+            x, y = 120 - int(round(t * 0.7071)), 100 - int(round(t * 0.7071))
+            mask[y - 1 : y + 2, x - 1 : x + 2] = True
+    line = np.column_stack([np.arange(20.0, 121.0), np.full(101, 100.0)])
+    bridge = np.linspace([120.0, 100.0], [160.0, 180.0], 40)[1:]
+    uv = np.vstack([line, bridge])
+    return (mask, mask.copy()), uv
+
+
+def test_left_behind_measures_a_branch_where_the_curve_leaves_the_thread() -> None:
+    masks, uv = _branch_masks(branch=True)
+    at = 100  # the last observed sample before the bridge (column 120)
+    got = left_behind((uv, uv), masks, at, 200.0, 5.0, 3.5)
+    assert all(50.0 < g < 70.0 for g in got), got  # ~60 px of strand, less the covered disc
+    # a branch in one view only is no thread both views show
+    none = left_behind((uv, uv), (masks[0], np.zeros_like(masks[1])), at, 200.0, 5.0, 3.5)
+    assert none == (0.0, 0.0)
+
+
+def test_left_behind_is_zero_where_the_thread_stops_at_the_bridge() -> None:
+    masks, uv = _branch_masks(branch=False)
+    assert left_behind((uv, uv), masks, 100, 200.0, 5.0, 3.5) == (0.0, 0.0)
