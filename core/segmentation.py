@@ -207,6 +207,17 @@ class SegmentationParams(Params):
         "there: the thread goes on, nearer the tissue than the block test resolves (~3 px). "
         "Off: every such block's pixels are cut as the mark's (deviation 60).",
     )
+    thread_depth_join: bool = param(
+        True,
+        label="raw: joining pieces at the thread's depth",
+        doc="raw: a piece of the thread's dye joins the chosen one only where its own "
+        "disparity (of its pixels not voted on the surface) could be the thread's: within "
+        "1.5 px plus the thread's depth slope (0.1 px a px) times its gap of the disparity of "
+        "the thread's pixels where it comes nearest (the thread grown by the pieces taken, "
+        "the nearest first). A light fibre on the tissue beside a white thread, which the "
+        "surface test leaves open, lies at the tissue's depth. Where either disparity is not "
+        "defined the piece joins as before. Off: every piece of the dye joins (deviation 61).",
+    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,
