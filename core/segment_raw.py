@@ -829,8 +829,8 @@ def _off_thread_depth(
     (one object: a fibre's branches). The tissue lies behind the thread; a light fibre on it,
     left open by the block-wise surface test (a shaft or smooth tissue beside it), lies there.
     The thread is the chosen piece's pixels not voted on the surface, grown by every piece
-    found at its depth (the nearest first). Not judged (they stay): a piece without a
-    disparity of its own; one within _TOUCH_PX of the thread (split from it by a strand
+    that joins (the nearest first; its blocks' disparities too). Not judged (they join): a
+    piece without a disparity of its own; one within _TOUCH_PX of the thread (split from it by a strand
     crossing it: the chosen piece may be one strand of a loop, the piece past the crossing
     farther than any of it); and one whose straight gap to the thread meets the instrument
     (the thread may run on under it, its depth unknown there) (deviation 61)."""
@@ -861,31 +861,30 @@ def _off_thread_depth(
     while left:
         j = min(left, key=gap.__getitem__)
         left.remove(j)
-        if gap[j] <= _TOUCH_PX or _crosses(v.tool, sample[j], at[j]):
-            continue  # not judged: it stays, and does not extend the thread
         blocks = _block_disparities(st, *pts[j])
-        if not blocks:
-            continue
-        near = _nearest_reading(blocks)  # the piece's nearest block
-        # the depth slope (px of disparity a px of gap) it needs, beyond the disparity's own
-        # uncertainty, to be the thread behind its farthest block; and to be the object of a
-        # piece found behind it (a fibre's branch): it goes with the one that needs the least
-        slope = max(d_far - near - SAME_DISPARITY_PX, 0.0) / max(gap[j], 1.0)
-        other = min(
-            (
-                max(abs(near - d_off) - SAME_DISPARITY_PX, 0.0)
-                / max(_nearest(tree, xy, sample, [j])[0][j], 1.0)
-                for tree, xy, d_off in off_pieces
-            ),
-            default=np.inf,
-        )
-        if slope > _THREAD_SLOPE or other < slope:
-            off.append(j)
-            piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
-            off_pieces.append((cKDTree(piece_xy), piece_xy, near))
-            continue
-        # a piece at the thread's depth extends it
-        d_far = min(d_far, *blocks)
+        if blocks and gap[j] > _TOUCH_PX and not _crosses(v.tool, sample[j], at[j]):
+            near = _nearest_reading(blocks)  # the piece's nearest block
+            # the depth slope (px of disparity a px of gap) it needs, beyond the disparity's
+            # own uncertainty, to be the thread behind its farthest block; and to be the
+            # object of a piece found behind it (a fibre's branch): it goes with the one that
+            # needs the least
+            slope = max(d_far - near - SAME_DISPARITY_PX, 0.0) / max(gap[j], 1.0)
+            other = min(
+                (
+                    max(abs(near - d_off) - SAME_DISPARITY_PX, 0.0)
+                    / max(_nearest(tree, xy, sample, [j])[0][j], 1.0)
+                    for tree, xy, d_off in off_pieces
+                ),
+                default=np.inf,
+            )
+            if slope > _THREAD_SLOPE or other < slope:
+                off.append(j)
+                piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
+                off_pieces.append((cKDTree(piece_xy), piece_xy, near))
+                continue
+        # a piece that joins (at the thread's depth, or not judged) extends the thread
+        if blocks:
+            d_far = min(d_far, *blocks)
         piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
         thread_xy = np.concatenate([thread_xy, piece_xy])
         if left:
