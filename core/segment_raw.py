@@ -139,8 +139,11 @@ def segment_raw(
        are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`),
        chosen or joining; a kept piece moving with the tissue in part loses that part
        (:func:`_mark_part`; not a block where the thread's own disparity goes on from its
-       floating part beside it, :func:`_thread_through`), and a piece of two dyes takes that
-       of its part in front of the tissue (:func:`_main_dye`); it is no mark when that part,
+       floating part beside it, :func:`_thread_through`); a joining piece not seen floating
+       that lies behind the whole thread, beyond its depth slope over the gap, stays out
+       (:func:`_off_thread_depth`: a fibre on the tissue the surface test left open), and a
+       piece of two dyes takes that of its part in front of the tissue (:func:`_main_dye`);
+       it is no mark when that part,
        tested alone, floats (a thread merged with the fibres it crosses,
        :func:`_a_mark_of_one_dye`). Among
        blood-like pieces, one the surface test leaves open at the tissue's own disparity is a

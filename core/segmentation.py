@@ -209,14 +209,16 @@ class SegmentationParams(Params):
     )
     thread_depth_join: bool = param(
         True,
-        label="raw: joining pieces at the thread's depth",
-        doc="raw: a piece of the thread's dye joins the chosen one only where its own "
-        "disparity (of its pixels not voted on the surface) could be the thread's: within "
-        "1.5 px plus the thread's depth slope (0.1 px a px) times its gap of the disparity of "
-        "the thread's pixels where it comes nearest (the thread grown by the pieces taken, "
-        "the nearest first). A light fibre on the tissue beside a white thread, which the "
-        "surface test leaves open, lies at the tissue's depth. Where either disparity is not "
-        "defined the piece joins as before. Off: every piece of the dye joins (deviation 61).",
+        label="raw: joining pieces not behind the thread",
+        doc="raw: a piece of the thread's dye that the surface test does not see floating "
+        "(undecided, or on the surface in part) does not join the chosen one when its nearest "
+        "block's own disparity lies behind the thread's farthest block by more than 1.5 px "
+        "plus the thread's depth slope (0.1 px a px) times its gap to the thread, nor when it "
+        "lies nearer (by that slope) the depth of such a piece: a light fibre on the tissue "
+        "beside a white thread, left open by the surface test, lies behind the whole thread. "
+        "Pieces within 12 px of the thread (split from it by a crossing strand), across the "
+        "instrument from it, or without a disparity of their own join as before. Off: every "
+        "piece of the dye joins (deviation 61).",
     )
     ridge_hi: float = param(
         6.0,
