@@ -39,6 +39,7 @@ from threadrecon.core.ridge_kernel import (
     values_at,
 )
 from threadrecon.core.segment_surface import (
+    BLOCK_PX,
     SAME_DISPARITY_PX,
     SurfaceTest,
     block_of,
@@ -138,8 +139,11 @@ def segment_raw(
        are the undecided fragments of a mark (:func:`_continues`, :func:`_like_a_mark`),
        chosen or joining; a kept piece moving with the tissue in part loses that part
        (:func:`_mark_part`; not a block where the thread's own disparity goes on from its
-       floating part beside it, :func:`_thread_through`), and a piece of two dyes takes that
-       of its part in front of the tissue (:func:`_main_dye`); it is no mark when that part,
+       floating part beside it, :func:`_thread_through`); a joining piece not seen floating
+       that lies behind the whole thread, beyond its depth slope over the gap, stays out
+       (:func:`_off_thread_depth`: a fibre on the tissue the surface test left open), and a
+       piece of two dyes takes that of its part in front of the tissue (:func:`_main_dye`);
+       it is no mark when that part,
        tested alone, floats (a thread merged with the fibres it crosses,
        :func:`_a_mark_of_one_dye`). Among
        blood-like pieces, one the surface test leaves open at the tissue's own disparity is a
@@ -688,6 +692,13 @@ def _select(
                     )
                 )
         k[best] = True
+        if p.thread_depth_join:
+            # A piece of the thread lies at its depth, which changes along it by its slope at
+            # most: not a fibre on the tissue the surface test left open (deviation 62).
+            joining = [j for j in np.flatnonzero(k).tolist()
+                       if j != best and not _floats(votes_of.get(j, _NO_VOTE))]  # fmt: skip
+            for j in _off_thread_depth(views, i, on, lab_on, best, joining, votes_of, D):
+                k[j] = False
         if nearest_hue:
             # A red thread's fragments between the vessels it crosses are too short for the
             # surface test: they join at the thread's own disparity.
@@ -803,6 +814,137 @@ def _at_thread_disparity(
                 if g2[m] < gap[m]:
                     gap[m], at[m] = g2[m], at2[m]
     return taken
+
+
+def _off_thread_depth(
+    views: list[_View],
+    i: int,
+    on: np.ndarray,
+    lab_on: np.ndarray,
+    best: int,
+    joining: list[int],
+    votes_of: dict,
+    d: int,
+) -> list[int]:
+    """Of the pieces ``joining`` the chosen piece ``best`` of view ``i``, those behind the
+    whole thread: the largest disparity of their blocks (:func:`_block_disparities`, of their
+    pixels not voted on the surface, ``votes_of`` by piece) lies below the least of the
+    thread's blocks by more than SAME_DISPARITY_PX + _THREAD_SLOPE x gap (the thread's depth
+    changes along it by its slope at most; the gap is the piece's least distance to it), or it
+    lies nearer (by that slope) the depth of a piece already found behind it than the thread's
+    (one object: a fibre's branches). The tissue lies behind the thread; a light fibre on it,
+    left open by the block-wise surface test (a shaft or smooth tissue beside it), lies there.
+    The thread is the chosen piece's pixels not voted on the surface, grown by every piece
+    that joins (the nearest first; its blocks' disparities too). Not judged (they join): a
+    piece without a disparity of its own; one within _TOUCH_PX of the thread (split from it by a strand
+    crossing it: the chosen piece may be one strand of a loop, the piece past the crossing
+    farther than any of it); and one whose straight gap to the thread meets the instrument
+    (the thread may run on under it, its depth unknown there) (deviation 62)."""
+    if not joining:
+        return []
+    v = views[i]
+    st = _surface_test(views, i, d)
+    thread = on[lab_on == best][votes_of[best] != 1]
+    far = _block_disparities(st, v.rows[thread], v.cols[thread])
+    if not far:
+        return []
+    d_far = min(far)  # the thread's farthest block
+    pts = {}
+    for j in joining:
+        px = on[lab_on == j]
+        votes = votes_of.get(j)
+        own = px if votes is None or np.all(votes == 1) else px[votes != 1]
+        pts[j] = (v.rows[own], v.cols[own])
+    sample = {}
+    for j in joining:
+        step = max(len(pts[j][0]) // 64, 1)
+        sample[j] = np.c_[pts[j][0][::step], pts[j][1][::step]].astype(np.float64)
+    thread_xy = np.c_[v.rows[thread], v.cols[thread]].astype(np.float64)
+    gap, at = _nearest(cKDTree(thread_xy), thread_xy, sample, joining)
+    left = list(joining)
+    off: list[int] = []
+    off_pieces: list[tuple[cKDTree, np.ndarray, int]] = []  # (tree, pixels, disparity) of each
+    while left:
+        j = min(left, key=gap.__getitem__)
+        left.remove(j)
+        blocks = _block_disparities(st, *pts[j])
+        if blocks and gap[j] > _TOUCH_PX and not _crosses(v.tool, sample[j], at[j]):
+            near = _nearest_reading(blocks)  # the piece's nearest block
+            # the depth slope (px of disparity a px of gap) it needs, beyond the disparity's
+            # own uncertainty, to be the thread behind its farthest block; and to be the
+            # object of a piece found behind it (a fibre's branch): it goes with the one that
+            # needs the least
+            slope = max(d_far - near - SAME_DISPARITY_PX, 0.0) / max(gap[j], 1.0)
+            other = min(
+                (
+                    max(abs(near - d_off) - SAME_DISPARITY_PX, 0.0)
+                    / max(_nearest(tree, xy, sample, [j])[0][j], 1.0)
+                    for tree, xy, d_off in off_pieces
+                ),
+                default=np.inf,
+            )
+            if slope > _THREAD_SLOPE or other < slope:
+                off.append(j)
+                piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
+                off_pieces.append((cKDTree(piece_xy), piece_xy, near))
+                continue
+        # a piece that joins (at the thread's depth, or not judged) extends the thread
+        if blocks:
+            d_far = min(d_far, *blocks)
+        piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
+        thread_xy = np.concatenate([thread_xy, piece_xy])
+        if left:
+            g2, at2 = _nearest(cKDTree(piece_xy), piece_xy, sample, left)
+            for m in left:
+                if g2[m] < gap[m]:
+                    gap[m], at[m] = g2[m], at2[m]
+    return off
+
+
+_TOUCH_PX: Final = 2 * MAX_HALF_WIDTH_PX  # a piece this near the thread may be split from it
+# by a strand crossing it (as wide as a thread's response at most): its nearest thread pixel
+# is then the crossing strand's, at another depth
+
+
+def _nearest_reading(blocks: list[int]) -> int:
+    """The largest of a piece's block disparities ``blocks`` that another of its blocks
+    confirms (within _THREAD_SLOPE x the block's size: a line's depth slope from one block to
+    the next), or the largest where none does (a block matched off by error, e.g. where its
+    partner meets another line, reads alone)."""
+    srt = sorted(blocks, reverse=True)
+    step = _THREAD_SLOPE * BLOCK_PX
+    for n, b in enumerate(srt):
+        if any(abs(b - o) <= step for m, o in enumerate(srt) if m != n):
+            return b
+    return srt[0]
+
+
+def _block_disparities(st: SurfaceTest, rows: np.ndarray, cols: np.ndarray) -> list[int]:
+    """The disparities (:meth:`SurfaceTest.disparity`) of the pixels (``rows``, ``cols``) in
+    each block of the surface test's grid (:func:`segment_surface.block_of`) where one is
+    defined (a slanted thread's disparity changes along it)."""
+    br, bc = block_of(rows, cols)
+    key = br * (int(bc.max()) + 1) + bc if len(rows) else br
+    out = []
+    for b in np.unique(key).tolist():
+        sel = key == b
+        dd = st.disparity(rows[sel], cols[sel])
+        if dd is not None:
+            out.append(dd)
+    return out
+
+
+def _crosses(tool: np.ndarray | None, sample: np.ndarray, at: np.ndarray) -> bool:
+    """Whether the straight line from the point of ``sample`` (m, 2) nearest to ``at`` (2,)
+    (row and column) to ``at`` meets the instrument ``tool`` (H, W) bool (None: none)."""
+    if tool is None:
+        return False
+    a = sample[np.argmin(np.hypot(*(sample - at).T))]
+    n = int(np.ceil(np.hypot(*(at - a)))) + 1
+    t = np.linspace(0.0, 1.0, n)
+    r = np.rint(a[0] + t * (at[0] - a[0])).astype(np.intp)
+    c = np.rint(a[1] + t * (at[1] - a[1])).astype(np.intp)
+    return bool(tool[r, c].any())
 
 
 def _contradicted(

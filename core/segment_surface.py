@@ -51,6 +51,7 @@ _MAX_VOTES: Final = 4  # blocks that vote per piece: enough for a majority, and 
 _MIN_VOTES: Final = 2  # a piece is judged on two blocks at least (a frame tests tens of
 # blocks at 3 sigma: one passes by chance now and then)
 _MIN_BLOCK_SAMPLES: Final = 8  # samples a block needs for a disparity of its own
+BLOCK_PX: Final = _BLOCK_PX  # (the block's size, for the callers of :func:`block_of`)
 
 
 def undecidable(rows: np.ndarray, cols: np.ndarray, width: int) -> bool:

@@ -207,6 +207,19 @@ class SegmentationParams(Params):
         "there: the thread goes on, nearer the tissue than the block test resolves (~3 px). "
         "Off: every such block's pixels are cut as the mark's (deviation 60).",
     )
+    thread_depth_join: bool = param(
+        True,
+        label="raw: joining pieces not behind the thread",
+        doc="raw: a piece of the thread's dye that the surface test does not see floating "
+        "(undecided, or on the surface in part) does not join the chosen one when its nearest "
+        "block's own disparity lies behind the thread's farthest block by more than 1.5 px "
+        "plus the thread's depth slope (0.1 px a px) times its gap to the thread, nor when it "
+        "lies nearer (by that slope) the depth of such a piece: a light fibre on the tissue "
+        "beside a white thread, left open by the surface test, lies behind the whole thread. "
+        "Pieces within 12 px of the thread (split from it by a crossing strand), across the "
+        "instrument from it, or without a disparity of their own join as before. Off: every "
+        "piece of the dye joins (deviation 62).",
+    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,
