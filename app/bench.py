@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from threadrecon.app import heap
 from threadrecon.app.dataset import Frame, discover, load_frame
 from threadrecon.app.errors import UserError
 from threadrecon.app.presets import resolve_preset, validate
@@ -39,6 +40,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     warmup_ms: float | None = None
     clock = time.thread_time if args.clock == "cpu" else time.perf_counter
     for frame in frames:
+        heap.release_memory()  # the last frame's garbage freed and handed back: one frame's peak
         pair, calib, _ = load_frame(frame)
         if warmup_ms is None:  # first call in the process: loads the compiled kernels
             t0 = time.perf_counter()

@@ -1,4 +1,4 @@
-"""The server process's heap and the garbage collector's full collections.
+"""The process's heap: the garbage collector's full collections, and freed pages handed back.
 
 A full collection stops every thread (a slider move's run, the page's answer, the 3D views)
 while it scans every object the collector tracks. The server's start makes ~130k of them
@@ -11,10 +11,15 @@ a run on a new frame that left more than ``SETTLE_ABOVE`` objects to scan (new k
 compiled). Frozen objects are still freed by their reference counts (a closed session releases
 its frames and results); a reference cycle among them is not. A process that never settled
 (the tests, the Python API) is left as it is.
+
+:func:`trim` hands glibc's free heap pages back to the OS: the server after closing sessions
+(:func:`release_memory`), ``threadrecon bench`` between frames (:func:`release_memory`).
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import gc
 import threading
 
@@ -40,3 +45,28 @@ def settle_if_grown(limit: int = SETTLE_ABOVE) -> bool:
         return False
     settle()
     return True
+
+
+def _malloc_trim() -> ctypes._CFuncPtr | None:
+    name = ctypes.util.find_library("c")
+    try:
+        return ctypes.CDLL(name).malloc_trim if name else None
+    except (OSError, AttributeError):  # not glibc
+        return None
+
+
+_TRIM = _malloc_trim()
+
+
+def trim() -> None:
+    """Hand the heap's free pages back to the OS (glibc keeps them otherwise: after a few
+    1920x1080 frames a process holds ~25 MB more than one frame needs; 1-3 ms a call)."""
+    if _TRIM is not None:
+        _TRIM(0)
+
+
+def release_memory() -> None:
+    """Collect, then :func:`trim` (the RSS of a server that closed 50 sessions would otherwise
+    stay at its peak)."""
+    gc.collect()
+    trim()

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import threading
 import uuid
 
 from threadrecon.app.errors import NotFound
+from threadrecon.app.heap import release_memory
 from threadrecon.app.library import FrameLibrary
 from threadrecon.app.session import Session
 
@@ -104,24 +103,3 @@ class SessionManager:
             self._sessions.clear()
         for s in sessions:
             s.close()
-
-
-def _malloc_trim() -> ctypes._CFuncPtr | None:
-    name = ctypes.util.find_library("c")
-    try:
-        return ctypes.CDLL(name).malloc_trim if name else None
-    except (OSError, AttributeError):  # not glibc
-        return None
-
-
-_TRIM = _malloc_trim()
-
-
-def release_memory() -> None:
-    """Hand freed heap pages back to the OS (glibc keeps them otherwise, and the RSS of a
-    server that closed 50 sessions would stay at its peak)."""
-    import gc
-
-    gc.collect()
-    if _TRIM is not None:
-        _TRIM(0)

@@ -1,8 +1,9 @@
-"""The server process's heap: full garbage collections skip what is settled."""
+"""The process's heap: full garbage collections skip what is settled; freed pages go back."""
 
 from __future__ import annotations
 
 import gc
+import weakref
 from pathlib import Path
 
 import pytest
@@ -59,3 +60,32 @@ def test_a_new_frames_run_may_settle_the_heap_a_slider_move_does_not(monkeypatch
     assert s.wait(s.submit(frame_id=frames[1]), 120)
     assert len(calls) == 2
     manager.close()
+
+
+def _resident_mb() -> float:
+    return int(Path("/proc/self/statm").read_text().split()[1]) * 4096 / 2**20
+
+
+@pytest.mark.skipif(heap._TRIM is None, reason="not glibc: no malloc_trim")
+def test_trim_hands_freed_heap_pages_back():
+    """Freed small blocks stay in glibc's heap (the RSS keeps them) until trimmed; one block
+    kept at the top stops glibc's own trimming of the top of the heap."""
+    blocks = [bytearray(8192) for _ in range(12_000)]  # ~96 MB below the mmap threshold
+    keep = bytearray(8192)
+    del blocks
+    before = _resident_mb()
+    heap.trim()
+    assert _resident_mb() < before - 50
+    assert len(keep) == 8192
+
+
+def test_release_memory_collects_unreachable_cycles():
+    class Node:
+        pass
+
+    a, b = Node(), Node()
+    a.other, b.other = b, a
+    ref = weakref.ref(a)
+    del a, b
+    heap.release_memory()
+    assert ref() is None
