@@ -829,7 +829,8 @@ def _off_thread_depth(
     """Of the pieces ``joining`` the chosen piece ``best`` of view ``i``, those behind the
     whole thread: the largest disparity of their blocks (:func:`_block_disparities`, of their
     pixels not voted on the surface, ``votes_of`` by piece) lies below the least of the
-    thread's blocks by more than SAME_DISPARITY_PX + _THREAD_SLOPE x gap (the thread's depth
+    thread's blocks another of them confirms (:func:`_farthest_reading`; none: no piece is
+    judged) by more than SAME_DISPARITY_PX + _THREAD_SLOPE x gap (the thread's depth
     changes along it by its slope at most; the gap is the piece's least distance to it), or it
     lies nearer (by that slope) the depth of a piece already found behind it than the thread's
     (one object: a fibre's branches). The tissue lies behind the thread; a light fibre on it,
@@ -846,9 +847,9 @@ def _off_thread_depth(
     st = _surface_test(views, i, d)
     thread = on[lab_on == best][votes_of[best] != 1]
     far = _block_disparities(st, v.rows[thread], v.cols[thread])
-    if not far:
+    d_far = _farthest_reading(far)  # the thread's farthest block another of its blocks confirms
+    if d_far is None:  # none: the thread's own depth is not measured (e.g. a highlight on it)
         return []
-    d_far = min(far)  # the thread's farthest block
     pts = {}
     for j in joining:
         px = on[lab_on == j]
@@ -904,6 +905,19 @@ def _off_thread_depth(
 _TOUCH_PX: Final = 2 * MAX_HALF_WIDTH_PX  # a piece this near the thread may be split from it
 # by a strand crossing it (as wide as a thread's response at most): its nearest thread pixel
 # is then the crossing strand's, at another depth
+
+
+def _farthest_reading(blocks: list[int]) -> int | None:
+    """The least of block disparities ``blocks`` that another of them confirms (within
+    _THREAD_SLOPE x the block's size, as :func:`_nearest_reading`); None where none does: a
+    lone block, or blocks that disagree (a highlight's view-dependent match, a partner met by
+    another line) measure no depth of the thread."""
+    srt = sorted(blocks)
+    step = _THREAD_SLOPE * BLOCK_PX
+    for n, b in enumerate(srt):
+        if any(abs(b - o) <= step for m, o in enumerate(srt) if m != n):
+            return b
+    return None
 
 
 def _nearest_reading(blocks: list[int]) -> int:

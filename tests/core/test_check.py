@@ -999,7 +999,9 @@ def test_a_bridge_that_leaves_thread_both_views_show_is_suspect() -> None:
     itself turns back there and goes on, segmented in both views and covered by no part of the
     curve (17 mm of pixels). The bridge crosses no bare background and is no loop, so it was
     held to max_bridge_mm (40 mm): "ok", e_l 61.7 mm. The thread branching on where the curve
-    leaves it says the bridge is no continuation: held to max_unobserved_mm, suspect."""
+    leaves it says the bridge is no continuation: held to max_unobserved_mm, suspect. (The
+    segmentation of deviation 62 keeps the two fibres out and the curve is right: the check
+    is tested on the segmentation without it, which took them.)"""
     from threadrecon.core.segmentation import StereoPair
 
     frame = suite_frame(
@@ -1015,7 +1017,9 @@ def test_a_bridge_that_leaves_thread_both_views_show_is_suspect() -> None:
         specular=0.3,
     )
     calib = frame.camera.calibration()
-    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
+    params = ReconParams()
+    params = replace(params, segment=replace(params.segment, thread_depth_join=False))
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(params)
     e = _wrong_and_caught(rec, frame, calib, "where the curve leaves it", bridge_left_behind=False)
     assert e.e_S_max > 20.0
 

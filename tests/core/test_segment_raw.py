@@ -1,5 +1,6 @@
 """Tests of core/segment_raw.py's exact shortcuts: each equals the plain computation it replaces."""
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 import cv2
@@ -7,7 +8,7 @@ import numpy as np
 import pytest
 
 from threadrecon.core import segment_raw as sr
-from threadrecon.core.segmentation import SegmentationParams
+from threadrecon.core.segmentation import SegmentationParams, StereoPair, segment
 from threadrecon.core.synthetic import RenderParams, SyntheticParams, ThreadParams, generate_frame
 
 
@@ -435,3 +436,24 @@ def test_nearest_reading_is_the_largest_another_block_confirms() -> None:
     assert sr._nearest_reading([38, 70, 38, 37]) == 38  # a lone block matched off by error
     assert sr._nearest_reading([44, 48, 52]) == 52  # a slanted piece's nearest block
     assert sr._nearest_reading([30, 50]) == 50  # two that disagree: the nearer
+
+
+def test_farthest_reading_is_the_least_another_block_confirms_or_none() -> None:
+    assert sr._farthest_reading([54, 53, 57, 30]) == 53  # a lone far block matched off by error
+    assert sr._farthest_reading([71, 80]) is None  # a highlight's two blocks disagree
+    assert sr._farthest_reading([48]) is None  # one block confirms nothing
+    assert sr._farthest_reading([]) is None
+
+
+def test_a_thread_whose_blocks_measure_no_depth_judges_no_piece() -> None:
+    """The red thread of "all" seed 9948 #4 (tests/core/test_segment_raw_border.py): the right
+    view's first choice is its highlight, whose two blocks read 71 and 80 px (the true thread
+    ~54): with no confirmed reading of the thread's depth, a piece of the thread at 41 px is
+    not judged behind it (deviation 62 had taken it out: right IoU 0.61 -> 0.29)."""
+    from test_segment_raw_border import _all_frame
+
+    frame = _all_frame(9948, 4)
+    base = SegmentationParams(method="raw")
+    on = segment(StereoPair(frame.left, frame.right), base)
+    off = segment(StereoPair(frame.left, frame.right), replace(base, thread_depth_join=False))
+    assert np.array_equal(on.P_R, off.P_R)
