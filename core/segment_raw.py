@@ -907,30 +907,27 @@ _TOUCH_PX: Final = 2 * MAX_HALF_WIDTH_PX  # a piece this near the thread may be 
 # is then the crossing strand's, at another depth
 
 
-def _farthest_reading(blocks: list[int]) -> int | None:
-    """The least of block disparities ``blocks`` that another of them confirms (within
-    _THREAD_SLOPE x the block's size, as :func:`_nearest_reading`); None where none does: a
-    lone block, or blocks that disagree (a highlight's view-dependent match, a partner met by
-    another line) measure no depth of the thread."""
-    srt = sorted(blocks)
+def _confirmed(blocks: list[int]) -> list[int]:
+    """The block disparities of ``blocks`` that another of them confirms: within
+    _THREAD_SLOPE x the block's size (a line's depth slope from one block to the next)."""
     step = _THREAD_SLOPE * BLOCK_PX
-    for n, b in enumerate(srt):
-        if any(abs(b - o) <= step for m, o in enumerate(srt) if m != n):
-            return b
-    return None
+    return [b for n, b in enumerate(blocks)
+            if any(abs(b - o) <= step for m, o in enumerate(blocks) if m != n)]  # fmt: skip
+
+
+def _farthest_reading(blocks: list[int]) -> int | None:
+    """The least of block disparities ``blocks`` that another of them confirms
+    (:func:`_confirmed`); None where none does: a lone block, or blocks that disagree (a
+    highlight's view-dependent match, a partner met by another line) measure no depth of the
+    thread."""
+    return min(_confirmed(blocks), default=None)
 
 
 def _nearest_reading(blocks: list[int]) -> int:
     """The largest of a piece's block disparities ``blocks`` that another of its blocks
-    confirms (within _THREAD_SLOPE x the block's size: a line's depth slope from one block to
-    the next), or the largest where none does (a block matched off by error, e.g. where its
-    partner meets another line, reads alone)."""
-    srt = sorted(blocks, reverse=True)
-    step = _THREAD_SLOPE * BLOCK_PX
-    for n, b in enumerate(srt):
-        if any(abs(b - o) <= step for m, o in enumerate(srt) if m != n):
-            return b
-    return srt[0]
+    confirms (:func:`_confirmed`), or the largest where none does (a block matched off by
+    error, e.g. where its partner meets another line, reads alone)."""
+    return max(_confirmed(blocks) or blocks)
 
 
 def _block_disparities(st: SurfaceTest, rows: np.ndarray, cols: np.ndarray) -> list[int]:
