@@ -76,6 +76,26 @@ def suite_frame(key: list[int], **render: object) -> SyntheticFrame:
     return generate_frame(params, np.random.default_rng(key))
 
 
+ALL_SUITE: dict[str, object] = dict(
+    background="tissue",
+    noise_sigma=3.0,
+    blur_sigma=0.5,
+    thread_colour="random",
+    distractors=6,
+    instrument=True,
+    lighting=0.5,
+    jpeg_quality=75,
+    specular=0.3,
+)
+"""The render flags of ``scripts/eval_suites.py``'s "all" suite (index 12): every raw
+condition together."""
+
+
+def all_frame(seed: int, k: int) -> SyntheticFrame:
+    """Frame ``k`` of ``scripts/eval_suites.py``'s "all" suite for ``seed``."""
+    return suite_frame([seed, 12, k], **ALL_SUITE)
+
+
 @functools.lru_cache(maxsize=64)
 def synthetic_case(
     seed: int, **thread_kwargs: object

@@ -9,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from support import suite_frame, synthetic_case
+from support import all_frame, suite_frame, synthetic_case
 from threadpoolctl import threadpool_limits
 
 from threadrecon.app.dataset import discover, load_frame
@@ -857,11 +857,7 @@ def test_a_fibre_joined_where_the_curve_turns_back_is_suspect() -> None:
     wrong again (docs/method.md, session 17)."""
     from threadrecon.core.segmentation import StereoPair
 
-    frame = suite_frame(
-        [16153, 12, 7], background="tissue", noise_sigma=3.0, blur_sigma=0.5,
-        thread_colour="random", distractors=6, instrument=True, lighting=0.5, jpeg_quality=75,
-        specular=0.3,
-    )  # fmt: skip
+    frame = all_frame(16153, 7)
     calib = frame.camera.calibration()
     params = ReconParams()
     params = replace(params, segment=replace(params.segment, tool_rim_px=0))
@@ -1004,18 +1000,7 @@ def test_a_bridge_that_leaves_thread_both_views_show_is_suspect() -> None:
     is tested on the segmentation without it, which took them.)"""
     from threadrecon.core.segmentation import StereoPair
 
-    frame = suite_frame(
-        [19253, 12, 16],
-        background="tissue",
-        noise_sigma=3.0,
-        blur_sigma=0.5,
-        thread_colour="random",
-        distractors=6,
-        instrument=True,
-        lighting=0.5,
-        jpeg_quality=75,
-        specular=0.3,
-    )
+    frame = all_frame(19253, 16)
     calib = frame.camera.calibration()
     params = ReconParams()
     params = replace(params, segment=replace(params.segment, thread_depth_join=False))

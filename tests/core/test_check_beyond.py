@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from support import suite_frame
+from support import ALL_SUITE, suite_frame
 
 from threadrecon.core.check_beyond import (
     _end_frame,
@@ -680,8 +680,7 @@ def _raw_suite_frame(seed: int, suite_index: int, k: int, render: dict, params=N
     "seed, suite_index, k, render",
     [
         # eval_suites "all": the raw mask stops 7 px short of a shaft the thread bends to follow
-        (13153, 12, 16, dict(thread_colour="random", distractors=6, instrument=True,
-                             lighting=0.5, jpeg_quality=75, specular=0.3, noise_sigma=3.0)),
+        (13153, 12, 16, ALL_SUITE),
         # "tissue+occlusion": the view that sees farther sees, at the shaft's edge, tissue the
         # other view's shaft hides (a half-occlusion): its patches match nothing
         (13155, 1, 3, dict(occlusion=True)),
@@ -824,10 +823,8 @@ def test_a_raw_frame_whose_thread_loop_the_segmentation_dropped_is_flagged_by_it
     from threadrecon.core.check import CheckParams
     from threadrecon.core.pipeline import ReconParams
 
-    render = dict(thread_colour="random", distractors=6, instrument=True, lighting=0.5,
-                  jpeg_quality=75, specular=0.3, noise_sigma=3.0)  # fmt: skip
     params = ReconParams(check=CheckParams(line_level=0.5))
-    rec, err = _raw_suite_frame(13173, 12, 17, render, params)
+    rec, err = _raw_suite_frame(13173, 12, 17, ALL_SUITE, params)
     assert err.e_length > 20.0
     assert rec.status == "suspect" and "a thread line goes on" in rec.message
 

@@ -9,7 +9,7 @@ import pytest
 from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
-from support import calibration_for, synthetic_case, synthetic_frame
+from support import all_frame, calibration_for, synthetic_case, synthetic_frame
 
 from threadrecon.core.metrics import curve_errors, frame_errors, polyline_length, resample
 from threadrecon.core.ordering import (
@@ -841,20 +841,8 @@ def test_a_straight_strand_keeps_every_gap_pixel_on_its_link() -> None:
     np.testing.assert_array_equal(t, t0)
 
 
-def _all_suite_frame(seed: int, k: int):
-    """Frame ``k`` of scripts/eval_suites.py's ``all`` suite (suite index 12) for ``seed``:
-    every raw condition together; the tests run it with its masks withheld."""
-    render = RenderParams(
-        background="tissue", noise_sigma=3.0, blur_sigma=0.5, thread_colour="random",
-        distractors=6, instrument=True, lighting=0.5, jpeg_quality=75, specular=0.3,
-    )  # fmt: skip
-    return generate_frame(
-        SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng([seed, 12, k])
-    )
-
-
 def test_a_generated_raw_frame_with_a_stub_on_a_link_does_not_fold() -> None:
-    frame = _all_suite_frame(13171, 6)
+    frame = all_frame(13171, 6)
     calib = calibration_for(frame.camera)
     for spur_px, folds in ((0.0, True), (OrderingParams().spur_px, False)):
         params = ReconParams(ordering=OrderingParams(spur_px=spur_px))
@@ -879,7 +867,7 @@ def test_an_end_reached_by_a_jump_extends_ahead_not_back_over_the_jump() -> None
 
 
 def test_a_generated_raw_frame_whose_end_follows_a_jump_does_not_fold() -> None:
-    frame = _all_suite_frame(13170, 2)
+    frame = all_frame(13170, 2)
     rec = Pipeline(StereoPair(frame.left, frame.right), calibration_for(frame.camera)).run()
     o = rec["ordering"]
     assert o.order[-1] < 0 and o.order[-3] >= 0  # extended, after a jump onto the end keypoint

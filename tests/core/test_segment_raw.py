@@ -6,6 +6,7 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 import pytest
+from support import all_frame
 
 from threadrecon.core import segment_raw as sr
 from threadrecon.core.segmentation import SegmentationParams, StereoPair, segment
@@ -307,14 +308,7 @@ def test_a_light_fibre_at_the_tissue_s_disparity_does_not_join_a_white_thread() 
     # disparity is that of a fibre found to be a mark on the tissue (31 px both): it is a mark
     # too, and does not join (it made 1146 of the left mask's 3421 pixels, and the curve
     # bridged 33 mm over the tissue to it).
-    render = RenderParams(
-        background="tissue", noise_sigma=3.0, blur_sigma=0.5, specular=0.3,
-        thread_colour="random", distractors=6, instrument=True, lighting=0.5, jpeg_quality=75,
-    )  # fmt: skip
-    frame = generate_frame(
-        SyntheticParams(thread=ThreadParams(), render=render),
-        np.random.default_rng([14153, 12, 2]),
-    )
+    frame = all_frame(14153, 2)
     P_L, P_R, _, _ = sr.segment_raw(frame.left, frame.right, SegmentationParams(method="raw"))
     for P, M in ((P_L, frame.mask_left), (P_R, frame.mask_right)):
         assert (P & ~M).sum() <= 0.05 * P.sum()
@@ -346,16 +340,6 @@ def test_two_dyes_takes_a_part_as_long_as_a_piece_below_a_quarter() -> None:
     assert split is not None and split.sum() == 820
 
 
-def _all_frame(seed: list[int]):
-    render = RenderParams(
-        background="tissue", noise_sigma=3.0, blur_sigma=0.5, specular=0.3,
-        thread_colour="random", distractors=6, instrument=True, lighting=0.5, jpeg_quality=75,
-    )  # fmt: skip
-    return generate_frame(
-        SyntheticParams(thread=ThreadParams(), render=render), np.random.default_rng(seed)
-    )
-
-
 def test_light_fibres_behind_a_white_thread_do_not_join_it() -> None:
     # "all" frame 19253 #16 (the lead's held-out set of session 19, ok and wrong: e_l 61.7 mm):
     # two light fibres of a white thread's dye beside the shaft, 71 and 175 px from the
@@ -363,7 +347,7 @@ def test_light_fibres_behind_a_white_thread_do_not_join_it() -> None:
     # disparity 37-38 px, the thread's farthest block 48 px: behind the whole thread, more
     # than its depth slope allows over the gap (the farther fibre by the nearer one's depth).
     # They made ~1,400 px of each mask (deviation 62).
-    frame = _all_frame([19253, 12, 16])
+    frame = all_frame(19253, 16)
     for p, fibres in ((SegmentationParams(method="raw"), False),
                       (SegmentationParams(method="raw", thread_depth_join=False), True)):  # fmt: skip
         P_L, P_R, _, _ = sr.segment_raw(frame.left, frame.right, p)
@@ -450,9 +434,7 @@ def test_a_thread_whose_blocks_measure_no_depth_judges_no_piece() -> None:
     view's first choice is its highlight, whose two blocks read 71 and 80 px (the true thread
     ~54): with no confirmed reading of the thread's depth, a piece of the thread at 41 px is
     not judged behind it (deviation 62 had taken it out: right IoU 0.61 -> 0.29)."""
-    from test_segment_raw_border import _all_frame
-
-    frame = _all_frame(9948, 4)
+    frame = all_frame(9948, 4)
     base = SegmentationParams(method="raw")
     on = segment(StereoPair(frame.left, frame.right), base)
     off = segment(StereoPair(frame.left, frame.right), replace(base, thread_depth_join=False))

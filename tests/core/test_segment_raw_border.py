@@ -6,6 +6,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 import pytest
+from support import all_frame
 
 from threadrecon.core import segment_raw as sr
 from threadrecon.core.segmentation import SegmentationParams, StereoPair, segment
@@ -115,7 +116,7 @@ def test_a_red_thread_s_stretch_beyond_the_shaft_joins_it() -> None:
     test, lies ~100 px from the rest, 60 of them under the shaft, and has the thread's own
     disparity (34 px; the vessels 28): it joins (it was left out, and the curve was 32 mm
     short but "ok")."""
-    frame = _all_frame(9948, 17)
+    frame = all_frame(9948, 17)
     lifted = segment(StereoPair(frame.left, frame.right), _P)
     beyond = np.zeros_like(frame.mask_left)
     beyond[150:240, 100:200] = True  # the stretch left of the shaft in the left view
@@ -133,7 +134,7 @@ def test_a_red_thread_nearer_than_the_tissue_s_marks_is_found() -> None:
     first pass found on the tissue (fibres at 27 px) the vessels are at the tissue's disparity
     (27 px) and the thread, at 33 px, nearer than it: it is chosen. The right view, whose first
     pass found no mark, reads the tissue from the left view's. Off: no thread found."""
-    frame = _all_frame(16153, 1)
+    frame = all_frame(16153, 1)
     pair = StereoPair(frame.left, frame.right)
     with pytest.raises(ValueError, match="no thread found"):
         segment(pair, replace(_P, first_marks=False))
@@ -149,7 +150,7 @@ def test_a_red_thread_s_piece_nearer_than_the_tissue_joins_it() -> None:
     tissue beside it is at 26 px; it did not join (in the red pass only a piece voted in front
     did), and the right view's mask held the upper half only (IoU 0.37). Nearer than the
     tissue, it joins (IoU >= 0.7)."""
-    frame = _all_frame(16153, 13)
+    frame = all_frame(16153, 13)
     pair = StereoPair(frame.left, frame.right)
 
     def right_iou(p: SegmentationParams) -> float:
@@ -185,25 +186,13 @@ def test_the_tissue_beside_a_line_is_the_median_of_its_nearest_marks() -> None:
     assert sr._Marks(_St(), v, []).disparity_of_nearest(rows, cols, 3) is None
 
 
-def _all_frame(seed: int, k: int):  # noqa: ANN202
-    """Frame ``k`` of scripts/eval_suites.py's "all" suite (index 12) for ``seed``."""
-    render = RenderParams(
-        background="tissue", noise_sigma=3.0, blur_sigma=0.5, thread_colour="random",
-        distractors=6, instrument=True, lighting=0.5, jpeg_quality=75, specular=0.3,
-    )  # fmt: skip
-    return generate_frame(
-        SyntheticParams(thread=ThreadParams(), render=render),
-        np.random.default_rng([seed, 12, k]),
-    )
-
-
 def test_a_red_thread_holding_its_highlight_is_found_though_undecided() -> None:
     """ "all", seed 9948, frame 4: a red thread of the vessels' hue with a highlight along it;
     the first pass chose the highlight (undecided by the surface test), the red pass gave up
     at the thread itself (undecided too: its grey contrast gives no disparity of its own).
     The blood-like piece holding the highlight is a glossy body, not a vessel: it is chosen
     (left view IoU 0.06 -> 0.93)."""
-    frame = _all_frame(9948, 4)
+    frame = all_frame(9948, 4)
     lifted = segment(StereoPair(frame.left, frame.right), _P)
     P, M = lifted.P_L, frame.mask_left
     assert (P & M).sum() / (P | M).sum() >= 0.85

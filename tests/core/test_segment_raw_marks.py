@@ -4,6 +4,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from support import ALL_SUITE, suite_frame
 
 from threadrecon.core import segment_raw as sr
 from threadrecon.core.segmentation import SegmentationParams
@@ -213,13 +214,7 @@ def test_a_thread_whose_partner_lies_behind_the_shaft_keeps_that_stretch() -> No
 def _all_suite_masks(seed: list[int], p: SegmentationParams) -> tuple[list[float], bool]:
     """Mask IoU of each view of a frame of scripts/eval_suites.py's ``all`` suite (suite index
     12), and whether the left mask holds any of the thread."""
-    params = RenderParams(
-        background="tissue", specular=0.3, noise_sigma=3.0, blur_sigma=0.5,
-        thread_colour="random", distractors=6, instrument=True, lighting=0.5, jpeg_quality=75,
-    )  # fmt: skip
-    frame = generate_frame(
-        SyntheticParams(thread=ThreadParams(), render=params), np.random.default_rng(seed)
-    )
+    frame = suite_frame(seed, **ALL_SUITE)
     P_L, P_R, _, _ = sr.segment_raw(frame.left, frame.right, p)
     iou = [
         float((P & M).sum()) / float((P | M).sum())
