@@ -94,7 +94,11 @@ def test_a_tune_started_from_the_page_loads_its_best_trial_into_the_sliders(new_
         )
         wait_slider(page, N_CTRL, best["spline.n_ctrl"])
         wait_slider(page, EPS1, best["reliability.eps1"])
-        assert page.locator("#preset-badge").text_content() == f"tune-trial-{best_trial}"
+        # the badge follows the session's state push, which may land after the sliders' update
+        page.wait_for_function(
+            "(name) => document.querySelector('#preset-badge').textContent === name",
+            arg=f"tune-trial-{best_trial}",
+        )
 
         # save it as a preset; a built-in name is refused with a message
         page.fill("#tune-preset-name", "default")
