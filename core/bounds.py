@@ -75,6 +75,15 @@ class BoundsParams(Params):
         doc="Gap pixels matched to a neighbouring strand take their second match where it "
         "continues the strand from its keypoints (docs/method.md, deviation 30; off: the paper).",
     )
+    dead_end_others: bool = param(
+        True,
+        label="dead end's other matches",
+        doc="A dead end's pixel (the thread's end beyond its last keypoint) whose match, followed "
+        "out from that keypoint, breaks with the strand by more than the continuity bound plus "
+        "OUTLIER_PX and whose second match does not continue it has no depth of the thread (an "
+        "occluder's edge in its window): its extra point leaves it out (docs/method.md, "
+        "deviation 64; off: the paper).",
+    )
 
 
 @dataclass(frozen=True)
@@ -122,7 +131,9 @@ def depth_bounds(
         raise ValueError(f"need at least 2 ordered keypoints for a curve, got {M}")
     fB = calib.focal * calib.baseline
     path = _border_depths(path, fB)
-    H, is_key = _extra_points(stereo, ordering, path, p.extra_px, fB, p.second_matches)
+    H, is_key = _extra_points(
+        stereo, ordering, path, p.extra_px, fB, p.second_matches, p.dead_end_others
+    )
     seg = row_norms(np.diff(H[:, :2], axis=0))
     s = np.concatenate([[0.0], np.cumsum(seg)])
     key_idx = np.flatnonzero(is_key)
@@ -310,6 +321,7 @@ def _extra_points(
     extra_px: int,
     fB: float,
     second_matches: bool = True,
+    dead_end_others: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """H: the ordered keypoints ``path`` with, after keypoint i, the extra points of link i
     (grouped operations over all links at once: one sort, no loop over links or keypoints).
@@ -345,6 +357,8 @@ def _extra_points(
     depth = (
         _dead_end_depths(stereo, ordering, path, sel, link) if second_matches else stereo.depth[sel]
     )
+    if dead_end_others:
+        depth = _dead_end_others(stereo, ordering, path, sel, link, depth)
     med, has = walk_kernel.run_medians(group, np.ascontiguousarray(depth, dtype=np.float64), n_runs)
     run_link = np.repeat(np.arange(M - 1), n_extra)
     extras = np.column_stack([cx, cy, med])[has]
@@ -459,6 +473,42 @@ def _interior_depths(
     return depth
 
 
+def _dead_end_others(
+    stereo: StereoResult,
+    ordering: Ordering,
+    path: np.ndarray,
+    sel: np.ndarray,
+    link: np.ndarray,
+    depth: np.ndarray,
+) -> np.ndarray:
+    """``depth`` (of the gap pixels ``sel`` on links ``link``) with NaN at the pixels of a dead
+    end (the link to an extension keypoint) that are another match: followed out from the end
+    keypoint as :func:`_track` follows them, one whose first match lies beyond the strand's
+    continuity bound by more than ``OUTLIER_PX`` and whose second match does not lie within it
+    (deviation 64)."""
+    M = len(path)
+    a, b = ordering.mono
+    ends = [(a, a + 1)] if ordering.order[a] < 0 else []
+    ends += [(M - 2 - b, M - 2 - b)] if ordering.order[M - 1 - b] < 0 and M - b > 2 else []
+    out_depth = depth
+    for li, anchor in ends:
+        on = np.flatnonzero(link == li)
+        z_a = path[anchor, 2]
+        if not len(on) or not (np.isfinite(z_a) and z_a > 0):
+            continue
+        px = sel[on]
+        d_a = float(disparity_of(stereo, z_a, px))
+        t = ordering.pixel_t[px]  # 0 at keypoint li, 1 at li + 1: outwards from the anchor
+        out = np.argsort(-t if anchor == li + 1 else t, kind="stable")
+        xy = np.concatenate([path[anchor : anchor + 1, :2], stereo.pixels[px[out]]])
+        other = _follow(d_a, stereo.disparity[px[out]], stereo.d_next[px[out]], xy) == OTHER
+        if other.any():
+            if out_depth is depth:
+                out_depth = depth.copy()
+            out_depth[on[out[other]]] = np.nan
+    return out_depth
+
+
 TRACK_REF = 5  # pixels whose median disparity is the followed strand's (two wrong outvoted)
 
 
@@ -470,8 +520,19 @@ def _track(d_a: float, first: np.ndarray, second: np.ndarray, xy: np.ndarray) ->
     distance from the last pixel taken), else takes its second when that does and the first
     is another match (beyond the bound by more than ``OUTLIER_PX``, the ordering's rule: a tip
     that bends in depth keeps its own); otherwise it keeps its first, and the strand's
-    disparity does not move. Compiled (:func:`walk_kernel.track_strand`: a loop over the
-    gap's pixels, thousands on a long link)."""
+    disparity does not move (:func:`_follow`)."""
+    return _follow(d_a, first, second, xy) == SWAP
+
+
+FIRST, SWAP, KEPT, OTHER = 0, 1, 2, 3  # what _follow says a gap pixel does
+
+
+def _follow(d_a: float, first: np.ndarray, second: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(n,) uint8 over a gap's pixels, :func:`_track`'s pass: FIRST (its first match taken),
+    SWAP (its second taken), KEPT (its first kept, not taken: beyond the bound by at most
+    ``OUTLIER_PX``) or OTHER (kept, not taken, beyond the bound by more: another match).
+    Compiled (:func:`walk_kernel.track_strand`: a loop over the gap's pixels, thousands on a
+    long link)."""
     return walk_kernel.track_strand(
         float(d_a),
         np.ascontiguousarray(first, dtype=np.float64),

@@ -562,18 +562,20 @@ def tip_costs(A, strip, radius, slack, shifts):  # noqa: ANN001
 
 
 @kernel(
-    "boolean[::1](float64, float64[::1], float64[::1], float64[:, ::1], float64, float64, float64, int64)"
+    "uint8[::1](float64, float64[::1], float64[::1], float64[:, ::1], float64, float64, float64, int64)"
 )
 def track_strand(d_a, first, second, xy, slack, slope, outlier, ref_n):  # noqa: ANN001
-    """bounds._track compiled: (n,) bool, the pixels of a gap (in order outwards from its
-    anchor of disparity ``d_a``; ``xy``: (n + 1, 2), the anchor first) that take their second
-    match. The strand's disparity is the median of the last ``ref_n`` pixels taken (the
-    anchor's at first); a pixel keeps its first match within ``slack + slope * step`` of it
-    (step: distance from the last pixel taken), else takes its second when that lies within
-    and the first lies beyond by more than ``outlier``; otherwise it keeps its first and the
-    strand's disparity does not move."""
+    """bounds._track compiled: (n,) uint8, what the pixels of a gap (in order outwards from its
+    anchor of disparity ``d_a``; ``xy``: (n + 1, 2), the anchor first) do: 1 take their second
+    match, 0 their first, 2 keep their first untaken, 3 the same with the first beyond the
+    bound by more than ``outlier`` (another match: bounds._dead_end_others). The strand's
+    disparity is the median of the last ``ref_n`` pixels taken (the anchor's at first); a
+    pixel keeps its first match within ``slack + slope * step`` of it (step: distance from
+    the last pixel taken), else takes its second when that lies within and the first lies
+    beyond by more than ``outlier``; otherwise it keeps its first and the strand's disparity
+    does not move."""
     n = first.size
-    swap = np.zeros(n, dtype=np.bool_)
+    state = np.zeros(n, dtype=np.uint8)
     ring = np.empty(ref_n)
     buf = np.empty(ref_n)
     ring[0] = d_a
@@ -596,13 +598,14 @@ def track_strand(d_a, first, second, xy, slack, slope, outlier, ref_n):  # noqa:
             v = first[i]
         elif abs(second[i] - d_ref) <= bound and e1 > bound + outlier:
             v = second[i]
-            swap[i] = True
+            state[i] = 1
         else:
+            state[i] = 3 if e1 > bound + outlier else 2
             continue
         ring[taken % ref_n] = v
         taken += 1
         lx, ly = px, py
-    return swap
+    return state
 
 
 @kernel(

@@ -765,3 +765,45 @@ def test_extra_runs_drop_a_pixel_on_a_run_boundary() -> None:
     np.testing.assert_array_equal(group, [0, 0, 1, 1])
     np.testing.assert_array_equal(cx, [1.0, 7.0])
     np.testing.assert_array_equal(cy, [2.0, 8.0])
+
+
+def test_a_dead_end_matched_to_an_occluders_edge_gives_no_extra_point_depth() -> None:
+    # Raw tissue+occlusion 20253 #11 (eval_suites, masks withheld): the thread's end runs
+    # beside a shaft's edge into the image's corner; its dead end's matching windows hold the
+    # shaft's edge (disparity 44-52 px, the thread ~32.5), no second match on the strand. With
+    # those depths the end's window line put the curve's end 4 px of disparity (13 mm) too
+    # near, the frame "ok" and wrong (e_S^max 21.3 mm); without them (deviation 64) right.
+    from support import suite_frame
+
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.segmentation import StereoPair
+
+    frame = suite_frame(
+        [20253, 1, 11], background="tissue", noise_sigma=2.0, blur_sigma=0.5, occlusion=True
+    )
+    calib = frame.camera.calibration()
+    fB = calib.focal * calib.baseline
+    pipe = Pipeline(StereoPair(frame.left, frame.right), calib)
+    got = {}
+    for on in (False, True):
+        params = ReconParams()
+        params = replace(params, bounds=replace(params.bounds, dead_end_others=on))
+        rec = pipe.run(params)
+        e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+        got[on] = (rec.status, e.e_S_max, fB / rec["bounds"].end_values[1])
+    assert got[False][0] == "ok" and got[False][1] > 20.0 and got[False][2] > 35.0
+    assert got[True][0] == "ok" and got[True][1] < 15.0 and abs(got[True][2] - 32.6) < 1.0
+
+
+def test_follow_names_the_pixels_it_leaves_and_tracks_swaps_them() -> None:
+    # _follow's states: a strand at 30 px (FIRST), one pixel at 45 px whose second match is
+    # 30 (SWAP), one at 32.5 just past the bound (KEPT: within OUTLIER_PX of it), one at 50
+    # with no second match near (OTHER); _track is its SWAP.
+    from threadrecon.core.bounds import FIRST, KEPT, OTHER, SWAP, _follow, _track
+
+    xy = np.column_stack([np.arange(6, dtype=float), np.zeros(6)])
+    first = np.array([30.0, 45.0, 32.5, 50.0, 30.1])
+    second = np.array([10.0, 30.0, 10.0, 10.0, 10.0])
+    got = _follow(30.0, first, second, xy)
+    assert got.tolist() == [FIRST, SWAP, KEPT, OTHER, FIRST]
+    assert np.array_equal(_track(30.0, first, second, xy), got == SWAP)
