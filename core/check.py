@@ -389,6 +389,15 @@ class CheckParams(Params):
         "took a branch onto another strand) and is held to max_unobserved_mm, not "
         "max_bridge_mm. Off: before session 20. docs/method.md, okw20.",
     )  # fmt: skip
+    bridge_alongside: bool = param(
+        True, label="a stretch beside the thread is no bridge",
+        doc="On: a run of the curve off the thread pixels (farther than jump_px) between two "
+        "thread parts whose every sample lies, in both views, within reproj_max_px of the "
+        "thread pixels is no bridge: the thread is segmented all along it (the curve only "
+        "runs beside it), so it is judged by the reprojection test like any observed stretch, "
+        "not as a stretch no view observes (max_unobserved_mm). Off: before session 21. "
+        "docs/method.md, prec21.",
+    )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
         doc="Expected error at which the confidence is exp(-1).",
@@ -678,6 +687,19 @@ def _check(
     off_l, off_r = in_l & (rho_l > p.jump_px), in_r & (rho_r > p.jump_px)
     run_l, run3_l, bridge_l = _off_thread_runs(off_l, step, step3)
     run_r, run3_r, bridge_r = _off_thread_runs(off_r, step_r, step3)
+    if p.bridge_alongside and (bridge_l | bridge_r).any():
+        # a run beside the thread (within the reprojection limit in both views all along) is
+        # observed: the reprojection test judges it, not the bridge test
+        near = in_l & in_r & (rho_l <= p.reproj_max_px) & (rho_r <= p.reproj_max_px)
+        for i0, i1 in _runs(bridge_l) + _runs(bridge_r):
+            if near[i0:i1].all():
+                for off, run, run3, bridge in ((off_l, run_l, run3_l, bridge_l),
+                                               (off_r, run_r, run3_r, bridge_r)):  # fmt: skip
+                    keep = ~bridge[i0:i1]  # an end run of the view is left as it is
+                    off[i0:i1] &= keep
+                    run[i0:i1] *= keep
+                    run3[i0:i1] *= keep
+                    bridge[i0:i1] = False
     longest_jump = float(max(run_l.max(), run_r.max()))
     ends = (off_l & ~bridge_l) | (off_r & ~bridge_r)
     bare = (

@@ -1027,3 +1027,27 @@ def test_an_end_cut_by_a_shaft_of_the_tissues_grey_is_suspect() -> None:
         rec, frame, calib, "the end is cut by an occluder", cut_front_stereo=False
     )
     assert e.e_S_max > 20.0
+
+
+def test_a_stretch_beside_the_segmented_thread_is_no_bridge() -> None:
+    """Raw colours #6 of seed 20253 (eval_suites' frame, masks withheld; prec21): a blue thread
+    on red tissue, segmented all along; over a near-horizontal stretch of 90 samples the curve
+    runs up to 7 px beside the thread pixels in both views (e_S^max 1.3 mm). Off the thread
+    by more than jump_px between two thread parts, the stretch read as a 23 mm bridge over
+    bare background (suspect). Within reproj_max_px of the thread pixels all along in both
+    views it is observed: the reprojection test judges it, and the curve is ok."""
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.segmentation import StereoPair
+
+    frame = suite_frame(
+        [20253, 7, 6], background="tissue", noise_sigma=2.0, blur_sigma=0.5,
+        thread_colour="random",
+    )  # fmt: skip
+    calib = frame.camera.calibration()
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run()
+    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert abs(e.e_length) < 2.0 and e.e_S_max < 2.0
+    assert rec["check"].status == "ok", rec["check"].reasons
+    off = _check_again(rec, calib, bridge_alongside=False)
+    assert off.status == "suspect"
+    assert any("bare background in both views" in r for r in off.reasons), off.reasons
