@@ -1027,3 +1027,18 @@ def test_an_end_cut_by_a_shaft_of_the_tissues_grey_is_suspect() -> None:
         rec, frame, calib, "the end is cut by an occluder", cut_front_stereo=False
     )
     assert e.e_S_max > 20.0
+
+
+def test_a_curve_moving_with_the_tissue_beside_it_is_a_mark() -> None:
+    """Raw "all" frame 20253 #2 (eval_suites' frame, masks withheld; okw21): a blue thread on
+    blue tissue is lost, and the segmentation takes a light line near the bottom border that
+    its surface test leaves open (one 64 px block). The curve, 21.8 mm long, has one end at
+    the border and the other free: "ok", e_S^max 96.5 mm. The tissue beside the curve lies at
+    the curve's own disparity in both views: a mark on the tissue, not a thread."""
+    frame = all_frame(20253, 2)
+    calib = frame.camera.calibration()
+    from threadrecon.core.segmentation import StereoPair
+
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
+    e = _wrong_and_caught(rec, frame, calib, "moves with the tissue", surface_mark=False)
+    assert e.e_S_max > 20.0
