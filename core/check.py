@@ -78,6 +78,7 @@ from threadrecon.core.check_kernel import (
     unmeasured_length,
     unsupported_travel,
 )
+from threadrecon.core.check_mark import moves_with_surface
 from threadrecon.core.check_score import (
     GraspPoint,
     bound_halfwidth_px,
@@ -397,6 +398,32 @@ class CheckParams(Params):
         "runs beside it), so it is judged by the reprojection test like any observed stretch, "
         "not as a stretch no view observes (max_unobserved_mm). Off: before session 21. "
         "docs/method.md, prec21.",
+    )  # fmt: skip
+    surface_mark: bool = param(
+        True, label="a curve moving with the tissue is a mark",
+        doc="On: suspect when the surface just beside the curve, measured by stereo in both "
+        "views (core/check_mark.moves_with_surface), lies at the curve's own disparity (within "
+        "mark_disparity_px) on at least mark_share of the first mark_measures patches that "
+        "measure it: the curve moves with the tissue, a mark on it (a vessel, a fibre), not a "
+        "thread in front of it (the raw segmentation's own test, core/segment_surface, leaves "
+        "a piece in fewer than two 64 px blocks open). Off: no such test (before session 21). "
+        "docs/method.md, okw21.",
+    )  # fmt: skip
+    mark_measures: int = param(
+        8, lo=1, slider=(1, 32, 1), label="mark: patches measured",
+        doc="Patches beside the curve that must measure a surface for surface_mark to judge "
+        "(spread along the curve, both views and both sides in turn; fewer: no finding).",
+    )  # fmt: skip
+    mark_share: float = param(
+        0.75, lo=0.0, hi=1.0, slider=(0.5, 1.0, 0.05), label="mark: share moving with it",
+        doc="Share of the mark_measures patches at the curve's disparity that makes it a mark "
+        "(the raw segmentation's _MARK_SHARE: a block's test errs now and then).",
+    )  # fmt: skip
+    mark_disparity_px: float = param(
+        1.5, lo=0.0, unit="px", slider=(0.5, 4.0, 0.5), label="mark: same disparity",
+        doc="A patch beside the curve within this of the curve's disparity moves with it "
+        "(segment_surface.SAME_DISPARITY_PX; the generator's threads float >= 3.5 px in front "
+        "of the tissue at its far depth).",
     )  # fmt: skip
     conf_mm: float = param(
         2.0, lo=1e-6, unit="mm", slider=(0.1, 10.0, 0.1), label="confidence scale",
@@ -1051,6 +1078,21 @@ def _check(
              "while the curve before the turn floats in front of it: that branch may be a mark "
              f"on the surface joined to the thread there (limit {p.max_unobserved_mm:g} mm)")
         )  # fmt: skip
+    # The surface beside the curve at the curve's own depth in both views: a mark on the tissue
+    # (a vessel, a fibre the segmentation could not judge), not a thread in front of it.
+    if p.surface_mark:
+        mark = moves_with_surface(
+            (uv_l, uv_r), (lifted.grey_L, lifted.grey_R), (lifted.P_L, lifted.P_R),
+            f * B / z_pos, p.mark_disparity_px, p.mark_measures, p.mark_share,
+        )  # fmt: skip
+        if mark.measured >= p.mark_measures and mark.along >= p.mark_share * mark.measured:
+            findings.append(
+                ("suspect", f"the surface beside the curve lies at the curve's own depth "
+                 f"(within {p.mark_disparity_px:g} px of disparity) at {mark.along} of the "
+                 f"{mark.measured} places stereo measures it in the two views: the curve moves "
+                 "with the tissue, a mark on it (a vessel, a fibre), not a thread in front of "
+                 f"it (limit {p.mark_share:.0%})")
+            )  # fmt: skip
     # Per-point expected error and confidence.
     unsupported = _unsupported_travel(z, supported) * mm
     if unsupported > p.max_unsupported_mm:

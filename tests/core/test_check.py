@@ -1051,3 +1051,18 @@ def test_a_stretch_beside_the_segmented_thread_is_no_bridge() -> None:
     off = _check_again(rec, calib, bridge_alongside=False)
     assert off.status == "suspect"
     assert any("bare background in both views" in r for r in off.reasons), off.reasons
+
+
+def test_a_curve_moving_with_the_tissue_beside_it_is_a_mark() -> None:
+    """Raw "all" frame 20253 #2 (eval_suites' frame, masks withheld; okw21): a blue thread on
+    blue tissue is lost, and the segmentation takes a light line near the bottom border that
+    its surface test leaves open (one 64 px block). The curve, 21.8 mm long, has one end at
+    the border and the other free: "ok", e_S^max 96.5 mm. The tissue beside the curve lies at
+    the curve's own disparity in both views: a mark on the tissue, not a thread."""
+    frame = all_frame(20253, 2)
+    calib = frame.camera.calibration()
+    from threadrecon.core.segmentation import StereoPair
+
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
+    e = _wrong_and_caught(rec, frame, calib, "moves with the tissue", surface_mark=False)
+    assert e.e_S_max > 20.0
