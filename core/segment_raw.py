@@ -205,18 +205,33 @@ def segment_raw(
         )
     out = []
     for v, core in zip(views, found, strict=True):
-        # Specks are judged on the mask joined with its core: a thread 1-2 px wide is cut
-        # where its axis passes between pixel centres (coverage < 0.5 on both sides), and its
-        # parts stay one piece through the core's pixels there.
-        mask = _grow_mask(v, core)
-        if v.tool_body is not None:  # the instrument's body and rim are no thread pixels
-            mask &= ~v.tool_body
-        if v.grey_core:  # a highlight on it is not told from its body by colour
-            mask = _fill_across(mask, _HIGHLIGHT_PX)
-        mask &= drop_specks(mask | core.view(bool), max(int(p.min_length_px), 1))
+        mask = _thread_mask(v, core, max(int(p.min_length_px), 1))
         cap = 2.0 * p.ridge_hi * v.level
         out.append((mask, Deferred(_score_of, v.img, cap) if defer_score else _score(v.S, cap)))
     return out[0][0], out[1][0], out[0][1], out[1][1]
+
+
+def _thread_mask(v: _View, core: np.ndarray, min_px: int) -> np.ndarray:
+    """(H, W) bool thread mask of the view grown from its ``core`` (H, W) uint8
+    (:func:`_grow_mask`), off the instrument's body and rim, with the runs it encloses for a
+    near-grey contrast (:func:`_fill_across`), without specks of < ``min_px`` pixels.
+
+    Specks are judged on the mask joined with its core: a thread 1-2 px wide is cut where its
+    axis passes between pixel centres (coverage < 0.5 on both sides), and its parts stay one
+    piece through the core's pixels there. Each step runs on the box the mask is grown on
+    (:func:`_grow_box`): the mask and the core lie in it, and so do the runs the mask encloses
+    and its components (the same mask as the steps on the whole view, no pass over it)."""
+    mask = np.zeros(core.shape, bool)
+    if (grown := _grow_box(v, core)) is None:
+        return mask
+    box, at = grown
+    if v.tool_body is not None:  # the instrument's body and rim are no thread pixels
+        box &= ~v.tool_body[at]
+    if v.grey_core:  # a highlight on it is not told from its body by colour
+        box = _fill_across(box, _HIGHLIGHT_PX)
+    box &= drop_specks(box | core[at].view(bool), min_px)
+    mask[at] = box
+    return mask
 
 
 def _score_of(img: np.ndarray, cap: float) -> np.ndarray:
@@ -2031,11 +2046,20 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     to the image, by one compiled pass (:mod:`threadrecon.core.grow_kernel`, the
     same arithmetic as the numpy and cv2 steps, bit for bit).
     """
-    h, w = core.shape
     out = np.zeros(core.shape, bool)
+    if (grown := _grow_box(v, core)) is not None:
+        box, at = grown
+        out[at] = box
+    return out
+
+
+def _grow_box(v: _View, core: np.ndarray) -> tuple[np.ndarray, tuple[slice, slice]] | None:
+    """:func:`_grow_mask` on the box it is computed on: the mask there (bh, bw) bool and the
+    box (rows, columns) of the view; None for an empty ``core`` (an empty mask)."""
+    h, w = core.shape
     x0, y0, bw, bh = cv2.boundingRect(np.ascontiguousarray(core, np.uint8))
     if bw == 0:
-        return out
+        return None
     m = _BAND_PX + 2
     r0, r1, c0, c1 = max(y0 - m, 0), min(y0 + bh + m, h), max(x0 - m, 0), min(x0 + bw + m, w)
     a = v.img if v.img.ndim == 3 else v.img[:, :, None]
@@ -2055,8 +2079,7 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
         np.float32(_GLINT_APART_SIN2),
         np.float32(_SHARED_PX),
     )
-    out[r0:r1, c0:c1] = box.view(bool)
-    return out
+    return box.view(bool), (slice(r0, r1), slice(c0, c1))
 
 
 _DISC: Final = cv2.getStructuringElement(

@@ -439,3 +439,28 @@ def test_a_thread_whose_blocks_measure_no_depth_judges_no_piece() -> None:
     on = segment(StereoPair(frame.left, frame.right), base)
     off = segment(StereoPair(frame.left, frame.right), replace(base, thread_depth_join=False))
     assert np.array_equal(on.P_R, off.P_R)
+
+
+@pytest.mark.parametrize("k", range(4))
+def test_thread_mask_on_the_grown_box_equals_its_steps_on_the_whole_view(k: int) -> None:
+    """:func:`segment_raw._thread_mask` (each step on the box the mask is grown on) gives the
+    mask of the steps on the whole view: grown mask, off the instrument's body, the enclosed
+    runs filled for a grey contrast (forced here on every view), specks dropped."""
+    frame = all_frame(20253, k)  # instruments, jaws, random dyes
+    p = SegmentationParams(method="raw")
+    views = [sr._View.build(img, p) for img in (frame.left, frame.right)]
+    found, _, _, _ = sr._select(views, p)
+    if found is None:
+        pytest.skip("no thread chosen in this frame")
+    min_px = max(int(p.min_length_px), 1)
+    for v, core in zip(views, found, strict=True):
+        for grey in (False, True):
+            v.grey_core = grey
+            mask = sr._grow_mask(v, core)
+            if v.tool_body is not None:
+                mask &= ~v.tool_body
+            if grey:
+                mask = sr._fill_across(mask, sr._HIGHLIGHT_PX)
+            mask &= sr.drop_specks(mask | core.view(bool), min_px)
+            assert mask.any()
+            assert np.array_equal(sr._thread_mask(v, core, min_px), mask)
