@@ -32,6 +32,8 @@ from threadrecon.core.ridge_kernel import (
     label_pixels,
     line_response,
     log_planes,
+    piece_candidates,
+    piece_shapes,
     piece_stats,
     pixels_at,
     small_components,
@@ -1853,24 +1855,21 @@ def _pieces(
     area, sums, seeded, boxes = piece_stats(
         lab, rows, cols, s_px, np.float32(p.ridge_hi * v.level), n
     )
-    means = sums / np.maximum(area, 1.0)
     # Half-width of a piece: its largest distance to the outside; length: area / width (a loop
     # or a coil is long in a small box), at least the bounding box diagonal. Both only matter
     # for seeded pieces that can reach min_length_px: length <= max(diag, area / (2 a)), a =
     # 0.955 the chamfer's smallest distance, and diag <= sqrt(2) area (a connected piece's box
     # sides are <= its area). Those are few (a few % of the pieces); each is measured alone.
-    cands = seeded & (np.sqrt(2.0) * area >= p.min_length_px)
-    cands[0] = False
-    boxes *= cands  # the other pieces' boxes are not needed (0, as their length)
-    r0, r1, c0, c1 = boxes
-    diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
-    cands &= np.maximum(diag, area / (2.0 * _CHAMFER_A)) >= p.min_length_px
+    # The other pieces' boxes are not needed (0, as their length); the pieces off the image's
+    # border only (:func:`_along_border`). Per piece, in one compiled pass each side of the
+    # half-widths (numpy's float64 steps, :func:`_piece_shapes_plain`).
     h, w = v.lo.shape
-    cands &= ~_along_border(boxes, h, w)
+    min_len = float(p.min_length_px)
+    means, cands, diag = piece_candidates(
+        area, sums, seeded, boxes, min_len, _SQRT2, 2.0 * _CHAMFER_A, h, w, _BORDER_PX
+    )
     half = half_widths(lab, rows, cols, np.flatnonzero(cands), boxes, h, w)
-    length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
-    ok = cands & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
-    wide = cands & (length >= p.min_length_px) & ~ok
+    length, ok, wide = piece_shapes(area, diag, half, cands, min_len, MAX_HALF_WIDTH_PX)
     if p.split_wide and not thin_only and wide.any():
         # A thread merged with a line it runs beside (or crossing itself at a shallow angle)
         # is wider than a thread there only: that part goes, the rest is judged as pieces.
@@ -1879,13 +1878,43 @@ def _pieces(
             keep = np.ones(len(v.rows), bool) if sub is None else sub.copy()
             keep[np.flatnonzero(keep)[drop]] = False
             return _pieces(keep, v, p, thin_only=True)
-    means[0] = 0.0
     on = ok[lab]
     lab_all = lab if at is None else _scatter(lab, at, len(sub))
     return lab_all, (rows[on], cols[on]), means, length, ok
 
 
 _CHAMFER_A: Final = 0.95  # below cv2's DIST_L2 3x3 step (0.955): no piece is thinner
+_SQRT2: Final = float(np.sqrt(2.0))  # a connected piece's box diagonal over its area, at most
+
+
+def _piece_shapes_plain(
+    area: np.ndarray,
+    sums: np.ndarray,
+    seeded: np.ndarray,
+    boxes: np.ndarray,
+    half_of: Callable[[np.ndarray], np.ndarray],
+    min_len: float,
+    h: int,
+    w: int,
+) -> tuple[np.ndarray, ...]:
+    """The per-piece steps of :func:`_pieces` as numpy steps (means, candidates, boxes zeroed
+    in place, lengths, shape-ok, too wide), ``half_of(cands)`` giving the half-widths: what
+    :func:`threadrecon.core.ridge_kernel.piece_candidates` and ``piece_shapes`` compute, bit
+    for bit (tests/core/test_segment_raw.py)."""
+    means = sums / np.maximum(area, 1.0)
+    cands = seeded & (np.sqrt(2.0) * area >= min_len)
+    cands[0] = False
+    boxes *= cands
+    r0, r1, c0, c1 = boxes
+    diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
+    cands &= np.maximum(diag, area / (2.0 * _CHAMFER_A)) >= min_len
+    cands &= ~_along_border(boxes, h, w)
+    half = half_of(cands)
+    length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
+    ok = cands & (length >= min_len) & (half <= MAX_HALF_WIDTH_PX)
+    wide = cands & (length >= min_len) & ~ok
+    means[0] = 0.0
+    return means, cands, diag, length, ok, wide
 
 
 def _wide_part(

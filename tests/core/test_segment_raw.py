@@ -464,3 +464,47 @@ def test_thread_mask_on_the_grown_box_equals_its_steps_on_the_whole_view(k: int)
             mask &= sr.drop_specks(mask | core.view(bool), min_px)
             assert mask.any()
             assert np.array_equal(sr._thread_mask(v, core, min_px), mask)
+
+
+@pytest.mark.parametrize("trial", range(30))
+def test_piece_kernels_equal_the_numpy_steps(trial: int) -> None:
+    """ridge_kernel.piece_candidates and piece_shapes give the numpy steps' means,
+    candidates, zeroed boxes, lengths, shape-ok and too-wide pieces, bit for bit (random
+    pieces of random boxes, areas and half-widths, many at the thresholds)."""
+    from threadrecon.core.ridge_kernel import piece_candidates, piece_shapes
+
+    rng = np.random.default_rng([41, trial])
+    n = int(rng.integers(1, 400))
+    h, w = int(rng.integers(8, 500)), int(rng.integers(8, 700))
+    r0 = rng.integers(0, h, n)
+    c0 = rng.integers(0, w, n)
+    boxes = np.stack(
+        [r0, np.minimum(r0 + rng.integers(0, 60, n), h - 1),
+         c0, np.minimum(c0 + rng.integers(0, 60, n), w - 1)]
+    ).astype(np.int64)  # fmt: skip
+    area = rng.integers(1, 300, n).astype(np.float64)
+    area[rng.random(n) < 0.2] = 0.0
+    sums = area * rng.random(n) * 50
+    seeded = rng.random(n) < 0.7
+    min_len = float(rng.choice([10.0, 20.0, 30.0, 14.142135623730951]))
+    half = np.round(rng.random(n) * 9, 1)
+    half[rng.random(n) < 0.3] = 0.0
+
+    def half_of(cands: np.ndarray) -> np.ndarray:
+        return np.where(cands, half, 0.0)
+
+    b_plain = boxes.copy()
+    means, cands, diag, length, ok, wide = sr._piece_shapes_plain(
+        area, sums.copy(), seeded, b_plain, half_of, min_len, h, w
+    )
+    b_kernel = boxes.copy()
+    k_means, k_cands, k_diag = piece_candidates(
+        area, sums, seeded, b_kernel, min_len, sr._SQRT2, 2.0 * sr._CHAMFER_A, h, w, sr._BORDER_PX
+    )
+    k_length, k_ok, k_wide = piece_shapes(
+        area, k_diag, half_of(k_cands), k_cands, min_len, sr.MAX_HALF_WIDTH_PX
+    )
+    for a, b in ((means, k_means), (cands, k_cands), (b_plain, b_kernel), (diag, k_diag),
+                 (length, k_length), (ok, k_ok), (wide, k_wide)):  # fmt: skip
+        assert a.dtype == b.dtype
+        assert np.array_equal(a, b)
