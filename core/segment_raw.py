@@ -170,6 +170,7 @@ def segment_raw(
     if greys is not None:  # (the same grey levels as :meth:`_View.grey`'s, computed once)
         views[0]._grey, views[1]._grey = greys
     found, salience, _, floating = _select(views, p)
+    rects = _rects(found)  # the cores' bounding boxes, found once for every step below
     if any(v.blood.any() for v in views):
         # A red thread is blood-like too: it wins back when it stands out far more than
         # anything left without the blood-like pixels, and when its hue differs from the
@@ -183,7 +184,7 @@ def segment_raw(
         # A line chosen without them that runs along blood-like pixels in both views may be
         # the highlight along a red thread: the thread is then the blood-like line around it.
         glint = found is not None and all(
-            _near_blood(v, c) for v, c in zip(views, found, strict=True)
+            _near_blood(v, c, r) for v, c, r in zip(views, found, rects, strict=True)
         )
         red, red_salience, red_cos, _ = (
             _select(red_views, p, nearest_hue=True, along=found if glint else None)
@@ -194,10 +195,14 @@ def segment_raw(
         if red is not None and (
             not floating
             or (red_salience >= _RED_THREAD_GAIN * salience and red_cos < _VESSEL_HUE_COS)
-            or (glint and all(_near(r, c) for r, c in zip(red, found, strict=True)))
+            or (
+                glint
+                and all(_near(r, c, rect=b) for r, c, b in zip(red, found, rects, strict=True))
+            )
         ):
             views, found = red_views, red
-    if found is not None and not _one_object(found, int(p.max_disparity_px)):
+            rects = _rects(found)
+    if found is not None and not _one_object(found, int(p.max_disparity_px), rects):
         found = None  # each view chose another line: neither is seen in both (no thread)
     if found is None:
         raise ValueError(
@@ -206,14 +211,21 @@ def segment_raw(
             f"min_length_px={p.min_length_px:g})"
         )
     out = []
-    for v, core in zip(views, found, strict=True):
-        mask = _thread_mask(v, core, max(int(p.min_length_px), 1))
+    for v, core, rect in zip(views, found, rects, strict=True):
+        mask = _thread_mask(v, core, max(int(p.min_length_px), 1), rect)
         cap = 2.0 * p.ridge_hi * v.level
         out.append((mask, Deferred(_score_of, v.img, cap) if defer_score else _score(v.S, cap)))
     return out[0][0], out[1][0], out[0][1], out[1][1]
 
 
-def _thread_mask(v: _View, core: np.ndarray, min_px: int) -> np.ndarray:
+def _rects(cores: list[np.ndarray] | None) -> list[tuple[int, int, int, int]]:
+    """``cv2.boundingRect`` (x, y, w, h) of each core (H, W) uint8 (none for None)."""
+    return [] if cores is None else [cv2.boundingRect(c) for c in cores]
+
+
+def _thread_mask(
+    v: _View, core: np.ndarray, min_px: int, rect: tuple[int, int, int, int] | None = None
+) -> np.ndarray:
     """(H, W) bool thread mask of the view grown from its ``core`` (H, W) uint8
     (:func:`_grow_mask`), off the instrument's body and rim, with the runs it encloses for a
     near-grey contrast (:func:`_fill_across`), without specks of < ``min_px`` pixels.
@@ -222,9 +234,10 @@ def _thread_mask(v: _View, core: np.ndarray, min_px: int) -> np.ndarray:
     axis passes between pixel centres (coverage < 0.5 on both sides), and its parts stay one
     piece through the core's pixels there. Each step runs on the box the mask is grown on
     (:func:`_grow_box`): the mask and the core lie in it, and so do the runs the mask encloses
-    and its components (the same mask as the steps on the whole view, no pass over it)."""
+    and its components (the same mask as the steps on the whole view, no pass over it).
+    ``rect``: the core's bounding box, when known (:func:`_rects`)."""
     mask = np.zeros(core.shape, bool)
-    if (grown := _grow_box(v, core)) is None:
+    if (grown := _grow_box(v, core, rect)) is None:
         return mask
     box, at = grown
     if v.tool_body is not None:  # the instrument's body and rim are no thread pixels
@@ -1199,18 +1212,24 @@ class _Marks:
         return float(np.median(found)) if found else None
 
 
-def _near_blood(v: _View, core: np.ndarray) -> bool:
-    """:func:`_near` of the view's blood-like candidate pixels and ``core`` (H, W) uint8."""
+def _near_blood(v: _View, core: np.ndarray, rect: tuple[int, int, int, int] | None = None) -> bool:
+    """:func:`_near` of the view's blood-like candidate pixels and ``core`` (H, W) uint8 (of
+    bounding box ``rect``, when known)."""
     rows, cols = v.rows[v.blood], v.cols[v.blood]
-    return _near(None, core, (rows, cols))
+    return _near(None, core, (rows, cols), rect)
 
 
-def _near(other: np.ndarray | None, core: np.ndarray, other_px: tuple | None = None) -> bool:
+def _near(
+    other: np.ndarray | None,
+    core: np.ndarray,
+    other_px: tuple | None = None,
+    rect: tuple[int, int, int, int] | None = None,
+) -> bool:
     """Whether at least half of the ``core`` (H, W) uint8 pixels have a pixel of ``other``
     (H, W) uint8 (or of the pixels ``other_px``, rows and columns) within _GLINT_SIDE_PX (a
     highlight's distance to the sides of its thread); on the core's bounding box grown by
-    that."""
-    x, y, w, h = cv2.boundingRect(core)
+    that (``rect``: the core's, when known)."""
+    x, y, w, h = cv2.boundingRect(core) if rect is None else rect
     if w == 0:
         return False
     m = _GLINT_SIDE_PX
@@ -1326,14 +1345,17 @@ def _a_mark_of_one_dye(
 _MIXED_SHARE: Final = 1.0 - _MARK_SHARE  # a thread merged with a mark keeps >= 1/4 of its own
 
 
-def _one_object(cores: list[np.ndarray], d: int) -> bool:
+def _one_object(
+    cores: list[np.ndarray], d: int, rects: list[tuple[int, int, int, int]] | None = None
+) -> bool:
     """Whether the core pixels (H, W) uint8 chosen in the two views are one object seen twice:
     at least half of one view's core pixels have a core pixel of the other view on the same
     row within [0, d] of disparity (:func:`_has_partner`; the view where more of the thread is
-    hidden holds the fewer pixels, and those have their partners)."""
+    hidden holds the fewer pixels, and those have their partners). ``rects``: the cores'
+    bounding boxes, when known."""
     pts = []
-    for c in cores:  # on each core's bounding box: a few % of the image
-        x, y, w, h = cv2.boundingRect(c)
+    for j, c in enumerate(cores):  # on each core's bounding box: a few % of the image
+        x, y, w, h = cv2.boundingRect(c) if rects is None else rects[j]
         rows, cols = _points(c[y : y + h, x : x + w])
         pts.append((rows + y, cols + x))
     width = cores[0].shape[1]
@@ -2082,11 +2104,16 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     return out
 
 
-def _grow_box(v: _View, core: np.ndarray) -> tuple[np.ndarray, tuple[slice, slice]] | None:
+def _grow_box(
+    v: _View, core: np.ndarray, rect: tuple[int, int, int, int] | None = None
+) -> tuple[np.ndarray, tuple[slice, slice]] | None:
     """:func:`_grow_mask` on the box it is computed on: the mask there (bh, bw) bool and the
-    box (rows, columns) of the view; None for an empty ``core`` (an empty mask)."""
+    box (rows, columns) of the view; None for an empty ``core`` (an empty mask). ``rect``:
+    the core's bounding box (x, y, w, h), when known."""
     h, w = core.shape
-    x0, y0, bw, bh = cv2.boundingRect(np.ascontiguousarray(core, np.uint8))
+    if rect is None:
+        rect = cv2.boundingRect(np.ascontiguousarray(core, np.uint8))
+    x0, y0, bw, bh = rect
     if bw == 0:
         return None
     m = _BAND_PX + 2

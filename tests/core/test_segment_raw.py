@@ -464,6 +464,14 @@ def test_thread_mask_on_the_grown_box_equals_its_steps_on_the_whole_view(k: int)
             mask &= sr.drop_specks(mask | core.view(bool), min_px)
             assert mask.any()
             assert np.array_equal(sr._thread_mask(v, core, min_px), mask)
+            # the core's bounding box given (segment_raw finds it once for every step)
+            rect = cv2.boundingRect(core)
+            assert np.array_equal(sr._thread_mask(v, core, min_px, rect), mask)
+            assert sr._near(None, core, (v.rows, v.cols), rect) == sr._near(
+                None, core, (v.rows, v.cols)
+            )
+    d = int(p.max_disparity_px)
+    assert sr._one_object(found, d, sr._rects(found)) == sr._one_object(found, d)
 
 
 @pytest.mark.parametrize("trial", range(30))
