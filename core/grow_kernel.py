@@ -106,9 +106,17 @@ def _grow(a, bg, core, disc, r0, c0, q, band_px, glint_sin2, shared_px):  # noqa
     diff = np.empty((m, c), np.float32)
     qr = np.empty(m, np.int64)
     qc = np.empty(m, np.int64)
+    # (the block of each row and column of the box: a division per row and column of the
+    # box, not two per band pixel)
+    q_row = np.empty(bh, np.int64)
+    for y in range(bh):
+        q_row[y] = min((y + r0) // q, hq_all - 1)
+    q_col = np.empty(bw, np.int64)
+    for x in range(bw):
+        q_col[x] = min((x + c0) // q, wq_all - 1)
     for i in range(m):
-        qr[i] = min((rows[i] + r0) // q, hq_all - 1)
-        qc[i] = min((cols[i] + c0) // q, wq_all - 1)
+        qr[i] = q_row[rows[i]]
+        qc[i] = q_col[cols[i]]
         for j in range(c):
             diff[i, j] = np.float32(a[rows[i], cols[i], j]) - bg[qr[i], qc[i], j]
     qr0, qr1, qc0, qc1 = qr.min(), qr.max(), qc.min(), qc.max()
@@ -160,15 +168,14 @@ def _grow(a, bg, core, disc, r0, c0, q, band_px, glint_sin2, shared_px):  # noqa
             net = (proj - dw * uw) / max(den, glint_sin2)
             net2[i] = max(net, zero) * max(net, zero)
     # |T - B|^2: the largest core value within the band's box around each pixel (dilation by
-    # a square: a row maximum, then a column maximum).
-    dense = np.zeros((bh, bw), np.float32)
-    for i in range(m):
-        if core[rows[i], cols[i]] != 0:
-            dense[rows[i], cols[i]] = max(net2[i], c2[i]) if glint[i] else c2[i]
+    # a square: a row maximum, then a column maximum; a core pixel's value is read where it
+    # is computed, no (bh, bw) image of them).
     rowmax = np.zeros((bh, bw), np.float32)
     for i in range(m):
         y, x = rows[i], cols[i]
-        v = dense[y, x]
+        if core[y, x] == 0:
+            continue
+        v = max(net2[i], c2[i]) if glint[i] else c2[i]
         if v > zero:
             for xx in range(max(x - band_px, 0), min(x + band_px + 1, bw)):
                 rowmax[y, xx] = max(rowmax[y, xx], v)

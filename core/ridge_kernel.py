@@ -685,6 +685,58 @@ def piece_stats(lab, rows, cols, s, seed, n):  # noqa: ANN001
     return area, sums, seeded, boxes
 
 
+@kernel(
+    "Tuple((float64[::1], boolean[::1], float64[::1]))(float64[::1], float64[::1], boolean[::1], "
+    "int64[:, ::1], float64, float64, float64, int64, int64, int64)"
+)
+def piece_candidates(area, sums, seeded, boxes, min_len, sqrt2, two_a, h, w, border):  # noqa: ANN001
+    """The per-piece steps of segment_raw._pieces before the half-widths, elementwise over the
+    n pieces of :func:`piece_stats`' ``area``, ``sums``, ``seeded`` and ``boxes`` (4, n), in
+    one pass and with numpy's float64 operations: (n,) mean values (``sums / max(area, 1)``,
+    0 for label 0), (n,) whether a piece is a candidate (seeded, ``sqrt2 area >= min_len``, not
+    label 0; its box kept, the others' set to 0 in place; then ``max(diag, area / two_a) >=
+    min_len`` and its box not within ``border`` px of one side of the (h, w) image), and (n,)
+    the boxes' diagonals ``hypot(c1 - c0 + 1, r1 - r0 + 1)`` (of the zeroed boxes too)."""
+    n = len(area)
+    means = np.empty(n, np.float64)
+    cands = np.empty(n, np.bool_)
+    diag = np.empty(n, np.float64)
+    for k in range(n):
+        means[k] = sums[k] / max(area[k], 1.0)
+        c = seeded[k] and sqrt2 * area[k] >= min_len and k != 0
+        if not c:
+            boxes[0, k] = boxes[1, k] = boxes[2, k] = boxes[3, k] = 0
+        r0, r1, c0, c1 = boxes[0, k], boxes[1, k], boxes[2, k], boxes[3, k]
+        diag[k] = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
+        c = c and max(diag[k], area[k] / two_a) >= min_len
+        near = r1 < border or r0 >= h - border or c1 < border or c0 >= w - border
+        cands[k] = c and not near
+    if n > 0:
+        means[0] = 0.0
+    return means, cands, diag
+
+
+@kernel(
+    "Tuple((float64[::1], boolean[::1], boolean[::1]))(float64[::1], float64[::1], "
+    "float64[::1], boolean[::1], float64, float64)"
+)
+def piece_shapes(area, diag, half, cands, min_len, max_half):  # noqa: ANN001
+    """The per-piece steps of segment_raw._pieces after the half-widths ``half`` (n,), with
+    numpy's float64 operations: (n,) lengths ``max(diag, area / max(2 half, 1))``, (n,)
+    shape-ok (a candidate at least ``min_len`` long and at most ``max_half`` half-wide) and
+    (n,) too wide (a long candidate that is not shape-ok)."""
+    n = len(area)
+    length = np.empty(n, np.float64)
+    ok = np.empty(n, np.bool_)
+    wide = np.empty(n, np.bool_)
+    for k in range(n):
+        length[k] = max(diag[k], area[k] / max(2.0 * half[k], 1.0))
+        long = cands[k] and length[k] >= min_len
+        ok[k] = long and half[k] <= max_half
+        wide[k] = long and not ok[k]
+    return length, ok, wide
+
+
 @kernel("float64[::1](int64[::1], int64[::1], int64[::1], int64[::1], int64[:, ::1], int64, int64)")
 def half_widths(lab, rows, cols, ids, boxes, h, w):  # noqa: ANN001
     """(n,) largest 3x3 chamfer distance (cv2.distanceTransform, DIST_L2, mask 3) of the

@@ -32,6 +32,8 @@ from threadrecon.core.ridge_kernel import (
     label_pixels,
     line_response,
     log_planes,
+    piece_candidates,
+    piece_shapes,
     piece_stats,
     pixels_at,
     small_components,
@@ -168,6 +170,7 @@ def segment_raw(
     if greys is not None:  # (the same grey levels as :meth:`_View.grey`'s, computed once)
         views[0]._grey, views[1]._grey = greys
     found, salience, _, floating = _select(views, p)
+    rects = _rects(found)  # the cores' bounding boxes, found once for every step below
     if any(v.blood.any() for v in views):
         # A red thread is blood-like too: it wins back when it stands out far more than
         # anything left without the blood-like pixels, and when its hue differs from the
@@ -181,7 +184,7 @@ def segment_raw(
         # A line chosen without them that runs along blood-like pixels in both views may be
         # the highlight along a red thread: the thread is then the blood-like line around it.
         glint = found is not None and all(
-            _near_blood(v, c) for v, c in zip(views, found, strict=True)
+            _near_blood(v, c, r) for v, c, r in zip(views, found, rects, strict=True)
         )
         red, red_salience, red_cos, _ = (
             _select(red_views, p, nearest_hue=True, along=found if glint else None)
@@ -192,10 +195,14 @@ def segment_raw(
         if red is not None and (
             not floating
             or (red_salience >= _RED_THREAD_GAIN * salience and red_cos < _VESSEL_HUE_COS)
-            or (glint and all(_near(r, c) for r, c in zip(red, found, strict=True)))
+            or (
+                glint
+                and all(_near(r, c, rect=b) for r, c, b in zip(red, found, rects, strict=True))
+            )
         ):
             views, found = red_views, red
-    if found is not None and not _one_object(found, int(p.max_disparity_px)):
+            rects = _rects(found)
+    if found is not None and not _one_object(found, int(p.max_disparity_px), rects):
         found = None  # each view chose another line: neither is seen in both (no thread)
     if found is None:
         raise ValueError(
@@ -204,19 +211,42 @@ def segment_raw(
             f"min_length_px={p.min_length_px:g})"
         )
     out = []
-    for v, core in zip(views, found, strict=True):
-        # Specks are judged on the mask joined with its core: a thread 1-2 px wide is cut
-        # where its axis passes between pixel centres (coverage < 0.5 on both sides), and its
-        # parts stay one piece through the core's pixels there.
-        mask = _grow_mask(v, core)
-        if v.tool_body is not None:  # the instrument's body and rim are no thread pixels
-            mask &= ~v.tool_body
-        if v.grey_core:  # a highlight on it is not told from its body by colour
-            mask = _fill_across(mask, _HIGHLIGHT_PX)
-        mask &= drop_specks(mask | core.view(bool), max(int(p.min_length_px), 1))
+    for v, core, rect in zip(views, found, rects, strict=True):
+        mask = _thread_mask(v, core, max(int(p.min_length_px), 1), rect)
         cap = 2.0 * p.ridge_hi * v.level
         out.append((mask, Deferred(_score_of, v.img, cap) if defer_score else _score(v.S, cap)))
     return out[0][0], out[1][0], out[0][1], out[1][1]
+
+
+def _rects(cores: list[np.ndarray] | None) -> list[tuple[int, int, int, int]]:
+    """``cv2.boundingRect`` (x, y, w, h) of each core (H, W) uint8 (none for None)."""
+    return [] if cores is None else [cv2.boundingRect(c) for c in cores]
+
+
+def _thread_mask(
+    v: _View, core: np.ndarray, min_px: int, rect: tuple[int, int, int, int] | None = None
+) -> np.ndarray:
+    """(H, W) bool thread mask of the view grown from its ``core`` (H, W) uint8
+    (:func:`_grow_mask`), off the instrument's body and rim, with the runs it encloses for a
+    near-grey contrast (:func:`_fill_across`), without specks of < ``min_px`` pixels.
+
+    Specks are judged on the mask joined with its core: a thread 1-2 px wide is cut where its
+    axis passes between pixel centres (coverage < 0.5 on both sides), and its parts stay one
+    piece through the core's pixels there. Each step runs on the box the mask is grown on
+    (:func:`_grow_box`): the mask and the core lie in it, and so do the runs the mask encloses
+    and its components (the same mask as the steps on the whole view, no pass over it).
+    ``rect``: the core's bounding box, when known (:func:`_rects`)."""
+    mask = np.zeros(core.shape, bool)
+    if (grown := _grow_box(v, core, rect)) is None:
+        return mask
+    box, at = grown
+    if v.tool_body is not None:  # the instrument's body and rim are no thread pixels
+        box &= ~v.tool_body[at]
+    if v.grey_core:  # a highlight on it is not told from its body by colour
+        box = _fill_across(box, _HIGHLIGHT_PX)
+    box &= drop_specks(box | core[at].view(bool), min_px)
+    mask[at] = box
+    return mask
 
 
 def _score_of(img: np.ndarray, cap: float) -> np.ndarray:
@@ -1182,18 +1212,24 @@ class _Marks:
         return float(np.median(found)) if found else None
 
 
-def _near_blood(v: _View, core: np.ndarray) -> bool:
-    """:func:`_near` of the view's blood-like candidate pixels and ``core`` (H, W) uint8."""
+def _near_blood(v: _View, core: np.ndarray, rect: tuple[int, int, int, int] | None = None) -> bool:
+    """:func:`_near` of the view's blood-like candidate pixels and ``core`` (H, W) uint8 (of
+    bounding box ``rect``, when known)."""
     rows, cols = v.rows[v.blood], v.cols[v.blood]
-    return _near(None, core, (rows, cols))
+    return _near(None, core, (rows, cols), rect)
 
 
-def _near(other: np.ndarray | None, core: np.ndarray, other_px: tuple | None = None) -> bool:
+def _near(
+    other: np.ndarray | None,
+    core: np.ndarray,
+    other_px: tuple | None = None,
+    rect: tuple[int, int, int, int] | None = None,
+) -> bool:
     """Whether at least half of the ``core`` (H, W) uint8 pixels have a pixel of ``other``
     (H, W) uint8 (or of the pixels ``other_px``, rows and columns) within _GLINT_SIDE_PX (a
     highlight's distance to the sides of its thread); on the core's bounding box grown by
-    that."""
-    x, y, w, h = cv2.boundingRect(core)
+    that (``rect``: the core's, when known)."""
+    x, y, w, h = cv2.boundingRect(core) if rect is None else rect
     if w == 0:
         return False
     m = _GLINT_SIDE_PX
@@ -1309,14 +1345,17 @@ def _a_mark_of_one_dye(
 _MIXED_SHARE: Final = 1.0 - _MARK_SHARE  # a thread merged with a mark keeps >= 1/4 of its own
 
 
-def _one_object(cores: list[np.ndarray], d: int) -> bool:
+def _one_object(
+    cores: list[np.ndarray], d: int, rects: list[tuple[int, int, int, int]] | None = None
+) -> bool:
     """Whether the core pixels (H, W) uint8 chosen in the two views are one object seen twice:
     at least half of one view's core pixels have a core pixel of the other view on the same
     row within [0, d] of disparity (:func:`_has_partner`; the view where more of the thread is
-    hidden holds the fewer pixels, and those have their partners)."""
+    hidden holds the fewer pixels, and those have their partners). ``rects``: the cores'
+    bounding boxes, when known."""
     pts = []
-    for c in cores:  # on each core's bounding box: a few % of the image
-        x, y, w, h = cv2.boundingRect(c)
+    for j, c in enumerate(cores):  # on each core's bounding box: a few % of the image
+        x, y, w, h = cv2.boundingRect(c) if rects is None else rects[j]
         rows, cols = _points(c[y : y + h, x : x + w])
         pts.append((rows + y, cols + x))
     width = cores[0].shape[1]
@@ -1838,24 +1877,21 @@ def _pieces(
     area, sums, seeded, boxes = piece_stats(
         lab, rows, cols, s_px, np.float32(p.ridge_hi * v.level), n
     )
-    means = sums / np.maximum(area, 1.0)
     # Half-width of a piece: its largest distance to the outside; length: area / width (a loop
     # or a coil is long in a small box), at least the bounding box diagonal. Both only matter
     # for seeded pieces that can reach min_length_px: length <= max(diag, area / (2 a)), a =
     # 0.955 the chamfer's smallest distance, and diag <= sqrt(2) area (a connected piece's box
     # sides are <= its area). Those are few (a few % of the pieces); each is measured alone.
-    cands = seeded & (np.sqrt(2.0) * area >= p.min_length_px)
-    cands[0] = False
-    boxes *= cands  # the other pieces' boxes are not needed (0, as their length)
-    r0, r1, c0, c1 = boxes
-    diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
-    cands &= np.maximum(diag, area / (2.0 * _CHAMFER_A)) >= p.min_length_px
+    # The other pieces' boxes are not needed (0, as their length); the pieces off the image's
+    # border only (:func:`_along_border`). Per piece, in one compiled pass each side of the
+    # half-widths (numpy's float64 steps, :func:`_piece_shapes_plain`).
     h, w = v.lo.shape
-    cands &= ~_along_border(boxes, h, w)
+    min_len = float(p.min_length_px)
+    means, cands, diag = piece_candidates(
+        area, sums, seeded, boxes, min_len, _SQRT2, 2.0 * _CHAMFER_A, h, w, _BORDER_PX
+    )
     half = half_widths(lab, rows, cols, np.flatnonzero(cands), boxes, h, w)
-    length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
-    ok = cands & (length >= p.min_length_px) & (half <= MAX_HALF_WIDTH_PX)
-    wide = cands & (length >= p.min_length_px) & ~ok
+    length, ok, wide = piece_shapes(area, diag, half, cands, min_len, MAX_HALF_WIDTH_PX)
     if p.split_wide and not thin_only and wide.any():
         # A thread merged with a line it runs beside (or crossing itself at a shallow angle)
         # is wider than a thread there only: that part goes, the rest is judged as pieces.
@@ -1864,13 +1900,43 @@ def _pieces(
             keep = np.ones(len(v.rows), bool) if sub is None else sub.copy()
             keep[np.flatnonzero(keep)[drop]] = False
             return _pieces(keep, v, p, thin_only=True)
-    means[0] = 0.0
     on = ok[lab]
     lab_all = lab if at is None else _scatter(lab, at, len(sub))
     return lab_all, (rows[on], cols[on]), means, length, ok
 
 
 _CHAMFER_A: Final = 0.95  # below cv2's DIST_L2 3x3 step (0.955): no piece is thinner
+_SQRT2: Final = float(np.sqrt(2.0))  # a connected piece's box diagonal over its area, at most
+
+
+def _piece_shapes_plain(
+    area: np.ndarray,
+    sums: np.ndarray,
+    seeded: np.ndarray,
+    boxes: np.ndarray,
+    half_of: Callable[[np.ndarray], np.ndarray],
+    min_len: float,
+    h: int,
+    w: int,
+) -> tuple[np.ndarray, ...]:
+    """The per-piece steps of :func:`_pieces` as numpy steps (means, candidates, boxes zeroed
+    in place, lengths, shape-ok, too wide), ``half_of(cands)`` giving the half-widths: what
+    :func:`threadrecon.core.ridge_kernel.piece_candidates` and ``piece_shapes`` compute, bit
+    for bit (tests/core/test_segment_raw.py)."""
+    means = sums / np.maximum(area, 1.0)
+    cands = seeded & (np.sqrt(2.0) * area >= min_len)
+    cands[0] = False
+    boxes *= cands
+    r0, r1, c0, c1 = boxes
+    diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
+    cands &= np.maximum(diag, area / (2.0 * _CHAMFER_A)) >= min_len
+    cands &= ~_along_border(boxes, h, w)
+    half = half_of(cands)
+    length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
+    ok = cands & (length >= min_len) & (half <= MAX_HALF_WIDTH_PX)
+    wide = cands & (length >= min_len) & ~ok
+    means[0] = 0.0
+    return means, cands, diag, length, ok, wide
 
 
 def _wide_part(
@@ -2031,11 +2097,25 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
     to the image, by one compiled pass (:mod:`threadrecon.core.grow_kernel`, the
     same arithmetic as the numpy and cv2 steps, bit for bit).
     """
-    h, w = core.shape
     out = np.zeros(core.shape, bool)
-    x0, y0, bw, bh = cv2.boundingRect(np.ascontiguousarray(core, np.uint8))
+    if (grown := _grow_box(v, core)) is not None:
+        box, at = grown
+        out[at] = box
+    return out
+
+
+def _grow_box(
+    v: _View, core: np.ndarray, rect: tuple[int, int, int, int] | None = None
+) -> tuple[np.ndarray, tuple[slice, slice]] | None:
+    """:func:`_grow_mask` on the box it is computed on: the mask there (bh, bw) bool and the
+    box (rows, columns) of the view; None for an empty ``core`` (an empty mask). ``rect``:
+    the core's bounding box (x, y, w, h), when known."""
+    h, w = core.shape
+    if rect is None:
+        rect = cv2.boundingRect(np.ascontiguousarray(core, np.uint8))
+    x0, y0, bw, bh = rect
     if bw == 0:
-        return out
+        return None
     m = _BAND_PX + 2
     r0, r1, c0, c1 = max(y0 - m, 0), min(y0 + bh + m, h), max(x0 - m, 0), min(x0 + bw + m, w)
     a = v.img if v.img.ndim == 3 else v.img[:, :, None]
@@ -2055,8 +2135,7 @@ def _grow_mask(v: _View, core: np.ndarray) -> np.ndarray:
         np.float32(_GLINT_APART_SIN2),
         np.float32(_SHARED_PX),
     )
-    out[r0:r1, c0:c1] = box.view(bool)
-    return out
+    return box.view(bool), (slice(r0, r1), slice(c0, c1))
 
 
 _DISC: Final = cv2.getStructuringElement(

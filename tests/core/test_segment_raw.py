@@ -439,3 +439,80 @@ def test_a_thread_whose_blocks_measure_no_depth_judges_no_piece() -> None:
     on = segment(StereoPair(frame.left, frame.right), base)
     off = segment(StereoPair(frame.left, frame.right), replace(base, thread_depth_join=False))
     assert np.array_equal(on.P_R, off.P_R)
+
+
+@pytest.mark.parametrize("k", range(4))
+def test_thread_mask_on_the_grown_box_equals_its_steps_on_the_whole_view(k: int) -> None:
+    """:func:`segment_raw._thread_mask` (each step on the box the mask is grown on) gives the
+    mask of the steps on the whole view: grown mask, off the instrument's body, the enclosed
+    runs filled for a grey contrast (forced here on every view), specks dropped."""
+    frame = all_frame(20253, k)  # instruments, jaws, random dyes
+    p = SegmentationParams(method="raw")
+    views = [sr._View.build(img, p) for img in (frame.left, frame.right)]
+    found, _, _, _ = sr._select(views, p)
+    if found is None:
+        pytest.skip("no thread chosen in this frame")
+    min_px = max(int(p.min_length_px), 1)
+    for v, core in zip(views, found, strict=True):
+        for grey in (False, True):
+            v.grey_core = grey
+            mask = sr._grow_mask(v, core)
+            if v.tool_body is not None:
+                mask &= ~v.tool_body
+            if grey:
+                mask = sr._fill_across(mask, sr._HIGHLIGHT_PX)
+            mask &= sr.drop_specks(mask | core.view(bool), min_px)
+            assert mask.any()
+            assert np.array_equal(sr._thread_mask(v, core, min_px), mask)
+            # the core's bounding box given (segment_raw finds it once for every step)
+            rect = cv2.boundingRect(core)
+            assert np.array_equal(sr._thread_mask(v, core, min_px, rect), mask)
+            assert sr._near(None, core, (v.rows, v.cols), rect) == sr._near(
+                None, core, (v.rows, v.cols)
+            )
+    d = int(p.max_disparity_px)
+    assert sr._one_object(found, d, sr._rects(found)) == sr._one_object(found, d)
+
+
+@pytest.mark.parametrize("trial", range(30))
+def test_piece_kernels_equal_the_numpy_steps(trial: int) -> None:
+    """ridge_kernel.piece_candidates and piece_shapes give the numpy steps' means,
+    candidates, zeroed boxes, lengths, shape-ok and too-wide pieces, bit for bit (random
+    pieces of random boxes, areas and half-widths, many at the thresholds)."""
+    from threadrecon.core.ridge_kernel import piece_candidates, piece_shapes
+
+    rng = np.random.default_rng([41, trial])
+    n = int(rng.integers(1, 400))
+    h, w = int(rng.integers(8, 500)), int(rng.integers(8, 700))
+    r0 = rng.integers(0, h, n)
+    c0 = rng.integers(0, w, n)
+    boxes = np.stack(
+        [r0, np.minimum(r0 + rng.integers(0, 60, n), h - 1),
+         c0, np.minimum(c0 + rng.integers(0, 60, n), w - 1)]
+    ).astype(np.int64)  # fmt: skip
+    area = rng.integers(1, 300, n).astype(np.float64)
+    area[rng.random(n) < 0.2] = 0.0
+    sums = area * rng.random(n) * 50
+    seeded = rng.random(n) < 0.7
+    min_len = float(rng.choice([10.0, 20.0, 30.0, 14.142135623730951]))
+    half = np.round(rng.random(n) * 9, 1)
+    half[rng.random(n) < 0.3] = 0.0
+
+    def half_of(cands: np.ndarray) -> np.ndarray:
+        return np.where(cands, half, 0.0)
+
+    b_plain = boxes.copy()
+    means, cands, diag, length, ok, wide = sr._piece_shapes_plain(
+        area, sums.copy(), seeded, b_plain, half_of, min_len, h, w
+    )
+    b_kernel = boxes.copy()
+    k_means, k_cands, k_diag = piece_candidates(
+        area, sums, seeded, b_kernel, min_len, sr._SQRT2, 2.0 * sr._CHAMFER_A, h, w, sr._BORDER_PX
+    )
+    k_length, k_ok, k_wide = piece_shapes(
+        area, k_diag, half_of(k_cands), k_cands, min_len, sr.MAX_HALF_WIDTH_PX
+    )
+    for a, b in ((means, k_means), (cands, k_cands), (b_plain, b_kernel), (diag, k_diag),
+                 (length, k_length), (ok, k_ok), (wide, k_wide)):  # fmt: skip
+        assert a.dtype == b.dtype
+        assert np.array_equal(a, b)
