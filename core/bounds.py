@@ -393,24 +393,13 @@ def _dead_end_depths(
     other pixel (generated spiral 8141 #11: 27, 11 and 44 px where the truth is 44 px, the
     second match then 44 px): the median of a run of them put the end 60 mm off."""
     depth = stereo.depth[sel]
-    M = len(path)
-    a, b = ordering.mono  # points placed from the left view alone lie before a dead end's tip
-    ends = [(a, a + 1)] if ordering.order[a] < 0 else []
-    ends += [(M - 2 - b, M - 2 - b)] if ordering.order[M - 1 - b] < 0 and M - b > 2 else []
-    for li, anchor in ends:
-        on = np.flatnonzero(link == li)
-        z_a = path[anchor, 2]
-        if not len(on) or not (np.isfinite(z_a) and z_a > 0):
-            continue
+    for li, anchor, on, d_a in _dead_ends(stereo, ordering, path, sel, link):
         px = sel[on]
-        d_a = float(disparity_of(stereo, z_a, px))
         first, second = stereo.disparity[px], stereo.d_next[px]
         bound = disparity_room(np.hypot(*(stereo.pixels[px] - path[anchor, :2]).T))
         if not ((np.abs(first - d_a) > bound + OUTLIER_PX) & (np.abs(second - d_a) <= bound)).any():
             continue  # no pixel has a second match the anchor's strand could reach
-        t = ordering.pixel_t[px]
-        out = np.argsort(-t if anchor == 1 else t, kind="stable")  # outwards from the anchor
-        xy = np.concatenate([path[anchor : anchor + 1, :2], stereo.pixels[px[out]]])
+        out, xy = _outwards(stereo, ordering, path, px, li, anchor)
         swap = _track(d_a, first[out], second[out], xy)
         if swap.any():
             moved = on[out[swap]]
@@ -486,21 +475,10 @@ def _dead_end_others(
     keypoint as :func:`_track` follows them, one whose first match lies beyond the strand's
     continuity bound by more than ``OUTLIER_PX`` and whose second match does not lie within it
     (deviation 64)."""
-    M = len(path)
-    a, b = ordering.mono
-    ends = [(a, a + 1)] if ordering.order[a] < 0 else []
-    ends += [(M - 2 - b, M - 2 - b)] if ordering.order[M - 1 - b] < 0 and M - b > 2 else []
     out_depth = depth
-    for li, anchor in ends:
-        on = np.flatnonzero(link == li)
-        z_a = path[anchor, 2]
-        if not len(on) or not (np.isfinite(z_a) and z_a > 0):
-            continue
+    for li, anchor, on, d_a in _dead_ends(stereo, ordering, path, sel, link):
         px = sel[on]
-        d_a = float(disparity_of(stereo, z_a, px))
-        t = ordering.pixel_t[px]  # 0 at keypoint li, 1 at li + 1: outwards from the anchor
-        out = np.argsort(-t if anchor == li + 1 else t, kind="stable")
-        xy = np.concatenate([path[anchor : anchor + 1, :2], stereo.pixels[px[out]]])
+        out, xy = _outwards(stereo, ordering, path, px, li, anchor)
         other = _follow(d_a, stereo.disparity[px[out]], stereo.d_next[px[out]], xy) == OTHER
         if other.any():
             if out_depth is depth:
@@ -510,6 +488,36 @@ def _dead_end_others(
 
 
 TRACK_REF = 5  # pixels whose median disparity is the followed strand's (two wrong outvoted)
+
+
+def _dead_ends(
+    stereo: StereoResult, ordering: Ordering, path: np.ndarray, sel: np.ndarray, link: np.ndarray
+):
+    """Each dead end of the path (the link to an extension keypoint) that holds gap pixels and
+    whose end keypoint has a depth: (its link li, the end keypoint ``anchor``, the indices
+    ``on`` of its pixels in ``sel``, the end keypoint's disparity d_a). Points placed from the
+    left view alone (``ordering.mono``) lie before a dead end's tip."""
+    M = len(path)
+    a, b = ordering.mono
+    ends = [(a, a + 1)] if ordering.order[a] < 0 else []
+    ends += [(M - 2 - b, M - 2 - b)] if ordering.order[M - 1 - b] < 0 and M - b > 2 else []
+    for li, anchor in ends:
+        on = np.flatnonzero(link == li)
+        z_a = path[anchor, 2]
+        if len(on) and np.isfinite(z_a) and z_a > 0:
+            yield li, anchor, on, float(disparity_of(stereo, z_a, sel[on]))
+
+
+def _outwards(
+    stereo: StereoResult, ordering: Ordering, path: np.ndarray, px: np.ndarray, li: int, anchor: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The order of a dead end's pixels ``px`` (on link li) from its end keypoint ``anchor``
+    outwards, and the positions to follow: the anchor's, then the pixels' in that order.
+    ``pixel_t`` is 0 at keypoint li and 1 at li + 1, so a start's anchor (li + 1) reads it
+    backwards and an end's (li) forwards."""
+    t = ordering.pixel_t[px]
+    out = np.argsort(-t if anchor == li + 1 else t, kind="stable")
+    return out, np.concatenate([path[anchor : anchor + 1, :2], stereo.pixels[px[out]]])
 
 
 def _track(d_a: float, first: np.ndarray, second: np.ndarray, xy: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ from threadrecon.core.bounds import (
     BoundsParams,
     _border_depths,
     _fit_depths,
+    _outwards,
     _window_line_fits,
 )
 from threadrecon.core.calibration import StereoCalibration
@@ -807,3 +808,21 @@ def test_follow_names_the_pixels_it_leaves_and_tracks_swaps_them() -> None:
     got = _follow(30.0, first, second, xy)
     assert got.tolist() == [FIRST, SWAP, KEPT, OTHER, FIRST]
     assert np.array_equal(_track(30.0, first, second, xy), got == SWAP)
+
+
+def test_a_dead_ends_pixels_are_followed_outwards_from_its_end_keypoint() -> None:
+    """``pixel_t`` runs 0 -> 1 from keypoint li to li + 1. A start's dead end (anchor li + 1)
+    is followed from t = 1 down; an end's (anchor li) from t = 0 up, whatever li is: on a
+    path of three keypoints the end's link is 1, its anchor keypoint 1 (the old test
+    ``anchor == 1`` read that end backwards)."""
+    from types import SimpleNamespace
+
+    t = np.array([0.5, 0.1, 0.9, 0.3])
+    pixels = np.array([[50.0, 0.0], [10.0, 0.0], [90.0, 0.0], [30.0, 0.0]])
+    stereo, ordering = SimpleNamespace(pixels=pixels), SimpleNamespace(pixel_t=t)
+    path = np.array([[0.0, 0.0, 1.0], [100.0, 0.0, 1.0], [200.0, 0.0, 1.0]])
+    px = np.arange(4)
+    for li, anchor, want in ((0, 1, [2, 0, 3, 1]), (1, 1, [1, 3, 0, 2]), (1, 2, [2, 0, 3, 1])):
+        out, xy = _outwards(stereo, ordering, path, px, li, anchor)
+        assert out.tolist() == want, (li, anchor)
+        assert np.array_equal(xy[0], path[anchor, :2]) and np.array_equal(xy[1:], pixels[want])
