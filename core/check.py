@@ -406,7 +406,8 @@ class CheckParams(Params):
         "mark_disparity_px) on at least mark_share of the first mark_measures patches that "
         "measure it: the curve moves with the tissue, a mark on it (a vessel, a fibre), not a "
         "thread in front of it (the raw segmentation's own test, core/segment_surface, leaves "
-        "a piece in fewer than two 64 px blocks open). Off: no such test (before session 21). "
+        "a piece in fewer than two 64 px blocks open). Not on given masks: the user's mask says "
+        "the thread is there, lying on the tissue or not. Off: no such test (before session 21). "
         "docs/method.md, okw21.",
     )  # fmt: skip
     mark_measures: int = param(
@@ -1079,8 +1080,9 @@ def _check(
              f"on the surface joined to the thread there (limit {p.max_unobserved_mm:g} mm)")
         )  # fmt: skip
     # The surface beside the curve at the curve's own depth in both views: a mark on the tissue
-    # (a vessel, a fibre the segmentation could not judge), not a thread in front of it.
-    if p.surface_mark:
+    # (a vessel, a fibre the segmentation could not judge), not a thread in front of it. A mask
+    # the user gave says what the thread is: a thread lying on the tissue stays a thread.
+    if p.surface_mark and lifted.method != "mask":
         mark = moves_with_surface(
             (uv_l, uv_r), (lifted.grey_L, lifted.grey_R), (lifted.P_L, lifted.P_R),
             f * B / z_pos, p.mark_disparity_px, p.mark_measures, p.mark_share,

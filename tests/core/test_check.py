@@ -1066,3 +1066,8 @@ def test_a_curve_moving_with_the_tissue_beside_it_is_a_mark() -> None:
     rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
     e = _wrong_and_caught(rec, frame, calib, "moves with the tissue", surface_mark=False)
     assert e.e_S_max > 20.0
+    # the same pixels given as the user's mask are the thread: a thread may lie on the tissue
+    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    args[0] = replace(args[0], method="mask")
+    given = check_curve(*args, rec["camera"], calib, CheckParams())
+    assert not any("moves with the tissue" in r for r in given.reasons), given.reasons
