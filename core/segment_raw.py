@@ -151,11 +151,13 @@ def segment_raw(
        blood-like pieces, one the surface test leaves open at the tissue's own disparity is a
        vessel (:func:`_at_tissue_disparity`; in the first pass too, any undecided piece
        chosen or joining), and so is one voted in front of it whose own disparity is not above the
-       tissue's (:func:`_contradicted`); a red thread's undecided fragments join it at its
-       own disparity (:func:`_at_thread_disparity`; the gap counted off the instrument,
-       :func:`_gap_off_tool`); an undecided blood-like piece holding the highlight the first
-       pass chose is chosen (:func:`_holds`). The cores chosen in the two views must be one
-       object (:func:`_one_object`).
+       tissue's (:func:`_contradicted`); one seen in front over a piece's worth of pixels
+       and over more of it than on the tissue is a red thread merged with the vessels it
+       crosses, judged by that part (:func:`_floats_in_part`); a red thread's undecided
+       fragments join it at its own disparity (:func:`_at_thread_disparity`; the gap counted
+       off the instrument, :func:`_gap_off_tool`); an undecided blood-like piece holding the
+       highlight the first pass chose is chosen (:func:`_holds`). The cores chosen in the two
+       views must be one object (:func:`_one_object`).
     6. Mask: within _BAND_PX of the kept pixels, those with coverage >= 0.5 of a thread colour
        blended over the local background colour (see :func:`_grow_mask`); for a contrast near
        grey, with the runs it encloses across the thread (a highlight, :func:`_fill_across`).
@@ -548,6 +550,14 @@ def _select(
                 )
                 votes_of[best] = votes
                 split = not is_mark  # (then its own part is seen in front of the tissue)
+            # (in the red pass, a blood-like piece floating over a piece's worth of pixels
+            # and on the surface elsewhere: a red thread merged with the vessels it crosses,
+            # judged by its floating part, deviation 63)
+            part = (
+                nearest_hue
+                and p.red_part_floats
+                and _floats_in_part(votes, p.min_length_px * area[best] / length[best])
+            )
             if not is_mark and not (
                 np.all(votes < 0)
                 and (
@@ -566,7 +576,7 @@ def _select(
                 if (
                     nearest_hue
                     and not nearer
-                    and not _floats(votes)
+                    and not (part or _floats(votes))
                     and not _at_tissue_disparity(
                         views, i, on[lab_on == best], tissue(), D, other=p.first_marks
                     )
@@ -591,7 +601,7 @@ def _select(
                     continue
                 if (
                     nearest_hue
-                    and (nearer or _floats(votes))
+                    and (nearer or part or _floats(votes))
                     and not _contradicted(
                         views, i, on[lab_on == best], votes, tissue, D, p.contradicted_any
                     )
@@ -611,7 +621,7 @@ def _select(
                         if alt is not None:  # (a piece seen floating, not one undecided)
                             best, votes = alt
                             votes_of[best], split = votes, False
-                    floating &= split or _floats(votes)
+                    floating &= split or part or _floats(votes)
                     break
             # (a blood-like piece the surface test left open, at the tissue's own disparity:
             # a vessel, as a mark)
@@ -1581,6 +1591,16 @@ def _floats(votes: np.ndarray) -> bool:
     (:func:`_surface_votes`) and at most 1 - _MARK_SHARE of them say "on the surface"."""
     decided = np.count_nonzero(votes >= 0)
     return decided > 0 and np.count_nonzero(votes == 1) <= (1.0 - _MARK_SHARE) * decided
+
+
+def _floats_in_part(votes: np.ndarray, piece_px: float) -> bool:
+    """Whether a piece is seen in front of the tissue over at least ``piece_px`` of its pixels
+    (votes 0, :func:`_surface_votes`: as many as a piece of its width must hold) and over more
+    of them than it is seen on the surface (votes 1): a thread merged with the marks it
+    crosses, mostly thread (deviation 63). A vessel under uneven light, voted in front over a
+    third of it, is not."""
+    front = np.count_nonzero(votes == 0)
+    return front >= piece_px and front > np.count_nonzero(votes == 1)
 
 
 def _a_mark(votes: np.ndarray) -> bool:

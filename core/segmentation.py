@@ -220,6 +220,19 @@ class SegmentationParams(Params):
         "instrument from it, or without a disparity of their own join as before. Off: every "
         "piece of the dye joins (deviation 62).",
     )
+    red_part_floats: bool = param(
+        True,
+        label="raw: red piece floating in part",
+        doc="raw: in the red pass (a blood-like thread among vessels of its hue), a blood-like "
+        "piece that the surface test sees in front of the tissue over as many pixels as a "
+        "piece must hold (min_length_px at its width) and over more of it than on the "
+        "surface, while another part of it moves with the tissue, is a thread merged with "
+        "the vessels it crosses: it is judged by that "
+        "floating part (its own disparity above the tissue's, as any floating blood-like "
+        "piece), and the part on the surface is cut from it. Off: such a piece, neither "
+        "floating nor a mark as a whole, is taken for a vessel and ends the red pass "
+        "(deviation 63).",
+    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,
