@@ -35,8 +35,8 @@ class RunWorker(_Base):
             for view in list(self.views.values()):
                 with contextlib.suppress(Exception):
                     view.show(self.rec, self.loaded)
-        self._bump()
         self._status(req.frame_id, "failed")
+        self._bump()
 
     def _execute(self, req: Request) -> None:
         self.latency_ms = {}
@@ -52,8 +52,8 @@ class RunWorker(_Base):
                 for view in list(self.views.values()):
                     view.show_frame(None)
                     view.show(None, None)
-            self._bump()
             self._status(req.frame_id, "failed")
+            self._bump()
             return
         new_frame = self.loaded is not loaded
         if new_frame:
@@ -115,6 +115,10 @@ class RunWorker(_Base):
                 )
             except Exception as exc:  # e.g. a ground truth holding NaN: the figures say why
                 metrics, self.metrics_error = {}, f"metrics: {type(exc).__name__}: {exc}"
+        # the frame list's status first: the run's answer below may reach the page (or a
+        # client's next request for the frame list) before this thread goes on
+        if rec.failed_stage is not None or "camera" in rec.runs:
+            self._status(req.frame_id, rec.status)
         with self._state_lock, self._cond:  # the run's final state
             self.rec, self.metrics = rec, metrics
             self._answered_seq = max(self._answered_seq, req.seq)
@@ -126,7 +130,5 @@ class RunWorker(_Base):
             with timed(timing, "publish"):
                 self._publish(rec, loaded)
             self.latency_ms["shown"] = 1000.0 * (time.perf_counter() - req.t0)
-        if rec.failed_stage is not None or "camera" in rec.runs:
-            self._status(req.frame_id, rec.status)
         if new_frame:  # a new frame's run may have compiled kernels: a slider move's may not
             heap.settle_if_grown()
