@@ -510,7 +510,7 @@ def surface_ahead(
     end's depth or behind it."""
     h, w = greys[side].shape
     r = AHEAD_HALF_PX
-    t = _patch_t(offset)
+    t = patch_t(offset)
     cx, cy = float(tip[0]) + t * float(way[0]), float(tip[1]) + t * float(way[1])
     if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(disparity)):
         return None, None
@@ -525,6 +525,68 @@ def surface_ahead(
         lambda: _match_ahead(greys, masks, side, cx, cy, d_hi),
     )  # fmt: skip
     return (None, grey) if d_best is None else (float(d_best - disparity), None)
+
+
+_UNTEXTURED_MARGIN = 0.5  # grey levels squared: a variance this far under AHEAD_LEVELS**2 is
+# untextured whatever the order of the sums (cv2's sums in double and these differ by far
+# less); a patch nearer the limit is left to _match_ahead's own test
+
+
+def untold_patches(
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    sides: np.ndarray,
+    cx: np.ndarray,
+    cy: np.ndarray,
+) -> np.ndarray:
+    """(K,) bool: True where ``_match_ahead`` surely measures no disparity for the patch of
+    view ``sides`` centred on pixel (``cx``, ``cy``) ((K,) int each, inside the image as
+    ``surface_ahead``'s): the patch is mostly thread, or untextured by a margin
+    (_UNTEXTURED_MARGIN). The same tests, for many patches at once and before any match (on a
+    plain background every patch is untextured); False: the patch is to be matched (also where
+    its grown mask would leave the image)."""
+    r, e = AHEAD_HALF_PX, AHEAD_EDGE_PX
+    n = 2 * (r + e) + 1
+    untold = np.zeros(len(cx), dtype=bool)
+    wins, patches, where = [], [], []
+    for side in (0, 1):
+        h, w = masks[side].shape
+        full = (sides == side) & (cx >= r + e) & (cy >= r + e) & (cx < w - r - e)
+        full &= cy < h - r - e
+        if full.any():
+            x, y = cx[full], cy[full]
+            wins.append(_windows(masks[side].view(np.uint8), n)[y - r - e, x - r - e])
+            patches.append(_windows(greys[side], 2 * r + 1)[y - r, x - r])
+            where.append(np.flatnonzero(full))
+    if not where:
+        return untold
+    win = np.concatenate(wins) if len(wins) > 1 else wins[0]
+    k = len(win)
+    # each patch's mask grown by e (_thread_and_edges, as it reads the mask: the same pixels):
+    # the windows e px wider stacked in one image, a patch's rows reaching only its own window
+    grown = cv2.dilate(win.reshape(k * n, n), _EDGE_KERNEL).reshape(k, n, n)
+    seen = grown[:, e : e + 2 * r + 1, e : e + 2 * r + 1] == 0
+    n_seen = np.count_nonzero(seen.reshape(k, -1), axis=1)
+    g = np.concatenate(patches) if len(patches) > 1 else patches[0]
+    g = g.astype(np.float64) * seen
+    m = np.maximum(n_seen, 1)
+    mean = np.einsum("kij->k", g) / m
+    var = np.einsum("kij,kij->k", g, g) / m - mean * mean
+    untold[np.concatenate(where)] = (n_seen < AHEAD_SHARE * (2 * r + 1) ** 2) | (
+        var < AHEAD_LEVELS**2 - _UNTEXTURED_MARGIN
+    )
+    return untold
+
+
+def _windows(image: np.ndarray, n: int) -> np.ndarray:
+    """(H - n + 1, W - n + 1, n, n) view of every n x n window of the (H, W) ``image``, indexed
+    by its top left pixel (row, column): no copy."""
+    shape = (image.shape[0] - n + 1, image.shape[1] - n + 1, n, n)
+    if image.flags.c_contiguous:  # the view made directly (as_strided costs ~10 us a call)
+        view = np.ndarray(shape, image.dtype, image, 0, image.strides * 2)
+        view.flags.writeable = False
+        return view
+    return np.lib.stride_tricks.as_strided(image, shape, image.strides * 2, writeable=False)
 
 
 def _match_ahead(
@@ -925,13 +987,13 @@ def _other_patch(
     ``at`` along ``way`` matched, ``d`` px in front of the end's ``disparity``: its measure
     (px of disparity in front of the end; None when it cannot tell) and its grey level."""
     offset = k * AHEAD_STEP_PX
-    t = _patch_t(offset)  # the patch's centre along the way
+    t = patch_t(offset)  # the patch's centre along the way
     dx = disparity + d  # the surface's disparity: seen dx px left in the right view
     c_other = at + t * way - np.array([dx if side == 0 else -dx, 0.0])
     return surface_ahead(greys, masks, 1 - side, c_other - t * way, way, disparity, offset)
 
 
-def _patch_t(offset: float) -> float:
+def patch_t(offset: float) -> float:
     """px along an end's way from its tip to the centre of ``surface_ahead``'s patch at
     ``offset``: 2 px clear of the tip, then half a patch."""
     return offset + 2.0 + AHEAD_HALF_PX

@@ -28,7 +28,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from threadrecon.core.check_beyond import AHEAD_STEP_PX, surface_ahead
+from threadrecon.core.check_beyond import (
+    AHEAD_HALF_PX,
+    AHEAD_STEP_PX,
+    patch_t,
+    surface_ahead,
+    untold_patches,
+)
 from threadrecon.core.numeric import arc_px, row_norms
 
 LOOKS_PER_MEASURE = 4  # patches looked at per patch needed (most abstain on smooth tissue or a
@@ -73,6 +79,7 @@ def moves_with_surface(
     measured spread along the curve, both views and both sides in turn, until ``measures`` of
     them measured a surface, fewer than ``share`` of ``measures`` can still move with it, or
     LOOKS_PER_MEASURE ``measures`` patches were looked at."""
+    looks = (LOOKS_PER_MEASURE * measures + 1) // 2  # positions: two patches a position
     per_view: list[tuple[int, ...]] = []
     for uv in uvs:
         s = arc_px(row_norms(uv[1:] - uv[:-1]))
@@ -80,30 +87,74 @@ def moves_with_surface(
             per_view.append(())
             continue
         at = np.arange(0.5 * AHEAD_STEP_PX, s[-1], AHEAD_STEP_PX)
-        idx = np.clip(np.searchsorted(s, at), 1, len(uv) - 2)
-        per_view.append(tuple(int(idx[j]) for j in _spread(len(idx))))
+        idx = np.clip(np.searchsorted(s, at), 1, len(uv) - 2).tolist()
+        per_view.append(tuple(idx[j] for j in _spread(len(idx))[:looks]))  # a view's first
     cand = [
         (side, v[k])
         for k in range(max(len(v) for v in per_view))
         for side, v in enumerate(per_view)
         if k < len(v)
-    ][: (LOOKS_PER_MEASURE * measures + 1) // 2]  # two patches a position
+    ][:looks]
     need = int(math.ceil(share * measures))
-    measured = along = 0
+    # each position's tangent, point and disparity, a view's positions at once
+    at: dict[tuple[int, int], tuple[list[float], list[float], float]] = {}
+    for side in (0, 1):
+        ii = np.array([i for v, i in cand if v == side], dtype=np.intp)
+        if len(ii):
+            uv = uvs[side]
+            rows = zip(
+                (uv[ii + 1] - uv[ii - 1]).tolist(), uv[ii].tolist(), disp[ii].tolist(), strict=True
+            )
+            at.update(((side, i), r) for i, r in zip(ii.tolist(), rows, strict=True))
+    # the patches in the order looked at: view, point index, unit normal (x, y), disparity
+    patches: list[tuple[int, int, float, float, float]] = []
+    tips: list[list[float]] = []
     for side, i in cand:
-        uv = uvs[side]
-        tx, ty = float(uv[i + 1, 0] - uv[i - 1, 0]), float(uv[i + 1, 1] - uv[i - 1, 1])
+        (tx, ty), tip, d_i = at[side, i]
         norm = math.hypot(tx, ty)
-        d_i = float(disp[i])
         if not (math.isfinite(norm) and norm > 0.0 and math.isfinite(d_i)):
             continue
         for sign in (1.0, -1.0):
-            normal = np.array([-sign * ty / norm, sign * tx / norm])
-            d, _ = surface_ahead(greys, masks, side, uv[i], normal, d_i, BESIDE_OFFSET_PX)
-            if d is None:
-                continue
-            measured += 1
-            along += abs(d) <= same_px
-            if measured - along > measures - need or measured >= measures:
-                return Mark(measured, along)  # decided: the share is reached or cannot be
+            patches.append((side, i, -sign * ty / norm, sign * tx / norm, d_i))
+            tips.append(tip)
+    untold = _untold(patches, tips, greys, masks)
+    measured = along = 0
+    for (side, i, nx, ny, d_i), skip in zip(patches, untold, strict=True):
+        if skip:
+            continue  # surely no measure (mostly thread, untextured): not matched
+        normal = np.array([nx, ny])
+        d, _ = surface_ahead(greys, masks, side, uvs[side][i], normal, d_i, BESIDE_OFFSET_PX)
+        if d is None:
+            continue
+        measured += 1
+        along += abs(d) <= same_px
+        if measured - along > measures - need or measured >= measures:
+            return Mark(measured, along)  # decided: the share is reached or cannot be
     return Mark(measured, along)
+
+
+def _untold(
+    patches: list[tuple[int, int, float, float, float]],
+    tips: list[list[float]],
+    greys: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+) -> list[bool]:
+    """For each patch (``moves_with_surface``'s, beside the point ``tips``), True where
+    ``surface_ahead`` surely measures nothing (``check_beyond.untold_patches``, every patch
+    at once); a patch off the image is left to ``surface_ahead``, which measures nothing there
+    either."""
+    if not patches:
+        return []
+    p = np.array(patches)
+    views, ways, disp = p[:, 0].astype(np.intp), p[:, 2:4], p[:, 4]
+    # surface_ahead's centre, elementwise (the same float operations, rounded half to even)
+    c = np.array(tips) + patch_t(BESIDE_OFFSET_PX) * ways
+    finite = np.isfinite(c).all(axis=1) & np.isfinite(disp)
+    c = np.rint(np.where(finite[:, None], c, 0.0)).astype(np.intp)
+    r = AHEAD_HALF_PX
+    h, w = np.array([g.shape for g in greys])[views].T
+    ok = finite & (disp > 0) & (c.min(axis=1) - r >= 0) & (c[:, 0] + r < w) & (c[:, 1] + r < h)
+    untold = np.zeros(len(p), dtype=bool)
+    if ok.any():
+        untold[ok] = untold_patches(greys, masks, views[ok], c[ok, 0], c[ok, 1])
+    return untold.tolist()

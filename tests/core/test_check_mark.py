@@ -4,8 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from support import suite_frame
 
-from threadrecon.core.check_mark import _spread, moves_with_surface
+from threadrecon.core import check_mark
+from threadrecon.core.check_beyond import (
+    AHEAD_HALF_PX,
+    _match_ahead,
+    _thread_and_edges,
+    untold_patches,
+)
+from threadrecon.core.check_mark import Mark, _spread, moves_with_surface
+from threadrecon.core.metrics import project
+from threadrecon.core.segmentation import to_grey
 
 
 def _scene(thread_disp: int, tissue_disp: int = 30) -> tuple:
@@ -55,3 +65,53 @@ def test_spread_orders_every_index_once() -> None:
         order = _spread(n)
         assert sorted(order) == list(range(n))
     assert _spread(8)[:2] == (0, 4)
+
+
+def _generator_scene() -> tuple:
+    """Raw colours #6 of seed 20253 (eval_suites' frame): textured tissue, a thread in front
+    of it. Its grey levels, exact masks, the true curve's projections and disparity."""
+    frame = suite_frame(
+        [20253, 7, 6], background="tissue", noise_sigma=2.0, blur_sigma=0.5,
+        thread_colour="random",
+    )  # fmt: skip
+    calib = frame.camera.calibration()
+    pts = frame.truth.centerline
+    uvs = (project(pts, calib.P1), project(pts, calib.P2))
+    greys = (to_grey(frame.left), to_grey(frame.right))
+    return uvs, greys, (frame.mask_left, frame.mask_right), uvs[0][:, 0] - uvs[1][:, 0]
+
+
+def test_patches_skipped_unmatched_would_measure_nothing() -> None:
+    """``untold_patches`` (the cheap tests of many patches at once) flags a patch only where
+    the patch's own match (``_match_ahead``) measures nothing, and flags every patch that is
+    untextured well under the limit: the skip changes no measure."""
+    _, greys, masks, _ = _generator_scene()
+    rng = np.random.default_rng(3)
+    h, w = greys[0].shape
+    for side in (0, 1):
+        ys, xs = np.nonzero(masks[side])
+        pick = rng.integers(0, len(xs), 300)
+        cx = np.clip(xs[pick] + rng.integers(-12, 13, 300), 6, w - 7)
+        cy = np.clip(ys[pick] + rng.integers(-12, 13, 300), 6, h - 7)
+        flags = untold_patches(greys, masks, np.full(300, side), cx, cy)
+        for x, y, flag in zip(cx.tolist(), cy.tolist(), flags.tolist(), strict=True):
+            d, grey = _match_ahead(greys, masks, side, x, y, 60)
+            if flag:
+                assert d is None, (side, x, y)
+            elif grey is not None and min(x, y) >= 8 and x < w - 8 and y < h - 8:
+                r = AHEAD_HALF_PX
+                seen = ~_thread_and_edges(masks[side], y, x, r)
+                sd = float(np.std(greys[side][y - r : y + r + 1, x - r : x + r + 1][seen]))
+                assert sd > 3.9, (side, x, y, sd)  # left to the match: near the limit only
+        assert flags.any() and not flags.all()
+
+
+def test_skipping_untold_patches_changes_no_mark(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The mark's measures on the generator frame, the thread's true curve and a line at the
+    tissue's disparity, with and without the skip of untold patches."""
+    cases = [_generator_scene(), _scene(thread_disp=30), _scene(thread_disp=34)]
+    fast = [moves_with_surface(*c, 1.5, 8, 0.75) for c in cases]
+    monkeypatch.setattr(check_mark, "untold_patches", lambda g, m, s, x, y: np.zeros(len(x), bool))
+    slow = [moves_with_surface(*c, 1.5, 8, 0.75) for c in cases]
+    assert fast == slow
+    assert fast[0].measured > 0 and fast[1] == Mark(8, 8)
