@@ -47,6 +47,7 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 from scipy.interpolate import BSpline
+from scipy.spatial import cKDTree
 
 from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
@@ -398,6 +399,23 @@ class CheckParams(Params):
         "runs beside it), so it is judged by the reprojection test like any observed stretch, "
         "not as a stretch no view observes (max_unobserved_mm). Off: before session 21. "
         "docs/method.md, prec21.",
+    )  # fmt: skip
+    bridge_rerun: bool = param(
+        True, label="a bridge back onto the curve's own thread",
+        doc="On: suspect when the curve's stretch past a bridge, toward its nearer end, lies in "
+        "both views within rerun_px of the rest of the curve along its whole length: it runs "
+        "over thread pixels the curve already follows, so the "
+        "bridge joins no thread of its own (a hook's free end bridged back onto the thread's "
+        "own stretch, the curve running twice over it). Off: no such test (before session "
+        "21). docs/method.md, okw22.",
+    )  # fmt: skip
+    rerun_px: float = param(
+        8.0, lo=0.0, unit="px", slider=(0.0, 30.0, 0.5), label="rerun: distance",
+        doc="A sample past a bridge within this of the rest of the curve in both views runs "
+        "over thread the curve already follows (reproj_max_px: a curve point this close to "
+        "the thread pixels is on them). The stretch must be twice this long (left view) to "
+        "run along the rest: a stub that crosses it at 30 deg or more leaves this distance "
+        "within twice it.",
     )  # fmt: skip
     surface_mark: bool = param(
         True, label="a curve moving with the tissue is a mark",
@@ -755,12 +773,20 @@ def _check(
     s3 = np.concatenate([[0.0], step3.cumsum()])
     bridge_gap = np.zeros(n)  # mm along the curve to the nearest observed end of a bridge
     worst: tuple[float, str] | None = None
+    rerun: tuple[float, float, float] | None = None
     for i0, i1 in _runs(bridge_l) + _runs(bridge_r):
         a, b = i0 - 1, i1  # the observed samples on either side
         len3 = float(s3[b] - s3[a])
         bridge_gap[i0:i1] = np.maximum(
             bridge_gap[i0:i1], np.minimum(s3[i0:i1] - s3[a], s3[b] - s3[i0:i1])
         )
+        if p.bridge_rerun and rerun is None:
+            far, end_px = _rerun_px(uv_l, uv_r, a, b)
+            # within rerun_px over twice that length (left view): it runs along the rest, no
+            # stub crossing it (a stretch at 30 deg or more to a line leaves rerun_px of it
+            # within 2 rerun_px)
+            if far <= p.rerun_px and end_px >= 2.0 * p.rerun_px:
+                rerun = (len3, end_px, far)
         if not len3 > min(p.max_bridge_mm, p.max_unobserved_mm):
             continue  # within either limit: the evidence (its costly part) cannot matter
         why = _bridge_evidence(pts, uv_l, uv_r, s3, step, a, b, mm, bare, p)
@@ -774,6 +800,12 @@ def _check(
             continue  # the occluder holds the hidden thread within half the limit of it
         if len3 > limit and (worst is None or len3 > worst[0]):
             worst = (len3, why or "")
+    if rerun is not None:
+        findings.append(
+            ("suspect", f"past a {rerun[0]:.1f} mm bridge the curve's end ({rerun[1]:.0f} px) runs "
+             f"over thread pixels the curve already follows (within {rerun[2]:.1f} px in both "
+             f"views, limit {p.rerun_px:g} px): the bridge leads to no thread of its own")
+        )  # fmt: skip
     if worst is not None:
         len3, why = worst
         findings.append(
@@ -1554,6 +1586,17 @@ def _overlap(
         loop_px**2, np.pi * loop_px + 3.0, np.ascontiguousarray(disp, dtype=np.float64),
         np.ascontiguousarray(strand, dtype=bool), float(dtol),
     )  # fmt: skip
+
+
+def _rerun_px(uv_l: np.ndarray, uv_r: np.ndarray, a: int, b: int) -> tuple[float, float]:
+    """The curve's stretch past a bridge (observed samples ``a`` and ``b``) toward its nearer
+    end (the shorter side: ``0..a`` or ``b..n-1``) held against the rest of the curve (the
+    other side): the largest distance of one of its samples to the nearest sample of the rest,
+    px (the larger of the two views), and its 2D length in the left view, px."""
+    n = len(uv_l)
+    end, rest = (slice(0, a + 1), slice(b, n)) if a + 1 <= n - b else (slice(b, n), slice(0, a + 1))
+    far = max(float(cKDTree(uv[rest]).query(uv[end])[0].max()) for uv in (uv_l, uv_r))
+    return far, float(row_norms(np.diff(uv_l[end], axis=0)).sum())
 
 
 def _runs(flag: np.ndarray) -> list[tuple[int, int]]:

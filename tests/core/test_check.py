@@ -1071,3 +1071,38 @@ def test_a_curve_moving_with_the_tissue_beside_it_is_a_mark() -> None:
     args[0] = replace(args[0], method="mask")
     given = check_curve(*args, rec["camera"], calib, CheckParams())
     assert not any("moves with the tissue" in r for r in given.reasons), given.reasons
+
+
+def test_a_bridge_back_onto_the_curves_own_thread_is_suspect() -> None:
+    """Raw jpeg #9 of seed 21141 (eval_suites' frame, masks withheld; okw21's check seed, a
+    tuning seed of okw22): the thread ends in a hook whose free end lies near the thread's own
+    stretch. The curve follows the thread to the hook's free end, bridges 18.2 mm across open
+    tissue back onto that stretch and runs 23 px along it (at the wrong depth, its two views'
+    pixels from two places of the thread): 30 mm too long, "ok" (the bridge is under
+    max_unobserved_mm). The stretch past the bridge lies within rerun_px of the rest of the
+    curve in both views: it observes nothing the curve does not already follow."""
+    from threadrecon.core.segmentation import StereoPair
+
+    frame = suite_frame(
+        [21141, 10, 9], background="tissue", noise_sigma=3.0, blur_sigma=0.5, jpeg_quality=60
+    )
+    calib = frame.camera.calibration()
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run()
+    e = _wrong_and_caught(rec, frame, calib, "leads to no thread of its own", bridge_rerun=False)
+    assert e.e_length > 25.0
+
+
+def test_rerun_px_measures_the_stretch_past_a_bridge_against_the_rest() -> None:
+    """A curve along y = 100 (x 100..300), a bridge up and back (samples 201..219) and an end
+    stretch 3 px beside its start (x 150..180): within 3 px in both views over 30 px; the same
+    end crossing the line at right angles lies up to 15 px from it."""
+    line = np.c_[np.linspace(100, 300, 201), np.full(201, 100.0)]
+    bridge = np.c_[np.linspace(300, 150, 20)[1:], np.full(19, 160.0)]
+    along = np.c_[np.linspace(150, 180, 16), np.full(16, 103.0)]
+    uv = np.vstack([line, bridge, along])
+    a, b = 200, 220  # the observed samples either side of the bridge
+    far, end_px = check_module._rerun_px(uv, uv + [-20.0, 0.0], a, b)
+    assert far == pytest.approx(3.0) and end_px == pytest.approx(30.0)
+    across = np.c_[np.full(16, 150.0), np.linspace(85, 115, 16)]
+    far, _ = check_module._rerun_px(*(np.vstack([line, bridge, across]),) * 2, a, b)
+    assert far == pytest.approx(15.0)
