@@ -737,7 +737,9 @@ def _select(
             # most: not a fibre on the tissue the surface test left open (deviation 62).
             joining = [j for j in np.flatnonzero(k).tolist()
                        if j != best and not _floats(votes_of.get(j, _NO_VOTE))]  # fmt: skip
-            for j in _off_thread_depth(views, i, on, lab_on, best, joining, votes_of, D):
+            for j in _off_thread_depth(
+                views, i, on, lab_on, best, joining, votes_of, D, p.touch_at_tissue
+            ):
                 k[j] = False
         if nearest_hue:
             # A red thread's fragments between the vessels it crosses are too short for the
@@ -865,6 +867,7 @@ def _off_thread_depth(
     joining: list[int],
     votes_of: dict,
     d: int,
+    touch_at_tissue: bool = False,
 ) -> list[int]:
     """Of the pieces ``joining`` the chosen piece ``best`` of view ``i``, those behind the
     whole thread: the largest disparity of their blocks (:func:`_block_disparities`, of their
@@ -880,7 +883,14 @@ def _off_thread_depth(
     piece without a disparity of its own; one within _TOUCH_PX of the thread (split from it by a strand
     crossing it: the chosen piece may be one strand of a loop, the piece past the crossing
     farther than any of it); and one whose straight gap to the thread meets the instrument
-    (the thread may run on under it, its depth unknown there) (deviation 62)."""
+    (the thread may run on under it, its depth unknown there) (deviation 62).
+
+    ``touch_at_tissue`` (deviation 65): a piece within _TOUCH_PX of the thread (any of its
+    pixels, those voted on the surface too) is judged too
+    when its own disparity (of its pixels not voted on the surface) is the tissue's beside it
+    (:func:`_tissue_around`) and lies behind the thread's farthest block by more than the
+    slope over its gap: a fibre on the tissue that the thread crosses, not a loop's strand past
+    a crossing (which floats above the tissue as the thread does)."""
     if not joining:
         return []
     v = views[i]
@@ -902,13 +912,37 @@ def _off_thread_depth(
         sample[j] = np.c_[pts[j][0][::step], pts[j][1][::step]].astype(np.float64)
     thread_xy = np.c_[v.rows[thread], v.cols[thread]].astype(np.float64)
     gap, at = _nearest(cKDTree(thread_xy), thread_xy, sample, joining)
+    # (deviation 65: whether a piece touches the thread is read on all its pixels, those voted
+    # on the surface too: a fibre's pixels beside the thread may be the ones voted)
+    whole: dict = {}
+    for j in joining if touch_at_tissue else []:
+        px = on[lab_on == j]
+        step = max(len(px) // 64, 1)
+        whole[j] = np.c_[v.rows[px][::step], v.cols[px][::step]].astype(np.float64)
+    touch, _ = _nearest(cKDTree(thread_xy), thread_xy, whole, list(whole))
     left = list(joining)
     off: list[int] = []
     off_pieces: list[tuple[cKDTree, np.ndarray, int]] = []  # (tree, pixels, disparity) of each
     while left:
-        j = min(left, key=gap.__getitem__)
+        j = min(left, key=(touch if whole else gap).__getitem__)
         left.remove(j)
         blocks = _block_disparities(st, *pts[j])
+        if (
+            touch_at_tissue
+            and blocks
+            and touch[j] <= _TOUCH_PX
+            and not _crosses(v.tool, sample[j], at[j])
+        ):
+            own = st.disparity(*pts[j])
+            if (
+                own is not None
+                and d_far - own > SAME_DISPARITY_PX + _THREAD_SLOPE * touch[j]
+                and any(abs(own - t) <= SAME_DISPARITY_PX for t in _tissue_around(st, *pts[j]))
+            ):
+                off.append(j)
+                piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
+                off_pieces.append((cKDTree(piece_xy), piece_xy, own))
+                continue
         if blocks and gap[j] > _TOUCH_PX and not _crosses(v.tool, sample[j], at[j]):
             near = _nearest_reading(blocks)  # the piece's nearest block
             # the depth slope (px of disparity a px of gap) it needs, beyond the disparity's
@@ -939,12 +973,38 @@ def _off_thread_depth(
             for m in left:
                 if g2[m] < gap[m]:
                     gap[m], at[m] = g2[m], at2[m]
+            if whole:
+                t2, _ = _nearest(cKDTree(piece_xy), piece_xy, whole, left)
+                for m in left:
+                    touch[m] = min(touch[m], t2[m])
     return off
 
 
 _TOUCH_PX: Final = 2 * MAX_HALF_WIDTH_PX  # a piece this near the thread may be split from it
 # by a strand crossing it (as wide as a thread's response at most): its nearest thread pixel
 # is then the crossing strand's, at another depth
+
+
+def _tissue_around(st: SurfaceTest, rows: np.ndarray, cols: np.ndarray) -> list[int]:
+    """The tissue's disparities (:meth:`SurfaceTest.background_disparity`, where it resolves)
+    in the block of the surface test's grid that holds most of the pixels (``rows``,
+    ``cols``) and in the eight blocks around it: a thin line's own block is often too smooth
+    (or too taken by lines) to resolve the tissue's; the tissue's depth changes little from
+    one block to the next (deviation 65)."""
+    br, bc = block_of(rows, cols)
+    nc = int(bc.max()) + 1
+    at = int(np.bincount(br * nc + bc).argmax())
+    r0, c0 = at // nc * BLOCK_PX, at % nc * BLOCK_PX
+    h, w = st.this.shape
+    out = []
+    for dr in (-BLOCK_PX, 0, BLOCK_PX):
+        for dc in (-BLOCK_PX, 0, BLOCK_PX):
+            r, c = r0 + dr, c0 + dc
+            if 0 <= r < h and 0 <= c < w:
+                t = st.background_disparity(np.array([r]), np.array([c]))
+                if t is not None:
+                    out.append(t)
+    return out
 
 
 def _confirmed(blocks: list[int]) -> list[int]:

@@ -220,6 +220,16 @@ class SegmentationParams(Params):
         "instrument from it, or without a disparity of their own join as before. Off: every "
         "piece of the dye joins (deviation 62).",
     )
+    touch_at_tissue: bool = param(
+        True,
+        label="raw: touching pieces at the tissue's depth",
+        doc="raw: a piece of the thread's dye within 12 px of the thread (which deviation 62 "
+        "lets join unjudged: a loop's strand past a crossing) does not join when its own "
+        "disparity is the tissue's (the background of its block or of one of the eight blocks "
+        "around it, within 1.5 px) and lies behind the thread's farthest block by more than "
+        "1.5 px plus 0.1 px a px of its gap: a light fibre on the tissue that the thread "
+        "crosses. Off: every such piece joins (deviation 65).",
+    )
     red_part_floats: bool = param(
         True,
         label="raw: red piece floating in part",
