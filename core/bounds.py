@@ -354,11 +354,7 @@ def _extra_points(
     sel, link = sel[kept], link[kept]
     n_runs = int(n_extra.sum())
     # Median stereo depth of each run's finite depths.
-    depth = (
-        _dead_end_depths(stereo, ordering, path, sel, link) if second_matches else stereo.depth[sel]
-    )
-    if dead_end_others:
-        depth = _dead_end_others(stereo, ordering, path, sel, link, depth)
+    depth = _dead_end_depths(stereo, ordering, path, sel, link, second_matches, dead_end_others)
     med, has = walk_kernel.run_medians(group, np.ascontiguousarray(depth, dtype=np.float64), n_runs)
     run_link = np.repeat(np.arange(M - 1), n_extra)
     extras = np.column_stack([cx, cy, med])[has]
@@ -382,29 +378,50 @@ def _extra_points(
 
 
 def _dead_end_depths(
-    stereo: StereoResult, ordering: Ordering, path: np.ndarray, sel: np.ndarray, link: np.ndarray
+    stereo: StereoResult,
+    ordering: Ordering,
+    path: np.ndarray,
+    sel: np.ndarray,
+    link: np.ndarray,
+    second: bool = True,
+    others: bool = False,
 ) -> np.ndarray:
     """Stereo depths of the gap pixels ``sel`` (on links ``link``), where the pixels of a dead
     end (the link to an extension keypoint) are followed from the end keypoint (their only
-    anchor) outwards, in the order of ``pixel_t``, by :func:`_track`: a pixel whose first
-    match breaks continuity with the strand followed so far and whose second match does not
-    takes its second. A tip whose depth drifts smoothly keeps every first match. A thin free
-    end beside other strands (the inner end of a coil) is matched to its neighbours at every
-    other pixel (generated spiral 8141 #11: 27, 11 and 44 px where the truth is 44 px, the
-    second match then 44 px): the median of a run of them put the end 60 mm off."""
+    anchor) outwards, in the order of ``pixel_t``, by :func:`_follow` (one pass serves both):
+
+    - ``second`` (deviation 30's second matches): a pixel whose first match breaks continuity
+      with the strand followed so far and whose second match does not takes its second. A tip
+      whose depth drifts smoothly keeps every first match. A thin free end beside other
+      strands (the inner end of a coil) is matched to its neighbours at every other pixel
+      (generated spiral 8141 #11: 27, 11 and 44 px where the truth is 44 px, the second match
+      then 44 px): the median of a run of them put the end 60 mm off. The links between two
+      keypoints then follow (:func:`_interior_depths`).
+    - ``others`` (deviation 64): a pixel whose first match lies beyond the strand's continuity
+      bound by more than ``OUTLIER_PX`` and whose second match does not lie within it is
+      another match (an occluder's edge): NaN, no depth for its extra point."""
     depth = stereo.depth[sel]
+    if not (second or others):
+        return depth
     for li, anchor, on, d_a in _dead_ends(stereo, ordering, path, sel, link):
         px = sel[on]
-        first, second = stereo.disparity[px], stereo.d_next[px]
-        bound = disparity_room(np.hypot(*(stereo.pixels[px] - path[anchor, :2]).T))
-        if not ((np.abs(first - d_a) > bound + OUTLIER_PX) & (np.abs(second - d_a) <= bound)).any():
-            continue  # no pixel has a second match the anchor's strand could reach
+        first, d_next = stereo.disparity[px], stereo.d_next[px]
+        swaps = second
+        if swaps:  # a pixel whose second match the anchor's strand could reach, or none swaps
+            bound = disparity_room(np.hypot(*(stereo.pixels[px] - path[anchor, :2]).T))
+            swaps = bool(
+                ((np.abs(first - d_a) > bound + OUTLIER_PX) & (np.abs(d_next - d_a) <= bound)).any()
+            )
+        if not (swaps or others):
+            continue
         out, xy = _outwards(stereo, ordering, path, px, li, anchor)
-        swap = _track(d_a, first[out], second[out], xy)
-        if swap.any():
-            moved = on[out[swap]]
+        state = _follow(d_a, first[out], d_next[out], xy)
+        if swaps and (state == SWAP).any():
+            moved = on[out[state == SWAP]]
             depth[moved] = depth_of(stereo, second_match_subpixel(stereo, sel[moved]), px)
-    return _interior_depths(stereo, ordering, path, sel, link, depth)
+        if others:
+            depth[on[out[state == OTHER]]] = np.nan
+    return _interior_depths(stereo, ordering, path, sel, link, depth) if second else depth
 
 
 def _interior_depths(
@@ -460,31 +477,6 @@ def _interior_depths(
             moved = on[both]
             depth[moved] = depth_of(stereo, second_match_subpixel(stereo, sel[moved]), p)
     return depth
-
-
-def _dead_end_others(
-    stereo: StereoResult,
-    ordering: Ordering,
-    path: np.ndarray,
-    sel: np.ndarray,
-    link: np.ndarray,
-    depth: np.ndarray,
-) -> np.ndarray:
-    """``depth`` (of the gap pixels ``sel`` on links ``link``) with NaN at the pixels of a dead
-    end (the link to an extension keypoint) that are another match: followed out from the end
-    keypoint as :func:`_track` follows them, one whose first match lies beyond the strand's
-    continuity bound by more than ``OUTLIER_PX`` and whose second match does not lie within it
-    (deviation 64)."""
-    out_depth = depth
-    for li, anchor, on, d_a in _dead_ends(stereo, ordering, path, sel, link):
-        px = sel[on]
-        out, xy = _outwards(stereo, ordering, path, px, li, anchor)
-        other = _follow(d_a, stereo.disparity[px[out]], stereo.d_next[px[out]], xy) == OTHER
-        if other.any():
-            if out_depth is depth:
-                out_depth = depth.copy()
-            out_depth[on[out[other]]] = np.nan
-    return out_depth
 
 
 TRACK_REF = 5  # pixels whose median disparity is the followed strand's (two wrong outvoted)

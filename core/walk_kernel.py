@@ -568,7 +568,7 @@ def track_strand(d_a, first, second, xy, slack, slope, outlier, ref_n):  # noqa:
     """bounds._track compiled: (n,) uint8, what the pixels of a gap (in order outwards from its
     anchor of disparity ``d_a``; ``xy``: (n + 1, 2), the anchor first) do: 1 take their second
     match, 0 their first, 2 keep their first untaken, 3 the same with the first beyond the
-    bound by more than ``outlier`` (another match: bounds._dead_end_others). The strand's
+    bound by more than ``outlier`` (another match: deviation 64 in bounds._dead_end_depths). The strand's
     disparity is the median of the last ``ref_n`` pixels taken (the anchor's at first); a
     pixel keeps its first match within ``slack + slope * step`` of it (step: distance from
     the last pixel taken), else takes its second when that lies within and the first lies
