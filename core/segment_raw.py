@@ -1964,7 +1964,7 @@ def _pieces(
     # sides are <= its area). Those are few (a few % of the pieces); each is measured alone.
     # The other pieces' boxes are not needed (0, as their length); the pieces off the image's
     # border only (:func:`_along_border`). Per piece, in one compiled pass each side of the
-    # half-widths (numpy's float64 steps, :func:`_piece_shapes_plain`).
+    # half-widths (numpy's float64 steps, bit for bit: tests/core/test_segment_raw.py).
     h, w = v.lo.shape
     min_len = float(p.min_length_px)
     means, cands, diag = piece_candidates(
@@ -1987,36 +1987,6 @@ def _pieces(
 
 _CHAMFER_A: Final = 0.95  # below cv2's DIST_L2 3x3 step (0.955): no piece is thinner
 _SQRT2: Final = float(np.sqrt(2.0))  # a connected piece's box diagonal over its area, at most
-
-
-def _piece_shapes_plain(
-    area: np.ndarray,
-    sums: np.ndarray,
-    seeded: np.ndarray,
-    boxes: np.ndarray,
-    half_of: Callable[[np.ndarray], np.ndarray],
-    min_len: float,
-    h: int,
-    w: int,
-) -> tuple[np.ndarray, ...]:
-    """The per-piece steps of :func:`_pieces` as numpy steps (means, candidates, boxes zeroed
-    in place, lengths, shape-ok, too wide), ``half_of(cands)`` giving the half-widths: what
-    :func:`threadrecon.core.ridge_kernel.piece_candidates` and ``piece_shapes`` compute, bit
-    for bit (tests/core/test_segment_raw.py)."""
-    means = sums / np.maximum(area, 1.0)
-    cands = seeded & (np.sqrt(2.0) * area >= min_len)
-    cands[0] = False
-    boxes *= cands
-    r0, r1, c0, c1 = boxes
-    diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
-    cands &= np.maximum(diag, area / (2.0 * _CHAMFER_A)) >= min_len
-    cands &= ~_along_border(boxes, h, w)
-    half = half_of(cands)
-    length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
-    ok = cands & (length >= min_len) & (half <= MAX_HALF_WIDTH_PX)
-    wide = cands & (length >= min_len) & ~ok
-    means[0] = 0.0
-    return means, cands, diag, length, ok, wide
 
 
 def _wide_part(

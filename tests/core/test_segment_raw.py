@@ -1,5 +1,6 @@
 """Tests of core/segment_raw.py's exact shortcuts: each equals the plain computation it replaces."""
 
+from collections.abc import Callable
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -502,7 +503,7 @@ def test_piece_kernels_equal_the_numpy_steps(trial: int) -> None:
         return np.where(cands, half, 0.0)
 
     b_plain = boxes.copy()
-    means, cands, diag, length, ok, wide = sr._piece_shapes_plain(
+    means, cands, diag, length, ok, wide = _piece_shapes_numpy(
         area, sums.copy(), seeded, b_plain, half_of, min_len, h, w
     )
     b_kernel = boxes.copy()
@@ -516,6 +517,35 @@ def test_piece_kernels_equal_the_numpy_steps(trial: int) -> None:
                  (length, k_length), (ok, k_ok), (wide, k_wide)):  # fmt: skip
         assert a.dtype == b.dtype
         assert np.array_equal(a, b)
+
+
+def _piece_shapes_numpy(
+    area: np.ndarray,
+    sums: np.ndarray,
+    seeded: np.ndarray,
+    boxes: np.ndarray,
+    half_of: Callable[[np.ndarray], np.ndarray],
+    min_len: float,
+    h: int,
+    w: int,
+) -> tuple[np.ndarray, ...]:
+    """The per-piece steps of segment_raw._pieces as numpy steps, frozen (means, candidates,
+    boxes zeroed in place, lengths, shape-ok, too wide), ``half_of(cands)`` giving the
+    half-widths: the reference ridge_kernel.piece_candidates and piece_shapes must equal."""
+    means = sums / np.maximum(area, 1.0)
+    cands = seeded & (np.sqrt(2.0) * area >= min_len)
+    cands[0] = False
+    boxes *= cands
+    r0, r1, c0, c1 = boxes
+    diag = np.hypot(c1 - c0 + 1.0, r1 - r0 + 1.0)
+    cands &= np.maximum(diag, area / (2.0 * sr._CHAMFER_A)) >= min_len
+    cands &= ~sr._along_border(boxes, h, w)
+    half = half_of(cands)
+    length = np.maximum(diag, area / np.maximum(2.0 * half, 1.0))
+    ok = cands & (length >= min_len) & (half <= sr.MAX_HALF_WIDTH_PX)
+    wide = cands & (length >= min_len) & ~ok
+    means[0] = 0.0
+    return means, cands, diag, length, ok, wide
 
 
 def test_a_fibre_the_thread_crosses_at_the_tissues_depth_does_not_join() -> None:
