@@ -808,13 +808,10 @@ def _at_thread_disparity(
     st = _surface_test(views, i, d)
     pts = {j: (v.rows[on[lab_on == j]], v.cols[on[lab_on == j]]) for j in cands}
     left = list(cands)
-    thread_xy = np.c_[v.rows[thread], v.cols[thread]].astype(np.float64)
+    thread_xy = _xy(v.rows[thread], v.cols[thread])
     # each candidate's gap to the thread and the thread's point there (on <= 64 of its
     # pixels: the gap within ~2 px), updated as pieces are taken
-    sample = {}
-    for j in left:
-        step = max(len(pts[j][0]) // 64, 1)
-        sample[j] = np.c_[pts[j][0][::step], pts[j][1][::step]].astype(np.float64)
+    sample = {j: _xy(*pts[j], most=64) for j in left}
     gap, at = _nearest(cKDTree(thread_xy), thread_xy, sample, left)
     if v.tool is not None:  # the thread is hidden under the instrument, not missing there
         for j in left:
@@ -846,7 +843,7 @@ def _at_thread_disparity(
             t is not None and abs(own - t) <= SAME_DISPARITY_PX for t in (d_bg, d_mark)
         ):
             taken.append(j)
-            piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
+            piece_xy = _xy(*pts[j])
             thread_xy = np.concatenate([thread_xy, piece_xy])
             g2, at2 = _nearest(cKDTree(piece_xy), piece_xy, sample, left)
             if v.tool is not None:
@@ -906,19 +903,15 @@ def _off_thread_depth(
         votes = votes_of.get(j)
         own = px if votes is None or np.all(votes == 1) else px[votes != 1]
         pts[j] = (v.rows[own], v.cols[own])
-    sample = {}
-    for j in joining:
-        step = max(len(pts[j][0]) // 64, 1)
-        sample[j] = np.c_[pts[j][0][::step], pts[j][1][::step]].astype(np.float64)
-    thread_xy = np.c_[v.rows[thread], v.cols[thread]].astype(np.float64)
+    sample = {j: _xy(*pts[j], most=64) for j in joining}
+    thread_xy = _xy(v.rows[thread], v.cols[thread])
     gap, at = _nearest(cKDTree(thread_xy), thread_xy, sample, joining)
     # (deviation 65: whether a piece touches the thread is read on all its pixels, those voted
     # on the surface too: a fibre's pixels beside the thread may be the ones voted)
     whole: dict = {}
     for j in joining if touch_at_tissue else []:
         px = on[lab_on == j]
-        step = max(len(px) // 64, 1)
-        whole[j] = np.c_[v.rows[px][::step], v.cols[px][::step]].astype(np.float64)
+        whole[j] = _xy(v.rows[px], v.cols[px], most=64)
     touch, _ = _nearest(cKDTree(thread_xy), thread_xy, whole, list(whole))
     left = list(joining)
     off: list[int] = []
@@ -940,7 +933,7 @@ def _off_thread_depth(
                 and any(abs(own - t) <= SAME_DISPARITY_PX for t in _tissue_around(st, *pts[j]))
             ):
                 off.append(j)
-                piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
+                piece_xy = _xy(*pts[j])
                 off_pieces.append((cKDTree(piece_xy), piece_xy, own))
                 continue
         if blocks and gap[j] > _TOUCH_PX and not _crosses(v.tool, sample[j], at[j]):
@@ -960,13 +953,13 @@ def _off_thread_depth(
             )
             if slope > _THREAD_SLOPE or other < slope:
                 off.append(j)
-                piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
+                piece_xy = _xy(*pts[j])
                 off_pieces.append((cKDTree(piece_xy), piece_xy, near))
                 continue
         # a piece that joins (at the thread's depth, or not judged) extends the thread
         if blocks:
             d_far = min(d_far, *blocks)
-        piece_xy = np.c_[pts[j][0], pts[j][1]].astype(np.float64)
+        piece_xy = _xy(*pts[j])
         thread_xy = np.concatenate([thread_xy, piece_xy])
         if left:
             g2, at2 = _nearest(cKDTree(piece_xy), piece_xy, sample, left)
@@ -978,6 +971,13 @@ def _off_thread_depth(
                 for m in left:
                     touch[m] = min(touch[m], t2[m])
     return off
+
+
+def _xy(rows: np.ndarray, cols: np.ndarray, most: int | None = None) -> np.ndarray:
+    """(n, 2) float64 (row, column) of the pixels, every k-th of them when ``most`` is given
+    (k = len // most, at least 1: about ``most`` of a long piece)."""
+    step = 1 if most is None else max(len(rows) // most, 1)
+    return np.c_[rows[::step], cols[::step]].astype(np.float64)
 
 
 _TOUCH_PX: Final = 2 * MAX_HALF_WIDTH_PX  # a piece this near the thread may be split from it
@@ -1249,8 +1249,7 @@ class _Marks:
         them), None without marks."""
         if self.tree is None or len(rows) == 0:
             return None
-        step = max(len(rows) // 64, 1)
-        dist, idx = self.tree.query(np.c_[rows[::step], cols[::step]].astype(np.float64))
+        dist, idx = self.tree.query(_xy(rows, cols, most=64))
         m = int(self.owner[int(idx[int(np.argmin(dist))])])
         if m not in self.known:
             px = self.marks[m]
@@ -1264,10 +1263,8 @@ class _Marks:
         does not move."""
         if self.tree is None or len(rows) == 0:
             return None
-        step = max(len(rows) // 64, 1)
-        dist, _ = cKDTree(np.c_[rows[::step], cols[::step]].astype(np.float64)).query(
-            self.tree.data
-        )  # each mark's sampled pixels to the nearest of those pixels
+        # each mark's sampled pixels to the nearest of those pixels
+        dist, _ = cKDTree(_xy(rows, cols, most=64)).query(self.tree.data)
         least = np.full(len(self.marks), np.inf)
         np.minimum.at(least, self.owner, dist)
         found = []
