@@ -400,6 +400,17 @@ class CheckParams(Params):
         "not as a stretch no view observes (max_unobserved_mm). Off: before session 21. "
         "docs/method.md, prec21.",
     )  # fmt: skip
+    occluder_exit: bool = param(
+        True, label="an occluder's far side seen between untold patches",
+        doc="On: the walk over an occluder at a free end (occluded_mm, "
+        "core/check_beyond.end_occluder) stops where two patches measure one surface at or "
+        "behind the end's depth (within 8 px of disparity of each other) with only patches "
+        "the pair cannot tell between them, not only two in a row: smooth tissue past a "
+        "shaft's edge alternates untextured patches and patches measured behind the end, and "
+        "the occluder (measured in front wherever it is textured) does not come back between "
+        "them along a straight way. Off: two patches in a row (before session 22). "
+        "docs/method.md, prec23 (check rule 67).",
+    )  # fmt: skip
     bridge_rerun: bool = param(
         True, label="a bridge back onto the curve's own thread",
         doc="On: suspect when the curve's stretch past a bridge, toward its nearer end, lies in "
@@ -950,7 +961,7 @@ def _check(
             (uv_l, uv_r), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R), end,
             f * B / z_end, known, reach, p.cover_px + BEYOND_COVER_PX, unobserved_px,
             unobserved_px + AHEAD_STEP_PX, plain_sigma=p.bare_sigma, untextured=p.blank_occluder,
-            next_measure=p.blank_next_measure,
+            next_measure=p.blank_next_measure, past_untold=p.occluder_exit,
         )  # fmt: skip
         # the occluder's reach, walked in both views, bounds what a cut end may hide
         bounded = occ is not None and not occ.walked_out and occ.reach_px <= unobserved_px

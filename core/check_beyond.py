@@ -702,6 +702,7 @@ def end_occluder(
     plain_sigma: float | None = None,
     untextured: bool = False,
     next_measure: bool = False,
+    past_untold: bool = False,
 ) -> Occluded | None:
     """Whether the thread at the curve's free ``end`` runs, in both views, into an occluder.
 
@@ -733,7 +734,10 @@ def end_occluder(
     first patch farther along the way that the walk's view (the one that sees farther) can
     measure show the surface the thread lies on (at or behind the end's depth): a faint
     texture on a smooth stretch of tissue mismatches once, and the tissue measured farther on
-    tells it; a shaft's texture past its blank tip measures the shaft again."""
+    tells it; a shaft's texture past its blank tip measures the shaft again.
+
+    ``past_untold`` (CheckParams.occluder_exit): the walk also ends at two measures of one
+    surface at or behind the end with only patches the pair cannot tell between (``_walk``)."""
     ext, far_px = known
     far = 0 if ext[0] >= ext[1] else 1
     fr = _end_frame(uv[far], end)
@@ -823,7 +827,7 @@ def end_occluder(
     for i, ray in enumerate(rays):
         start = float((k + 1) * AHEAD_STEP_PX) if i == 0 else 0.0  # past the meeting patch
         limit = min(_to_border(at, ray, greys[far].shape), budget)
-        walked = _walk(greys, masks, far, at, ray, disparity, start, limit, plain[far])
+        walked = _walk(greys, masks, far, at, ray, disparity, start, limit, plain[far], past_untold)
         hidden = max(hidden, walked)
         if ext[far] + hidden >= max_reach_px:
             break
@@ -952,21 +956,35 @@ def _walk(
     offset: float,
     limit: float,
     plain: PlainSource = None,
+    past_untold: bool = False,
 ) -> float:
     """How far (px) past ``at`` along ``way`` an occluder reaches in view ``side``: walked a
     patch at a time from ``offset`` until two patches in a row show a surface at or behind the
     end's depth, or the plain background the thread lies on (``plain``: its grey level and
     tolerance, see ``plain_surface``), else ``limit``. The other patches the pair cannot tell
-    count as occluder."""
+    count as occluder.
+
+    ``past_untold`` (CheckParams.occluder_exit): two such patches with only patches the pair
+    cannot tell between them (no patch measured in front of the end), their measures within
+    AHEAD_AGREE_PX of each other (one surface), end the walk at the first as well: smooth
+    tissue past a shaft's edge alternates between untextured patches and patches measured
+    behind the end, and the occluder, measured in front wherever it is textured, does not
+    come back between two measures of one surface behind it along a straight way."""
     bare = None  # the offset of a patch showing the surface under the thread again
+    lone = None  # (offset, measure) of the last such patch with only untold patches since
     while offset < limit:
         d, grey = surface_ahead(greys, masks, side, at, way, disparity, offset)
         if d is None and _is_plain(grey, plain):
             d = 0.0  # the plain background the thread lies on: a thread there would show
         if d is None or d > AHEAD_NEAR_PX:
             bare = None
+            if d is not None:  # measured in front: the occluder again
+                lone = None
         elif bare is None:
+            if past_untold and lone is not None and abs(d - lone[1]) <= AHEAD_AGREE_PX:
+                return lone[0]  # the same surface twice, only untold patches between
             bare = offset
+            lone = (offset, d)
         else:  # two patches in a row (one mismatch on a shaft along the rows is no surface)
             return bare  # the thread, had it gone on this way, would be seen: it ended before
         offset += AHEAD_STEP_PX

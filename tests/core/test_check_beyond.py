@@ -894,3 +894,73 @@ def test_left_behind_measures_a_branch_where_the_curve_leaves_the_thread() -> No
 def test_left_behind_is_zero_where_the_thread_stops_at_the_bridge() -> None:
     masks, uv = _branch_masks(branch=False)
     assert left_behind((uv, uv), masks, 100, 200.0, 5.0, 3.5) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("script", "past", "expected"),
+    [
+        # front, front, behind, untold, untold, behind (agrees): the far side at patch 2
+        ([9.0, 9.0, -7.0, None, None, -8.0, None], True, 2),
+        ([9.0, 9.0, -7.0, None, None, -8.0, None], False, None),
+        # two in a row end the walk either way (the base rule)
+        ([9.0, -7.0, -7.0, None], False, 1),
+        ([9.0, -7.0, -7.0, None], True, 1),
+        # the occluder measured again between the two: no far side
+        ([9.0, -7.0, None, 9.0, None, -7.0, None], True, None),
+        # two measures behind that disagree by more than AHEAD_AGREE_PX: not one surface
+        ([9.0, -1.0, None, -12.0, None, None], True, None),
+        # ... the later one starts a new pair
+        ([9.0, -1.0, None, -12.0, None, -11.0], True, 3),
+    ],
+)
+def test_the_walk_over_an_occluder_ends_at_its_far_side_past_untold_patches(
+    monkeypatch: pytest.MonkeyPatch, script: list, past: bool, expected: int | None
+) -> None:
+    """``_walk`` with ``past_untold`` (CheckParams.occluder_exit, prec23): smooth tissue past
+    a shaft's edge alternates untextured patches (the pair cannot tell them) and patches
+    measured behind the end; two measures of one surface behind it (within AHEAD_AGREE_PX)
+    with only untold patches between end the walk at the first. A patch measured in front
+    between them (the occluder) or a disagreeing measure does not; off, only two patches in
+    a row do."""
+    from threadrecon.core import check_beyond as cb
+
+    def scripted(greys, masks, side, at, way, disparity, offset=0.0):
+        k = int(round(offset / cb.AHEAD_STEP_PX))
+        d = script[k] if k < len(script) else None
+        return (None, 120.0) if d is None else (d, None)
+
+    monkeypatch.setattr(cb, "surface_ahead", scripted)
+    limit = len(script) * cb.AHEAD_STEP_PX
+    grey = np.zeros((10, 10))
+    walked = cb._walk(
+        (grey, grey), (grey > 0, grey > 0), 0, np.zeros(2), np.array([1.0, 0.0]), 20.0, 0.0,
+        float(limit), None, past,
+    )  # fmt: skip
+    assert walked == (limit if expected is None else expected * cb.AHEAD_STEP_PX)
+
+
+def test_an_end_at_a_shaft_over_smooth_tissue_is_bounded() -> None:
+    """Raw suite instrument #2 of seed 20253 (eval_suites' frame, masks given; prec23): the
+    thread ends at the shaft's edge (e_S^max 10.9 mm, e_l 8.7 mm: right). Past the shaft the
+    smooth tissue alternates untextured patches and patches measured 7 px of disparity behind
+    the end, never two in a row: the walk over the occluder ran out at 21.9 mm (suspect).
+    With ``occluder_exit`` the walk ends at the shaft's far side and the curve is ok."""
+    from threadrecon.core.check import CheckParams, check_curve
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.pipeline import Pipeline
+    from threadrecon.core.segmentation import StereoPair
+
+    frame = suite_frame(
+        [20253, 6, 2], background="tissue", noise_sigma=2.0, blur_sigma=0.5, instrument=True
+    )
+    calib = frame.camera.calibration()
+    rec = Pipeline(
+        StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right), calib
+    ).run()
+    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert abs(e.e_length) < 20.0 and e.e_S_max < 20.0
+    assert rec["check"].status == "ok", rec["check"].reasons
+    args = [rec[s] for s in ("segment", "stereo", "reliability", "ordering", "bounds", "spline")]
+    off = check_curve(*args, rec["camera"], calib, CheckParams(occluder_exit=False))
+    assert off.status == "suspect"
+    assert any("runs into an occluder" in r for r in off.reasons), off.reasons
