@@ -370,6 +370,12 @@ class _View:
                 delta[:, 1] >= -_BLOOD_RATIO * delta[:, 0]
             )
             blood = redder & (delta[:, 0] < 0)
+            if (
+                p.blood_speck_px > 1
+                and blood.any()
+                and not _has_group(blood, rows, cols, p.blood_speck_px)
+            ):
+                blood[:] = False  # specks only: no vessel in the view (deviation 70)
         else:
             blood = np.zeros(len(rows), bool)
         sigma = noise_sigma(_log_channels(img[::_NOISE_ROW_STEP]), row_step=1)
@@ -385,6 +391,17 @@ class _View:
         v = _View(**{k: getattr(self, k) for k in self.__dataclass_fields__ if k != "pieces"})
         v.pieces = _pieces(None, v, p)
         return v
+
+
+def _has_group(flag: np.ndarray, rows: np.ndarray, cols: np.ndarray, min_px: int) -> bool:
+    """Whether the flagged pixels of (rows, cols) (M,) (row-major order) hold an 8-connected
+    group of at least ``min_px`` pixels (deviation 70: a vessel, not specks of noise)."""
+    at = np.flatnonzero(flag)
+    if len(at) < min_px:
+        return False
+    lab = np.empty(len(at), np.int64)
+    label_pixels(rows[at], cols[at], lab)
+    return int(np.bincount(lab).max()) >= min_px
 
 
 def _points(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

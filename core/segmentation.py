@@ -243,6 +243,20 @@ class SegmentationParams(Params):
         "floating nor a mark as a whole, is taken for a vessel and ends the red pass "
         "(deviation 63).",
     )
+    blood_speck_px: int = param(
+        30,
+        lo=0,
+        hi=10_000,
+        unit="px",
+        label="raw: least vessel",
+        doc="raw: blood-like pixels (darker and redder than the tissue around) are set aside as "
+        "vessels only when the view holds an 8-connected group of at least this many of them "
+        "(a vessel is a line; the default is min_length_px's): where all are specks, they are "
+        "pixel noise at a thread's faint rim and tip (a noisy grey frame held ~500 in specks "
+        "of at most 5), and setting them aside cut the thread's tip off its piece. 0: every "
+        "blood-like pixel is set aside (deviation 70).",
+        slider=(0, 200, 1),
+    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,
