@@ -128,15 +128,26 @@ def _reflect(i, n):  # noqa: ANN001
 
 
 @helper(inline="always")
-def _mixed_row(src, c, w, lut, mix, row):  # noqa: ANN001
+def _mixed_row(src, c, w, lut, mix, ratios, row, grey):  # noqa: ANN001
     """One image row ``src`` (W, c) uint8 as log channels into ``row`` (c, W + 4): channel j
     at row[j, x + 2] is ``mix[j]`` of lut[value] of (R, G, B) (lut[value] for one channel;
     m0 lr + m1 lg + m2 lb, added left to right), and two columns on each side are
-    reflect-101 copies (for the 5-tap filter)."""
+    reflect-101 copies (for the 5-tap filter); the first channel also into ``grey`` (W,).
+    ``ratios``: mix's last two rows are (1, -1, 0) and (0, -1, 1), whose sums are lr - lg and
+    lb - lg exactly (products by 1 and -1 are exact, 0 lb is +0 for lut > 0 and x + 0 = x
+    for x != -0, and x - y is never -0 for finite x, y): computed as such."""
     if c == 1:
         r0 = row[0]
         for x in range(w):
             r0[x + 2] = lut[src[x, 0]]
+    elif ratios:
+        y0, y1, y2 = row[0], row[1], row[2]
+        a0, a1, a2 = mix[0, 0], mix[0, 1], mix[0, 2]
+        for x in range(w):
+            lr, lg, lb = lut[src[x, 0]], lut[src[x, 1]], lut[src[x, 2]]
+            y0[x + 2] = a0 * lr + a1 * lg + a2 * lb
+            y1[x + 2] = lr - lg
+            y2[x + 2] = lb - lg
     else:
         y0, y1, y2 = row[0], row[1], row[2]
         a0, a1, a2 = mix[0, 0], mix[0, 1], mix[0, 2]
@@ -151,6 +162,9 @@ def _mixed_row(src, c, w, lut, mix, row):  # noqa: ANN001
         rj = row[j]
         for p in (0, 1, w + 2, w + 3):
             rj[p] = rj[_reflect(p - 2, w) + 2]
+    r0 = row[0]
+    for x in range(w):
+        grey[x] = r0[x + 2]
 
 
 @kernel(
@@ -167,10 +181,14 @@ def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
     h_in, w, c = img.shape
     h2 = half.shape[0] // c
     w2 = half.shape[1]
+    ratios = c == 3 and _is_ratios(mix) and lut.min() > 0
     # The mixed rows of the last five input rows (each row is mixed once): slot r % 5.
     cache = np.empty((5, c, w + 4), np.float32)
     cached = np.full(5, -1, np.int64)
-    acc = np.empty(w + 4, np.float32)
+    # The five rows' sums at the even and at the odd columns (the 5-tap filter along the row
+    # then reads two contiguous arrays, not every second element of one)
+    even = np.zeros((w + 5) // 2, np.float32)
+    odd = np.zeros((w + 5) // 2, np.float32)
     four = np.float32(4.0)
     six = np.float32(6.0)
     scale = np.float32(1.0 / 256.0)
@@ -179,12 +197,8 @@ def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
             r = _reflect(2 * y2 + k - 2, h_in)
             slot = r % 5
             if cached[slot] != r:
-                row = cache[slot]
-                _mixed_row(img[r], c, w, lut, mix, row)
+                _mixed_row(img[r], c, w, lut, mix, ratios, cache[slot], grey[r])
                 cached[slot] = r
-                g, r0 = grey[r], row[0]
-                for x in range(w):
-                    g[x] = r0[x + 2]
         s0 = cache[_reflect(2 * y2 - 2, h_in) % 5]
         s1 = cache[_reflect(2 * y2 - 1, h_in) % 5]
         s2 = cache[_reflect(2 * y2, h_in) % 5]
@@ -194,14 +208,28 @@ def log_planes(img, lut, mix, grey, half):  # noqa: ANN001
             # the five rows' taps [1 4 6 4 1] added in turn, one pass (the order of the sums
             # of one tap after another)
             a0, a1, a2, a3, a4 = s0[j], s1[j], s2[j], s3[j], s4[j]
-            for x in range(w + 4):
-                acc[x] = (((a0[x] + four * a1[x]) + six * a2[x]) + four * a3[x]) + a4[x]
+            for i in range((w + 4) // 2):
+                x = 2 * i
+                even[i] = (((a0[x] + four * a1[x]) + six * a2[x]) + four * a3[x]) + a4[x]
+                x += 1
+                odd[i] = (((a0[x] + four * a1[x]) + six * a2[x]) + four * a3[x]) + a4[x]
+            if w % 2 == 1:  # (w + 4 columns: the last one is even)
+                x = w + 3
+                even[x // 2] = (((a0[x] + four * a1[x]) + six * a2[x]) + four * a3[x]) + a4[x]
             out = half[j * h2 + y2]
-            for x2 in range(w2):
-                p = 2 * x2
-                v = acc[p] + four * acc[p + 1] + six * acc[p + 2] + four * acc[p + 3] + acc[p + 4]
-                out[x2] = v * scale
+            for x2 in range(w2):  # columns 2 x2 .. 2 x2 + 4 of the sums
+                v = even[x2] + four * odd[x2] + six * even[x2 + 1] + four * odd[x2 + 1]
+                out[x2] = (v + even[x2 + 2]) * scale
     return half
+
+
+@helper(inline="always")
+def _is_ratios(mix):  # noqa: ANN001
+    """Whether the last two rows of ``mix`` (3, 3) are (1, -1, 0) and (0, -1, 1)."""
+    return (
+        mix[1, 0] == 1 and mix[1, 1] == -1 and mix[1, 2] == 0
+        and mix[2, 0] == 0 and mix[2, 1] == -1 and mix[2, 2] == 1
+    )  # fmt: skip
 
 
 @kernel("uint8[:, ::1](uint8[:, :, :], float32[::1], float32, uint8[:, ::1])")

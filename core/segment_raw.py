@@ -280,6 +280,7 @@ class _View:
     bg_rgb: np.ndarray  # (h, w, C) float32 local background colour at quarter resolution
     s_lo: np.ndarray  # (M,) float32 S at the lo pixels
     pieces: tuple = ()
+    px: np.ndarray | None = None  # (M, C) uint8 values of the lo pixels (:func:`_pixels_at`)
     grey_core: bool = False  # the chosen core's contrast is near grey (:func:`_grey_contrast`)
     tool: np.ndarray | None = None  # (H, W) bool, the instrument found in the view, if any
     tool_body: np.ndarray | None = None  # (H, W) bool, what of it takes candidates (its body
@@ -364,7 +365,8 @@ class _View:
             free[tool_q] = 0.0
         bg_rgb = _background(a_q, free)
         bg = _log_of(bg_rgb)
-        delta = _log_at(img, rows, cols) - blocks_at(bg, rows, cols, _Q)
+        px = _pixels_at(img, rows, cols)  # (kept: the chosen core's colour reads them)
+        delta = _log_of_pixels(px) - blocks_at(bg, rows, cols, _Q)
         if c > 1:
             redder = (delta[:, 1] > p.blood_rg * _LOG_SCALE) | (
                 delta[:, 1] >= -_BLOOD_RATIO * delta[:, 0]
@@ -380,7 +382,7 @@ class _View:
             blood = np.zeros(len(rows), bool)
         sigma = noise_sigma(_log_channels(img[::_NOISE_ROW_STEP]), row_step=1)
         s_lo = values_at(S, rows, cols)
-        v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb, s_lo)
+        v = cls(img, S, level, lo, rows, cols, delta, blood, sigma, bg_rgb, s_lo, px=px)
         if tool is not None and tool.shape == lo.shape and tool.any():
             v.tool, v.tool_body = tool, body
         v.off_tool = p.tissue_surface
@@ -785,7 +787,7 @@ def _select(
         px = px[sel] if sel.any() else np.flatnonzero(lab == best)
         core = np.zeros(v.lo.shape, np.uint8)
         core[v.rows[px], v.cols[px]] = 1
-        v.grey_core = _grey_contrast(v, v.rows[px], v.cols[px])
+        v.grey_core = _grey_contrast(v, px)
         out.append(core)
     return out, salience, cos_vessels, floating
 
@@ -1885,12 +1887,21 @@ def _log_planes(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _log_at(img: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """(M, C) channels of :func:`_log_channels` at the pixels (rows, cols) only."""
-    px = pixels_at(
+    return _log_of_pixels(_pixels_at(img, rows, cols))
+
+
+def _pixels_at(img: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(M, C) uint8 values of :func:`_uint8` of ``img`` at the pixels (rows, cols)."""
+    return pixels_at(
         _uint8(img), np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64)
-    )  # (M, C)
-    if len(rows) == 0:
+    )
+
+
+def _log_of_pixels(px: np.ndarray) -> np.ndarray:
+    """(M, C) channels of :func:`_log_channels` of the uint8 pixel values ``px`` (M, C)."""
+    if len(px) == 0:
         return np.zeros((0, px.shape[1]), np.float32)
-    return _log_channels(px[None]).reshape(len(rows), -1)
+    return _log_channels(px[None]).reshape(len(px), -1)
 
 
 def _line_response(grey: np.ndarray, half: np.ndarray) -> np.ndarray:
@@ -2249,15 +2260,20 @@ def _body_contrast(
     return (proj, net), glint
 
 
-def _grey_contrast(v: _View, rows: np.ndarray, cols: np.ndarray) -> bool:
-    """Whether the summed colour contrast (RGB) of the core pixels (``rows``, ``cols``) (M,)
-    to the view's local background lies within _GLINT_APART_DEG of grey (white or black):
-    there a highlight (white added) is not told from the thread's own contrast by colour
-    (:func:`_body_contrast`)."""
-    if len(rows) == 0 or v.bg_rgb.shape[2] != 3:
-        return len(rows) > 0
-    r64, c64 = np.ascontiguousarray(rows, np.int64), np.ascontiguousarray(cols, np.int64)
-    px = pixels_at(_uint8(v.img), r64, c64).astype(np.float64)
+def _grey_contrast(v: _View, at: np.ndarray) -> bool:
+    """Whether the summed colour contrast (RGB) of the core pixels (the lo pixels ``at`` (M,)
+    of the view) to the view's local background lies within _GLINT_APART_DEG of grey (white
+    or black): there a highlight (white added) is not told from the thread's own contrast by
+    colour (:func:`_body_contrast`). Their values are those the view read (``v.px``: no
+    second read of the image)."""
+    if len(at) == 0 or v.bg_rgb.shape[2] != 3:
+        return len(at) > 0
+    r64, c64 = (
+        np.ascontiguousarray(v.rows[at], np.int64),
+        np.ascontiguousarray(v.cols[at], np.int64),
+    )
+    values = _pixels_at(v.img, r64, c64) if v.px is None else v.px[at]
+    px = values.astype(np.float64)
     bg = blocks_at(np.ascontiguousarray(v.bg_rgb, np.float32), r64, c64, _Q)
     u = (px - bg).sum(axis=0)
     n2 = float(u @ u)

@@ -106,21 +106,48 @@ def test_log_planes_are_their_float32_steps_bit_for_bit(
     rounds to float32 alike): the channels m0 lut[R] + m1 lut[G] + m2 lut[B] left to right,
     each row of the half-resolution planes ((((r0 + 4 r1) + 6 r2) + 4 r3) + r4) down the five
     reflected rows, then the same taps along it at the even columns, times 1/256. Equal to
-    the last bit, so a faster form of the kernel gives the same masks."""
+    the last bit, so a faster form of the kernel gives the same masks (the chroma rows of
+    _LOG_MIX are computed as lr - lg and lb - lg there)."""
     from threadrecon.core.segment_raw import _LOG_LUT, _LOG_MIX, _log_planes
 
     rng = np.random.default_rng(shape[0] * 7 + channels)
     img = rng.integers(0, 256, (*shape, 3), dtype=np.uint8)[:, :, ::-1]  # a strided view
     img = img if channels == 3 else img[:, :, :1]
     grey, half = _log_planes(img)
-    logs = _LOG_LUT[img]  # (H, W, c) float32
-    if channels == 3:
-        m = _LOG_MIX
-        f = [(m[j, 0] * logs[:, :, 0] + m[j, 1] * logs[:, :, 1]) + m[j, 2] * logs[:, :, 2]
+    _assert_log_planes_steps(img, _LOG_LUT, _LOG_MIX, grey, half)
+
+
+@pytest.mark.parametrize("shape", [(48, 64), (37, 51), (5, 9)])
+def test_log_planes_of_any_mix_are_their_float32_steps_bit_for_bit(shape: tuple[int, int]) -> None:
+    """The kernel's general mix (rows other than the log ratios, and a look-up table with
+    negative and zero entries) against the same float32 steps."""
+    from threadrecon.core.ridge_kernel import log_planes
+
+    rng = np.random.default_rng(shape[1])
+    img = rng.integers(0, 256, (*shape, 3), dtype=np.uint8)[:, :, ::-1]
+    lut = rng.normal(0.0, 50.0, 256).astype(np.float32)
+    lut[:8] = 0.0
+    for mix in (
+        rng.normal(0.0, 1.0, (3, 3)).astype(np.float32),
+        np.array([[0.299, 0.587, 0.114], [1.0, -1.0, 0.0], [0.0, -1.0, 1.0]], np.float32),
+    ):
+        h, w = shape
+        grey = np.empty(shape, np.float32)
+        half = np.empty((3 * ((h + 1) // 2), (w + 1) // 2), np.float32)
+        log_planes(img, lut, mix, grey, half)
+        _assert_log_planes_steps(img, lut, mix, grey, half.reshape(3, (h + 1) // 2, -1))
+
+
+def _assert_log_planes_steps(
+    img: np.ndarray, lut: np.ndarray, mix: np.ndarray, grey: np.ndarray, half: np.ndarray
+) -> None:
+    logs = lut[img]  # (H, W, c) float32
+    if img.shape[2] == 3:
+        f = [(mix[j, 0] * logs[:, :, 0] + mix[j, 1] * logs[:, :, 1]) + mix[j, 2] * logs[:, :, 2]
              for j in range(3)]  # fmt: skip
     else:
         f = [logs[:, :, 0]]
-    h, w = shape
+    h, w = img.shape[:2]
     assert np.array_equal(grey, f[0])
     taps = [np.float32(t) for t in (1, 4, 6, 4, 1)]
     ys, xs = 2 * np.arange((h + 1) // 2), 2 * np.arange((w + 1) // 2)

@@ -625,3 +625,23 @@ def test_blood_like_specks_on_a_noisy_grey_frame_do_not_cut_the_thread_s_tip() -
         worst[speck] = frame_errors(rec["camera"].points, frame.truth.centerline, calib).e_S_max
     assert min(missed[0]) > 30 and max(missed[30]) <= 5
     assert worst[0] > 5.0 and worst[30] < 2.0
+
+
+@pytest.mark.parametrize("k", [0, 3])
+def test_the_lo_pixels_values_kept_by_the_view_are_the_image_s(k: int) -> None:
+    """The uint8 values a view keeps of its lo pixels (``px``) are the image's there (an RGB
+    view of BGR, and on an instrument frame after the instrument's candidates are dropped),
+    and the grey-contrast test of a core reads the same from them as from the image."""
+    frame = all_frame(20253, k)
+    p = SegmentationParams(method="raw")
+    views = [sr._View.build(img, p) for img in (frame.left, frame.right)]
+    found, _, _, _ = sr._select(views, p)
+    for v in views:
+        assert v.px is not None and v.px.shape == (len(v.rows), 3)
+        np.testing.assert_array_equal(v.px, v.img[v.rows, v.cols])
+        rng = np.random.default_rng(k)
+        for at in (np.arange(len(v.rows)), np.sort(rng.choice(len(v.rows), 200, replace=False))):
+            plain = sr._View(**{f: getattr(v, f) for f in v.__dataclass_fields__})
+            plain.px = None  # read from the image
+            assert sr._grey_contrast(v, at) == sr._grey_contrast(plain, at)
+    assert found is not None
