@@ -155,7 +155,8 @@ def segment_raw(
        and over more of it than on the tissue is a red thread merged with the vessels it
        crosses, judged by that part (:func:`_floats_in_part`); a red thread's undecided
        fragments join it at its own disparity (:func:`_at_thread_disparity`; the gap counted
-       off the instrument, :func:`_gap_off_tool`); an undecided blood-like piece holding the
+       off the instrument, :func:`_gap_off_tool`; a long one read near the thread,
+       :func:`_local_disparity`); an undecided blood-like piece holding the
        highlight the first pass chose is chosen (:func:`_holds`). The cores chosen in the two
        views must be one object (:func:`_one_object`).
     6. Mask: within _BAND_PX of the kept pixels, those with coverage >= 0.5 of a thread colour
@@ -770,7 +771,7 @@ def _select(
             )
             marks_px = [on[lab_on == j] for j in marks] + known
             for j in _at_thread_disparity(
-                views, i, on, lab_on, floating_px, marks_px, undecided, D
+                views, i, on, lab_on, floating_px, marks_px, undecided, D, p.local_join
             ):
                 k[j] = True
         # Within a kept piece: not pixels far fainter than the piece (a branch touching it),
@@ -808,6 +809,7 @@ def _at_thread_disparity(
     marks: list[np.ndarray],
     cands: list[int],
     d: int,
+    local: bool = False,
 ) -> list[int]:
     """Of the pieces ``cands`` of view ``i`` (undecided by the surface test), those at the
     thread's own disparity where they come near it: the disparity of the piece
@@ -816,6 +818,12 @@ def _at_thread_disparity(
     _MAX_GAP_PX, counted up to _LOCAL_PX), and not at the disparity of the tissue: of the
     background around it (where that resolves, :meth:`SurfaceTest.background_disparity`) or
     of the nearest of the ``marks`` (lo pixels of the pieces found to be marks on it).
+
+    With ``local`` (deviation 68): a piece whose pixels taken together define no disparity (a
+    long stretch whose depth changes along it) is read on its pixels near the thread
+    (:func:`_local_disparity`), the slope counted over that reading's extra reach; where the
+    thread's own disparity is not defined near the piece, one above each tissue reading by
+    more than _NEARER_PX joins (as :func:`_nearer_than_tissue` judges a whole piece).
 
     The thread is its lo pixels ``thread`` not voted "on the surface"; a piece taken extends
     it (the nearest first). A vessel crossing the thread lies on the tissue behind it, at the
@@ -842,7 +850,15 @@ def _at_thread_disparity(
         if gap[j] > _MAX_GAP_PX:
             break
         left.remove(j)
-        own = st.disparity(*pts[j])  # (only for pieces near the thread)
+        at_px = pts[j]  # the pixels read: the piece's (only for pieces near the thread)
+        own = st.disparity(*at_px)
+        reach = 0.0  # how much farther along than its gap the piece's reading lies, px
+        if own is None and local:
+            # a long piece whose disparity changes along it matches no single one: its own
+            # disparity where it comes near the thread (deviation 68), read ~ (_LOCAL_PX +
+            # radius) / 2 px farther along than the gap from the thread's
+            own, at_px, radius = _local_disparity(st, *pts[j], at[j])
+            reach = 0.5 * (_LOCAL_PX + radius)
         if own is None:
             continue
         dist = np.hypot(thread_xy[:, 0] - at[j][0], thread_xy[:, 1] - at[j][1])
@@ -853,14 +869,19 @@ def _at_thread_disparity(
             d_thread = st.disparity(near[:, 0], near[:, 1])
             if d_thread is not None:
                 break
-        if d_thread is None:
+        if d_thread is None and not local:
             continue
-        d_bg = st.background_disparity(*pts[j])
-        d_mark = near_marks.disparity_near(*pts[j])
-        tol = SAME_DISPARITY_PX + _THREAD_SLOPE * min(gap[j], _LOCAL_PX)
-        if abs(own - d_thread) <= tol and not any(
-            t is not None and abs(own - t) <= SAME_DISPARITY_PX for t in (d_bg, d_mark)
-        ):
+        d_bg = st.background_disparity(*at_px)
+        d_mark = near_marks.disparity_near(*at_px)
+        tissue = [t for t in (d_bg, d_mark) if t is not None]
+        tol = SAME_DISPARITY_PX + _THREAD_SLOPE * (min(gap[j], _LOCAL_PX) + reach)
+        if (
+            abs(own - d_thread) <= tol
+            if d_thread is not None
+            # (the thread's own disparity not defined there, deviation 68: a piece nearer
+            # than the tissue by each reading, as :func:`_nearer_than_tissue`)
+            else bool(tissue) and all(own > t + _NEARER_PX for t in tissue)
+        ) and not any(abs(own - t) <= SAME_DISPARITY_PX for t in tissue):
             taken.append(j)
             piece_xy = _xy(*pts[j])
             thread_xy = np.concatenate([thread_xy, piece_xy])
@@ -990,6 +1011,25 @@ def _off_thread_depth(
                 for m in left:
                     touch[m] = min(touch[m], t2[m])
     return off
+
+
+def _local_disparity(
+    st: SurfaceTest, rows: np.ndarray, cols: np.ndarray, at: np.ndarray
+) -> tuple[int | None, tuple[np.ndarray, np.ndarray], float]:
+    """The disparity (:meth:`SurfaceTest.disparity`) of a piece's pixels (``rows``, ``cols``)
+    (M,) within a radius of _LOCAL_PX (else 2 _LOCAL_PX) of its pixel nearest to the thread's
+    point ``at`` (2,) (row, column), those pixels and the radius (None, all of them and 0 when
+    neither defines one)."""
+    near = np.argmin(np.hypot(rows - at[0], cols - at[1]))
+    dist = np.hypot(rows - rows[near], cols - cols[near])
+    for radius in (_LOCAL_PX, 2 * _LOCAL_PX):
+        sel = dist <= radius
+        if sel.all():  # (the whole piece: its disparity is known not to be defined)
+            break
+        own = st.disparity(rows[sel], cols[sel])
+        if own is not None:
+            return own, (rows[sel], cols[sel]), float(radius)
+    return None, (rows, cols), 0.0
 
 
 def _xy(rows: np.ndarray, cols: np.ndarray, most: int | None = None) -> np.ndarray:

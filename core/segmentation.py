@@ -257,6 +257,17 @@ class SegmentationParams(Params):
         "blood-like pixel is set aside (deviation 70).",
         slider=(0, 200, 1),
     )
+    local_join: bool = param(
+        True,
+        label="raw: a red fragment read near the thread",
+        doc="raw: in the red pass, an undecided piece of the thread's dye near the thread whose "
+        "pixels taken together match no single disparity (a long stretch whose depth changes "
+        "along it) is read on its pixels within 32 px (else 64 px) of where it comes nearest "
+        "the thread: it joins at the thread's disparity there (the depth slope counted over "
+        "the extra reach) and off the tissue's. A piece whose disparity is known where the "
+        "thread's is not (a stretch of low contrast) joins when it lies above the tissue's "
+        "by more than 3 px by each reading. Off: such pieces do not join (deviation 68).",
+    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,

@@ -149,7 +149,8 @@ def test_a_red_thread_s_piece_nearer_than_the_tissue_joins_it() -> None:
     half is a piece the block test leaves undecided, with an own disparity of 30 px where the
     tissue beside it is at 26 px; it did not join (in the red pass only a piece voted in front
     did), and the right view's mask held the upper half only (IoU 0.37). Nearer than the
-    tissue, it joins (IoU >= 0.7)."""
+    tissue, it joins (IoU >= 0.7). Deviation 68 (a fragment read near the thread) joins it
+    too: off with deviation 53 for the base's answer."""
     frame = all_frame(16153, 13)
     pair = StereoPair(frame.left, frame.right)
 
@@ -158,7 +159,7 @@ def test_a_red_thread_s_piece_nearer_than_the_tissue_joins_it() -> None:
         P, M = lifted.P_R, frame.mask_right
         return float((P & M).sum() / (P | M).sum())
 
-    assert right_iou(replace(_P, first_marks=False)) < 0.45
+    assert right_iou(replace(_P, first_marks=False, local_join=False)) < 0.45
     assert right_iou(_P) >= 0.7
 
 
