@@ -1838,17 +1838,17 @@ def _chord_bare_share(
         covered.append((P[y0:y1, x0:x1] | (np.abs(g - level) > tol), y0, x0))
     (cov_l, oy_l, ox_l), (cov_r, oy_r, ox_r) = covered
     dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
-    dy, dx = dy.ravel(), dx.ravel()
-    bare = np.ones(len(t), dtype=bool)
-    for k in range(len(t)):
-        x, y, xr = xs[k] + dx, ys[k] + dy, xrs[k] + dx
-        inside = (x >= 0) & (y >= 0) & (x < W) & (y < H) & (xr >= 0) & (xr < W)
-        if not inside.any():
-            continue  # off the image: the thread may be hidden there
-        x, y, xr = x[inside], y[inside], xr[inside]
-        # every such pixel lies in both crops (they span the samples' squares)
-        both = cov_l[y - oy_l, x - ox_l] & cov_r[y - oy_r, xr - ox_r]
-        bare[k] = not bool(both.any())
+    # (samples, square) pixel indices at once; every pixel inside both images lies in both
+    # crops (they span the samples' squares)
+    x = xs[:, None] + dx.ravel()[None, :]
+    y = ys[:, None] + dy.ravel()[None, :]
+    xr = xrs[:, None] + dx.ravel()[None, :]
+    inside = (x >= 0) & (y >= 0) & (x < W) & (y < H) & (xr >= 0) & (xr < W)
+    both = np.zeros(x.shape, dtype=bool)
+    yi, xi, xri = y[inside], x[inside], xr[inside]
+    both[inside] = cov_l[yi - oy_l, xi - ox_l] & cov_r[yi - oy_r, xri - ox_r]
+    # a sample with no pixel inside both images is off them: the thread may be hidden there
+    bare = inside.any(axis=1) & ~both.any(axis=1)
     return float(bare.mean())
 
 

@@ -1343,6 +1343,14 @@ def test_the_way_of_a_jump_under_a_shaft_is_bare_only_where_a_view_shows_the_bac
     one_view = replace(lifted, grey_R=grey_r)
     assert _chord_bare_share(one_view, a, b, 10.0, 10.0, apart.pos[0]) == 1.0
     assert _chord_bare_share(lifted, a, a + [0.0, 20.0], 10.0, 10.0, apart.pos[0]) is None
+    # past the image's border the thread may be hidden: no sample there is bare (no shaft:
+    # of the way's 375 samples, rows 122..870, those to row 710 are bare but the 52 whose
+    # square meets the strand's second piece, rows 575..654)
+    bare = _under_long_shafts([])
+    assert bare.lifted is not None
+    far = np.array([100.0, 900.0])
+    share = _chord_bare_share(bare.lifted, a, far, 10.0, 10.0, bare.pos[0])
+    assert share == pytest.approx(243 / 375)
 
 
 def test_a_generated_thread_under_a_shaft_along_its_axis_is_whole() -> None:
