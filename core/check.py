@@ -411,6 +411,14 @@ class CheckParams(Params):
         "them along a straight way. Off: two patches in a row (before session 22). "
         "docs/method.md, prec23 (check rule 67).",
     )  # fmt: skip
+    bridge_stray_both: bool = param(
+        True, label="a hidden thread strays only where both views hide it",
+        doc="On: the occluder's reach across a bridge (how far the hidden thread may stray from "
+        "it, core/check_beyond.bridge_stray) is, on each side of each sample, the nearer of "
+        "the two views' reaches: a thread off the bridge at the sample's depth lies as far "
+        "off it in both views and would be seen where either view shows the surface. Off: "
+        "the farther of the two (before session 22). docs/method.md, occ23.",
+    )  # fmt: skip
     bridge_rerun: bool = param(
         True, label="a bridge back onto the curve's own thread",
         doc="On: suspect when the curve's stretch past a bridge, toward its nearer end, lies in "
@@ -1948,7 +1956,7 @@ def _bridge_confined(
     plain = [plain[0] if plain[0] is not None else plain[1], plain[1] or plain[0]]
     stray = bridge_stray(
         (uv_l[seg], uv_r[seg]), (lifted.P_L, lifted.P_R), (lifted.grey_L, lifted.grey_R),
-        f * B / z[seg], (plain[0], plain[1]), limit_px,
+        f * B / z[seg], (plain[0], plain[1]), limit_px, p.bridge_stray_both,
     )  # fmt: skip
     return stray < 1.0
 

@@ -1145,6 +1145,7 @@ def bridge_stray(
     disparity: np.ndarray,
     plain: tuple[tuple[float, float] | None, tuple[float, float] | None],
     limit_px: np.ndarray,
+    both_views: bool = True,
 ) -> float:
     """How far (px, at most ``limit_px``) a thread hidden under the bridge ``uv`` ((k, 2) per
     view, the bridge's samples from one observed end to the other) may stray from it and stay
@@ -1155,11 +1156,19 @@ def bridge_stray(
     at the patch's far side), bounds the stray there. The largest over the samples is
     returned, relative to each sample's ``limit_px`` (k,): a value >= 1 means the occluder
     reaches the limit somewhere (the walk stopped there). A hidden thread goes where the
-    occluder lets it: the bridge's shape is then known to within this stray."""
+    occluder lets it: the bridge's shape is then known to within this stray.
+
+    ``both_views`` (the default since session 22, occ23): on each side of a sample the nearer of the two views'
+    reaches bounds the stray there. A thread off the bridge by s px at the sample's depth lies
+    s px off it along the same normal in both (rectified) views, so it stays hidden only
+    where both occluders reach that far: where either view shows the surface, the thread would
+    be seen. False: the farther of the two (before session 22)."""
     uv_l = uv[0]
     step = np.hypot(*np.diff(uv_l, axis=0).T)
     s = np.concatenate([[0.0], np.cumsum(step)])
     picks = np.unique(np.searchsorted(s, np.arange(0.0, s[-1] + 1e-9, BRIDGE_SAMPLE_PX)))
+    if both_views:
+        return _stray_both(uv, masks, greys, disparity, plain, limit_px, picks)
     worst = 0.0
     for i in picks:
         if i >= len(uv_l):
@@ -1181,6 +1190,44 @@ def bridge_stray(
                 worst = max(worst, stray / limit)
                 if worst >= 1.0:
                     return worst
+    return worst
+
+
+def _stray_both(
+    uv: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    greys: tuple[np.ndarray, np.ndarray],
+    disparity: np.ndarray,
+    plain: tuple[tuple[float, float] | None, tuple[float, float] | None],
+    limit_px: np.ndarray,
+    picks: np.ndarray,
+) -> float:
+    """``bridge_stray`` with ``both_views``: per sample and side of the bridge, the nearer of
+    the two views' occluder reaches (the thread stays hidden only where both hide it)."""
+    worst = 0.0
+    for i in picks:
+        if i >= len(uv[0]):
+            continue
+        lo, hi = max(i - 1, 0), min(i + 1, len(uv[0]) - 1)
+        normals = []
+        for side in (0, 1):
+            t = uv[side][hi] - uv[side][lo]
+            nt = float(np.hypot(t[0], t[1]))
+            if nt == 0.0 or not np.all(np.isfinite(uv[side][i])):
+                return math.inf  # no direction to measure across: not bounded
+            normals.append(np.array([-t[1], t[0]]) / nt)
+        limit = float(limit_px[i])
+        for sign in (1.0, -1.0):
+            stray = limit
+            for side in (0, 1):
+                way = sign * normals[side]
+                reach = min(_to_border(uv[side][i], way, greys[side].shape), limit)
+                d = _walk(greys, masks, side, uv[side][i], way, float(disparity[i]), 0.0,
+                          reach, plain[side])  # fmt: skip
+                stray = min(stray, limit if d >= reach else d + AHEAD_STEP_PX + 2.0)
+            worst = max(worst, stray / limit)
+            if worst >= 1.0:
+                return worst
     return worst
 
 

@@ -180,6 +180,21 @@ class OrderingParams(Params):
         "instead of 90 deg: the thread may bend by any amount where nothing shows it "
         "(docs/method.md, deviation 38; 90 or less: off, every jump 90 deg each; walk=bending).",
     )
+    hidden_bridge_px: float = param(
+        600.0,
+        lo=0.0,
+        hi=10000.0,
+        unit="px",
+        slider=(0.0, 1000.0, 10.0),
+        label="jump under an occluder px",
+        doc="When no jump within bridge_px is left, a jump of up to this between two ends that "
+        "both run under an occluder in both views (deviation 38's hidden ends), its turns in "
+        "and out within 90 deg each and its disparity within the continuity bound, whose "
+        "straight way lies over no bare background in either view (at most "
+        "CHORD_BARE_SHARE of its samples: the occluder could hide the thread all along it): "
+        "a thread running under a shaft along its axis and out beyond it (docs/method.md, "
+        "deviation 69; bridge_px or less: off, before session 22; walk=bending).",
+    )
     join_free_ends: bool = param(
         False,
         label="join free ends",
@@ -1663,6 +1678,8 @@ def _jumps(
         near &= np.abs(disp[free] - ref) <= disparity_room(d)
         cand = [int(v) for v in free[near]]
     if not cand:
+        if heading is not None and p.hidden_bridge_px > p.bridge_px and g.lifted is not None:
+            return _hidden_jumps(walk, n, visited, g, p, heading, ref)
         return [], np.zeros(0), tier, []
     c = np.array(cand)
     chord = pos[c] - pos[cur]
@@ -1686,7 +1703,153 @@ def _jumps(
     if g.lifted is not None:  # what the views show at the two ends (deviation 38)
         _by_the_ends(cand, cost, chord, ok, why, turn_in, walk, n, heading, visited, g, p)
     cost = np.where(ok, cost, np.inf)
+    if (
+        not np.isfinite(cost).any() and p.hidden_bridge_px > p.bridge_px and g.lifted is not None
+    ):  # nothing within bridge_px: a longer jump under an occluder (deviation 69)
+        far = _hidden_jumps(walk, n, visited, g, p, heading, ref)
+        if far[0]:
+            return far
     return cand, cost, 2, why
+
+
+CHORD_BARE_SHARE = 0.25  # a jump under an occluder: at most this share of its way's samples
+# looks like the bare background in either view (deviation 69)
+CHORD_STEP_PX = 2.0  # px between the samples of a jump's way
+CHORD_NEAR_PX = 12  # half side of the square about a sample where the hidden thread may pass
+
+
+def _hidden_jumps(
+    walk: np.ndarray,
+    n: int,
+    visited: np.ndarray,
+    g: _WalkGraph,
+    p: OrderingParams,
+    heading: np.ndarray,
+    ref: float,
+) -> tuple[list[int], np.ndarray, int, list[str]]:
+    """Deviation 69 (``hidden_bridge_px``): the jumps longer than ``bridge_px`` (up to
+    ``hidden_bridge_px``) from the walk's end onto the end of an unvisited piece, both ends
+    running under an occluder in both views (:func:`_end_state` "hidden"), the disparity
+    within the continuity bound over the jump, the turns in and out within 90 deg each, and
+    the straight way between them over no bare background in either view (at most
+    CHORD_BARE_SHARE of its samples, :func:`_chord_bare_share`): a thread that runs under a
+    shaft along its axis and comes out beyond it. Cost as any jump's; the cheapest allowed
+    two are returned (the walk takes the first and may branch at the second)."""
+    pos, disp, adj = g.pos, g.disp, g.adj
+    assert g.lifted is not None
+    cur = int(walk[n - 1])
+    free = np.flatnonzero(~visited)
+    d = np.linalg.norm(pos[free] - pos[cur], axis=1)
+    far = (d > p.bridge_px) & (d <= p.hidden_bridge_px)
+    far &= np.abs(disp[free] - ref) <= disparity_room(d)
+    if not far.any():
+        return [], np.zeros(0), 2, []
+    c = free[far]
+    chord = pos[c] - pos[cur]
+    dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
+    cos_t = (chord[:, 0] * heading[0] + chord[:, 1] * heading[1]) / dist
+    cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(disp[c] - ref)
+    back = int(walk[n - 3] if n >= 3 else walk[0])
+    back_k = int(walk[max(n - 1 - HIDDEN_BACK_STEPS, 0)])
+    here: str | None = None
+    cand: list[int] = []
+    kept: list[float] = []
+    for i in np.argsort(cost, kind="stable").tolist():
+        if len(cand) == 2:
+            break
+        v = int(c[i])
+        if cos_t[i] < 0.0:  # the turn into the jump over 90 deg
+            continue
+        nb = _piece_end(v, adj, visited)
+        if nb < 0 or _turn_out(v, chord[i], adj, visited, pos) > 90.0:
+            continue
+        if here is None:
+            here = g.end_state(cur, back, back_k, heading)
+        if here != "hidden":
+            return [], np.zeros(0), 2, []
+        way = pos[v] - pos[nb]
+        wn = float(np.hypot(*way))
+        if wn <= 0:
+            continue
+        behind = _into_piece(v, adj, visited, HIDDEN_BACK_STEPS)
+        if g.end_state(v, nb, behind, way / wn) != "hidden":
+            continue
+        share = _chord_bare_share(
+            g.lifted, pos[cur], pos[v], float(disp[cur]), float(disp[v]), pos[back_k]
+        )
+        if share is None or share > CHORD_BARE_SHARE:
+            continue
+        cand.append(v)
+        kept.append(float(cost[i]))
+    return cand, np.array(kept), 2, [""] * len(cand)
+
+
+def _chord_bare_share(
+    lifted: LiftedPair,
+    a: np.ndarray,
+    b: np.ndarray,
+    d_a: float,
+    d_b: float,
+    inner: np.ndarray,
+) -> float | None:
+    """The share of the samples (CHORD_STEP_PX apart, HIDDEN_SEARCH_PX clear of either end,
+    where the thread's own pixels may go on) of the straight way from ``a`` to ``b`` (left
+    view, px) near which no point could hold the thread hidden in both views: no left pixel
+    within CHORD_NEAR_PX (a square) that is no bare background in the left view and whose
+    partner at the disparity interpolated from ``d_a`` to ``d_b`` is none in the right view
+    either (the thread under a shaft need not run straight: only near the chord). Bare: off
+    the thread, within max(MONO_BARE_LEVELS, 3 robust deviations) of the median grey of the
+    view's non-thread pixels around ``inner`` (a point of the thread behind the end at ``a``,
+    as :func:`_end_state`'s). None when no sample is left or a view's level cannot be
+    taken."""
+    length = float(np.hypot(*(b - a)))
+    t = np.arange(HIDDEN_SEARCH_PX, length - HIDDEN_SEARCH_PX + 1e-9, CHORD_STEP_PX) / max(
+        length, 1e-9
+    )
+    if not t.size:
+        return None
+    xy = a[None, :] + t[:, None] * (b - a)[None, :]
+    shift = d_a + t * (d_b - d_a)
+    H, W = lifted.P_L.shape
+    r = CHORD_NEAR_PX
+    xs = np.rint(xy[:, 0]).astype(np.int64)
+    ys = np.rint(xy[:, 1]).astype(np.int64)
+    xrs = xs - np.rint(shift).astype(np.int64)
+    # the views' pixels the samples' squares can reach (a crop: the way, not the image)
+    y0, y1 = max(int(ys.min()) - r, 0), min(int(ys.max()) + r + 1, H)
+    covered = []  # per view: pixels that may hide the thread (no bare background), cropped
+    for grey, P, s, cols in (
+        (lifted.grey_L, lifted.P_L, 0.0, xs),
+        (lifted.grey_R, lifted.P_R, d_a, xrs),
+    ):
+        cx, cy = int(round(inner[0] - s)), int(round(inner[1]))
+        h = HIDDEN_WINDOW_PX
+        win = (slice(max(cy - h, 0), max(cy + h + 1, 0)), slice(max(cx - h, 0), max(cx + h + 1, 0)))
+        side = np.asarray(grey[win], dtype=np.float64)[~P[win]]
+        if side.size < 10:
+            return None
+        level = float(np.median(side))
+        tol = max(MONO_BARE_LEVELS, 3.0 * 1.4826 * float(np.median(np.abs(side - level))))
+        x0, x1 = max(int(cols.min()) - r, 0), min(int(cols.max()) + r + 1, W)
+        if y1 <= y0 or x1 <= x0:  # the way lies off the image in this view
+            covered.append((np.zeros((1, 1), dtype=bool), 0, 0))
+            continue
+        g = np.asarray(grey[y0:y1, x0:x1], dtype=np.float64)
+        covered.append((P[y0:y1, x0:x1] | (np.abs(g - level) > tol), y0, x0))
+    (cov_l, oy_l, ox_l), (cov_r, oy_r, ox_r) = covered
+    dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
+    # (samples, square) pixel indices at once; every pixel inside both images lies in both
+    # crops (they span the samples' squares)
+    x = xs[:, None] + dx.ravel()[None, :]
+    y = ys[:, None] + dy.ravel()[None, :]
+    xr = xrs[:, None] + dx.ravel()[None, :]
+    inside = (x >= 0) & (y >= 0) & (x < W) & (y < H) & (xr >= 0) & (xr < W)
+    both = np.zeros(x.shape, dtype=bool)
+    yi, xi, xri = y[inside], x[inside], xr[inside]
+    both[inside] = cov_l[yi - oy_l, xi - ox_l] & cov_r[yi - oy_r, xri - ox_r]
+    # a sample with no pixel inside both images is off them: the thread may be hidden there
+    bare = inside.any(axis=1) & ~both.any(axis=1)
+    return float(bare.mean())
 
 
 def _depth_breaks(

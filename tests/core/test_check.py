@@ -1106,3 +1106,24 @@ def test_rerun_px_measures_the_stretch_past_a_bridge_against_the_rest() -> None:
     across = np.c_[np.full(16, 150.0), np.linspace(85, 115, 16)]
     far, _ = check_module._rerun_px(*(np.vstack([line, bridge, across]),) * 2, a, b)
     assert far == pytest.approx(15.0)
+
+
+def test_a_long_bridge_under_a_shaft_is_bounded_by_the_view_that_sees_past_it() -> None:
+    """Raw 13253 flat + occlusion #5 (occ23): the thread runs under a shaft along its axis and
+    the ordering bridges the 56 mm between its two pieces (deviation 69). The occluder's reach
+    across the bridge near one end: the right view's walk meets the image border, the left
+    view's finds the bare background beside the shaft. A thread straying there would be seen
+    in the left view, so the left view bounds it: the bridge is confined, ok and right. With
+    the farther view's reach (before session 22) it was held to max_bridge_mm: suspect."""
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.segmentation import StereoPair
+
+    frame = suite_frame([13253, 18, 5], occlusion=True)
+    calib = frame.camera.calibration()
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run()
+    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert e.e_S_max < 5.0 and abs(e.e_length) < 5.0
+    assert rec.status == "ok", rec.message
+    assert rec["check"].longest_bridge_mm > 40.0  # over max_bridge_mm, yet confined
+    old = _check_again(rec, calib, bridge_stray_both=False)
+    assert old.status == "suspect" and "bridges" in " ".join(old.reasons)

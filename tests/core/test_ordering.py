@@ -23,6 +23,7 @@ from threadrecon.core.ordering import (
     _adjacency,
     _ahead_of_jump,
     _bending_walk,
+    _chord_bare_share,
     _cluster_median,
     _ClusterGaps,
     _continuations,
@@ -1275,3 +1276,91 @@ def test_curve_distances_of_a_gaps_links_at_once_equal_one_link_at_a_time(seed: 
         got = _curve_distances(xy, links, path_xy)
         assert got.dtype == want.dtype and got.shape == want.shape
         assert got.tobytes() == want.tobytes()
+
+
+def _under_long_shafts(shafts: list[tuple[int, int]]) -> _WalkGraph:
+    """One straight strand down column 100 (disparity 10 px, grey 40 on a bare background of
+    grey 200) seen at rows 20..100 and 575..655, hidden between them by shafts along it (grey
+    60, unsegmented, left columns 70..130, 25 px of disparity in front: they cover the strand
+    in both views) over the rows of ``shafts`` ((y0, y1) each): the two pieces' facing ends
+    are 491 px apart, beyond bridge_px. Two keypoints on each piece (both its ends, the
+    outer one clear of the shafts: the bare background's grey is taken around it)."""
+    d, shape = 10, (700, 200)
+    grey = [np.full(shape, 200.0, np.float32) for _ in range(2)]
+    P = [np.zeros(shape, bool) for _ in range(2)]
+    for view, shift in ((0, 0), (1, d)):
+        for y0, y1 in ((20, 100), (575, 655)):
+            P[view][y0:y1, 99 - shift : 102 - shift] = True
+        grey[view][P[view]] = 40.0
+        for y0, y1 in shafts:
+            s = 0 if view == 0 else 25
+            grey[view][y0:y1, 70 - s : 130 - s] = 60.0
+            P[view][y0:y1, 70 - s : 130 - s] = False
+    lifted = LiftedPair(grey[0], grey[1], P[0], P[1], grey[0], grey[1], (200.0, 200.0))
+    pos = np.array([(100.0, 44.0), (100.0, 92.0), (100.0, 583.0), (100.0, 631.0)])
+    adj = _adjacency(4, np.array([(0, 1), (2, 3)], dtype=np.int64))
+    return _WalkGraph.of(adj, pos, np.full(4, float(d)), None, lifted)
+
+
+def test_pieces_under_a_long_shaft_are_joined_beyond_bridge_px() -> None:
+    # Generated raw flat + occlusion 12253 #2: the thread runs under the shaft along its axis
+    # for 330 px and comes out beyond it; the jump between the two pieces was over bridge_px
+    # (300 px), so the curve stopped at the shaft (55.9 mm short; suspect). Both ends run under
+    # the shaft in both views and the shaft covers the way between them (deviation 69).
+    whole = _under_long_shafts([(100, 575)])
+    assert len(_bending_walk(whole, OrderingParams())) == 4
+    off = OrderingParams(hidden_bridge_px=300.0)
+    assert len(_bending_walk(whole, off)) == 2  # off: as before
+    assert len(_bending_walk(whole, OrderingParams(hidden_bridge_px=400.0))) == 2  # too short
+    assert len(_bending_walk(replace(whole, lifted=None), OrderingParams())) == 2
+    # each end under a shaft of its own, bare background between them: the thread would be
+    # seen there, so no jump (both ends are hidden all the same)
+    apart = _under_long_shafts([(100, 200), (460, 575)])
+    south, north = np.array([0.0, 1.0]), np.array([0.0, -1.0])
+    assert apart.lifted is not None
+    assert _end_state(apart.lifted, apart.pos[1], south, 10.0, apart.pos[0]) == "hidden"
+    assert _end_state(apart.lifted, apart.pos[2], north, 10.0, apart.pos[3]) == "hidden"
+    assert len(_bending_walk(apart, OrderingParams())) == 2
+    # no shaft: two free ends over bare background
+    assert len(_bending_walk(_under_long_shafts([]), OrderingParams())) == 2
+
+
+def test_the_way_of_a_jump_under_a_shaft_is_bare_only_where_a_view_shows_the_background() -> None:
+    whole = _under_long_shafts([(100, 575)])
+    assert whole.lifted is not None
+    a, b = whole.pos[1], whole.pos[2]
+    assert _chord_bare_share(whole.lifted, a, b, 10.0, 10.0, whole.pos[0]) == 0.0
+    apart = _under_long_shafts([(100, 200), (460, 575)])
+    assert apart.lifted is not None
+    share = _chord_bare_share(apart.lifted, a, b, 10.0, 10.0, apart.pos[0])
+    # covered within 12 px of rows 100..199 and 460..574: 118 of the 216 samples (rows
+    # 122..552) are bare
+    assert share == pytest.approx(118 / 216)
+    # no shaft in the right view: only where both views' shafts cover a point near the way
+    lifted = apart.lifted
+    grey_r = np.full_like(lifted.grey_R, 200.0)
+    grey_r[lifted.P_R] = 40.0
+    one_view = replace(lifted, grey_R=grey_r)
+    assert _chord_bare_share(one_view, a, b, 10.0, 10.0, apart.pos[0]) == 1.0
+    assert _chord_bare_share(lifted, a, a + [0.0, 20.0], 10.0, 10.0, apart.pos[0]) is None
+    # past the image's border the thread may be hidden: no sample there is bare (no shaft:
+    # of the way's 375 samples, rows 122..870, those to row 710 are bare but the 52 whose
+    # square meets the strand's second piece, rows 575..654)
+    bare = _under_long_shafts([])
+    assert bare.lifted is not None
+    far = np.array([100.0, 900.0])
+    share = _chord_bare_share(bare.lifted, a, far, 10.0, 10.0, bare.pos[0])
+    assert share == pytest.approx(243 / 375)
+
+
+def test_a_generated_thread_under_a_shaft_along_its_axis_is_whole() -> None:
+    # 12253 flat + occlusion #2 (eval_suites' frame), exact masks: 55.9 mm short and suspect
+    # before deviation 69; now whole, right and ok
+    syn = SyntheticParams(render=RenderParams(occlusion=True))
+    frame = generate_frame(syn, np.random.default_rng([12253, 18, 2]))
+    pair = StereoPair(frame.left, frame.right, frame.mask_left, frame.mask_right)
+    calib = calibration_for(frame.camera)
+    rec = Pipeline(pair, calib).run()
+    assert rec["ordering"].dropped.size == 0  # was 9 keypoints: the piece past the shaft
+    errors = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert errors.e_S_max < 5.0 and abs(errors.e_length) < 5.0
