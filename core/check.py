@@ -417,8 +417,9 @@ class CheckParams(Params):
         doc="On: at a cut end (cut_end_px), the view that sees the thread go on shows the "
         "thread's own end also where its thread bends off the end's straight way: the piece "
         "past the end reaches no farther than its farthest pixel within 30 deg of the way "
-        "(within 3 px), and bare background lies just past that pixel along the thread's own "
-        "direction there (core/check_beyond._own_tip_bare); then nothing is hidden, the curve "
+        "(within 3 px), bare background lies just past that pixel along the chord from the end "
+        "to it and the rays 22.5 and 45 deg either side, and stereo measures no surface in "
+        "front of the end there (core/check_beyond._own_tip_bare); then nothing is hidden, the curve "
         "misses that extension only (beyond_mm), as when the straight way meets bare "
         "background. Off: the straight way only (before session 22). docs/method.md, cut23 "
         "(check rule 71).",
