@@ -53,6 +53,7 @@ from threadrecon.core.bounds import Bounds
 from threadrecon.core.calibration import StereoCalibration
 from threadrecon.core.camera import CameraCurve
 from threadrecon.core.check_beyond import (
+    AHEAD_MEET,
     AHEAD_NEAR_PX,
     AHEAD_STEP_PX,
     END_SAMPLES,
@@ -418,6 +419,18 @@ class CheckParams(Params):
         "the two views' reaches: a thread off the bridge at the sample's depth lies as far "
         "off it in both views and would be seen where either view shows the surface. Off: "
         "the farther of the two (before session 22). docs/method.md, occ23.",
+    )  # fmt: skip
+    cut_tip_seen: bool = param(
+        True, label="a cut end's far view shows the thread's own tip",
+        doc="On: at a cut end (cut_end_px), the view that sees the thread go on shows the "
+        "thread's own end also where its thread bends off the end's straight way: the piece "
+        "past the end reaches no farther than its farthest pixel within 30 deg of the way "
+        "(within 3 px), bare background lies just past that pixel along the chord from the end "
+        "to it and the rays 22.5 and 45 deg either side, and stereo measures no surface in "
+        "front of the end there (core/check_beyond._own_tip_bare); then nothing is hidden, the curve "
+        "misses that extension only (beyond_mm), as when the straight way meets bare "
+        "background. Off: the straight way only (before session 22). docs/method.md, cut23 "
+        "(check rule 71).",
     )  # fmt: skip
     bridge_rerun: bool = param(
         True, label="a bridge back onto the curve's own thread",
@@ -944,7 +957,8 @@ def _check(
         )
         cut = cut_end((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach, p.cut_end_px,
                       p.cover_px + BEYOND_COVER_PX, bare, p.bare_share, see_px=unobserved_px,
-                      known=known[0], front_past=front_past)  # fmt: skip
+                      known=known[0], front_past=front_past,
+                      tip_seen=p.cut_tip_seen, tip_front=partial(_front_at_tip, lifted, f * B / z_end))  # fmt: skip
         # seen: the far view's thread stops inside see_px = unobserved_px (core/check_beyond)
         hidden = cut is not None and not cut.seen
         if hidden and max(cut.ext) + 2.0 <= unobserved_px:
@@ -1886,6 +1900,20 @@ def _measured_in_front(
         uv[side], (lifted.grey_L, lifted.grey_R), (lifted.P_L, lifted.P_R), side, end, disparity
     )
     return front is not None and front > AHEAD_NEAR_PX
+
+
+def _front_at_tip(
+    lifted: LiftedPair, disparity: float, side: int, at: np.ndarray, way: np.ndarray
+) -> bool:
+    """Whether stereo measures the surface just past ``at`` (a thread's tip in view ``side``)
+    along ``way`` in front of an end of ``disparity`` (more than AHEAD_NEAR_PX): an occluder
+    (``surface_ahead``, its first two patches)."""
+    greys, masks = (lifted.grey_L, lifted.grey_R), (lifted.P_L, lifted.P_R)
+    for k in range(AHEAD_MEET):
+        d, _ = surface_ahead(greys, masks, side, at, way, disparity, k * AHEAD_STEP_PX)
+        if d is not None and d > AHEAD_NEAR_PX:
+            return True
+    return False
 
 
 def _left_behind(

@@ -413,6 +413,8 @@ def cut_end(
     see_px: float = 0.0,
     known: tuple[float, float] | None = None,
     front_past: Callable[[int], bool] | None = None,
+    tip_seen: bool = False,
+    tip_front: Callable[[int, np.ndarray, np.ndarray], bool] | None = None,
 ) -> CutEnd | None:
     """Whether the curve's free ``end`` is cut by an occluder in one view: one view sees the
     thread (``extension`` up to ``reach_px``) more than ``cut_px`` farther beyond it than the
@@ -422,7 +424,11 @@ def cut_end(
     ``known``: ``extension`` with these arguments, when the caller has it. ``front_past``:
     whether stereo measures a surface in front of the end just past it in the given view (an
     occluder); where it does, pixels past the end that look like bare background by their
-    grey (an instrument's shaded side can have the tissue's grey) do not make the end free."""
+    grey (an instrument's shaded side can have the tissue's grey) do not make the end free.
+    ``tip_seen``: where bare background is not found straight along the end's way past the far
+    view's extension, it is looked for past that view's own thread tip (``_own_tip_bare``);
+    ``tip_front(side, at, way)``: whether stereo measures a surface in front of the end just
+    past ``at`` along ``way`` in view ``side`` (an occluder at the tip: not seen)."""
     ext = extension(uv, masks, end, reach_px, cover_px, cut_px) if known is None else known
     if abs(ext[0] - ext[1]) <= cut_px:
         return None
@@ -445,6 +451,13 @@ def cut_end(
     if fr_far is not None and reach_far + 2.0 <= max(reach_px, see_px):  # stops in the search
         _, tip_far, way_far = fr_far
         seen = _bare_beyond(bare, far, tip_far, way_far, reach_far, bare_share)
+        if not seen and tip_seen:
+            search = max(reach_px, see_px)
+            exts, fars = extension_far(uv, masks, end, search, cover_px, cut_px)
+            seen = exts[far] + 2.0 <= search and _own_tip_bare(
+                masks[far], fars[far], fr_far[0], tip_far, exts[far], cover_px, bare, far,
+                bare_share, tip_front,
+            )  # fmt: skip
     return CutEnd("left" if stop == 1 else "right", ext, seen)
 
 
@@ -459,6 +472,51 @@ class CutEnd:
     view: str
     ext: tuple[float, float]
     seen: bool
+
+
+TIP_SLACK_PX = 3.0  # px past the extension's reach that an uncovered pixel of its piece may lie
+TIP_FAN = tuple(np.radians([0.0, 22.5, -22.5, 45.0, -45.0]))  # rays probed past a seen tip
+
+
+def _own_tip_bare(
+    mask: np.ndarray,
+    far_px: np.ndarray | None,
+    curve: np.ndarray,
+    tip: np.ndarray,
+    reach: float,
+    cover_px: float,
+    bare: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+    side: int,
+    bare_share: float,
+    front: Callable[[int, np.ndarray, np.ndarray], bool] | None = None,
+) -> bool:
+    """Whether the far view's thread past a cut end stops at its own tip over bare background:
+    the piece holding the extension's farthest pixel ``far_px`` has no pixel uncovered by the
+    ``curve`` (farther than ``cover_px``) farther than ``reach`` + TIP_SLACK_PX from the end's
+    ``tip`` (the piece goes nowhere else: a thread bending out of the end's cone, or another
+    strand, leaves it there), the CUT_PROBE_PX px past ``far_px`` look like bare background
+    along the chord from ``tip`` to it and along the rays 22.5 and 45 deg either side (a
+    thread whose tip touches an occluder has it on one of them), and stereo (``front``) does
+    not measure a surface in front of the end just past it. The straight way past the end
+    (``cut_end``'s first probe) misses a tip that bends off it and ends beside an occluder."""
+    if far_px is None:
+        return False
+    parts = pieces(mask)
+    number = int(piece_index(mask, lambda: parts).at(far_px[None, :])[0])
+    if number < 0:
+        return False
+    px = parts[number]
+    px = px[~covered_by(px, np.ascontiguousarray(curve, dtype=np.float64), cover_px**2)]
+    if not px.size or float(np.hypot(*(px - tip).T).max()) > reach + TIP_SLACK_PX:
+        return False
+    way = far_px - tip
+    norm = float(np.hypot(way[0], way[1]))
+    if norm < 1.0:
+        return False
+    way = way / norm
+    if not all(_bare_beyond(bare, side, far_px, _turned(way, t), 0.0, bare_share) for t in TIP_FAN):
+        return False
+    return front is None or not front(side, far_px, way)
 
 
 def _bare_beyond(

@@ -151,6 +151,53 @@ def test_an_end_the_other_view_sees_stop_freely_is_cut_but_seen() -> None:
     assert cut is not None and not cut.seen
 
 
+def _bent_tip_scene(more: int):
+    """The left view's thread stops at the curve's end (column 79, row 50); the right view's
+    (5 px of disparity) goes on 24 px bending 25 deg off the end's way (up the image), then
+    ``more`` px further up (0: its tip)."""
+    masks, uv = _scene()
+    P_L, P_R = masks
+    P_L[:, 100:] = False
+    P_R[:, 95:] = False
+    a = np.radians(25.0)
+    for t in np.arange(0.0, 24.0, 0.25):  # from the right view's end (column 74)
+        x, y = 74.0 + t * np.cos(a), 50.0 - t * np.sin(a)
+        P_R[int(round(y)) - 1 : int(round(y)) + 1, int(round(x))] = True
+    x0, y0 = 74.0 + 24.0 * np.cos(a), 50.0 - 24.0 * np.sin(a)
+    for t in np.arange(0.0, float(more), 0.25):  # straight up: out of the end's 30 deg cone
+        P_R[int(round(y0 - t)), int(round(x0)) - 1 : int(round(x0)) + 1] = True
+    return (P_L, P_R), uv
+
+
+def _bent_tip_bare(side: int, xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """An occluder over the left view's end (columns 80-109) and, in the right view, a shaft
+    beside the thread's bent tip: rows 44 on from column 92 on (the end's straight way)."""
+    if side == 0:
+        return _occluder_bare(side, xy, a, b)
+    return ~((xy[:, 0] >= 92.0) & (xy[:, 1] >= 44.0))
+
+
+def test_a_cut_end_whose_far_view_tip_bends_off_the_way_over_bare_background_is_seen() -> None:
+    # The straight way past the right view's extension runs into the shaft beside it: not seen
+    # by that probe. The thread's own tip (its farthest pixel, along its own direction) lies
+    # over bare background and its piece goes nowhere else: seen with tip_seen (cut23).
+    masks, uv = _bent_tip_scene(0)
+    base = cut_end(uv, masks, "end", 40.0, 5.0, 5.0, _bent_tip_bare, 0.5)
+    assert base is not None and base.view == "right" and not base.seen
+    cut = cut_end(uv, masks, "end", 40.0, 5.0, 5.0, _bent_tip_bare, 0.5, tip_seen=True)
+    assert cut is not None and cut.view == "right" and cut.seen
+    # the right view's thread goes on out of the cone (up the image): its piece reaches past
+    # the extension, the thread's end is not seen
+    masks, uv = _bent_tip_scene(15)
+    cut = cut_end(uv, masks, "end", 40.0, 5.0, 5.0, _bent_tip_bare, 0.5, tip_seen=True)
+    assert cut is not None and not cut.seen
+    # the tip itself at the shaft: not seen
+    masks, uv = _bent_tip_scene(0)
+    shaft = lambda s, xy, a, b: _occluder_bare(s, xy, a, b) if s == 0 else xy[:, 0] < 90.0  # noqa: E731
+    cut = cut_end(uv, masks, "end", 40.0, 5.0, 5.0, shaft, 0.5, tip_seen=True)
+    assert cut is not None and not cut.seen
+
+
 # --- a free end followed by the surface the thread lies on, or by an occluder (stereo) ---
 
 D_BG, D_T, D_O = 10, 20, 32  # disparities (px): tissue behind, thread, occluder in front
