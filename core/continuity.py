@@ -20,6 +20,12 @@ chain). So a stretch of up to four keypoints changes its match when that
 removes a break, the majority of a chain keeps its own, and a chain whose steps all agree is
 never touched (every frame without a break: the same result as before, and no extra time).
 Junctions keep their disparity (their pixels are both strands') and end chains.
+
+Deviation 74 (issues 10-12: one pixel of a mask must not move a curve): the choice is made on
+the second matches it sets, each refined on its cluster's summed energy before the choice (none
+where that has no minimum near the median), and a keypoint whose pixels' own best matches
+(``d_min``, before the stereo membrane) are its second match, not its first (the membrane's
+value), pays the one for keeping its first match instead of for taking its second.
 """
 
 from __future__ import annotations
@@ -50,13 +56,26 @@ def second_matches(
     disp: np.ndarray,
     edges: np.ndarray,
     pos: np.ndarray,
+    refined: bool = True,
+    own_energy: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(disp', switched): the keypoints' disparities with short stretches that break depth
     continuity along a chain of A switched to their second match (see the module docstring),
     and a (K,) bool of the switched keypoints. ``labels``: (N,) cluster of each pixel of
     ``stereo`` (-1: none); ``disp``: (K,) the clusters' median disparities, px; ``edges``:
     (E, 2) A; ``pos``: (K, 2) keypoints, px. ``disp`` is returned as is (same object) when no
-    step of a chain breaks continuity."""
+    step of a chain breaks continuity.
+
+    ``refined`` (deviation 74): the choice is made on the second matches it will set, each
+    refined on its cluster's summed energy curve before the choice, none where that curve has
+    no minimum there. Else (the previous form) it is made on the pixels' median second match
+    and the refinement comes after: a keypoint whose refinement failed kept its first match
+    while the rest of its stretch stayed switched, a choice the dynamic programming never
+    made, and the integer median's step of one pixel (one pixel of the mask) decided it.
+    ``own_energy`` (with ``refined``, deviation 74): a keypoint whose pixels' own best matches
+    of Eq. (3) (median ``d_min``, before the stereo membrane) lie within 1 px of its second match
+    and over 1 px from its first (the membrane's value) pays the match count for keeping its
+    first match, not for taking its second."""
     K = len(disp)
     if pos.shape != (K, 2):
         raise ValueError(f"pos must be ({K}, 2) keypoints in px, got {pos.shape}")
@@ -76,6 +95,9 @@ def second_matches(
     # a junction next to a chain's end holds it by its own (first) match: a stretch switched
     # there would move its break onto the junction's edge, not remove it
     junction_of = np.full(K, -1, dtype=np.int64)
+    done = np.zeros(K, dtype=bool)  # second matches refined already
+    lo = stereo.d_range[0]
+    cost = np.ones(K)  # of each keypoint's second match, against its first
     to_junction = ~chain_edge & ((degree[a] > 2) != (degree[b] > 2))
     ja, jb = a[to_junction], b[to_junction]
     junction_of[np.where(degree[ja] > 2, jb, ja)] = np.where(degree[ja] > 2, ja, jb)
@@ -84,8 +106,23 @@ def second_matches(
         seq = np.array([head] * (head >= 0) + chain.tolist() + [tail] * (tail >= 0), np.int64)
         fixed = np.zeros(len(seq), dtype=bool)
         fixed[0], fixed[-1] = head >= 0, tail >= 0
-        choice = best_choice(disp[seq], np.where(fixed, np.nan, alt[seq]), pos[seq])
+        if refined:  # the second matches the choice would set, refined first (once)
+            for k in seq[~fixed & ~done[seq]].tolist():
+                idx = np.flatnonzero(labels == k)
+                E = _summed_energy(stereo, idx) if len(idx) else np.zeros(0)
+                alt[k] = _subpixel_of(E, lo, alt[k])
+                done[k] = True
+                # the pixels' own best matches (before the stereo membrane) are the second
+                # match, not the first: the first is the membrane's value
+                if own_energy and len(idx) and np.isfinite(alt[k]):
+                    own = float(np.median(stereo.d_min[idx]))
+                    if abs(own - alt[k]) <= 1.0 < abs(own - disp[k]):
+                        cost[k] = -1.0
+        choice = best_choice(disp[seq], np.where(fixed, np.nan, alt[seq]), pos[seq], cost[seq])
         switched[seq[choice & ~fixed]] = True
+    if refined:
+        out[switched] = alt[switched]  # each finite: a NaN second match is never taken
+        return out, switched
     for k in np.flatnonzero(switched).tolist():
         sub = _subpixel(stereo, np.flatnonzero(labels == k), alt[k])
         if np.isfinite(sub):
@@ -178,12 +215,15 @@ def _chains(K: int, edges: np.ndarray, through: np.ndarray | None = None) -> lis
     return out
 
 
-def best_choice(first: np.ndarray, second: np.ndarray, pos: np.ndarray) -> np.ndarray:
+def best_choice(
+    first: np.ndarray, second: np.ndarray, pos: np.ndarray, cost: np.ndarray | None = None
+) -> np.ndarray:
     """(n,) bool: which points of a sequence along one strand take their second match, by
     dynamic programming: cost ``VIOLATION_COST`` per step that breaks continuity, 1 per second
     match, and among equal counts the least total disparity change (the same choice along
     either direction). ``first``, ``second``: (n,) disparities, px (a NaN second match is never
-    taken; a NaN first match breaks nothing); ``pos``: (n, 2) px."""
+    taken; a NaN first match breaks nothing); ``pos``: (n, 2) px; ``cost``: (n,) each second
+    match's cost against its first (default 1; -1: the first match costs 1 instead)."""
     n = len(first)
     if n == 0:
         return np.zeros(0, dtype=bool)
@@ -194,8 +234,9 @@ def best_choice(first: np.ndarray, second: np.ndarray, pos: np.ndarray) -> np.nd
         trans = VIOLATION_COST * (change > bound[:, None, None])
     trans = (trans + SMOOTH_TIE * np.nan_to_num(change, nan=0.0)).tolist()
     usable = np.isfinite(second).tolist()
+    extra = [1.0] * n if cost is None else np.asarray(cost, dtype=np.float64).tolist()
     inf = float("inf")
-    c0, c1 = 0.0, 1.0 if usable[0] else inf
+    c0, c1 = 0.0, extra[0] if usable[0] else inf
     back = []
     for i in range(1, n):
         t = trans[i - 1]
@@ -203,7 +244,7 @@ def best_choice(first: np.ndarray, second: np.ndarray, pos: np.ndarray) -> np.nd
         a1, b1 = c0 + t[0][1], c1 + t[1][1]
         back.append((int(b0 < a0), int(b1 < a1)))  # the first match on a tie
         c0 = min(a0, b0)
-        c1 = min(a1, b1) + 1.0 if usable[i] else inf
+        c1 = min(a1, b1) + extra[i] if usable[i] else inf
     choice = np.zeros(n, dtype=bool)
     s = int(c1 < c0)
     for i in range(n - 1, 0, -1):
@@ -219,8 +260,18 @@ def _subpixel(stereo: StereoResult, idx: np.ndarray, d0: float) -> float:
     a parabola through it and its two neighbours; NaN where there is none."""
     if not len(idx) or not np.isfinite(d0):
         return float("nan")
-    E = _energy(stereo, idx).sum(axis=0)  # the cluster's own curve
-    lo = stereo.d_range[0]
+    return _subpixel_of(_summed_energy(stereo, idx), stereo.d_range[0], d0)
+
+
+def _summed_energy(stereo: StereoResult, idx: np.ndarray) -> np.ndarray:
+    """The cluster's own energy curve: E(d) of Eq. (2) summed over its pixels ``idx``."""
+    return _energy(stereo, idx).sum(axis=0)
+
+
+def _subpixel_of(E: np.ndarray, lo: int, d0: float) -> float:
+    """:func:`_subpixel` on the summed curve ``E`` (``lo``: the least disparity searched)."""
+    if not np.isfinite(d0):
+        return float("nan")
     j = int(round(d0))
     cands = [
         c for c in (j - 1, j, j + 1) if lo < c < len(E) - 1 and np.isfinite(E[c - 1 : c + 2]).all()

@@ -232,6 +232,21 @@ class OrderingParams(Params):
         "its second match where that removes the break (core/continuity.py, deviation 29; "
         "walk=bending).",
     )
+    second_refined: bool = param(
+        True,
+        label="second matches chosen refined",
+        doc="The choice of second_matches is made on the second matches it sets, refined on "
+        "each cluster's summed energy curve first (none where that has no minimum there); off: "
+        "on the pixels' integer median second match, refined after the choice, a keypoint "
+        "whose refinement failed keeping its first match alone (docs/method.md, deviation 74).",
+    )
+    second_own_energy: bool = param(
+        True,
+        label="second match by its own energy",
+        doc="With second_refined: a keypoint whose cluster's summed energy of Eq. (2) is lower "
+        "at its second match than at its first (the stereo membrane's value) pays the choice's "
+        "count for keeping its first match instead (docs/method.md, deviation 74).",
+    )
 
 
 @dataclass(frozen=True)
@@ -368,7 +383,13 @@ def order_keypoints(
     switched = np.zeros(K, dtype=bool)
     if p.walk == "bending" and p.second_matches:  # a stretch matched to the neighbour
         disp, switched = second_matches(
-            stereo, clusters.labels, disp, edges, clusters.keypoints_px[:, :2]
+            stereo,
+            clusters.labels,
+            disp,
+            edges,
+            clusters.keypoints_px[:, :2],
+            p.second_refined,
+            p.second_own_energy,
         )
     if p.walk == "bending":  # two strands touching where the mask lost their crossing
         edges, broken = _depth_breaks(
