@@ -432,6 +432,24 @@ class CheckParams(Params):
         "background. Off: the straight way only (before session 22). docs/method.md, cut23 "
         "(check rule 71).",
     )  # fmt: skip
+    beyond_one_view: bool = param(
+        True, label="a piece beyond an end borne out by the other view's score",
+        doc="On: a piece of thread pixels beyond a free end across an occluder that only one "
+        "view's segmentation holds counts as seen in both views when the other view's raw "
+        "thread score shows it (core/check_beyond.beyond_ends, _borne_out: at one shift within "
+        "16 px of the end's disparity, 80 % of its pixels at score 0.5 or more): the other "
+        "view's segmentation dropped the stretch. Raw frames only (given masks carry no "
+        "score). Off: a piece must be segmented in both views (before session 22). "
+        "docs/method.md, okw24 (check rule 73).",
+    )  # fmt: skip
+    both_ends_level: float = param(
+        0.5, lo=0.0, hi=1.0, slider=(0.0, 1.0, 0.05), label="both ends: thread line level",
+        doc="A piece beyond one free end across an occluder (beyond_mm) under "
+        "max_unobserved_mm and a thread line (core/check_beyond.thread_line_beyond at this "
+        "score level) past the other free end, with no occluder there: suspect when the two "
+        "together exceed max_unobserved_mm (the curve misses thread at both ends). Raw frames "
+        "only. 0: off (before session 22). docs/method.md, okw24 (check rule 73).",
+    )  # fmt: skip
     bridge_rerun: bool = param(
         True, label="a bridge back onto the curve's own thread",
         doc="On: suspect when the curve's stretch past a bridge, toward its nearer end, lies in "
@@ -927,6 +945,7 @@ def _check(
     missing = 0.0
     end_added = 0.0
     occluded = 0.0
+    unoccluded: list[str] = []  # the free ends with no occluder in front of them
     if free and bare is None:
         bare = _BareBackground(lifted, (field_l, field_r), p)
     for end in free:  # a free end ends at one 3D point: both views see the thread stop there
@@ -997,6 +1016,7 @@ def _check(
         elif cut is not None:  # the thread's end is seen in one view: the curve misses that much
             missing = max(missing, max(cut.ext) * z_end / f * mm)
         if occ is None:
+            unoccluded.append(end)
             # No occluder in front of the end: a thread line the segmentation dropped that goes
             # on past it, in both views at its depth, makes it no end (core/check_beyond).
             if p.line_level > 0.0 and lifted.score_L is not None and lifted.score_R is not None:
@@ -1046,6 +1066,8 @@ def _check(
         found = beyond_ends(
             (uv_l, uv_r), (lifted.P_L, lifted.P_R), free, {"start": z[0], "end": z[-1]}, f,
             p.cover_px + BEYOND_COVER_PX, p.max_bridge_mm / mm, bare, p.bare_share,
+            scores=(lambda: (lifted.score_L, lifted.score_R)) if p.beyond_one_view else None,
+            disparity={"start": f * B / z[0], "end": f * B / z[-1]},
         )  # fmt: skip
         for b in found:
             missing = max(missing, b.missing * mm)
@@ -1056,6 +1078,31 @@ def _check(
                      f"{b.reach_px:.0f} px): the curve probably stops short by at least "
                      f"{b.missing * mm:.1f} mm (limit {p.max_unobserved_mm:g} mm)")
                 )  # fmt: skip
+                continue
+            other = "start" if b.end == "end" else "end"
+            if (
+                p.both_ends_level > 0.0
+                and other in unoccluded
+                and lifted.score_L is not None
+                and lifted.score_R is not None
+            ):
+                # the piece beyond this end and a thread line past the other: the curve misses
+                # thread at both ends, and the length error is their sum
+                z_o = z[0] if other == "start" else z[-1]
+                line_px = thread_line_beyond(
+                    (lifted.score_L, lifted.score_R), (uv_l, uv_r), other, f * B / z_o,
+                    p.max_unobserved_mm / mm * f / z_o + AHEAD_STEP_PX, p.both_ends_level,
+                )  # fmt: skip
+                line_mm = line_px * z_o / f * mm
+                if b.missing * mm + line_mm > p.max_unobserved_mm:
+                    findings.append(
+                        ("suspect", f"a piece of thread pixels lies beyond the curve's {b.end} "
+                         f"across an occluder ({b.missing * mm:.1f} mm) and a thread line goes "
+                         f"on {line_px:.0f} px ({line_mm:.1f} mm) past its {other} in both "
+                         "views: the curve stops short at both ends by "
+                         f"{b.missing * mm + line_mm:.1f} mm together (limit "
+                         f"{p.max_unobserved_mm:g} mm)")
+                    )  # fmt: skip
 
     # Length against the 2D path length and the depth span of the bounds.
     path_px = float(bounds.s[-1])

@@ -88,6 +88,8 @@ def beyond_ends(
     max_gap: float,
     bare: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
     bare_share: float,
+    scores: Callable[[], tuple[np.ndarray | None, np.ndarray | None]] | None = None,
+    disparity: dict[str, float] | None = None,
 ) -> list[Beyond]:
     """The pieces beyond the curve's ``ends`` ("start", "end") found in both views.
 
@@ -96,29 +98,86 @@ def beyond_ends(
     close to the curve is the curve's own; ``max_gap``: the longest gap (calib units, at the
     end's depth) across which a piece counts (the longest bridge the check accepts); ``bare``:
     ``bare(side, samples, end_a, end_b)`` flags samples over bare background (the check's test);
-    a gap more than ``bare_share`` bare is no occluder."""
+    a gap more than ``bare_share`` bare is no occluder.
+
+    ``scores`` (CheckParams.beyond_one_view; None: not looked at) gives the segmentation's
+    thread scores per view (read only when needed: they are computed on their first read) and ``disparity`` (each end's, px): a piece found in one view only
+    counts in both when the other view's thread score bears it out (``_borne_out``: the
+    other view's segmentation dropped a stretch its score still shows); its reach is then
+    the one view's."""
     found = []
     for end in ends:
-        per_view = []
+        per_view: list[tuple[float, float, tuple[float, float], np.ndarray] | None] = []
         for side in (0, 1):
             fr = _end_frame(uv[side], end)
             radius = max_gap * f / depth[end]
-            if fr is None or not len(_cone(*fr, masks[side], radius, MAX_TURN_COS, cover_px)[0]):
+            hit = None
+            if fr is not None and len(_cone(*fr, masks[side], radius, MAX_TURN_COS, cover_px)[0]):
+                hit = _beyond(uv[side], pieces(masks[side]), end, cover_px,
+                              max_gap * f / depth[end], side, bare, bare_share)  # fmt: skip
+            if hit is None and scores is None:
                 break  # no uncovered thread pixel ahead of the end: no piece beyond it
-            hit = _beyond(uv[side], pieces(masks[side]), end, cover_px,
-                          max_gap * f / depth[end], side, bare, bare_share)  # fmt: skip
-            if hit is None:
-                break
             per_view.append(hit)
-        if len(per_view) < 2:
+        if (
+            scores is not None
+            and len(per_view) == 2
+            and (per_view[0] is None) != (per_view[1] is None)
+        ):
+            side = 0 if per_view[0] is not None else 1
+            hit = per_view[side]
+            maps = scores()
+            assert hit is not None and disparity is not None
+            if (
+                maps[0] is not None
+                and maps[1] is not None
+                and _borne_out(hit[3], side, (maps[0], maps[1]), disparity[end])
+            ):
+                per_view[1 - side] = hit
+        if len(per_view) < 2 or per_view[0] is None or per_view[1] is None:
             continue
-        (gap_l, reach_l, rows_l), (_, reach_r, rows_r) = per_view
+        (gap_l, reach_l, rows_l, _), (_, reach_r, rows_r, _) = per_view[0], per_view[1]
         lo, hi = max(rows_l[0], rows_r[0]), min(rows_l[1], rows_r[1])
         if hi - lo < 0.5 * min(rows_l[1] - rows_l[0], rows_r[1] - rows_r[0]):
             continue  # not on the same rows: not the same piece of thread
         reach = min(reach_l, reach_r)
         found.append(Beyond(end, gap_l, reach, reach * depth[end] / f))
     return found
+
+
+BORNE_LEVEL = 0.5  # the other view's thread score (its line map) at which a pixel shows thread
+BORNE_SHARE = 0.8  # of a one-view piece's pixels the other view's score must show at one shift
+BORNE_SHIFTS_PX = (-12.0, -4.0, 4.0, 12.0)  # shifts off the end's disparity tried (each +-4 px)
+
+
+def _borne_out(
+    px: np.ndarray, side: int, scores: tuple[np.ndarray, np.ndarray], disparity: float
+) -> bool:
+    """Whether the thread score of the view other than ``side`` shows the piece ``px`` (k, 2)
+    of view ``side``: at one shift within 16 px of the end's ``disparity`` (the piece may lie
+    at another depth than the end, across the occluder), at least BORNE_SHARE of its pixels
+    (up to PIECE_SAMPLES of them) fall where the other view's line map (``_line_maps``: the
+    best within 1 px, the right view's also within FOLLOW_DISPARITY_PX along the row) is at
+    least BORNE_LEVEL."""
+    if not (math.isfinite(disparity) and disparity > 0):
+        return False
+    maps = derived(scores, "thread line", lambda: _line_maps(scores))
+    step = max(1, len(px) // PIECE_SAMPLES)
+    sub = px[::step]
+    sign = -1.0 if side == 0 else 1.0  # left x is seen at x - d in the right view
+    other = maps[1] if side == 0 else maps[0]
+    for off in BORNE_SHIFTS_PX:
+        d = disparity + off
+        if d <= 0:
+            continue
+        if side == 1:  # the left map is only 1 px wide: take the best over the row window
+            vals = np.max(
+                [_bilinear(other, sub + [sign * (d + k), 0.0]) for k in range(-4, 5, 2)], axis=0
+            )
+        else:
+            vals = _bilinear(other, sub + [sign * d, 0.0])
+        if float(np.mean(vals >= BORNE_LEVEL)) >= BORNE_SHARE:
+            return True
+    return False
 
 
 _FRAMES = threading.local()  # .memo: one check run's end frames (end_frames_kept), or None
@@ -227,9 +286,9 @@ def _beyond(
     side: int,
     bare: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
     bare_share: float,
-) -> tuple[float, float, tuple[float, float]] | None:
+) -> tuple[float, float, tuple[float, float], np.ndarray] | None:
     """In one view: the nearest uncovered piece beyond ``end`` across an occluder, as (gap px,
-    reach px to its far side, its (min, max) rows); None when there is none."""
+    reach px to its far side, its (min, max) rows, its pixels); None when there is none."""
     fr = _end_frame(uv, end)
     if fr is None or not parts:
         return None
@@ -250,7 +309,7 @@ def _beyond(
         gap_xy = tip + t * (px[k] - tip)
         if float(np.mean(bare(side, gap_xy, tip, px[k]))) > bare_share:
             continue  # bare background between: the thread would be seen there
-        best = (gap, float(dist.max()), (float(px[:, 1].min()), float(px[:, 1].max())))
+        best = (gap, float(dist.max()), (float(px[:, 1].min()), float(px[:, 1].max())), px)
     return best
 
 

@@ -1127,3 +1127,22 @@ def test_a_long_bridge_under_a_shaft_is_bounded_by_the_view_that_sees_past_it() 
     assert rec["check"].longest_bridge_mm > 40.0  # over max_bridge_mm, yet confined
     old = _check_again(rec, calib, bridge_stray_both=False)
     assert old.status == "suspect" and "bridges" in " ".join(old.reasons)
+
+
+def test_thread_missed_at_both_ends_together_is_suspect() -> None:
+    """Raw "all" frame 21143 #7 (eval_suites' frame, masks withheld; okw24): a red thread on
+    red tissue runs under a shaft at one end and out below it; the left view's segmentation
+    holds that piece (134 px), the right view's drops it while its thread score still shows
+    it. At the other end the segmentation loses 81 px of the thread line in both views. The
+    curve misses 12.3 mm beyond the shaft and 12.2 mm past the other end, each under
+    max_unobserved_mm: "ok", e_l 31.7 mm. Together they exceed it."""
+    from threadrecon.core.segmentation import StereoPair
+
+    frame = all_frame(21143, 7)
+    calib = frame.camera.calibration()
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
+    e = _wrong_and_caught(rec, frame, calib, "stops short at both ends", both_ends_level=0.0)
+    assert e.e_length > 30.0
+    # the piece the right view's segmentation dropped, read in its thread score
+    assert rec["check"].beyond_mm == pytest.approx(12.3, abs=0.1)
+    assert _check_again(rec, calib, beyond_one_view=False).status == "ok"

@@ -1016,3 +1016,23 @@ def test_an_end_at_a_shaft_over_smooth_tissue_is_bounded() -> None:
     off = check_curve(*args, rec["camera"], calib, CheckParams(occluder_exit=False))
     assert off.status == "suspect"
     assert any("runs into an occluder" in r for r in off.reasons), off.reasons
+
+
+def test_borne_out_reads_a_one_view_piece_in_the_other_views_score() -> None:
+    """``_borne_out`` (okw24): a left-view piece along row 100 (x 200..260) is borne out by a
+    right-view thread score on that row 20 px to the left (the end's disparity 24: 4 px off,
+    within the window), not by a score 40 px off it or on another row."""
+    from threadrecon.core.check_beyond import _borne_out
+
+    piece = np.c_[np.arange(200.0, 261.0), np.full(61, 100.0)]
+    left = np.zeros((200, 400), np.float32)
+    left[100, 200:261] = 1.0
+    for x0, row, want in ((180, 100, True), (140, 100, False), (180, 130, False)):
+        right = np.zeros((200, 400), np.float32)
+        right[row, x0 : x0 + 61] = 1.0
+        assert _borne_out(piece, 0, (left, right), 24.0) is want
+    # and a right-view piece read in the left view's score (x seen at x + d there)
+    right = np.zeros((200, 400), np.float32)
+    right[100, 176:237] = 1.0
+    assert _borne_out(piece - [24.0, 0.0], 1, (left, right), 24.0)
+    assert not _borne_out(piece - [24.0, 0.0], 1, (left, right), 60.0)
