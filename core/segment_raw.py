@@ -781,14 +781,15 @@ def _select(
         d_px = v.delta[px]
         hue = _same_dye(d_px, d_best)
         other = _other_dye_px(d_px, d_best, hue)
-        other |= _mark_part(px, on, lab_on, votes_of, k, v if p.thread_through else None)
+        mark = _mark_part(px, on, lab_on, votes_of, k, v if p.thread_through else None)
+        other |= mark
         if by_hue:
             other |= hue <= _same_dye(d_px, d_vessel)
         sel = ~other & (v.s_lo[px] >= _CORE_FRACTION * means[lab[px]])  # (s_lo: S at them)
-        if p.cut_at_tissue:
+        mine = np.searchsorted(px, on[lab_on == best]) if p.cut_at_tissue and mark.any() else []
+        if len(mine) and mark[mine].any():
             # a remnant the mark part's cut leaves of the chosen piece, at the tissue's depth
             # behind the thread: the rest of the fibre merged with it (deviation 72)
-            mine = np.searchsorted(px, on[lab_on == best])
             drop = _remnants_at_tissue(
                 views, i, px[mine], votes_of[best], sel[mine], D, p.min_length_px
             )
@@ -1046,7 +1047,8 @@ def _remnants_at_tissue(
     parts are taken nearest the thread first: a light fibre merged with the thread
     through the part the cut took (the fibre's blocks at the tissue's disparity, left open by
     the block test). A strand of the thread cut off there floats above the tissue as the
-    thread does (deviation 72)."""
+    thread does, or lies at its depth. Asked only where :func:`_mark_part` cut the piece; the
+    tissue's readings are taken last, for a part behind the thread (deviation 72)."""
     out = np.zeros(len(px), bool)
     if kept.all() or not kept.any() or not np.any(votes[kept] == 0):
         return out  # nothing cut from the piece, or no part of it seen in front of the tissue
@@ -1068,18 +1070,18 @@ def _remnants_at_tissue(
     if d_far is None:
         return out
     tree = cKDTree(_xy(rows[thread], cols[thread]))
+    size = np.bincount(part, minlength=n)
     gaps = {}
-    for m in range(1, n):
+    for m in np.flatnonzero((size >= max(min_px, 1)) & ~front).tolist():
+        if m == 0:
+            continue  # (the pixels cut)
         sel = part == m
-        if np.count_nonzero(sel) >= max(min_px, 1) and not front[m]:
-            gaps[m] = float(tree.query(_xy(rows[sel], cols[sel], most=64))[0].min())
+        gaps[m] = float(tree.query(_xy(rows[sel], cols[sel], most=64))[0].min())
     behind: list[tuple[cKDTree, int]] = []  # the parts dropped, with their disparities
     for m in sorted(gaps, key=gaps.__getitem__):  # the nearest to the thread first
         sel = part == m
         own = st.disparity(rows[sel], cols[sel])
-        if own is None or not any(
-            abs(own - t) <= SAME_DISPARITY_PX for t in _tissue_around(st, rows[sel], cols[sel])
-        ):
+        if own is None:
             continue
         xy = _xy(rows[sel], cols[sel], most=64)
         # behind the thread beyond its slope, or one object with a part found behind it
@@ -1088,7 +1090,10 @@ def _remnants_at_tissue(
             abs(own - d_off) <= SAME_DISPARITY_PX and float(t.query(xy)[0].min()) < gaps[m]
             for t, d_off in behind
         )
-        if with_off or d_far - own > SAME_DISPARITY_PX + _THREAD_SLOPE * gaps[m]:
+        if not with_off and d_far - own <= SAME_DISPARITY_PX + _THREAD_SLOPE * gaps[m]:
+            continue
+        # (the tissue's readings last: nine background disparities)
+        if any(abs(own - t) <= SAME_DISPARITY_PX for t in _tissue_around(st, rows[sel], cols[sel])):
             out[sel] = True
             behind.append((cKDTree(_xy(rows[sel], cols[sel])), own))
     return out
