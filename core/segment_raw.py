@@ -781,10 +781,19 @@ def _select(
         d_px = v.delta[px]
         hue = _same_dye(d_px, d_best)
         other = _other_dye_px(d_px, d_best, hue)
-        other |= _mark_part(px, on, lab_on, votes_of, k, v if p.thread_through else None)
+        mark = _mark_part(px, on, lab_on, votes_of, k, v if p.thread_through else None)
+        other |= mark
         if by_hue:
             other |= hue <= _same_dye(d_px, d_vessel)
         sel = ~other & (v.s_lo[px] >= _CORE_FRACTION * means[lab[px]])  # (s_lo: S at them)
+        mine = np.searchsorted(px, on[lab_on == best]) if p.cut_at_tissue and mark.any() else []
+        if len(mine) and mark[mine].any():
+            # a remnant the mark part's cut leaves of the chosen piece, at the tissue's depth
+            # behind the thread: the rest of the fibre merged with it (deviation 72)
+            drop = _remnants_at_tissue(
+                views, i, px[mine], votes_of[best], sel[mine], D, p.min_length_px
+            )
+            sel[mine[drop]] = False
         px = px[sel] if sel.any() else np.flatnonzero(lab == best)
         core = np.zeros(v.lo.shape, np.uint8)
         core[v.rows[px], v.cols[px]] = 1
@@ -1011,6 +1020,83 @@ def _off_thread_depth(
                 for m in left:
                     touch[m] = min(touch[m], t2[m])
     return off
+
+
+def _remnants_at_tissue(
+    views: list[_View],
+    i: int,
+    px: np.ndarray,
+    votes: np.ndarray,
+    kept: np.ndarray,
+    d: int,
+    min_px: float = 0.0,
+) -> np.ndarray:
+    """(len(px),) bool: of the chosen piece's lo pixels ``px`` (ascending; surface ``votes``
+    (len(px),)) of view ``i``, those of a remnant the cut leaves (``kept`` (len(px),): its
+    pixels left once its part moving with the tissue, another dye's and the faint ones are
+    cut) that lies at the tissue's depth behind the thread. The kept pixels fall into
+    8-connected parts; the thread is those seen in front of the tissue in part (votes 0;
+    none: nothing is judged). Another part nowhere seen in front, of at least ``min_px``
+    pixels (a piece's least length: a few pixels' disparity is no reading), is dropped when
+    its own disparity (:meth:`SurfaceTest.disparity`) is the tissue's beside it (within
+    SAME_DISPARITY_PX of :func:`_tissue_around`) and lies behind the thread part's farthest
+    confirmed block (:func:`_farthest_reading`, of its pixels not voted on the surface) by
+    more than SAME_DISPARITY_PX + _THREAD_SLOPE x its least distance to that part, as
+    deviation 65 judges a piece touching the thread, or nearer a part dropped so than the
+    thread and at its disparity (one object, as deviation 62 judges a fibre's branches); the
+    parts are taken nearest the thread first: a light fibre merged with the thread
+    through the part the cut took (the fibre's blocks at the tissue's disparity, left open by
+    the block test). A strand of the thread cut off there floats above the tissue as the
+    thread does, or lies at its depth. Asked only where :func:`_mark_part` cut the piece; the
+    tissue's readings are taken last, for a part behind the thread (deviation 72)."""
+    out = np.zeros(len(px), bool)
+    if kept.all() or not kept.any() or not np.any(votes[kept] == 0):
+        return out  # nothing cut from the piece, or no part of it seen in front of the tissue
+    v = views[i]
+    rows, cols = v.rows[px], v.cols[px]
+    r0, c0 = int(rows.min()), int(cols.min())
+    box = np.zeros((int(rows.max()) - r0 + 1, int(cols.max()) - c0 + 1), np.uint8)
+    box[rows[kept] - r0, cols[kept] - c0] = 1
+    n, lab = cv2.connectedComponents(box, connectivity=8)
+    if n <= 2:
+        return out  # one part: the cut split nothing off
+    part = np.where(kept, lab[rows - r0, cols - c0], 0)
+    front = np.bincount(part[votes == 0], minlength=n) > 0
+    front[0] = False
+    thread = front[part]
+    st = _surface_test(views, i, d)
+    sel = thread & (votes != 1)
+    d_far = _farthest_reading(_block_disparities(st, rows[sel], cols[sel]))
+    if d_far is None:
+        return out
+    tree = cKDTree(_xy(rows[thread], cols[thread]))
+    size = np.bincount(part, minlength=n)
+    gaps = {}
+    for m in np.flatnonzero((size >= max(min_px, 1)) & ~front).tolist():
+        if m == 0:
+            continue  # (the pixels cut)
+        sel = part == m
+        gaps[m] = float(tree.query(_xy(rows[sel], cols[sel], most=64))[0].min())
+    behind: list[tuple[cKDTree, int]] = []  # the parts dropped, with their disparities
+    for m in sorted(gaps, key=gaps.__getitem__):  # the nearest to the thread first
+        sel = part == m
+        own = st.disparity(rows[sel], cols[sel])
+        if own is None:
+            continue
+        xy = _xy(rows[sel], cols[sel], most=64)
+        # behind the thread beyond its slope, or one object with a part found behind it
+        # (nearer to that part than to the thread, at its disparity: a fibre's far stretch)
+        with_off = any(
+            abs(own - d_off) <= SAME_DISPARITY_PX and float(t.query(xy)[0].min()) < gaps[m]
+            for t, d_off in behind
+        )
+        if not with_off and d_far - own <= SAME_DISPARITY_PX + _THREAD_SLOPE * gaps[m]:
+            continue
+        # (the tissue's readings last: nine background disparities)
+        if any(abs(own - t) <= SAME_DISPARITY_PX for t in _tissue_around(st, rows[sel], cols[sel])):
+            out[sel] = True
+            behind.append((cKDTree(_xy(rows[sel], cols[sel])), own))
+    return out
 
 
 def _local_disparity(

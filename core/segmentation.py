@@ -230,6 +230,18 @@ class SegmentationParams(Params):
         "1.5 px plus 0.1 px a px of its gap: a light fibre on the tissue that the thread "
         "crosses. Off: every such piece joins (deviation 65).",
     )
+    cut_at_tissue: bool = param(
+        True,
+        label="raw: a chosen piece's remnant at the tissue's depth",
+        doc="raw: where the chosen piece loses a part that moves with the tissue (a fibre "
+        "merged with the thread), a remnant of it cut off from the thread by that cut, "
+        "nowhere seen in front of the tissue and of at least min_length_px pixels, is judged "
+        "as a piece touching the thread (or goes with a remnant so judged nearer it): it is "
+        "dropped when its own disparity is the tissue's beside it (within 1.5 px) and lies "
+        "behind the thread's farthest block by more than 1.5 px plus 0.1 px a px of its gap "
+        "(the fibre's part left open by the surface test). Off: the remnant stays "
+        "(deviation 72).",
+    )
     red_part_floats: bool = param(
         True,
         label="raw: red piece floating in part",

@@ -685,3 +685,74 @@ def test_local_disparity_reads_the_piece_near_the_thread_only() -> None:
     asked.clear()
     own, (r, _), radius = sr._local_disparity(st, rows[:30], cols[:30], np.array([0.0, 5.0]))
     assert own is None and radius == 0.0 and len(r) == 30 and asked == []
+
+
+class _Blocks:
+    """A surface test's stand-in for :func:`sr._remnants_at_tissue`: a piece's disparity by
+    its most common column, the tissue's ``tissue`` in every block."""
+
+    def __init__(self, by_col: dict[int, int], tissue: int) -> None:
+        self.by_col, self.tissue, self.dmax = by_col, tissue, 60
+        self.this = np.zeros((256, 320), np.uint8)
+
+    def disparity(self, rows: np.ndarray, cols: np.ndarray) -> int | None:
+        return self.by_col.get(int(np.bincount(cols).argmax()))
+
+    def background_disparity(self, rows: np.ndarray, cols: np.ndarray, near=None) -> int:
+        return self.tissue
+
+
+@pytest.mark.parametrize(
+    ("d_fibre", "tissue", "vote", "dropped"),
+    [
+        (30, 30, -1, True),  # the tissue's disparity, 20 px behind the thread: a fibre
+        (30, 20, -1, False),  # behind the thread but not the tissue's disparity
+        (49, 49, -1, False),  # at the thread's own depth (a strand of it): stays
+        (30, 30, 0, False),  # seen in front of the tissue in part: stays
+    ],
+)
+def test_a_remnant_of_the_chosen_piece_at_the_tissue_s_depth_is_dropped(
+    d_fibre: int, tissue: int, vote: int, dropped: bool
+) -> None:
+    # the chosen piece: a thread down column 100 (rows 0-255, 50 px, seen in front in part),
+    # a fibre down column 140 (rows 0-127) and, joining them along rows 0-1, the part the cut
+    # takes (moving with the tissue)
+    parts = [np.mgrid[0:256, 100:102], np.mgrid[0:2, 102:140], np.mgrid[0:128, 140:142]]
+    rows = np.concatenate([p[0].ravel() for p in parts])
+    cols = np.concatenate([p[1].ravel() for p in parts])
+    order = np.lexsort((cols, rows))
+    rows, cols = rows[order], cols[order]
+    fibre, cut = cols >= 140, (cols >= 102) & (cols < 140)
+    votes = np.full(len(rows), -1, np.int8)
+    votes[(cols < 102) & (rows % 64 < 8)] = 0  # the thread's floating votes
+    votes[cut] = 1
+    votes[fibre & (rows < 4)] = vote
+    v = SimpleNamespace(rows=rows, cols=cols, _surface=_Blocks({100: 50, 140: d_fibre}, tissue))
+    out = sr._remnants_at_tissue([v, None], 0, np.arange(len(rows)), votes, ~cut, 60)
+    assert np.array_equal(out, fibre if dropped else np.zeros(len(rows), bool))
+
+
+def test_nothing_is_judged_when_the_cut_splits_nothing_off() -> None:
+    rows, cols = np.mgrid[0:256, 100:102]
+    rows, cols = rows.ravel(), cols.ravel()
+    votes = np.zeros(len(rows), np.int8)
+    v = SimpleNamespace(rows=rows, cols=cols, _surface=_Blocks({100: 30}, 30))
+    kept = rows >= 4  # the cut takes the piece's tip: one part is left
+    out = sr._remnants_at_tissue([v, None], 0, np.arange(len(rows)), votes, kept, 60)
+    assert not out.any()
+
+
+def test_a_light_fibre_merged_into_the_chosen_piece_is_dropped_past_the_cut() -> None:
+    """The "all" suite, seed 20253 #17, right view: a light fibre merged with the white thread
+    where it touches it; the block holding both is voted on the surface and cut
+    (:func:`sr._mark_part`), leaving the fibre's lower stretch (265 lo px, its blocks 33 px,
+    the tissue's 32-34, no vote in front) as a part of the chosen piece; the thread reads
+    39-47 px. With deviation 72 it is dropped; without it ~600 px of the mask are the fibre's
+    (and the curve is flagged for coverage)."""
+    frame = all_frame(20253, 17)
+    pair = StereoPair(frame.left, frame.right)
+    near = cv2.dilate(frame.mask_right.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    for on, least, most in ((False, 500, 10**6), (True, 0, 150)):
+        P_R = segment(pair, SegmentationParams(method="raw", cut_at_tissue=on)).P_R
+        assert least <= int((P_R & ~near).sum()) <= most
+        assert (P_R & frame.mask_right).sum() >= 0.7 * frame.mask_right.sum()
