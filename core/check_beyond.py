@@ -1284,48 +1284,12 @@ def bridge_stray(
     step = np.hypot(*np.diff(uv_l, axis=0).T)
     s = np.concatenate([[0.0], np.cumsum(step)])
     picks = np.unique(np.searchsorted(s, np.arange(0.0, s[-1] + 1e-9, BRIDGE_SAMPLE_PX)))
-    if both_views:
-        return _stray_both(uv, masks, greys, disparity, plain, limit_px, picks)
+    views = min if both_views else max  # how a side's reaches in the two views combine
     worst = 0.0
     for i in picks:
         if i >= len(uv_l):
             continue
         lo, hi = max(i - 1, 0), min(i + 1, len(uv_l) - 1)
-        for side in (0, 1):
-            t = uv[side][hi] - uv[side][lo]
-            nt = float(np.hypot(t[0], t[1]))
-            if nt == 0.0 or not np.all(np.isfinite(uv[side][i])):
-                return math.inf  # no direction to measure across: not bounded
-            normal = np.array([-t[1], t[0]]) / nt
-            limit = float(limit_px[i])
-            for sign in (1.0, -1.0):
-                way = sign * normal
-                reach = min(_to_border(uv[side][i], way, greys[side].shape), limit)
-                d = _walk(greys, masks, side, uv[side][i], way, float(disparity[i]), 0.0,
-                          reach, plain[side])  # fmt: skip
-                stray = limit if d >= reach else d + AHEAD_STEP_PX + 2.0
-                worst = max(worst, stray / limit)
-                if worst >= 1.0:
-                    return worst
-    return worst
-
-
-def _stray_both(
-    uv: tuple[np.ndarray, np.ndarray],
-    masks: tuple[np.ndarray, np.ndarray],
-    greys: tuple[np.ndarray, np.ndarray],
-    disparity: np.ndarray,
-    plain: tuple[tuple[float, float] | None, tuple[float, float] | None],
-    limit_px: np.ndarray,
-    picks: np.ndarray,
-) -> float:
-    """``bridge_stray`` with ``both_views``: per sample and side of the bridge, the nearer of
-    the two views' occluder reaches (the thread stays hidden only where both hide it)."""
-    worst = 0.0
-    for i in picks:
-        if i >= len(uv[0]):
-            continue
-        lo, hi = max(i - 1, 0), min(i + 1, len(uv[0]) - 1)
         normals = []
         for side in (0, 1):
             t = uv[side][hi] - uv[side][lo]
@@ -1335,14 +1299,14 @@ def _stray_both(
             normals.append(np.array([-t[1], t[0]]) / nt)
         limit = float(limit_px[i])
         for sign in (1.0, -1.0):
-            stray = limit
+            strays = []
             for side in (0, 1):
                 way = sign * normals[side]
                 reach = min(_to_border(uv[side][i], way, greys[side].shape), limit)
                 d = _walk(greys, masks, side, uv[side][i], way, float(disparity[i]), 0.0,
                           reach, plain[side])  # fmt: skip
-                stray = min(stray, limit if d >= reach else d + AHEAD_STEP_PX + 2.0)
-            worst = max(worst, stray / limit)
+                strays.append(limit if d >= reach else d + AHEAD_STEP_PX + 2.0)
+            worst = max(worst, views(strays) / limit)
             if worst >= 1.0:
                 return worst
     return worst
