@@ -243,9 +243,10 @@ class OrderingParams(Params):
     second_own_energy: bool = param(
         True,
         label="second match by its own energy",
-        doc="With second_refined: a keypoint whose cluster's summed energy of Eq. (2) is lower "
-        "at its second match than at its first (the stereo membrane's value) pays the choice's "
-        "count for keeping its first match instead (docs/method.md, deviation 74).",
+        doc="With second_refined: a keypoint whose pixels' own best matches of Eq. (3) (their "
+        "median d_min, before the stereo membrane) lie within 1 px of its second match and "
+        "over 1 px from its first (the membrane's value) pays the choice's count for keeping "
+        "its first match instead (docs/method.md, deviation 74).",
     )
 
 
@@ -1702,13 +1703,7 @@ def _jumps(
         if heading is not None and p.hidden_bridge_px > p.bridge_px and g.lifted is not None:
             return _hidden_jumps(walk, n, visited, g, p, heading, ref)
         return [], np.zeros(0), tier, []
-    c = np.array(cand)
-    chord = pos[c] - pos[cur]
-    dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
-    # chord . heading as two products and a sum (not BLAS, which may fuse them: one rounding
-    # less), the operations of walk_kernel.step_costs
-    cos_t = (chord[:, 0] * heading[0] + chord[:, 1] * heading[1]) / dist
-    cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(disp[c] - ref)
+    chord, cos_t, cost = _jump_costs(np.array(cand), cur, heading, ref, g, p)
     # across a gap: turn in and turn out each <= 90 deg (the hidden stretch heads from each
     # end towards the other; a bend under an occluder may add up to 180 deg)
     turn_in = np.degrees(np.arccos(np.clip(cos_t, -1.0, 1.0)))
@@ -1731,6 +1726,23 @@ def _jumps(
         if far[0]:
             return far
     return cand, cost, 2, why
+
+
+def _jump_costs(
+    c: np.ndarray, cur: int, heading: np.ndarray, ref: float, g: _WalkGraph, p: OrderingParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(chord (k, 2), cos of the turn into it (k,), cost (k,)) of the jumps from keypoint
+    ``cur`` (heading ``heading``, unit; reference disparity ``ref``) to the keypoints ``c``:
+    the chord's length, weighted by the bend into it, plus the disparity change."""
+    chord = g.pos[c] - g.pos[cur]
+    dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
+    # chord . heading as two products and a sum (not BLAS, which may fuse them: one rounding
+    # less), the operations of walk_kernel.step_costs
+    cos_t = (chord[:, 0] * heading[0] + chord[:, 1] * heading[1]) / dist
+    cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(
+        g.disp[c] - ref
+    )
+    return chord, cos_t, cost
 
 
 CHORD_BARE_SHARE = 0.25  # a jump under an occluder: at most this share of its way's samples
@@ -1766,10 +1778,7 @@ def _hidden_jumps(
     if not far.any():
         return [], np.zeros(0), 2, []
     c = free[far]
-    chord = pos[c] - pos[cur]
-    dist = np.maximum(np.linalg.norm(chord, axis=1), 1e-9)
-    cos_t = (chord[:, 0] * heading[0] + chord[:, 1] * heading[1]) / dist
-    cost = dist * (1.0 + p.bend_weight * (1.0 - cos_t)) + p.disparity_weight * np.abs(disp[c] - ref)
+    chord, cos_t, cost = _jump_costs(c, cur, heading, ref, g, p)
     back = int(walk[n - 3] if n >= 3 else walk[0])
     back_k = int(walk[max(n - 1 - HIDDEN_BACK_STEPS, 0)])
     here: str | None = None
