@@ -1054,13 +1054,12 @@ def _remnants_at_tissue(
         return out  # nothing cut from the piece, or no part of it seen in front of the tissue
     v = views[i]
     rows, cols = v.rows[px], v.cols[px]
-    r0, c0 = int(rows.min()), int(cols.min())
-    box = np.zeros((int(rows.max()) - r0 + 1, int(cols.max()) - c0 + 1), np.uint8)
-    box[rows[kept] - r0, cols[kept] - c0] = 1
-    n, lab = cv2.connectedComponents(box, connectivity=8)
+    lab = np.empty(int(kept.sum()), np.int64)  # (px ascending: row-major, as label_pixels takes)
+    n = label_pixels(rows[kept], cols[kept], lab)
     if n <= 2:
         return out  # one part: the cut split nothing off
-    part = np.where(kept, lab[rows - r0, cols - c0], 0)
+    part = np.zeros(len(px), np.int64)
+    part[kept] = lab
     front = np.bincount(part[votes == 0], minlength=n) > 0
     front[0] = False
     thread = front[part]
