@@ -113,8 +113,8 @@ def beyond_ends(
             radius = max_gap * f / depth[end]
             hit = None
             if fr is not None and len(_cone(*fr, masks[side], radius, MAX_TURN_COS, cover_px)[0]):
-                hit = _beyond(uv[side], pieces(masks[side]), end, cover_px,
-                              max_gap * f / depth[end], side, bare, bare_share)  # fmt: skip
+                hit = _beyond(uv[side], pieces(masks[side]), end, cover_px, radius, side, bare,
+                              bare_share)  # fmt: skip
             if hit is None and scores is None:
                 break  # no uncovered thread pixel ahead of the end: no piece beyond it
             per_view.append(hit)
