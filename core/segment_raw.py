@@ -69,6 +69,9 @@ MAX_HALF_WIDTH_PX: Final = 6.0  # a piece wider than 12 px (a 6 px thread's resp
 # is not thread
 _RED_THREAD_GAIN: Final = 3.0  # blood-like pieces win when 3x as salient as the rest
 _VESSEL_HUE_COS: Final = 0.99  # chroma contrasts within 8 degrees: one absorber (vessels)
+_STUB_PX: Final = 8  # a vessel's stub on the mask holds >= 8 px (deviation 78)
+_STUB_REACH_PX: Final = _BAND_PX - 0.5  # and reaches the band's last ring, off the thread's rim
+_VESSEL_GROUP_PX: Final = 10  # a vessel: >= 10 blood-like candidates in a group (JPEG specks: <= 9)
 _MIN_VESSEL_PX: Final = 50  # blood-like pixels needed to tell the frame's vessel hue
 _GREY_TOOL: Final = 0.12  # |log R/G|, |log B/G| below this: unsaturated, e.g. steel
 _LOG_SCALE: Final = 32.0  # channels are 32 log(.), so 1 unit ~ 3 % of contrast
@@ -162,6 +165,10 @@ def segment_raw(
     6. Mask: within _BAND_PX of the kept pixels, those with coverage >= 0.5 of a thread colour
        blended over the local background colour (see :func:`_grow_mask`); for a contrast near
        grey, with the runs it encloses across the thread (a highlight, :func:`_fill_across`).
+       Off a thread chosen without the blood-like pixels, a part of the grown pixels that are
+       blood-like, joined to a vessel's group of candidates and reaching past the thread's
+       rim is no thread (a vessel's stub where it crosses the thread, :func:`_vessel_stub`;
+       deviation 78, ``rim_blood``).
 
     Returns P_L, P_R (H, W) bool and score_L, score_R (H, W) float32 in [0, 1] (with
     ``defer_score``: :class:`core.lazy.Deferred` of them, computed when read; no stage reads
@@ -174,6 +181,7 @@ def segment_raw(
         views[0]._grey, views[1]._grey = greys
     found, salience, _, floating = _select(views, p)
     rects = _rects(found)  # the cores' bounding boxes, found once for every step below
+    red_thread = False  # the thread was chosen among the blood-like pixels (the red pass)
     if any(v.blood.any() for v in views):
         # A red thread is blood-like too: it wins back when it stands out far more than
         # anything left without the blood-like pixels, and when its hue differs from the
@@ -205,6 +213,7 @@ def segment_raw(
         ):
             views, found = red_views, red
             rects = _rects(found)
+            red_thread = True
     if found is not None and not _one_object(found, int(p.max_disparity_px), rects):
         found = None  # each view chose another line: neither is seen in both (no thread)
     if found is None:
@@ -213,9 +222,16 @@ def segment_raw(
             f"of the background (raw segmentation; ridge_hi={p.ridge_hi:g}, "
             f"min_length_px={p.min_length_px:g})"
         )
+    grown = [_grow_box(v, core, rect) for v, core, rect in zip(views, found, rects, strict=True)]
+    stubs: list[np.ndarray | None] = [None, None]
+    if not (p.rim_blood or red_thread):
+        stubs = [
+            _vessel_stub(v, core, g, p.blood_rg)
+            for v, core, g in zip(views, found, grown, strict=True)
+        ]
     out = []
-    for v, core, rect in zip(views, found, rects, strict=True):
-        mask = _thread_mask(v, core, max(int(p.min_length_px), 1), rect)
+    for v, core, g, stub in zip(views, found, grown, stubs, strict=True):
+        mask = _thread_mask(v, core, max(int(p.min_length_px), 1), grown=g, stub=stub)
         cap = 2.0 * p.ridge_hi * v.level
         out.append((mask, Deferred(_score_of, v.img, cap) if defer_score else _score(v.S, cap)))
     return out[0][0], out[1][0], out[0][1], out[1][1]
@@ -227,7 +243,12 @@ def _rects(cores: list[np.ndarray] | None) -> list[tuple[int, int, int, int]]:
 
 
 def _thread_mask(
-    v: _View, core: np.ndarray, min_px: int, rect: tuple[int, int, int, int] | None = None
+    v: _View,
+    core: np.ndarray,
+    min_px: int,
+    rect: tuple[int, int, int, int] | None = None,
+    grown: tuple[np.ndarray, tuple[slice, slice]] | None | bool = False,
+    stub: np.ndarray | None = None,
 ) -> np.ndarray:
     """(H, W) bool thread mask of the view grown from its ``core`` (H, W) uint8
     (:func:`_grow_mask`), off the instrument's body and rim, with the runs it encloses for a
@@ -238,18 +259,133 @@ def _thread_mask(
     piece through the core's pixels there. Each step runs on the box the mask is grown on
     (:func:`_grow_box`): the mask and the core lie in it, and so do the runs the mask encloses
     and its components (the same mask as the steps on the whole view, no pass over it).
-    ``rect``: the core's bounding box, when known (:func:`_rects`)."""
+    ``rect``: the core's bounding box, when known (:func:`_rects`). ``grown``: the
+    :func:`_grow_box` of the core, when computed (False: computed here). ``stub``: (H, W)
+    bool pixels that are no thread pixels (a vessel's stub, :func:`_vessel_stub`; deviation
+    78), or None."""
     mask = np.zeros(core.shape, bool)
-    if (grown := _grow_box(v, core, rect)) is None:
+    if grown is False:
+        grown = _grow_box(v, core, rect)
+    if not isinstance(grown, tuple):  # an empty core
         return mask
     box, at = grown
     if v.tool_body is not None:  # the instrument's body and rim are no thread pixels
         box &= ~v.tool_body[at]
+    if stub is not None:  # a vessel's stub where it crosses the thread (deviation 78)
+        box &= ~stub[at]
     if v.grey_core:  # a highlight on it is not told from its body by colour
         box = _fill_across(box, _HIGHLIGHT_PX)
     box &= drop_specks(box | core[at].view(bool), min_px)
     mask[at] = box
     return mask
+
+
+def _vessel_stub(
+    v: _View,
+    core: np.ndarray,
+    grown: tuple[np.ndarray, tuple[slice, slice]] | None,
+    blood_rg: float,
+) -> np.ndarray | None:
+    """(H, W) bool: the grown mask pixels of the view off its ``core`` (H, W) uint8 and off the
+    instrument that are a vessel's stub (deviation 78); None when the view holds no blood-like
+    candidate or is grey. ``grown``: the :func:`_grow_box` of the core.
+
+    A stub is a part of the blood-like grown pixels joined to a vessel (:func:`_vessel_rim`,
+    seeded by the view's groups of >= _VESSEL_GROUP_PX candidates only) that holds >= _STUB_PX
+    pixels and reaches >= _STUB_REACH_PX off the core: a piece of the vessel beside the thread.
+    A few blood-like pixels on the thread's own rim (JPEG's chroma bleeding next to a speck of
+    reddened candidates) are thread pixels; so are the rim pixels beside a vessel's crossing
+    (a part within 3 px of the core), which the other view's mask holds too."""
+    if grown is None or v.img.ndim != 3 or not v.blood.any():
+        return None
+    box, at = grown
+    box = box & ~core[at].view(bool)
+    if v.tool_body is not None:
+        box &= ~v.tool_body[at]
+    out = np.zeros(core.shape, bool)
+    rim = _vessel_rim(v, box, at, blood_rg, _VESSEL_GROUP_PX)
+    if not rim.any():
+        return out
+    n, lab = cv2.connectedComponents(rim.view(np.uint8), connectivity=8)
+    reach = cv2.distanceTransform((core[at] == 0).view(np.uint8), cv2.DIST_L2, 3)
+    far = np.zeros(n, np.float32)
+    np.maximum.at(far, lab.ravel(), reach.ravel())
+    keep = (np.bincount(lab.ravel(), minlength=n) >= _STUB_PX) & (far >= _STUB_REACH_PX)
+    keep[0] = False
+    out[at] = keep[lab]
+    return out
+
+
+def _vessel_rim(
+    v: _View, grown: np.ndarray, at: tuple[slice, slice], blood_rg: float, vessel_px: int = 1
+) -> np.ndarray:
+    """(bh, bw) bool: the pixels of ``grown`` (bh, bw) bool (grown mask pixels off the core,
+    on the view's box ``at``) that are blood-like (:func:`_blood_like`) and 8-connected through
+    blood-like grown pixels to one of the view's blood-like candidates (a vessel's pixels set
+    aside in step 2) in a group of >= ``vessel_px`` of them (:func:`_vessel_pixels`)."""
+    out = np.zeros(grown.shape, bool)
+    r, c = np.nonzero(grown)
+    flag = _blood_like(v, r + at[0].start, c + at[1].start, blood_rg)
+    if not flag.any():
+        return out
+    r, c = r[flag], c[flag]
+    # A part of the blood-like pixels joins a candidate through blood-like pixels and
+    # candidates when it touches one (past a candidate the part is the same): the parts of
+    # the blood-like pixels alone, on their box grown by a pixel, cut where a candidate is
+    # 8-adjacent.
+    y0, x0 = max(int(r.min()) - 1, 0), max(int(c.min()) - 1, 0)
+    y1, x1 = min(int(r.max()) + 2, grown.shape[0]), min(int(c.max()) + 2, grown.shape[1])
+    part = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    part[r - y0, c - x0] = 1
+    near = np.zeros_like(part)
+    br, bc = _vessel_pixels(v, vessel_px)
+    br, bc = br - (at[0].start + y0), bc - (at[1].start + x0)
+    inside = (br >= 0) & (br < part.shape[0]) & (bc >= 0) & (bc < part.shape[1])
+    if not inside.any():
+        return out
+    near[br[inside], bc[inside]] = 1
+    near = cv2.dilate(near, np.ones((3, 3), np.uint8))
+    n, lab = cv2.connectedComponents(part, connectivity=8)
+    vessel = np.zeros(n, bool)
+    vessel[lab[(near & part).view(bool)]] = True
+    vessel[0] = False
+    out[y0:y1, x0:x1] = vessel[lab]
+    return out
+
+
+def _vessel_pixels(v: _View, vessel_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns (K,) of the view's blood-like candidates in 8-connected groups of >=
+    ``vessel_px`` of them (a vessel; a smaller group is a speck, JPEG's chroma on the thread's
+    rim or the tissue's grain, deviation 78)."""
+    rows, cols = v.rows[v.blood], v.cols[v.blood]
+    if vessel_px <= 1 or rows.size == 0:
+        return rows, cols
+    lab = np.empty(rows.size, np.int64)
+    label_pixels(rows, cols, lab)
+    big = np.bincount(lab)[lab] >= vessel_px
+    return rows[big], cols[big]
+
+
+def _blood_like(v: _View, rows: np.ndarray, cols: np.ndarray, blood_rg: float) -> np.ndarray:
+    """(P,) bool: whether the view's pixels (``rows``, ``cols``) (P,) int are darker and redder
+    than the local background (the test :meth:`_View.build` sets the blood-like candidates
+    aside by, with ``blood_rg`` its :attr:`SegmentationParams.blood_rg`)."""
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    cols = np.ascontiguousarray(cols, dtype=np.int64)
+    if rows.size == 0:
+        return np.zeros(0, bool)
+    delta = _log_of_pixels(_pixels_at(v.img, rows, cols)) - blocks_at(
+        _log_of(v.bg_rgb), rows, cols, _Q
+    )
+    return _blood_flags(delta, blood_rg)
+
+
+def _blood_flags(delta: np.ndarray, blood_rg: float) -> np.ndarray:
+    """(P,) bool: blood-like contrasts ``delta`` (P, C) to the local background (log
+    channels): darker, and redder by more than ``blood_rg`` or by >= _BLOOD_RATIO of the
+    darkening."""
+    redder = (delta[:, 1] > blood_rg * _LOG_SCALE) | (delta[:, 1] >= -_BLOOD_RATIO * delta[:, 0])
+    return redder & (delta[:, 0] < 0)
 
 
 def _score_of(img: np.ndarray, cap: float) -> np.ndarray:
@@ -369,10 +505,7 @@ class _View:
         px = _pixels_at(img, rows, cols)  # (kept: the chosen core's colour reads them)
         delta = _log_of_pixels(px) - blocks_at(bg, rows, cols, _Q)
         if c > 1:
-            redder = (delta[:, 1] > p.blood_rg * _LOG_SCALE) | (
-                delta[:, 1] >= -_BLOOD_RATIO * delta[:, 0]
-            )
-            blood = redder & (delta[:, 0] < 0)
+            blood = _blood_flags(delta, p.blood_rg)
             if (
                 p.blood_speck_px > 1
                 and blood.any()

@@ -280,6 +280,18 @@ class SegmentationParams(Params):
         "thread's is not (a stretch of low contrast) joins when it lies above the tissue's "
         "by more than 3 px by each reading. Off: such pieces do not join (deviation 68).",
     )
+    rim_blood: bool = param(
+        False,
+        label="raw: vessel pixels at the thread's rim",
+        doc="raw: off a thread chosen without the blood-like pixels, the mask grown around it "
+        "(step 6) takes blood-like pixels too (darker and redder than the tissue around, the "
+        "test of step 2 on every grown pixel): a vessel crossing the thread then leaves a "
+        "stub of its own on the thread's mask, which stereo matches at the tissue's depth and "
+        "carries along a stretch of thread running along the rows. Off (default): a part of "
+        "those pixels joined to a vessel (a group of >= 10 blood-like candidates), of >= 8 px "
+        "and reaching the band's last ring off the thread, is not grown into the mask "
+        "(deviation 78).",
+    )
     ridge_hi: float = param(
         6.0,
         lo=0.0,

@@ -728,6 +728,8 @@ def test_a_distractor_piece_matched_into_the_thread_strand_supports_no_depth() -
     # third alternatives the walk leaves the piece out (length error 18.9 mm)
     params = ReconParams()
     params = replace(params, ordering=replace(params.ordering, walk_runners=1))
+    # the vessel's pixels beside the thread on its mask (deviation 78 off: that mask's curve)
+    params = replace(params, segment=replace(params.segment, rim_blood=True))
     rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(params)
     assert frame_errors(rec["camera"].points, frame.truth.centerline, calib).e_length > 20.0
     assert rec["check"].status == "suspect", rec["check"].reasons
@@ -880,7 +882,10 @@ def test_a_bridge_over_bare_tissue_matched_behind_the_curve_is_contradicted() ->
         [18140, 5, 11], background="tissue", noise_sigma=2.0, blur_sigma=0.5, distractors=8
     )
     calib = frame.camera.calibration()
-    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
+    # the blood-like pixels beside the thread on its mask (deviation 78 off: that curve)
+    params = ReconParams()
+    params = replace(params, segment=replace(params.segment, rim_blood=True))
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(params)
     _wrong_and_caught(rec, frame, calib, "bare background in both views", front_excluded=False)
 
 
@@ -1087,7 +1092,10 @@ def test_a_bridge_back_onto_the_curves_own_thread_is_suspect() -> None:
         [21141, 10, 9], background="tissue", noise_sigma=3.0, blur_sigma=0.5, jpeg_quality=60
     )
     calib = frame.camera.calibration()
-    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run()
+    # the blood-like pixels beside the thread on its mask (deviation 78 off: that curve)
+    params = ReconParams()
+    params = replace(params, segment=replace(params.segment, rim_blood=True))
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(params)
     e = _wrong_and_caught(rec, frame, calib, "leads to no thread of its own", bridge_rerun=False)
     assert e.e_length > 25.0
 
