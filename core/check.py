@@ -89,6 +89,7 @@ from threadrecon.core.check_score import (
     quality_score,
 )
 from threadrecon.core.check_support import contradicted, reliable_rows, uncontested
+from threadrecon.core.continuity import disparity_room
 from threadrecon.core.numeric import arc_px, row_norms
 from threadrecon.core.ordering import Ordering
 from threadrecon.core.params import Params, param
@@ -101,6 +102,8 @@ from threadrecon.core.stereo import StereoResult
 Status = Literal["ok", "suspect", "failed"]
 _RANK = {"ok": 0, "suspect": 1, "failed": 2}
 BAND_PX = 8  # band around the curve in which the thread width is measured, px
+END_WINDOW_PX = 15.0  # px: the tip's matching window (2 end_window_px + 1, deviation 55)
+ROW_DEG = 15.0  # deg: a stretch this close to the image rows (stereo's epipolar_deg default)
 CUT_REACH_PX = 35.0  # px searched past cut_end_px (an occluder shifts a cut by 10-25 px)
 BEYOND_COVER_PX = 2.0  # px: a thread's half-width, added to cover_px for the pieces beyond
 CONTRA_PX = 1  # px: the reliable pixels under a curve point (its pixel and 8 neighbours)
@@ -431,6 +434,30 @@ class CheckParams(Params):
         "misses that extension only (beyond_mm), as when the straight way meets bare "
         "background. Off: the straight way only (before session 22). docs/method.md, cut23 "
         "(check rule 71).",
+    )  # fmt: skip
+    bridge_outside: bool = param(
+        True, label="a bridge outside both images is unobserved",
+        doc="On: the samples of the curve outside both images between samples inside them (it "
+        "leaves the view and comes back) are part of the bridge across them (with the off-thread "
+        "runs either side), and such a bridge is allowed max_unobserved_mm, not "
+        "max_bridge_mm: no occluder hides it, nothing bounds where the thread runs there. Off: "
+        "they are left out of every run (before session 23), so a bridge out of the image and "
+        "back was judged in pieces. docs/method.md, okw27 (check rule 81).",
+    )  # fmt: skip
+    row_end_tip: bool = param(
+        True, label="an end along the rows: the far view's tip on the stop view's end row",
+        doc="On: where one view sees the thread go on more than cut_end_px farther past a "
+        "free end than the other, and the farthest pixel of that extension lies on the other "
+        "view's end row (within cover_px: along the rows), the two could be one tip seen in "
+        "both views: along the rows only where the thread ends in each view fixes the "
+        "disparity, so which view's end is cut (the curve misses the extension) or which "
+        "depth is right the images do not tell. The end's disparity may lie between its own "
+        "and that tip's (within the search's range), within one strand's continuity room of "
+        "the nearest reliable match past the end's own (or of where the curve leaves the "
+        "rows, 15 deg); an end whose matches hold on for 30 px is measured. Suspect when the "
+        "depth so allowed lies more than max_unobserved_mm from the end's "
+        "(core/check._row_end_tip). Off: no such test (before session 23). docs/method.md, "
+        "okw27 (check rule 81).",
     )  # fmt: skip
     beyond_one_view: bool = param(
         True, label="a piece beyond an end borne out by the other view's score",
@@ -781,6 +808,10 @@ def _check(
     step = row_norms(uv_l[1:] - uv_l[:-1])
     step_r = row_norms(uv_r[1:] - uv_r[:-1])
     off_l, off_r = in_l & (rho_l > p.jump_px), in_r & (rho_r > p.jump_px)
+    # samples outside both images between seen ones: a stretch no view observes (rule 81)
+    outside = _outside_between(in_l, in_r) if p.bridge_outside else np.zeros(n, dtype=bool)
+    if outside.any():
+        off_l, off_r = off_l | outside, off_r | outside
     run_l, run3_l, bridge_l = _off_thread_runs(off_l, step, step3)
     run_r, run3_r, bridge_r = _off_thread_runs(off_r, step_r, step3)
     if p.bridge_alongside and (bridge_l | bridge_r).any():
@@ -840,6 +871,10 @@ def _check(
         if not len3 > min(p.max_bridge_mm, p.max_unobserved_mm):
             continue  # within either limit: the evidence (its costly part) cannot matter
         why = _bridge_evidence(pts, uv_l, uv_r, s3, step, a, b, mm, bare, p)
+        if why is None and outside[i0:i1].any():
+            out_mm = float(step3[a:b][outside[a:b] | outside[a + 1 : b + 1]].sum())
+            why = (f"{out_mm:.1f} mm of it lie "
+                   "outside both images: no occluder hides it, no view observes it")  # fmt: skip
         if why is None and p.bridge_left_behind and len3 > p.max_unobserved_mm:
             why = _left_behind(uv_l, uv_r, lifted, z, a, b, f, mm, p)
         limit = p.max_bridge_mm if why is None else p.max_unobserved_mm
@@ -946,6 +981,7 @@ def _check(
     end_added = 0.0
     occluded = 0.0
     unoccluded: list[str] = []  # the free ends with no occluder in front of them
+    knowns = {}  # per free end, extension_far's reading (rule 81)
     if free and bare is None:
         bare = _BareBackground(lifted, (field_l, field_r), p)
     for end in free:  # a free end ends at one 3D point: both views see the thread stop there
@@ -954,6 +990,7 @@ def _check(
         reach = min(unobserved_px, p.cut_end_px + CUT_REACH_PX)
         known = extension_far((uv_l, uv_r), (lifted.P_L, lifted.P_R), end, reach,
                               p.cover_px + BEYOND_COVER_PX, p.cut_end_px)  # fmt: skip
+        knowns[end] = known
         if p.seen_beyond and min(known[0]) + 2.0 >= reach:  # both views see on to the reach
             seen = extension((uv_l, uv_r), (lifted.P_L, lifted.P_R), end,
                              unobserved_px + AHEAD_STEP_PX, p.cover_px + BEYOND_COVER_PX,
@@ -1206,6 +1243,22 @@ def _check(
                  f"{mark.measured} places stereo measures it in the two views: the curve moves "
                  "with the tissue, a mark on it (a vessel, a fibre), not a thread in front of "
                  f"it (limit {p.mark_share:.0%})")
+            )  # fmt: skip
+    # An end along the rows whose far view sees the thread go on: which view's end is cut
+    # the images do not tell, and the end's disparity lies between the two readings, within
+    # one strand's room from the nearest supported point past the end's window (rule 81).
+    for end in knowns if p.row_end_tip else ():
+        z_end = z[0] if end == "start" else z[-1]
+        alt = _row_end_tip((uv_l, uv_r), knowns[end], end, f * B / z_end, p.cut_end_px,
+                           p.cover_px, (d_lo, alpha), supported)  # fmt: skip
+        if alt is not None and abs(f * B / alt[1] - z_end) * mm > p.max_unobserved_mm:
+            findings.append(
+                ("suspect", f"the {alt[0]} view sees the thread {alt[2]:.0f} px past the "
+                 f"curve's {end} along the rows, its tip on the other view's end row, and no "
+                 f"reliable match for {alt[3]:.0f} px: the end's depth may lie anywhere from "
+                 f"{z_end * mm:.1f} to {f * B / alt[1] * mm:.1f} mm (disparity {alt[1]:.1f} "
+                 "px): along the rows only the thread's ends fix the depth, and which view's "
+                 f"end is cut the images do not tell (limit {p.max_unobserved_mm:g} mm)")
             )  # fmt: skip
     # Per-point expected error and confidence.
     unsupported = _unsupported_travel(z, supported) * mm
@@ -1926,6 +1979,73 @@ def _back_along(uv: np.ndarray, i: int, sign: int, px: float) -> np.ndarray:
     s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(run, axis=0).T))])
     k = int(np.searchsorted(s, px))
     return run[min(k, len(run) - 1)] if np.isfinite(s[-1]) else uv[i]
+
+
+def _outside_between(in_l: np.ndarray, in_r: np.ndarray) -> np.ndarray:
+    """Samples outside both images that lie between samples inside one of them: the curve
+    leaves the view and comes back (the parts past its first and last seen samples are ends
+    at the border, not stretches between)."""
+    seen = np.flatnonzero(in_l | in_r)
+    out = np.zeros(len(in_l), dtype=bool)
+    if len(seen) >= 2:
+        out[seen[0] : seen[-1]] = ~(in_l | in_r)[seen[0] : seen[-1]]
+    return out
+
+
+def _row_end_tip(
+    uv: tuple[np.ndarray, np.ndarray],
+    known: tuple[tuple[float, float], tuple[np.ndarray | None, np.ndarray | None]],
+    end: str,
+    disparity: float,
+    cut_px: float,
+    row_px: float,
+    d_range: tuple[float, float],
+    supported: np.ndarray,
+) -> tuple[str, float, float, float] | None:
+    """At a free ``end`` that one view sees the thread go on past by more than ``cut_px``
+    farther than the other (``known``: ``extension_far``), the other reading of the two
+    views' ends: the far view's farthest extension pixel and the stopping view's end tip as
+    one tip, when they lie on one row (within ``row_px``) and their disparity lies in
+    ``d_range``. The end's disparity may then lie anywhere between its own (``disparity``)
+    and that one, within one strand's room (``continuity.disparity_room``) of the nearest
+    depth the images fix: the first ``supported`` sample past the end's own supported run
+    (the end's match, the reading in question), or where the left projection leaves the rows
+    (ROW_DEG from the end, plus ``row_px``). An end whose supported run holds on past two tip
+    windows (2 END_WINDOW_PX) is measured: None. Returns (far view, the farthest disparity
+    so allowed, the extension px, the stretch's length px) or None."""
+    ext, far_px = known
+    if abs(ext[0] - ext[1]) <= cut_px or not math.isfinite(disparity):
+        return None
+    far = 0 if ext[0] > ext[1] else 1
+    px = far_px[far]
+    stop = uv[1 - far]
+    tip = stop[0] if end == "start" else stop[-1]
+    if px is None or not np.isfinite(tip).all():
+        return None
+    if abs(float(px[1]) - float(tip[1])) > row_px:
+        return None
+    d_alt = float(px[0] - tip[0]) if far == 0 else float(tip[0] - px[0])
+    if not d_range[0] <= d_alt <= d_range[1]:
+        return None
+    # the stretch along the rows from the end: past it the thread's slant fixes the disparity,
+    # and one strand's disparity changes at most disparity_room over the stretch's length
+    seq, sup = (uv[0], supported) if end == "start" else (uv[0][::-1], supported[::-1])
+    fin = np.isfinite(seq).all(axis=1)
+    seq, sup = seq[fin], sup[fin]
+    rel = seq - seq[0]
+    off = np.abs(rel[:, 1]) > row_px + np.abs(rel[:, 0]) * math.tan(math.radians(ROW_DEG))
+    arc = np.concatenate([[0.0], row_norms(np.diff(seq, axis=0)).cumsum()])
+    # the end's own run of supported samples is the reading in question unless it holds on
+    # past two tip windows (a slant the matches measure): then the end is fixed there; else the first supported sample past that run (or where the curve leaves the
+    # rows) is the nearest depth the images fix
+    first = int(np.argmax(~sup)) if (~sup).any() else len(sup)
+    if arc[min(first, len(arc) - 1)] >= 2 * END_WINDOW_PX:
+        return None
+    fixed = (sup & (np.arange(len(sup)) >= first)) | off
+    along = float(arc[int(np.argmax(fixed))]) if fixed.any() else float(arc[-1])
+    room = float(disparity_room(along))
+    d_end = disparity + float(np.clip(d_alt - disparity, -room, room))
+    return ("left" if far == 0 else "right", d_end, float(ext[far]), along)
 
 
 def _end_way(uv: np.ndarray, end: str) -> np.ndarray:

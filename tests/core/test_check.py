@@ -24,7 +24,9 @@ from threadrecon.core.check import (
     _columns_within,
     _crop,
     _end_added_length,
+    _outside_between,
     _overlap,
+    _row_end_tip,
     _rows_of_runs,
     _strand_samples,
     _surface_behind,
@@ -1154,3 +1156,83 @@ def test_thread_missed_at_both_ends_together_is_suspect() -> None:
     # the piece the right view's segmentation dropped, read in its thread score
     assert rec["check"].beyond_mm == pytest.approx(12.3, abs=0.1)
     assert _check_again(rec, calib, beyond_one_view=False).status == "ok"
+
+
+def test_samples_outside_both_images_between_seen_ones_are_a_stretch_between() -> None:
+    """Rule 81: a curve that leaves both images and comes back holds an unobserved stretch
+    between seen samples; its parts past the first and last seen samples are ends."""
+    in_l = np.array([False, True, True, False, False, True, False, False])
+    in_r = np.array([False, True, False, False, False, True, True, False])
+    out = _outside_between(in_l, in_r)
+    assert out.tolist() == [False, False, False, True, True, False, False, False]
+    assert not _outside_between(np.zeros(4, bool), np.zeros(4, bool)).any()
+
+
+def _row_curve(slope: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """A left projection from (400, 72) along +x (slope: dy/dx), its right one at 27 px."""
+    x = np.arange(400.0, 520.0)
+    uv_l = np.column_stack([x, 72.0 + slope * (x - 400.0)])
+    return uv_l, uv_l - [27.0, 0.0]
+
+
+def test_an_end_along_the_rows_whose_far_view_goes_on_has_an_unfixed_disparity() -> None:
+    """Rule 81 (raw 23253 jpeg #10's geometry): the right view sees the thread 39 px past the
+    curve's start along the rows, its farthest pixel on the left end's row: the two as one tip
+    read 66 px of disparity; with no reliable match for 90 px past the end's own 15 px, the
+    end's disparity may move by the strand's room over that stretch (1 + 0.1 px per px)."""
+    uv_l, uv_r = _row_curve()
+    known = ((0.0, 39.0), (None, np.array([334.0, 70.0])))
+    sup = np.zeros(len(uv_l), bool)
+    sup[:10] = True  # the end's own match
+    sup[100:] = True  # the slant past the stretch
+    alt = _row_end_tip((uv_l, uv_r), known, "start", 27.0, 5.0, 3.0, (1.0, 128.0), sup)
+    assert alt is not None and alt[0] == "right" and alt[2] == 39.0
+    assert alt[3] == pytest.approx(100.0)
+    assert alt[1] == pytest.approx(27.0 + 1.0 + 0.1 * 100.0)
+    # the far pixel off the end's row: not one tip
+    off_row = ((0.0, 39.0), (None, np.array([334.0, 62.0])))
+    assert _row_end_tip((uv_l, uv_r), off_row, "start", 27.0, 5.0, 3.0, (1.0, 128.0), sup) is None
+    # the end's matches hold on past two tip windows: the end is measured
+    sup[:40] = True
+    assert _row_end_tip((uv_l, uv_r), known, "start", 27.0, 5.0, 3.0, (1.0, 128.0), sup) is None
+    # a steep stretch: the curve leaves the rows at once, the room is the slack only
+    sup[10:40] = False
+    uv_l, uv_r = _row_curve(0.6)
+    known = ((0.0, 39.0), (None, np.array([334.0, 72.0])))
+    alt = _row_end_tip((uv_l, uv_r), known, "start", 27.0, 5.0, 3.0, (1.0, 128.0), sup)
+    assert alt is not None and alt[1] < 27.0 + 2.5
+
+
+def test_an_end_along_the_rows_cut_in_one_view_is_suspect() -> None:
+    """Raw 23253 jpeg #10 (okw27): the thread's top stretch runs along the rows; the left mask
+    stops where the thread crosses a dark vessel, the right runs on 39 px to the thread's
+    end. The end's depth rests on the left's false end (166 mm, the truth 124 mm): e_S^max
+    27.6 mm, "ok" before rule 81. With it: suspect for the end's unfixed depth."""
+    from threadrecon.core.metrics import frame_errors
+    from threadrecon.core.segmentation import StereoPair
+
+    frame = suite_frame(
+        [23253, 10, 10], background="tissue", noise_sigma=3.0, blur_sigma=0.5, jpeg_quality=60
+    )
+    calib = frame.camera.calibration()
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
+    e = frame_errors(rec["camera"].points, frame.truth.centerline, calib)
+    assert e.e_S_max > 20.0
+    chk = rec["check"]
+    assert chk.status == "suspect", chk.reasons
+    assert any("along the rows" in r for r in chk.reasons), chk.reasons
+    assert _check_again(rec, calib, row_end_tip=False).status == "ok"
+
+
+def test_a_bridge_out_of_both_images_and_back_is_judged_as_unobserved() -> None:
+    """Raw 23247 flat+occlusion #15 (okw27): past the thread's tip near the top border the
+    curve leaves both images for 22 mm and comes back over a shaft to a speck at the border;
+    each in-image piece of that bridge was short, the part outside counted nowhere: e_l 36
+    mm, "ok". With rule 81 the whole is one bridge of 35 mm, no occluder hiding its outside
+    part: suspect."""
+    from threadrecon.core.segmentation import StereoPair
+
+    frame = suite_frame([23247, 18, 15], occlusion=True)
+    calib = frame.camera.calibration()
+    rec = Pipeline(StereoPair(frame.left, frame.right), calib).run(ReconParams())
+    _wrong_and_caught(rec, frame, calib, "outside both images", bridge_outside=False)
