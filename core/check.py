@@ -64,6 +64,7 @@ from threadrecon.core.check_beyond import (
     end_occluder,
     extension,
     extension_far,
+    hidden_piece,
     left_behind,
     plain_surface,
     surface_ahead,
@@ -476,6 +477,16 @@ class CheckParams(Params):
         "score level) past the other free end, with no occluder there: suspect when the two "
         "together exceed max_unobserved_mm (the curve misses thread at both ends). Raw frames "
         "only. 0: off (before session 22). docs/method.md, okw24 (check rule 73).",
+    )  # fmt: skip
+    hidden_piece: bool = param(
+        True, label="an occluded end: a piece one view shows and the other hides",
+        doc="On: at a free end that runs into an occluder in both views (occluded_mm) "
+        "bounded under max_unobserved_mm, a piece of thread pixels beyond it across the "
+        "occluder in one view that the other view hides (core/check_beyond.hidden_piece: at "
+        "the end's disparity no bare background there, no thread pixels within 16 px of it) "
+        "reaching farther than max_unobserved_mm from the end: suspect (the thread runs on "
+        "under the occluder past the walked bound, peeking out in one view). Off: before "
+        "session 23. docs/method.md, okw26 (check rule 79).",
     )  # fmt: skip
     bridge_rerun: bool = param(
         True, label="a bridge back onto the curve's own thread",
@@ -1072,6 +1083,25 @@ def _check(
             continue
         reach_mm = occ.reach_px * z_end / f * mm
         occluded = max(occluded, reach_mm)
+        if p.hidden_piece and occ.reach_px <= unobserved_px:
+            # the walk bounds the occluder along the end's way; a piece one view shows past it
+            # where the other view's occluder hides the thread bounds it from below
+            shown = hidden_piece(
+                (uv_l, uv_r), (lifted.P_L, lifted.P_R), end, f * B / z_end,
+                p.cover_px + BEYOND_COVER_PX, p.max_bridge_mm / mm * f / z_end,
+                (lifted.grey_L, lifted.grey_R), bare,
+            )  # fmt: skip
+            if shown is not None:
+                missing = max(missing, shown[1] * z_end / f * mm)
+                if shown[1] > unobserved_px:
+                    findings.append(
+                        ("suspect", f"the thread at the curve's {end} runs into an occluder "
+                         f"in both views, and the {shown[0]} view shows a piece of thread "
+                         f"past it that the other view's occluder hides, reaching "
+                         f"{shown[1]:.0f} px ({shown[1] * z_end / f * mm:.1f} mm) from the "
+                         "end: the thread runs on under the occluder (limit "
+                         f"{p.max_unobserved_mm:g} mm)")
+                    )  # fmt: skip
         if occ.reach_px > unobserved_px:
             findings.append(
                 ("suspect", f"the thread at the curve's {end} runs into an occluder "

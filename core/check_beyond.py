@@ -1469,3 +1469,67 @@ def _line_maps(scores: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.nd
         cv2.dilate(np.ascontiguousarray(scores[0], np.float32), _DILATE3),
         cv2.dilate(np.ascontiguousarray(scores[1], np.float32), right_kernel),
     )
+
+
+HIDDEN_SHIFTS_PX = (-16.0, -12.0, -8.0, -4.0, 0.0, 4.0, 8.0, 12.0, 16.0)  # off the end's disparity
+HIDDEN_PATCHES = 5  # patches of the other view measured along a one-view piece
+HIDDEN_HELD = 0.2  # at most this share of a one-view piece the other view's mask may hold
+
+
+def hidden_piece(
+    uv: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    end: str,
+    disparity: float,
+    cover_px: float,
+    max_gap_px: float,
+    greys: tuple[np.ndarray, np.ndarray],
+    bare: Callable[[int, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+) -> tuple[str, float] | None:
+    """A piece of thread pixels beyond the curve's free ``end`` across an occluder in one view
+    (``_beyond``: within 45 deg of the end's way, the gap not bare) that the other view hides:
+    at the end's ``disparity`` its place there is no bare background, and no shift within 16
+    px of it puts more than HIDDEN_HELD of the piece on the other view's thread pixels (a
+    piece both views hold is ``beyond_ends``'). Returns the view that shows it ("left" /
+    "right") and its reach (px from the end to its far side, in that view), the farther of
+    the two views' such pieces; None when there is none."""
+    if not (math.isfinite(disparity) and disparity > 0):
+        return None
+    best = None
+    for side in (0, 1):
+        # the gap lies over the occluder the end runs into (found in both views): not tested
+        # as a bridge's (the ring's level at an end touching a shaft mixes shaft and surface)
+        hit = _beyond(uv[side], pieces(masks[side]), end, cover_px, max_gap_px, side, bare, 1.0)
+        if hit is None:
+            continue
+        px = hit[3]
+        sub = px[:: max(1, len(px) // PIECE_SAMPLES)]
+        sign = -1.0 if side == 0 else 1.0  # left x is seen at x - d in the right view
+        other = masks[1 - side]
+        h, w = other.shape
+        held = 0.0
+        for off in HIDDEN_SHIFTS_PX:
+            q = np.rint(sub + [sign * (disparity + off), 0.0]).astype(np.intp)
+            inside = (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
+            if not inside.all():
+                held = 1.0  # off the other image: nothing to tell
+                break
+            held = max(held, float(np.mean(other[q[:, 1], q[:, 0]])))
+        if held > HIDDEN_HELD:
+            continue
+        # the other view's patches where the piece would lie at the end's depth: stereo
+        # measures a surface in front of the end there (the occluder) more often than one at
+        # or behind it (the piece's far side may leave the occluder's edge)
+        front = behind = 0
+        row = np.array([1.0, 0.0])
+        for xy in sub[np.linspace(0, len(sub) - 1, HIDDEN_PATCHES).round().astype(int)]:
+            at = xy + [sign * disparity, 0.0] - patch_t(0.0) * row
+            d, _ = surface_ahead(greys, masks, 1 - side, at, row, disparity)
+            if d is not None:
+                front += d > AHEAD_NEAR_PX
+                behind += d <= AHEAD_NEAR_PX
+        if front <= behind:
+            continue  # the other view shows the surface there: the thread would be seen
+        if best is None or hit[1] > best[1]:
+            best = ("left" if side == 0 else "right", hit[1])
+    return best

@@ -1036,3 +1036,50 @@ def test_borne_out_reads_a_one_view_piece_in_the_other_views_score() -> None:
     right[100, 176:237] = 1.0
     assert _borne_out(piece - [24.0, 0.0], 1, (left, right), 24.0)
     assert not _borne_out(piece - [24.0, 0.0], 1, (left, right), 60.0)
+
+
+def test_a_masked_frame_whose_thread_peeks_out_along_a_shaft_is_not_ok() -> None:
+    """``mkcheck.sh 22241`` occlusion_7 (generate --seed 22244, frame 7, masks given; okw26):
+    the thread ends at a shaft's tip and runs on hidden along the shaft; the walk bounds the
+    occluder at 19.2 mm, but the right view shows a sliver of the thread at the shaft's upper
+    edge, 149 px (20.5 mm) from the end, where the left view's shaft hides it."""
+    from dataclasses import replace
+
+    from threadrecon.core.pipeline import Pipeline, ReconParams
+
+    rec, err, pair, calib = _masked_occlusion_frame([22244, 7])
+    assert err.e_length > 20.0  # wrong: the thread goes on under the shaft
+    assert rec.status == "suspect"
+    assert "the right view shows a piece of thread past it that the other view" in rec.message
+    off = ReconParams()
+    off = replace(off, check=replace(off.check, hidden_piece=False))
+    assert Pipeline(pair, calib).run(off).status == "ok"
+
+
+def test_hidden_piece_needs_the_other_view_to_hide_it(monkeypatch) -> None:
+    """``hidden_piece`` at 22241 occlusion_7's end (its arguments as the check passes them):
+    the right view's sliver, hidden by the left view's shaft, reaches ~149 px; drawn into the
+    left mask at the end's disparity (both views hold it: ``beyond_ends``' case) it is no
+    longer one view's piece."""
+    import threadrecon.core.check as check_module
+    from threadrecon.core.check_beyond import hidden_piece
+
+    calls = []
+
+    def spy(*args):
+        calls.append(args)
+        return hidden_piece(*args)
+
+    monkeypatch.setattr(check_module, "hidden_piece", spy)
+    _masked_occlusion_frame([22244, 7])
+    assert len(calls) == 1
+    uv, masks, end, disparity, *rest = calls[0]
+    shown = hidden_piece(uv, masks, end, disparity, *rest)
+    assert shown is not None and shown[0] == "right" and 140.0 < shown[1] < 160.0
+    right = np.asarray(masks[1], dtype=bool)
+    ys, xs = np.nonzero(right)
+    far = xs < uv[1][-1, 0] - 50.0  # the sliver: the curve runs right of its end
+    left = np.array(masks[0], dtype=bool)
+    x_l = np.clip(np.rint(xs[far] + disparity).astype(int), 0, left.shape[1] - 1)
+    left[ys[far], x_l] = True
+    assert hidden_piece(uv, (left, masks[1]), end, disparity, *rest) is None
