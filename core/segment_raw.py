@@ -358,11 +358,9 @@ def _vessel_pixels(v: _View, vessel_px: int) -> tuple[np.ndarray, np.ndarray]:
     ``vessel_px`` of them (a vessel; a smaller group is a speck, JPEG's chroma on the thread's
     rim or the tissue's grain, deviation 78)."""
     rows, cols = v.rows[v.blood], v.cols[v.blood]
-    if vessel_px <= 1 or rows.size == 0:
+    if rows.size == 0:
         return rows, cols
-    lab = np.empty(rows.size, np.int64)
-    label_pixels(rows, cols, lab)
-    big = np.bincount(lab)[lab] >= vessel_px
+    big = _group_sizes(rows, cols) >= vessel_px
     return rows[big], cols[big]
 
 
@@ -535,9 +533,15 @@ def _has_group(flag: np.ndarray, rows: np.ndarray, cols: np.ndarray, min_px: int
     at = np.flatnonzero(flag)
     if len(at) < min_px:
         return False
-    lab = np.empty(len(at), np.int64)
-    label_pixels(rows[at], cols[at], lab)
-    return int(np.bincount(lab).max()) >= min_px
+    return int(_group_sizes(rows[at], cols[at]).max()) >= min_px
+
+
+def _group_sizes(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(M,) int: for each of the pixels (rows, cols) (M,) (row-major order), the size of the
+    8-connected group of them it lies in (:func:`label_pixels`)."""
+    lab = np.empty(rows.size, np.int64)
+    label_pixels(rows, cols, lab)
+    return np.bincount(lab)[lab]
 
 
 def _points(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
