@@ -2066,8 +2066,9 @@ def _row_end_tip(
     off = np.abs(rel[:, 1]) > row_px + np.abs(rel[:, 0]) * math.tan(math.radians(ROW_DEG))
     arc = np.concatenate([[0.0], row_norms(np.diff(seq, axis=0)).cumsum()])
     # the end's own run of supported samples is the reading in question unless it holds on
-    # past two tip windows (a slant the matches measure): then the end is fixed there; else the first supported sample past that run (or where the curve leaves the
-    # rows) is the nearest depth the images fix
+    # past two tip windows (a slant the matches measure: the end is fixed there); else the
+    # first supported sample past that run (or where the curve leaves the rows) is the
+    # nearest depth the images fix
     first = int(np.argmax(~sup)) if (~sup).any() else len(sup)
     if arc[min(first, len(arc) - 1)] >= 2 * END_WINDOW_PX:
         return None
